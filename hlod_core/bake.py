@@ -1,0 +1,278 @@
+"""Bake an octree HLOD from triangles (DESIGN §4), as a pipeline of named phases:
+
+    prepare  -> file-relative float32 positions, triangle centroids
+    octree   -> top-down partition (octree.build_octree)
+    leaves   -> each leaf keeps its original triangles
+    simplify -> inner nodes bottom-up: weld, quadric decimation, Hausdorff MSE (simplify.py);
+                independent subtrees run in parallel worker processes (`jobs`)
+    assemble -> one vertex and one index buffer, node ranges
+    bounds   -> tight nested boxes, nested spheres, monotone MSE, cube sides (vectorised per level)
+
+After Charalambos' dissertation (`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`
+§3.3, §8: octree, one LOD of ~2000 triangles per node, offline bottom-up simplification).
+"""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import logging
+import multiprocessing
+import os
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from typing import Callable
+
+import numpy as np
+
+from . import simplify
+from .errors import BakeCancelled, InputError
+from .hierarchy import Hlod, cube_sides, query_box_pad
+from .meshio import TriangleMesh
+from .octree import OctreeLayout, build_octree
+
+log = logging.getLogger(__name__)
+
+#: progress(done_nodes, total_nodes, phase)
+ProgressFn = Callable[[int, int, str], None]
+CancelFn = Callable[[], bool]
+
+_MAX_LOG_LINES = 200
+
+
+@dataclass(frozen=True)
+class BakeSettings:
+    """target_tris: triangles per node (leaf budget and LOD size); max_depth: deepest node level
+    (root = 0); jobs: worker processes for decimation (1 = in this process); the rest go to
+    simplify.DecimationSettings."""
+
+    target_tris: int = 2000
+    max_depth: int = 12
+    jobs: int = 1
+    quality_threshold: float = 0.3
+    preserve_normals: bool = False
+    boundary_weight: float = 1.0
+
+    def __post_init__(self):
+        if self.target_tris < 1:
+            raise InputError(f"target_tris must be at least 1, got {self.target_tris}")
+        if not 0 <= self.max_depth <= 64:
+            raise InputError(f"max_depth must be between 0 and 64, got {self.max_depth}")
+        if self.jobs < 1:
+            raise InputError(f"jobs must be at least 1, got {self.jobs}")
+        if not 0.0 <= self.quality_threshold <= 1.0:
+            raise InputError(f"quality_threshold must be in [0, 1], got {self.quality_threshold}")
+
+    def decimation(self) -> simplify.DecimationSettings:
+        return simplify.DecimationSettings(target_tris=self.target_tris, quality_threshold=self.quality_threshold,
+                                           preserve_normals=self.preserve_normals,
+                                           boundary_weight=self.boundary_weight)
+
+
+def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
+         progress: ProgressFn | None = None, cancel: CancelFn | None = None,
+         sources: list[str] | None = None) -> Hlod:
+    """Bake `mesh` into an Hlod. Raises InputError for unusable input, BakeCancelled if `cancel()`
+    turns true (checked between nodes). Writes nothing to disk except worker scratch files."""
+    started = time.perf_counter()
+    progress = progress or (lambda done, total, phase: None)
+    cancel = cancel or (lambda: False)
+    bake_log: list[str] = []
+
+    origin, positions, faces, centroids = _prepare(mesh)
+    layout = build_octree(centroids, target_tris=settings.target_tris, max_depth=settings.max_depth)
+    del centroids
+    n = layout.node_count
+    progress(0, n, "octree")
+    log.info("octree: %d nodes, %d leaves", n, int((layout.child_count == 0).sum()))
+
+    ordered_faces = faces[layout.tri_order]
+    lods: list[tuple] = [None] * n  # (positions f32, faces int32, normals or None)
+    hausdorff = np.zeros(n, np.float64)
+    normals_in = mesh.normals
+    for node in np.flatnonzero(layout.child_count == 0):
+        p, f, used = simplify.compact(positions, ordered_faces[layout.tri_begin[node]:layout.tri_end[node]])
+        lods[node] = (p, f, None if normals_in is None else normals_in[used])
+    done = n - int((layout.child_count > 0).sum())
+    progress(done, n, "simplify")
+
+    for node, lod in _simplify_inner_nodes(layout, lods, positions, ordered_faces, settings,
+                                           with_normals=normals_in is not None, cancel=cancel):
+        lods[node] = (lod.positions, lod.faces, lod.normals)
+        hausdorff[node] = lod.hausdorff
+        _note_lod(bake_log, node, lod, settings.target_tris)
+        done += 1
+        progress(done, n, "simplify")
+    if cancel():
+        raise BakeCancelled("bake cancelled")
+
+    hlod = _assemble(layout, lods, origin, hausdorff, normals=normals_in is not None)
+    seconds = time.perf_counter() - started
+    over_budget = int(((layout.child_count == 0) & (layout.tri_end - layout.tri_begin > settings.target_tris)).sum())
+    meta = {
+        "generator": "hlod_core",
+        "input_tris": mesh.tri_count,
+        "input_vertices": int(mesh.positions.shape[0]),
+        "settings": asdict(settings),
+        "target_tris": settings.target_tris,
+        "max_depth": settings.max_depth,
+        "sources": list(sources or [mesh.name]),
+        "leaves_over_budget": over_budget,
+        "bake_seconds": seconds,
+        "log": bake_log[:_MAX_LOG_LINES],
+        "log_lines_dropped": max(0, len(bake_log) - _MAX_LOG_LINES),
+    }
+    progress(n, n, "done")
+    return hlod.replace(meta=meta)
+
+
+def _prepare(mesh: TriangleMesh):
+    """origin (3,) f64 = centre of the used vertices' box; positions (v,3) f32 relative to it;
+    faces (f,3) int64; centroids (f,3) f64 of the float32 positions (what is stored is what is split)."""
+    if mesh.tri_count == 0:
+        raise InputError(f"{mesh.name}: the mesh has no triangles")
+    used = np.zeros(mesh.positions.shape[0], bool)
+    used[mesh.faces.ravel()] = True
+    p_used = mesh.positions[used]
+    if not np.all(np.isfinite(p_used)):
+        raise InputError(f"{mesh.name}: vertices used by faces have NaN or infinite coordinates")
+    origin = 0.5 * (p_used.min(axis=0) + p_used.max(axis=0))
+    rel = mesh.positions - origin
+    rel[~used] = 0.0  # unused vertices may hold anything (even NaN); they are never stored
+    positions = rel.astype(np.float32)
+    if not np.all(np.isfinite(positions)):
+        raise InputError(f"{mesh.name}: coordinates exceed the float32 range after centring")
+    tri = positions[mesh.faces].astype(np.float64)
+    centroids = tri.mean(axis=1)
+    return origin, positions, mesh.faces, centroids
+
+
+# --- simplify phase: in this process, or in worker processes sharing the input through files ----
+
+_SHARED: dict[str, np.ndarray] = {}
+
+
+def _init_worker(positions_path: str, faces_path: str) -> None:
+    _SHARED["positions"] = np.load(positions_path, mmap_mode="r")
+    _SHARED["faces"] = np.load(faces_path, mmap_mode="r")
+
+
+def _simplify_task(child_lods, tri_begin: int, tri_end: int, settings, with_normals: bool):
+    """Runs in a worker (or inline): the node's original triangles come from the shared arrays."""
+    p, f, _ = simplify.compact(_SHARED["positions"], np.asarray(_SHARED["faces"][tri_begin:tri_end]))
+    return simplify.simplify_node(child_lods, (np.asarray(p), f), settings, with_normals=with_normals)
+
+
+def _simplify_inner_nodes(layout: OctreeLayout, lods, positions, ordered_faces, settings: BakeSettings,
+                          *, with_normals: bool, cancel: CancelFn):
+    """Yield (node, NodeLod) for every inner node, children always before their parent."""
+    inner = np.flatnonzero(layout.child_count > 0)
+    if inner.size == 0:
+        return
+    dec = settings.decimation()
+
+    def task_args(node):
+        kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
+        return ([(lods[k][0], lods[k][1]) for k in kids], int(layout.tri_begin[node]),
+                int(layout.tri_end[node]), dec, with_normals)
+
+    if settings.jobs == 1 or inner.size == 1:
+        _SHARED.update(positions=positions, faces=ordered_faces)
+        try:
+            for node in inner[::-1]:  # breadth-first ids: reversed, children come before parents
+                if cancel():
+                    raise BakeCancelled("bake cancelled")
+                yield int(node), _simplify_task(*task_args(node))
+        finally:
+            _SHARED.clear()
+        return
+
+    waiting = layout.child_count.astype(np.int64).copy()
+    waiting[layout.child_count == 0] = 0
+    for leaf in np.flatnonzero(layout.child_count == 0):
+        if layout.parent[leaf] >= 0:
+            waiting[layout.parent[leaf]] -= 1
+    with tempfile.TemporaryDirectory(prefix="hlod-bake-") as scratch:
+        pos_path, faces_path = os.path.join(scratch, "positions.npy"), os.path.join(scratch, "faces.npy")
+        np.save(pos_path, positions)
+        np.save(faces_path, ordered_faces)
+        pool = cf.ProcessPoolExecutor(max_workers=settings.jobs, mp_context=multiprocessing.get_context("spawn"),
+                                      initializer=_init_worker, initargs=(pos_path, faces_path))
+        try:
+            running = {}
+            # deepest first, so long chains start early
+            for node in sorted((int(x) for x in inner if waiting[x] == 0), key=lambda x: -layout.depth[x]):
+                running[pool.submit(_simplify_task, *task_args(node))] = node
+            while running:
+                finished, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED, timeout=0.25)
+                if cancel():
+                    raise BakeCancelled("bake cancelled")
+                for fut in finished:
+                    node = running.pop(fut)
+                    lod = fut.result()
+                    lods[node] = (lod.positions, lod.faces, lod.normals)
+                    yield node, lod
+                    parent = int(layout.parent[node])
+                    if parent >= 0:
+                        waiting[parent] -= 1
+                        if waiting[parent] == 0:
+                            running[pool.submit(_simplify_task, *task_args(parent))] = parent
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, target_tris: int) -> None:
+    tris = lod.faces.shape[0]
+    if not lod.decimated:
+        bake_log.append(f"node {node}: children hold {lod.input_tris} <= {target_tris} triangles; kept undecimated")
+    elif tris >= lod.input_tris:
+        bake_log.append(f"node {node}: LOD has {tris} triangles, not smaller than its children's {lod.input_tris}")
+    elif tris > 2 * target_tris:
+        bake_log.append(f"node {node}: decimation stopped at {tris} triangles (target {target_tris}); "
+                        "boundary preservation keeps the cell's border")
+    if not np.isfinite(lod.hausdorff):
+        bake_log.append(f"node {node}: Hausdorff distance unavailable; error bounded by the node's box diagonal")
+
+
+# --- assemble and bounds ------------------------------------------------------------------------
+
+def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool) -> Hlod:
+    n = layout.node_count
+    vertex_count = np.array([l[0].shape[0] for l in lods], np.int64)
+    tri_count = np.array([l[1].shape[0] for l in lods], np.int64)
+    if np.any(tri_count == 0):
+        raise InputError("a node's LOD came out empty (pymeshlab removed every triangle)")
+    vertex_offset = np.concatenate([[0], np.cumsum(vertex_count)[:-1]])
+    tri_offset = np.concatenate([[0], np.cumsum(tri_count)[:-1]])
+    if vertex_count.sum() >= 2**32:
+        raise InputError(f"the HLOD would need {int(vertex_count.sum())} vertices, more than 32-bit indices address")
+    positions = np.concatenate([l[0] for l in lods]).astype(np.float32)
+    indices = np.concatenate([l[1].astype(np.int64) + o for l, o in zip(lods, vertex_offset)]).astype(np.uint32)
+    node_normals = np.concatenate([l[2] for l in lods]).astype(np.float32) if normals else None
+
+    world = positions.astype(np.float64) + origin
+    lod_box_min = np.minimum.reduceat(world, vertex_offset, axis=0)
+    lod_box_max = np.maximum.reduceat(world, vertex_offset, axis=0)
+    box_min, box_max = lod_box_min.copy(), lod_box_max.copy()
+    levels = [np.flatnonzero(layout.depth == d) for d in range(int(layout.depth.max()), 0, -1)]
+    for nodes in levels:  # deepest first: a child's subtree box is final before its parent's
+        np.minimum.at(box_min, layout.parent[nodes], box_min[nodes])
+        np.maximum.at(box_max, layout.parent[nodes], box_max[nodes])
+
+    center = 0.5 * (box_min + box_max)
+    owner = np.repeat(np.arange(n), vertex_count)
+    radius = np.maximum.reduceat(np.linalg.norm(world - center[owner], axis=1), vertex_offset)
+    diag = np.linalg.norm(box_max - box_min, axis=1)
+    error = np.where(np.isfinite(hausdorff), hausdorff, diag)
+    error[layout.child_count == 0] = 0.0
+    for nodes in levels:
+        parents = layout.parent[nodes]
+        np.maximum.at(radius, parents, np.linalg.norm(center[nodes] - center[parents], axis=1) + radius[nodes])
+        np.maximum.at(error, parents, error[nodes])
+
+    return Hlod(parent=layout.parent, child_offset=layout.child_offset, child_count=layout.child_count,
+                depth=layout.depth, lod_box_min=lod_box_min, lod_box_max=lod_box_max, box_min=box_min,
+                box_max=box_max, sphere_center=center, sphere_radius=radius, error=error,
+                cube_side=cube_sides(box_min, box_max, query_box_pad(box_min, box_max)),
+                tri_offset=tri_offset, tri_count=tri_count, vertex_offset=vertex_offset,
+                vertex_count=vertex_count, origin=np.asarray(origin, np.float64), positions=positions,
+                indices=indices, normals=node_normals)

@@ -1,0 +1,135 @@
+"""Command line of the core: `python -m hlod_core COMMAND ...`.
+
+Contract (later checks rely on it): the last line of stdout is one JSON object; progress and
+messages go to stderr; bad input exits with status 2 and one line naming the file and the fault.
+
+    bake INPUT [INPUT ...] -o OUT.hlod [--target-tris 2000] [--max-depth 12] [--jobs N]
+    info FILE.hlod
+    scene default -o OUT.hlod [--seed N] [--scale S] [--jobs N]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+import time
+
+from . import checks, fileformat, meshio, scenes
+from .bake import BakeSettings, bake
+from .errors import HlodError
+
+log = logging.getLogger("hlod_core")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, stream=sys.stderr,
+                        format="hlod_core: %(message)s")
+    try:
+        result = args.run(args)
+    except HlodError as exc:
+        print(f"hlod_core: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        where = exc.filename or "output"
+        print(f"hlod_core: error: {where}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(result))
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m hlod_core", description="Bake and inspect octree HLODs.")
+    parser.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("bake", help="bake mesh files and/or JSON scene specs into one .hlod")
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="OBJ/PLY/STL/GLB file or JSON scene spec")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
+    _bake_options(p)
+    p.set_defaults(run=_cmd_bake)
+
+    p = sub.add_parser("info", help="counts and invariant checks of a .hlod file")
+    p.add_argument("file", metavar="FILE.hlod")
+    p.set_defaults(run=_cmd_info)
+
+    p = sub.add_parser("scene", help="bake a procedural scene made by the project (no input files)")
+    p.add_argument("name", choices=["default"])
+    p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--scale", type=float, default=1.0, help="size factor (1 = CI-sized)")
+    _bake_options(p)
+    p.set_defaults(run=_cmd_scene)
+    return parser
+
+
+def _bake_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--target-tris", type=int, default=BakeSettings.target_tris)
+    p.add_argument("--max-depth", type=int, default=BakeSettings.max_depth)
+    p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1; 0 = one per core)")
+    p.add_argument("--quality-threshold", type=float, default=BakeSettings.quality_threshold)
+    p.add_argument("--preserve-normals", action="store_true", help="forbid face flips during decimation")
+
+
+def _settings(args) -> BakeSettings:
+    jobs = args.jobs if args.jobs > 0 else (os.cpu_count() or 1)
+    return BakeSettings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=jobs,
+                        quality_threshold=args.quality_threshold, preserve_normals=args.preserve_normals)
+
+
+def _bake_and_save(mesh, args, sources) -> dict:
+    settings = _settings(args)
+    started = time.perf_counter()
+    hlod = bake(mesh, settings, progress=_Progress(), sources=sources)
+    fileformat.save(hlod, args.output)
+    seconds = time.perf_counter() - started
+    for line in hlod.meta["log"]:
+        log.info(line)
+    summary = hlod.summary()
+    summary.update(output=str(args.output), jobs=settings.jobs, seconds=seconds,
+                   tris_per_second=summary["input_tris"] / seconds if seconds > 0 else None)
+    return summary
+
+
+def _cmd_bake(args) -> dict:
+    started = time.perf_counter()
+    mesh = meshio.load_inputs(args.inputs)
+    load_seconds = time.perf_counter() - started
+    summary = _bake_and_save(mesh, args, [str(p) for p in args.inputs])
+    summary["load_seconds"] = load_seconds
+    return summary
+
+
+def _cmd_scene(args) -> dict:
+    mesh = scenes.default_scene(seed=args.seed, scale=args.scale)
+    summary = _bake_and_save(mesh, args, [mesh.name])
+    summary["scene"] = args.name
+    return summary
+
+
+def _cmd_info(args) -> dict:
+    started = time.perf_counter()
+    hlod = fileformat.load(args.file)
+    open_seconds = time.perf_counter() - started
+    out = hlod.summary()
+    out.update(checks.check(hlod))
+    out.update(file=str(args.file), open_seconds=open_seconds, target_tris=hlod.meta.get("target_tris"),
+               max_depth=hlod.meta.get("max_depth"), sources=hlod.meta.get("sources"),
+               has_normals=hlod.normals is not None)
+    return out
+
+
+class _Progress:
+    """Reports bake progress to the log every 10%."""
+
+    def __init__(self):
+        self._next = 0.0
+
+    def __call__(self, done: int, total: int, phase: str) -> None:
+        fraction = done / total if total else 1.0
+        if fraction >= self._next or phase == "done":
+            log.info("bake %s: %d/%d nodes (%.0f%%)", phase, done, total, 100 * fraction)
+            self._next = fraction + 0.1

@@ -1,0 +1,135 @@
+"""The HLOD node table: structure of arrays, one row per node, root = row 0.
+
+Implements the data model of DESIGN §3 (after the octree HLODs of Charalambos' dissertation,
+`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`, §3.3: one discrete LOD of
+about `target_tris` triangles per node, a model-space error per node, nested bounding volumes).
+
+Nodes are numbered breadth first, so the children of a node are contiguous:
+`child_offset[i] .. child_offset[i] + child_count[i] - 1` (`child_offset = -1` for a leaf).
+
+Geometry lives in one shared buffer: `positions` are float32 *relative to* `origin` (float64), so
+a model placed 1e6 units away keeps its precision; `indices` are global rows into `positions`, and
+node i draws triangles `tri_offset[i] .. tri_offset[i] + tri_count[i] - 1` (one ranged draw).
+Bounds are float64 in world (model) units.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Query boxes (DESIGN §5.4) are enlarged by this fraction of the root box diagonal; the cube side
+#: of DESIGN §5.3 is computed on the enlarged box so that flat boxes keep a non-zero cube.
+QUERY_BOX_PAD_FRACTION = 1e-3
+
+# name -> (dtype, trailing shape); the leading dimension is the node count.
+NODE_ARRAYS: dict[str, tuple[str, tuple[int, ...]]] = {
+    "parent": ("<i4", ()),
+    "child_offset": ("<i4", ()),
+    "child_count": ("<i4", ()),
+    "depth": ("<i4", ()),
+    "lod_box_min": ("<f8", (3,)),
+    "lod_box_max": ("<f8", (3,)),
+    "box_min": ("<f8", (3,)),
+    "box_max": ("<f8", (3,)),
+    "sphere_center": ("<f8", (3,)),
+    "sphere_radius": ("<f8", ()),
+    "error": ("<f8", ()),
+    "cube_side": ("<f8", ()),
+    "tri_offset": ("<i8", ()),
+    "tri_count": ("<i8", ()),
+    "vertex_offset": ("<i8", ()),
+    "vertex_count": ("<i8", ()),
+}
+
+
+@dataclass(frozen=True, eq=False)
+class Hlod:
+    """A baked HLOD.
+
+    Node table (n rows): see NODE_ARRAYS for dtypes.
+      parent (n,) int32, -1 for the root; child_offset/child_count (n,) int32; depth (n,) int32,
+      root 0; lod_box_min/max (n,3) float64: tight box of the node's own LOD geometry;
+      box_min/max (n,3) float64: tight box of the LOD and all descendants (nested);
+      sphere_center (n,3), sphere_radius (n,) float64: contains the LOD and the children's spheres;
+      error (n,) float64: model-space error (MSE), model units, 0 at leaves, monotone up the tree;
+      cube_side (n,) float64: side of the cube with the (padded) box's volume, model units;
+      tri_offset/tri_count, vertex_offset/vertex_count (n,) int64: ranges into the buffers.
+    Geometry: origin (3,) float64; positions (v,3) float32 relative to origin;
+      indices (t,3) uint32 global rows of positions; normals (v,3) float32 or None.
+    meta: JSON-serialisable bake description (target_tris, max_depth, input_tris, sources, ...).
+    """
+
+    parent: np.ndarray
+    child_offset: np.ndarray
+    child_count: np.ndarray
+    depth: np.ndarray
+    lod_box_min: np.ndarray
+    lod_box_max: np.ndarray
+    box_min: np.ndarray
+    box_max: np.ndarray
+    sphere_center: np.ndarray
+    sphere_radius: np.ndarray
+    error: np.ndarray
+    cube_side: np.ndarray
+    tri_offset: np.ndarray
+    tri_count: np.ndarray
+    vertex_offset: np.ndarray
+    vertex_count: np.ndarray
+    origin: np.ndarray
+    positions: np.ndarray
+    indices: np.ndarray
+    normals: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def node_count(self) -> int:
+        return int(self.parent.shape[0])
+
+    @property
+    def is_leaf(self) -> np.ndarray:
+        """(n,) bool."""
+        return self.child_count == 0
+
+    def node_arrays(self) -> dict[str, np.ndarray]:
+        return {name: getattr(self, name) for name in NODE_ARRAYS}
+
+    def replace(self, **changes) -> "Hlod":
+        return dataclasses.replace(self, **changes)
+
+    def summary(self) -> dict:
+        """Counts shared by `bake` and `info` (DESIGN §4; the CLI's JSON contract)."""
+        leaves = self.is_leaf
+        return {
+            "nodes": self.node_count,
+            "leaves": int(leaves.sum()),
+            "depth": int(self.depth.max()),
+            "input_tris": int(self.meta.get("input_tris", -1)),
+            "leaf_tris": int(self.tri_count[leaves].sum()),
+            "root_tris": int(self.tri_count[0]),
+            "total_tris": int(self.indices.shape[0]),
+            "max_error": float(self.error.max()),
+        }
+
+
+def cube_sides(box_min: np.ndarray, box_max: np.ndarray, pad: float) -> np.ndarray:
+    """Side of the cube with the volume of each box enlarged by `pad` on every face (DESIGN §5.3).
+
+    box_min, box_max: (n,3) float64; pad: model units. Returns (n,) float64 > 0 when pad > 0.
+    """
+    extent = (box_max - box_min) + 2.0 * pad
+    return np.cbrt(np.prod(extent, axis=1))
+
+
+def query_box_pad(box_min: np.ndarray, box_max: np.ndarray) -> float:
+    """Query-box enlargement (model units) for an HLOD whose root box is row 0."""
+    diag = float(np.linalg.norm(box_max[0] - box_min[0]))
+    return QUERY_BOX_PAD_FRACTION * diag if diag > 0 else QUERY_BOX_PAD_FRACTION
+
+
+def segment_ranges(offsets: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Concatenation of arange(o, o + c) for each pair (o, c), vectorised: (sum(counts),) int64."""
+    counts = np.asarray(counts, np.int64)
+    starts = np.repeat(np.asarray(offsets, np.int64) - (np.cumsum(counts) - counts), counts)
+    return np.arange(int(counts.sum()), dtype=np.int64) + starts

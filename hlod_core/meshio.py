@@ -1,0 +1,182 @@
+"""Bake input: triangle meshes as numpy arrays, read from OBJ/PLY/STL/GLB files or scene specs.
+
+Data form: `TriangleMesh` = positions (v,3) float64 model units, faces (f,3) int64 rows of
+positions, optional normals (v,3) float32. Several meshes merge into one scene by concatenation.
+
+A scene spec is a JSON file
+    {"models": [{"path": "relative/or/absolute.obj",
+                 "transforms": [[16 numbers, row-major 4x4], ...]}]}
+Every transform places one instance, baked as its own geometry; paths are relative to the JSON
+file; a model without "transforms" is placed once, untransformed.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+log = logging.getLogger(__name__)
+
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
+
+
+@dataclass(frozen=True, eq=False)
+class TriangleMesh:
+    """positions (v,3) float64; faces (f,3) int64; normals (v,3) float32 or None; name for messages."""
+
+    positions: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray | None = None
+    name: str = "mesh"
+
+    @property
+    def tri_count(self) -> int:
+        return int(self.faces.shape[0])
+
+
+def from_arrays(positions, faces, normals=None, *, name: str = "mesh") -> TriangleMesh:
+    """Validate and wrap caller arrays. Raises InputError naming `name`."""
+    try:
+        p = np.asarray(positions, dtype=np.float64)
+        f = np.asarray(faces)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name}: positions/faces are not numeric arrays ({exc})") from exc
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(f"{name}: positions must have shape (v, 3), got {list(p.shape)}")
+    if f.size == 0:
+        raise InputError(f"{name}: the mesh has no triangles")
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise InputError(f"{name}: faces must be integer triangles of shape (f, 3), got {f.dtype}{list(f.shape)}")
+    f = f.astype(np.int64, copy=False)
+    if f.min() < 0 or f.max() >= p.shape[0]:
+        raise InputError(f"{name}: a face refers to a vertex outside 0..{p.shape[0] - 1}")
+    used = np.zeros(p.shape[0], bool)
+    used[f.ravel()] = True
+    bad = used & ~np.all(np.isfinite(p), axis=1)
+    if bad.any():
+        raise InputError(f"{name}: {int(bad.sum())} vertices used by faces have NaN or infinite coordinates "
+                         f"(first: vertex {int(np.flatnonzero(bad)[0])})")
+    n = None
+    if normals is not None:
+        n = np.asarray(normals, dtype=np.float32)
+        if n.shape != p.shape:
+            raise InputError(f"{name}: normals must have the shape of positions {list(p.shape)}, got {list(n.shape)}")
+        n = np.where(np.isfinite(n), n, 0.0).astype(np.float32)
+    return TriangleMesh(positions=p, faces=f, normals=n, name=name)
+
+
+def load_mesh(path: str | os.PathLike) -> TriangleMesh:
+    """Read a mesh file through pymeshlab (polygons are triangulated by the reader)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise InputError(f"{path}: unsupported file type '{path.suffix}' (expected one of {', '.join(MESH_SUFFIXES)} "
+                         "or a .json scene spec)")
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    try:
+        ms.load_new_mesh(str(path))
+    except Exception as exc:  # pymeshlab raises its own exception types, not subclasses we can name
+        raise InputError(f"{path}: cannot read mesh ({str(exc).strip() or type(exc).__name__})") from exc
+    m = ms.current_mesh()
+    return from_arrays(m.vertex_matrix(), m.face_matrix(), name=str(path))
+
+
+def transform_mesh(mesh: TriangleMesh, matrix: np.ndarray, *, name: str) -> TriangleMesh:
+    """Apply a row-major 4x4 affine transform (float64); a mirroring transform flips the winding."""
+    m = np.asarray(matrix, dtype=np.float64)
+    p = mesh.positions @ m[:3, :3].T + m[:3, 3]
+    faces = mesh.faces
+    det = float(np.linalg.det(m[:3, :3]))
+    if det < 0:
+        faces = faces[:, ::-1].copy()
+    normals = None
+    if mesh.normals is not None and det != 0:
+        nrm = mesh.normals.astype(np.float64) @ np.linalg.inv(m[:3, :3])
+        length = np.linalg.norm(nrm, axis=1, keepdims=True)
+        normals = (nrm / np.where(length > 0, length, 1.0)).astype(np.float32)
+    return TriangleMesh(positions=p, faces=faces, normals=normals, name=name)
+
+
+def merge(meshes: list[TriangleMesh], *, name: str = "scene") -> TriangleMesh:
+    """Concatenate meshes into one; normals kept only if every mesh has them."""
+    if not meshes:
+        raise InputError(f"{name}: nothing to bake (no meshes)")
+    if len(meshes) == 1:
+        return meshes[0]
+    offsets = np.cumsum([0] + [m.positions.shape[0] for m in meshes[:-1]])
+    positions = np.concatenate([m.positions for m in meshes])
+    faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets)])
+    normals = None
+    if all(m.normals is not None for m in meshes):
+        normals = np.concatenate([m.normals for m in meshes])
+    return TriangleMesh(positions=positions, faces=faces, normals=normals, name=name)
+
+
+def load_scene_spec(path: str | os.PathLike) -> list[TriangleMesh]:
+    """Read a JSON scene spec; one TriangleMesh per placed instance. Each model file is read once."""
+    path = Path(path)
+    try:
+        spec = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read scene spec ({exc.strerror or exc})") from exc
+    except ValueError as exc:
+        raise InputError(f"{path}: scene spec is not valid JSON ({exc})") from exc
+    models = spec.get("models") if isinstance(spec, dict) else None
+    if not isinstance(models, list) or not models:
+        raise InputError(f"{path}: scene spec needs a non-empty list \"models\"")
+    cache: dict[Path, TriangleMesh] = {}
+    out = []
+    for i, model in enumerate(models):
+        if not isinstance(model, dict) or not isinstance(model.get("path"), str):
+            raise InputError(f"{path}: models[{i}] needs a \"path\" string")
+        model_path = Path(model["path"])
+        if not model_path.is_absolute():
+            model_path = (path.parent / model_path).resolve()
+        if model_path.suffix.lower() == ".json":
+            raise InputError(f"{path}: models[{i}] refers to another scene spec ({model_path}); nesting is not supported")
+        if model_path not in cache:
+            cache[model_path] = load_mesh(model_path)
+        transforms = model.get("transforms", [np.eye(4).ravel().tolist()])
+        if not isinstance(transforms, list) or not transforms:
+            raise InputError(f"{path}: models[{i}].transforms must be a non-empty list of 16-number lists")
+        for j, t in enumerate(transforms):
+            out.append(transform_mesh(cache[model_path], _parse_transform(path, i, j, t),
+                                      name=f"{model_path}#{j}"))
+    return out
+
+
+def _parse_transform(spec: Path, i: int, j: int, t) -> np.ndarray:
+    where = f"{spec}: models[{i}].transforms[{j}]"
+    try:
+        m = np.asarray(t, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where} is not a list of numbers") from None
+    if m.shape != (16,):
+        raise InputError(f"{where} must have 16 numbers (row-major 4x4), got shape {list(m.shape)}")
+    m = m.reshape(4, 4)
+    if not np.all(np.isfinite(m)):
+        raise InputError(f"{where} has NaN or infinite entries")
+    if not np.allclose(m[3], [0, 0, 0, 1]):
+        raise InputError(f"{where} is not affine (last row must be 0 0 0 1)")
+    return m
+
+
+def load_inputs(paths: list[str | os.PathLike]) -> TriangleMesh:
+    """Read every INPUT (mesh file or scene spec) and merge them into one scene."""
+    meshes: list[TriangleMesh] = []
+    for p in paths:
+        if Path(p).suffix.lower() == ".json":
+            meshes.extend(load_scene_spec(p))
+        else:
+            meshes.append(load_mesh(p))
+    log.info("loaded %d meshes, %d triangles", len(meshes), sum(m.tri_count for m in meshes))
+    return merge(meshes, name=", ".join(str(p) for p in paths))

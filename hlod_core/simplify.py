@@ -1,0 +1,114 @@
+"""One inner node's LOD and model-space error (DESIGN §4.3-4.4), with pymeshlab.
+
+Data form: node geometry as positions (k,3) float32, in the bake's file-relative frame, and faces
+(m,3) int32 local to those positions.
+
+- The children's LODs are concatenated and welded by exact position. Seams between siblings then
+  become interior edges; seams with the rest of the scene stay boundary edges, and boundary
+  preservation keeps their vertices fixed, so neighbouring nodes at different levels do not crack.
+  Fixed vertices come back bit-identical (pymeshlab computes in double; our inputs are float32
+  values), which is what makes the exact weld one level up work.
+- Quadric edge collapse (Garland & Heckbert 1997, pymeshlab
+  `meshing_decimation_quadric_edge_collapse`) to `target_tris`.
+- MSE = symmetric Hausdorff distance (pymeshlab `get_hausdorff_distance`, the max in both
+  directions) between the LOD and the original triangles below the node. The bake takes the max
+  with the children's MSE so the error is monotone.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class DecimationSettings:
+    """target_tris: triangles per LOD; quality_threshold: pymeshlab `qualitythr` (0..1, penalises
+    thin triangles); preserve_normals: pymeshlab `preservenormal` (no face flips);
+    boundary_weight: pymeshlab `boundaryweight` (only with boundary preservation, always on here)."""
+
+    target_tris: int = 2000
+    quality_threshold: float = 0.3
+    preserve_normals: bool = False
+    boundary_weight: float = 1.0
+
+
+@dataclass(frozen=True, eq=False)
+class NodeLod:
+    """positions (k,3) float32; faces (m,3) int32; normals (k,3) float32 or None;
+    hausdorff: model units (before the monotone max); decimated: False when kept as the children's union."""
+
+    positions: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray | None
+    hausdorff: float
+    decimated: bool
+    input_tris: int
+
+
+def weld(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge vertices with bit-identical float32 positions; drop triangles that collapse."""
+    key = np.ascontiguousarray(positions, dtype=np.float32).view(np.dtype((np.void, 12))).ravel()
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    welded = inverse.reshape(-1)[faces]
+    keep = (welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 0] != welded[:, 2])
+    return positions[first], welded[keep].astype(np.int32)
+
+
+def compact(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Keep only referenced vertices. Returns (positions, local faces int32, kept vertex ids)."""
+    used, local = np.unique(faces, return_inverse=True)
+    return positions[used], local.reshape(-1, 3).astype(np.int32), used
+
+
+def simplify_node(child_lods: list[tuple[np.ndarray, np.ndarray]],
+                  original: tuple[np.ndarray, np.ndarray],
+                  settings: DecimationSettings, *, with_normals: bool) -> NodeLod:
+    """child_lods: [(positions f32, faces)] of the children; original: (positions f32, faces) of the
+    original triangles below the node (compacted)."""
+    import pymeshlab
+
+    offsets = np.cumsum([0] + [p.shape[0] for p, _ in child_lods[:-1]])
+    positions = np.concatenate([p for p, _ in child_lods])
+    faces = np.concatenate([f.astype(np.int64) + o for (_, f), o in zip(child_lods, offsets)])
+    input_tris = int(faces.shape[0])
+    positions, faces = weld(positions, faces)
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=positions.astype(np.float64), face_matrix=faces))
+    decimated = faces.shape[0] > settings.target_tris
+    if decimated:
+        ms.meshing_decimation_quadric_edge_collapse(
+            targetfacenum=int(settings.target_tris), qualitythr=float(settings.quality_threshold),
+            preserveboundary=True, boundaryweight=float(settings.boundary_weight),
+            preservenormal=bool(settings.preserve_normals), preservetopology=False,
+            optimalplacement=True, planarquadric=False, autoclean=True)
+    lod = ms.current_mesh()
+    lod_positions = lod.vertex_matrix().astype(np.float32)
+    lod_faces = lod.face_matrix().astype(np.int32)
+    normals = None
+    if with_normals:
+        ms.compute_normal_per_vertex()
+        normals = ms.current_mesh().vertex_normal_matrix().astype(np.float32)
+
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=original[0].astype(np.float64), face_matrix=original[1]))
+    both = (_one_sided(ms, sampled=1, target=0, vertices=original[0].shape[0], faces=False),
+            _one_sided(ms, sampled=0, target=1, vertices=lod_positions.shape[0],
+                       faces=True, face_samples=4 * lod_faces.shape[0]))
+    hausdorff = max(both) if all(np.isfinite(both)) else float("nan")
+    return NodeLod(positions=lod_positions, faces=lod_faces, normals=normals, hausdorff=hausdorff,
+                   decimated=decimated, input_tris=input_tris)
+
+
+def _one_sided(ms, *, sampled: int, target: int, vertices: int, faces: bool, face_samples: int = 0) -> float:
+    """max over samples of `sampled` (its vertices, and face samples if asked) of the distance to
+    the surface of `target`. The search radius is the union's diagonal, so no sample is dropped."""
+    import pymeshlab
+
+    lo = np.minimum(ms.mesh(0).bounding_box().min(), ms.mesh(1).bounding_box().min())
+    hi = np.maximum(ms.mesh(0).bounding_box().max(), ms.mesh(1).bounding_box().max())
+    radius = 2.0 * float(np.linalg.norm(hi - lo)) + 1e-30
+    result = ms.get_hausdorff_distance(sampledmesh=sampled, targetmesh=target, samplevert=True,
+                                       sampleface=faces, samplenum=int(max(vertices, face_samples, 1)),
+                                       maxdist=pymeshlab.PureValue(radius))
+    return float(result["max"])  # NaN when pymeshlab found no sample: the bake bounds it instead
