@@ -14,6 +14,8 @@ After Charalambos' dissertation (`../shared/papers/charalambos2007-dissertation-
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
+import heapq
 import logging
 import multiprocessing
 import os
@@ -77,10 +79,13 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     progress = progress or (lambda done, total, phase: None)
     cancel = cancel or (lambda: False)
     bake_log: list[str] = []
+    phases = _PhaseClock()
 
     origin, positions, faces, centroids = _prepare(mesh)
+    phases.lap("prepare")
     layout = build_octree(centroids, target_tris=settings.target_tris, max_depth=settings.max_depth)
     del centroids
+    phases.lap("octree")
     n = layout.node_count
     progress(0, n, "octree")
     log.info("octree: %d nodes, %d leaves", n, int((layout.child_count == 0).sum()))
@@ -93,19 +98,23 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         p, f, used = simplify.compact(positions, ordered_faces[layout.tri_begin[node]:layout.tri_end[node]])
         lods[node] = (p, f, None if normals_in is None else normals_in[used])
     done = n - int((layout.child_count > 0).sum())
+    phases.lap("leaves")
     progress(done, n, "simplify")
 
-    for node, lod in _simplify_inner_nodes(layout, lods, positions, ordered_faces, settings,
-                                           with_normals=normals_in is not None, cancel=cancel):
-        lods[node] = (lod.positions, lod.faces, lod.normals)
-        hausdorff[node] = lod.hausdorff
-        _note_lod(bake_log, node, lod, settings.target_tris)
+    def node_done(node: int, lod: simplify.NodeLod) -> None:
+        nonlocal done
+        _note_lod(bake_log, node, lod, hausdorff[node], settings.target_tris)
         done += 1
         progress(done, n, "simplify")
+
+    _simplify_inner_nodes(layout, lods, hausdorff, positions, ordered_faces, settings,
+                          with_normals=normals_in is not None, cancel=cancel, node_done=node_done)
     if cancel():
         raise BakeCancelled("bake cancelled")
+    phases.lap("simplify")
 
     hlod = _assemble(layout, lods, origin, hausdorff, normals=normals_in is not None)
+    phases.lap("assemble")
     seconds = time.perf_counter() - started
     over_budget = int(((layout.child_count == 0) & (layout.tri_end - layout.tri_begin > settings.target_tris)).sum())
     meta = {
@@ -118,6 +127,7 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         "sources": list(sources or [mesh.name]),
         "leaves_over_budget": over_budget,
         "bake_seconds": seconds,
+        "phase_seconds": phases.seconds,
         "log": bake_log[:_MAX_LOG_LINES],
         "log_lines_dropped": max(0, len(bake_log) - _MAX_LOG_LINES),
     }
@@ -146,9 +156,21 @@ def _prepare(mesh: TriangleMesh):
     return origin, positions, mesh.faces, centroids
 
 
+class _PhaseClock:
+    def __init__(self):
+        self.seconds: dict[str, float] = {}
+        self._last = time.perf_counter()
+
+    def lap(self, phase: str) -> None:
+        now = time.perf_counter()
+        self.seconds[phase] = now - self._last
+        self._last = now
+
+
 # --- simplify phase: in this process, or in worker processes sharing the input through files ----
 
 _SHARED: dict[str, np.ndarray] = {}
+_DECIMATE, _MEASURE = 0, 1
 
 
 def _init_worker(positions_path: str, faces_path: str) -> None:
@@ -156,71 +178,93 @@ def _init_worker(positions_path: str, faces_path: str) -> None:
     _SHARED["faces"] = np.load(faces_path, mmap_mode="r")
 
 
-def _simplify_task(child_lods, tri_begin: int, tri_end: int, settings, with_normals: bool):
+def _measure_task(lod_positions, lod_faces, tri_begin: int, tri_end: int) -> float:
     """Runs in a worker (or inline): the node's original triangles come from the shared arrays."""
-    p, f, _ = simplify.compact(_SHARED["positions"], np.asarray(_SHARED["faces"][tri_begin:tri_end]))
-    return simplify.simplify_node(child_lods, (np.asarray(p), f), settings, with_normals=with_normals)
+    original = simplify.compact(_SHARED["positions"], np.asarray(_SHARED["faces"][tri_begin:tri_end]))
+    return simplify.measure((lod_positions, lod_faces), original[:2])
 
 
-def _simplify_inner_nodes(layout: OctreeLayout, lods, positions, ordered_faces, settings: BakeSettings,
-                          *, with_normals: bool, cancel: CancelFn):
-    """Yield (node, NodeLod) for every inner node, children always before their parent."""
+class _InlineExecutor:
+    """The Executor interface, running each task at submit time (jobs = 1)."""
+
+    def submit(self, fn, *args) -> cf.Future:
+        fut: cf.Future = cf.Future()
+        fut.set_result(fn(*args))
+        return fut
+
+
+def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarray, positions, ordered_faces,
+                          settings: BakeSettings, *, with_normals: bool, cancel: CancelFn, node_done) -> None:
+    """Fill lods[node] and hausdorff[node] for every inner node; node_done(node, lod) as each completes.
+
+    Two kinds of task: DECIMATE a node once its children's LODs exist, MEASURE its Hausdorff error
+    once its own LOD exists. Measuring needs every original triangle below the node, so the top
+    nodes' measurements are the big tasks; keeping them off the decimation chain lets them run
+    beside other work. Priority: decimations first (deepest first, they unlock the rest), then
+    measurements, largest first. At most `jobs` tasks are in flight, so the priority holds.
+    """
     inner = np.flatnonzero(layout.child_count > 0)
     if inner.size == 0:
         return
     dec = settings.decimation()
+    waiting = np.zeros(layout.node_count, np.int64)
+    inner_children = np.flatnonzero((layout.child_count > 0) & (layout.parent >= 0))
+    np.add.at(waiting, layout.parent[inner_children], 1)  # a node waits for its inner children's LODs
+    heap: list[tuple] = []
 
-    def task_args(node):
-        kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
-        return ([(lods[k][0], lods[k][1]) for k in kids], int(layout.tri_begin[node]),
-                int(layout.tri_end[node]), dec, with_normals)
+    def push(kind: int, node: int) -> None:
+        size = -int(layout.depth[node]) if kind == _DECIMATE else -int(layout.tri_end[node] - layout.tri_begin[node])
+        heapq.heappush(heap, (kind, size, node))
 
-    if settings.jobs == 1 or inner.size == 1:
-        _SHARED.update(positions=positions, faces=ordered_faces)
-        try:
-            for node in inner[::-1]:  # breadth-first ids: reversed, children come before parents
-                if cancel():
-                    raise BakeCancelled("bake cancelled")
-                yield int(node), _simplify_task(*task_args(node))
-        finally:
-            _SHARED.clear()
-        return
+    def submit(executor, kind: int, node: int) -> cf.Future:
+        if kind == _DECIMATE:
+            kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
+            return executor.submit(simplify.decimate_node, [(lods[k][0], lods[k][1]) for k in kids], dec, with_normals)
+        return executor.submit(_measure_task, lods[node][0], lods[node][1],
+                               int(layout.tri_begin[node]), int(layout.tri_end[node]))
 
-    waiting = layout.child_count.astype(np.int64).copy()
-    waiting[layout.child_count == 0] = 0
-    for leaf in np.flatnonzero(layout.child_count == 0):
-        if layout.parent[leaf] >= 0:
-            waiting[layout.parent[leaf]] -= 1
-    with tempfile.TemporaryDirectory(prefix="hlod-bake-") as scratch:
-        pos_path, faces_path = os.path.join(scratch, "positions.npy"), os.path.join(scratch, "faces.npy")
-        np.save(pos_path, positions)
-        np.save(faces_path, ordered_faces)
-        pool = cf.ProcessPoolExecutor(max_workers=settings.jobs, mp_context=multiprocessing.get_context("spawn"),
-                                      initializer=_init_worker, initargs=(pos_path, faces_path))
-        try:
-            running = {}
-            # deepest first, so long chains start early
-            for node in sorted((int(x) for x in inner if waiting[x] == 0), key=lambda x: -layout.depth[x]):
-                running[pool.submit(_simplify_task, *task_args(node))] = node
-            while running:
-                finished, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED, timeout=0.25)
-                if cancel():
-                    raise BakeCancelled("bake cancelled")
-                for fut in finished:
-                    node = running.pop(fut)
-                    lod = fut.result()
-                    lods[node] = (lod.positions, lod.faces, lod.normals)
-                    yield node, lod
-                    parent = int(layout.parent[node])
-                    if parent >= 0:
-                        waiting[parent] -= 1
-                        if waiting[parent] == 0:
-                            running[pool.submit(_simplify_task, *task_args(parent))] = parent
-        finally:
-            pool.shutdown(wait=True, cancel_futures=True)
+    for node in inner[waiting[inner] == 0]:
+        push(_DECIMATE, int(node))
+
+    with contextlib.ExitStack() as stack:
+        if settings.jobs == 1:
+            executor, limit = _InlineExecutor(), 1
+            _SHARED.update(positions=positions, faces=ordered_faces)
+            stack.callback(_SHARED.clear)
+        else:
+            scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="hlod-bake-"))
+            paths = os.path.join(scratch, "positions.npy"), os.path.join(scratch, "faces.npy")
+            np.save(paths[0], positions)
+            np.save(paths[1], ordered_faces)
+            executor = cf.ProcessPoolExecutor(max_workers=settings.jobs, initializer=_init_worker, initargs=paths,
+                                              mp_context=multiprocessing.get_context("spawn"))
+            stack.callback(executor.shutdown, wait=True, cancel_futures=True)
+            limit = settings.jobs
+        running: dict[cf.Future, tuple[int, int]] = {}
+        while heap or running:
+            while heap and len(running) < limit:
+                kind, _, node = heapq.heappop(heap)
+                running[submit(executor, kind, node)] = (kind, node)
+            finished, _ = cf.wait(running, timeout=0.25, return_when=cf.FIRST_COMPLETED)
+            if cancel():
+                raise BakeCancelled("bake cancelled")
+            for fut in finished:
+                kind, node = running.pop(fut)
+                if kind == _MEASURE:
+                    hausdorff[node] = fut.result()
+                    node_done(node, lods[node][3])
+                    continue
+                lod = fut.result()
+                lods[node] = (lod.positions, lod.faces, lod.normals, lod)
+                push(_MEASURE, node)
+                parent = int(layout.parent[node])
+                if parent >= 0:
+                    waiting[parent] -= 1
+                    if waiting[parent] == 0:
+                        push(_DECIMATE, parent)
 
 
-def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, target_tris: int) -> None:
+def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, error: float, target_tris: int) -> None:
     tris = lod.faces.shape[0]
     if not lod.decimated:
         bake_log.append(f"node {node}: children hold {lod.input_tris} <= {target_tris} triangles; kept undecimated")
@@ -229,7 +273,7 @@ def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, target_tris
     elif tris > 2 * target_tris:
         bake_log.append(f"node {node}: decimation stopped at {tris} triangles (target {target_tris}); "
                         "boundary preservation keeps the cell's border")
-    if not np.isfinite(lod.hausdorff):
+    if not np.isfinite(error):
         bake_log.append(f"node {node}: Hausdorff distance unavailable; error bounded by the node's box diagonal")
 
 

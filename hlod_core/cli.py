@@ -90,6 +90,7 @@ def _bake_and_save(mesh, args, sources) -> dict:
         log.info(line)
     summary = hlod.summary()
     summary.update(output=str(args.output), jobs=settings.jobs, seconds=seconds,
+                   phase_seconds=hlod.meta["phase_seconds"],
                    tris_per_second=summary["input_tris"] / seconds if seconds > 0 else None)
     return summary
 

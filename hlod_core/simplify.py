@@ -36,12 +36,11 @@ class DecimationSettings:
 @dataclass(frozen=True, eq=False)
 class NodeLod:
     """positions (k,3) float32; faces (m,3) int32; normals (k,3) float32 or None;
-    hausdorff: model units (before the monotone max); decimated: False when kept as the children's union."""
+    decimated: False when kept as the children's welded union; input_tris: the children's total."""
 
     positions: np.ndarray
     faces: np.ndarray
     normals: np.ndarray | None
-    hausdorff: float
     decimated: bool
     input_tris: int
 
@@ -57,15 +56,23 @@ def weld(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def compact(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Keep only referenced vertices. Returns (positions, local faces int32, kept vertex ids)."""
-    used, local = np.unique(faces, return_inverse=True)
-    return positions[used], local.reshape(-1, 3).astype(np.int32), used
+    flat = np.asarray(faces).reshape(-1)
+    v = positions.shape[0]
+    if flat.shape[0] * 8 < v:  # few faces: sort them
+        used, local = np.unique(flat, return_inverse=True)
+    else:  # many faces: a mask over the vertices is linear time
+        mask = np.zeros(v, bool)
+        mask[flat] = True
+        used = np.flatnonzero(mask)
+        remap = np.cumsum(mask, dtype=np.int64) - 1
+        local = remap[flat]
+    return np.asarray(positions[used]), local.reshape(-1, 3).astype(np.int32), used
 
 
-def simplify_node(child_lods: list[tuple[np.ndarray, np.ndarray]],
-                  original: tuple[np.ndarray, np.ndarray],
-                  settings: DecimationSettings, *, with_normals: bool) -> NodeLod:
-    """child_lods: [(positions f32, faces)] of the children; original: (positions f32, faces) of the
-    original triangles below the node (compacted)."""
+def decimate_node(child_lods: list[tuple[np.ndarray, np.ndarray]], settings: DecimationSettings,
+                  with_normals: bool) -> NodeLod:
+    """child_lods: [(positions f32, faces)] of the children. The node's error is `measure`'s job:
+    it needs the original triangles, the decimation does not, so the two run as separate tasks."""
     import pymeshlab
 
     offsets = np.cumsum([0] + [p.shape[0] for p, _ in child_lods[:-1]])
@@ -84,20 +91,27 @@ def simplify_node(child_lods: list[tuple[np.ndarray, np.ndarray]],
             preservenormal=bool(settings.preserve_normals), preservetopology=False,
             optimalplacement=True, planarquadric=False, autoclean=True)
     lod = ms.current_mesh()
-    lod_positions = lod.vertex_matrix().astype(np.float32)
-    lod_faces = lod.face_matrix().astype(np.int32)
     normals = None
     if with_normals:
         ms.compute_normal_per_vertex()
         normals = ms.current_mesh().vertex_normal_matrix().astype(np.float32)
+    return NodeLod(positions=lod.vertex_matrix().astype(np.float32), faces=lod.face_matrix().astype(np.int32),
+                   normals=normals, decimated=decimated, input_tris=input_tris)
 
+
+def measure(lod: tuple[np.ndarray, np.ndarray], original: tuple[np.ndarray, np.ndarray]) -> float:
+    """Symmetric Hausdorff distance between a LOD and the original triangles below its node, both
+    (positions f32, faces) in the same frame: the max of original vertices -> LOD surface and of
+    LOD vertices plus 4 samples per LOD face -> original surface. NaN if pymeshlab gives none."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=lod[0].astype(np.float64), face_matrix=lod[1]))
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=original[0].astype(np.float64), face_matrix=original[1]))
     both = (_one_sided(ms, sampled=1, target=0, vertices=original[0].shape[0], faces=False),
-            _one_sided(ms, sampled=0, target=1, vertices=lod_positions.shape[0],
-                       faces=True, face_samples=4 * lod_faces.shape[0]))
-    hausdorff = max(both) if all(np.isfinite(both)) else float("nan")
-    return NodeLod(positions=lod_positions, faces=lod_faces, normals=normals, hausdorff=hausdorff,
-                   decimated=decimated, input_tris=input_tris)
+            _one_sided(ms, sampled=0, target=1, vertices=lod[0].shape[0],
+                       faces=True, face_samples=4 * lod[1].shape[0]))
+    return max(both) if all(np.isfinite(both)) else float("nan")
 
 
 def _one_sided(ms, *, sampled: int, target: int, vertices: int, faces: bool, face_samples: int = 0) -> float:
