@@ -82,8 +82,10 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     phases = _PhaseClock()
 
     origin, positions, faces, centroids = _prepare(mesh)
+    counted = ~simplify.collapsed(positions, faces)
     phases.lap("prepare")
-    layout = build_octree(centroids, target_tris=settings.target_tris, max_depth=settings.max_depth)
+    layout = build_octree(centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
+                          counted=counted)
     del centroids
     phases.lap("octree")
     n = layout.node_count
@@ -116,7 +118,9 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     hlod = _assemble(layout, lods, origin, hausdorff, normals=normals_in is not None)
     phases.lap("assemble")
     seconds = time.perf_counter() - started
-    over_budget = int(((layout.child_count == 0) & (layout.tri_end - layout.tri_begin > settings.target_tris)).sum())
+    counted_below = np.concatenate([[0], np.cumsum(counted[layout.tri_order])])
+    counted_per_node = counted_below[layout.tri_end] - counted_below[layout.tri_begin]
+    over_budget = int(((layout.child_count == 0) & (counted_per_node > settings.target_tris)).sum())
     meta = {
         "generator": "hlod_core",
         "input_tris": mesh.tri_count,
@@ -126,6 +130,7 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         "max_depth": settings.max_depth,
         "sources": list(sources or [mesh.name]),
         "leaves_over_budget": over_budget,
+        "collapsed_input_tris": int((~counted).sum()),
         "bake_seconds": seconds,
         "phase_seconds": phases.seconds,
         "log": bake_log[:_MAX_LOG_LINES],
@@ -273,6 +278,9 @@ def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, error: floa
     elif tris > 2 * target_tris:
         bake_log.append(f"node {node}: decimation stopped at {tris} triangles (target {target_tris}); "
                         "boundary preservation keeps the cell's border")
+    if lod.kept_in_place:
+        bake_log.append(f"node {node}: optimal vertex placement left the node's box; decimated again "
+                        "with vertices kept in place")
     if not np.isfinite(error):
         bake_log.append(f"node {node}: Hausdorff distance unavailable; error bounded by the node's box diagonal")
 

@@ -5,7 +5,8 @@
   every child's box in its parent's, every LOD vertex and child sphere in the node's sphere;
 - monotone_error: errors finite, >= 0, 0 at leaves, a parent's >= each child's;
 - leaf_budget: every leaf holds <= target_tris triangles, unless it could not be split (at
-  max_depth, or all its triangle centroids coincide); those leaves are counted.
+  max_depth, or all its triangle centroids coincide); those leaves are counted. Collapsed
+  triangles (two corners at one float32 position) do not count, as in the bake.
 
 Tolerances live here: TOLERANCE_REL times the root box diagonal, for float64 bounds compared with
 float32 geometry offset by a float64 origin.
@@ -15,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .hierarchy import Hlod, segment_ranges
+from .simplify import collapsed
 
 TOLERANCE_REL = 1e-9
 
@@ -70,14 +72,17 @@ def _leaf_budget(hlod: Hlod) -> tuple[bool, int, int]:
     target = int(hlod.meta.get("target_tris", 0))
     max_depth = int(hlod.meta.get("max_depth", -1))
     leaves = np.flatnonzero(hlod.is_leaf)
-    over = leaves[hlod.tri_count[leaves] > target]
-    unsplittable = 0
-    for leaf in over:
+    candidates = leaves[hlod.tri_count[leaves] > target]
+    over, unsplittable = 0, 0
+    for leaf in candidates:
+        tris = np.asarray(hlod.indices[hlod.tri_offset[leaf]:hlod.tri_offset[leaf] + hlod.tri_count[leaf]])
+        if int((~collapsed(hlod.positions, tris)).sum()) <= target:
+            continue
+        over += 1
         if hlod.depth[leaf] >= max_depth:
             unsplittable += 1
             continue
-        tris = np.asarray(hlod.indices[hlod.tri_offset[leaf]:hlod.tri_offset[leaf] + hlod.tri_count[leaf]])
         centroids = np.asarray(hlod.positions[tris.ravel()], np.float64).reshape(-1, 3, 3).mean(axis=1)
         if np.all(centroids.min(axis=0) == centroids.max(axis=0)):
             unsplittable += 1
-    return unsplittable == over.shape[0], unsplittable, int(over.shape[0])
+    return unsplittable == over, unsplittable, over

@@ -4,7 +4,7 @@ Data form in: triangle centroids (f,3) float64. Data form out: `OctreeLayout`, a
 breadth-first order (children contiguous) plus a permutation of the triangles in which every
 subtree's triangles form one contiguous range (leaves in depth-first order).
 
-Rules: a cell splits into its 8 octants while it holds more than `target_tris` triangles and its
+Rules: a cell splits into its 8 octants while it holds more than `target_tris` (counted) triangles and its
 depth is below `max_depth`; each triangle goes to the octant containing its centroid; empty octants
 are dropped. When every centroid falls in one octant, the cell shrinks to that octant without
 creating a node (a node with one child would only repeat its child's LOD). A cell whose centroids
@@ -43,8 +43,11 @@ class OctreeLayout:
         return int(self.parent.shape[0])
 
 
-def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int) -> OctreeLayout:
-    """Partition triangles by centroid. centroids: (f,3) float64, finite, f >= 1."""
+def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
+                 counted: np.ndarray | None = None) -> OctreeLayout:
+    """Partition triangles by centroid. centroids: (f,3) float64, finite, f >= 1.
+    counted: (f,) bool, the triangles that count toward `target_tris` (default all); the bake
+    leaves out collapsed triangles, which welding drops and no LOD could ever reduce."""
     if target_tris < 1 or max_depth < 0:
         raise ValueError("target_tris must be >= 1 and max_depth >= 0")
     lo, hi = centroids.min(axis=0), centroids.max(axis=0)
@@ -53,11 +56,12 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int) -> 
 
     parent, child_offset, child_count, depth = [-1], [-1], [0], [0]
     leaf_tris: dict[int, np.ndarray] = {}
+    counted_ids = np.ones(centroids.shape[0], bool) if counted is None else np.asarray(counted, bool)
     queue = deque([(0, np.arange(centroids.shape[0], dtype=np.int64), root_center, root_half)])
     while queue:  # FIFO: nodes are expanded in id order, so children ids come out contiguous
         node, tris, center, half = queue.popleft()
         split = _split_cell(centroids, tris, center, half) \
-            if tris.shape[0] > target_tris and depth[node] < max_depth else None
+            if int(counted_ids[tris].sum()) > target_tris and depth[node] < max_depth else None
         if split is None:
             leaf_tris[node] = tris
             continue

@@ -21,6 +21,11 @@ from dataclasses import dataclass
 import numpy as np
 
 
+#: A LOD vertex this far (fraction of the node's diagonal) outside its input's box means the
+#: quadric placement extrapolated; see decimate_node.
+ESCAPE_FRACTION = 0.01
+
+
 @dataclass(frozen=True)
 class DecimationSettings:
     """target_tris: triangles per LOD; quality_threshold: pymeshlab `qualitythr` (0..1, penalises
@@ -36,13 +41,15 @@ class DecimationSettings:
 @dataclass(frozen=True, eq=False)
 class NodeLod:
     """positions (k,3) float32; faces (m,3) int32; normals (k,3) float32 or None;
-    decimated: False when kept as the children's welded union; input_tris: the children's total."""
+    decimated: False when kept as the children's welded union; input_tris: the welded union's
+    triangles; kept_in_place: optimal placement left the node's box, so vertices stayed in place."""
 
     positions: np.ndarray
     faces: np.ndarray
     normals: np.ndarray | None
     decimated: bool
     input_tris: int
+    kept_in_place: bool = False
 
 
 def weld(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -52,6 +59,14 @@ def weld(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarr
     welded = inverse.reshape(-1)[faces]
     keep = (welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 0] != welded[:, 2])
     return positions[first], welded[keep].astype(np.int32)
+
+
+def collapsed(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(f,) bool: triangles with two corners at bit-identical float32 positions, which `weld`
+    drops. They do not count toward a node's triangle budget (octree and leaf budget check)."""
+    p = np.asarray(positions, np.float32)
+    a, b, c = p[faces[:, 0]], p[faces[:, 1]], p[faces[:, 2]]
+    return np.all(a == b, axis=1) | np.all(b == c, axis=1) | np.all(a == c, axis=1)
 
 
 def compact(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -73,30 +88,51 @@ def decimate_node(child_lods: list[tuple[np.ndarray, np.ndarray]], settings: Dec
                   with_normals: bool) -> NodeLod:
     """child_lods: [(positions f32, faces)] of the children. The node's error is `measure`'s job:
     it needs the original triangles, the decimation does not, so the two run as separate tasks."""
-    import pymeshlab
-
     offsets = np.cumsum([0] + [p.shape[0] for p, _ in child_lods[:-1]])
     positions = np.concatenate([p for p, _ in child_lods])
     faces = np.concatenate([f.astype(np.int64) + o for (_, f), o in zip(child_lods, offsets)])
-    input_tris = int(faces.shape[0])
     positions, faces = weld(positions, faces)
 
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=positions.astype(np.float64), face_matrix=faces))
-    decimated = faces.shape[0] > settings.target_tris
-    if decimated:
-        ms.meshing_decimation_quadric_edge_collapse(
-            targetfacenum=int(settings.target_tris), qualitythr=float(settings.quality_threshold),
-            preserveboundary=True, boundaryweight=float(settings.boundary_weight),
-            preservenormal=bool(settings.preserve_normals), preservetopology=False,
-            optimalplacement=True, planarquadric=False, autoclean=True)
+    welded_tris = int(faces.shape[0])
+    decimated = welded_tris > settings.target_tris
+    ms = _decimated(positions, faces, settings, optimal_placement=True) if decimated else _mesh_set(positions, faces)
+    lo, hi = positions.min(axis=0), positions.max(axis=0)
+    lod_box = ms.current_mesh().bounding_box()
+    # Optimal placement may move a vertex slightly outward on curved surfaces (that lowers the
+    # error); leaving the input's box by more than ESCAPE_FRACTION of its diagonal is the
+    # singular-quadric extrapolation instead, so decimate again with vertices kept in place.
+    slack = ESCAPE_FRACTION * float(np.linalg.norm(hi - lo))
+    kept_in_place = bool(np.any(lod_box.min() < lo - slack) or np.any(lod_box.max() > hi + slack))
+    if kept_in_place:
+        ms = _decimated(positions, faces, settings, optimal_placement=False)
     lod = ms.current_mesh()
     normals = None
     if with_normals:
         ms.compute_normal_per_vertex()
         normals = ms.current_mesh().vertex_normal_matrix().astype(np.float32)
     return NodeLod(positions=lod.vertex_matrix().astype(np.float32), faces=lod.face_matrix().astype(np.int32),
-                   normals=normals, decimated=decimated, input_tris=input_tris)
+                   normals=normals, decimated=decimated, input_tris=welded_tris, kept_in_place=kept_in_place)
+
+
+def _mesh_set(positions: np.ndarray, faces: np.ndarray):
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=positions.astype(np.float64), face_matrix=faces))
+    return ms
+
+
+def _decimated(positions, faces, settings: DecimationSettings, *, optimal_placement: bool):
+    """Quadric edge collapse with boundary preservation. planarquadric adds the planar constraints
+    that keep flat regions (ground planes, walls) from being extrapolated: without them a flat
+    cell's singular quadric can place a vertex tens of metres away."""
+    ms = _mesh_set(positions, faces)
+    ms.meshing_decimation_quadric_edge_collapse(
+        targetfacenum=int(settings.target_tris), qualitythr=float(settings.quality_threshold),
+        preserveboundary=True, boundaryweight=float(settings.boundary_weight),
+        preservenormal=bool(settings.preserve_normals), preservetopology=False,
+        optimalplacement=optimal_placement, planarquadric=True, autoclean=True)
+    return ms
 
 
 def measure(lod: tuple[np.ndarray, np.ndarray], original: tuple[np.ndarray, np.ndarray]) -> float:

@@ -1,0 +1,63 @@
+# Sourced by run.sh and test.sh: make sure the Mesa EGL system packages and .venv/ exist.
+# Creates or reuses .venv/ at the repository root; installs only what is missing.
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+VENV="$ROOT/.venv"
+GL_PACKAGES="libegl1 libegl-mesa0 libgl1-mesa-dri"
+
+say() { echo "hlod setup: $*" >&2; }
+
+ensure_gl_packages() {
+    if command -v dpkg-query >/dev/null 2>&1; then
+        local missing=""
+        for pkg in $GL_PACKAGES; do
+            dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing="$missing $pkg"
+        done
+        [ -z "$missing" ] && return 0
+        if [ "$(id -u)" = 0 ]; then
+            say "installing system packages:$missing"
+            DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2
+            DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >&2
+        else
+            say "missing system packages:$missing"
+            say "run as root:  apt-get install -y$missing   (Mesa's EGL/OpenGL, for headless rendering)"
+            exit 1
+        fi
+    elif ! ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1'; then
+        say "libEGL.so.1 not found: install your distribution's Mesa EGL and DRI packages"
+        exit 1
+    fi
+}
+
+find_python() {
+    for candidate in "${HLOD_PYTHON:-}" python3.11 python3; do
+        [ -n "$candidate" ] || continue
+        if command -v "$candidate" >/dev/null 2>&1 &&
+           "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then
+            echo "$candidate"; return 0
+        fi
+    done
+    say "Python 3.11 is required (bpy 5.0.1 is published for 3.11 only); set HLOD_PYTHON to its path"
+    exit 1
+}
+
+ensure_venv() {
+    if [ ! -x "$VENV/bin/python" ]; then
+        say "creating $VENV"
+        "$(find_python)" -m venv "$VENV"
+    fi
+    local stamp="$VENV/.requirements.sha256"
+    local want
+    want="$(sha256sum "$ROOT/requirements.txt" | cut -d' ' -f1)"
+    if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+        say "installing Python packages into $VENV (first run downloads about 400 MB)"
+        "$VENV/bin/python" -m pip install --disable-pip-version-check -q -r "$ROOT/requirements.txt" >&2
+        echo "$want" > "$stamp"
+    fi
+}
+
+ensure_gl_packages
+ensure_venv
+PY="$VENV/bin/python"
+export PYTHONPATH="$ROOT${PYTHONPATH:+:$PYTHONPATH}"
+cd "$ROOT"
