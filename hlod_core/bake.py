@@ -19,6 +19,7 @@ import heapq
 import logging
 import multiprocessing
 import os
+import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass
@@ -189,6 +190,24 @@ def _measure_task(lod_positions, lod_faces, tri_begin: int, tri_end: int) -> flo
     return simplify.measure((lod_positions, lod_faces), original[:2])
 
 
+@contextlib.contextmanager
+def _main_module_importable():
+    """Spawned workers re-import the parent's __main__ from its __file__. When that is no file
+    (python reading stdin, an embedding host), hide it while the pool starts its workers: the
+    workers only need hlod_core, which they import by name."""
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    hide = main is not None and getattr(main, "__spec__", None) is None and path is not None \
+        and not os.path.isfile(path)
+    if hide:
+        del main.__file__
+    try:
+        yield
+    finally:
+        if hide:
+            main.__file__ = path
+
+
 class _InlineExecutor:
     """The Executor interface, running each task at submit time (jobs = 1)."""
 
@@ -241,6 +260,7 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
             paths = os.path.join(scratch, "positions.npy"), os.path.join(scratch, "faces.npy")
             np.save(paths[0], positions)
             np.save(paths[1], ordered_faces)
+            stack.enter_context(_main_module_importable())
             executor = cf.ProcessPoolExecutor(max_workers=settings.jobs, initializer=_init_worker, initargs=paths,
                                               mp_context=multiprocessing.get_context("spawn"))
             stack.callback(executor.shutdown, wait=True, cancel_futures=True)

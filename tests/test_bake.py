@@ -1,0 +1,202 @@
+"""Bakes with real pymeshlab on the shared models, and the degenerate inputs of DESIGN §10."""
+import os
+
+import numpy as np
+import pytest
+
+from hlod_core import checks, meshio
+from hlod_core.bake import BakeSettings, bake
+from hlod_core.errors import BakeCancelled, InputError
+
+from .conftest import baked, load_model
+
+ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}
+
+
+def _leaf_triangles(hlod) -> np.ndarray:
+    """Every leaf triangle as its 9 world coordinates, rows sorted: a multiset to compare with the input."""
+    leaves = np.flatnonzero(hlod.is_leaf)
+    tris = np.concatenate([hlod.indices[hlod.tri_offset[i]:hlod.tri_offset[i] + hlod.tri_count[i]] for i in leaves])
+    world = (hlod.positions[tris.ravel()].astype(np.float64) + hlod.origin).reshape(-1, 9)
+    return world[np.lexsort(world.T[::-1])]
+
+
+def _input_triangles(mesh, origin) -> np.ndarray:
+    rel = (mesh.positions - origin).astype(np.float32).astype(np.float64) + origin  # what is stored
+    world = rel[mesh.faces.ravel()].reshape(-1, 9)
+    return world[np.lexsort(world.T[::-1])]
+
+
+@pytest.mark.parametrize("name, jobs", [("stanford-bunny.obj", 1), ("igea.ply", 2), ("nefertiti.obj", 1)])
+def test_shared_models_bake_with_every_invariant(name, jobs):
+    mesh, hlod = baked(name, jobs=jobs)
+    assert checks.check(hlod)["checks"] == ALL_TRUE
+    assert hlod.meta["input_tris"] == mesh.tri_count
+    # leaves hold exactly the input triangles (as a multiset of stored coordinates)
+    assert np.array_equal(_leaf_triangles(hlod), _input_triangles(mesh, hlod.origin))
+    # nothing the scene does not need: no empty nodes, no single-child nodes, LODs coarser than their children
+    assert np.all(hlod.tri_count > 0)
+    inner = np.flatnonzero(~hlod.is_leaf)
+    assert np.all(hlod.child_count[inner] >= 2)
+    for node in inner:
+        kids = slice(hlod.child_offset[node], hlod.child_offset[node] + hlod.child_count[node])
+        assert hlod.tri_count[node] < hlod.tri_count[kids].sum()
+    assert hlod.tri_count[0] <= 2000 and hlod.error[0] > 0
+    assert hlod.normals is None  # files carry no normals into the bake: none invented
+
+
+def test_igea_triangle_strips_are_read_as_triangles():
+    mesh = load_model("igea.ply")
+    assert mesh.tri_count == 268686  # SOURCES.md: binary PLY stored as triangle strips
+
+
+def test_model_far_from_origin_keeps_its_precision():
+    """nefertiti (coordinates in the hundreds) and a copy 1e6 away bake to the same hierarchy."""
+    mesh, near = baked("nefertiti.obj")
+    _, far = baked("nefertiti.obj", offset=1e6)
+    assert checks.check(far)["checks"] == ALL_TRUE
+    assert np.array_equal(near.tri_count, far.tri_count) and np.array_equal(near.child_count, far.child_count)
+    np.testing.assert_allclose(far.box_min - 1e6, near.box_min, atol=1e-6)
+    # Leaf geometry: float32 relative to a float64 origin keeps ~1e-5 units here; absolute float32
+    # coordinates at 1e6 would be quantised to 0.0625.
+    np.testing.assert_allclose(_leaf_triangles(far) - 1e6, _leaf_triangles(near), atol=1e-4)
+    # The 1e6 shift moves relative coordinates by ~1e-10, which can flip a float32 rounding and send
+    # quadric decimation down another path for a node or two; the errors agree in aggregate.
+    assert abs(far.error.max() - near.error.max()) <= 0.01 * near.error.max()
+    assert np.mean(np.isclose(far.error, near.error, rtol=1e-5)) > 0.95
+    assert np.all(np.abs(far.error - near.error) <= 0.25 * near.error.max())
+
+
+def test_parallel_and_serial_bakes_are_identical():
+    _, serial = baked("stanford-bunny.obj", jobs=1)
+    _, parallel = baked("stanford-bunny.obj", jobs=2)
+    for name, arr in serial.node_arrays().items():
+        assert np.array_equal(arr, getattr(parallel, name)), name
+    assert np.array_equal(serial.positions, parallel.positions)
+    assert np.array_equal(serial.indices, parallel.indices)
+
+
+def test_normals_are_carried_only_when_given():
+    mesh = load_model("cow.obj")
+    n = np.zeros_like(mesh.positions)
+    n[:, 2] = 1.0
+    with_normals = bake(meshio.from_arrays(mesh.positions, mesh.faces, n, name="cow"), BakeSettings(target_tris=500))
+    assert with_normals.normals is not None and with_normals.normals.shape == with_normals.positions.shape
+    leaves = np.flatnonzero(with_normals.is_leaf)
+    leaf_rows = np.concatenate([np.arange(with_normals.vertex_offset[i], with_normals.vertex_offset[i]
+                                          + with_normals.vertex_count[i]) for i in leaves])
+    assert np.all(with_normals.normals[leaf_rows] == [0, 0, 1])  # leaves keep the source normals
+    assert np.allclose(np.linalg.norm(with_normals.normals, axis=1), 1.0, atol=1e-3)
+
+
+# --- degenerate input (DESIGN §10) ---------------------------------------------------------------
+
+def test_empty_mesh_is_a_clear_error():
+    with pytest.raises(InputError, match="empty-thing: the mesh has no triangles"):
+        meshio.from_arrays(np.zeros((0, 3)), np.zeros((0, 3), int), name="empty-thing")
+
+
+def test_one_triangle_is_one_leaf():
+    hlod = bake(meshio.from_arrays([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], name="one"))
+    assert hlod.node_count == 1 and hlod.error[0] == 0.0 and hlod.tri_count[0] == 1
+    assert checks.check(hlod)["checks"] == ALL_TRUE
+    np.testing.assert_allclose(hlod.sphere_radius[0], np.sqrt(0.5))
+
+
+def test_all_vertices_at_one_point_give_one_finite_unsplittable_leaf():
+    faces = np.random.default_rng(0).integers(0, 10, size=(5000, 3))
+    hlod = bake(meshio.from_arrays(np.full((10, 3), 7.5), faces, name="point"), BakeSettings(target_tris=100))
+    assert hlod.node_count == 1 and hlod.sphere_radius[0] == 0.0 and hlod.error[0] == 0.0
+    assert np.all(np.isfinite(hlod.cube_side)) and hlod.cube_side[0] > 0
+    report = checks.check(hlod)
+    assert report["checks"] == ALL_TRUE
+
+
+def test_unsplittable_leaf_over_budget_is_counted():
+    # 300 distinct triangles (a, b, -(a+b)) on integer coordinates: every centroid is exactly 0, so
+    # the cell cannot be split, but they are real triangles and count toward the budget.
+    i, j = np.meshgrid(np.arange(1, 21), np.arange(1, 16), indexing="ij")
+    a = np.stack([i.ravel(), j.ravel(), np.ones(i.size)], 1)
+    b = np.stack([j.ravel(), -i.ravel(), np.full(i.size, 2.0)], 1)
+    p = np.stack([a, b, -(a + b)], 1).reshape(-1, 3)
+    hlod = bake(meshio.from_arrays(p, np.arange(p.shape[0]).reshape(-1, 3), name="fan"), BakeSettings(target_tris=100))
+    assert hlod.node_count == 1
+    report = checks.check(hlod)
+    assert report["checks"] == ALL_TRUE
+    assert report["leaves_over_budget"] == 1 and report["leaves_unsplittable"] == 1
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_coordinates_are_a_clear_error(bad):
+    p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [bad, 0, 0]], float)
+    with pytest.raises(InputError, match=r"scan\.obj: 1 vertices used by faces have NaN or infinite"):
+        meshio.from_arrays(p, [[0, 1, 2], [1, 2, 3]], name="scan.obj")
+
+
+def test_non_finite_unused_vertex_is_ignored():
+    p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [np.nan, 0, 0]], float)
+    hlod = bake(meshio.from_arrays(p, [[0, 1, 2]], name="ok"))
+    assert np.all(np.isfinite(hlod.positions))
+
+
+def test_face_index_out_of_range_is_a_clear_error():
+    with pytest.raises(InputError, match="broken: a face refers to a vertex outside 0..2"):
+        meshio.from_arrays(np.eye(3), [[0, 1, 3]], name="broken")
+
+
+def test_zero_area_duplicate_and_non_manifold_faces_bake_to_finite_results():
+    """bunny plus a zero-area copy of every fifth face, every vertex duplicated (half the faces use
+    the copies), and a fin of three triangles sharing one edge: finite, every invariant holds, and
+    the duplicates weld back into one surface that decimates to the budget."""
+    mesh = load_model("stanford-bunny.obj")
+    v = mesh.positions.shape[0]
+    f = mesh.faces.copy()
+    f[1::2] += v  # half the faces use the duplicated vertices
+    slivers = mesh.faces[::5].copy()
+    slivers[:, 2] = slivers[:, 1]  # zero area: two corners on one vertex
+    fin_p = np.array([[0, 0, 0], [0, 0, 0.01], [0.01, 0, 0], [-0.01, 0, 0], [0, 0.01, 0]])
+    fin_f = np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4]]) + 2 * v
+    p = np.concatenate([mesh.positions, mesh.positions, fin_p])
+    hlod = bake(meshio.from_arrays(p, np.concatenate([f, slivers, fin_f]), name="messy"))
+    report = checks.check(hlod)
+    assert report["checks"] == ALL_TRUE
+    assert np.all(np.isfinite(hlod.error)) and np.all(np.isfinite(hlod.sphere_radius))
+    assert hlod.meta["collapsed_input_tris"] == slivers.shape[0]
+    assert hlod.tri_count[0] <= 2000
+
+
+def test_bad_settings_are_clear_errors():
+    with pytest.raises(InputError, match="target_tris"):
+        BakeSettings(target_tris=0)
+    with pytest.raises(InputError, match="jobs"):
+        BakeSettings(jobs=0)
+
+
+# --- progress and cancellation --------------------------------------------------------------------
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_cancelled_bake_raises_and_leaves_no_scratch_files(jobs, tmp_path, monkeypatch):
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    import tempfile
+    monkeypatch.setattr(tempfile, "tempdir", None)  # re-read TMPDIR
+    mesh = load_model("stanford-bunny.obj")
+    calls = []
+
+    def progress(done, total, phase):
+        calls.append((done, total, phase))
+
+    def cancel():
+        return len([c for c in calls if c[2] == "simplify"]) >= 3
+
+    with pytest.raises(BakeCancelled):
+        bake(mesh, BakeSettings(jobs=jobs), progress=progress, cancel=cancel)
+    assert calls[0][2] == "octree" and all(c[1] == calls[0][1] for c in calls)
+    assert os.listdir(tmp_path) == []
+
+
+def test_progress_reaches_every_node():
+    mesh = load_model("cow.obj")
+    seen = []
+    hlod = bake(mesh, BakeSettings(target_tris=300), progress=lambda d, t, p: seen.append((d, t, p)))
+    assert seen[-1] == (hlod.node_count, hlod.node_count, "done")
+    assert [d for d, _, _ in seen] == sorted(d for d, _, _ in seen)

@@ -1,0 +1,63 @@
+"""Octree partition on tiny literal inputs with exact expected layouts."""
+import numpy as np
+
+from hlod_core.octree import build_octree
+
+
+def _corner_centroids():
+    # One centroid in each octant of the cube [-1, 1]^3: octant o has bit a set on the + side of axis a.
+    return np.array([[(1 if (o >> a) & 1 else -1) for a in range(3)] for o in range(8)], float)
+
+
+def test_eight_octants_give_eight_contiguous_leaves():
+    layout = build_octree(_corner_centroids(), target_tris=1, max_depth=5)
+    assert layout.node_count == 9
+    assert layout.child_offset[0] == 1 and layout.child_count[0] == 8
+    assert np.all(layout.parent[1:] == 0) and np.all(layout.depth[1:] == 1)
+    # octants come out in order 0..7, each leaf holds exactly its triangle
+    assert layout.tri_order.tolist() == list(range(8))
+    assert layout.tri_begin.tolist() == [0] + list(range(8))
+    assert layout.tri_end.tolist() == [8] + list(range(1, 9))
+
+
+def test_cell_shrinks_instead_of_making_single_child_nodes():
+    # Three centroids crowd one corner, one sits far away; then the crowd splits again deep down.
+    c = np.array([[0, 0, 0], [0.001, 0, 0], [0, 0.001, 0], [100, 100, 100]], float)
+    layout = build_octree(c, target_tris=1, max_depth=10)
+    inner = layout.child_count > 0
+    assert np.all(layout.child_count[inner] >= 2), "a node with one child would repeat its child's LOD"
+    assert int((layout.child_count == 0).sum()) == 4
+
+
+def test_coincident_centroids_make_one_unsplittable_leaf():
+    c = np.zeros((50, 3))
+    layout = build_octree(c, target_tris=10, max_depth=12)
+    assert layout.node_count == 1 and layout.tri_end[0] == 50
+
+
+def test_max_depth_zero_is_a_single_leaf():
+    layout = build_octree(np.random.default_rng(0).random((100, 3)), target_tris=10, max_depth=0)
+    assert layout.node_count == 1
+
+
+def test_uncounted_triangles_do_not_force_a_split():
+    c = np.random.default_rng(1).random((30, 3))
+    counted = np.zeros(30, bool)
+    counted[:10] = True
+    assert build_octree(c, target_tris=10, max_depth=8, counted=counted).node_count == 1
+    assert build_octree(c, target_tris=10, max_depth=8).node_count > 1
+
+
+def test_subtree_ranges_are_contiguous_and_breadth_first_children_contiguous():
+    rng = np.random.default_rng(2)
+    c = np.concatenate([rng.normal(size=(3000, 3)), rng.normal(size=(500, 3)) * 0.01 + 5])
+    layout = build_octree(c, target_tris=100, max_depth=12)
+    assert np.array_equal(np.sort(layout.tri_order), np.arange(c.shape[0]))
+    for node in np.flatnonzero(layout.child_count):
+        kids = np.arange(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
+        assert np.all(layout.parent[kids] == node)
+        assert layout.tri_begin[kids[0]] == layout.tri_begin[node]
+        assert layout.tri_end[kids[-1]] == layout.tri_end[node]
+        assert np.all(layout.tri_end[kids[:-1]] == layout.tri_begin[kids[1:]])
+    leaves = layout.child_count == 0
+    assert np.all(layout.tri_end[leaves] - layout.tri_begin[leaves] <= 100)
