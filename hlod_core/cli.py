@@ -15,10 +15,11 @@ import logging
 import os
 import sys
 import time
+from pathlib import Path
 
 from . import checks, fileformat, meshio, scenes
 from .bake import BakeSettings, bake
-from .errors import HlodError
+from .errors import HlodError, InputError
 
 log = logging.getLogger("hlod_core")
 
@@ -80,6 +81,18 @@ def _settings(args) -> BakeSettings:
                         quality_threshold=args.quality_threshold, preserve_normals=args.preserve_normals)
 
 
+def _check_output(path: str) -> None:
+    """Fail before a long bake, not after it, when OUT cannot be written."""
+    out = Path(path)
+    if out.is_dir():
+        raise InputError(f"{out}: is a folder; give a file name such as {out / 'scene.hlod'}")
+    parent = next((p for p in [out.parent, *out.parent.parents] if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise InputError(f"{out}: cannot create it, {parent} is a file")
+    if parent is not None and not os.access(parent, os.W_OK):
+        raise InputError(f"{out}: folder {parent} is not writable")
+
+
 def _bake_and_save(mesh, args, sources) -> dict:
     settings = _settings(args)
     started = time.perf_counter()
@@ -96,6 +109,7 @@ def _bake_and_save(mesh, args, sources) -> dict:
 
 
 def _cmd_bake(args) -> dict:
+    _check_output(args.output)
     started = time.perf_counter()
     mesh = meshio.load_inputs(args.inputs)
     load_seconds = time.perf_counter() - started
@@ -105,6 +119,7 @@ def _cmd_bake(args) -> dict:
 
 
 def _cmd_scene(args) -> dict:
+    _check_output(args.output)
     mesh = scenes.default_scene(seed=args.seed, scale=args.scale)
     summary = _bake_and_save(mesh, args, [mesh.name])
     summary["scene"] = args.name

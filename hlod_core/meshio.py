@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -85,9 +86,22 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
     try:
         ms.load_new_mesh(str(path))
     except Exception as exc:  # pymeshlab raises its own exception types, not subclasses we can name
-        raise InputError(f"{path}: cannot read mesh ({str(exc).strip() or type(exc).__name__})") from exc
+        raise InputError(f"{path}: cannot read mesh ({_one_line(str(exc)) or type(exc).__name__})") from exc
     m = ms.current_mesh()
+    if path.suffix.lower() == ".obj":
+        # pymeshlab's OBJ reader silently drops vertices it cannot parse (nan, inf) and every face
+        # that uses them: count the declared vertices so that loss becomes an error.
+        declared = len(re.findall(rb"(?m)^[ \t]*v[ \t]", path.read_bytes()))
+        if m.vertex_number() < declared:
+            raise InputError(f"{path}: {declared - m.vertex_number()} of {declared} vertices could not be read "
+                             "(NaN, infinite or malformed coordinates)")
     return from_arrays(m.vertex_matrix(), m.face_matrix(), name=str(path))
+
+
+def _one_line(message: str) -> str:
+    """pymeshlab's messages span several lines; keep the details, on one line."""
+    details = message.split("Error details:")[-1]
+    return " ".join(details.split())
 
 
 def transform_mesh(mesh: TriangleMesh, matrix: np.ndarray, *, name: str) -> TriangleMesh:

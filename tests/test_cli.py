@@ -1,0 +1,129 @@
+"""The command-line contract: last stdout line is one JSON object; bad input exits non-zero with
+one line naming the file; an interrupted bake leaves nothing behind."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from .conftest import ROOT, SCENES, model
+
+BAKE_KEYS = {"nodes", "leaves", "depth", "input_tris", "leaf_tris", "root_tris", "max_error", "seconds",
+             "tris_per_second"}
+ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}
+
+
+def hlod(*args, check=True, timeout=600):
+    proc = subprocess.run([sys.executable, "-m", "hlod_core", *map(str, args)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=timeout, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def last_json(proc) -> dict:
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def one_line_error(proc) -> str:
+    """The failure is exactly one line, the last on stderr (progress lines may come before it)."""
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    errors = [line for line in lines if "error" in line.lower() or "traceback" in line.lower()]
+    assert len(errors) == 1 and lines[-1] == errors[0], proc.stderr
+    return errors[0]
+
+
+def test_bake_scene_spec_and_info(tmp_path):
+    spec = tmp_path / "spec.json"
+    rel = os.path.relpath(model("cow.obj"), tmp_path)
+    spec.write_text(json.dumps({"models": [
+        {"path": rel, "transforms": [[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1],
+                                     [-1, 0, 0, 5, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]]},
+        {"path": str(model("teapot.obj"))}]}))
+    out = tmp_path / "scene.hlod"
+    summary = last_json(hlod("bake", spec, "-o", out, "--target-tris", "1000", "--jobs", "2"))
+    assert BAKE_KEYS <= summary.keys()
+    assert summary["input_tris"] == 2 * 5804 + 6320 == summary["leaf_tris"]
+    info = last_json(hlod("info", out))
+    assert info["checks"] == ALL_TRUE
+    assert {k: info[k] for k in ("nodes", "leaves", "input_tris")} == {k: summary[k] for k in ("nodes", "leaves", "input_tris")}
+
+
+def test_several_inputs_merge_into_one_scene(tmp_path):
+    out = tmp_path / "two.hlod"
+    summary = last_json(hlod("bake", model("cow.obj"), model("spot.obj"), "-o", out))
+    assert summary["input_tris"] == 5804 + 5856
+
+
+def test_million_triangle_instanced_spec_passes_every_check(tmp_path):
+    out = tmp_path / "gallery.hlod"
+    summary = last_json(hlod("-q", "bake", SCENES / "gallery_1m.json", "-o", out, "--jobs", "2"))
+    assert summary["input_tris"] >= 1_000_000
+    info = last_json(hlod("info", out))
+    assert info["checks"] == ALL_TRUE, info
+
+
+def test_default_scene_command(tmp_path):
+    summary = last_json(hlod("-q", "scene", "default", "-o", tmp_path / "d.hlod", "--scale", "0.5"))
+    assert summary["input_tris"] > 0 and summary["scene"] == "default"
+    assert last_json(hlod("info", tmp_path / "d.hlod"))["checks"] == ALL_TRUE
+
+
+@pytest.mark.parametrize("make, expect", [
+    (lambda d: d / "missing.obj", r"missing\.obj: no such file"),
+    (lambda d: _write(d / "garbage.obj", "this is not a mesh\n"), r"garbage\.obj: (cannot read mesh|the mesh has no triangles)"),
+    (lambda d: _write(d / "nan.obj", "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n"), r"nan\.obj: 1 of 3 vertices .*NaN"),
+    (lambda d: _write(d / "inf.obj", "v 0 0 0\nv 1 0 0\nv inf 1 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n"),
+     r"inf\.obj: 1 of 4 vertices could not be read"),
+    (lambda d: _write(d / "bad.json", "{not json"), r"bad\.json: scene spec is not valid JSON"),
+    (lambda d: _write(d / "spec.json", json.dumps({"models": [{"path": "x.obj"}]})), r"x\.obj: no such file"),
+    (lambda d: _write(d / "spec2.json", json.dumps({"models": [{"path": str(model("cow.obj")), "transforms": [[1, 2, 3]]}]})),
+     r"spec2\.json: models\[0\]\.transforms\[0\] must have 16 numbers"),
+    (lambda d: _write(d / "notes.txt", "hello"), r"notes\.txt: unsupported file type"),
+])
+def test_bad_input_is_one_line_naming_the_file(tmp_path, make, expect):
+    import re
+    bad = make(tmp_path)
+    proc = hlod("bake", bad, "-o", tmp_path / "out.hlod", check=False)
+    line = one_line_error(proc)
+    assert re.search(expect, line), line
+    assert not (tmp_path / "out.hlod").exists()
+
+
+def test_info_on_foreign_file_is_one_line(tmp_path):
+    bad = _write(tmp_path / "x.hlod", "v 0 0 0\n")
+    assert "x.hlod: not a .hlod file" in one_line_error(hlod("info", bad, check=False))
+
+
+def test_unwritable_output_is_one_line(tmp_path):
+    blocker = _write(tmp_path / "file", "")
+    proc = hlod("bake", model("cow.obj"), "-o", blocker / "out.hlod", check=False)
+    assert f"{blocker} is a file" in one_line_error(proc)
+    assert "bake" not in proc.stderr  # refused before baking
+
+
+def test_interrupted_bake_leaves_no_output_and_keeps_the_old_file(tmp_path):
+    out = tmp_path / "igea.hlod"
+    out.write_bytes(b"previous result")
+    proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "bake", str(model("igea.ply")), "-o", str(out),
+                             "--jobs", "2"], cwd=ROOT, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": str(tmp_path)})
+    for line in proc.stderr:  # wait until decimation is under way
+        if "bake simplify" in line:
+            break
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=120)
+    assert proc.returncode != 0
+    assert out.read_bytes() == b"previous result"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["igea.hlod"]
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
