@@ -1,49 +1,5 @@
-"""Shared fixtures: the real meshes in ../shared/models, and bakes cached for the session."""
-from __future__ import annotations
-
-import functools
+"""pytest configuration: tests/ is on sys.path (rootdir-relative imports of helpers.py)."""
+import sys
 from pathlib import Path
 
-import numpy as np
-import pytest
-
-from hlod_core import meshio
-from hlod_core.bake import BakeSettings, bake
-
-ROOT = Path(__file__).resolve().parents[1]
-MODELS = ROOT.parent / "shared" / "models"
-SCENES = ROOT / "tests" / "scenes"
-
-
-def model(name: str) -> Path:
-    path = MODELS / name
-    assert path.is_file(), f"test model missing: {path} (tests read ../shared/models)"
-    return path
-
-
-@functools.lru_cache(maxsize=None)
-def load_model(name: str) -> meshio.TriangleMesh:
-    return meshio.load_mesh(model(name))
-
-
-@functools.lru_cache(maxsize=None)
-def baked(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = 2000):
-    """Bake a shared model once per session (optionally translated by `offset` on every axis)."""
-    mesh = load_model(name)
-    if offset:
-        mesh = meshio.transform_mesh(mesh, _translation(offset), name=f"{name}+{offset:g}")
-    return mesh, bake(mesh, BakeSettings(jobs=jobs, target_tris=target_tris))
-
-
-def _translation(offset: float) -> np.ndarray:
-    m = np.eye(4)
-    m[:3, 3] = offset
-    return m
-
-
-@pytest.fixture
-def tiny_mesh():
-    """Two unit quads side by side (4 triangles)."""
-    p = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]], float)
-    f = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]])
-    return meshio.from_arrays(p, f, name="tiny")
+sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -8,7 +8,7 @@ from hlod_core import checks, meshio
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.errors import BakeCancelled, InputError
 
-from .conftest import baked, load_model
+from helpers import baked, load_model
 
 ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}
 

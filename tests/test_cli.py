@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from .conftest import ROOT, SCENES, model
+from helpers import ROOT, SCENES, model
 
 BAKE_KEYS = {"nodes", "leaves", "depth", "input_tris", "leaf_tris", "root_tris", "max_error", "seconds",
              "tris_per_second"}

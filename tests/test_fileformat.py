@@ -10,7 +10,7 @@ import pytest
 from hlod_core import fileformat
 from hlod_core.errors import FormatError
 
-from .conftest import baked
+from helpers import baked
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,39 @@
+"""Test helpers: the real meshes in ../shared/models, and bakes cached for the session."""
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import numpy as np
+from hlod_core import meshio
+from hlod_core.bake import BakeSettings, bake
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = ROOT.parent / "shared" / "models"
+SCENES = ROOT / "tests" / "scenes"
+
+
+def model(name: str) -> Path:
+    path = MODELS / name
+    assert path.is_file(), f"test model missing: {path} (tests read ../shared/models)"
+    return path
+
+
+@functools.lru_cache(maxsize=None)
+def load_model(name: str) -> meshio.TriangleMesh:
+    return meshio.load_mesh(model(name))
+
+
+@functools.lru_cache(maxsize=None)
+def baked(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = 2000):
+    """Bake a shared model once per session (optionally translated by `offset` on every axis)."""
+    mesh = load_model(name)
+    if offset:
+        mesh = meshio.transform_mesh(mesh, _translation(offset), name=f"{name}+{offset:g}")
+    return mesh, bake(mesh, BakeSettings(jobs=jobs, target_tris=target_tris))
+
+
+def _translation(offset: float) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, 3] = offset
+    return m
