@@ -57,6 +57,23 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("file", metavar="FILE.hlod")
     p.set_defaults(run=_cmd_info)
 
+    p = sub.add_parser("run", help="run a traversal method over a camera path; print per-frame means")
+    p.add_argument("file", metavar="FILE.hlod")
+    p.add_argument("--method", required=True, choices=["full", "vfc", "bool", "sw", "simp", "coh", "ideal"])
+    p.add_argument("--bias", choices=["P", "mu"], default="P", help="P = P_{s,t}(mu); mu = the visibility itself (s = 0)")
+    p.add_argument("--s", type=float, default=0.9)
+    p.add_argument("--t", type=float, default=0.05)
+    p.add_argument("--k", type=float, default=float("inf"), help="sigmoid steepness; inf = step (default)")
+    p.add_argument("--tau", type=float, default=1.0, help="screen-space error threshold, pixels")
+    p.add_argument("--alpha", choices=["query", "projected", "cube"], default="query")
+    p.add_argument("--path", metavar="PATH.json", help="camera path file (see README)")
+    p.add_argument("--seed", type=int, default=1, help="seed of a generated inspection path (without --path)")
+    p.add_argument("--frames", type=int, default=60, help="frames of a generated path")
+    p.add_argument("--size", default="640x480", help="viewport WxH pixels")
+    p.add_argument("--save-frames", metavar="DIR", help="write every frame as PNG")
+    p.add_argument("--save-path", metavar="PATH.json", help="write the camera path used")
+    p.set_defaults(run=_cmd_run)
+
     p = sub.add_parser("scene", help="bake a procedural scene made by the project (no input files)")
     p.add_argument("name", choices=["default"])
     p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
@@ -135,6 +152,37 @@ def _cmd_info(args) -> dict:
     out.update(file=str(args.file), open_seconds=open_seconds, target_tris=hlod.meta.get("target_tris"),
                max_depth=hlod.meta.get("max_depth"), sources=hlod.meta.get("sources"),
                has_normals=hlod.normals is not None)
+    return out
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--size {text!r}: expected WxH, e.g. 640x480") from None
+    if not (1 <= w <= 16384 and 1 <= h <= 16384):
+        raise InputError(f"--size {text!r}: width and height must lie in 1..16384")
+    return w, h
+
+
+def _cmd_run(args) -> dict:
+    from .camera import inspection_path, load_path
+    from .runner import run_path
+    from .traversal import RuntimeSettings
+
+    size = _parse_size(args.size)
+    hlod = fileformat.load(args.file)
+    try:
+        settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=args.bias, alpha=args.alpha)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    if args.frames < 1:
+        raise InputError("--frames must be at least 1")
+    path = load_path(args.path) if args.path else inspection_path(hlod, seed=args.seed, frames=args.frames)
+    if args.save_path:
+        path.save(args.save_path)
+    out = run_path(hlod, args.method, settings, path, size, save_frames=args.save_frames)
+    out.update(method=args.method, bias=args.bias, size=list(size), alpha=args.alpha, tau=args.tau)
     return out
 
 

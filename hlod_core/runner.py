@@ -1,0 +1,35 @@
+"""Run one traversal method over a camera path and average its counters (the `run` command)."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .camera import CameraPath
+from .hierarchy import Hlod
+from .png import write_png
+from .renderer import Renderer
+from .traversal import FrameStats, RuntimeSettings, make
+
+COUNTERS = ("dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms")
+
+
+def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,
+             renderer: Renderer | None = None, save_frames: str | os.PathLike | None = None) -> dict:
+    """Per-frame means of every counter, plus "frames". Uses `renderer` or a standalone one."""
+    own = renderer is None
+    renderer = renderer or Renderer.create_standalone(hlod, size)
+    try:
+        traversal = make(method, hlod, renderer, settings)
+        stats: list[FrameStats] = []
+        for i in range(len(path)):
+            stats.append(traversal.frame(path.view(i, size)))
+            if save_frames is not None:
+                write_png(Path(save_frames) / f"{method}_{i:05d}.png", renderer.read_pixels())
+    finally:
+        if own:
+            renderer.release()
+    out = {name: float(np.mean([getattr(s, name) for s in stats])) for name in COUNTERS}
+    out["frames"] = len(stats)
+    return out

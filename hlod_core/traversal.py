@@ -1,0 +1,451 @@
+"""HLOD traversal methods (DESIGN §6), one class each, one `frame(view)` entry point, same counters.
+
+Papers:
+- Bittner, Wimmer, Piringer, Purgathofer, "Coherent hierarchical culling" (2004,
+  `../shared/papers/bittner-wimmer-piringer-purgathofer2004-chc.txt`): the priority queue
+  front-to-back, the query queue, visibility pulled up, queries never stalling while work remains.
+- Charalambos' dissertation (`charalambos2007-dissertation-hlod-refinement-hoq.txt`): Algorithm 1
+  (Bool, after Gobbetti & Marton), Algorithm 2 (the coherent visibility-based traversal) with
+  Algorithm 3 (Simp, the 2006 predictor mu_hat = 1 - pos/total) and Algorithm 4 (Coh: refine /
+  stop / delay from the cached ratio of the previous frame).
+
+Decisions on points the pseudocode leaves open (DESIGN §6): a node drawn this frame is never drawn
+again; if its query later says "refine" it counts in RARN and its children are traversed. A query
+result of 0 sets ratio = P(0) = 0 and leaves the node invisible. In Algorithm 4 a child not visited
+in the previous frame counts as stopped with ratio 0, and the average ratio is over all children.
+Leaves always stop; interior nodes with d <= 0 (eye inside the sphere) always refine.
+
+Per-frame work over the whole node table (frustum test, distances, SSE, cube alpha) is numpy; the
+Python loop is the traversal itself, over the nodes it visits.
+"""
+from __future__ import annotations
+
+import heapq
+import time
+from collections import deque
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from . import metrics
+from .hierarchy import Hlod
+from .metrics import View
+from .renderer import DEFAULT_COLOUR, Query, Renderer
+
+REFINE, STOP, DELAY = "refine", "stop", "delay"
+ALPHA_MODES = ("query", "projected", "cube")
+
+
+@dataclass(frozen=True)
+class RuntimeSettings:
+    """tau: pixels; s, t in [0, 1] and k > 0 (inf = step) for P_{s,t}; bias "P" or "mu" (s = 0);
+    alpha: "query" | "projected" | "cube"; overlay: colour drawn nodes by modulation."""
+
+    tau: float = 1.0
+    s: float = 0.9
+    t: float = 0.05
+    k: float = float("inf")
+    bias: str = "P"
+    alpha: str = "query"
+    overlay: bool = False
+
+    def __post_init__(self):
+        if not self.tau > 0:
+            raise ValueError(f"tau must be > 0 pixels, got {self.tau}")
+        if self.bias not in ("P", "mu"):
+            raise ValueError(f"bias must be 'P' or 'mu', got {self.bias!r}")
+        if self.alpha not in ALPHA_MODES:
+            raise ValueError(f"alpha must be one of {ALPHA_MODES}, got {self.alpha!r}")
+        metrics.bias(0.5, self.s, self.t, self.k)  # validates s, t, k
+
+    def p(self, mu) -> np.ndarray:
+        if self.bias == "mu":
+            return metrics.bias(mu, 0.0, self.t, self.k)
+        return metrics.bias(mu, self.s, self.t, self.k)
+
+
+@dataclass
+class FrameStats:
+    """Counters of one frame (DESIGN §6). Times in milliseconds."""
+
+    dn: int = 0          # drawn nodes
+    rarn: int = 0        # drawn, then refined in the same frame
+    d: int = 0           # drawn only after waiting for their own query
+    tris: int = 0
+    queries: int = 0     # node occlusion queries issued (the query alpha estimator adds one GL query each)
+    traversed: int = 0   # nodes visited inside the frustum
+    stall_ms: float = 0.0
+    cpu_ms: float = 0.0
+    gpu_ms: float = 0.0
+    frame_ms: float = 0.0
+    drawn: list = field(default_factory=list)  # node ids in draw order (not a counter)
+
+    def counters(self) -> dict:
+        out = asdict(self)
+        out.pop("drawn")
+        return out
+
+
+@dataclass
+class _Pending:
+    """A query in flight; `immediate` when the eye is inside the box (no GL query: mu = 1)."""
+
+    node: int
+    mode: str
+    query: Query | None
+
+
+class Traversal:
+    """Shared state and helpers. Subclasses implement `_traverse(stats)`."""
+
+    name = "base"
+
+    def __init__(self, hlod: Hlod, renderer: Renderer, settings: RuntimeSettings = RuntimeSettings()):
+        self.hlod = hlod
+        self.renderer = renderer
+        self.settings = settings
+        n = hlod.node_count
+        self.visible = np.zeros(n, bool)
+        self.last_visited = np.full(n, -10, np.int64)
+        self.stop_refinement = np.zeros(n, bool)
+        self.ratio = np.zeros(n, np.float64)
+        self.rendered = np.full(n, -1, np.int64)
+        self.frame_id = 0
+        self._child_offset = hlod.child_offset.tolist()
+        self._child_count = hlod.child_count.tolist()
+        self._parent = hlod.parent.tolist()
+        self._tri_count = hlod.tri_count.tolist()
+        self._leaf = (hlod.child_count == 0).tolist()
+
+    # --- per frame, vectorised ------------------------------------------------------------------
+
+    def _prepare(self, view: View) -> None:
+        h = self.hlod
+        self.view = view
+        self.in_frustum = metrics.boxes_in_frustum(view, h.box_min, h.box_max).tolist()
+        self.sse = metrics.sse(view, h.error, h.sphere_center, h.sphere_radius, h.child_count == 0).tolist()
+        self.key = metrics.box_distance(view.eye, h.box_min, h.box_max).tolist()
+        pad = self.renderer.query_box_pad
+        self.eye_in_query_box = metrics.eye_in_boxes(view.eye, h.box_min - pad, h.box_max + pad).tolist()
+        self.alpha_cube = metrics.alpha_cube(view, h.cube_side, h.box_min, h.box_max) \
+            if self.settings.alpha == "cube" else None
+
+    def frame(self, view: View) -> FrameStats:
+        self.frame_id += 1
+        stats = FrameStats()
+        started = time.perf_counter()
+        self._prepare(view)
+        self.renderer.begin_frame(view)
+        self._traverse(stats)
+        traversed_at = time.perf_counter()
+        stats.gpu_ms = self.renderer.end_frame()
+        ended = time.perf_counter()
+        stats.frame_ms = (ended - started) * 1e3
+        stats.cpu_ms = (traversed_at - started) * 1e3 - stats.stall_ms
+        return stats
+
+    def _traverse(self, stats: FrameStats) -> None:
+        raise NotImplementedError  # every concrete method overrides this
+
+    # --- helpers --------------------------------------------------------------------------------
+
+    def _children(self, node: int) -> range:
+        first = self._child_offset[node]
+        return range(first, first + self._child_count[node]) if first >= 0 else range(0)
+
+    def _render(self, node: int, stats: FrameStats) -> bool:
+        """Draw once per frame; False if the node was already drawn."""
+        if self.rendered[node] == self.frame_id:
+            return False
+        self.rendered[node] = self.frame_id
+        stats.dn += 1
+        stats.tris += self._tri_count[node]
+        stats.drawn.append(node)
+        colour = DEFAULT_COLOUR
+        if self.settings.overlay:
+            colour = tuple(metrics.modulation_colour(metrics.modulation(self.ratio[node])))
+        self.renderer.draw_node(node, colour)
+        return True
+
+    def _sse_stop(self, node: int) -> bool:
+        return self._leaf[node] or self.sse[node] <= self.settings.tau
+
+    def _vmsse_stop(self, node: int, ratio: float) -> bool:
+        """Leaves stop; d <= 0 (SSE = inf) refines whatever the ratio; else ratio * SSE <= tau."""
+        if self._leaf[node]:
+            return True
+        sse = self.sse[node]
+        return bool(np.isfinite(sse) and ratio * sse <= self.settings.tau)
+
+    def _issue(self, node: int, mode: str, stats: FrameStats) -> _Pending:
+        if self.eye_in_query_box[node]:
+            return _Pending(node, mode, None)
+        stats.queries += 1
+        return _Pending(node, mode, self.renderer.issue_query(node, with_alpha=self.settings.alpha == "query"))
+
+    def _available(self, pending: _Pending) -> bool:
+        return pending.query is None or self.renderer.available(pending.query)
+
+    def _mu(self, pending: _Pending, stats: FrameStats) -> tuple[int, float]:
+        """(q, mu) of a finished query; the eye inside the box gives (1, 1.0)."""
+        if pending.query is None:
+            return 1, 1.0
+        q, alpha_q, stall = self.renderer.result(pending.query)
+        stats.stall_ms += stall * 1e3
+        node = pending.node
+        if self.settings.alpha == "query":
+            alpha = float(alpha_q)
+        elif self.settings.alpha == "cube":
+            alpha = float(self.alpha_cube[node])
+        else:
+            alpha = metrics.alpha_projected(self.view, self.hlod.box_min[node] - self.renderer.query_box_pad,
+                                            self.hlod.box_max[node] + self.renderer.query_box_pad)
+        mu = 0.0 if not alpha > 0 else min(1.0, max(0.0, q / alpha))  # alpha 0 or NaN -> 0; q > alpha -> 1
+        return q, mu
+
+    def _pull_up(self, node: int) -> None:
+        while node >= 0 and not self.visible[node]:
+            self.visible[node] = True
+            node = self._parent[node]
+
+
+class Full(Traversal):
+    """Every leaf in the frustum, front to back: the ground-truth image."""
+
+    name = "full"
+
+    def _traverse(self, stats):
+        leaves = np.flatnonzero((self.hlod.child_count == 0) & np.asarray(self.in_frustum))
+        order = leaves[np.argsort(np.asarray(self.key)[leaves], kind="stable")]
+        stats.traversed = int(order.shape[0])
+        for node in order.tolist():
+            self._render(node, stats)
+
+
+class VFC(Traversal):
+    """View-frustum culling and SSE, no queries."""
+
+    name = "vfc"
+
+    def _traverse(self, stats):
+        heap = [(self.key[0], 0)]
+        while heap:
+            _, node = heapq.heappop(heap)
+            if not self.in_frustum[node]:
+                continue
+            stats.traversed += 1
+            if self._sse_stop(node):
+                self._render(node, stats)
+            else:
+                for child in self._children(node):
+                    heapq.heappush(heap, (self.key[child], child))
+
+
+class StopAndWait(Traversal):
+    """SW: query every visited node and wait for it; VMSSE decides. The ideal node count."""
+
+    name = "sw"
+
+    def _traverse(self, stats):
+        heap = [(self.key[0], 0)]
+        while heap:
+            _, node = heapq.heappop(heap)
+            if not self.in_frustum[node]:
+                continue
+            stats.traversed += 1
+            self.last_visited[node] = self.frame_id
+            pending = self._issue(node, DELAY, stats)
+            q, mu = self._mu(pending, stats)
+            if q == 0:
+                self.visible[node] = False
+                self.ratio[node] = 0.0
+                continue
+            self.visible[node] = True
+            self.ratio[node] = float(self.settings.p(mu))
+            stop = self._vmsse_stop(node, self.ratio[node])
+            self.stop_refinement[node] = stop
+            if stop:
+                if self._render(node, stats):
+                    stats.d += 1
+            else:
+                for child in self._children(node):
+                    heapq.heappush(heap, (self.key[child], child))
+
+
+class Ideal(Traversal):
+    """Draws exactly the node set SW finds for the frame, with no queries: a lower bound on time.
+    SW runs first in an untimed pass into the same framebuffer, which is then cleared."""
+
+    name = "ideal"
+
+    def __init__(self, hlod, renderer, settings=RuntimeSettings()):
+        super().__init__(hlod, renderer, settings)
+        self._sw = StopAndWait(hlod, renderer, settings)
+
+    def frame(self, view):
+        chosen = self._sw.frame(view).drawn
+        self.ratio = self._sw.ratio
+        self._chosen = chosen
+        return super().frame(view)
+
+    def _traverse(self, stats):
+        stats.traversed = len(self._chosen)
+        for node in self._chosen:
+            self._render(node, stats)
+
+
+class _Coherent(Traversal):
+    """Algorithm 2's loop (Algorithm 1 when `predict` and `stop_on_result` are Bool's)."""
+
+    def _predict(self, node: int) -> str:
+        raise NotImplementedError  # Bool, Simp and Coh override this
+
+    def _stop_on_result(self, node: int, mu: float) -> bool:
+        raise NotImplementedError  # Bool, Simp and Coh override this
+
+    def _push(self, heap, node):
+        heapq.heappush(heap, (self.key[node], node))
+
+    def _traverse(self, stats):
+        heap: list = [(self.key[0], 0)]
+        self._on_push(0)
+        queue: deque[_Pending] = deque()
+
+        def descend(node, stop):
+            if stop:
+                self._render(node, stats)
+            else:
+                for child in self._children(node):
+                    self._on_push(child)
+                    self._push(heap, child)
+
+        while heap or queue:
+            while queue and (not heap or self._available(queue[0])):
+                pending = queue.popleft()
+                node = pending.node
+                q, mu = self._mu(pending, stats)
+                if q > 0:
+                    self._pull_up(node)
+                    stop = self._stop_on_result(node, mu)
+                    self.stop_refinement[node] = stop
+                    if stop:
+                        if self._render(node, stats) and pending.mode == DELAY:
+                            stats.d += 1
+                    else:
+                        if self.rendered[node] == self.frame_id:
+                            stats.rarn += 1
+                        descend(node, False)
+                else:
+                    self.ratio[node] = 0.0  # P(0) = 0; the node stays invisible
+            if heap:
+                _, node = heapq.heappop(heap)
+                if not self.in_frustum[node]:
+                    continue
+                stats.traversed += 1
+                mode = self._predict(node)
+                stop = mode != REFINE
+                self.stop_refinement[node] = stop
+                self.visible[node] = False
+                self.last_visited[node] = self.frame_id
+                if stop:
+                    queue.append(self._issue(node, mode, stats))
+                if mode != DELAY:
+                    descend(node, stop)
+
+    def _on_push(self, node: int) -> None:
+        """Hook: Simp records the insertion position."""
+
+
+class Bool(_Coherent):
+    """CHC adapted to HLOD (dissertation Algorithm 1, Gobbetti & Marton): queries as booleans, SSE."""
+
+    name = "bool"
+
+    def __init__(self, hlod, renderer, settings=RuntimeSettings()):
+        super().__init__(hlod, renderer, settings)
+        self.ratio[:] = 1.0  # queries are booleans: no modulation (overlay blue) unless culled
+
+    def _predict(self, node):
+        was_visible = self.visible[node] and self.last_visited[node] == self.frame_id - 1
+        if not was_visible:
+            return DELAY
+        return STOP if self._sse_stop(node) else REFINE
+
+    def _stop_on_result(self, node, mu):
+        self.ratio[node] = 1.0
+        return self._sse_stop(node)
+
+
+class Simp(_Coherent):
+    """Algorithm 2 with Algorithm 3 (2006): mu_hat = 1 - insertion position / nodes scheduled,
+    both from the previous frame."""
+
+    name = "simp"
+
+    def __init__(self, hlod, renderer, settings=RuntimeSettings()):
+        super().__init__(hlod, renderer, settings)
+        self._position = np.zeros(hlod.node_count, np.int64)
+        self._previous_position = self._position.copy()
+        self._scheduled = 0
+        self._previous_scheduled = 0
+
+    def frame(self, view):
+        self._previous_position = self._position.copy()
+        self._previous_scheduled, self._scheduled = self._scheduled, 0
+        return super().frame(view)
+
+    def _on_push(self, node):
+        self._position[node] = self._scheduled
+        self._scheduled += 1
+
+    def _predict(self, node):
+        if self.last_visited[node] != self.frame_id - 1 or not self.visible[node]:
+            return DELAY
+        total = max(self._previous_scheduled, 1)
+        mu_hat = 1.0 - self._previous_position[node] / total
+        return STOP if self._vmsse_stop(node, float(self.settings.p(mu_hat))) else REFINE
+
+    def _stop_on_result(self, node, mu):
+        self.ratio[node] = float(self.settings.p(mu))
+        return self._vmsse_stop(node, self.ratio[node])
+
+
+class Coherent(_Coherent):
+    """Coh: Algorithm 2 with Algorithm 4, the cached ratio of the previous frame."""
+
+    name = "coh"
+
+    def _predict(self, node):
+        if self.last_visited[node] != self.frame_id - 1 or not self.visible[node]:
+            return DELAY
+        if self._leaf[node]:
+            return STOP if self.stop_refinement[node] else DELAY
+        if not self.stop_refinement[node]:
+            candidate = True
+            ratios = []
+            for child in self._children(node):
+                visited = self.last_visited[child] == self.frame_id - 1
+                stopped = self.stop_refinement[child] if visited else True
+                ratio = self.ratio[child] if visited else 0.0
+                ratios.append(ratio)
+                if not stopped or not self._vmsse_stop(child, ratio):
+                    candidate = False
+            if candidate and self._vmsse_stop(node, float(np.mean(ratios))):
+                return DELAY
+        elif self._vmsse_stop(node, self.ratio[node]):
+            return STOP
+        return REFINE
+
+    def _stop_on_result(self, node, mu):
+        self.ratio[node] = float(self.settings.p(mu))
+        return self._vmsse_stop(node, self.ratio[node])
+
+
+METHODS = {"full": Full, "vfc": VFC, "bool": Bool, "sw": StopAndWait, "simp": Simp, "coh": Coherent, "ideal": Ideal}
+
+
+def make(method: str, hlod: Hlod, renderer: Renderer, settings: RuntimeSettings = RuntimeSettings()) -> Traversal:
+    try:
+        return METHODS[method](hlod, renderer, settings)
+    except KeyError:
+        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}") from None
