@@ -135,5 +135,5 @@ def inspection_path(hlod: Hlod, *, seed: int, frames: int, up_axis: int = 2) -> 
         d = look.copy()
         d[a], d[b] = c * look[a] - s * look[b], s * look[a] + c * look[b]
         out.append((near_eye, near_eye + d, up))
-    near = max(1e-4 * radius, 0.2 * close_dist)
+    near = max(1e-4 * radius, 0.01 * close_dist)
     return CameraPath(frames=np.array(out, np.float64), near=near, far=8.0 * radius, fovy_deg=60.0)

@@ -180,6 +180,15 @@ def boxes_in_frustum(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np
     return np.all(np.einsum("npk,pk->np", p_vertex, normals) + planes[None, :, 3] >= 0, axis=1)
 
 
+def boxes_cross_near_plane(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
+    """(n,) bool: part of the box lies on the eye's side of the near plane. The near plane clips
+    such a box's front faces, so its occlusion query could see only (culled) back faces and read
+    0 while the geometry inside is visible: these boxes must not be queried."""
+    plane = frustum_planes(view)[4]
+    n_vertex = np.where(plane[:3] >= 0, box_min, box_max)  # the corner farthest behind the plane
+    return n_vertex @ plane[:3] + plane[3] < 0
+
+
 def box_distance(eye: np.ndarray, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
     """(n,) distance from the eye to the nearest point of each box; 0 inside (priority key)."""
     return np.linalg.norm(np.maximum(np.maximum(box_min - eye, eye - box_max), 0.0), axis=1)
@@ -200,8 +209,11 @@ def alpha_cube(view: View, cube_side: np.ndarray, box_min: np.ndarray, box_max: 
     if view.orthographic:
         return face_pixels_at_unit
     d = np.linalg.norm(0.5 * (box_min + box_max) - view.eye, axis=1)
-    with np.errstate(divide="ignore"):
-        return np.where(d > 0, face_pixels_at_unit / np.maximum(d, 1e-300) ** 2, np.inf)
+    out = np.full(d.shape, np.inf)
+    ahead = d > 0
+    with np.errstate(over="ignore", under="ignore"):  # d tiny: inf, which clamps mu to its floor
+        out[ahead] = np.broadcast_to(face_pixels_at_unit, d.shape)[ahead] / d[ahead] ** 2
+    return out
 
 
 _BOX_EDGES = np.array([[0, 1], [2, 3], [4, 5], [6, 7], [0, 2], [1, 3], [4, 6], [5, 7],

@@ -30,6 +30,8 @@ GL_TIME_ELAPSED = 0x88BF
 GL_QUERY_RESULT = 0x8866
 GL_QUERY_RESULT_AVAILABLE = 0x8867
 GL_NO_ERROR = 0
+GL_DEPTH_TEST = 0x0B71
+GL_CULL_FACE = 0x0B44
 
 _NODE_VS = """
 #version 330
@@ -94,6 +96,11 @@ class GLFunctions:
         self.get_query_ui64v = fn("glGetQueryObjectui64v", None, ctypes.c_uint32, ctypes.c_uint32, u64p)
         self.flush = fn("glFlush", None)
         self.get_error = fn("glGetError", ctypes.c_uint32)
+        self.is_query = fn("glIsQuery", ctypes.c_uint8, ctypes.c_uint32)
+        self.color_mask = fn("glColorMask", None, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint8)
+        self.depth_mask = fn("glDepthMask", None, ctypes.c_uint8)
+        self.enable = fn("glEnable", None, ctypes.c_uint32)
+        self.disable = fn("glDisable", None, ctypes.c_uint32)
 
 
 class QueryPool:
@@ -118,6 +125,10 @@ class QueryPool:
     @property
     def allocated(self) -> int:
         return len(self._all)
+
+    @property
+    def ids(self) -> list[int]:
+        return list(self._all)
 
     def release(self) -> None:
         if self._all:
@@ -160,6 +171,7 @@ class Renderer:
         self.cube_vao = self._keep(ctx.vertex_array(self.box_program, [(self.cube_vbo, "3f", "in_unit")],
                                                     index_buffer=self.cube_ibo, index_element_size=4))
         self.fbo = None
+        self._host_fbo = ctx.detect_framebuffer()  # what the caller had bound
         if size is not None:
             colour = self._keep(ctx.renderbuffer(size, components=4))
             depth = self._keep(ctx.depth_renderbuffer(size))
@@ -172,7 +184,6 @@ class Renderer:
         self._tri_vertices = (np.asarray(hlod.tri_count) * 3).astype(np.int64)
         self._mode = None
         self._timer = None
-        self.frame_started = 0.0
 
     @classmethod
     def create_standalone(cls, hlod: Hlod, size: tuple[int, int]) -> "Renderer":
@@ -223,27 +234,27 @@ class Renderer:
             self._timer = None
             gpu_ms = value.value / 1e6
         self.ctx.finish()
+        if self.fbo is not None:
+            self._host_fbo.use()  # never leave ours bound: moderngl rebinds its last one later
         return gpu_ms
 
     def _set_mode(self, mode: str | None) -> None:
-        """'draw': colour+depth writes, no culling; 'query'/'alpha': no writes, back faces culled,
-        depth test on/off."""
+        """'draw' (and None, the frame's end): colour and depth writes, depth test, no culling;
+        'query' / 'alpha': no writes, back faces culled, depth test on / off. Raw GL calls: the
+        state must hold for the very next draw, whatever moderngl has cached."""
         if mode == self._mode:
             return
-        fbo = self.fbo if self.fbo is not None else self.ctx.fbo
+        gl = self.gl
         if mode == "draw" or mode is None:
-            fbo.color_mask = (True, True, True, True)
-            fbo.depth_mask = True
-            self.ctx.disable(self._mgl.CULL_FACE)
-            self.ctx.enable(self._mgl.DEPTH_TEST)
+            gl.color_mask(1, 1, 1, 1)
+            gl.depth_mask(1)
+            gl.disable(GL_CULL_FACE)
+            gl.enable(GL_DEPTH_TEST)
         else:
-            fbo.color_mask = (False, False, False, False)
-            fbo.depth_mask = False
-            self.ctx.enable(self._mgl.CULL_FACE)
-            if mode == "query":
-                self.ctx.enable(self._mgl.DEPTH_TEST)
-            else:
-                self.ctx.disable(self._mgl.DEPTH_TEST)
+            gl.color_mask(0, 0, 0, 0)
+            gl.depth_mask(0)
+            gl.enable(GL_CULL_FACE)
+            (gl.enable if mode == "query" else gl.disable)(GL_DEPTH_TEST)
         self._mode = mode
 
     # --- nodes and queries ----------------------------------------------------------------------
@@ -325,6 +336,8 @@ class Renderer:
             return
         self._released = True
         self.queries.release()
+        if self.fbo is not None:
+            self._host_fbo.use()
         for resource in reversed(self._resources):
             resource.release()
         self._resources.clear()

@@ -88,7 +88,8 @@ class FrameStats:
 
 @dataclass
 class _Pending:
-    """A query in flight; `immediate` when the eye is inside the box (no GL query: mu = 1)."""
+    """A query in flight; query None when the box cannot be queried (eye inside it, or it reaches
+    in front of the near plane): visible with mu = 1."""
 
     node: int
     mode: str
@@ -126,7 +127,11 @@ class Traversal:
         self.sse = metrics.sse(view, h.error, h.sphere_center, h.sphere_radius, h.child_count == 0).tolist()
         self.key = metrics.box_distance(view.eye, h.box_min, h.box_max).tolist()
         pad = self.renderer.query_box_pad
-        self.eye_in_query_box = metrics.eye_in_boxes(view.eye, h.box_min - pad, h.box_max + pad).tolist()
+        lo, hi = h.box_min - pad, h.box_max + pad
+        # DESIGN §5.4 skips the query when the eye is inside the box; a box reaching in front of
+        # the near plane has the same problem (its front faces are clipped), so it is skipped too.
+        self.unqueryable = (metrics.eye_in_boxes(view.eye, lo, hi)
+                            | metrics.boxes_cross_near_plane(view, lo, hi)).tolist()
         self.alpha_cube = metrics.alpha_cube(view, h.cube_side, h.box_min, h.box_max) \
             if self.settings.alpha == "cube" else None
 
@@ -178,7 +183,7 @@ class Traversal:
         return bool(np.isfinite(sse) and ratio * sse <= self.settings.tau)
 
     def _issue(self, node: int, mode: str, stats: FrameStats) -> _Pending:
-        if self.eye_in_query_box[node]:
+        if self.unqueryable[node]:
             return _Pending(node, mode, None)
         stats.queries += 1
         return _Pending(node, mode, self.renderer.issue_query(node, with_alpha=self.settings.alpha == "query"))
@@ -187,7 +192,7 @@ class Traversal:
         return pending.query is None or self.renderer.available(pending.query)
 
     def _mu(self, pending: _Pending, stats: FrameStats) -> tuple[int, float]:
-        """(q, mu) of a finished query; the eye inside the box gives (1, 1.0)."""
+        """(q, mu) of a finished query; an unqueryable box gives (1, 1.0)."""
         if pending.query is None:
             return 1, 1.0
         q, alpha_q, stall = self.renderer.result(pending.query)

@@ -37,3 +37,24 @@ def _translation(offset: float) -> np.ndarray:
     m = np.eye(4)
     m[:3, 3] = offset
     return m
+
+
+@functools.lru_cache(maxsize=None)
+def baked_city():
+    """The default procedural city (about 217k triangles), baked once per session."""
+    from hlod_core import scenes
+
+    return bake(scenes.default_scene(seed=1), BakeSettings(jobs=2))
+
+
+def street_path(frames: int = 30, *, static: bool = False):
+    """Walk down the street between the first two columns of buildings of the default city, eye at
+    1.7 m, looking along the street: most of the city hides behind the first buildings."""
+    from hlod_core.camera import CameraPath
+
+    out = []
+    for i in range(frames):
+        y = -5.0 if static else -5.0 + 100.0 * i / max(frames - 1, 1)
+        sway = 0.0 if static else 8.0 * np.sin(i / 5.0)
+        out.append(([10.0, y, 1.7], [10.0 + sway, y + 30.0, 4.0], [0.0, 0.0, 1.0]))
+    return CameraPath(frames=np.array(out, float), near=0.05, far=400.0, fovy_deg=60.0)

@@ -127,3 +127,46 @@ def test_interrupted_bake_leaves_no_output_and_keeps_the_old_file(tmp_path):
 def _write(path: Path, text: str) -> Path:
     path.write_text(text)
     return path
+
+
+RUN_KEYS = {"dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms", "frames"}
+
+
+@pytest.fixture(scope="module")
+def cow_hlod(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run") / "cow.hlod"
+    hlod("-q", "bake", model("cow.obj"), "-o", out, "--target-tris", "400")
+    return out
+
+
+@pytest.mark.parametrize("method", ["full", "vfc", "bool", "sw", "simp", "coh", "ideal"])
+def test_run_every_method(cow_hlod, method):
+    out = last_json(hlod("-q", "run", cow_hlod, "--method", method, "--frames", "6", "--size", "160x120"))
+    assert RUN_KEYS <= out.keys() and out["frames"] == 6 and out["dn"] > 0
+
+
+def test_run_with_a_path_file_orthographic_and_saved_frames(cow_hlod, tmp_path):
+    path = tmp_path / "path.json"
+    path.write_text(json.dumps({"ortho_height": 1.5, "near": 0.01, "far": 100, "frames": [
+        {"eye": [0.2, -3, 0.5], "target": [0.2, 0, 0.3], "up": [0, 0, 1]},
+        {"eye": [0.3, -3, 0.5], "target": [0.2, 0, 0.3], "up": [0, 0, 1]}]}))
+    out = last_json(hlod("-q", "run", cow_hlod, "--method", "coh", "--bias", "mu", "--alpha", "projected",
+                         "--path", path, "--save-frames", tmp_path / "frames", "--size", "64x48"))
+    assert out["frames"] == 2
+    pngs = sorted((tmp_path / "frames").glob("*.png"))
+    assert len(pngs) == 2 and pngs[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("args, expect", [
+    (["--size", "big"], "expected WxH"),
+    (["--s", "2"], "s and t must lie in [0, 1]"),
+    (["--k", "0"], "steepness k must be > 0"),
+])
+def test_run_bad_options_are_one_line(cow_hlod, args, expect):
+    assert expect in one_line_error(hlod("run", cow_hlod, "--method", "coh", *args, check=False))
+
+
+def test_run_bad_path_file_is_one_line(cow_hlod, tmp_path):
+    bad = _write(tmp_path / "p.json", json.dumps({"frames": [{"eye": [0, 0, 0], "target": [0, 0, 0]}]}))
+    assert "p.json: a frame's eye equals its target" in one_line_error(
+        hlod("run", cow_hlod, "--method", "coh", "--path", bad, check=False))

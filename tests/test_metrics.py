@@ -1,0 +1,182 @@
+"""DESIGN §5 metrics and the §10 stability cases, on exact small inputs (no GL)."""
+import warnings
+
+import numpy as np
+import pytest
+
+from hlod_core import metrics
+from hlod_core.metrics import View, look_at, orthographic, perspective
+
+MU = np.linspace(0.0, 1.0, 2001)
+KS = [1.0, 10.0, 1e3, 1e6, 1e9, np.inf]
+PAPER_ST = [(0.6, 0.2), (0.7, 0.15), (0.9, 0.05)]
+
+
+@pytest.fixture(autouse=True)
+def no_numpy_warnings():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with np.errstate(all="raise"):
+            yield
+
+
+def _view(eye=(0, 0, 10), target=(0, 0, 0), size=(640, 480), fovy=60.0, near=0.01, far=1000.0, ortho=None):
+    w, h = size
+    proj = orthographic(ortho, w / h, near, far) if ortho else perspective(fovy, w / h, near, far)
+    return View(eye=np.array(eye, float), view=look_at(eye, target, (0, 1, 0)), projection=proj, width=w, height=h)
+
+
+# --- P_{s,t} -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("k", KS)
+@pytest.mark.parametrize("s, t", PAPER_ST + [(0.5, 0.0), (0.5, 1.0), (1.0, 0.3), (0.0, 0.4), (1.0, 0.0), (1.0, 1.0)])
+def test_bias_endpoints_monotone_and_finite(s, t, k):
+    p = metrics.bias(MU, s, t, k)
+    assert p[0] == 0.0 and p[-1] == 1.0  # exactly, for every s, t, k
+    assert np.all(np.isfinite(p)) and np.all((p >= 0) & (p <= 1))
+    assert np.all(np.diff(p) >= 0)
+
+
+@pytest.mark.parametrize("k", KS)
+def test_s_zero_is_mu(k):
+    assert np.array_equal(metrics.bias(MU, 0.0, 0.3, k), MU)
+
+
+@pytest.mark.parametrize("s, t", PAPER_ST + [(1.0, 0.5), (0.5, 0.99)])
+@pytest.mark.parametrize("k", [1e2, 1e3, 1e6, 1e9, np.inf])
+def test_aggressive_below_t_conservative_above(s, t, k):
+    p = metrics.bias(MU, s, t, k)
+    band = metrics.band_half_width(k)
+    below, above = MU < t - band, MU >= t + band
+    assert np.all(p[below] <= MU[below] + 1e-15)
+    assert np.all(p[above] >= MU[above] - 1e-15)
+
+
+def test_step_is_the_default_and_exact():
+    # step at t = 0.05 with s = 0.9: below t, P = 0.1 mu; from t on, P = 0.1 mu + 0.9
+    assert metrics.bias(0.04, 0.9, 0.05) == pytest.approx(0.004)
+    assert metrics.bias(0.05, 0.9, 0.05) == pytest.approx(0.905)
+    assert metrics.band_half_width(np.inf) == 0.0
+
+
+def test_t_zero_and_t_one():
+    # t = 0: everything above 0 is conservative (S = 1); t = 1: only mu = 1 is
+    assert np.all(metrics.bias(MU[1:], 1.0, 0.0) == 1.0)
+    assert np.all(metrics.bias(MU[:-1], 1.0, 1.0) == 0.0)
+
+
+def test_huge_k_matches_the_step_away_from_t():
+    away = np.abs(MU - 0.2) > 1e-6
+    assert np.allclose(metrics.bias(MU, 0.6, 0.2, 1e9)[away], metrics.bias(MU, 0.6, 0.2)[away])
+
+
+def test_bad_bias_parameters_are_rejected():
+    for s, t, k in [(-0.1, 0.5, 1.0), (0.5, 1.5, 1.0), (0.5, 0.5, 0.0), (0.5, 0.5, np.nan)]:
+        with pytest.raises(ValueError):
+            metrics.bias(0.5, s, t, k)
+
+
+def test_modulation_colours_blue_magenta_red():
+    c = metrics.modulation_colour(np.array([0.0, 0.5, 1.0]))
+    assert c[0].argmax() == 2 and c[2].argmax() == 0  # blue, red
+    assert c[1][0] > 0.5 and c[1][2] > 0.5 and c[1][1] < 0.3  # magenta
+
+
+# --- SSE --------------------------------------------------------------------------------------
+
+def test_sse_perspective_exact():
+    v = _view(size=(640, 480), fovy=90.0)  # P11 = 1/tan(45 deg) = 1
+    centre, radius = np.array([[0.0, 0.0, 0.0]]), np.array([2.0])
+    # d = 10 - 2 = 8; SSE = 0.5 * (480/2) * 1 / 8 = 15 px
+    assert metrics.sse(v, np.array([0.5]), centre, radius, np.array([False]))[0] == pytest.approx(15.0)
+
+
+def test_sse_orthographic_exact_and_distance_free():
+    v = _view(ortho=20.0)  # P11 = 2/20; SSE = MSE * 240 * 0.1
+    out = metrics.sse(v, np.array([0.5, 0.5]), np.array([[0, 0, 0], [0, 0, -500.0]]), np.array([1.0, 1.0]),
+                      np.array([False, False]))
+    assert out.tolist() == pytest.approx([12.0, 12.0])
+
+
+def test_eye_inside_sphere_refines_and_leaves_are_zero_not_nan():
+    v = _view(eye=(0, 0, 0.5))
+    out = metrics.sse(v, np.array([1.0, 1.0, 0.0]), np.zeros((3, 3)), np.array([1.0, 1.0, 1.0]),
+                      np.array([False, True, True]))
+    assert out[0] == np.inf and out[1] == 0.0 and out[2] == 0.0
+
+
+def test_eye_on_sphere_surface_refines():
+    v = _view(eye=(0, 0, 1.0))
+    assert metrics.sse(v, np.array([1e-9]), np.zeros((1, 3)), np.array([1.0]), np.array([False]))[0] == np.inf
+
+
+@pytest.mark.parametrize("size", [(1, 1), (7680, 4320)])
+def test_extreme_viewports_give_finite_sse(size):
+    v = _view(size=size)
+    out = metrics.sse(v, np.array([1e-4, 1e5]), np.array([[0, 0, 0], [0, 0, -1e5]]), np.array([1e-4, 1.0]),
+                      np.array([False, False]))
+    assert np.all(np.isfinite(out)) and np.all(out > 0)
+
+
+def test_scene_at_1e6_and_extreme_near_far():
+    c = np.array([[1e6, 1e6, 1e6]])
+    v = _view(eye=(1e6, 1e6, 1e6 + 5), target=(1e6, 1e6, 1e6), near=1e-4, far=1e5)
+    out = metrics.sse(v, np.array([0.01]), c, np.array([1.0]), np.array([False]))
+    # d = 4; SSE = 0.01 * 240 * P11 / 4 with P11 = 1/tan(30 deg)
+    assert out[0] == pytest.approx(0.01 * 240 * (1 / np.tan(np.radians(30))) / 4, rel=1e-9)
+    assert np.all(metrics.boxes_in_frustum(v, c - 1, c + 1))
+
+
+def test_nodes_at_1e_minus_4_and_1e5_units():
+    v = _view(eye=(0, 0, 1e-3), near=1e-4, far=1e6)
+    out = metrics.sse(v, np.array([1e-6, 1e3]), np.array([[0, 0, 0], [0, 0, -1e5]]), np.array([1e-4, 1e4]),
+                      np.array([False, False]))
+    assert np.all(np.isfinite(out)) and np.all(out > 0)
+
+
+# --- frustum and distances ---------------------------------------------------------------------
+
+def test_frustum_keeps_boxes_in_view_and_drops_boxes_behind():
+    v = _view()
+    lo = np.array([[-1, -1, -1], [-1, -1, 20], [50, 50, -1]], float)
+    assert metrics.boxes_in_frustum(v, lo, lo + 2).tolist() == [True, False, False]
+
+
+def test_boxes_reaching_in_front_of_the_near_plane():
+    v = _view(eye=(0, 0, 10), near=2.0)  # near plane at z = 8
+    lo = np.array([[-1, -1, 7.0], [-1, -1, 8.5], [-1, -1, 0.0]])
+    hi = np.array([[1, 1, 7.5], [1, 1, 9.0], [1, 1, 1.0]])
+    assert metrics.boxes_cross_near_plane(v, lo, hi).tolist() == [False, True, False]
+
+
+def test_box_distance_is_zero_inside_and_on_faces():
+    lo, hi = np.array([[0, 0, 0.0]]), np.array([[1, 1, 1.0]])
+    assert metrics.box_distance(np.array([0.5, 0.5, 0.5]), lo, hi)[0] == 0.0
+    assert metrics.box_distance(np.array([1.0, 0.5, 0.5]), lo, hi)[0] == 0.0  # eye on a face
+    assert metrics.box_distance(np.array([4.0, 5.0, 0.5]), lo, hi)[0] == pytest.approx(5.0)
+
+
+# --- alpha estimators (geometry only; compared with the query estimator in test_traversal) ------
+
+def test_projected_alpha_of_a_face_on_square():
+    v = _view(eye=(0, 0, 10), fovy=90.0, size=(480, 480))  # 1 unit at distance d covers 240/d px
+    # unit-depth box whose front face (z = 1) is 2 x 2 at distance 9: 2 * 240 / 9 px on a side
+    area = metrics.alpha_projected(v, np.array([-1, -1, 0.0]), np.array([1, 1, 1.0]))
+    back = (2 * 240 / 10) ** 2  # the back face projects smaller and lies inside the front face
+    assert area == pytest.approx((2 * 240 / 9) ** 2, rel=1e-9) and area > back
+
+
+def test_projected_alpha_clips_to_the_viewport_and_handles_the_near_plane():
+    v = _view(eye=(0, 0, 0.5), size=(64, 48))  # eye inside the box: covers the whole viewport
+    assert metrics.alpha_projected(v, np.array([-1, -1, -1.0]), np.array([1, 1, 1.0])) == pytest.approx(64 * 48)
+    behind = metrics.alpha_projected(v, np.array([-1, -1, 5.0]), np.array([1, 1, 6.0]))
+    assert behind == 0.0
+
+
+def test_cube_alpha_formula_and_eye_at_centre():
+    v = _view(eye=(0, 0, 10), fovy=90.0, size=(480, 480))
+    lo, hi = np.array([[-1, -1, -1.0]]), np.array([[1, 1, 1.0]])
+    # side 2 at d = 10: (2 * 240 / 10)^2
+    assert metrics.alpha_cube(v, np.array([2.0]), lo, hi)[0] == pytest.approx((2 * 240 / 10) ** 2)
+    at_centre = _view(eye=(0, 0, 0), target=(0, 0, -1), fovy=90.0)
+    assert metrics.alpha_cube(at_centre, np.array([2.0]), lo, hi)[0] == np.inf
