@@ -20,6 +20,7 @@ Python loop is the traversal itself, over the nodes it visits.
 """
 from __future__ import annotations
 
+import abc
 import heapq
 import time
 from collections import deque
@@ -96,7 +97,7 @@ class _Pending:
     query: Query | None
 
 
-class Traversal:
+class Traversal(abc.ABC):
     """Shared state and helpers. Subclasses implement `_traverse(stats)`."""
 
     name = "base"
@@ -149,8 +150,9 @@ class Traversal:
         stats.cpu_ms = (traversed_at - started) * 1e3 - stats.stall_ms
         return stats
 
+    @abc.abstractmethod
     def _traverse(self, stats: FrameStats) -> None:
-        raise NotImplementedError  # every concrete method overrides this
+        """Visit, query and draw the frame's nodes, filling `stats`."""
 
     # --- helpers --------------------------------------------------------------------------------
 
@@ -208,6 +210,18 @@ class Traversal:
         mu = 0.0 if not alpha > 0 else min(1.0, max(0.0, q / alpha))  # alpha 0 or NaN -> 0; q > alpha -> 1
         return q, mu
 
+    def _walk(self, stats: FrameStats, visit) -> None:
+        """Front to back from the root over nodes in the frustum; visit(node) -> True descends."""
+        heap = [(self.key[0], 0)]
+        while heap:
+            _, node = heapq.heappop(heap)
+            if not self.in_frustum[node]:
+                continue
+            stats.traversed += 1
+            if visit(node):
+                for child in self._children(node):
+                    heapq.heappush(heap, (self.key[child], child))
+
     def _pull_up(self, node: int) -> None:
         while node >= 0 and not self.visible[node]:
             self.visible[node] = True
@@ -233,17 +247,13 @@ class VFC(Traversal):
     name = "vfc"
 
     def _traverse(self, stats):
-        heap = [(self.key[0], 0)]
-        while heap:
-            _, node = heapq.heappop(heap)
-            if not self.in_frustum[node]:
-                continue
-            stats.traversed += 1
+        def visit(node):
             if self._sse_stop(node):
                 self._render(node, stats)
-            else:
-                for child in self._children(node):
-                    heapq.heappush(heap, (self.key[child], child))
+                return False
+            return True
+
+        self._walk(stats, visit)
 
 
 class StopAndWait(Traversal):
@@ -252,29 +262,22 @@ class StopAndWait(Traversal):
     name = "sw"
 
     def _traverse(self, stats):
-        heap = [(self.key[0], 0)]
-        while heap:
-            _, node = heapq.heappop(heap)
-            if not self.in_frustum[node]:
-                continue
-            stats.traversed += 1
+        def visit(node):
             self.last_visited[node] = self.frame_id
-            pending = self._issue(node, DELAY, stats)
-            q, mu = self._mu(pending, stats)
+            q, mu = self._mu(self._issue(node, DELAY, stats), stats)
             if q == 0:
                 self.visible[node] = False
                 self.ratio[node] = 0.0
-                continue
+                return False
             self.visible[node] = True
             self.ratio[node] = float(self.settings.p(mu))
             stop = self._vmsse_stop(node, self.ratio[node])
             self.stop_refinement[node] = stop
-            if stop:
-                if self._render(node, stats):
-                    stats.d += 1
-            else:
-                for child in self._children(node):
-                    heapq.heappush(heap, (self.key[child], child))
+            if stop and self._render(node, stats):
+                stats.d += 1
+            return not stop
+
+        self._walk(stats, visit)
 
 
 class Ideal(Traversal):
@@ -302,11 +305,13 @@ class Ideal(Traversal):
 class _Coherent(Traversal):
     """Algorithm 2's loop (Algorithm 1 when `predict` and `stop_on_result` are Bool's)."""
 
+    @abc.abstractmethod
     def _predict(self, node: int) -> str:
-        raise NotImplementedError  # Bool, Simp and Coh override this
+        """REFINE, STOP or DELAY for a node popped from the priority queue."""
 
+    @abc.abstractmethod
     def _stop_on_result(self, node: int, mu: float) -> bool:
-        raise NotImplementedError  # Bool, Simp and Coh override this
+        """Stop refinement at a node whose query came back visible with visibility mu?"""
 
     def _push(self, heap, node):
         heapq.heappush(heap, (self.key[node], node))

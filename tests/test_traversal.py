@@ -240,3 +240,57 @@ def test_release_frees_everything_and_is_idempotent(gl_ctx):
     assert all(isinstance(r.mglo, moderngl.mgl.InvalidObject) for r in resources)
     assert not any(gl.is_query(q) for q in ids)
     assert renderer.queries.allocated == 0
+
+
+def test_draws_into_the_callers_framebuffer_and_leaves_it_bound(gl_ctx):
+    """A context handed in by the caller (Blender's, later): no own framebuffer, nothing cleared,
+    the caller's framebuffer still bound afterwards."""
+    hlod = baked_city()
+    previous = gl_ctx.detect_framebuffer()
+    colour = gl_ctx.renderbuffer(SIZE, components=4)
+    depth = gl_ctx.depth_renderbuffer(SIZE)
+    host = gl_ctx.framebuffer(color_attachments=[colour], depth_attachment=depth)
+    renderer = Renderer(gl_ctx, hlod)
+    try:
+        host.use()
+        host.clear(0.0, 0.0, 0.0, 1.0, depth=1.0)
+        stats = make("coh", hlod, renderer).frame(street_path(2).view(0, SIZE))
+        assert stats.dn > 0
+        pixels = np.frombuffer(host.read(components=3), np.uint8).reshape(SIZE[1], SIZE[0], 3)
+        assert (pixels != 0).any(axis=2).sum() > 1000
+        binding = ctypes.c_int32(0)
+        ctypes.CFUNCTYPE(None, ctypes.c_uint32, ctypes.POINTER(ctypes.c_int32))(
+            gl_ctx.mglo._context.load("glGetIntegerv"))(0x8CA6, ctypes.byref(binding))  # GL_FRAMEBUFFER_BINDING
+        assert binding.value == host.glo
+    finally:
+        renderer.release()
+        previous.use()  # never release a bound framebuffer: moderngl would rebind it later
+        for resource in (host, depth, colour):
+            resource.release()
+
+
+class _ScriptedLatency:
+    """Test double for the one branch hardware will not hit on demand: results that are never
+    available early, so every query is fetched only when the traversal has nothing else to do."""
+
+    def __init__(self, renderer):
+        self._renderer = renderer
+
+    def __getattr__(self, name):
+        return getattr(self._renderer, name)
+
+    def available(self, query):
+        return False
+
+
+def test_scripted_query_latency_keeps_culling_conservative(city_renderer):
+    slow = _ScriptedLatency(city_renderer)
+    path = street_path(12)
+    vfc = _frames(city_renderer, "vfc", path, images=True)
+    for method in ("bool", "coh"):
+        traversal = make(method, city_renderer.hlod, slow)
+        for i in range(len(path)):
+            stats = traversal.frame(path.view(i, SIZE))
+            assert len(stats.drawn) == len(set(stats.drawn))
+            if method == "bool":
+                assert np.array_equal(city_renderer.read_pixels(), vfc[i][1]), f"frame {i}"
