@@ -118,10 +118,10 @@ def test_modulated_methods_draw_fewer_nodes_than_bool_on_the_street(city_rendere
 
 def test_alpha_estimators_against_the_query_on_boxes_fully_on_screen(city_renderer):
     """On boxes whose projection lies wholly inside the viewport, the `query` alpha is the exact
-    rasterised count. Measured on the city's nodes from an overview: `projected` is within 3% of
-    it (rasterisation samples pixel centres); `cube` (a cube of equal volume seen face-on) is a
-    rough estimate, off by a median factor near 2 and by up to an order of magnitude on flat
-    boxes, which is why `query` is the default."""
+    rasterised count. Measured on the city's 121 boxes of at least 400 px from an overview:
+    `projected` errs by 0.19% median, 2.2% at most (rasterisation samples pixel centres; asserted
+    below 3%); `cube` (a cube of equal volume seen face-on) is off by a factor of 1.78 median, 2.9
+    at most (asserted: median factor within 1..4), which is why `query` is the default."""
     hlod = city_renderer.hlod
     path = inspection_path(hlod, seed=5, frames=3)
     view = path.view(0, SIZE)
