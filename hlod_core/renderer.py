@@ -171,7 +171,7 @@ class Renderer:
         self.cube_vao = self._keep(ctx.vertex_array(self.box_program, [(self.cube_vbo, "3f", "in_unit")],
                                                     index_buffer=self.cube_ibo, index_element_size=4))
         self.fbo = None
-        self._host_fbo = ctx.detect_framebuffer()  # what the caller had bound
+        self._host_fbo = ctx.detect_framebuffer()  # what the caller has bound; refreshed per frame
         if size is not None:
             colour = self._keep(ctx.renderbuffer(size, components=4))
             depth = self._keep(ctx.depth_renderbuffer(size))
@@ -209,6 +209,7 @@ class Renderer:
         for program in (self.node_program, self.box_program):
             program["u_mvp"].write(mvp.T.astype(np.float32).tobytes())
         self.node_program["u_mv"].write(mv.T.astype(np.float32).tobytes())
+        self._host_fbo = self.ctx.detect_framebuffer()  # the caller's, this frame (it may change)
         if self.fbo is not None:
             self.fbo.use()
         self.ctx.viewport = (0, 0, view.width, view.height)
@@ -322,7 +323,7 @@ class Renderer:
 
     def read_pixels(self) -> np.ndarray:
         """(H, W, 3) uint8, top row first."""
-        fbo = self.fbo if self.fbo is not None else self.ctx.fbo
+        fbo = self.fbo if self.fbo is not None else self._host_fbo  # ctx.fbo may be a released one
         w, h = fbo.size
         data = np.frombuffer(fbo.read(components=3, alignment=1), np.uint8).reshape(h, w, 3)
         return data[::-1].copy()
