@@ -7,8 +7,8 @@ with "ortho_height": h (model units visible vertically) instead of "fovy_deg" fo
 orthographic path. Coordinates are world (model) units, float64.
 
 Seeded sequences (after the dissertation's inspection sessions, §8.1: rotations and changes from
-overall views to extreme close-ups): an orbit around the scene, a dolly from the overview down to
-an extreme close-up of a surface point, and a rotation in place at the close-up.
+overall views to extreme close-ups): an orbit around the scene, a fly-through across it, a dolly
+from the overview down to an extreme close-up of a surface point, and a rotation in place there.
 """
 from __future__ import annotations
 
@@ -89,8 +89,10 @@ def load_path(path: str | os.PathLike) -> CameraPath:
 
 
 def inspection_path(hlod: Hlod, *, seed: int, frames: int, up_axis: int = 2) -> CameraPath:
-    """Seeded: one third orbit, one third dolly from overview to an extreme close-up of a random
-    leaf's surface, one third rotation in place there. Scale-free (follows the root box)."""
+    """Seeded, in four parts of about a quarter each: a 135 degree orbit at a low elevation, a
+    straight fly-through across the scene below half its height (it may pass through geometry), a
+    dolly from the overview to an extreme close-up of a random leaf's surface, a rotation in place
+    there. Scale-free (follows the root box)."""
     rng = np.random.default_rng(seed)
     lo, hi = hlod.box_min[0], hlod.box_max[0]
     centre = 0.5 * (lo + hi)
@@ -98,9 +100,8 @@ def inspection_path(hlod: Hlod, *, seed: int, frames: int, up_axis: int = 2) -> 
     up = np.zeros(3)
     up[up_axis] = 1.0
     a, b = [ax for ax in range(3) if ax != up_axis]
-    n1 = frames // 3
-    n2 = frames // 3
-    n3 = frames - n1 - n2
+    n_fly = n_dolly = n_rotate = frames // 4
+    n_orbit = frames - n_fly - n_dolly - n_rotate
     start = rng.uniform(0, 2 * np.pi)
     elevation = rng.uniform(0.15, 0.45) * radius
 
@@ -112,9 +113,22 @@ def inspection_path(hlod: Hlod, *, seed: int, frames: int, up_axis: int = 2) -> 
         return eye
 
     out = []
-    for i in range(n1):
-        angle = start + 0.75 * np.pi * i / max(n1, 1)
+    for i in range(n_orbit):
+        angle = start + 0.75 * np.pi * i / max(n_orbit, 1)
         out.append((orbit_eye(angle, 1.6 * radius), centre, up))
+    # fly-through: along axis a or b, at a random lateral offset and a height in the lower half
+    along, across = (a, b) if rng.uniform() < 0.5 else (b, a)
+    fly_from, fly_to = centre.copy(), centre.copy()
+    fly_from[along], fly_to[along] = lo[along] - 0.2 * radius, hi[along] + 0.2 * radius
+    offset = rng.uniform(-0.35, 0.35) * (hi[across] - lo[across])
+    height = lo[up_axis] + rng.uniform(0.1, 0.45) * (hi[up_axis] - lo[up_axis])
+    for p in (fly_from, fly_to):
+        p[across] += offset
+        p[up_axis] = height
+    heading = (fly_to - fly_from) / np.linalg.norm(fly_to - fly_from)
+    for i in range(n_fly):
+        eye = fly_from + (fly_to - fly_from) * (i / max(n_fly - 1, 1))
+        out.append((eye, eye + heading * radius, up))
     leaves = np.flatnonzero(hlod.child_count == 0)
     leaf = int(rng.choice(leaves))
     focus = 0.5 * (hlod.lod_box_min[leaf] + hlod.lod_box_max[leaf])
@@ -122,15 +136,15 @@ def inspection_path(hlod: Hlod, *, seed: int, frames: int, up_axis: int = 2) -> 
     close_dist = max(0.02 * radius, 2.0 * float(hlod.sphere_radius[leaf]))
     direction = (far_eye - focus) / np.linalg.norm(far_eye - focus)
     near_eye = focus + direction * close_dist
-    for i in range(n2):
-        u = (i + 1) / max(n2, 1)
+    for i in range(n_dolly):
+        u = (i + 1) / max(n_dolly, 1)
         u = u * u * (3 - 2 * u)  # ease in and out
         eye = far_eye * (1 - u) + near_eye * u
         target = centre * (1 - u) + focus * u
         out.append((eye, target, up))
     look = focus - near_eye
-    for i in range(n3):
-        angle = 0.5 * np.pi * np.sin(2 * np.pi * i / max(n3, 1))
+    for i in range(n_rotate):
+        angle = 0.5 * np.pi * np.sin(2 * np.pi * i / max(n_rotate, 1))
         c, s = np.cos(angle), np.sin(angle)
         d = look.copy()
         d[a], d[b] = c * look[a] - s * look[b], s * look[a] + c * look[b]

@@ -5,7 +5,9 @@ messages go to stderr; bad input exits with status 2 and one line naming the fil
 
     bake INPUT [INPUT ...] -o OUT.hlod [--target-tris 2000] [--max-depth 12] [--jobs N]
     info FILE.hlod
-    scene default -o OUT.hlod [--seed N] [--scale S] [--jobs N]
+    scene low|middle|high|default -o OUT.hlod [--seed N] [--scale S] [--jobs N]
+    run FILE.hlod --method M [...]
+    evaluate FILE.hlod --out DIR [...]
 """
 from __future__ import annotations
 
@@ -61,11 +63,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("file", metavar="FILE.hlod")
     p.add_argument("--method", required=True, choices=["full", "vfc", "bool", "sw", "simp", "coh", "ideal"])
     p.add_argument("--bias", choices=["P", "mu"], default="P", help="P = P_{s,t}(mu); mu = the visibility itself (s = 0)")
-    p.add_argument("--s", type=float, default=0.9)
-    p.add_argument("--t", type=float, default=0.05)
-    p.add_argument("--k", type=float, default=float("inf"), help="sigmoid steepness; inf = step (default)")
-    p.add_argument("--tau", type=float, default=1.0, help="screen-space error threshold, pixels")
-    p.add_argument("--alpha", choices=["query", "projected", "cube"], default="query")
+    _runtime_options(p)
     p.add_argument("--path", metavar="PATH.json", help="camera path file (see README)")
     p.add_argument("--seed", type=int, default=1, help="seed of a generated inspection path (without --path)")
     p.add_argument("--frames", type=int, default=60, help="frames of a generated path")
@@ -74,14 +72,39 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--save-path", metavar="PATH.json", help="write the camera path used")
     p.set_defaults(run=_cmd_run)
 
+    p = sub.add_parser("evaluate", help="all methods on one camera path: report.json, report.md, figures")
+    p.add_argument("file", metavar="FILE.hlod")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for report.json, report.md and PNGs")
+    p.add_argument("--path", metavar="PATH.json", help="camera path file (see README)")
+    p.add_argument("--seed", type=int, default=1, help="seed of a generated inspection path and of the PSNR frames")
+    p.add_argument("--frames", type=int, default=60, help="frames of a generated path")
+    p.add_argument("--size", default="640x480", help="viewport WxH pixels")
+    p.add_argument("--methods", nargs="+", default=None, metavar="M",
+                   help="report keys (default all): full vfc bool sw_p sw_mu simp_p simp_mu coh_p coh_mu ideal")
+    _runtime_options(p)
+    p.add_argument("--repeat", type=int, default=2, help="passes over the path, order alternating")
+    p.add_argument("--sweep", choices=["tau", "st", "alpha"], help="add Coh(P) at each value of one parameter")
+    p.add_argument("--psnr-frames", type=int, default=20, help="seeded random frames compared by PSNR")
+    p.set_defaults(run=_cmd_evaluate)
+
     p = sub.add_parser("scene", help="bake a procedural scene made by the project (no input files)")
-    p.add_argument("name", choices=["default"])
+    p.add_argument("name", choices=list(scenes.SCENES),
+                   help="low / middle / high depth complexity (terrain / sparse town / dense downtown), "
+                        "or default (the city block of the main job)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--scale", type=float, default=1.0, help="size factor (1 = CI-sized)")
     _bake_options(p)
     p.set_defaults(run=_cmd_scene)
     return parser
+
+
+def _runtime_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--s", type=float, default=0.9, help="P_{s,t} smoothness in [0, 1]")
+    p.add_argument("--t", type=float, default=0.05, help="P_{s,t} turnover in [0, 1]")
+    p.add_argument("--k", type=float, default=float("inf"), help="sigmoid steepness; inf = step (default)")
+    p.add_argument("--tau", type=float, default=1.0, help="screen-space error threshold, pixels")
+    p.add_argument("--alpha", choices=["query", "projected", "cube"], default="query", help="alpha estimator")
 
 
 def _bake_options(p: argparse.ArgumentParser) -> None:
@@ -137,7 +160,9 @@ def _cmd_bake(args) -> dict:
 
 def _cmd_scene(args) -> dict:
     _check_output(args.output)
-    mesh = scenes.default_scene(seed=args.seed, scale=args.scale)
+    if not 0 < args.scale <= 64:
+        raise InputError(f"--scale {args.scale}: expected a factor in (0, 64]")
+    mesh = scenes.SCENES[args.name](seed=args.seed, scale=args.scale)
     summary = _bake_and_save(mesh, args, [mesh.name])
     summary["scene"] = args.name
     return summary
@@ -165,20 +190,46 @@ def _parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _cmd_run(args) -> dict:
+def _runtime_setup(args, bias: str = "P"):
+    """(hlod, settings, path, size) of the run and evaluate commands, validated before any GL work."""
     from .camera import inspection_path, load_path
-    from .runner import run_path
     from .traversal import RuntimeSettings
 
     size = _parse_size(args.size)
-    hlod = fileformat.load(args.file)
     try:
-        settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=args.bias, alpha=args.alpha)
+        settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha)
     except ValueError as exc:
         raise InputError(str(exc)) from None
     if args.frames < 1:
         raise InputError("--frames must be at least 1")
+    hlod = fileformat.load(args.file)
     path = load_path(args.path) if args.path else inspection_path(hlod, seed=args.seed, frames=args.frames)
+    return hlod, settings, path, size
+
+
+def _cmd_evaluate(args) -> dict:
+    from . import evaluate
+
+    methods = args.methods or list(evaluate.METHOD_SPECS)
+    unknown = [m for m in methods if m not in evaluate.METHOD_SPECS]
+    if unknown:
+        raise InputError(f"--methods: unknown {', '.join(unknown)}; expected some of {', '.join(evaluate.METHOD_SPECS)}")
+    if args.repeat < 1 or args.psnr_frames < 1:
+        raise InputError("--repeat and --psnr-frames must be at least 1")
+    out_dir = Path(args.out)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"--out {out_dir}: is a file, expected a folder")
+    hlod, settings, path, size = _runtime_setup(args)
+    report = evaluate.evaluate(hlod, path, size, methods=methods, settings=settings, repeat=args.repeat,
+                               sweep=args.sweep, out_dir=out_dir, psnr_frames=args.psnr_frames, seed=args.seed)
+    log.info("report: %s", out_dir / "report.md")
+    return evaluate.summary_line(report, out_dir)
+
+
+def _cmd_run(args) -> dict:
+    from .runner import run_path
+
+    hlod, settings, path, size = _runtime_setup(args, args.bias)
     if args.save_path:
         path.save(args.save_path)
     out = run_path(hlod, args.method, settings, path, size, save_frames=args.save_frames)

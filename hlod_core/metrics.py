@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 
@@ -141,6 +143,25 @@ def bias(mu, s: float, t: float, k: float = np.inf) -> np.ndarray:
     p = (1.0 - s) * mu + s * sigmoid_step(mu, t, k)
     p = np.where(mu <= 0.0, 0.0, np.where(mu >= 1.0, 1.0, p))
     return np.clip(p, 0.0, 1.0)
+
+
+def bias_scalar(mu: float, s: float, t: float, k: float = math.inf) -> float:
+    """`bias` for one float, in plain Python (the traversal calls it per node; a numpy call per
+    scalar costs more than the arithmetic). Same values as `bias` (tests compare them on a grid);
+    s, t, k are not validated here (RuntimeSettings does it once); NaN mu counts as 0."""
+    if not mu > 0.0:
+        return 0.0
+    if mu >= 1.0:
+        return 1.0
+    if math.isinf(k):
+        step = 1.0 if mu >= t else 0.0
+    elif k < _K_LINEAR:
+        step = mu
+    else:
+        lo = 0.5 * (1.0 + math.tanh(-0.5 * k * t))
+        den = 0.5 * (1.0 + math.tanh(0.5 * k * (1.0 - t))) - lo
+        step = min(1.0, max(0.0, (0.5 * (1.0 + math.tanh(0.5 * k * (mu - t))) - lo) / den))
+    return min(1.0, max(0.0, (1.0 - s) * mu + s * step))
 
 
 def band_half_width(k: float) -> float:

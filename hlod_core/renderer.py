@@ -182,6 +182,11 @@ class Renderer:
         self.query_box_pad = pad
         self._tri_first = (np.asarray(hlod.tri_offset) * 3).astype(np.int64)
         self._tri_vertices = (np.asarray(hlod.tri_count) * 3).astype(np.int64)
+        self._qmin = [tuple(r) for r in self.query_box_min.tolist()]
+        self._qmax = [tuple(r) for r in self.query_box_max.tolist()]
+        self._u_colour = self.node_program["u_colour"]
+        self._u_lo, self._u_hi = self.box_program["u_lo"], self.box_program["u_hi"]
+        self._colour = None
         self._mode = None
         self._timer = None
 
@@ -218,6 +223,7 @@ class Renderer:
         self.ctx.enable(self._mgl.DEPTH_TEST)
         self.ctx.depth_func = "<="
         self._mode = None
+        self._colour = None
         self._timer = None
         if time_gpu:
             self._timer = self.queries.acquire()
@@ -262,12 +268,14 @@ class Renderer:
 
     def draw_node(self, node: int, colour=DEFAULT_COLOUR) -> None:
         self._set_mode("draw")
-        self.node_program["u_colour"].value = tuple(float(c) for c in colour)
+        if colour is not self._colour:
+            self._u_colour.value = tuple(float(c) for c in colour)
+            self._colour = colour
         self.vao.render(self._mgl.TRIANGLES, vertices=int(self._tri_vertices[node]), first=int(self._tri_first[node]))
 
     def _box(self, node: int) -> None:
-        self.box_program["u_lo"].value = tuple(self.query_box_min[node])
-        self.box_program["u_hi"].value = tuple(self.query_box_max[node])
+        self._u_lo.value = self._qmin[node]
+        self._u_hi.value = self._qmax[node]
         self.cube_vao.render(self._mgl.TRIANGLES)
 
     def issue_query(self, node: int, *, with_alpha: bool) -> Query:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import abc
 import heapq
+import math
 import time
 from collections import deque
 from dataclasses import asdict, dataclass, field
@@ -60,6 +61,9 @@ class RuntimeSettings:
         metrics.bias(0.5, self.s, self.t, self.k)  # validates s, t, k
 
     def p(self, mu) -> np.ndarray:
+        """P_{s,t}(mu) (s = 0 for bias "mu"); a Python float in, a float out (the per-node path)."""
+        if isinstance(mu, float):
+            return metrics.bias_scalar(mu, 0.0 if self.bias == "mu" else self.s, self.t, self.k)
         if self.bias == "mu":
             return metrics.bias(mu, 0.0, self.t, self.k)
         return metrics.bias(mu, self.s, self.t, self.k)
@@ -182,7 +186,7 @@ class Traversal(abc.ABC):
         if self._leaf[node]:
             return True
         sse = self.sse[node]
-        return bool(np.isfinite(sse) and ratio * sse <= self.settings.tau)
+        return math.isfinite(sse) and ratio * sse <= self.settings.tau
 
     def _issue(self, node: int, mode: str, stats: FrameStats) -> _Pending:
         if self.unqueryable[node]:
@@ -270,7 +274,7 @@ class StopAndWait(Traversal):
                 self.ratio[node] = 0.0
                 return False
             self.visible[node] = True
-            self.ratio[node] = float(self.settings.p(mu))
+            self.ratio[node] = self.settings.p(float(mu))
             stop = self._vmsse_stop(node, self.ratio[node])
             self.stop_refinement[node] = stop
             if stop and self._render(node, stats):
@@ -412,11 +416,11 @@ class Simp(_Coherent):
         if self.last_visited[node] != self.frame_id - 1 or not self.visible[node]:
             return DELAY
         total = max(self._previous_scheduled, 1)
-        mu_hat = 1.0 - self._previous_position[node] / total
-        return STOP if self._vmsse_stop(node, float(self.settings.p(mu_hat))) else REFINE
+        mu_hat = 1.0 - float(self._previous_position[node]) / total
+        return STOP if self._vmsse_stop(node, self.settings.p(mu_hat)) else REFINE
 
     def _stop_on_result(self, node, mu):
-        self.ratio[node] = float(self.settings.p(mu))
+        self.ratio[node] = self.settings.p(float(mu))
         return self._vmsse_stop(node, self.ratio[node])
 
 
@@ -440,14 +444,14 @@ class Coherent(_Coherent):
                 ratios.append(ratio)
                 if not stopped or not self._vmsse_stop(child, ratio):
                     candidate = False
-            if candidate and self._vmsse_stop(node, float(np.mean(ratios))):
+            if candidate and self._vmsse_stop(node, sum(ratios) / len(ratios)):
                 return DELAY
         elif self._vmsse_stop(node, self.ratio[node]):
             return STOP
         return REFINE
 
     def _stop_on_result(self, node, mu):
-        self.ratio[node] = float(self.settings.p(mu))
+        self.ratio[node] = self.settings.p(float(mu))
         return self._vmsse_stop(node, self.ratio[node])
 
 

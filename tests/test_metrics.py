@@ -52,6 +52,16 @@ def test_aggressive_below_t_conservative_above(s, t, k):
     assert np.all(p[above] >= MU[above] - 1e-15)
 
 
+@pytest.mark.parametrize("s, t", PAPER_ST + [(0.0, 0.5), (1.0, 0.0), (1.0, 1.0)])
+@pytest.mark.parametrize("k", KS + [1e-9])
+def test_scalar_bias_equals_the_array_bias(s, t, k):
+    """The traversal's per-node plain-Python P_{s,t} gives the array version's values."""
+    grid = np.concatenate([MU, [t, max(t - 1e-12, 0.0), min(t + 1e-12, 1.0)]])
+    scalar = np.array([metrics.bias_scalar(float(mu), s, t, k) for mu in grid])
+    assert np.allclose(scalar, metrics.bias(grid, s, t, k), rtol=0, atol=1e-12)
+    assert metrics.bias_scalar(float("nan"), s, t, k) == 0.0
+
+
 def test_step_is_the_default_and_exact():
     # step at t = 0.05 with s = 0.9: below t, P = 0.1 mu; from t on, P = 0.1 mu + 0.9
     assert metrics.bias(0.04, 0.9, 0.05) == pytest.approx(0.004)

@@ -1,0 +1,167 @@
+"""The evaluation (issue "Evaluation"): procedural scenes, image error, the evaluate command and
+its report."""
+import json
+
+import moderngl
+import numpy as np
+import pytest
+
+from hlod_core import evaluate, scenes
+from hlod_core.camera import inspection_path
+from hlod_core.bake import BakeSettings, bake
+from hlod_core.metrics import look_at, perspective
+
+from test_cli import hlod, last_json, one_line_error
+
+ISSUE_KEYS = {"fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms",
+              "psnr_y_vs_bool", "psnr_cb_vs_bool", "psnr_cr_vs_bool", "psnr_y_vs_full"}
+
+
+def test_psnr_of_known_differences():
+    rng = np.random.default_rng(0)
+    a = rng.integers(0, 246, (48, 64, 3), dtype=np.uint8)
+    assert np.allclose(evaluate.psnr(a, a), 100.0)
+    # +10 on R, G and B: luminance moves by exactly 10, chrominance not at all (its rows sum to 0)
+    y, cb, cr = evaluate.psnr(a, a + np.uint8(10))
+    assert y == pytest.approx(20 * np.log10(255 / 10)) and cb == pytest.approx(100.0) and cr == pytest.approx(100.0)
+    # pure blue shift: chrominance Cb moves most
+    b = a.copy()
+    b[..., 2] += 9
+    y, cb, cr = evaluate.psnr(a, b)
+    assert cb < y < cr
+    assert evaluate.rmse_y(a, a + np.uint8(10)) == pytest.approx(10.0)
+    with pytest.raises(ValueError, match="differ in size"):
+        evaluate.psnr(a, a[:10])
+
+
+def _depth_complexity(mesh, views) -> float:
+    """Fragments rasterised with the depth test off per covered pixel, averaged over views."""
+    ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
+    try:
+        prog = ctx.program(vertex_shader="#version 330\nin vec3 p; uniform mat4 m; void main(){gl_Position=m*vec4(p,1);}",
+                           fragment_shader="#version 330\nout vec4 c; void main(){c=vec4(1);}")
+        centre = mesh.positions.mean(0)
+        vbo = ctx.buffer((mesh.positions[mesh.faces.ravel()] - centre).astype("f4").tobytes())
+        vao = ctx.vertex_array(prog, [(vbo, "3f", "p")])
+        fbo = ctx.simple_framebuffer((160, 120))
+        fbo.use()
+        ratios = []
+        for view in views:
+            shift = np.eye(4)
+            shift[:3, 3] = centre
+            prog["m"].write((view[1] @ view[0] @ shift).T.astype("f4").tobytes())
+            fbo.clear(0, 0, 0, 0)
+            query = ctx.query(samples=True)
+            ctx.disable(moderngl.DEPTH_TEST)
+            with query:
+                vao.render()
+            covered = np.count_nonzero(np.frombuffer(fbo.read(components=1), np.uint8))
+            ratios.append(query.samples / max(covered, 1))
+        return float(np.mean(ratios))
+    finally:
+        ctx.release()
+
+
+def test_procedural_scenes_rank_by_depth_complexity():
+    """`scene low|middle|high` are what they claim: from the same oblique views around each scene
+    (30 degrees down, at 1.2 bounding radii), fragments per covered pixel rise low < middle < high."""
+    measured = {}
+    for name in ("low", "middle", "high"):
+        mesh = scenes.SCENES[name](seed=1)
+        assert 150_000 <= mesh.faces.shape[0] <= 260_000, name
+        lo, hi = mesh.positions.min(0), mesh.positions.max(0)
+        centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+        views = []
+        for angle in np.linspace(0, 2 * np.pi, 6, endpoint=False):
+            eye = centre + 1.2 * radius * np.array([np.cos(angle) * 0.87, np.sin(angle) * 0.87, 0.5])
+            views.append((look_at(eye, centre, [0, 0, 1]), perspective(60, 4 / 3, 0.01 * radius, 4 * radius)))
+        measured[name] = _depth_complexity(mesh, views)
+    assert measured["low"] < measured["middle"] < measured["high"], measured
+    assert measured["low"] < 1.6 and measured["high"] > 2.5, measured
+
+
+@pytest.fixture(scope="module")
+def small_high(tmp_path_factory):
+    """The high-depth-complexity scene at a quarter of its towers, baked with small nodes."""
+    out = tmp_path_factory.mktemp("eval") / "high.hlod"
+    summary = last_json(hlod("-q", "scene", "high", "-o", out, "--scale", "0.5", "--target-tris", "500"))
+    assert summary["scene"] == "high" and summary["nodes"] > 20
+    return out
+
+
+def test_evaluate_writes_the_report_and_its_last_line(small_high, tmp_path):
+    out_dir = tmp_path / "report"
+    proc = hlod("-q", "evaluate", small_high, "--out", out_dir, "--frames", "16", "--size", "160x120",
+                "--repeat", "2", "--psnr-frames", "5", "--sweep", "st")
+    line = last_json(proc)
+    assert set(line["methods"]) == set(evaluate.METHOD_SPECS)
+    for key, row in line["methods"].items():
+        assert ISSUE_KEYS <= row.keys(), key
+        assert row["dn"] > 0 and row["fps"] > 0
+    assert line["frames"] == 16 and line["size"] == [160, 120]
+    m = line["methods"]
+    # Bool draws exactly VFC's pixels; Full is its own reference; Ideal draws SW(P)'s nodes
+    assert m["vfc"]["psnr_y_vs_bool"] == m["bool"]["psnr_y_vs_bool"] == m["full"]["psnr_y_vs_full"] == 100.0
+    assert m["ideal"]["dn"] == m["sw_p"]["dn"] and m["ideal"]["queries"] == 0
+    assert m["full"]["queries"] == m["vfc"]["queries"] == 0 and m["sw_p"]["queries"] > 0
+    assert set(line["sweep"]) == {"coh_p s,t=0.6,0.2", "coh_p s,t=0.7,0.15", "coh_p s,t=0.9,0.05"}
+    report = json.loads((out_dir / "report.json").read_text())
+    assert len(report["psnr_frames"]) == 5 and report["repeat"] == 2
+    rel = report["relative"]["coh_p"]["bool"]
+    assert rel["node_savings_pct"] == pytest.approx(100 * (1 - m["coh_p"]["dn"] / m["bool"]["dn"]))
+    assert {t["target"] for t in report["targets"]} and all(t["value"] is not None for t in report["targets"])
+    a = report["alpha_estimators"]
+    assert a["nodes"] > 0 and a["query"]["median_rel_error_pct"] == 0.0
+    assert a["projected"]["median_rel_error_pct"] < 5.0 < a["cube"]["median_rel_error_pct"]
+    for name in ("report.md", "path.json", "error_vs_time.png", "per_frame.png", "alpha_estimators.png",
+                 "modulation.png"):
+        assert (out_dir / name).stat().st_size > 0, name
+    md = (out_dir / "report.md").read_text()
+    assert "| Coh(P) | Bool |" in md and "Table 8.1" in md and "![modulation colours](modulation.png)" in md
+
+
+def test_modulation_frames_use_only_the_colour_ramp(small_high, tmp_path):
+    """Overlay images: every drawn pixel is on the blue-magenta-red ramp (green at most a fifth of
+    the stronger of red and blue, whatever the shading factor); Bool modulates nothing (all blue:
+    red a tenth of blue); the bird's-eye view shows the drawn front; the shaded image is grey."""
+    from matplotlib.image import imread
+
+    from hlod_core import fileformat
+
+    def read_png(path):
+        return np.round(imread(path)[..., :3] * 255).astype(np.uint8)
+
+    hlod_file = fileformat.load(small_high)
+    path = inspection_path(hlod_file, seed=2, frames=12)
+    evaluate.evaluate(hlod_file, path, (160, 120), methods=["bool", "coh_mu"], repeat=1, out_dir=tmp_path,
+                      psnr_frames=2, figures=False)
+    white = np.array([255, 255, 255])
+    for key in ("bool", "coh_mu"):
+        for view in ("modulation", "birdseye"):
+            image = read_png(tmp_path / f"{key}_{view}.png")
+            drawn = image[np.any(image != white, axis=2)].astype(np.int64)
+            assert drawn.shape[0] > 100, (key, view)
+            assert np.all(drawn[:, 1] <= 0.23 * np.maximum(drawn[:, 0], drawn[:, 2]) + 2), (key, view)
+            if key == "bool":
+                assert np.all(drawn[:, 0] <= 0.11 * drawn[:, 2] + 2), "Bool's ratio is 1: modulation 0, blue"
+        shaded = read_png(tmp_path / f"{key}_shaded.png").astype(np.int64)
+        grey = shaded[np.any(shaded != white, axis=2)]
+        assert np.all(np.abs(grey[:, 0] - grey[:, 1]) <= 0.05 * grey[:, 0] + 2)
+
+
+def test_evaluate_bad_options_are_one_line(small_high, tmp_path):
+    assert "--methods: unknown nope" in one_line_error(
+        hlod("evaluate", small_high, "--out", tmp_path / "r", "--methods", "bool", "nope", check=False))
+    (tmp_path / "file").write_text("x")
+    assert "is a file, expected a folder" in one_line_error(
+        hlod("evaluate", small_high, "--out", tmp_path / "file", check=False))
+
+
+def test_scene_bad_scale_is_one_line(tmp_path):
+    assert "--scale 0.0: expected a factor" in one_line_error(
+        hlod("scene", "low", "-o", tmp_path / "x.hlod", "--scale", "0", check=False))
+
+
+def test_low_scene_bakes_into_a_valid_hierarchy():
+    hlod_low = bake(scenes.low_scene(seed=3, scale=0.2), BakeSettings(target_tris=2000))
+    assert hlod_low.summary()["input_tris"] == scenes.low_scene(seed=3, scale=0.2).faces.shape[0]
