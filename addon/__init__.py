@@ -1,22 +1,43 @@
 """Registration in one place (DESIGN §8, STYLE: one list per UI module, registered in order and
-unregistered in reverse; errors are not silenced).
-
-The operators, panels and properties themselves arrive with the Blender-extension issue; this
-module is the structure they plug into.
-"""
+unregistered in reverse; errors are not silenced). Reversible and safe to run twice: register()
+on a registered add-on unregisters first; unregister() on an unregistered one does nothing.
+unregister() and loading a .blend stop the preview, which removes its draw handler and frees its
+GL objects."""
 import bpy
+from bpy.app.handlers import persistent
 
 from ..operators import CLASSES as OPERATOR_CLASSES
 from ..panels import CLASSES as PANEL_CLASSES
+from . import preview, properties
 
-CLASSES = [*OPERATOR_CLASSES, *PANEL_CLASSES]
+CLASSES = [*properties.CLASSES, *OPERATOR_CLASSES, *PANEL_CLASSES]
+_registered = False
+
+
+@persistent
+def _on_load_pre(*_args) -> None:
+    preview.stop(reason="a file was loaded")
 
 
 def register() -> None:
+    global _registered
+    if _registered:
+        unregister()
     for cls in CLASSES:
         bpy.utils.register_class(cls)
+    properties.register()
+    bpy.app.handlers.load_pre.append(_on_load_pre)
+    _registered = True
 
 
 def unregister() -> None:
+    global _registered
+    if not _registered:
+        return
+    preview.stop()
+    if _on_load_pre in bpy.app.handlers.load_pre:
+        bpy.app.handlers.load_pre.remove(_on_load_pre)
+    properties.unregister()
     for cls in reversed(CLASSES):
         bpy.utils.unregister_class(cls)
+    _registered = False

@@ -79,7 +79,8 @@ class GLFunctions:
     """The query entry points, resolved by moderngl's loader and called through ctypes."""
 
     def __init__(self, ctx):
-        load = ctx.mglo._context.load
+        loader = ctx.mglo._context  # glcontext's backend, or moderngl's DefaultLoader for get_context()
+        load = getattr(loader, "load", None) or loader.load_opengl_function
         u32p, u64p = ctypes.POINTER(ctypes.c_uint32), ctypes.POINTER(ctypes.c_uint64)
 
         def fn(name, restype, *argtypes):
@@ -101,6 +102,71 @@ class GLFunctions:
         self.depth_mask = fn("glDepthMask", None, ctypes.c_uint8)
         self.enable = fn("glEnable", None, ctypes.c_uint32)
         self.disable = fn("glDisable", None, ctypes.c_uint32)
+        i32p, u8p = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_uint8)
+        self.get_integerv = fn("glGetIntegerv", None, ctypes.c_uint32, i32p)
+        self.get_booleanv = fn("glGetBooleanv", None, ctypes.c_uint32, u8p)
+        self.is_enabled = fn("glIsEnabled", ctypes.c_uint8, ctypes.c_uint32)
+        self.bind_framebuffer = fn("glBindFramebuffer", None, ctypes.c_uint32, ctypes.c_uint32)
+        self.use_program = fn("glUseProgram", None, ctypes.c_uint32)
+        self.bind_vertex_array = fn("glBindVertexArray", None, ctypes.c_uint32)
+        self.bind_buffer = fn("glBindBuffer", None, ctypes.c_uint32, ctypes.c_uint32)
+        self.depth_func = fn("glDepthFunc", None, ctypes.c_uint32)
+        self.viewport = fn("glViewport", None, ctypes.c_int32, ctypes.c_int32, ctypes.c_int32, ctypes.c_int32)
+        self.scissor = fn("glScissor", None, ctypes.c_int32, ctypes.c_int32, ctypes.c_int32, ctypes.c_int32)
+        self.active_texture = fn("glActiveTexture", None, ctypes.c_uint32)
+
+
+class GLState:
+    """The host's GL state that a moderngl pass changes, saved before it and restored after it
+    (DESIGN §7: Blender caches GL state and does not notice changes made behind its back):
+    framebuffer bindings, program, vertex array and array buffer, depth and colour write masks,
+    depth function, depth test, blend, cull and scissor flags, viewport, scissor box, active
+    texture unit."""
+
+    _INTS = {"draw_fbo": 0x8CA6, "read_fbo": 0x8CAA, "program": 0x8B8D, "vao": 0x85B5, "array_buffer": 0x8894,
+             "depth_func": 0x0B74, "active_texture": 0x84E0}
+    _FLAGS = {"depth_test": GL_DEPTH_TEST, "blend": 0x0BE2, "cull_face": GL_CULL_FACE, "scissor_test": 0x0C11}
+
+    def __init__(self, gl: GLFunctions):
+        self._gl = gl
+        self.values: dict = {}
+
+    def save(self) -> "GLState":
+        gl, v = self._gl, {}
+        one = ctypes.c_int32(0)
+        for name, pname in self._INTS.items():
+            gl.get_integerv(pname, ctypes.byref(one))
+            v[name] = one.value
+        four = (ctypes.c_int32 * 4)()
+        gl.get_integerv(0x0BA2, four)  # GL_VIEWPORT
+        v["viewport"] = tuple(four)
+        gl.get_integerv(0x0C10, four)  # GL_SCISSOR_BOX
+        v["scissor"] = tuple(four)
+        masks = (ctypes.c_uint8 * 4)()
+        gl.get_booleanv(0x0C23, masks)  # GL_COLOR_WRITEMASK
+        v["color_mask"] = tuple(masks)
+        gl.get_booleanv(0x0B72, masks)  # GL_DEPTH_WRITEMASK
+        v["depth_mask"] = masks[0]
+        for name, cap in self._FLAGS.items():
+            v[name] = bool(gl.is_enabled(cap))
+        self.values = v
+        return self
+
+    def restore(self) -> None:
+        gl, v = self._gl, self.values
+        gl.bind_framebuffer(0x8CA9, v["draw_fbo"])  # GL_DRAW_FRAMEBUFFER
+        gl.bind_framebuffer(0x8CA8, v["read_fbo"])  # GL_READ_FRAMEBUFFER
+        gl.use_program(v["program"])
+        gl.bind_vertex_array(v["vao"])
+        gl.bind_buffer(0x8892, v["array_buffer"])  # GL_ARRAY_BUFFER
+        gl.depth_func(v["depth_func"])
+        gl.active_texture(v["active_texture"])
+        gl.viewport(*v["viewport"])
+        gl.scissor(*v["scissor"])
+        gl.color_mask(*v["color_mask"])
+        gl.depth_mask(v["depth_mask"])
+        for name, cap in self._FLAGS.items():
+            (gl.enable if v[name] else gl.disable)(cap)
 
 
 class QueryPool:
@@ -149,13 +215,15 @@ class Query:
 class Renderer:
     """Draws HLOD nodes and issues their occlusion queries into the current or an own framebuffer."""
 
-    def __init__(self, ctx, hlod: Hlod, *, size: tuple[int, int] | None = None, owns_context: bool = False):
+    def __init__(self, ctx, hlod: Hlod, *, size: tuple[int, int] | None = None, owns_context: bool = False,
+                 time_gpu: bool = True):
         import moderngl
 
         self._mgl = moderngl
         self.ctx = ctx
         self.hlod = hlod
         self._owns_context = owns_context
+        self.time_gpu = time_gpu  # False inside a host that may run its own timer queries
         self._released = False
         self.gl = GLFunctions(ctx)
         self.queries = QueryPool(self.gl)
@@ -204,7 +272,7 @@ class Renderer:
 
     # --- frame ----------------------------------------------------------------------------------
 
-    def begin_frame(self, view: View, *, clear: bool = True, time_gpu: bool = True) -> None:
+    def begin_frame(self, view: View, *, clear: bool = True, time_gpu: bool | None = None) -> None:
         """Set matrices (float64 -> float32 with the file origin folded in), bind, clear, start the
         GPU timer."""
         to_origin = np.eye(4)
@@ -225,7 +293,7 @@ class Renderer:
         self._mode = None
         self._colour = None
         self._timer = None
-        if time_gpu:
+        if self.time_gpu if time_gpu is None else time_gpu:
             self._timer = self.queries.acquire()
             self.gl.begin_query(GL_TIME_ELAPSED, self._timer)
 

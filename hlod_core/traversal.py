@@ -83,11 +83,14 @@ class FrameStats:
     cpu_ms: float = 0.0
     gpu_ms: float = 0.0
     frame_ms: float = 0.0
-    drawn: list = field(default_factory=list)  # node ids in draw order (not a counter)
+    drawn: list = field(default_factory=list)       # node ids in draw order (not counters)
+    delayed: list = field(default_factory=list)     # the nodes counted in d
+    refined_after_draw: list = field(default_factory=list)  # the nodes counted in rarn
 
     def counters(self) -> dict:
         out = asdict(self)
-        out.pop("drawn")
+        for name in ("drawn", "delayed", "refined_after_draw"):
+            out.pop(name)
         return out
 
 
@@ -279,6 +282,7 @@ class StopAndWait(Traversal):
             self.stop_refinement[node] = stop
             if stop and self._render(node, stats):
                 stats.d += 1
+                stats.delayed.append(node)
             return not stop
 
         self._walk(stats, visit)
@@ -345,9 +349,11 @@ class _Coherent(Traversal):
                     if stop:
                         if self._render(node, stats) and pending.mode == DELAY:
                             stats.d += 1
+                            stats.delayed.append(node)
                     else:
                         if self.rendered[node] == self.frame_id:
                             stats.rarn += 1
+                            stats.refined_after_draw.append(node)
                         descend(node, False)
                 else:
                     self.ratio[node] = 0.0  # P(0) = 0; the node stays invisible

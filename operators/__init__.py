@@ -1,6 +1,251 @@
-"""bpy.types.Operator classes (bake, clear, export, materialize, preview toggle, benchmark).
-
-CLASSES lists them in registration order; addon/ registers them. None exist yet: they come with
-the Blender-extension issue.
+"""Operators (DESIGN §8; ids fixed: hlod.bake, hlod.clear, hlod.preview_toggle, hlod.materialize,
+hlod.export, hlod.benchmark). Thin: they gather input, call hlod_core / addon modules, and map
+typed errors (HlodError) to reports. Nothing here changes the source objects.
 """
-CLASSES: list = []
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import bpy
+from bpy.props import EnumProperty, IntProperty, StringProperty
+
+from ..addon import preview, scene_mesh
+from ..hlod_core import fileformat
+from ..hlod_core.bake import BakeSettings, bake
+from ..hlod_core.errors import BakeCancelled, HlodError, InputError
+
+
+def output_path(props) -> str:
+    """Where Bake writes: the Output setting, else next to the .blend with its name."""
+    if props.output_path:
+        path = bpy.path.abspath(props.output_path)
+        return path if path.lower().endswith(".hlod") else os.path.join(path, "scene.hlod") if os.path.isdir(path) else path
+    if not bpy.data.filepath:
+        raise InputError("Bake: the .blend is not saved; save it first or set an Output path")
+    return os.path.splitext(bpy.data.filepath)[0] + ".hlod"
+
+
+def _stored_path(path: str) -> str:
+    """Relative to the .blend when it is saved (the file moves with the project)."""
+    try:
+        return bpy.path.relpath(path) if bpy.data.filepath else path
+    except ValueError:  # another drive on Windows
+        return path
+
+
+def _bake_settings(props) -> BakeSettings:
+    # jobs = 1: worker processes would have to import this package by its Blender name
+    # (bl_ext.<repo>.hlod), which a plain Python child cannot; the bake runs in a thread instead.
+    return BakeSettings(target_tris=props.target_tris, max_depth=props.max_depth, jobs=1,
+                        quality_threshold=props.quality_threshold)
+
+
+class HLOD_OT_bake(bpy.types.Operator):
+    """Bake an octree HLOD of the selected objects or a collection (evaluated: modifiers and instances)"""
+
+    bl_idname = "hlod.bake"
+    bl_label = "Bake HLOD"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def _prepare(self, context):
+        props = context.scene.hlod
+        out = output_path(props)
+        folder = os.path.dirname(out) or "."
+        if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+            raise InputError(f"Bake: cannot write {out}: folder {folder} is missing or not writable")
+        mesh = scene_mesh.evaluated_mesh(context, scene_mesh.source_objects(context, props))
+        return mesh, out, _bake_settings(props)
+
+    def _finish(self, context, hlod, out, seconds) -> None:
+        context.scene.hlod.file = _stored_path(out)
+        self.report({"INFO"}, f"HLOD baked: {hlod.node_count} nodes, {int(hlod.meta.get('input_tris', 0)):,} "
+                              f"triangles in {seconds:.1f} s -> {out}")
+
+    def execute(self, context):
+        """Synchronous (background mode, scripts)."""
+        started = time.perf_counter()
+        try:
+            mesh, out, settings = self._prepare(context)
+            hlod = bake(mesh, settings)
+            fileformat.save(hlod, out)
+        except HlodError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self._finish(context, hlod, out, time.perf_counter() - started)
+        return {"FINISHED"}
+
+    def invoke(self, context, event):
+        """Modal with status-bar progress; Esc cancels; the UI stays responsive."""
+        if bpy.app.background:
+            return self.execute(context)
+        try:
+            mesh, out, settings = self._prepare(context)
+        except HlodError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self._out, self._progress, self._cancel = out, (0, 1, "octree"), False
+        self._result, self._error, self._started = None, None, time.perf_counter()
+
+        def work():
+            try:
+                hlod = bake(mesh, settings, progress=lambda d, n, p: setattr(self, "_progress", (d, n, p)),
+                            cancel=lambda: self._cancel)
+                fileformat.save(hlod, out)
+                self._result = hlod
+            except BaseException as exc:  # reported by modal() on the main thread
+                self._error = exc
+
+        self._thread = threading.Thread(target=work, name="hlod-bake", daemon=True)
+        self._thread.start()
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(0.2, window=context.window)
+        wm.progress_begin(0, 100)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        if event.type == "ESC" and event.value == "PRESS":
+            self._cancel = True
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        done, total, phase = self._progress
+        percent = 100.0 * done / total if total else 100.0
+        context.window_manager.progress_update(percent)
+        context.workspace.status_text_set(f"HLOD bake: {phase} {done}/{total} nodes ({percent:.0f}%) - Esc to cancel")
+        if self._thread.is_alive():
+            return {"PASS_THROUGH"}
+        wm = context.window_manager
+        wm.event_timer_remove(self._timer)
+        wm.progress_end()
+        context.workspace.status_text_set(None)
+        if isinstance(self._error, BakeCancelled):
+            self.report({"WARNING"}, "HLOD bake cancelled; nothing written")
+            return {"CANCELLED"}
+        if self._error is not None:
+            self.report({"ERROR"}, str(self._error) if isinstance(self._error, HlodError)
+                        else f"HLOD bake failed: {type(self._error).__name__}: {self._error}")
+            return {"CANCELLED"}
+        self._finish(context, self._result, self._out, time.perf_counter() - self._started)
+        return {"FINISHED"}
+
+
+class HLOD_OT_clear(bpy.types.Operator):
+    """Stop the preview and forget the baked file (the file on disk is kept)"""
+
+    bl_idname = "hlod.clear"
+    bl_label = "Clear HLOD"
+    bl_options = {"REGISTER", "UNDO"}
+
+    def execute(self, context):
+        preview.stop()
+        context.scene.hlod.file = ""
+        return {"FINISHED"}
+
+
+class HLOD_OT_preview_toggle(bpy.types.Operator):
+    """Show or hide the live HLOD preview in the 3D viewport"""
+
+    bl_idname = "hlod.preview_toggle"
+    bl_label = "Toggle HLOD Preview"
+
+    def execute(self, context):
+        if preview.running():
+            preview.stop()
+            return {"FINISHED"}
+        try:
+            preview.start(context.scene)
+        except (HlodError, OSError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        return {"FINISHED"}
+
+
+class HLOD_OT_materialize(bpy.types.Operator):
+    """Make Blender mesh objects of the preview's current front, or of every node at a depth"""
+
+    bl_idname = "hlod.materialize"
+    bl_label = "Materialize HLOD"
+    bl_options = {"REGISTER", "UNDO"}
+
+    depth: IntProperty(name="Depth", default=-1, min=-1, description="-1 = the nodes the preview drew last")
+
+    def execute(self, context):
+        props = context.scene.hlod
+        try:
+            hlod = preview.current_hlod() or (fileformat.load(bpy.path.abspath(props.file)) if props.file else None)
+            if hlod is None:
+                raise InputError("Materialize: no baked file; run Bake first")
+            if self.depth < 0:
+                stats = preview.last_stats()
+                if stats is None or not stats.drawn:
+                    raise InputError("Materialize: the preview has not drawn a frame yet; start it or choose a depth")
+                nodes, label = stats.drawn, "front"
+            else:
+                nodes, label = scene_mesh.nodes_at_depth(hlod, self.depth), f"depth {self.depth}"
+        except (HlodError, OSError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        collection = scene_mesh.materialize(hlod, nodes, f"HLOD {label}")
+        self.report({"INFO"}, f"{len(collection.objects)} objects in collection {collection.name!r}")
+        return {"FINISHED"}
+
+
+class HLOD_OT_export(bpy.types.Operator):
+    """Export the baked HLOD"""
+
+    bl_idname = "hlod.export"
+    bl_label = "Export HLOD"
+
+    filepath: StringProperty(name="File Path", subtype="FILE_PATH")
+    format: EnumProperty(name="Format", items=[("HLOD", "HLOD (native)", "The extension's own memory-mappable format")],
+                         default="HLOD")
+
+    def invoke(self, context, event):
+        if not self.filepath:
+            self.filepath = bpy.path.ensure_ext(bpy.path.abspath("//hlod_export") if bpy.data.filepath else "hlod_export", ".hlod")
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context):
+        props = context.scene.hlod
+        try:
+            if not props.file:
+                raise InputError("Export: no baked file; run Bake first")
+            if not self.filepath:
+                raise InputError("Export: give a file path")
+            target = bpy.path.abspath(self.filepath)
+            fileformat.save(fileformat.load(bpy.path.abspath(props.file)), target)
+        except (HlodError, OSError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"HLOD exported to {target}")
+        return {"FINISHED"}
+
+
+class HLOD_OT_benchmark(bpy.types.Operator):
+    """Replay the scene camera's animation with every traversal method and write the evaluation report"""
+
+    bl_idname = "hlod.benchmark"
+    bl_label = "Benchmark HLOD"
+
+    directory: StringProperty(name="Report Folder", subtype="DIR_PATH", default="//hlod_report")
+    repeat: IntProperty(name="Repeats", default=2, min=1, max=10)
+
+    def execute(self, context):
+        from ..addon import benchmark
+
+        try:
+            report, folder = benchmark.run(context, bpy.path.abspath(self.directory), self.repeat)
+        except (HlodError, OSError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        coh, boolean = report["methods"].get("coh_p"), report["methods"].get("bool")
+        extra = f"; Coh(P) {coh['dn']:.1f} nodes vs Bool {boolean['dn']:.1f}" if coh and boolean else ""
+        self.report({"INFO"}, f"HLOD report: {os.path.join(folder, 'report.md')}{extra}")
+        return {"FINISHED"}
+
+
+CLASSES = [HLOD_OT_bake, HLOD_OT_clear, HLOD_OT_preview_toggle, HLOD_OT_materialize, HLOD_OT_export,
+           HLOD_OT_benchmark]

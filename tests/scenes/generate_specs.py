@@ -4,10 +4,11 @@ gallery_1m.json: 8 statues (igea x2, nefertiti x3, bunny x3; 1,045,227 triangles
 10 units and centred, in one row along +x, 8 units apart: looking down the row, each statue hides
 most of the next (high depth complexity).
 
-crowd_1m.json: 20 statues (igea x2, nefertiti x6, bunny x6, rocker-arm x2, homer x2, fandisk x2;
-1,644,000 triangles) each scaled to 10 units, turned about +z, on a 5 x 4 grid 10 units apart: from any
-low viewpoint the first row hides most of the ones behind, which show only through the gaps (the
-README's evaluation scene).
+crowd_1m.json: 144 statues (cow, homer, spot, teapot, rocker-arm, fandisk; 1.5M triangles) each scaled
+to 10 units and turned about +z, packed on a 12 x 12 grid 8 units apart (neighbours nearly touch):
+from inside or beside the crowd the nearest statues hide most of the others, which show only as
+slivers through the gaps: the README's high-depth-complexity evaluation scene. crowd_walk_path.json
+is its 320-frame inspection (orbit at ground level, aisle walk, turn in place, dolly to close-up).
 """
 import json
 from pathlib import Path
@@ -41,16 +42,48 @@ def gallery() -> dict:
     return {"models": [{"path": str(MODELS / name), "transforms": t} for name, t in models.items()]}
 
 
+CROWD_SIDE, CROWD_SPACING = 12, 8.0
+
+
 def crowd() -> dict:
-    kinds = ["nefertiti.obj", "cow.obj", "homer.obj", "spot.obj", "stanford-bunny.obj", "teapot.obj",
-             "rocker-arm.obj", "fandisk.obj", "nefertiti.obj", "cow.obj", "spot.obj", "homer.obj",
-             "stanford-bunny.obj", "teapot.obj", "fandisk.obj", "rocker-arm.obj"]
+    kinds = ["cow.obj", "homer.obj", "spot.obj", "teapot.obj", "rocker-arm.obj", "fandisk.obj",
+             "homer.obj", "cow.obj", "spot.obj", "rocker-arm.obj", "fandisk.obj"]
     models: dict[str, list] = {}
-    for k in range(64):
-        i, j = k % 8, k // 8
+    for k in range(CROWD_SIDE * CROWD_SIDE):
+        i, j = k % CROWD_SIDE, k // CROWD_SIDE
         name = kinds[(k + j) % len(kinds)]
-        models.setdefault(name, []).append(placement(name, np.array([10.0 * i, 10.0 * j, 0.0]), turn_deg=37.0 * k))
+        position = np.array([CROWD_SPACING * i, CROWD_SPACING * j, 0.0])
+        models.setdefault(name, []).append(placement(name, position, turn_deg=37.0 * k))
     return {"models": [{"path": str(MODELS / name), "transforms": t} for name, t in models.items()]}
+
+
+def crowd_walk(frames_per_part: int = 80) -> dict:
+    """A 4-part inspection of crowd_1m at statue mid-height (z = 0; statues span -5..5): an orbit
+    around the crowd at ground level, a walk down the aisle between the first two rows looking
+    ahead, a full turn in place at an aisle crossing in the middle, and a dolly from an elevated
+    overview to an extreme close-up (0.3 units) of a statue in the middle of the crowd."""
+    n, side, gap = frames_per_part, CROWD_SPACING * (CROWD_SIDE - 1), CROWD_SPACING / 2
+    centre = np.array([side / 2, side / 2, 0.0])
+    frames = []
+    for i in range(n):
+        a = np.radians(200.0) + np.radians(120.0) * i / n
+        frames.append((centre + [1.2 * side * np.cos(a), 1.2 * side * np.sin(a), 0.5], centre))
+    for i in range(n):
+        x = -10.0 + (side + 20.0) * i / (n - 1)
+        frames.append(([x, gap, 0.0], [x + 20.0, gap + 8.0 * np.sin(2 * np.pi * i / n), 0.0]))
+    crossing = centre + [gap, gap, 0.0]
+    for i in range(n):
+        a = 2 * np.pi * i / n
+        frames.append((crossing, crossing + [10 * np.cos(a), 10 * np.sin(a), 0.0]))
+    far, focus = centre + [-0.9 * side, -0.9 * side, 0.4 * side], centre + [CROWD_SPACING, 0.0, 0.0]
+    near = focus + 0.3 * (far - focus) / np.linalg.norm(far - focus)
+    for i in range(n):
+        u = (i + 1) / n
+        u = u * u * (3 - 2 * u)
+        frames.append((far * (1 - u) + near * u, centre * (1 - u) + focus * u))
+    return {"fovy_deg": 60, "near": 0.01, "far": 400,
+            "frames": [{"eye": [round(float(c), 6) for c in e], "target": [round(float(c), 6) for c in t],
+                        "up": [0, 0, 1]} for e, t in frames]}
 
 
 def write_spec(path: Path, spec: dict) -> None:
@@ -67,3 +100,4 @@ def write_spec(path: Path, spec: dict) -> None:
 if __name__ == "__main__":
     write_spec(HERE / "gallery_1m.json", gallery())
     write_spec(HERE / "crowd_1m.json", crowd())
+    (HERE / "crowd_walk_path.json").write_text(json.dumps(crowd_walk()) + "\n")

@@ -1,0 +1,63 @@
+"""The Benchmark operator's work: the scene camera's animation as a camera path, evaluated with
+every method (hlod_core.evaluate, DESIGN §9) in a private headless EGL context; Blender's own
+context is made current again afterwards (DESIGN §7)."""
+from __future__ import annotations
+
+import math
+import os
+
+import bpy
+import numpy as np
+
+from ..hlod_core import evaluate, fileformat
+from ..hlod_core.camera import CameraPath
+from ..hlod_core.errors import InputError
+from . import glcontext, preview
+
+
+def camera_path(scene, depsgraph, size: tuple[int, int]) -> CameraPath:
+    """Eye, target (one unit along the view direction) and up of the scene camera at every frame
+    of the scene's range and step; projection from the camera at the first frame."""
+    camera = scene.camera
+    if camera is None:
+        raise InputError("Benchmark: the scene has no camera")
+    current = scene.frame_current
+    frames = []
+    try:
+        for f in range(scene.frame_start, scene.frame_end + 1, max(scene.frame_step, 1)):
+            scene.frame_set(f)
+            m = np.array(camera.matrix_world, np.float64)
+            eye = m[:3, 3].copy()
+            forward = -m[:3, 2] / np.linalg.norm(m[:3, 2])
+            up = m[:3, 1] / np.linalg.norm(m[:3, 1])
+            frames.append((eye, eye + forward, up))
+        scene.frame_set(scene.frame_start)
+        projection = np.array(camera.calc_matrix_camera(depsgraph, x=size[0], y=size[1]), np.float64)
+    finally:
+        scene.frame_set(current)
+    data = camera.data
+    near, far = float(data.clip_start), float(data.clip_end)
+    if data.type == "ORTHO":
+        return CameraPath(frames=np.array(frames), near=near, far=far, fovy_deg=None,
+                          ortho_height=2.0 / projection[1, 1])
+    if data.type != "PERSP":
+        raise InputError(f"Benchmark: camera {camera.name!r} is {data.type}; use a perspective or orthographic camera")
+    return CameraPath(frames=np.array(frames), near=near, far=far,
+                      fovy_deg=math.degrees(2.0 * math.atan(1.0 / projection[1, 1])))
+
+
+def run(context, folder: str, repeat: int) -> tuple[dict, str]:
+    scene = context.scene
+    props = scene.hlod
+    if not props.file:
+        raise InputError("Benchmark: no baked file; run Bake first")
+    hlod = preview.current_hlod() or fileformat.load(bpy.path.abspath(props.file))
+    r = scene.render
+    size = (max(1, r.resolution_x * r.resolution_percentage // 100), max(1, r.resolution_y * r.resolution_percentage // 100))
+    path = camera_path(scene, context.evaluated_depsgraph_get(), size)
+    os.makedirs(folder, exist_ok=True)
+    with glcontext.keep_current():
+        report = evaluate.evaluate(hlod, path, size, methods=list(evaluate.METHOD_SPECS),
+                                   settings=preview.runtime_settings(props), repeat=repeat, out_dir=folder,
+                                   psnr_frames=min(20, len(path)))
+    return report, folder

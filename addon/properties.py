@@ -1,0 +1,77 @@
+"""Scene properties under `scene.hlod` (DESIGN §8): bake settings, runtime settings, overlay settings,
+and read-only live statistics (getters over the running preview; nothing is written from the draw
+handler)."""
+import bpy
+from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
+                       StringProperty)
+
+from . import preview
+
+METHOD_ITEMS = [
+    ("coh", "Coherent (Coh)", "Coherent VMSSE traversal with refine/stop/delay prediction (the method)"),
+    ("sw", "Stop and wait (SW)", "Query every node and wait: the ideal node count, slow"),
+    ("simp", "Simple predictor (Simp)", "The 2006 predictor from queue positions"),
+    ("bool", "Boolean culling (Bool)", "Coherent hierarchical culling, queries as booleans, plain SSE"),
+    ("vfc", "Frustum culling (VFC)", "Frustum culling and SSE, no queries"),
+    ("full", "Full", "Every leaf in the frustum"),
+]
+
+
+def _stat(name):
+    return lambda self: preview.statistic(name)
+
+
+class HLOD_PG_settings(bpy.types.PropertyGroup):
+    # --- bake ---------------------------------------------------------------------------------
+    source: EnumProperty(name="Source", items=[
+        ("SELECTED", "Selected Objects", "Bake the selected objects (and the instances they make)"),
+        ("COLLECTION", "Collection", "Bake every object of a collection, with its children collections"),
+    ], default="SELECTED")
+    collection: PointerProperty(name="Collection", type=bpy.types.Collection)
+    target_tris: IntProperty(name="Triangles per Node", default=2000, min=16, max=1_000_000,
+                             description="Leaf budget and LOD size of every node")
+    max_depth: IntProperty(name="Max Depth", default=12, min=0, max=24, description="Deepest octree level (root = 0)")
+    quality_threshold: FloatProperty(name="Decimation Quality", default=0.3, min=0.0, max=1.0,
+                                     description="pymeshlab quadric quality threshold (higher keeps better-shaped triangles)")
+    output_path: StringProperty(name="Output", subtype="FILE_PATH", default="",
+                                description="Where the .hlod goes; empty = next to the .blend, named after it")
+    file: StringProperty(name="Baked File", subtype="FILE_PATH", default="",
+                         description="The .hlod the preview shows (set by Bake)")
+    # --- runtime ------------------------------------------------------------------------------
+    method: EnumProperty(name="Method", items=METHOD_ITEMS, default="coh")
+    bias: EnumProperty(name="Bias", items=[("P", "P(s,t)", "VMSSE ratio P_{s,t}(mu), visual masking"),
+                                           ("mu", "mu", "VMSSE ratio = mu, the visibility itself")], default="P")
+    tau: FloatProperty(name="Tau (px)", default=1.0, min=0.01, max=1000.0, description="Screen-space error threshold, pixels")
+    s: FloatProperty(name="s", default=0.9, min=0.0, max=1.0, description="Smoothness of P_{s,t}")
+    t: FloatProperty(name="t", default=0.05, min=0.0, max=1.0, description="Turnover of P_{s,t}")
+    step: BoolProperty(name="Step (k = inf)", default=True, description="Use the step S_t; off = logistic of steepness k")
+    k: FloatProperty(name="k", default=50.0, min=1e-3, max=1e9, description="Steepness of the logistic S_t")
+    alpha: EnumProperty(name="Alpha", items=[("query", "Query", "Second query, depth test off: exact"),
+                                             ("projected", "Projected", "Screen area of the box's silhouette"),
+                                             ("cube", "Cube", "Cube of equal volume (2006 paper)")], default="query")
+    # --- overlay ------------------------------------------------------------------------------
+    show_modulation: BoolProperty(name="Modulation Colours", default=True,
+                                  description="Blue weak, magenta moderate, red strong occlusion-driven LOD change")
+    show_boxes: BoolProperty(name="Node Boxes", default=False)
+    show_delayed: BoolProperty(name="Delayed Nodes", default=False, description="Boxes of nodes drawn after their own query (yellow)")
+    show_rarn: BoolProperty(name="Refined After Draw", default=False, description="Boxes of RARN nodes (green)")
+    # --- live statistics (read-only) ----------------------------------------------------------
+    stat_drawn: IntProperty(name="Drawn Nodes", get=_stat("dn"))
+    stat_tris: IntProperty(name="Triangles", get=_stat("tris"))
+    stat_queries: IntProperty(name="Queries", get=_stat("queries"))
+    stat_rarn: IntProperty(name="RARN", get=_stat("rarn"))
+    stat_d: IntProperty(name="Delayed (D)", get=_stat("d"))
+    stat_stall_ms: FloatProperty(name="Stall ms", get=_stat("stall_ms"))
+    stat_frame_ms: FloatProperty(name="Frame ms", get=_stat("frame_ms"))
+    status: StringProperty(name="Status", get=lambda self: preview.status())
+
+
+CLASSES = [HLOD_PG_settings]
+
+
+def register() -> None:
+    bpy.types.Scene.hlod = PointerProperty(type=HLOD_PG_settings)
+
+
+def unregister() -> None:
+    del bpy.types.Scene.hlod

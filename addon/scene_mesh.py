@@ -1,0 +1,103 @@
+"""Blender meshes in and out of hlod_core (DESIGN §8).
+
+In: the evaluated geometry of the chosen objects (modifiers applied, instances from collection
+instances, particles and geometry nodes realised, world transforms), read through the depsgraph
+without touching the source objects, as one `meshio.TriangleMesh` in world units.
+Out: Blender mesh objects for a set of nodes (Materialize), in a collection of their own.
+"""
+from __future__ import annotations
+
+import bpy
+import numpy as np
+
+from ..hlod_core import meshio
+from ..hlod_core.errors import InputError
+
+
+def source_objects(context, props) -> list:
+    if props.source == "COLLECTION":
+        if props.collection is None:
+            raise InputError("Bake: choose a collection (Source: Collection)")
+        objects = list(props.collection.all_objects)
+        where = f"collection {props.collection.name!r}"
+    else:
+        objects = list(context.selected_objects)
+        where = "the selection"
+    if not objects:
+        raise InputError(f"Bake: {where} has no objects")
+    return objects
+
+
+def evaluated_mesh(context, objects) -> meshio.TriangleMesh:
+    """Triangles of every object in `objects` and of every instance they make, world space."""
+    depsgraph = context.evaluated_depsgraph_get()
+    wanted = {o.name_full for o in objects}
+    parts, names = [], []
+    for inst in depsgraph.object_instances:
+        owner = inst.parent.original if inst.is_instance and inst.parent is not None else inst.object.original
+        if owner.name_full not in wanted:
+            continue
+        obj = inst.object
+        if obj.type not in {"MESH", "CURVE", "SURFACE", "FONT", "META"}:
+            continue
+        mesh = obj.to_mesh(preserve_all_data_layers=False, depsgraph=depsgraph)
+        try:
+            if mesh is None or len(mesh.loop_triangles) == 0 and not _triangulate(mesh):
+                continue
+            count = len(mesh.vertices)
+            positions = np.empty(count * 3, np.float64)
+            mesh.vertices.foreach_get("co", positions)
+            faces = np.empty(len(mesh.loop_triangles) * 3, np.int64)
+            mesh.loop_triangles.foreach_get("vertices", faces)
+        finally:
+            obj.to_mesh_clear()
+        matrix = np.array(inst.matrix_world, np.float64)
+        positions = positions.reshape(-1, 3) @ matrix[:3, :3].T + matrix[:3, 3]
+        faces = faces.reshape(-1, 3)
+        if np.linalg.det(matrix[:3, :3]) < 0:
+            faces = faces[:, ::-1]  # a mirroring transform keeps faces facing out
+        label = f"{owner.name}" + (f" (instance of {obj.original.name})" if inst.is_instance else "")
+        parts.append(meshio.from_arrays(positions, faces, name=label))
+        names.append(label)
+    if not parts:
+        raise InputError("Bake: the chosen objects have no triangles (meshes, curves or text with faces)")
+    return meshio.merge(parts, name=", ".join(names[:3]) + (" ..." if len(names) > 3 else ""))
+
+
+def _triangulate(mesh) -> bool:
+    mesh.calc_loop_triangles()
+    return len(mesh.loop_triangles) > 0
+
+
+def materialize(hlod, nodes, name: str) -> bpy.types.Collection:
+    """One mesh object per node, world positions (file origin added back), in a new collection
+    linked to the scene. Returns the collection."""
+    collection = bpy.data.collections.new(name)
+    bpy.context.scene.collection.children.link(collection)
+    for node in nodes:
+        node = int(node)
+        first, count = int(hlod.tri_offset[node]), int(hlod.tri_count[node])
+        idx = np.asarray(hlod.indices[first * 3:(first + count) * 3], np.int64).reshape(-1, 3)
+        used, faces = np.unique(idx, return_inverse=True)
+        positions = np.asarray(hlod.positions[used], np.float64) + hlod.origin
+        mesh = bpy.data.meshes.new(f"{name} node {node}")
+        mesh.vertices.add(len(used))
+        mesh.vertices.foreach_set("co", positions.astype(np.float32).ravel())
+        faces = faces.reshape(-1, 3)
+        mesh.loops.add(faces.size)
+        mesh.loops.foreach_set("vertex_index", faces.ravel().astype(np.int32))
+        mesh.polygons.add(faces.shape[0])
+        mesh.polygons.foreach_set("loop_start", np.arange(0, faces.size, 3, dtype=np.int32))
+        mesh.update()
+        mesh.validate()
+        obj = bpy.data.objects.new(f"{name} node {node}", mesh)
+        obj["hlod_node"] = node
+        obj["hlod_depth"] = int(hlod.depth[node])
+        collection.objects.link(obj)
+    return collection
+
+
+def nodes_at_depth(hlod, depth: int) -> np.ndarray:
+    """The cut at `depth`: nodes at that level, plus leaves above it."""
+    level = np.asarray(hlod.depth)
+    return np.flatnonzero((level == depth) | ((hlod.child_count == 0) & (level < depth)))
