@@ -77,7 +77,7 @@ def materialize(hlod, nodes, name: str) -> bpy.types.Collection:
     for node in nodes:
         node = int(node)
         first, count = int(hlod.tri_offset[node]), int(hlod.tri_count[node])
-        idx = np.asarray(hlod.indices[first * 3:(first + count) * 3], np.int64).reshape(-1, 3)
+        idx = np.asarray(hlod.indices[first:first + count], np.int64)  # (t, 3) rows into positions
         used, faces = np.unique(idx, return_inverse=True)
         positions = np.asarray(hlod.positions[used], np.float64) + hlod.origin
         mesh = bpy.data.meshes.new(f"{name} node {node}")

@@ -1,0 +1,95 @@
+"""The Blender extension with the real bpy module: built into a zip by Blender's own extension tool,
+installed into a temporary extension repository and enabled as Blender does (bl_ext.r.hlod).
+Each check runs in its own Python process (tests/blender_checks.py): bpy keeps global state, and
+the user's Blender configuration is kept out of it (BLENDER_USER_RESOURCES points at a temp dir)."""
+import json
+import os
+import subprocess
+import sys
+import sysconfig
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from helpers import ROOT
+
+BLENDER_EXT = Path(sysconfig.get_paths()["platlib"]) / "bpy/5.0/scripts/addons_core/bl_pkg/cli/blender_ext.py"
+
+
+@pytest.fixture(scope="module")
+def repo(tmp_path_factory):
+    base = tmp_path_factory.mktemp("extension")
+    build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms", "linux-x64",
+                            "--output-dir", str(base / "dist")], capture_output=True, text=True, timeout=900)
+    assert build.returncode == 0, build.stderr
+    zip_path = Path(build.stdout.strip().splitlines()[-1])
+    names = zipfile.ZipFile(zip_path).namelist()
+    assert "blender_manifest.toml" in names and "hlod_core/traversal.py" in names
+    assert any(n.startswith("wheels/pymeshlab-") for n in names) and not any(n.startswith("tests/") for n in names)
+    (base / "repo").mkdir()
+    install = subprocess.run([sys.executable, str(BLENDER_EXT), "install-files", "--local-dir", str(base / "repo"),
+                              str(zip_path)], capture_output=True, text=True, timeout=300)
+    assert install.returncode == 0, install.stderr
+    (base / "user").mkdir()
+    return base
+
+
+def blender(repo, check: str, tmp_path) -> dict:
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(repo / "user"), "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, str(ROOT / "tests/blender_checks.py"), str(repo / "repo"), check,
+                           str(tmp_path)], capture_output=True, text=True, timeout=600, env=env, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_manifest_validates_with_blenders_tool():
+    proc = subprocess.run([sys.executable, str(BLENDER_EXT), "validate", str(ROOT)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_enable_disable_twice_under_the_real_package_name(repo, tmp_path):
+    out = blender(repo, "registration", tmp_path)
+    assert out["module"] == "bl_ext.r.hlod"
+    on = {"scene_hlod": True, "operators": dict.fromkeys(["bake", "clear", "preview_toggle", "materialize", "export",
+                                                          "benchmark"], True), "panel": True, "handlers": 1}
+    off = {"scene_hlod": False, "operators": dict.fromkeys(on["operators"], False), "panel": False, "handlers": 0}
+    assert out["first"] == out["second"] == out["register_again"] == on
+    assert out["disabled"] == out["disabled_twice"] == off
+
+
+def test_bake_operator_on_modifiers_and_instances(repo, tmp_path):
+    out = blender(repo, "bake", tmp_path)
+    assert "the .blend is not saved" in out["unsaved_error"]
+    assert out["result"] == ["FINISHED"] and Path(out["file"]).is_file()
+    # evaluated geometry: subdivision and array modifiers applied, collection instances realised
+    assert out["input_tris"] == out["expected_tris"]
+    assert out["box_min"][0] == pytest.approx(-9.5, abs=0.02) and out["box_max"][0] == pytest.approx(8.5, abs=0.02)
+    assert out["sources_untouched"]
+    assert "the selection has no objects" in out["empty_selection_error"]
+    assert out["materialize"] == ["FINISHED"] and out["materialized_objects"] > 1
+    assert out["materialized_tris"] == out["cut_tris"]
+    assert out["export"] == ["FINISHED"] and out["exported_nodes"] == out["nodes"]
+    assert out["clear"] == ["FINISHED"] and out["file_after_clear"] == ""
+
+
+def test_preview_draw_path_in_an_offscreen(repo, tmp_path):
+    """The add-on's draw path inside a GPUOffScreen with a scene camera's matrices: nodes drawn in
+    modulation colours, none over Blender's own occluder (its depth hides them), strongly modulated
+    (red) nodes where occlusion lowered their LOD, Blender's gpu drawing after the pass still shows,
+    its GL state is as before, statistics are updated; the benchmark's private EGL context leaves
+    Blender's drawing working; an exception in the draw path turns the preview off, not raised."""
+    out = blender(repo, "preview", tmp_path)
+    assert out["running"] and out["status_on"].startswith("on:")
+    for frame in (out["occluded"], out["after_benchmark"]):
+        assert frame["ramp_pixels"] > 1000 and frame["red_pixels"] > 50
+        assert frame["ramp_in_occluder"] == 0 and frame["grey_in_occluder"] == frame["occluder_pixels"]
+        assert frame["green_pixels"] > 100 and frame["other_pixels"] == 0
+        assert frame["state_after"] == frame["state_before"]
+    assert out["stats"]["drawn"] > 0 and out["stats"]["queries"] > 0 and out["stats"]["tris"] > 0
+    assert out["with_boxes"] > 200  # box outlines drawn with Blender's gpu module
+    assert out["benchmark"] == ["FINISHED"] and out["benchmark_frames"] == 4 and len(out["benchmark_methods"]) == 10
+    assert out["injected_return"] == "None" and not out["running_after_error"]
+    assert out["status_after_error"] == "off: RuntimeError: injected failure"
+    assert out["running_after_toggle"] and not out["running_after_load"]
+    assert out["status_after_load"] == "off: a file was loaded"
