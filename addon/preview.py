@@ -9,6 +9,12 @@ changes is saved before and restored after it (`GLState`), then `gpu.shader.unbi
 The handler never raises into Blender: an error turns the preview off and `status()` says why.
 GL objects are released only while the context they were made in is current (in a draw call, or
 when that context is current at unregister/file load); otherwise they are dropped and logged.
+
+Private mode (DESIGN §7 fallback, used when Blender's backend is not OpenGL (Metal, Vulkan) or
+when "Private Context" is set): the traversal and its queries run in a private headless context
+with its own depth pass (Blender's objects then do not occlude the queries), and the chosen nodes
+are drawn into the viewport with Blender's gpu module (flat colour, depth-tested against Blender's
+scene). The status line says which mode is on.
 """
 from __future__ import annotations
 
@@ -40,6 +46,8 @@ class _State:
     traversal: object = None
     key: tuple | None = None
     stats: FrameStats | None = None
+    private: object = None  # the private-mode Renderer (own context and framebuffer)
+    batches: dict | None = None  # private mode: node -> gpu batch
 
 
 _state: _State | None = None
@@ -78,12 +86,6 @@ def start(scene) -> None:
         raise HlodError("no baked file: run Bake first or set Baked File")
     hlod = fileformat.load(path)
     _state = _State(file=path, hlod=hlod)
-    backend = _backend()
-    if backend != "OPENGL":
-        _status = (f"preview needs the OpenGL backend for occlusion queries; this Blender runs {backend} "
-                   "(Preferences > System > Backend)")
-        _state = None
-        raise HlodError(_status)
     if not bpy.app.background:
         _handler = bpy.types.SpaceView3D.draw_handler_add(_draw_handler, (), "WINDOW", "POST_VIEW")
     _status = f"on: {bpy.path.basename(path)} ({hlod.node_count} nodes)"
@@ -104,6 +106,11 @@ def stop(reason: str | None = None) -> None:
 
 
 def _release(state: _State) -> None:
+    if state.private is not None:
+        with glcontext.keep_current():
+            state.private.release()  # its own context: always safe to release
+        state.private = None
+    state.batches = None
     if state.renderer is None:
         return
     if state.gl_context is not None and glcontext.current() == state.gl_context:
@@ -176,6 +183,9 @@ def draw_view(scene, view_matrix, window_matrix, width, height, *, xray: bool = 
     from ..hlod_core.renderer import GLState, Renderer
     from ..hlod_core.traversal import make
 
+    props = scene.hlod
+    if props.private_context or _backend() != "OPENGL":
+        return _draw_private(scene, state, view_matrix, window_matrix, int(width), int(height))
     current = glcontext.current()
     if state.ctx is None:
         import moderngl
@@ -190,7 +200,6 @@ def draw_view(scene, view_matrix, window_matrix, width, height, *, xray: bool = 
     elif current != state.gl_context:
         _status = "on: drawing in the first window's context only"
         return None
-    props = scene.hlod
     settings = runtime_settings(props)
     key = (props.method, settings)
     if state.key != key:
@@ -208,6 +217,61 @@ def draw_view(scene, view_matrix, window_matrix, width, height, *, xray: bool = 
     _status = (f"on: {bpy.path.basename(state.file)}" +
                (" - X-ray clears the depth: Blender's objects do not occlude the nodes" if xray else ""))
     return stats
+
+
+def _draw_private(scene, state, view_matrix, window_matrix, width: int, height: int) -> FrameStats:
+    """The fallback: traverse in a private context, draw the chosen nodes with the gpu module."""
+    global _status
+    import gpu
+
+    from ..hlod_core.renderer import Renderer
+    from ..hlod_core.traversal import make
+
+    props = scene.hlod
+    with glcontext.keep_current():
+        if state.private is not None and state.private.fbo.size != (width, height):
+            state.private.release()
+            state.private, state.key = None, None
+        if state.private is None:
+            state.private = Renderer.create_standalone(state.hlod, (width, height))
+            state.batches = {}
+        settings = runtime_settings(props)
+        key = ("private", props.method, settings)
+        if state.key != key:
+            state.traversal = make(props.method, state.hlod, state.private, settings)
+            state.key = key
+        view = view_from_matrices(view_matrix, window_matrix, width, height)
+        with state.private.ctx:
+            stats = state.traversal.frame(view)
+    colours = (metrics.modulation_colour(metrics.modulation(state.traversal.ratio[stats.drawn]))
+               if props.show_modulation else None)
+    shader = gpu.shader.from_builtin("UNIFORM_COLOR")
+    gpu.state.depth_test_set("LESS_EQUAL")
+    gpu.state.depth_mask_set(True)
+    with gpu.matrix.push_pop():
+        gpu.matrix.translate(tuple(float(c) for c in state.hlod.origin))  # float32 positions are origin-relative
+        for i, node in enumerate(stats.drawn):
+            batch = state.batches.get(node) or state.batches.setdefault(node, _node_batch(shader, state.hlod, node))
+            colour = tuple(colours[i]) if colours is not None else (0.82, 0.80, 0.76)
+            shader.uniform_float("color", (*colour, 1.0))
+            batch.draw(shader)
+    gpu.state.depth_mask_set(False)
+    gpu.state.depth_test_set("NONE")
+    state.stats = stats
+    _draw_boxes(props, state, stats)
+    _status = (f"on (private context): {bpy.path.basename(state.file)} - "
+               "Blender's objects hide the nodes but do not occlude the queries")
+    return stats
+
+
+def _node_batch(shader, hlod, node: int):
+    from gpu_extras.batch import batch_for_shader
+
+    first, count = int(hlod.tri_offset[node]), int(hlod.tri_count[node])
+    rows = np.asarray(hlod.indices[first:first + count], np.int64)
+    used, local = np.unique(rows, return_inverse=True)
+    return batch_for_shader(shader, "TRIS", {"pos": np.asarray(hlod.positions[used], np.float32)},
+                            indices=local.reshape(-1, 3).astype(np.int32))
 
 
 def _draw_boxes(props, state, stats: FrameStats) -> None:

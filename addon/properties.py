@@ -49,6 +49,9 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     alpha: EnumProperty(name="Alpha", items=[("query", "Query", "Second query, depth test off: exact"),
                                              ("projected", "Projected", "Screen area of the box's silhouette"),
                                              ("cube", "Cube", "Cube of equal volume (2006 paper)")], default="query")
+    private_context: BoolProperty(name="Private Context", default=False,
+                                  description="Run the traversal in a private GL context and draw with Blender's gpu module "
+                                              "(automatic on Metal/Vulkan; Blender's objects then do not occlude the queries)")
     # --- overlay ------------------------------------------------------------------------------
     show_modulation: BoolProperty(name="Modulation Colours", default=True,
                                   description="Blue weak, magenta moderate, red strong occlusion-driven LOD change")

@@ -59,6 +59,7 @@ class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
         if not props.step:
             sub.prop(props, "k")
         col.prop(props, "alpha")
+        layout.prop(props, "private_context")
         row = layout.row(align=True)
         row.operator("hlod.materialize", icon="OUTLINER_OB_MESH")
         row.operator("hlod.export", icon="EXPORT")

@@ -223,6 +223,25 @@ def check_preview(repo, work) -> dict:
     report = json.loads((Path(work) / "report" / "report.json").read_text())
     out["benchmark_frames"], out["benchmark_methods"] = report["frames"], sorted(report["methods"])
     out["after_benchmark"] = _draw_checks(package, scene, size, occlude=True)
+    # the fallback for backends moderngl cannot attach to: a private context, drawn with the gpu module
+    props.private_context = True
+    for _ in range(3):
+        out["private"] = _draw_checks(package, scene, size, occlude=True)
+    out["status_private"] = props.status
+    out["private_drawn"] = props.stat_drawn
+    props.private_context = False
+    # orthographic camera view, and the X-ray message (X-ray clears the depth Blender's objects leave)
+    scene.camera.data.type, scene.camera.data.ortho_scale = "ORTHO", 14.0
+    out["ortho"] = _draw_checks(package, scene, size, occlude=False)["ramp_pixels"]
+    scene.camera.data.type = "PERSP"
+    view, projection = blender_preview.camera_matrices(scene, size)
+    import gpu
+
+    offscreen = gpu.types.GPUOffScreen(*size)
+    with offscreen.bind():
+        preview.safe_draw(scene, view, projection, *size, xray=True)
+    offscreen.free()
+    out["status_xray"] = props.status
     # an exception inside the draw path turns the preview off and is not raised
     traversal = importlib.import_module(NAME + ".hlod_core.traversal")
 

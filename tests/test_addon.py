@@ -77,7 +77,8 @@ def test_preview_draw_path_in_an_offscreen(repo, tmp_path):
     """The add-on's draw path inside a GPUOffScreen with a scene camera's matrices: nodes drawn in
     modulation colours, none over Blender's own occluder (its depth hides them), strongly modulated
     (red) nodes where occlusion lowered their LOD, Blender's gpu drawing after the pass still shows,
-    its GL state is as before, statistics are updated; the benchmark's private EGL context leaves
+    its GL state is as before, statistics are updated; the private-context fallback draws through
+    Blender's gpu module; the benchmark's private EGL context leaves
     Blender's drawing working; an exception in the draw path turns the preview off, not raised."""
     out = blender(repo, "preview", tmp_path)
     assert out["running"] and out["status_on"].startswith("on:")
@@ -86,6 +87,11 @@ def test_preview_draw_path_in_an_offscreen(repo, tmp_path):
         assert frame["ramp_in_occluder"] == 0 and frame["grey_in_occluder"] == frame["occluder_pixels"]
         assert frame["green_pixels"] > 100 and frame["other_pixels"] == 0
         assert frame["state_after"] == frame["state_before"]
+    private = out["private"]  # fallback: traversal in a private context, nodes drawn with the gpu module
+    assert private["ramp_pixels"] > 1000 and private["ramp_in_occluder"] == 0 and private["green_pixels"] > 100
+    assert private["state_after"] == private["state_before"] and out["private_drawn"] > 0
+    assert out["status_private"].startswith("on (private context)")
+    assert out["ortho"] > 1000 and "X-ray clears the depth" in out["status_xray"]
     assert out["stats"]["drawn"] > 0 and out["stats"]["queries"] > 0 and out["stats"]["tris"] > 0
     assert out["with_boxes"] > 200  # box outlines drawn with Blender's gpu module
     assert out["benchmark"] == ["FINISHED"] and out["benchmark_frames"] == 4 and len(out["benchmark_methods"]) == 10
