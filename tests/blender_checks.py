@@ -131,6 +131,18 @@ def check_bake(repo, work) -> dict:
     out["exported_nodes"] = fileformat.load(exported).node_count
     out["clear"] = sorted(bpy.ops.hlod.clear())
     out["file_after_clear"] = props.file
+    # a collection as the source, and the default output next to the saved .blend
+    chosen = bpy.data.collections.new("chosen")
+    bpy.context.scene.collection.children.link(chosen)
+    cube = bpy.data.objects["cube 0"]
+    chosen.objects.link(cube)
+    props.source, props.collection, props.output_path = "COLLECTION", chosen, ""
+    blend = Path(work) / "project" / "city.blend"
+    blend.parent.mkdir()
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    out["collection_result"] = sorted(bpy.ops.hlod.bake())
+    out["collection_file"] = bpy.path.abspath(props.file)
+    out["collection_tris"] = int(fileformat.load(bpy.path.abspath(props.file)).meta["input_tris"])
     return out
 
 
@@ -205,6 +217,8 @@ def check_preview(repo, work) -> dict:
     for _ in range(3):
         frame = _draw_checks(package, scene, size, occlude=True)
     out["occluded"] = frame
+    out["materialize_front"] = sorted(bpy.ops.hlod.materialize(depth=-1))
+    out["front_objects"] = len(bpy.data.collections["HLOD front"].objects)
     out["stats"] = {"drawn": props.stat_drawn, "queries": props.stat_queries, "tris": props.stat_tris,
                     "frame_ms": props.stat_frame_ms}
     # overlay boxes with Blender's gpu module

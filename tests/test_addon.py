@@ -71,6 +71,8 @@ def test_bake_operator_on_modifiers_and_instances(repo, tmp_path):
     assert out["materialized_tris"] == out["cut_tris"]
     assert out["export"] == ["FINISHED"] and out["exported_nodes"] == out["nodes"]
     assert out["clear"] == ["FINISHED"] and out["file_after_clear"] == ""
+    assert out["collection_result"] == ["FINISHED"] and out["collection_tris"] == 6 * 64 * 2
+    assert Path(out["collection_file"]) == tmp_path / "project" / "city.hlod"
 
 
 def test_preview_draw_path_in_an_offscreen(repo, tmp_path):
@@ -92,6 +94,7 @@ def test_preview_draw_path_in_an_offscreen(repo, tmp_path):
     assert private["state_after"] == private["state_before"] and out["private_drawn"] > 0
     assert out["status_private"].startswith("on (private context)")
     assert out["ortho"] > 1000 and "X-ray clears the depth" in out["status_xray"]
+    assert out["materialize_front"] == ["FINISHED"] and out["front_objects"] == out["stats"]["drawn"]
     assert out["stats"]["drawn"] > 0 and out["stats"]["queries"] > 0 and out["stats"]["tris"] > 0
     assert out["with_boxes"] > 200  # box outlines drawn with Blender's gpu module
     assert out["benchmark"] == ["FINISHED"] and out["benchmark_frames"] == 4 and len(out["benchmark_methods"]) == 10
@@ -99,3 +102,22 @@ def test_preview_draw_path_in_an_offscreen(repo, tmp_path):
     assert out["status_after_error"] == "off: RuntimeError: injected failure"
     assert out["running_after_toggle"] and not out["running_after_load"]
     assert out["status_after_load"] == "off: a file was loaded"
+
+
+def test_panels_refer_only_to_existing_properties_and_operators():
+    """Panel draw() runs only in Blender's UI, which these tests cannot open: check statically that
+    every property a panel shows exists on scene.hlod and every operator button exists."""
+    import ast
+    import re
+
+    source = (ROOT / "panels/__init__.py").read_text()
+    props_src = (ROOT / "addon/properties.py").read_text()
+    declared = {node.target.id for node in ast.walk(ast.parse(props_src))
+                if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)}
+    shown = set(re.findall(r'\.prop\(props, "(\w+)"', source))
+    shown |= set(re.findall(r'"(stat_\w+)"', source))  # the statistics loop
+    assert shown and shown <= declared, shown - declared
+    operators_src = (ROOT / "operators/__init__.py").read_text()
+    ids = set(re.findall(r'bl_idname = "(hlod\.\w+)"', operators_src))
+    buttons = set(re.findall(r'operator\("(hlod\.\w+)"', source))
+    assert buttons and buttons <= ids, buttons - ids
