@@ -8,6 +8,7 @@ messages go to stderr; bad input exits with status 2 and one line naming the fil
     scene low|middle|high|default -o OUT.hlod [--seed N] [--scale S] [--jobs N]
     run FILE.hlod --method M [...]
     evaluate FILE.hlod --out DIR [...]
+    export IN.hlod --format 3dtiles|hlod -o DIR
 """
 from __future__ import annotations
 
@@ -86,6 +87,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--sweep", choices=["tau", "st", "alpha"], help="add Coh(P) at each value of one parameter")
     p.add_argument("--psnr-frames", type=int, default=20, help="seeded random frames compared by PSNR")
     p.set_defaults(run=_cmd_evaluate)
+
+    p = sub.add_parser("export", help="export a .hlod as 3D Tiles 1.1 (tileset.json + one GLB per node) or .hlod")
+    p.add_argument("file", metavar="IN.hlod")
+    p.add_argument("--format", choices=["3dtiles", "hlod"], default="3dtiles")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (replaced atomically)")
+    p.set_defaults(run=_cmd_export)
 
     p = sub.add_parser("scene", help="bake a procedural scene made by the project (no input files)")
     p.add_argument("name", choices=list(scenes.SCENES),
@@ -166,6 +173,26 @@ def _cmd_scene(args) -> dict:
     summary = _bake_and_save(mesh, args, [mesh.name])
     summary["scene"] = args.name
     return summary
+
+
+def export_hlod(hlod, fmt: str, out_dir, stem: str) -> dict:
+    """Export into out_dir: 3D Tiles (tileset.json, tiles/) or the native file <stem>.hlod."""
+    if fmt == "3dtiles":
+        from . import tiles3d
+
+        return tiles3d.export(hlod, out_dir)
+    target = Path(out_dir) / f"{stem}.hlod"
+    _check_output(str(target))
+    fileformat.save(hlod, target)
+    return {"format": "hlod", "output": str(target), "nodes": hlod.node_count}
+
+
+def _cmd_export(args) -> dict:
+    out = Path(args.output)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"-o {out}: is a file, expected a folder")
+    hlod = fileformat.load(args.file)
+    return export_hlod(hlod, args.format, out, Path(args.file).stem)
 
 
 def _cmd_info(args) -> dict:

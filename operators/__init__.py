@@ -198,9 +198,12 @@ class HLOD_OT_export(bpy.types.Operator):
     bl_idname = "hlod.export"
     bl_label = "Export HLOD"
 
-    filepath: StringProperty(name="File Path", subtype="FILE_PATH")
-    format: EnumProperty(name="Format", items=[("HLOD", "HLOD (native)", "The extension's own memory-mappable format")],
-                         default="HLOD")
+    filepath: StringProperty(name="File Path", subtype="FILE_PATH",
+                             description="The .hlod file, or for 3D Tiles the folder to write (tileset.json, tiles/)")
+    format: EnumProperty(name="Format", items=[
+        ("HLOD", "HLOD (native)", "The extension's own memory-mappable format"),
+        ("3DTILES", "3D Tiles 1.1", "tileset.json with one GLB per node; geometricError = the node's error"),
+    ], default="HLOD")
 
     def invoke(self, context, event):
         if not self.filepath:
@@ -216,7 +219,14 @@ class HLOD_OT_export(bpy.types.Operator):
             if not self.filepath:
                 raise InputError("Export: give a file path")
             target = bpy.path.abspath(self.filepath)
-            fileformat.save(fileformat.load(bpy.path.abspath(props.file)), target)
+            hlod = fileformat.load(bpy.path.abspath(props.file))
+            if self.format == "3DTILES":
+                from ..hlod_core import tiles3d
+
+                target = target[:-5] + "_3dtiles" if target.lower().endswith(".hlod") else target
+                tiles3d.export(hlod, target)
+            else:
+                fileformat.save(hlod, target)
         except (HlodError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

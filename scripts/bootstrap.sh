@@ -56,6 +56,29 @@ ensure_venv() {
     fi
 }
 
+ensure_validators() {
+    # The tests' independent readers of the 3D Tiles export (npm: Khronos glTF validator, CesiumGS
+    # 3d-tiles-tools), pinned in tools/validators/package-lock.json; installed once.
+    local tools="$ROOT/tools/validators"
+    if ! command -v npm >/dev/null 2>&1; then
+        if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+            say "installing nodejs and npm (for the export validators)"
+            DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2
+            DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nodejs npm >&2
+        else
+            say "npm not found: install Node.js 18+ and npm (the tests validate 3D Tiles exports with npm packages)"
+            exit 1
+        fi
+    fi
+    local stamp="$tools/node_modules/.lock.sha256" want
+    want="$(sha256sum "$tools/package-lock.json" | cut -d' ' -f1)"
+    if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+        say "installing the export validators into $tools/node_modules (npm ci, about 230 MB)"
+        (cd "$tools" && npm ci --silent --no-audit --no-fund >&2)
+        echo "$want" > "$stamp"
+    fi
+}
+
 ensure_gl_packages
 ensure_venv
 PY="$VENV/bin/python"

@@ -32,7 +32,9 @@ def _registered() -> dict:
         except KeyError:
             ops[op] = False
     return {"scene_hlod": hasattr(bpy.types.Scene, "hlod"), "operators": ops,
-            "panel": hasattr(bpy.types, "HLOD_PT_main"), "handlers": sum(
+            "panel": hasattr(bpy.types, "HLOD_PT_main"),
+            "cli_command": getattr(sys.modules.get(NAME + ".addon"), "_cli_command", None) is not None,
+            "handlers": sum(
                 1 for h in bpy.app.handlers.load_pre if getattr(h, "__module__", "").startswith(NAME))}
 
 
@@ -129,6 +131,9 @@ def check_bake(repo, work) -> dict:
     exported.parent.mkdir()
     out["export"] = sorted(bpy.ops.hlod.export(filepath=str(exported)))
     out["exported_nodes"] = fileformat.load(exported).node_count
+    out["export_3dtiles"] = sorted(bpy.ops.hlod.export(filepath=str(Path(work) / "export" / "tiles"), format="3DTILES"))
+    tileset = Path(work) / "export" / "tiles" / "tileset.json"
+    out["tileset_tiles"] = len(list((tileset.parent / "tiles").glob("*.glb"))) if tileset.is_file() else 0
     out["clear"] = sorted(bpy.ops.hlod.clear())
     out["file_after_clear"] = props.file
     # a collection as the source, and the default output next to the saved .blend
@@ -276,6 +281,35 @@ def check_preview(repo, work) -> dict:
     out["running_after_toggle"] = preview.running()
     bpy.ops.wm.read_homefile(use_empty=True)  # load_pre stops the preview and frees it
     out["running_after_load"], out["status_after_load"] = preview.running(), preview.status()
+    return out
+
+
+def check_make_blends(repo, work) -> dict:
+    """Two .blend files for the batch test: the box row (modifiers, instances) and a field of
+    monkeys in a collection named "props" beside a plane outside it."""
+    out = {}
+    bpy.ops.wm.read_homefile(use_empty=True)
+    _box_row_scene()
+    a = Path(work) / "boxes.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(a))
+    out["boxes"] = str(a)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    props = bpy.data.collections.new("props")
+    bpy.context.scene.collection.children.link(props)
+    for i in range(3):
+        bpy.ops.mesh.primitive_monkey_add(size=2.0, location=(3.0 * i, 0.0, 1.0))
+        monkey = bpy.context.active_object
+        monkey.modifiers.new("smooth", "SUBSURF").levels = 1
+        for c in list(monkey.users_collection):
+            c.objects.unlink(monkey)
+        props.objects.link(monkey)
+    bpy.ops.mesh.primitive_plane_add(size=20.0)
+    b = Path(work) / "monkeys.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(b))
+    out["monkeys"] = str(b)
+    # expected triangles of the collection: the monkey (500 faces: 468 quads?) counted by Blender
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    out["monkeys_tris"] = sum(len(o.evaluated_get(depsgraph).to_mesh().loop_triangles) for o in props.objects)
     return out
 
 

@@ -52,8 +52,9 @@ def test_enable_disable_twice_under_the_real_package_name(repo, tmp_path):
     out = blender(repo, "registration", tmp_path)
     assert out["module"] == "bl_ext.r.hlod"
     on = {"scene_hlod": True, "operators": dict.fromkeys(["bake", "clear", "preview_toggle", "materialize", "export",
-                                                          "benchmark"], True), "panel": True, "handlers": 1}
-    off = {"scene_hlod": False, "operators": dict.fromkeys(on["operators"], False), "panel": False, "handlers": 0}
+                                                          "benchmark"], True), "panel": True, "cli_command": True, "handlers": 1}
+    off = {"scene_hlod": False, "operators": dict.fromkeys(on["operators"], False), "panel": False,
+           "cli_command": False, "handlers": 0}
     assert out["first"] == out["second"] == out["register_again"] == on
     assert out["disabled"] == out["disabled_twice"] == off
 
@@ -70,6 +71,7 @@ def test_bake_operator_on_modifiers_and_instances(repo, tmp_path):
     assert out["materialize"] == ["FINISHED"] and out["materialized_objects"] > 1
     assert out["materialized_tris"] == out["cut_tris"]
     assert out["export"] == ["FINISHED"] and out["exported_nodes"] == out["nodes"]
+    assert out["export_3dtiles"] == ["FINISHED"] and out["tileset_tiles"] == out["nodes"]
     assert out["clear"] == ["FINISHED"] and out["file_after_clear"] == ""
     assert out["collection_result"] == ["FINISHED"] and out["collection_tris"] == 6 * 64 * 2
     assert Path(out["collection_file"]) == tmp_path / "project" / "city.hlod"

@@ -1,0 +1,134 @@
+"""Batch work from background mode (DESIGN §8): `blender -b [FILE.blend] --command hlod ...`, registered
+with `bpy.utils.register_cli_command`, and the same code through the bpy module
+(`python scripts/hlod_blender.py ...`, for machines with the bpy wheel and no Blender install).
+
+    hlod bake [FILE.blend ...] [--collection NAME | --objects A,B] -o OUT [--format hlod 3dtiles]
+              [--target-tris 2000] [--max-depth 12]
+    hlod export IN.hlod --format 3dtiles|hlod -o DIR
+
+`bake` without .blend files bakes the open file into OUT (a .hlod path); with files, OUT is a
+folder and each file FILE.blend gives OUT/FILE.hlod and, with `--format 3dtiles`, OUT/FILE_3dtiles/.
+A file that fails is reported and the others go on. The last stdout line is a JSON summary
+({"files": [{"blend", "ok", "outputs" | "error"}], "failed": N}); the exit status is 1 if any
+failed, 2 for bad arguments.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import bpy
+
+from ..hlod_core import fileformat
+from ..hlod_core.bake import BakeSettings, bake
+from ..hlod_core.cli import export_hlod
+from ..hlod_core.errors import HlodError, InputError
+from . import scene_mesh
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse exits the process; Blender's command wants a status
+        raise InputError(f"{self.prog}: {message}")
+
+
+def parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="blender -b [FILE.blend] --command hlod", description="Bake and export octree HLODs in batch.")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    b = sub.add_parser("bake", help="bake the open file, or each FILE.blend given")
+    b.add_argument("blends", nargs="*", metavar="FILE.blend")
+    source = b.add_mutually_exclusive_group()
+    source.add_argument("--collection", metavar="NAME", help="bake this collection (with its children)")
+    source.add_argument("--objects", metavar="A,B", help="bake these objects (comma-separated names)")
+    b.add_argument("-o", "--output", required=True, help="OUT.hlod (open file) or a folder (with FILE.blend arguments)")
+    b.add_argument("--format", nargs="+", choices=["hlod", "3dtiles"], default=["hlod"],
+                   help="outputs per file: hlod (always written) and/or 3dtiles")
+    b.add_argument("--target-tris", type=int, default=BakeSettings.target_tris)
+    b.add_argument("--max-depth", type=int, default=BakeSettings.max_depth)
+    e = sub.add_parser("export", help="export a baked .hlod")
+    e.add_argument("file", metavar="IN.hlod")
+    e.add_argument("--format", choices=["3dtiles", "hlod"], required=True)
+    e.add_argument("-o", "--output", required=True, metavar="DIR")
+    return p
+
+
+def execute(argv: list[str]) -> int:
+    """The registered command: never raises; prints the JSON summary last."""
+    try:
+        args = parser().parse_args(list(argv))
+    except SystemExit as exc:  # --help
+        return int(exc.code or 0)
+    except InputError as exc:
+        print(f"hlod: error: {exc}", file=sys.stderr)
+        return 2
+    if args.command == "export":
+        try:
+            summary = export_hlod(fileformat.load(args.file), args.format, Path(args.output), Path(args.file).stem)
+        except (HlodError, OSError) as exc:
+            print(f"hlod: error: {exc}", file=sys.stderr)
+            return 1
+        print(json.dumps(summary))
+        return 0
+    results = []
+    if not args.blends:
+        results.append(_bake_current(args, Path(args.output), None))
+    else:
+        for blend in args.blends:
+            results.append(_bake_file(args, Path(blend)))
+    failed = sum(1 for r in results if not r["ok"])
+    print(json.dumps({"files": results, "failed": failed}))
+    return 1 if failed else 0
+
+
+def _bake_file(args, blend: Path) -> dict:
+    try:
+        if not blend.is_file():
+            raise InputError(f"{blend}: no such .blend file")
+        bpy.ops.wm.open_mainfile(filepath=str(blend.resolve()), load_ui=False)
+    except (HlodError, RuntimeError) as exc:
+        print(f"hlod: error: {exc}".rstrip(), file=sys.stderr)
+        return {"blend": str(blend), "ok": False, "error": str(exc).strip()}
+    out_dir = Path(args.output)
+    return _bake_current(args, out_dir / f"{blend.stem}.hlod", out_dir / f"{blend.stem}_3dtiles")
+
+
+def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
+    blend = bpy.data.filepath or "(unsaved)"
+    started = time.perf_counter()
+    try:
+        if target.suffix != ".hlod":
+            raise InputError(f"-o {target}: give a .hlod file name when baking the open file")
+        objects = _objects(args)
+        mesh = scene_mesh.evaluated_mesh(bpy.context, objects)
+        hlod = bake(mesh, BakeSettings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=1))
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fileformat.save(hlod, target)
+        outputs = {"hlod": str(target)}
+        if "3dtiles" in args.format:
+            tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
+            outputs["3dtiles"] = export_hlod(hlod, "3dtiles", tiles_dir, target.stem)["output"]
+    except (HlodError, OSError) as exc:
+        print(f"hlod: {blend}: {exc}", file=sys.stderr)
+        return {"blend": blend, "ok": False, "error": str(exc)}
+    return {"blend": blend, "ok": True, "outputs": outputs, "nodes": hlod.node_count,
+            "input_tris": int(hlod.meta["input_tris"]), "seconds": time.perf_counter() - started}
+
+
+def _objects(args) -> list:
+    if args.collection:
+        collection = bpy.data.collections.get(args.collection)
+        if collection is None:
+            raise InputError(f"--collection {args.collection!r}: no such collection in {bpy.data.filepath or 'the file'}")
+        return list(collection.all_objects)
+    if args.objects:
+        names = [n.strip() for n in args.objects.split(",") if n.strip()]
+        missing = [n for n in names if n not in bpy.data.objects]
+        if missing:
+            raise InputError(f"--objects: no object named {', '.join(missing)} in {bpy.data.filepath or 'the file'}")
+        return [bpy.data.objects[n] for n in names]
+    objects = [o for o in bpy.context.scene.objects if o.type in {"MESH", "CURVE", "SURFACE", "FONT", "META", "EMPTY"}]
+    if not objects:
+        raise InputError(f"{bpy.data.filepath or 'the file'}: the scene has no objects to bake")
+    return objects

@@ -1,0 +1,139 @@
+"""3D Tiles export and batch baking from background mode (issue "Batch export ... 3D Tiles"),
+checked by independent tools: the Khronos glTF validator for every GLB and CesiumGS 3d-tiles-tools
+reading the tileset back (tools/validators/check_tileset.mjs)."""
+import json
+import os
+import struct
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from helpers import ROOT, baked
+from hlod_core import fileformat, meshio, tiles3d
+from hlod_core.bake import BakeSettings, bake
+from test_addon import repo  # noqa: F401 - the installed-extension fixture
+from test_addon import blender
+from test_cli import hlod, last_json, one_line_error
+
+VALIDATORS = ROOT / "tools/validators"
+
+
+def independent_read(folder) -> dict:
+    proc = subprocess.run(["node", str(VALIDATORS / "check_tileset.mjs"), str(folder)], capture_output=True,
+                          text=True, timeout=600, cwd=VALIDATORS)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def assert_matches(tiles_dir, hlod_file):
+    """Every GLB valid; the reader's tiles are the hierarchy's nodes, with their triangle counts,
+    boxes and errors; each parent's geometricError is at least its children's."""
+    h = fileformat.load(hlod_file)
+    read = independent_read(tiles_dir)
+    tiles = read["tiles"]
+    assert len(tiles) == h.node_count == sum(1 for t in tiles if t["uri"])
+    bad = [(t["uri"], t["messages"]) for t in tiles if t["errors"]]
+    assert not bad, bad[:3]
+    origin = np.asarray(h.origin)
+    diag = float(np.linalg.norm(h.box_max[0] - h.box_min[0]))
+    for t in tiles:
+        node = int(t["uri"].split("/")[-1].split(".")[0])
+        assert t["triangles"] == int(h.tri_count[node])
+        centre, half = np.array(t["box"][:3]), np.array(t["box"][3:])[[0, 4, 8]]
+        assert np.allclose(centre - half, h.box_min[node] - origin, atol=1e-6 * diag + 1e-9)
+        assert np.allclose(centre + half, h.box_max[node] - origin, atol=1e-6 * diag + 1e-9)
+        assert t["geometricError"] == pytest.approx(float(h.error[node]))
+        if t["parentGeometricError"] is not None:
+            assert t["parentGeometricError"] >= t["geometricError"]
+    assert read["tilesetGeometricError"] >= tiles[0]["geometricError"]
+    return tiles
+
+
+def test_glb_layout_and_axes():
+    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 0], [0, 0, 3]], np.float32)
+    data = tiles3d.glb_bytes(positions, np.array([[0, 1, 2], [0, 2, 3]]))
+    magic, version, total = struct.unpack("<III", data[:12])
+    assert (magic, version, total) == (tiles3d.GLB_MAGIC, 2, len(data)) and total % 4 == 0
+    json_len, kind = struct.unpack("<II", data[12:20])
+    doc = json.loads(data[20:20 + json_len])
+    assert kind == tiles3d.CHUNK_JSON and json_len % 4 == 0
+    position = doc["accessors"][0]
+    # Z up (x, y, z) is written Y up as (x, z, -y): model +y (2) becomes glTF -z, +z (3) glTF +y
+    assert position["min"] == [0.0, 0.0, -2.0] and position["max"] == [1.0, 3.0, 0.0]
+    assert doc["accessors"][-1]["componentType"] == tiles3d.UNSIGNED_SHORT and "NORMAL" not in doc["meshes"][0][
+        "primitives"][0]["attributes"]
+
+
+def test_export_command_on_shared_model_passes_the_validators(tmp_path):
+    _, h = baked("cow.obj", target_tris=500)
+    src = fileformat.save(h, tmp_path / "cow.hlod")
+    out = last_json(hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "cow_tiles"))
+    assert out["tiles"] == out["glb_files"] == h.node_count and out["triangles"] == int(h.tri_count.sum())
+    assert_matches(tmp_path / "cow_tiles", src)
+    # again into the same folder: replaced atomically, nothing left beside it
+    hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "cow_tiles")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cow.hlod", "cow_tiles"]
+    native = last_json(hlod("-q", "export", src, "--format", "hlod", "-o", tmp_path / "native"))
+    assert fileformat.load(native["output"]).node_count == h.node_count
+
+
+def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_precision(tmp_path):
+    mesh = meshio.load_mesh(ROOT.parent / "shared/models/spot.obj")
+    p, f = mesh.positions + 1e6, mesh.faces  # a scene placed a million metres away
+    e1, e2 = p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]
+    normals = np.zeros_like(p)
+    np.add.at(normals, f.ravel(), np.repeat(np.cross(e1, e2), 3, axis=0))
+    h = bake(meshio.from_arrays(p, f, normals, name="spot far"), BakeSettings(target_tris=800))
+    src = fileformat.save(h, tmp_path / "spot.hlod")
+    tiles3d.export(h, tmp_path / "tiles")
+    doc = json.loads((tmp_path / "tiles/tileset.json").read_text())
+    assert doc["root"]["transform"][12:15] == pytest.approx(list(h.origin))
+    glb = (tmp_path / "tiles/tiles/0.glb").read_bytes()
+    gltf = json.loads(glb[20:20 + struct.unpack("<I", glb[12:16])[0]])
+    assert "NORMAL" in gltf["meshes"][0]["primitives"][0]["attributes"]
+    assert max(abs(v) for v in gltf["accessors"][0]["max"]) < 10  # origin-relative, not 1e6
+    assert_matches(tmp_path / "tiles", src)
+
+
+def test_export_refuses_to_replace_a_foreign_folder(tmp_path):
+    _, h = baked("cow.obj", target_tris=500)
+    src = fileformat.save(h, tmp_path / "cow.hlod")
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep me")
+    assert "holds no tileset.json; not replacing it" in one_line_error(
+        hlod("export", src, "--format", "3dtiles", "-o", tmp_path / "mine", check=False))
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "keep me"
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_background_batch_over_blend_files(repo, tmp_path):  # noqa: F811
+    """Two .blend files made here plus a broken one, baked and exported in one background call of
+    the add-on's command (through the bpy module): the broken one fails alone, the summary says
+    so, the exit status is 1, and both good files give a .hlod and a 3D Tiles folder that pass the
+    validators."""
+    made = blender(repo, "make_blends", tmp_path)
+    broken = tmp_path / "broken.blend"
+    broken.write_text("not a blend file")
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(repo / "user")}
+    run = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "bake", made["boxes"], str(broken),
+                          made["monkeys"], "-o", str(tmp_path / "out"), "--format", "hlod", "3dtiles",
+                          "--target-tris", "400"], capture_output=True, text=True, timeout=600, env=env, cwd=ROOT)
+    assert run.returncode == 1, run.stderr[-3000:]
+    summary = json.loads(run.stdout.strip().splitlines()[-1])
+    assert [r["ok"] for r in summary["files"]] == [True, False, True] and summary["failed"] == 1
+    assert "broken.blend" in summary["files"][1]["error"]
+    for stem in ("boxes", "monkeys"):
+        assert_matches(tmp_path / "out" / f"{stem}_3dtiles", tmp_path / "out" / f"{stem}.hlod")
+    # --collection picks only the monkeys' collection (the plane is outside it)
+    one = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "bake", made["monkeys"],
+                          "--collection", "props", "-o", str(tmp_path / "props")], capture_output=True, text=True,
+                         timeout=600, env=env, cwd=ROOT)
+    assert one.returncode == 0, one.stderr[-3000:]
+    result = json.loads(one.stdout.strip().splitlines()[-1])["files"][0]
+    assert result["input_tris"] == made["monkeys_tris"]
+    bad = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "bake", made["monkeys"],
+                          "--collection", "nope", "-o", str(tmp_path / "x")], capture_output=True, text=True,
+                         timeout=600, env=env, cwd=ROOT)
+    assert bad.returncode == 1 and "no such collection" in bad.stdout.strip().splitlines()[-1]
