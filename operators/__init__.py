@@ -5,13 +5,13 @@ typed errors (HlodError) to reports. Nothing here changes the source objects.
 from __future__ import annotations
 
 import os
-import threading
 import time
 
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
 from ..addon import preview, scene_mesh
+from ..addon.bake_job import BakeJob
 from ..hlod_core import fileformat
 from ..hlod_core.bake import BakeSettings, bake
 from ..hlod_core.errors import BakeCancelled, HlodError, InputError
@@ -85,20 +85,7 @@ class HLOD_OT_bake(bpy.types.Operator):
         except HlodError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        self._out, self._progress, self._cancel = out, (0, 1, "octree"), False
-        self._result, self._error, self._started = None, None, time.perf_counter()
-
-        def work():
-            try:
-                hlod = bake(mesh, settings, progress=lambda d, n, p: setattr(self, "_progress", (d, n, p)),
-                            cancel=lambda: self._cancel)
-                fileformat.save(hlod, out)
-                self._result = hlod
-            except BaseException as exc:  # reported by modal() on the main thread
-                self._error = exc
-
-        self._thread = threading.Thread(target=work, name="hlod-bake", daemon=True)
-        self._thread.start()
+        self._job = BakeJob(mesh, settings, out)
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.2, window=context.window)
         wm.progress_begin(0, 100)
@@ -106,28 +93,28 @@ class HLOD_OT_bake(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
+        job = self._job
         if event.type == "ESC" and event.value == "PRESS":
-            self._cancel = True
+            job.cancel()
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
-        done, total, phase = self._progress
-        percent = 100.0 * done / total if total else 100.0
-        context.window_manager.progress_update(percent)
-        context.workspace.status_text_set(f"HLOD bake: {phase} {done}/{total} nodes ({percent:.0f}%) - Esc to cancel")
-        if self._thread.is_alive():
+        done, total, phase = job.progress
+        context.window_manager.progress_update(job.percent)
+        context.workspace.status_text_set(f"HLOD bake: {phase} {done}/{total} nodes ({job.percent:.0f}%) - Esc to cancel")
+        if job.running:
             return {"PASS_THROUGH"}
         wm = context.window_manager
         wm.event_timer_remove(self._timer)
         wm.progress_end()
         context.workspace.status_text_set(None)
-        if isinstance(self._error, BakeCancelled):
+        if isinstance(job.error, BakeCancelled):
             self.report({"WARNING"}, "HLOD bake cancelled; nothing written")
             return {"CANCELLED"}
-        if self._error is not None:
-            self.report({"ERROR"}, str(self._error) if isinstance(self._error, HlodError)
-                        else f"HLOD bake failed: {type(self._error).__name__}: {self._error}")
+        if job.error is not None:
+            self.report({"ERROR"}, str(job.error) if isinstance(job.error, HlodError)
+                        else f"HLOD bake failed: {type(job.error).__name__}: {job.error}")
             return {"CANCELLED"}
-        self._finish(context, self._result, self._out, time.perf_counter() - self._started)
+        self._finish(context, job.result, job.output, job.seconds)
         return {"FINISHED"}
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import json
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -95,6 +96,11 @@ def _box_row_scene():
     return made, expected
 
 
+def _box_row_mesh():
+    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    return scene_mesh.evaluated_mesh(bpy.context, [o for o in bpy.context.scene.objects])
+
+
 def check_bake(repo, work) -> dict:
     from hlod_core import fileformat
 
@@ -136,6 +142,24 @@ def check_bake(repo, work) -> dict:
     out["tileset_tiles"] = len(list((tileset.parent / "tiles").glob("*.glb"))) if tileset.is_file() else 0
     out["clear"] = sorted(bpy.ops.hlod.clear())
     out["file_after_clear"] = props.file
+    # the modal bake's worker (UI events cannot be made here, the job they drive can): Esc cancels
+    # between tasks and writes nothing; a finished job has written its file
+    job_mod = importlib.import_module(NAME + ".addon.bake_job")
+    scenes = importlib.import_module(NAME + ".hlod_core.scenes")
+    settings_cls = importlib.import_module(NAME + ".hlod_core.bake").BakeSettings
+    city = scenes.default_scene(scale=0.5)
+    target = Path(work) / "job" / "city.hlod"
+    target.parent.mkdir()
+    job = job_mod.BakeJob(city, settings_cls(jobs=1), str(target))
+    while job.running and job.progress[2] != "simplify":
+        time.sleep(0.01)
+    job.cancel()
+    job.wait(120)
+    out["job_cancelled"] = type(job.error).__name__
+    out["job_cancelled_file"] = target.exists()
+    job = job_mod.BakeJob(_box_row_mesh(), settings_cls(jobs=1, target_tris=400), str(target))
+    job.wait(120)
+    out["job_done"] = (job.error is None, job.percent, target.is_file(), job.result.node_count if job.result else 0)
     # a collection as the source, and the default output next to the saved .blend
     chosen = bpy.data.collections.new("chosen")
     bpy.context.scene.collection.children.link(chosen)

@@ -73,6 +73,8 @@ def test_bake_operator_on_modifiers_and_instances(repo, tmp_path):
     assert out["export"] == ["FINISHED"] and out["exported_nodes"] == out["nodes"]
     assert out["export_3dtiles"] == ["FINISHED"] and out["tileset_tiles"] == out["nodes"]
     assert out["clear"] == ["FINISHED"] and out["file_after_clear"] == ""
+    assert out["job_cancelled"] == "BakeCancelled" and not out["job_cancelled_file"]
+    assert out["job_done"][0] and out["job_done"][1] == 100.0 and out["job_done"][2] and out["job_done"][3] > 1
     assert out["collection_result"] == ["FINISHED"] and out["collection_tris"] == 6 * 64 * 2
     assert Path(out["collection_file"]) == tmp_path / "project" / "city.hlod"
 
