@@ -295,7 +295,7 @@ def _draw_boxes(props, state, stats: FrameStats) -> None:
     gpu.state.depth_test_set("LESS_EQUAL")
     for name, nodes in groups:
         nodes = np.asarray(nodes, np.int64)
-        corners = np.stack([metrics.box_corners(hlod.box_min[n], hlod.box_max[n]) for n in nodes])  # (n, 8, 3)
+        corners = metrics.box_corners(hlod.box_min[nodes][:, None], hlod.box_max[nodes][:, None])  # (n, 8, 3)
         lines = corners[:, edges.ravel()].reshape(-1, 3).astype(np.float32)
         batch = batch_for_shader(shader, "LINES", {"pos": lines})
         shader.uniform_float("color", BOX_COLOURS[name])

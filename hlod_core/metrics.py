@@ -242,7 +242,8 @@ _BOX_EDGES = np.array([[0, 1], [2, 3], [4, 5], [6, 7], [0, 2], [1, 3], [4, 6], [
 
 
 def box_corners(box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
-    """(8,3) corners; corner c takes max on axis a when bit a of c is set."""
+    """(8,3) corners; corner c takes max on axis a when bit a of c is set. Broadcasts: boxes given
+    as (n,1,3) give (n,8,3)."""
     bits = (np.arange(8)[:, None] >> np.arange(3)[None, :]) & 1
     return np.where(bits == 1, box_max, box_min)
 
