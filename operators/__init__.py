@@ -21,7 +21,10 @@ def output_path(props) -> str:
     """Where Bake writes: the Output setting, else next to the .blend with its name."""
     if props.output_path:
         path = bpy.path.abspath(props.output_path)
-        return path if path.lower().endswith(".hlod") else os.path.join(path, "scene.hlod") if os.path.isdir(path) else path
+        if os.path.isdir(path):  # a folder: the file in it takes the .blend's name, or "scene"
+            stem = os.path.splitext(os.path.basename(bpy.data.filepath))[0] or "scene"
+            return os.path.join(path, stem + ".hlod")
+        return path
     if not bpy.data.filepath:
         raise InputError("Bake: the .blend is not saved; save it first or set an Output path")
     return os.path.splitext(bpy.data.filepath)[0] + ".hlod"
