@@ -137,3 +137,22 @@ def test_background_batch_over_blend_files(repo, tmp_path):  # noqa: F811
                           "--collection", "nope", "-o", str(tmp_path / "x")], capture_output=True, text=True,
                          timeout=600, env=env, cwd=ROOT)
     assert bad.returncode == 1 and "no such collection" in bad.stdout.strip().splitlines()[-1]
+
+
+def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_children():
+    _, h = baked("cow.obj", target_tris=500)
+    leaves = np.flatnonzero(h.child_count == 0)
+    counts = np.asarray(h.tri_count).copy()
+    counts[leaves[0]] = 0  # an empty leaf: no tile at all
+    counts[0] = 0          # an empty root: a tile without content, children kept
+    doc = tiles3d.tileset(h.replace(tri_count=counts), lambda node: f"tiles/{node}.glb")
+
+    def walk(tile):
+        yield tile
+        for child in tile.get("children", []):
+            yield from walk(child)
+
+    tiles = list(walk(doc["root"]))
+    uris = {t["content"]["uri"] for t in tiles if "content" in t}
+    assert len(tiles) == h.node_count - 1 and "content" not in doc["root"]
+    assert f"tiles/{leaves[0]}.glb" not in uris and len(uris) == h.node_count - 2
