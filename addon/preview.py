@@ -243,8 +243,7 @@ def _draw_private(scene, state, view_matrix, window_matrix, width: int, height: 
         view = view_from_matrices(view_matrix, window_matrix, width, height)
         with state.private.ctx:
             stats = state.traversal.frame(view)
-    colours = (metrics.modulation_colour(metrics.modulation(state.traversal.ratio[stats.drawn]))
-               if props.show_modulation else None)
+    colours = metrics.modulation_colour(state.traversal.modulation(stats.drawn)) if props.show_modulation else None
     shader = gpu.shader.from_builtin("UNIFORM_COLOR")
     gpu.state.depth_test_set("LESS_EQUAL")
     gpu.state.depth_mask_set(True)

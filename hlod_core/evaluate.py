@@ -324,7 +324,7 @@ def modulation_frames(hlod, renderer, path, size, runs, per_frame, out_dir) -> d
         for i in range(frame + 1):
             stats = traversal.frame(path.view(i, size))
         shaded = renderer.read_pixels()
-        colours = metrics.modulation_colour(metrics.modulation(traversal.ratio[stats.drawn]))
+        colours = metrics.modulation_colour(traversal.modulation(stats.drawn))
         user = draw_nodes(renderer, path.view(frame, size), stats.drawn, colours)
         above = draw_nodes(renderer, bird, stats.drawn, colours)
         files[key] = {}

@@ -108,6 +108,7 @@ class Traversal(abc.ABC):
     """Shared state and helpers. Subclasses implement `_traverse(stats)`."""
 
     name = "base"
+    modulates = True  # does VMSSE decide its LOD (else the overlay shows no modulation: blue)
 
     def __init__(self, hlod: Hlod, renderer: Renderer, settings: RuntimeSettings = RuntimeSettings()):
         self.hlod = hlod
@@ -163,6 +164,11 @@ class Traversal(abc.ABC):
 
     # --- helpers --------------------------------------------------------------------------------
 
+    def modulation(self, nodes) -> np.ndarray:
+        """m = 1 - P of `nodes` after the frame (0 for methods VMSSE does not steer)."""
+        p = self.ratio[np.asarray(nodes, np.int64)] if self.modulates else np.ones(len(nodes))
+        return metrics.modulation(p)
+
     def _children(self, node: int) -> range:
         first = self._child_offset[node]
         return range(first, first + self._child_count[node]) if first >= 0 else range(0)
@@ -177,7 +183,7 @@ class Traversal(abc.ABC):
         stats.drawn.append(node)
         colour = DEFAULT_COLOUR
         if self.settings.overlay:
-            colour = tuple(metrics.modulation_colour(metrics.modulation(self.ratio[node])))
+            colour = tuple(metrics.modulation_colour(metrics.modulation(self.ratio[node] if self.modulates else 1.0)))
         self.renderer.draw_node(node, colour)
         return True
 
@@ -239,6 +245,7 @@ class Full(Traversal):
     """Every leaf in the frustum, front to back: the ground-truth image."""
 
     name = "full"
+    modulates = False
 
     def _traverse(self, stats):
         leaves = np.flatnonzero((self.hlod.child_count == 0) & np.asarray(self.in_frustum))
@@ -252,6 +259,7 @@ class VFC(Traversal):
     """View-frustum culling and SSE, no queries."""
 
     name = "vfc"
+    modulates = False
 
     def _traverse(self, stats):
         def visit(node):
@@ -380,10 +388,11 @@ class Bool(_Coherent):
     """CHC adapted to HLOD (dissertation Algorithm 1, Gobbetti & Marton): queries as booleans, SSE."""
 
     name = "bool"
+    modulates = False
 
     def __init__(self, hlod, renderer, settings=RuntimeSettings()):
         super().__init__(hlod, renderer, settings)
-        self.ratio[:] = 1.0  # queries are booleans: no modulation (overlay blue) unless culled
+        self.ratio[:] = 1.0  # queries are booleans: VMSSE never lowers its LOD
 
     def _predict(self, node):
         was_visible = self.visible[node] and self.last_visited[node] == self.frame_id - 1

@@ -302,3 +302,13 @@ def test_scripted_query_latency_keeps_culling_conservative(city_renderer):
             assert len(stats.drawn) == len(set(stats.drawn))
             if method == "bool":
                 assert np.array_equal(city_renderer.read_pixels(), vfc[i][1]), f"frame {i}"
+
+
+@pytest.mark.parametrize("method", ["full", "vfc", "bool"])
+def test_overlay_of_methods_without_vmsse_is_all_blue(city_renderer, method):
+    """Only VMSSE lowers a node's LOD; Full, VFC and Bool show no modulation (blue), even for a
+    node Bool drew from last frame's visibility and then found hidden."""
+    for _, image in _frames(city_renderer, method, street_path(12), RuntimeSettings(overlay=True), images=True):
+        drawn = image[np.any(image != 255, axis=2)].astype(np.int64)
+        assert drawn.shape[0] > 1000
+        assert np.all(drawn[:, 0] <= 0.11 * drawn[:, 2] + 2)
