@@ -27,6 +27,7 @@ import numpy as np
 
 from ..hlod_core import fileformat, metrics
 from ..hlod_core.errors import HlodError
+from ..hlod_core.hierarchy import node_mesh
 from ..hlod_core.metrics import View
 from ..hlod_core.traversal import FrameStats, RuntimeSettings
 from . import glcontext
@@ -266,11 +267,8 @@ def _draw_private(scene, state, view_matrix, window_matrix, width: int, height: 
 def _node_batch(shader, hlod, node: int):
     from gpu_extras.batch import batch_for_shader
 
-    first, count = int(hlod.tri_offset[node]), int(hlod.tri_count[node])
-    rows = np.asarray(hlod.indices[first:first + count], np.int64)
-    used, local = np.unique(rows, return_inverse=True)
-    return batch_for_shader(shader, "TRIS", {"pos": np.asarray(hlod.positions[used], np.float32)},
-                            indices=local.reshape(-1, 3).astype(np.int32))
+    positions, faces, _ = node_mesh(hlod, node)
+    return batch_for_shader(shader, "TRIS", {"pos": positions}, indices=faces.astype(np.int32))
 
 
 def _draw_boxes(props, state, stats: FrameStats) -> None:
@@ -290,7 +288,7 @@ def _draw_boxes(props, state, stats: FrameStats) -> None:
 
     shader = gpu.shader.from_builtin("UNIFORM_COLOR")
     hlod = state.hlod
-    edges = metrics._BOX_EDGES
+    edges = metrics.BOX_EDGES
     gpu.state.depth_test_set("LESS_EQUAL")
     for name, nodes in groups:
         nodes = np.asarray(nodes, np.int64)

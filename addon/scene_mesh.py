@@ -11,6 +11,7 @@ import bpy
 import numpy as np
 
 from ..hlod_core import meshio
+from ..hlod_core.hierarchy import node_mesh
 from ..hlod_core.errors import InputError
 
 
@@ -76,14 +77,11 @@ def materialize(hlod, nodes, name: str) -> bpy.types.Collection:
     bpy.context.scene.collection.children.link(collection)
     for node in nodes:
         node = int(node)
-        first, count = int(hlod.tri_offset[node]), int(hlod.tri_count[node])
-        idx = np.asarray(hlod.indices[first:first + count], np.int64)  # (t, 3) rows into positions
-        used, faces = np.unique(idx, return_inverse=True)
-        positions = np.asarray(hlod.positions[used], np.float64) + hlod.origin
+        local, faces, _ = node_mesh(hlod, node)
+        positions = local.astype(np.float64) + hlod.origin
         mesh = bpy.data.meshes.new(f"{name} node {node}")
-        mesh.vertices.add(len(used))
+        mesh.vertices.add(positions.shape[0])
         mesh.vertices.foreach_set("co", positions.astype(np.float32).ravel())
-        faces = faces.reshape(-1, 3)
         mesh.loops.add(faces.size)
         mesh.loops.foreach_set("vertex_index", faces.ravel().astype(np.int32))
         mesh.polygons.add(faces.shape[0])

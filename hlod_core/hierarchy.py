@@ -122,6 +122,16 @@ def cube_sides(box_min: np.ndarray, box_max: np.ndarray, pad: float) -> np.ndarr
     return np.cbrt(np.prod(extent, axis=1))
 
 
+def node_mesh(hlod: Hlod, node: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """One node's own LOD (or leaf) triangles as a standalone mesh: (positions (v,3) float32 relative
+    to hlod.origin, faces (t,3) int64 local indices, normals (v,3) float32 or None)."""
+    first, count = int(hlod.tri_offset[node]), int(hlod.tri_count[node])
+    rows = np.asarray(hlod.indices[first:first + count], np.int64)
+    used, local = np.unique(rows, return_inverse=True)
+    normals = np.asarray(hlod.normals[used], np.float32) if hlod.normals is not None else None
+    return np.asarray(hlod.positions[used], np.float32), local.reshape(-1, 3), normals
+
+
 def query_box_pad(box_min: np.ndarray, box_max: np.ndarray) -> float:
     """Query-box enlargement (model units) for an HLOD whose root box is row 0."""
     diag = float(np.linalg.norm(box_max[0] - box_min[0]))

@@ -237,7 +237,7 @@ def alpha_cube(view: View, cube_side: np.ndarray, box_min: np.ndarray, box_max: 
     return out
 
 
-_BOX_EDGES = np.array([[0, 1], [2, 3], [4, 5], [6, 7], [0, 2], [1, 3], [4, 6], [5, 7],
+BOX_EDGES = np.array([[0, 1], [2, 3], [4, 5], [6, 7], [0, 2], [1, 3], [4, 6], [5, 7],
                        [0, 4], [1, 5], [2, 6], [3, 7]])
 
 
@@ -255,7 +255,7 @@ def alpha_projected(view: View, box_min: np.ndarray, box_max: np.ndarray) -> flo
     clip = (view.projection @ view.view @ np.c_[corners, np.ones(8)].T).T
     near = clip[:, 2] + clip[:, 3]  # >= 0 in front of the near plane
     pts = [clip[i] for i in range(8) if near[i] >= 0]
-    for a, b in _BOX_EDGES:
+    for a, b in BOX_EDGES:
         if (near[a] >= 0) != (near[b] >= 0):
             u = near[a] / (near[a] - near[b])
             pts.append(clip[a] + u * (clip[b] - clip[a]))

@@ -35,22 +35,13 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .hierarchy import Hlod
+from .hierarchy import Hlod, node_mesh
 
 GLB_MAGIC, GLB_VERSION = 0x46546C67, 2
 CHUNK_JSON, CHUNK_BIN = 0x4E4F534A, 0x004E4942
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 FLOAT, UNSIGNED_SHORT, UNSIGNED_INT = 5126, 5123, 5125
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x, y, z) -> (x, z, -y)
-
-
-def node_mesh(hlod: Hlod, node: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """(positions (v,3) float32 origin-relative Z up, faces (t,3) local indices, normals or None)."""
-    first, count = int(hlod.tri_offset[node]), int(hlod.tri_count[node])
-    rows = np.asarray(hlod.indices[first:first + count], np.int64)
-    used, local = np.unique(rows, return_inverse=True)
-    normals = np.asarray(hlod.normals[used], np.float32) if hlod.normals is not None else None
-    return np.asarray(hlod.positions[used], np.float32), local.reshape(-1, 3), normals
 
 
 def glb_bytes(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None) -> bytes:

@@ -111,7 +111,7 @@ def test_evaluate_writes_the_report_and_its_last_line(small_high, tmp_path):
     assert rel["node_savings_pct"] == pytest.approx(100 * (1 - m["coh_p"]["dn"] / m["bool"]["dn"]))
     assert {t["target"] for t in report["targets"]} and all(t["value"] is not None for t in report["targets"])
     a = report["alpha_estimators"]
-    assert a["nodes"] > 0 and a["query"]["median_rel_error_pct"] == 0.0
+    assert a["nodes"] > 0 and a["query"]["cost_us_per_node"] > 0
     assert a["projected"]["median_rel_error_pct"] < 5.0 < a["cube"]["median_rel_error_pct"]
     for name in ("report.md", "path.json", "error_vs_time.png", "per_frame.png", "alpha_estimators.png",
                  "modulation.png"):
@@ -163,5 +163,9 @@ def test_scene_bad_scale_is_one_line(tmp_path):
 
 
 def test_low_scene_bakes_into_a_valid_hierarchy():
-    hlod_low = bake(scenes.low_scene(seed=3, scale=0.2), BakeSettings(target_tris=2000))
-    assert hlod_low.summary()["input_tris"] == scenes.low_scene(seed=3, scale=0.2).faces.shape[0]
+    from hlod_core import checks
+
+    mesh = scenes.low_scene(seed=3, scale=0.2)
+    hlod_low = bake(mesh, BakeSettings(target_tris=2000))
+    assert hlod_low.summary()["input_tris"] == mesh.faces.shape[0] and hlod_low.node_count > 1
+    assert all(checks.check(hlod_low)["checks"].values())
