@@ -112,6 +112,9 @@ def _runtime_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--k", type=float, default=float("inf"), help="sigmoid steepness; inf = step (default)")
     p.add_argument("--tau", type=float, default=1.0, help="screen-space error threshold, pixels")
     p.add_argument("--alpha", choices=["query", "projected", "cube"], default="query", help="alpha estimator")
+    p.add_argument("--shift-up", choices=["measured", "children"], default="measured",
+                   help="Coh's shift-up: measured (default; refined nodes are queried too) or children "
+                        "(the dissertation's Algorithm 4 alone)")
 
 
 def _bake_options(p: argparse.ArgumentParser) -> None:
@@ -224,7 +227,8 @@ def _runtime_setup(args, bias: str = "P"):
 
     size = _parse_size(args.size)
     try:
-        settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha)
+        settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha,
+                                   shift_up=args.shift_up)
     except ValueError as exc:
         raise InputError(str(exc)) from None
     if args.frames < 1:

@@ -39,13 +39,17 @@ from .traversal import ALPHA_MODES, RuntimeSettings, make
 log = logging.getLogger(__name__)
 
 # report key -> (traversal method, bias); "ideal" draws SW(P)'s node set
+# report key -> (traversal method, settings it overrides)
 METHOD_SPECS = {
-    "full": ("full", "P"), "vfc": ("vfc", "P"), "bool": ("bool", "P"),
-    "sw_p": ("sw", "P"), "sw_mu": ("sw", "mu"), "simp_p": ("simp", "P"), "simp_mu": ("simp", "mu"),
-    "coh_p": ("coh", "P"), "coh_mu": ("coh", "mu"), "ideal": ("ideal", "P"),
+    "full": ("full", {}), "vfc": ("vfc", {}), "bool": ("bool", {}),
+    "sw_p": ("sw", {}), "sw_mu": ("sw", {"bias": "mu"}), "simp_p": ("simp", {}), "simp_mu": ("simp", {"bias": "mu"}),
+    "coh_p": ("coh", {}), "coh_mu": ("coh", {"bias": "mu"}), "ideal": ("ideal", {}),
+    # Coh(P) with Algorithm 4's shift-up as published: what the measured shift-up changes
+    "coh_p_alg4": ("coh", {"shift_up": "children"}),
 }
 LABELS = {"full": "Full", "vfc": "VFC", "bool": "Bool", "sw_p": "SW(P)", "sw_mu": "SW(mu)",
-          "simp_p": "Simp(P)", "simp_mu": "Simp(mu)", "coh_p": "Coh(P)", "coh_mu": "Coh(mu)", "ideal": "Ideal"}
+          "simp_p": "Simp(P)", "simp_mu": "Simp(mu)", "coh_p": "Coh(P)", "coh_mu": "Coh(mu)", "ideal": "Ideal",
+          "coh_p_alg4": "Coh(P) Alg. 4"}
 # Sweeps vary Coh(P) only (the method under study); the values include the paper's settings.
 SWEEPS = {"tau": (0.5, 1.0, 2.0, 4.0), "st": ((0.6, 0.2), (0.7, 0.15), (0.9, 0.05)), "alpha": ALPHA_MODES}
 PSNR_CAP_DB = 100.0
@@ -65,8 +69,8 @@ class Variant:
 def variants(methods: list[str], settings: RuntimeSettings, sweep: str | None) -> list[Variant]:
     out = []
     for key in methods:
-        method, bias = METHOD_SPECS[key]
-        out.append(Variant(key, method, replace(settings, bias=bias)))
+        method, overrides = METHOD_SPECS[key]
+        out.append(Variant(key, method, replace(settings, **{"bias": "P", **overrides})))
     for value in SWEEPS.get(sweep, ()):
         if sweep == "tau":
             changed, label = replace(settings, tau=float(value)), f"tau={value:g}"
@@ -194,7 +198,7 @@ def relative_tables(methods: dict) -> dict:
     """Tables 8.3/8.4: percent speedup (FPS ratio - 1) and node savings (1 - DN ratio) of Coh(P)
     and Coh(mu) over Bool, Simp and SW of the same bias."""
     out = {}
-    for coh, others in (("coh_p", ("bool", "simp_p", "sw_p")), ("coh_mu", ("bool", "simp_mu", "sw_mu"))):
+    for coh, others in (("coh_p", ("bool", "simp_p", "sw_p", "coh_p_alg4")), ("coh_mu", ("bool", "simp_mu", "sw_mu"))):
         if coh not in methods:
             continue
         rows = {}

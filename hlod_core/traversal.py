@@ -14,6 +14,8 @@ again; if its query later says "refine" it counts in RARN and its children are t
 result of 0 sets ratio = P(0) = 0 and leaves the node invisible. In Algorithm 4 a child not visited
 in the previous frame counts as stopped with ratio 0, and the average ratio is over all children.
 Leaves always stop; interior nodes with d <= 0 (eye inside the sphere) always refine.
+Beyond the papers: Coh also measures the ratio of the nodes it refines, so the front can move up
+where Algorithm 4's children's average cannot see it should (`Coherent`, `shift_up`).
 
 Per-frame work over the whole node table (frustum test, distances, SSE, cube alpha) is numpy; the
 Python loop is the traversal itself, over the nodes it visits.
@@ -35,13 +37,17 @@ from .metrics import View
 from .renderer import DEFAULT_COLOUR, Query, Renderer
 
 REFINE, STOP, DELAY = "refine", "stop", "delay"
+MEASURE = "measure"  # a query on a refined node, only to measure its own ratio for the next frame
 ALPHA_MODES = ("query", "projected", "cube")
+SHIFT_UP_MODES = ("measured", "children")
 
 
 @dataclass(frozen=True)
 class RuntimeSettings:
     """tau: pixels; s, t in [0, 1] and k > 0 (inf = step) for P_{s,t}; bias "P" or "mu" (s = 0);
-    alpha: "query" | "projected" | "cube"; overlay: colour drawn nodes by modulation."""
+    alpha: "query" | "projected" | "cube"; overlay: colour drawn nodes by modulation;
+    shift_up (Coh only): "measured" queries refined nodes too and moves the front up where their own
+    ratio says stop, "children" is Algorithm 4 as published (the children's average ratio)."""
 
     tau: float = 1.0
     s: float = 0.9
@@ -50,6 +56,7 @@ class RuntimeSettings:
     bias: str = "P"
     alpha: str = "query"
     overlay: bool = False
+    shift_up: str = "measured"
 
     def __post_init__(self):
         if not self.tau > 0:
@@ -58,6 +65,8 @@ class RuntimeSettings:
             raise ValueError(f"bias must be 'P' or 'mu', got {self.bias!r}")
         if self.alpha not in ALPHA_MODES:
             raise ValueError(f"alpha must be one of {ALPHA_MODES}, got {self.alpha!r}")
+        if self.shift_up not in SHIFT_UP_MODES:
+            raise ValueError(f"shift_up must be one of {SHIFT_UP_MODES}, got {self.shift_up!r}")
         metrics.bias(0.5, self.s, self.t, self.k)  # validates s, t, k
 
     def p(self, mu) -> np.ndarray:
@@ -350,7 +359,9 @@ class _Coherent(Traversal):
                 pending = queue.popleft()
                 node = pending.node
                 q, mu = self._mu(pending, stats)
-                if q > 0:
+                if pending.mode == MEASURE:
+                    self._measured(node, q, mu)
+                elif q > 0:
                     self._pull_up(node)
                     stop = self._stop_on_result(node, mu)
                     self.stop_refinement[node] = stop
@@ -377,8 +388,17 @@ class _Coherent(Traversal):
                 self.last_visited[node] = self.frame_id
                 if stop:
                     queue.append(self._issue(node, mode, stats))
+                elif self._measures_refined(node):
+                    queue.append(self._issue(node, MEASURE, stats))
                 if mode != DELAY:
                     descend(node, stop)
+
+    def _measures_refined(self, node: int) -> bool:
+        """Hook: query this node although it refines (Coh's measured shift-up)?"""
+        return False
+
+    def _measured(self, node: int, q: int, mu: float) -> None:
+        """Hook: the result of a MEASURE query; it draws and refines nothing."""
 
     def _on_push(self, node: int) -> None:
         """Hook: Simp records the insertion position."""
@@ -440,9 +460,26 @@ class Simp(_Coherent):
 
 
 class Coherent(_Coherent):
-    """Coh: Algorithm 2 with Algorithm 4, the cached ratio of the previous frame."""
+    """Coh: Algorithm 2 with Algorithm 4, the cached ratio of the previous frame.
+
+    Shift-up, "measured" (default, our extension): Algorithm 4 learns that the front may move up
+    only from the children's average ratio, and only when all of them stopped. Visibility is not
+    additive over the hierarchy: a node 3% visible (P ~ 0) can hold a child 20% visible (P ~ 0.9),
+    so the children keep refining where stop-and-wait, which queries the node itself, stops; the
+    front then stays too deep for as long as the view lasts (measured on the crowd scene: most of
+    Coh's excess over SW(P) on slow paths). So every refined node in the frustum is queried too,
+    without waiting (MEASURE: the result only stores its ratio), and in the next frame a refined node
+    with a measured ratio predicts Delay (verified by its own query, as Algorithm 4's shift-up is)
+    when that ratio stops it, Refine otherwise; without a measurement Algorithm 4 decides as
+    published. "children" is Algorithm 4 alone (the report's Coh(P) Alg. 4 row).
+    """
 
     name = "coh"
+
+    def __init__(self, hlod, renderer, settings=RuntimeSettings()):
+        super().__init__(hlod, renderer, settings)
+        self.measured = np.full(hlod.node_count, -10, np.int64)  # frame of the node's last query result
+        self._measure = settings.shift_up == "measured"
 
     def _predict(self, node):
         if self.last_visited[node] != self.frame_id - 1 or not self.visible[node]:
@@ -450,6 +487,8 @@ class Coherent(_Coherent):
         if self._leaf[node]:
             return STOP if self.stop_refinement[node] else DELAY
         if not self.stop_refinement[node]:
+            if self._measure and self.measured[node] == self.frame_id - 1:
+                return DELAY if self._vmsse_stop(node, self.ratio[node]) else REFINE
             candidate = True
             ratios = []
             for child in self._children(node):
@@ -467,7 +506,15 @@ class Coherent(_Coherent):
 
     def _stop_on_result(self, node, mu):
         self.ratio[node] = self.settings.p(float(mu))
+        self.measured[node] = self.frame_id
         return self._vmsse_stop(node, self.ratio[node])
+
+    def _measures_refined(self, node):
+        return self._measure and not self.unqueryable[node] and math.isfinite(self.sse[node])
+
+    def _measured(self, node, q, mu):
+        self.ratio[node] = self.settings.p(float(mu)) if q > 0 else 0.0
+        self.measured[node] = self.frame_id
 
 
 METHODS = {"full": Full, "vfc": VFC, "bool": Bool, "sw": StopAndWait, "simp": Simp, "coh": Coherent, "ideal": Ideal}
