@@ -45,18 +45,25 @@ def gallery() -> dict:
 
 
 CROWD_SIDE, CROWD_SPACING = 12, 8.0
+STATUES_SIDE = 4
 
 
-def crowd() -> dict:
-    kinds = ["cow.obj", "homer.obj", "spot.obj", "teapot.obj", "rocker-arm.obj", "fandisk.obj",
-             "homer.obj", "cow.obj", "spot.obj", "rocker-arm.obj", "fandisk.obj"]
+def crowd(kinds: list[str] | None = None, side: int = CROWD_SIDE) -> dict:
+    kinds = kinds or ["cow.obj", "homer.obj", "spot.obj", "teapot.obj", "rocker-arm.obj", "fandisk.obj",
+                      "homer.obj", "cow.obj", "spot.obj", "rocker-arm.obj", "fandisk.obj"]
     models: dict[str, list] = {}
-    for k in range(CROWD_SIDE * CROWD_SIDE):
-        i, j = k % CROWD_SIDE, k // CROWD_SIDE
+    for k in range(side * side):
+        i, j = k % side, k // side
         name = kinds[(k + j) % len(kinds)]
         position = np.array([CROWD_SPACING * i, CROWD_SPACING * j, 0.0])
         models.setdefault(name, []).append(placement(name, position, turn_deg=37.0 * k))
     return {"models": [{"path": str(MODELS / name), "transforms": t} for name, t in models.items()]}
+
+
+def statues() -> dict:
+    """statues_2m.json: the crowd's layout with 16 scanned statues (igea, nefertiti, bunny), each
+    of them 70k-270k triangles, so a statue spans several hierarchy levels."""
+    return crowd(["igea.ply", "nefertiti.obj", "stanford-bunny.obj"], STATUES_SIDE)
 
 
 def crowd_walk(frames_per_part: int = 80) -> dict:
@@ -73,7 +80,7 @@ def crowd_walk(frames_per_part: int = 80) -> dict:
     for i in range(n):
         x = -10.0 + (side + 20.0) * i / (n - 1)
         frames.append(([x, gap, 0.0], [x + 20.0, gap + 8.0 * np.sin(2 * np.pi * i / n), 0.0]))
-    crossing = centre + [gap, gap, 0.0]
+    crossing = centre  # an aisle crossing (statues stand at multiples of the spacing)
     for i in range(n):
         a = 2 * np.pi * i / n
         frames.append((crossing, crossing + [10 * np.cos(a), 10 * np.sin(a), 0.0]))
@@ -88,7 +95,7 @@ def crowd_walk(frames_per_part: int = 80) -> dict:
                         "up": [0, 0, 1]} for e, t in frames]}
 
 
-def crowd_inspection(fps: float = 60.0) -> dict:
+def crowd_inspection(fps: float = 60.0, side_count: int = CROWD_SIDE, walk_s: float = 6.0) -> dict:
     """The same four parts as crowd_walk, played at the speeds of a careful interactive inspection and
     sampled at a viewport's `fps` (the papers' sequences ran at 100-200 frames per second, so frame
     to frame coherence is what their coherent traversal relies on): an orbit at ground level, 36
@@ -96,18 +103,18 @@ def crowd_inspection(fps: float = 60.0) -> dict:
     tall) with the gaze swaying across the rows; a half turn in place at an aisle crossing in the
     middle, 45 degrees/s; a 4 s dolly, eased in and out, from an elevated overview to an extreme
     close-up (0.3 units) of a statue in the middle of the crowd. 17 s in all."""
-    side, gap = CROWD_SPACING * (CROWD_SIDE - 1), CROWD_SPACING / 2
+    side, gap = CROWD_SPACING * (side_count - 1), CROWD_SPACING / 2
     centre = np.array([side / 2, side / 2, 0.0])
     frames = []
     n = round(3.0 * fps)
     for i in range(n):
         a = np.radians(200.0) + np.radians(12.0) * i / fps
         frames.append((centre + [1.2 * side * np.cos(a), 1.2 * side * np.sin(a), 0.5], centre))
-    n = round(6.0 * fps)
+    n = round(walk_s * fps)
     for i in range(n):
         x = -10.0 + 6.0 * i / fps
         frames.append(([x, gap, 0.0], [x + 20.0, gap + 8.0 * np.sin(2 * np.pi * i / n), 0.0]))
-    crossing = centre + [gap, gap, 0.0]
+    crossing = centre  # an aisle crossing (statues stand at multiples of the spacing)
     for i in range(round(4.0 * fps)):
         a = np.radians(45.0) * i / fps
         frames.append((crossing, crossing + [10 * np.cos(a), 10 * np.sin(a), 0.0]))
@@ -139,3 +146,6 @@ if __name__ == "__main__":
     write_spec(HERE / "crowd_1m.json", crowd())
     (HERE / "crowd_walk_path.json").write_text(json.dumps(crowd_walk()) + "\n")
     (HERE / "crowd_inspection_path.json").write_text(json.dumps(crowd_inspection()) + "\n")
+    write_spec(HERE / "statues_2m.json", statues())
+    (HERE / "statues_inspection_path.json").write_text(
+        json.dumps(crowd_inspection(side_count=STATUES_SIDE, walk_s=5.0)) + "\n")
