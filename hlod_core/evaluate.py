@@ -8,8 +8,10 @@ Figures 8.1-8.3 (modulation colours from the user's view and a bird's-eye view) 
 (per-frame drawn nodes and frame times); plus the alpha estimators of DESIGN §5.3 (error against
 cost) and sweeps over tau, (s, t) and alpha.
 
-All variants run in one process on one renderer over the same path; their order alternates between
-repeats (forward, reversed, ...), so timings compare as ratios within the run. Per frame, a
+All variants run in one process on one renderer over the same path, interleaved frame by frame
+(each keeps its own traversal state; the order rotates every frame and runs backwards on odd
+repeats), so a drift in the machine's speed hits them alike and timings compare as ratios within
+the run. Per frame, a
 counter's value is the median over repeats; a method's figure is the mean over frames of that.
 Images for PSNR come from the first repeat, read back outside the timed frame.
 
@@ -123,6 +125,7 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     frames = len(path)
     rng = np.random.default_rng(seed)
     picked = sorted(rng.choice(frames, size=min(psnr_frames, frames), replace=False).tolist())
+    picked_set = set(picked)
     runs = variants(methods, settings, sweep)
     per_frame = {v.key: np.zeros((repeat, frames, len(COUNTERS))) for v in runs}
     images: dict[str, dict[int, np.ndarray]] = {v.key: {} for v in runs}
@@ -130,15 +133,21 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     renderer = Renderer.create_standalone(hlod, size)
     try:
         for rep in range(repeat):
-            for v in (runs if rep % 2 == 0 else runs[::-1]):
-                traversal = make(v.method, hlod, renderer, v.settings)
-                capture = set(picked) if rep == 0 else set()
-                for i in range(frames):
-                    stats = traversal.frame(path.view(i, size))
+            # Interleaved per frame, each method keeping its own traversal state: a drift in the
+            # machine's speed (on a shared VM, tens of percent over minutes) then hits every method
+            # alike. The order rotates every frame and runs backwards on odd repeats.
+            traversals = [(v, make(v.method, hlod, renderer, v.settings)) for v in runs]
+            for i in range(frames):
+                view = path.view(i, size)
+                turn = traversals[i % len(traversals):] + traversals[:i % len(traversals)]
+                for v, traversal in (turn if rep % 2 == 0 else turn[::-1]):
+                    stats = traversal.frame(view)
                     per_frame[v.key][rep, i] = [getattr(stats, c) for c in COUNTERS]
-                    if i in capture:
+                    if rep == 0 and i in picked_set:
                         images[v.key][i] = renderer.read_pixels()
-                log.info("repeat %d/%d: %s done (%.0f s)", rep + 1, repeat, v.key, time.perf_counter() - started)
+                if (i + 1) % max(frames // 10, 1) == 0 or i + 1 == frames:
+                    log.info("repeat %d/%d: frame %d/%d (%.0f s)", rep + 1, repeat, i + 1, frames,
+                             time.perf_counter() - started)
         alpha_study = alpha_estimators(hlod, renderer, [path.view(i, size) for i in picked[:5]])
         showcase = modulation_frames(hlod, renderer, path, size, runs, per_frame, out_dir)
     finally:
@@ -364,8 +373,8 @@ def markdown(report: dict) -> str:
              "",
              f"Scene: {report['scene']['input_tris']:,} input triangles, {report['scene']['nodes']:,} nodes, "
              f"depth {report['scene']['depth']}. tau = {st['tau']:g} px, (s, t) = ({st['s']:g}, {st['t']:g}), "
-             f"k = {'inf' if st['k'] is None else st['k']}, alpha = {st['alpha']}. {report['repeat']} repeats, order "
-             f"alternating; per frame the median over repeats, then the mean over frames. Timings compare as "
+             f"k = {'inf' if st['k'] is None else st['k']}, alpha = {st['alpha']}. {report['repeat']} repeats, methods "
+             f"interleaved frame by frame in a rotating order; per frame the median over repeats, then the mean over frames. Timings compare as "
              f"ratios within this run (on llvmpipe, absolute times are the CPU rasteriser's).",
              "",
              "## Per method (Table 8.2 columns and more)",

@@ -45,7 +45,6 @@ def gallery() -> dict:
 
 
 CROWD_SIDE, CROWD_SPACING = 12, 8.0
-STATUES_SIDE = 4
 
 
 def crowd(kinds: list[str] | None = None, side: int = CROWD_SIDE) -> dict:
@@ -58,12 +57,6 @@ def crowd(kinds: list[str] | None = None, side: int = CROWD_SIDE) -> dict:
         position = np.array([CROWD_SPACING * i, CROWD_SPACING * j, 0.0])
         models.setdefault(name, []).append(placement(name, position, turn_deg=37.0 * k))
     return {"models": [{"path": str(MODELS / name), "transforms": t} for name, t in models.items()]}
-
-
-def statues() -> dict:
-    """statues_2m.json: the crowd's layout with 16 scanned statues (igea, nefertiti, bunny), each
-    of them 70k-270k triangles, so a statue spans several hierarchy levels."""
-    return crowd(["igea.ply", "nefertiti.obj", "stanford-bunny.obj"], STATUES_SIDE)
 
 
 def crowd_walk(frames_per_part: int = 80) -> dict:
@@ -146,6 +139,3 @@ if __name__ == "__main__":
     write_spec(HERE / "crowd_1m.json", crowd())
     (HERE / "crowd_walk_path.json").write_text(json.dumps(crowd_walk()) + "\n")
     (HERE / "crowd_inspection_path.json").write_text(json.dumps(crowd_inspection()) + "\n")
-    write_spec(HERE / "statues_2m.json", statues())
-    (HERE / "statues_inspection_path.json").write_text(
-        json.dumps(crowd_inspection(side_count=STATUES_SIDE, walk_s=5.0)) + "\n")
