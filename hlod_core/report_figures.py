@@ -69,10 +69,12 @@ def _error_vs_time(plt, report, labels, out_dir):
 def _per_frame(plt, report, per_frame, labels, out_dir):
     dn, ms = COUNTERS.index("dn"), COUNTERS.index("frame_ms")
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-    for key in report["methods"]:
+    colours = plt.get_cmap("tab20").colors
+    for i, key in enumerate(report["methods"]):  # more methods than the default 10-colour cycle
         median = np.median(per_frame[key], axis=0)
-        top.plot(median[:, dn], label=labels[key], lw=1)
-        bottom.plot(median[:, ms], label=labels[key], lw=1)
+        style = {"label": labels[key], "lw": 1, "color": colours[(2 * i) % 20 + (2 * i) // 20]}
+        top.plot(median[:, dn], **style)
+        bottom.plot(median[:, ms], **style)
     top.set_ylabel("drawn nodes")
     bottom.set_ylabel("frame ms")
     bottom.set_xlabel("frame")
