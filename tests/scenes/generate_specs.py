@@ -47,16 +47,34 @@ def gallery() -> dict:
 CROWD_SIDE, CROWD_SPACING = 12, 8.0
 
 
-def crowd(kinds: list[str] | None = None, side: int = CROWD_SIDE) -> dict:
-    kinds = kinds or ["cow.obj", "homer.obj", "spot.obj", "teapot.obj", "rocker-arm.obj", "fandisk.obj",
-                      "homer.obj", "cow.obj", "spot.obj", "rocker-arm.obj", "fandisk.obj"]
+def crowd() -> dict:
+    kinds = ["cow.obj", "homer.obj", "spot.obj", "teapot.obj", "rocker-arm.obj", "fandisk.obj",
+             "homer.obj", "cow.obj", "spot.obj", "rocker-arm.obj", "fandisk.obj"]
     models: dict[str, list] = {}
-    for k in range(side * side):
-        i, j = k % side, k // side
+    for k in range(CROWD_SIDE * CROWD_SIDE):
+        i, j = k % CROWD_SIDE, k // CROWD_SIDE
         name = kinds[(k + j) % len(kinds)]
         position = np.array([CROWD_SPACING * i, CROWD_SPACING * j, 0.0])
         models.setdefault(name, []).append(placement(name, position, turn_deg=37.0 * k))
     return {"models": [{"path": str(MODELS / name), "transforms": t} for name, t in models.items()]}
+
+
+def _dolly(centre: np.ndarray, side: float, n: int) -> list:
+    """n frames, eased in and out, from an elevated overview to 0.3 units from a statue near the centre."""
+    far, focus = centre + [-0.9 * side, -0.9 * side, 0.4 * side], centre + [CROWD_SPACING, 0.0, 0.0]
+    near = focus + 0.3 * (far - focus) / np.linalg.norm(far - focus)
+    out = []
+    for i in range(n):
+        u = (i + 1) / n
+        u = u * u * (3 - 2 * u)
+        out.append((far * (1 - u) + near * u, centre * (1 - u) + focus * u))
+    return out
+
+
+def _path_json(frames: list) -> dict:
+    return {"fovy_deg": 60, "near": 0.01, "far": 400,
+            "frames": [{"eye": [round(float(c), 6) for c in e], "target": [round(float(c), 6) for c in t],
+                        "up": [0, 0, 1]} for e, t in frames]}
 
 
 def crowd_walk(frames_per_part: int = 80) -> dict:
@@ -77,18 +95,10 @@ def crowd_walk(frames_per_part: int = 80) -> dict:
     for i in range(n):
         a = 2 * np.pi * i / n
         frames.append((crossing, crossing + [10 * np.cos(a), 10 * np.sin(a), 0.0]))
-    far, focus = centre + [-0.9 * side, -0.9 * side, 0.4 * side], centre + [CROWD_SPACING, 0.0, 0.0]
-    near = focus + 0.3 * (far - focus) / np.linalg.norm(far - focus)
-    for i in range(n):
-        u = (i + 1) / n
-        u = u * u * (3 - 2 * u)
-        frames.append((far * (1 - u) + near * u, centre * (1 - u) + focus * u))
-    return {"fovy_deg": 60, "near": 0.01, "far": 400,
-            "frames": [{"eye": [round(float(c), 6) for c in e], "target": [round(float(c), 6) for c in t],
-                        "up": [0, 0, 1]} for e, t in frames]}
+    return _path_json(frames + _dolly(centre, side, n))
 
 
-def crowd_inspection(fps: float = 60.0, side_count: int = CROWD_SIDE, walk_s: float = 6.0) -> dict:
+def crowd_inspection(fps: float = 60.0) -> dict:
     """The same four parts as crowd_walk, played at the speeds of a careful interactive inspection and
     sampled at a viewport's `fps` (the papers' sequences ran at 100-200 frames per second, so frame
     to frame coherence is what their coherent traversal relies on): an orbit at ground level, 36
@@ -96,14 +106,14 @@ def crowd_inspection(fps: float = 60.0, side_count: int = CROWD_SIDE, walk_s: fl
     tall) with the gaze swaying across the rows; a half turn in place at an aisle crossing in the
     middle, 45 degrees/s; a 4 s dolly, eased in and out, from an elevated overview to an extreme
     close-up (0.3 units) of a statue in the middle of the crowd. 17 s in all."""
-    side, gap = CROWD_SPACING * (side_count - 1), CROWD_SPACING / 2
+    side, gap = CROWD_SPACING * (CROWD_SIDE - 1), CROWD_SPACING / 2
     centre = np.array([side / 2, side / 2, 0.0])
     frames = []
     n = round(3.0 * fps)
     for i in range(n):
         a = np.radians(200.0) + np.radians(12.0) * i / fps
         frames.append((centre + [1.2 * side * np.cos(a), 1.2 * side * np.sin(a), 0.5], centre))
-    n = round(walk_s * fps)
+    n = round(6.0 * fps)
     for i in range(n):
         x = -10.0 + 6.0 * i / fps
         frames.append(([x, gap, 0.0], [x + 20.0, gap + 8.0 * np.sin(2 * np.pi * i / n), 0.0]))
@@ -111,16 +121,7 @@ def crowd_inspection(fps: float = 60.0, side_count: int = CROWD_SIDE, walk_s: fl
     for i in range(round(4.0 * fps)):
         a = np.radians(45.0) * i / fps
         frames.append((crossing, crossing + [10 * np.cos(a), 10 * np.sin(a), 0.0]))
-    far, focus = centre + [-0.9 * side, -0.9 * side, 0.4 * side], centre + [CROWD_SPACING, 0.0, 0.0]
-    near = focus + 0.3 * (far - focus) / np.linalg.norm(far - focus)
-    n = round(4.0 * fps)
-    for i in range(n):
-        u = (i + 1) / n
-        u = u * u * (3 - 2 * u)
-        frames.append((far * (1 - u) + near * u, centre * (1 - u) + focus * u))
-    return {"fovy_deg": 60, "near": 0.01, "far": 400,
-            "frames": [{"eye": [round(float(c), 6) for c in e], "target": [round(float(c), 6) for c in t],
-                        "up": [0, 0, 1]} for e, t in frames]}
+    return _path_json(frames + _dolly(centre, side, round(4.0 * fps)))
 
 
 def write_spec(path: Path, spec: dict) -> None:
