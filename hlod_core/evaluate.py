@@ -11,8 +11,8 @@ cost) and sweeps over tau, (s, t) and alpha.
 All variants run in one process on one renderer over the same path, interleaved frame by frame
 (each keeps its own traversal state; the order rotates every frame and runs backwards on odd
 repeats), so a drift in the machine's speed hits them alike and timings compare as ratios within
-the run. Per frame, a
-counter's value is the median over repeats; a method's figure is the mean over frames of that.
+the run. Per frame, a counter's value is the median over repeats; a method's figure is the mean
+over frames of that.
 Images for PSNR come from the first repeat, read back outside the timed frame.
 
 PSNR: YCbCr of ITU-R BT.601 (full range, as JPEG), peak 255, per frame; identical images count as
@@ -40,8 +40,7 @@ from .traversal import ALPHA_MODES, RuntimeSettings, make
 
 log = logging.getLogger(__name__)
 
-# report key -> (traversal method, bias); "ideal" draws SW(P)'s node set
-# report key -> (traversal method, settings it overrides)
+# report key -> (traversal method, settings it overrides); "ideal" draws SW(P)'s node set
 METHOD_SPECS = {
     "full": ("full", {}), "vfc": ("vfc", {}), "bool": ("bool", {}),
     "sw_p": ("sw", {}), "sw_mu": ("sw", {"bias": "mu"}), "simp_p": ("simp", {}), "simp_mu": ("simp", {"bias": "mu"}),

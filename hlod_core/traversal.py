@@ -473,8 +473,8 @@ class Coherent(_Coherent):
     (verified by its own query, as Algorithm 4's shift-up is) when the ratio stops it, Refine
     otherwise; without one, Algorithm 4 decides as published. Refined nodes are the large boxes,
     which a CPU rasteriser pays for by area: measuring every frame cost 20% more queries and 15% more
-    frame time on llvmpipe for DN 1.010 x SW(P); every 4th frame, 1% more queries for 1.013
-    (Algorithm 4 alone: 1.022). "children" is Algorithm 4 alone (the report's Coh(P) Alg. 4 row).
+    frame time on llvmpipe for DN 1.010 x SW(P); every 4th frame, 0.7% more queries for 1.012
+    (Algorithm 4 alone: 1.022; README evaluation path). "children" is Algorithm 4 alone (the report's Coh(P) Alg. 4 row).
     """
 
     measure_every_frames = 4

@@ -150,8 +150,8 @@ def test_run_with_a_path_file_orthographic_and_saved_frames(cow_hlod, tmp_path):
     path.write_text(json.dumps({"ortho_height": 1.5, "near": 0.01, "far": 100, "frames": [
         {"eye": [0.2, -3, 0.5], "target": [0.2, 0, 0.3], "up": [0, 0, 1]},
         {"eye": [0.3, -3, 0.5], "target": [0.2, 0, 0.3], "up": [0, 0, 1]}]}))
-    out = last_json(hlod("-q", "run", cow_hlod, "--method", "coh", "--bias", "mu", "--alpha", "projected", "--shift-up", "children",
-                         "--path", path, "--save-frames", tmp_path / "frames", "--size", "64x48"))
+    out = last_json(hlod("-q", "run", cow_hlod, "--method", "coh", "--bias", "mu", "--alpha", "projected",
+                         "--shift-up", "children", "--path", path, "--save-frames", tmp_path / "frames", "--size", "64x48"))
     assert out["frames"] == 2
     pngs = sorted((tmp_path / "frames").glob("*.png"))
     assert len(pngs) == 2 and pngs[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

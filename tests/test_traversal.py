@@ -318,9 +318,9 @@ def test_overlay_of_methods_without_vmsse_is_all_blue(city_renderer, method):
 def sphere_row():
     """Five tessellated spheres in a row (15k triangles, about 400 per node): looking down the row,
     each sphere hides most of the next, whose nodes show as thin crescents."""
-    parts = [scenes.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, 48, 32) for i in range(5)]
-    positions, faces = scenes._concat(parts)
-    return bake(meshio.TriangleMesh(positions=positions, faces=faces, name="sphere row"), BakeSettings(target_tris=400))
+    spheres = [meshio.TriangleMesh(*scenes.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, 48, 32), name=f"sphere {i}")
+               for i in range(5)]
+    return bake(meshio.merge(spheres, name="sphere row"), BakeSettings(target_tris=400))
 
 
 def test_measured_shift_up_reaches_the_sw_front_where_algorithm_4_stays_deep(gl_ctx, sphere_row):
