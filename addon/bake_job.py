@@ -6,12 +6,16 @@ Cancelling is checked between bake tasks (hlod_core.bake); a cancelled or failed
 nothing (the file is written only at the end, atomically), so an earlier file stays as it was."""
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
 from ..hlod_core import fileformat
 from ..hlod_core.bake import BakeSettings, bake
+from ..hlod_core.errors import BakeCancelled, HlodError
 from ..hlod_core.meshio import TriangleMesh
+
+log = logging.getLogger(__name__)
 
 
 class BakeJob:
@@ -30,7 +34,11 @@ class BakeJob:
             hlod = bake(mesh, settings, progress=self._on_progress, cancel=self._cancel.is_set)
             fileformat.save(hlod, self.output)
             self.result = hlod
-        except BaseException as exc:  # collected by the main thread
+        except BaseException as exc:  # noqa: BLE001 - collected by the main thread, which reports it
+            if not isinstance(exc, HlodError):  # an unexpected failure: keep its traceback in the log
+                log.exception("HLOD bake failed")
+            elif not isinstance(exc, BakeCancelled):
+                log.error("HLOD bake: %s", exc)
             self.error = exc
 
     def _on_progress(self, done: int, total: int, phase: str) -> None:

@@ -13,6 +13,7 @@ from ..hlod_core import evaluate, fileformat
 from ..hlod_core.camera import CameraPath
 from ..hlod_core.errors import InputError
 from . import glcontext, preview
+from .settings import runtime_settings
 
 
 def camera_path(scene, depsgraph, size: tuple[int, int]) -> CameraPath:
@@ -58,6 +59,6 @@ def run(context, folder: str, repeat: int) -> tuple[dict, str]:
     os.makedirs(folder, exist_ok=True)
     with glcontext.keep_current():
         report = evaluate.evaluate(hlod, path, size, methods=list(evaluate.METHOD_SPECS),
-                                   settings=preview.runtime_settings(props), repeat=repeat, out_dir=folder,
+                                   settings=runtime_settings(props), repeat=repeat, out_dir=folder,
                                    psnr_frames=min(20, len(path)))
     return report, folder

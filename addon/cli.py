@@ -3,7 +3,7 @@ with `bpy.utils.register_cli_command`, and the same code through the bpy module
 (`python scripts/hlod_blender.py ...`, for machines with the bpy wheel and no Blender install).
 
     hlod bake [FILE.blend ...] [--collection NAME | --objects A,B] -o OUT [--format hlod 3dtiles]
-              [--target-tris 2000] [--max-depth 12]
+              [--target-tris 2000] [--max-depth 12] [--quality-threshold 0.3]
     hlod export IN.hlod --format 3dtiles|hlod -o DIR
 
 `bake` without .blend files bakes the open file into OUT (a .hlod path); with files, OUT is a
@@ -27,6 +27,9 @@ from ..hlod_core.bake import BakeSettings, bake
 from ..hlod_core.cli import export_hlod
 from ..hlod_core.errors import HlodError, InputError
 from . import scene_mesh
+from .settings import bake_settings
+
+_cli_command = None  # the handle of the registered command
 
 
 class _Parser(argparse.ArgumentParser):
@@ -47,11 +50,24 @@ def parser() -> argparse.ArgumentParser:
                    help="outputs per file: hlod (always written) and/or 3dtiles")
     b.add_argument("--target-tris", type=int, default=BakeSettings.target_tris)
     b.add_argument("--max-depth", type=int, default=BakeSettings.max_depth)
+    b.add_argument("--quality-threshold", type=float, default=BakeSettings.quality_threshold)
     e = sub.add_parser("export", help="export a baked .hlod")
     e.add_argument("file", metavar="IN.hlod")
     e.add_argument("--format", choices=["3dtiles", "hlod"], required=True)
     e.add_argument("-o", "--output", required=True, metavar="DIR")
     return p
+
+
+def register() -> None:
+    global _cli_command
+    _cli_command = bpy.utils.register_cli_command("hlod", execute)
+
+
+def unregister() -> None:
+    global _cli_command
+    if _cli_command is not None:
+        bpy.utils.unregister_cli_command(_cli_command)
+        _cli_command = None
 
 
 def execute(argv: list[str]) -> int:
@@ -102,7 +118,7 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
             raise InputError(f"-o {target}: give a .hlod file name when baking the open file")
         objects = _objects(args)
         mesh = scene_mesh.evaluated_mesh(bpy.context, objects)
-        hlod = bake(mesh, BakeSettings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=1))
+        hlod = bake(mesh, bake_settings(args))
         target.parent.mkdir(parents=True, exist_ok=True)
         fileformat.save(hlod, target)
         outputs = {"hlod": str(target)}

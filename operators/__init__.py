@@ -10,10 +10,11 @@ import time
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
-from ..addon import preview, scene_mesh
+from ..addon import benchmark, preview, scene_mesh
 from ..addon.bake_job import BakeJob
+from ..addon.settings import bake_settings
 from ..hlod_core import fileformat
-from ..hlod_core.bake import BakeSettings, bake
+from ..hlod_core.bake import bake
 from ..hlod_core.errors import BakeCancelled, HlodError, InputError
 
 
@@ -38,13 +39,6 @@ def _stored_path(path: str) -> str:
         return path
 
 
-def _bake_settings(props) -> BakeSettings:
-    # jobs = 1: worker processes would have to import this package by its Blender name
-    # (bl_ext.<repo>.hlod), which a plain Python child cannot; the bake runs in a thread instead.
-    return BakeSettings(target_tris=props.target_tris, max_depth=props.max_depth, jobs=1,
-                        quality_threshold=props.quality_threshold)
-
-
 class HLOD_OT_bake(bpy.types.Operator):
     """Bake an octree HLOD of the selected objects or a collection (evaluated: modifiers and instances)"""
 
@@ -59,7 +53,7 @@ class HLOD_OT_bake(bpy.types.Operator):
         if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
             raise InputError(f"Bake: cannot write {out}: folder {folder} is missing or not writable")
         mesh = scene_mesh.evaluated_mesh(context, scene_mesh.source_objects(context, props))
-        return mesh, out, _bake_settings(props)
+        return mesh, out, bake_settings(props)
 
     def _finish(self, context, hlod, out, seconds) -> None:
         context.scene.hlod.file = _stored_path(out)
@@ -234,8 +228,6 @@ class HLOD_OT_benchmark(bpy.types.Operator):
     repeat: IntProperty(name="Repeats", default=2, min=1, max=10)
 
     def execute(self, context):
-        from ..addon import benchmark
-
         try:
             report, folder = benchmark.run(context, bpy.path.abspath(self.directory), self.repeat)
         except (HlodError, OSError) as exc:

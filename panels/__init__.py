@@ -1,6 +1,8 @@
 """The 3D viewport's sidebar tab "HLOD" (N panel): sections Bake, Preview, Overlay, Statistics."""
 import bpy
 
+from ..addon import preview
+
 
 class _HlodPanel:
     bl_space_type = "VIEW_3D"
@@ -41,8 +43,6 @@ class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
     bl_parent_id = "HLOD_PT_main"
 
     def draw(self, context):
-        from ..addon import preview
-
         props, layout = context.scene.hlod, self.layout
         on = preview.running()
         layout.operator("hlod.preview_toggle", text="Stop Preview" if on else "Start Preview",
