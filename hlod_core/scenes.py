@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .meshio import TriangleMesh, merge
+from .arrays import concat_indexed
+from .meshio import TriangleMesh
 
 
 def grid_patch(origin, u, v, nu: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
@@ -17,10 +18,15 @@ def grid_patch(origin, u, v, nu: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
     Returns positions ((nu+1)(nv+1),3) float64 and faces (2 nu nv,3) int64, counter-clockwise about u x v."""
     s, t = np.meshgrid(np.linspace(0.0, 1.0, nu + 1), np.linspace(0.0, 1.0, nv + 1), indexing="ij")
     p = np.asarray(origin, float) + s[..., None] * np.asarray(u, float) + t[..., None] * np.asarray(v, float)
-    idx = np.arange((nu + 1) * (nv + 1)).reshape(nu + 1, nv + 1)
+    return p.reshape(-1, 3), _grid_faces(nu + 1, nv + 1)
+
+
+def _grid_faces(rows: int, cols: int) -> np.ndarray:
+    """Two triangles per quad of a rows x cols vertex grid (row-major vertex ids), (2 (rows-1)(cols-1), 3)
+    int64, counter-clockwise in (row, column) order."""
+    idx = np.arange(rows * cols).reshape(rows, cols)
     a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-    return p.reshape(-1, 3), faces
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
 
 
 def box(lo, hi, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -32,7 +38,7 @@ def box(lo, hi, n: int) -> tuple[np.ndarray, np.ndarray]:
         (lo, dx, dz), (lo + dy, dz, dx),                  # -y, +y
         (lo, dz, dy), (lo + dx, dy, dz),                       # -x, +x
     ]
-    return _concat([grid_patch(o, u, v, n, n) for o, u, v in patches])
+    return concat_indexed([grid_patch(o, u, v, n, n) for o, u, v in patches])
 
 
 def uv_sphere(center, radius: float, segments: int, rings: int) -> tuple[np.ndarray, np.ndarray]:
@@ -42,15 +48,7 @@ def uv_sphere(center, radius: float, segments: int, rings: int) -> tuple[np.ndar
     phi = np.linspace(0.0, 2.0 * np.pi, segments + 1)
     t, f = np.meshgrid(theta, phi, indexing="ij")
     p = np.stack([np.sin(t) * np.cos(f), np.sin(t) * np.sin(f), np.cos(t)], -1) * radius + np.asarray(center, float)
-    idx = np.arange((rings + 1) * (segments + 1)).reshape(rings + 1, segments + 1)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-    return p.reshape(-1, 3), faces
-
-
-def _concat(parts) -> tuple[np.ndarray, np.ndarray]:
-    offsets = np.cumsum([0] + [p.shape[0] for p, _ in parts[:-1]])
-    return np.concatenate([p for p, _ in parts]), np.concatenate([f + o for (_, f), o in zip(parts, offsets)])
+    return p.reshape(-1, 3), _grid_faces(rings + 1, segments + 1)
 
 
 def default_scene(*, seed: int = 1, scale: float = 1.0) -> TriangleMesh:
@@ -111,8 +109,8 @@ def _city(*, seed: int, per_side: int, spacing: float, footprint: float, heights
             lo = np.array([x - footprint / 2, y - footprint / 2, 0.0])
             parts.append(box(lo, lo + [footprint, footprint, height], box_cells))
             parts.append(uv_sphere([x, y, height + radius], radius, *sphere))
-    positions, faces = _concat(parts)
-    return merge([TriangleMesh(positions=positions, faces=faces, name=name)])
+    positions, faces = concat_indexed(parts)
+    return TriangleMesh(positions=positions, faces=faces, name=name)
 
 
 SCENES = {"low": low_scene, "middle": middle_scene, "high": high_scene, "default": default_scene}
