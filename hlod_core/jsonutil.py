@@ -1,0 +1,53 @@
+"""JSON read with a nesting limit, for every JSON the project reads from users and files (.hlod
+headers, scene specs, camera paths).
+
+Python's `json` recurses once per nesting level: a few thousand `[` raise RecursionError (or worse,
+exhaust the C stack) instead of a clear message. The depth is checked first, vectorised over the
+text with strings blanked out, so the parser never sees a document nested deeper than MAX_DEPTH.
+"""
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+
+#: Deepest nesting of arrays/objects accepted; our documents need 4.
+MAX_DEPTH = 64
+
+_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
+
+
+class JsonError(ValueError):
+    """Not JSON, or nested deeper than the limit; the message says which."""
+
+
+def nesting_depth(text: str) -> int:
+    """Deepest bracket nesting of a JSON text (brackets inside strings do not count)."""
+    bare = _STRING.sub("", text).encode("utf-8", "surrogatepass")
+    codes = np.frombuffer(bare, np.uint8)
+    step = np.zeros(codes.shape[0], np.int64)
+    step[(codes == ord("[")) | (codes == ord("{"))] = 1
+    step[(codes == ord("]")) | (codes == ord("}"))] = -1
+    return int(np.cumsum(step).max(initial=0))
+
+
+def loads(text: str | bytes, *, max_depth: int = MAX_DEPTH):
+    """json.loads that refuses documents nested deeper than `max_depth`, and NaN/Infinity literals
+    (not JSON; Python accepts them). Raises JsonError."""
+    if isinstance(text, (bytes, bytearray)):
+        try:
+            text = bytes(text).decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise JsonError(f"not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    depth = nesting_depth(text)
+    if depth > max_depth:
+        raise JsonError(f"nested {depth} levels deep (at most {max_depth})")
+    try:
+        return json.loads(text, parse_constant=_refuse_constant)
+    except (ValueError, RecursionError) as exc:
+        raise JsonError(str(exc)) from None
+
+
+def _refuse_constant(name: str):
+    raise ValueError(f"{name} is not a JSON number")

@@ -1,0 +1,141 @@
+"""The import graph (STYLE: imports run one way, core <- adapters <- UI <- registration; a cycle is a
+design question): hlod_core imports nothing of addon/, operators/, panels/ or Blender's modules;
+addon/ (adapters) imports no UI; no module-level or deferred import forms a cycle; and every module
+imports on its own, first, in a fresh interpreter."""
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from helpers import ROOT
+
+PACKAGES = ("hlod_core", "addon", "operators", "panels")
+BLENDER_MODULES = {"bpy", "mathutils", "gpu", "gpu_extras", "bmesh", "addon_utils", "blf", "bl_ui"}
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts) or "<root>"
+
+
+def _modules() -> dict[str, Path]:
+    out = {"<root>": ROOT / "__init__.py"}
+    for package in PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            out[_module_name(path)] = path
+    return out
+
+
+def _imports(name: str, path: Path, known: set[str]) -> tuple[set[str], set[str]]:
+    """(project modules, external top-level modules) that `name` imports anywhere in its body
+    (module level and deferred imports inside functions alike)."""
+    is_package = path.name == "__init__.py"
+    package = name if is_package else name.rpartition(".")[0]
+    if name == "<root>":
+        package = ""
+    project, external = set(), set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        targets = []
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".") if package else []
+                base = base[:len(base) - (node.level - 1)] if node.level > 1 else base
+                stem = ".".join(base + ([node.module] if node.module else []))
+            else:
+                stem = node.module or ""
+            targets = [stem] + [f"{stem}.{alias.name}" if stem else alias.name for alias in node.names]
+        for target in targets:
+            if target in known:
+                project.add(target)
+            elif target and target.split(".")[0] not in PACKAGES and target not in ("", "<root>"):
+                external.add(target.split(".")[0])
+    project.discard(name)
+    return project, external
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict[str, tuple[set[str], set[str]]]:
+    modules = _modules()
+    return {name: _imports(name, path, set(modules)) for name, path in modules.items()}
+
+
+def test_the_core_imports_no_blender_and_no_adapter_or_ui(graph):
+    offending = {name: sorted(project | (external & BLENDER_MODULES))
+                 for name, (project, external) in graph.items() if name.startswith("hlod_core")
+                 if any(not p.startswith("hlod_core") for p in project) or external & BLENDER_MODULES}
+    assert not offending
+
+
+def test_adapters_import_no_ui(graph):
+    offending = {name: sorted(p for p in project if p.startswith(("operators", "panels")))
+                 for name, (project, _) in graph.items() if name.startswith("addon")}
+    assert not any(offending.values()), offending
+
+
+def test_no_import_cycles(graph):
+    edges = {name: set(project) for name, (project, _) in graph.items()}
+    for name in list(edges):  # importing a.b runs a/__init__.py first: a package is a dependency
+        edges[name] |= {p.rpartition(".")[0] for p in edges[name] if "." in p} - {name, ""}
+    cycles = []
+    colour: dict[str, int] = {}
+
+    def visit(node: str, stack: list[str]) -> None:
+        colour[node] = 1
+        for nxt in sorted(edges.get(node, ())):
+            if colour.get(nxt) == 1:
+                cycles.append(stack[stack.index(nxt):] + [nxt])
+            elif nxt not in colour:
+                visit(nxt, stack + [nxt])
+        colour[node] = 2
+
+    for start in sorted(edges):
+        if start not in colour:
+            visit(start, [start])
+    assert not cycles, cycles
+
+
+def test_the_graph_sees_known_edges(graph):
+    """The checks above would pass on an empty graph: pin a few edges that must be found."""
+    assert "hlod_core.fileformat" in graph["hlod_core.cli"][0]
+    assert "hlod_core.bake" in graph["addon.bake_job"][0]
+    assert "addon.preview" in graph["panels"][0]
+    assert "bpy" in graph["addon.preview"][1] and "numpy" in graph["hlod_core.bake"][1]
+
+
+def test_every_core_module_imports_first_in_a_fresh_interpreter():
+    names = [n for n in _modules() if n.startswith("hlod_core")]
+    script = "import importlib, sys\nfor n in sys.argv[1:]:\n    importlib.import_module(n)\n"
+    for order in (names, names[::-1]):
+        # one interpreter per module for the first import; then all of them in both orders
+        for name in order[:1]:
+            subprocess.run([sys.executable, "-c", script, name], check=True, cwd=ROOT, timeout=120)
+        proc = subprocess.run([sys.executable, "-c", script, *order], capture_output=True, text=True, cwd=ROOT,
+                              timeout=120)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    for name in names:
+        proc = subprocess.run([sys.executable, "-c", script, name], capture_output=True, text=True, cwd=ROOT,
+                              timeout=120)
+        assert proc.returncode == 0, f"{name}: {proc.stderr[-2000:]}"
+
+
+def test_every_extension_module_imports_first_under_a_package_name():
+    """addon/, operators/ and panels/ use relative imports: import the folder as a package (as
+    Blender does, under another name) and each module first, in a fresh bpy interpreter, in two orders."""
+    names = [n for n in _modules() if not n.startswith("hlod_core") and n != "<root>"]
+    script = ("import importlib, importlib.util, sys\n"
+              f"spec = importlib.util.spec_from_file_location('pkg', {str(ROOT / '__init__.py')!r}, "
+              f"submodule_search_locations=[{str(ROOT)!r}])\n"
+              "pkg = importlib.util.module_from_spec(spec); sys.modules['pkg'] = pkg; spec.loader.exec_module(pkg)\n"
+              "for n in sys.argv[1:]:\n    importlib.import_module('pkg.' + n)\n")
+    for order in (names, names[::-1]):
+        proc = subprocess.run([sys.executable, "-c", script, *order], capture_output=True, text=True, cwd="/",
+                              timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
