@@ -4,7 +4,10 @@ Path file:
     {"fovy_deg": 60, "near": 0.01, "far": 1000,
      "frames": [{"eye": [x, y, z], "target": [x, y, z], "up": [x, y, z]}, ...]}
 with "ortho_height": h (model units visible vertically) instead of "fovy_deg" for an
-orthographic path. Coordinates are world (model) units, float64.
+orthographic path. Coordinates are world (model) units, float64. Defaults: fovy_deg 60, near 0.01,
+far 1000, up [0, 0, 1]. Every field must be a JSON number (not null, a string, a list or
+true/false), finite and at most MAX_MAGNITUDE in size; unknown keys are refused; any far/near
+ratio is accepted (metrics.frustum_planes keeps a far plane beyond float64's reach at infinity).
 
 Seeded sequences (after the dissertation's inspection sessions, §8.1: rotations and changes from
 overall views to extreme close-ups): an orbit around the scene, a fly-through across it, a dolly
@@ -13,12 +16,15 @@ from the overview down to an extreme close-up of a surface point, and a rotation
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from . import jsonutil
+from .atomic import write_text_atomic
 from .errors import InputError
 from .hierarchy import Hlod
 from .metrics import View, look_at, orthographic, perspective
@@ -56,47 +62,131 @@ class CameraPath:
         return out
 
     def save(self, path: str | os.PathLike) -> None:
-        Path(path).write_text(json.dumps(self.to_json()))
+        write_text_atomic(path, json.dumps(self.to_json()))
+
+
+#: Keys of a path file and of each frame; anything else is refused (a misspelt "fov_deg" would
+#: otherwise leave the default in place without a word).
+PATH_KEYS = ("fovy_deg", "ortho_height", "near", "far", "frames")
+FRAME_KEYS = ("eye", "target", "up")
+DEFAULT_FOVY_DEG, DEFAULT_NEAR, DEFAULT_FAR = 60.0, 0.01, 1000.0
+#: Largest magnitude of a coordinate, near, far or ortho_height: squares and products of such
+#: numbers (look_at's norms, the projection) stay far inside float64.
+MAX_MAGNITUDE = 1e30
+#: A generated path's radius is at least this fraction of the model's distance from the origin,
+#: so that positions one radius apart differ in float64 even for a model without extent.
+MIN_RADIUS_RELATIVE = 1e-9
 
 
 def load_path(path: str | os.PathLike) -> CameraPath:
+    """Read and validate a path file (module docstring). Raises InputError naming the file and
+    the field at fault: not JSON, nested too deep, a missing or unknown key, a field that is not
+    a finite number (null, a string, a list, true/false, 1e999), near/far out of order."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        frames = np.array([[f["eye"], f["target"], f.get("up", [0, 0, 1])] for f in data["frames"]], np.float64)
-        near, far = float(data.get("near", 0.01)), float(data.get("far", 1000.0))
+        text = path.read_bytes()
     except OSError as exc:
-        raise InputError(f"{path}: cannot read camera path ({exc.strerror or exc})") from exc
-    except (ValueError, KeyError, TypeError) as exc:
-        raise InputError(f"{path}: not a camera path ({type(exc).__name__}: {exc})") from exc
-    if frames.ndim != 3 or frames.shape[1:] != (3, 3) or frames.shape[0] == 0:
-        raise InputError(f"{path}: every frame needs eye, target and up as 3 numbers each")
-    if not np.all(np.isfinite(frames)):
-        raise InputError(f"{path}: a frame has NaN or infinite coordinates")
+        raise InputError(f"{path}: cannot read camera path ({exc.strerror or exc})") from None
+    try:
+        data = jsonutil.loads(text)
+    except jsonutil.JsonError as exc:
+        raise InputError(f"{path}: camera path is not valid JSON ({exc})") from None
+    return path_from_json(data, source=str(path))
+
+
+def path_from_json(data, *, source: str) -> CameraPath:
+    """A CameraPath from the parsed JSON of a path file; `source` names it in errors."""
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: a camera path is a JSON object with \"frames\", got {_kind(data)}")
+    _known_keys(data, PATH_KEYS, source, "the path")
+    frames_data = data.get("frames")
+    if not isinstance(frames_data, list) or not frames_data:
+        raise InputError(f"{source}: \"frames\" must be a non-empty list of {{eye, target, up}}, "
+                         f"got {_kind(frames_data)}")
+    frames = np.empty((len(frames_data), 3, 3), np.float64)
+    for i, frame in enumerate(frames_data):
+        if not isinstance(frame, dict):
+            raise InputError(f"{source}: frames[{i}] must be an object with eye, target and up, got {_kind(frame)}")
+        _known_keys(frame, FRAME_KEYS, source, f"frames[{i}]")
+        for j, key in enumerate(FRAME_KEYS):
+            if key not in frame and key != "up":
+                raise InputError(f"{source}: frames[{i}] has no \"{key}\"")
+            frames[i, j] = _vector3(frame.get(key, [0.0, 0.0, 1.0]), source, f"frames[{i}].{key}")
+    near = _number(data.get("near", DEFAULT_NEAR), source, "near")
+    far = _number(data.get("far", DEFAULT_FAR), source, "far")
     if not 0 < near < far:
-        raise InputError(f"{path}: near and far must satisfy 0 < near < far, got {near}, {far}")
-    if np.any(np.linalg.norm(frames[:, 1] - frames[:, 0], axis=1) == 0):
-        raise InputError(f"{path}: a frame's eye equals its target")
+        raise InputError(f"{source}: near and far must satisfy 0 < near < far, got {near:g}, {far:g}")
+    same = np.flatnonzero(np.all(frames[:, 1] == frames[:, 0], axis=1))
+    if same.size:
+        raise InputError(f"{source}: a frame's eye equals its target (frames[{same[0]}])")
+    if "fovy_deg" in data and "ortho_height" in data:
+        raise InputError(f"{source}: give fovy_deg (perspective) or ortho_height (orthographic), not both")
     if "ortho_height" in data:
-        height = float(data["ortho_height"])
+        height = _number(data["ortho_height"], source, "ortho_height")
         if not height > 0:
-            raise InputError(f"{path}: ortho_height must be > 0")
+            raise InputError(f"{source}: ortho_height must be > 0, got {height:g}")
         return CameraPath(frames=frames, near=near, far=far, fovy_deg=None, ortho_height=height)
-    fovy = float(data.get("fovy_deg", 60.0))
+    fovy = _number(data.get("fovy_deg", DEFAULT_FOVY_DEG), source, "fovy_deg")
     if not 0 < fovy < 180:
-        raise InputError(f"{path}: fovy_deg must lie in (0, 180)")
+        raise InputError(f"{source}: fovy_deg must lie in (0, 180), got {fovy:g}")
     return CameraPath(frames=frames, near=near, far=far, fovy_deg=fovy)
+
+
+def _kind(value) -> str:
+    """How a JSON value reads in a message."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f"the string {json.dumps(value[:40])}"
+    if isinstance(value, list):
+        return f"a list of {len(value)}"
+    if isinstance(value, dict):
+        return "an object"
+    return repr(value)
+
+
+def _known_keys(obj: dict, keys: tuple[str, ...], source: str, where: str) -> None:
+    unknown = sorted(set(obj) - set(keys))
+    if unknown:
+        raise InputError(f"{source}: {where} has unknown key {json.dumps(unknown[0][:40])}; "
+                         f"expected some of {', '.join(keys)}")
+
+
+def _number(value, source: str, where: str) -> float:
+    """A JSON number (true/false are not numbers), finite and at most MAX_MAGNITUDE in size."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InputError(f"{source}: {where} must be a number, got {_kind(value)}")
+    try:
+        number = float(value)
+    except OverflowError:  # an integer of hundreds of digits
+        number = math.inf
+    if not abs(number) <= MAX_MAGNITUDE:
+        raise InputError(f"{source}: {where} must be a finite number of magnitude at most {MAX_MAGNITUDE:g}, "
+                         f"got {str(value)[:40]}")
+    return number
+
+
+def _vector3(value, source: str, where: str) -> list[float]:
+    if not isinstance(value, list) or len(value) != 3:
+        raise InputError(f"{source}: {where} must be a list of 3 numbers, got {_kind(value)}")
+    return [_number(x, source, f"{where}[{k}]") for k, x in enumerate(value)]
 
 
 def inspection_path(hlod: Hlod, *, seed: int, frames: int, up_axis: int = 2) -> CameraPath:
     """Seeded, in four parts of about a quarter each: a 135 degree orbit at a low elevation, a
     straight fly-through across the scene below half its height (it may pass through geometry), a
     dolly from the overview to an extreme close-up of a random leaf's surface, a rotation in place
-    there. Scale-free (follows the root box)."""
+    there. Scale-free: scaling the model by any factor (1e-9 to 1e9 are tested) scales the path
+    by the same factor, near and far included."""
     rng = np.random.default_rng(seed)
     lo, hi = hlod.box_min[0], hlod.box_max[0]
     centre = 0.5 * (lo + hi)
-    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-6)
+    # every length below is a multiple of the root radius (or of a leaf's radius), so the path of
+    # a model scaled by any factor is the same path scaled; the floor only keeps a model without
+    # extent apart from its eye in float64, and one at the origin gets 1 model unit
+    radius = max(0.5 * float(np.linalg.norm(hi - lo)), MIN_RADIUS_RELATIVE * float(np.abs(centre).max())) or 1.0
     up = np.zeros(3)
     up[up_axis] = 1.0
     a, b = [ax for ax in range(3) if ax != up_axis]

@@ -1,7 +1,11 @@
 """Command line of the core: `python -m hlod_core COMMAND ...`.
 
 Contract (later checks rely on it): the last line of stdout is one JSON object; progress and
-messages go to stderr; bad input exits with status 2 and one line naming the file and the fault.
+messages go to stderr (-q: errors only); bad input, a bad argument or a failed write exits with
+status 2 and one line naming the file and the fault. Ctrl-C exits 130 with `hlod_core:
+interrupted`, SIGTERM / SIGHUP exit 128 + n with `hlod_core: terminated by SIG...`; either way
+after removing scratch files and partial outputs. `-o` of a file refuses a name that ends in a
+path separator (it names a folder).
 
     bake INPUT [INPUT ...] -o OUT.hlod [--target-tris 2000] [--max-depth 12] [--jobs N]
     info FILE.hlod
@@ -13,11 +17,15 @@ messages go to stderr; bad input exits with status 2 and one line naming the fil
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
+import signal
 import sys
+import threading
 import time
+import warnings
 from pathlib import Path
 
 from . import checks, fileformat, meshio, scenes
@@ -28,25 +36,111 @@ log = logging.getLogger("hlod_core")
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = _parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, stream=sys.stderr,
-                        format="hlod_core: %(message)s")
+    """Run one command; returns the exit status: 0, 2 for bad input or a failed write (one line
+    on stderr naming the file), 130 for Ctrl-C, 128 + n for signal n (SIGTERM, SIGHUP). Argument
+    errors exit 2 through argparse with one line."""
+    args = None
     try:
-        result = args.run(args)
+        args = _parser().parse_args(argv)
+        logging.basicConfig(level=logging.ERROR if args.quiet else logging.INFO, stream=sys.stderr,
+                            format="hlod_core: %(message)s")
+        with warnings.catch_warnings(), _signals_as_exceptions():
+            warnings.showwarning = _log_warning
+            result = args.run(args)
     except HlodError as exc:
         print(f"hlod_core: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        where = exc.filename or "output"
+        where = exc.filename or _output_of(args)
         print(f"hlod_core: error: {where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("hlod_core: interrupted", file=sys.stderr)
+        return 128 + signal.SIGINT
+    except Terminated as exc:
+        print(f"hlod_core: terminated by {signal.Signals(exc.signum).name}", file=sys.stderr)
+        return 128 + exc.signum
     print(json.dumps(result))
     return 0
 
 
+class Terminated(BaseException):
+    """SIGTERM or SIGHUP arrived during a command. Raised in the main thread like Ctrl-C's
+    KeyboardInterrupt (and like it not an Exception, so no `except Exception` swallows it), so
+    every context manager unwinds: the bake's worker pool and scratch folder, atomic writes."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+#: Signals turned into Terminated while a command runs (SIGHUP does not exist on Windows).
+TERMINATING_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+@contextlib.contextmanager
+def _signals_as_exceptions():
+    """Install the handlers for the command's duration and restore the old ones after. The first
+    signal raises; later ones are ignored so that they cannot cut the cleanup short. Signal
+    handlers can only be set from the main thread: elsewhere (an embedding host) nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    raised = False
+
+    def handler(signum, frame):
+        nonlocal raised
+        if not raised:
+            raised = True
+            raise Terminated(signum)
+
+    previous = {sig: signal.signal(sig, handler) for sig in TERMINATING_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def _log_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """warnings.showwarning for a command: one log line (hidden by -q), not the two-line default."""
+    log.warning("%s: %s (%s:%d)", category.__name__, message, os.path.basename(filename), lineno)
+
+
+def _output_of(args) -> str:
+    """The file or folder a command writes (for an OSError that names no file)."""
+    for name in ("output", "out", "save_path", "save_frames", "file"):
+        value = getattr(args, name, None)
+        if value is not None:
+            return str(value)
+    return "hlod_core"
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument error is one line, `hlod_core: error: ...`, and exit status 2 (argparse's
+    default prints the whole usage first). Subcommand parsers are of the same class."""
+
+    def error(self, message: str):
+        self.exit(2, f"hlod_core: error: {message} (see {self.prog} --help)\n")
+
+
+def _whole_number(minimum: int):
+    """argparse type: an int >= minimum (a negative --seed reached numpy as a traceback)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {value}")
+        return value
+
+    return parse
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m hlod_core", description="Bake and inspect octree HLODs.")
+    parser = _Parser(prog="python -m hlod_core", description="Bake and inspect octree HLODs.")
     parser.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -66,8 +160,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--bias", choices=["P", "mu"], default="P", help="P = P_{s,t}(mu); mu = the visibility itself (s = 0)")
     _runtime_options(p)
     p.add_argument("--path", metavar="PATH.json", help="camera path file (see README)")
-    p.add_argument("--seed", type=int, default=1, help="seed of a generated inspection path (without --path)")
-    p.add_argument("--frames", type=int, default=60, help="frames of a generated path")
+    p.add_argument("--seed", type=_whole_number(0), default=1,
+                   help="seed of a generated inspection path (without --path)")
+    p.add_argument("--frames", type=_whole_number(1), default=60, help="frames of a generated path")
     p.add_argument("--size", default="640x480", help="viewport WxH pixels")
     p.add_argument("--save-frames", metavar="DIR", help="write every frame as PNG")
     p.add_argument("--save-path", metavar="PATH.json", help="write the camera path used")
@@ -77,15 +172,16 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("file", metavar="FILE.hlod")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for report.json, report.md and PNGs")
     p.add_argument("--path", metavar="PATH.json", help="camera path file (see README)")
-    p.add_argument("--seed", type=int, default=1, help="seed of a generated inspection path and of the PSNR frames")
-    p.add_argument("--frames", type=int, default=60, help="frames of a generated path")
+    p.add_argument("--seed", type=_whole_number(0), default=1,
+                   help="seed of a generated inspection path and of the PSNR frames")
+    p.add_argument("--frames", type=_whole_number(1), default=60, help="frames of a generated path")
     p.add_argument("--size", default="640x480", help="viewport WxH pixels")
     p.add_argument("--methods", nargs="+", default=None, metavar="M",
                    help="report keys (default all): full vfc bool sw_p sw_mu simp_p simp_mu coh_p coh_mu ideal")
     _runtime_options(p)
-    p.add_argument("--repeat", type=int, default=2, help="passes over the path, order alternating")
+    p.add_argument("--repeat", type=_whole_number(1), default=2, help="passes over the path, order alternating")
     p.add_argument("--sweep", choices=["tau", "st", "alpha"], help="add Coh(P) at each value of one parameter")
-    p.add_argument("--psnr-frames", type=int, default=20, help="seeded random frames compared by PSNR")
+    p.add_argument("--psnr-frames", type=_whole_number(1), default=20, help="seeded random frames compared by PSNR")
     p.set_defaults(run=_cmd_evaluate)
 
     p = sub.add_parser("export", help="export a .hlod as 3D Tiles 1.1 (tileset.json + one GLB per node) or .hlod")
@@ -99,7 +195,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="low / middle / high depth complexity (terrain / sparse town / dense downtown), "
                         "or default (the city block of the main job)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=_whole_number(0), default=1)
     p.add_argument("--scale", type=float, default=1.0, help="size factor (1 = CI-sized)")
     _bake_options(p)
     p.set_defaults(run=_cmd_scene)
@@ -118,9 +214,9 @@ def _runtime_options(p: argparse.ArgumentParser) -> None:
 
 
 def _bake_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--target-tris", type=int, default=BakeSettings.target_tris)
-    p.add_argument("--max-depth", type=int, default=BakeSettings.max_depth)
-    p.add_argument("--jobs", type=int, default=1, help="worker processes (default 1; 0 = one per core)")
+    p.add_argument("--target-tris", type=_whole_number(1), default=BakeSettings.target_tris)
+    p.add_argument("--max-depth", type=_whole_number(0), default=BakeSettings.max_depth)
+    p.add_argument("--jobs", type=_whole_number(0), default=1, help="worker processes (default 1; 0 = one per core)")
     p.add_argument("--quality-threshold", type=float, default=BakeSettings.quality_threshold)
     p.add_argument("--preserve-normals", action="store_true", help="forbid face flips during decimation")
 
@@ -131,11 +227,17 @@ def _settings(args) -> BakeSettings:
                         quality_threshold=args.quality_threshold, preserve_normals=args.preserve_normals)
 
 
-def _check_output(path: str) -> None:
-    """Fail before a long bake, not after it, when OUT cannot be written."""
+def _check_output(path: str, option: str = "-o", example: str = "scene.hlod") -> None:
+    """Fail before a long bake, not after it, when OUT cannot be written. `path` is the text as
+    given: pathlib drops a trailing slash, so `-o old.hlod/` would overwrite the file old.hlod and
+    `-o new/` would create a file named new. A name ending in a separator (or in . or ..) names a
+    folder, and is refused like an existing folder."""
     out = Path(path)
-    if out.is_dir():
-        raise InputError(f"{out}: is a folder; give a file name such as {out / 'scene.hlod'}")
+    if out.is_dir() or os.path.basename(str(path)) in ("", ".", ".."):
+        if out.is_file():
+            raise InputError(f"{option} {path}: names a folder, but {out} is a file; "
+                             f"to replace it, write {option} {out}")
+        raise InputError(f"{option} {path}: names a folder; give a file name such as {out / example}")
     parent = next((p for p in [out.parent, *out.parent.parents] if p.exists()), None)
     if parent is not None and not parent.is_dir():
         raise InputError(f"{out}: cannot create it, {parent} is a file")
@@ -231,8 +333,6 @@ def _runtime_setup(args, bias: str = "P"):
                                    shift_up=args.shift_up)
     except ValueError as exc:
         raise InputError(str(exc)) from None
-    if args.frames < 1:
-        raise InputError("--frames must be at least 1")
     hlod = fileformat.load(args.file)
     path = load_path(args.path) if args.path else inspection_path(hlod, seed=args.seed, frames=args.frames)
     return hlod, settings, path, size
@@ -245,8 +345,6 @@ def _cmd_evaluate(args) -> dict:
     unknown = [m for m in methods if m not in evaluate.METHOD_SPECS]
     if unknown:
         raise InputError(f"--methods: unknown {', '.join(unknown)}; expected some of {', '.join(evaluate.METHOD_SPECS)}")
-    if args.repeat < 1 or args.psnr_frames < 1:
-        raise InputError("--repeat and --psnr-frames must be at least 1")
     out_dir = Path(args.out)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"--out {out_dir}: is a file, expected a folder")
@@ -260,6 +358,8 @@ def _cmd_evaluate(args) -> dict:
 def _cmd_run(args) -> dict:
     from .runner import run_path
 
+    if args.save_path:
+        _check_output(args.save_path, "--save-path", "path.json")
     hlod, settings, path, size = _runtime_setup(args, args.bias)
     if args.save_path:
         path.save(args.save_path)

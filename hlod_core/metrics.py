@@ -185,11 +185,31 @@ def modulation_colour(m: np.ndarray) -> np.ndarray:
 
 # --- frustum and distances -----------------------------------------------------------------------
 
+#: A plane with no normal, (0, 0, 0, d): every point is inside when d > 0 (the far plane at
+#: infinity), none when d <= 0.
+_PLANE_EVERYWHERE, _PLANE_NOWHERE = np.array([0.0, 0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.0, -1.0])
+
+
 def frustum_planes(view: View) -> np.ndarray:
-    """(6,4) float64 planes (a, b, c, d), inside where a x + b y + c z + d >= 0, from P @ V."""
-    m = view.projection @ view.view
-    planes = np.array([m[3] + m[0], m[3] - m[0], m[3] + m[1], m[3] - m[1], m[3] + m[2], m[3] - m[2]])
-    return planes / np.linalg.norm(planes[:, :3], axis=1, keepdims=True)
+    """(6,4) float64 world planes (a, b, c, d) with unit normals, inside where
+    a x + b y + c z + d >= 0; order left, right, bottom, top, near, far.
+
+    Gribb & Hartmann's rows P3 +- Pi, taken from the projection alone (so they are view-space
+    planes) and moved to world space with the view matrix, plane_world = plane_view @ V. In view
+    space the near and far rows have no x and y terms, so their normals point exactly along the
+    view axis however much P3 - P2 cancels; rows of P @ V would mix that rounding into every
+    component. When far/near exceeds about 1e16, P[2][2] rounds to -1 (the matrix is an infinite
+    far projection) and the far row's normal is exactly zero: that plane lies at infinity and
+    keeps every point in front, instead of a 0/0 that culls everything."""
+    p = view.projection
+    rows = np.array([p[3] + p[0], p[3] - p[0], p[3] + p[1], p[3] - p[1], p[3] + p[2], p[3] - p[2]])
+    length = np.linalg.norm(rows[:, :3], axis=1)
+    at_infinity = length == 0.0
+    rows[at_infinity] = np.where(rows[at_infinity, 3:] > 0, _PLANE_EVERYWHERE, _PLANE_NOWHERE)
+    length[at_infinity] = 1.0
+    world = (rows / length[:, None]) @ view.view
+    length = np.linalg.norm(world[:, :3], axis=1)  # 1 for a rigid view matrix; kept for a scaled one
+    return world / np.where(length > 0.0, length, 1.0)[:, None]
 
 
 def boxes_in_frustum(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:

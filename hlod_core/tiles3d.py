@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import umask_mode
 from .errors import InputError
 from .hierarchy import Hlod, node_mesh
 
@@ -119,12 +120,14 @@ def tileset(hlod: Hlod, content_uri) -> dict:
 
 def export(hlod: Hlod, out_dir: str | os.PathLike) -> dict:
     """Write tileset.json and tiles/<node>.glb into out_dir, atomically: everything is written into
-    a temporary folder beside it and renamed into place, replacing an earlier export. Returns a
-    summary (tiles, glb files, triangles, bytes)."""
+    a temporary folder beside it and renamed into place, replacing an earlier export. Folders and
+    files get the modes of ordinary ones (0o777 / 0o666 less the umask). Returns a summary (tiles,
+    glb files, triangles, bytes)."""
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
+        os.chmod(staging, umask_mode(0o777))  # mkdtemp makes it 0700; the export is an ordinary folder
         (staging / "tiles").mkdir()
         written, tris, size = 0, 0, 0
         for node in np.flatnonzero(hlod.tri_count > 0).tolist():

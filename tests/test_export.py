@@ -156,3 +156,20 @@ def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_ch
     uris = {t["content"]["uri"] for t in tiles if "content" in t}
     assert len(tiles) == h.node_count - 1 and "content" not in doc["root"]
     assert f"tiles/{leaves[0]}.glb" not in uris and len(uris) == h.node_count - 2
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027])
+def test_export_modes_follow_the_umask(tmp_path, umask):
+    """Issue 11: the tileset folder came out 0700 (mkdtemp's mode) whatever the umask; now folders
+    are 0777 and files 0666 less the umask, like any other tool's output, also when replacing."""
+    _, h = baked("cow.obj", target_tris=500)
+    old = os.umask(umask)
+    try:
+        for _ in range(2):  # a fresh export, then one replacing it
+            tiles3d.export(h, tmp_path / "tiles")
+            folders = [tmp_path / "tiles", tmp_path / "tiles" / "tiles"]
+            files = [tmp_path / "tiles" / "tileset.json", *(tmp_path / "tiles" / "tiles").iterdir()]
+            assert {oct(p.stat().st_mode & 0o777) for p in folders} == {oct(0o777 & ~umask)}
+            assert {oct(p.stat().st_mode & 0o777) for p in files} == {oct(0o666 & ~umask)}
+    finally:
+        os.umask(old)

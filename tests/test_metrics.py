@@ -190,3 +190,42 @@ def test_cube_alpha_formula_and_eye_at_centre():
     assert metrics.alpha_cube(v, np.array([2.0]), lo, hi)[0] == pytest.approx((2 * 240 / 10) ** 2)
     at_centre = _view(eye=(0, 0, 0), target=(0, 0, -1), fovy=90.0)
     assert metrics.alpha_cube(at_centre, np.array([2.0]), lo, hi)[0] == np.inf
+
+
+# --- frustum planes over far/near ratios from 1e4 to 1e20 (issue 11) ---------------------------
+
+def test_frustum_planes_exact_for_a_90_degree_camera_at_the_origin():
+    # looking down -z, fovy 90, square viewport: inside is |x| <= -z, |y| <= -z, 1 <= -z <= 100
+    v = _view(eye=(0, 0, 0), target=(0, 0, -1), fovy=90.0, size=(300, 300), near=1.0, far=100.0)
+    r = 1 / np.sqrt(2)
+    expected = [[r, 0, -r, 0], [-r, 0, -r, 0], [0, r, -r, 0], [0, -r, -r, 0], [0, 0, -1, -1], [0, 0, 1, 100]]
+    assert np.allclose(metrics.frustum_planes(v), expected, rtol=0, atol=1e-12)
+    # far/near 1e20: P[2][2] rounds to -1, the far plane lies at infinity and keeps everything
+    huge = _view(eye=(0, 0, 0), target=(0, 0, -1), fovy=90.0, size=(300, 300), near=1.0, far=1e20)
+    assert np.array_equal(metrics.frustum_planes(huge)[5], [0.0, 0.0, 0.0, 1.0])
+
+
+@pytest.mark.parametrize("far_over_near", [1e4, 1e8, 1e12, 1e16, 1e17, 1e20])
+@pytest.mark.parametrize("ortho", [None, 4.0])
+def test_frustum_holds_for_far_over_near_up_to_1e20(far_over_near, ortho):
+    """A camera away from the origin looking along an oblique axis: boxes along the view axis from
+    just past the near plane to half the far distance are in; behind the eye, far to the side and
+    beyond the far plane are out. The old planes (rows of P @ V) gave the far plane a zero normal
+    from far/near ~1e16 on and culled everything (0/0). A perspective far plane beyond about 1e16
+    near distances cannot be told from infinity in the matrix; there it culls nothing in front."""
+    near = 0.01
+    far = near * far_over_near
+    eye = np.array([1e3, -2e3, 50.0])
+    v = _view(eye=eye, target=eye + [1.0, 2.0, -0.5], near=near, far=far, ortho=ortho)
+    axis, side = -v.view[2, :3], v.view[0, :3]  # the camera's own axes (rows of the rotation)
+    distance = np.array([2 * near, 1.0, 0.5 * far, -1.0, 10.0, 2.0 * far])
+    lateral = np.array([0.0, 0.0, 0.0, 0.0, 1e3, 0.0])
+    centre = eye + distance[:, None] * axis + lateral[:, None] * side
+    half = (0.01 * near + 1e-14 * np.abs(distance))[:, None]  # at least the rounding of the centre
+    inside = metrics.boxes_in_frustum(v, centre - half, centre + half)
+    # the matrix tells a perspective far plane from infinity while P[2][2] has not rounded to -1
+    far_at_infinity = ortho is None and v.projection[2, 2] == -1.0
+    assert far_at_infinity == (ortho is None and far_over_near >= 1e17)
+    assert inside.tolist() == [True, True, True, False, False, far_at_infinity]
+    planes = metrics.frustum_planes(v)
+    assert np.all(np.isfinite(planes)) and np.allclose(np.linalg.norm(planes[:, :3], axis=1)[:5], 1.0)
