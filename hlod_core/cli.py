@@ -31,6 +31,7 @@ from pathlib import Path
 from . import checks, fileformat, meshio, scenes
 from .bake import BakeSettings, bake
 from .errors import HlodError, InputError
+from .export import check_output_file, export_hlod
 
 log = logging.getLogger("hlod_core")
 
@@ -227,24 +228,6 @@ def _settings(args) -> BakeSettings:
                         quality_threshold=args.quality_threshold, preserve_normals=args.preserve_normals)
 
 
-def _check_output(path: str, option: str = "-o", example: str = "scene.hlod") -> None:
-    """Fail before a long bake, not after it, when OUT cannot be written. `path` is the text as
-    given: pathlib drops a trailing slash, so `-o old.hlod/` would overwrite the file old.hlod and
-    `-o new/` would create a file named new. A name ending in a separator (or in . or ..) names a
-    folder, and is refused like an existing folder."""
-    out = Path(path)
-    if out.is_dir() or os.path.basename(str(path)) in ("", ".", ".."):
-        if out.is_file():
-            raise InputError(f"{option} {path}: names a folder, but {out} is a file; "
-                             f"to replace it, write {option} {out}")
-        raise InputError(f"{option} {path}: names a folder; give a file name such as {out / example}")
-    parent = next((p for p in [out.parent, *out.parent.parents] if p.exists()), None)
-    if parent is not None and not parent.is_dir():
-        raise InputError(f"{out}: cannot create it, {parent} is a file")
-    if parent is not None and not os.access(parent, os.W_OK):
-        raise InputError(f"{out}: folder {parent} is not writable")
-
-
 def _bake_and_save(mesh, args, sources) -> dict:
     settings = _settings(args)
     started = time.perf_counter()
@@ -261,7 +244,7 @@ def _bake_and_save(mesh, args, sources) -> dict:
 
 
 def _cmd_bake(args) -> dict:
-    _check_output(args.output)
+    check_output_file(args.output)
     started = time.perf_counter()
     mesh = meshio.load_inputs(args.inputs)
     load_seconds = time.perf_counter() - started
@@ -271,25 +254,13 @@ def _cmd_bake(args) -> dict:
 
 
 def _cmd_scene(args) -> dict:
-    _check_output(args.output)
+    check_output_file(args.output)
     if not 0 < args.scale <= 64:
         raise InputError(f"--scale {args.scale}: expected a factor in (0, 64]")
     mesh = scenes.SCENES[args.name](seed=args.seed, scale=args.scale)
     summary = _bake_and_save(mesh, args, [mesh.name])
     summary["scene"] = args.name
     return summary
-
-
-def export_hlod(hlod, fmt: str, out_dir, stem: str) -> dict:
-    """Export into out_dir: 3D Tiles (tileset.json, tiles/) or the native file <stem>.hlod."""
-    if fmt == "3dtiles":
-        from . import tiles3d
-
-        return tiles3d.export(hlod, out_dir)
-    target = Path(out_dir) / f"{stem}.hlod"
-    _check_output(str(target))
-    fileformat.save(hlod, target)
-    return {"format": "hlod", "output": str(target), "nodes": hlod.node_count}
 
 
 def _cmd_export(args) -> dict:
@@ -359,7 +330,7 @@ def _cmd_run(args) -> dict:
     from .runner import run_path
 
     if args.save_path:
-        _check_output(args.save_path, "--save-path", "path.json")
+        check_output_file(args.save_path, "--save-path", "path.json")
     hlod, settings, path, size = _runtime_setup(args, args.bias)
     if args.save_path:
         path.save(args.save_path)
