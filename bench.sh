@@ -1,4 +1,24 @@
 #!/usr/bin/env bash
-# Benchmarks (not part of the tests): bake throughput with 1 and 2 jobs, file open time.
+# Benchmarks (not part of the tests), one after the other:
+#   1. bake throughput with 1 and 2 jobs, file open time (benchmarks/bake_throughput.py);
+#   2. the .hlod reader fuzz with 5000 mutated files (benchmarks/fuzz_hlod.py; the test suite runs
+#      800 of the same), summary in OUT/fuzz_hlod.json; exits 1 if any file crashed the reader.
+# Usage: bash bench.sh [--repeat R] [--out DIR] [--fuzz N] [--fuzz-seed S]   (--fuzz 0 skips it)
 source "$(dirname "${BASH_SOURCE[0]}")/scripts/bootstrap.sh"
-exec "$PY" -m benchmarks.bake_throughput "$@"
+FUZZ_CASES=5000
+FUZZ_SEED=1
+OUT=out/bench
+PASS=()
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --fuzz) FUZZ_CASES="$2"; shift 2 ;;
+        --fuzz-seed) FUZZ_SEED="$2"; shift 2 ;;
+        --out) OUT="$2"; PASS+=("$1" "$2"); shift 2 ;;
+        *) PASS+=("$1"); shift ;;
+    esac
+done
+"$PY" -m benchmarks.bake_throughput ${PASS[@]+"${PASS[@]}"}
+if [ "$FUZZ_CASES" -gt 0 ]; then
+    "$PY" -m benchmarks.fuzz_hlod --cases "$FUZZ_CASES" --seed "$FUZZ_SEED" --keep "$OUT/fuzz_failures" \
+        --out "$OUT/fuzz_hlod.json"
+fi

@@ -28,13 +28,13 @@ def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
     path = Path(path)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, "wb") as f:
-            try:
+        try:  # around the `with` too: closing flushes the buffer, and that write can fail again
+            with os.fdopen(fd, "wb") as f:
                 yield f
                 f.flush()
                 os.fsync(f.fileno())
-            except OSError as exc:
-                raise _named(exc, path) from None
+        except OSError as exc:
+            raise _named(exc, path) from None
         os.chmod(tmp_name, umask_mode(0o666))
         os.replace(tmp_name, path)
     except BaseException:

@@ -26,7 +26,7 @@ import numpy as np
 from . import jsonutil
 from .atomic import write_text_atomic
 from .errors import InputError
-from .hierarchy import Hlod
+from .hierarchy import MAX_COORDINATE, Hlod
 from .metrics import View, look_at, orthographic, perspective
 
 
@@ -70,9 +70,9 @@ class CameraPath:
 PATH_KEYS = ("fovy_deg", "ortho_height", "near", "far", "frames")
 FRAME_KEYS = ("eye", "target", "up")
 DEFAULT_FOVY_DEG, DEFAULT_NEAR, DEFAULT_FAR = 60.0, 0.01, 1000.0
-#: Largest magnitude of a coordinate, near, far or ortho_height: squares and products of such
-#: numbers (look_at's norms, the projection) stay far inside float64.
-MAX_MAGNITUDE = 1e30
+#: Largest magnitude of a coordinate, near, far or ortho_height (squares and products of such
+#: numbers, in look_at's norms and the projection, stay far inside float64).
+MAX_MAGNITUDE = MAX_COORDINATE
 #: A generated path's radius is at least this fraction of the model's distance from the origin,
 #: so that positions one radius apart differ in float64 even for a model without extent.
 MIN_RADIUS_RELATIVE = 1e-9

@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .hierarchy import Hlod, segment_ranges
+from .arrays import segment_ranges
+from .hierarchy import Hlod
 from .simplify import collapsed
 
 TOLERANCE_REL = 1e-9

@@ -12,27 +12,47 @@ Layout (all integers little-endian):
 
 Arrays are memory-mapped on load (numpy.memmap, read-only), so opening a ten-million-triangle file
 costs the header parse plus the range checks below, not a read of the geometry.
-Every array's dtype and shape is checked against the node count; ranges (child/parent links,
-triangle and vertex ranges, index bounds, finite bounds, non-negative errors) are checked too.
+
+What `load` accepts, the renderer can draw without reading outside its buffers (a file is input
+from anywhere). The header is JSON nested at most _MAX_HEADER_DEPTH deep, without NaN/Infinity;
+every table entry is checked with Python integers (no int64 wrap-around) before any arithmetic:
+a known array name, exactly the dtype above, the shape (node arrays share one row count),
+nbytes = itemsize * product(shape), a 64-byte aligned offset after the header, inside the file, no
+two arrays overlapping. `meta` is an object; the fields read as numbers are checked (META_COUNTS,
+META_SECONDS). Then `validate`: tree links, triangle and vertex ranges (each node owns a non-empty
+range inside its buffer; ranges do not overlap, so all of them together fit the buffer), index
+bounds, finite bounds, non-negative errors.
 """
 from __future__ import annotations
 
 import json
+import math
 import os
 import struct
-import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from . import jsonutil
+from .atomic import atomic_file
 from .errors import FormatError
-from .hierarchy import NODE_ARRAYS, Hlod, segment_ranges
+from .arrays import segment_ranges
+from .hierarchy import MAX_COORDINATE, NODE_ARRAYS, Hlod
 
 MAGIC = b"HLODBAKE"
 FORMAT_VERSION = 1
 _PREAMBLE = struct.Struct("<8sIIQ")
 _ALIGN = 64
 _MAX_HEADER_BYTES = 64 * 1024 * 1024
+_MAX_HEADER_DEPTH = 16  # ours nests 4 deep (header, arrays, entry, shape); meta's settings 3
+
+#: meta fields read as numbers (Hlod.summary, checks, the CLI): when present, integers in 0..2**63-1.
+META_COUNTS = ("input_tris", "input_vertices", "target_tris", "max_depth", "leaves_over_budget",
+               "collapsed_input_tris", "log_lines_dropped")
+#: meta fields read as seconds: when present, finite numbers >= 0 (phase_seconds: an object of them).
+META_SECONDS = ("bake_seconds",)
+_INT64_MAX = 2**63 - 1
 
 _GEOMETRY_ARRAYS: dict[str, tuple[str, tuple[int | None, ...]]] = {
     "origin": ("<f8", (3,)),
@@ -47,7 +67,8 @@ def _aligned(n: int) -> int:
 
 
 def save(hlod: Hlod, path: str | os.PathLike) -> Path:
-    """Write `hlod` to `path` atomically (temp file in the same folder, fsync, rename)."""
+    """Write `hlod` to `path` atomically (atomic.atomic_file: temp file in the same folder, fsync,
+    the umask's mode, rename). A failed write raises OSError naming `path`."""
     path = Path(path)
     arrays: dict[str, np.ndarray] = dict(hlod.node_arrays())
     arrays["origin"] = hlod.origin
@@ -68,7 +89,10 @@ def save(hlod: Hlod, path: str | os.PathLike) -> Path:
         for name, arr in arrays.items():
             table[name] = {"dtype": arr.dtype.str, "shape": list(arr.shape), "offset": cursor, "nbytes": arr.nbytes}
             cursor = _aligned(cursor + arr.nbytes)
-        header = json.dumps({"meta": hlod.meta, "arrays": table}, sort_keys=True).encode("utf-8")
+        try:  # allow_nan=False: what is written must load (the reader refuses NaN and Infinity)
+            header = json.dumps({"meta": hlod.meta, "arrays": table}, sort_keys=True, allow_nan=False).encode("utf-8")
+        except (TypeError, ValueError) as exc:
+            raise FormatError(f"{path}: cannot write the HLOD's meta as JSON ({exc})") from None
         needed = _aligned(_PREAMBLE.size + len(header))
         if needed == data_start:
             break
@@ -77,28 +101,32 @@ def save(hlod: Hlod, path: str | os.PathLike) -> Path:
         raise RuntimeError("hlod: header layout did not converge")  # offsets only ever grow by digits
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(_PREAMBLE.pack(MAGIC, FORMAT_VERSION, 0, len(header)))
-            f.write(header)
-            for name, arr in arrays.items():
-                f.seek(table[name]["offset"])
-                f.write(memoryview(arr).cast("B"))
-            f.truncate(max(e["offset"] + e["nbytes"] for e in table.values()))
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp_name, path)
-    except BaseException:
-        if os.path.exists(tmp_name):
-            os.unlink(tmp_name)
-        raise
+    with atomic_file(path) as f:
+        f.write(_PREAMBLE.pack(MAGIC, FORMAT_VERSION, 0, len(header)))
+        f.write(header)
+        for name, arr in arrays.items():
+            f.seek(table[name]["offset"])
+            f.write(memoryview(arr).cast("B"))
+        f.truncate(max(e["offset"] + e["nbytes"] for e in table.values()))
     return path
 
 
 def load(path: str | os.PathLike, *, mmap: bool = True) -> Hlod:
     """Open a .hlod file. Raises FormatError naming the file and what is wrong."""
     path = Path(path)
+    size, header_end, raw = _read_header(path)
+    meta, table = _parse_header(path, raw)
+    entries = _array_entries(path, table, size=size, header_end=header_end)
+    arrays = {name: _map_array(path, entry, mmap) for name, entry in entries.items()}
+    hlod = Hlod(**{name: arrays[name] for name in NODE_ARRAYS},
+                origin=np.array(arrays["origin"]), positions=arrays["positions"],
+                indices=arrays["indices"], normals=arrays.get("normals"), meta=meta)
+    validate(hlod, source=str(path))
+    return hlod
+
+
+def _read_header(path: Path) -> tuple[int, int, bytes]:
+    """(file size, first byte after the header, raw header bytes)."""
     try:
         size = path.stat().st_size
         with open(path, "rb") as f:
@@ -114,49 +142,109 @@ def load(path: str | os.PathLike, *, mmap: bool = True) -> Hlod:
             raw = f.read(header_len)
     except OSError as exc:
         raise FormatError(f"{path}: cannot read: {exc.strerror or exc}") from exc
-    try:
-        header = json.loads(raw.decode("utf-8"))
-        table = header["arrays"]
-        meta = header["meta"]
-    except (ValueError, KeyError, TypeError) as exc:
-        raise FormatError(f"{path}: corrupt .hlod header ({exc})") from exc
+    if len(raw) != header_len:
+        raise FormatError(f"{path}: truncated .hlod file (header runs past the end of the file)")
+    return size, _PREAMBLE.size + header_len, raw
 
-    arrays = {name: _map_array(path, size, name, table, mmap) for name in table}
-    missing = [n for n in list(NODE_ARRAYS) + ["origin", "positions", "indices"] if n not in arrays]
+
+def _parse_header(path: Path, raw: bytes) -> tuple[dict, dict]:
+    """(meta, arrays table) of the JSON header, types checked before anything reads them."""
+    try:
+        header = jsonutil.loads(raw, max_depth=_MAX_HEADER_DEPTH)
+    except jsonutil.JsonError as exc:
+        raise FormatError(f"{path}: corrupt .hlod header ({exc})") from None
+    if not isinstance(header, dict) or not isinstance(header.get("meta"), dict) \
+            or not isinstance(header.get("arrays"), dict):
+        raise FormatError(f"{path}: corrupt .hlod header (expected an object with objects 'meta' and 'arrays')")
+    return header["meta"], header["arrays"]
+
+
+@dataclass(frozen=True, order=True)
+class _Entry:
+    """One array's place in the file (bytes from the file start)."""
+
+    offset: int
+    nbytes: int
+    name: str
+    dtype: str
+    shape: tuple[int, ...]
+
+
+def _array_entries(path: Path, table: dict, *, size: int, header_end: int) -> dict[str, _Entry]:
+    """Every array's table entry, checked with Python integers (no overflow): known name, the
+    expected dtype, shape (node arrays share one row count), nbytes = itemsize * product(shape),
+    64-byte aligned, after the header, inside the file, no two arrays overlapping."""
+    expected = {**NODE_ARRAYS, **_GEOMETRY_ARRAYS}
+    unknown = sorted(set(table) - set(expected))
+    if unknown:
+        raise FormatError(f"{path}: corrupt .hlod header (unknown array {unknown[0][:64]!r})")
+    missing = [n for n in list(NODE_ARRAYS) + ["origin", "positions", "indices"] if n not in table]
     if missing:
         raise FormatError(f"{path}: .hlod file lacks arrays {', '.join(missing)}")
-    hlod = Hlod(**{name: arrays[name] for name in NODE_ARRAYS},
-                origin=np.array(arrays["origin"]), positions=arrays["positions"],
-                indices=arrays["indices"], normals=arrays.get("normals"), meta=meta)
-    validate(hlod, source=str(path))
-    return hlod
+    entries = {name: _entry(path, name, table[name], expected=expected[name], size=size, header_end=header_end)
+               for name in expected if name in table}
+    rows = {name: entries[name].shape[0] for name in NODE_ARRAYS}
+    if len(set(rows.values())) != 1:
+        raise FormatError(f"{path}: node arrays differ in length ({rows['parent']} parents, "
+                          f"{next(f'{v} {k}' for k, v in rows.items() if v != rows['parent'])})")
+    placed = sorted(e for e in entries.values() if e.nbytes)
+    for before, after in zip(placed, placed[1:]):
+        if before.offset + before.nbytes > after.offset:
+            raise FormatError(f"{path}: corrupt .hlod header (arrays '{before.name}' and '{after.name}' overlap)")
+    return entries
 
 
-def _map_array(path: Path, size: int, name: str, table: dict, mmap: bool) -> np.ndarray:
-    entry = table[name]
-    try:
-        dtype = np.dtype(entry["dtype"])
-        shape = tuple(int(s) for s in entry["shape"])
-        offset, nbytes = int(entry["offset"]), int(entry["nbytes"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise FormatError(f"{path}: corrupt entry for array '{name}' ({exc})") from exc
-    if dtype.hasobject or any(s < 0 for s in shape) or nbytes != dtype.itemsize * int(np.prod(shape)):
-        raise FormatError(f"{path}: array '{name}' has an inconsistent dtype/shape/size")
-    if offset < _PREAMBLE.size or offset + nbytes > size:
+def _entry(path: Path, name: str, entry, *, expected: tuple[str, tuple], size: int, header_end: int) -> _Entry:
+    dtype, trailing = expected
+    want_shape = (None, *trailing) if name in NODE_ARRAYS else trailing  # None: any row count
+
+    def bad(what: str) -> FormatError:
+        return FormatError(f"{path}: corrupt entry for array '{name}' ({what[:200]})")
+
+    if not isinstance(entry, dict):
+        raise bad("not an object")
+    if entry.get("dtype") != dtype:
+        raise bad(f"dtype {str(entry.get('dtype'))[:32]!r}, expected {dtype!r}")
+    shape, offset, nbytes = entry.get("shape"), entry.get("offset"), entry.get("nbytes")
+    if not isinstance(shape, list) or len(shape) != len(want_shape) or not all(map(_is_count, shape)):
+        raise bad(f"shape must be a list of {len(want_shape)} non-negative integers")
+    if any(want is not None and got != want for got, want in zip(shape, want_shape)):
+        raise bad(f"shape {shape}, expected {[('n' if w is None else w) for w in want_shape]}")
+    if not _is_count(offset) or not _is_count(nbytes):
+        raise bad("offset and nbytes must be non-negative integers")
+    if nbytes != np.dtype(dtype).itemsize * math.prod(shape):  # Python integers: no wrap-around
+        raise bad(f"{nbytes} bytes do not hold {dtype}{shape}")
+    if offset + nbytes > size:
         raise FormatError(f"{path}: truncated .hlod file (array '{name}' runs past the end of the file)")
-    if nbytes == 0:
-        return np.zeros(shape, dtype)
+    if nbytes and (offset % _ALIGN or offset < header_end):
+        raise bad(f"offset {offset} is not a {_ALIGN}-byte boundary after the header (ends at {header_end})")
+    return _Entry(offset=offset, nbytes=nbytes, name=name, dtype=dtype, shape=tuple(shape))
+
+
+def _is_count(value) -> bool:
+    """A JSON integer (not a bool, not a float) >= 0."""
+    return type(value) is int and value >= 0
+
+
+def _map_array(path: Path, entry: _Entry, mmap: bool) -> np.ndarray:
+    dtype = np.dtype(entry.dtype)
+    if entry.nbytes == 0:
+        return np.zeros(entry.shape, dtype)
     if mmap:
-        return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=shape)
+        return np.memmap(path, dtype=dtype, mode="r", offset=entry.offset, shape=entry.shape)
     with open(path, "rb") as f:
-        f.seek(offset)
-        return np.frombuffer(f.read(nbytes), dtype=dtype).reshape(shape)
+        f.seek(entry.offset)
+        data = f.read(entry.nbytes)
+    if len(data) != entry.nbytes:  # the file shrank since it was measured
+        raise FormatError(f"{path}: truncated .hlod file (array '{entry.name}' runs past the end of the file)")
+    return np.frombuffer(data, dtype=dtype).reshape(entry.shape)
 
 
 def validate(hlod: Hlod, *, source: str = "HLOD") -> None:
-    """Check every array's dtype, shape and ranges; raise FormatError naming `source`.
+    """Check every array's dtype, shape and ranges, and meta's numeric fields; raise FormatError
+    naming `source`. Integer arithmetic in int64 on values already bounded (no wrap-around).
 
-    Cheap enough to run on every load (O(n) over nodes, one max over the index buffer).
+    Cheap enough to run on every load (O(n log n) over nodes, one max over the index buffer).
     """
     def bad(what: str) -> FormatError:
         return FormatError(f"{source}: invalid .hlod data: {what}")
@@ -178,29 +266,84 @@ def validate(hlod: Hlod, *, source: str = "HLOD") -> None:
     v, t = hlod.positions.shape[0], hlod.indices.shape[0]
     if hlod.normals is not None and hlod.normals.shape[0] != v:
         raise bad("normals and positions differ in length")
+    _validate_tree(hlod, bad)
+    for lo, count, total, what in ((hlod.tri_offset, hlod.tri_count, t, "triangle"),
+                                   (hlod.vertex_offset, hlod.vertex_count, v, "vertex")):
+        _validate_ranges(np.asarray(lo), np.asarray(count), total=total, what=what, bad=bad)
+    floats = [hlod.lod_box_min, hlod.lod_box_max, hlod.box_min, hlod.box_max, hlod.sphere_center,
+              hlod.sphere_radius, hlod.error, hlod.cube_side, hlod.origin]
+    if not all(np.all(np.isfinite(a)) for a in floats):
+        raise bad("non-finite bounds, errors or origin")
+    if not all(np.all(np.abs(a) <= MAX_COORDINATE) for a in floats):
+        raise bad(f"bounds, errors or origin beyond {MAX_COORDINATE:g} model units")
+    if np.any(hlod.error < 0) or np.any(hlod.sphere_radius < 0) or np.any(hlod.box_max < hlod.box_min):
+        raise bad("negative error or radius, or inverted box")
+    if t and int(hlod.indices.max()) >= v:
+        raise bad(f"an index points past the {v} vertices")
+    _validate_meta(hlod.meta, bad)
 
-    parent, co, cc = hlod.parent, hlod.child_offset, hlod.child_count
-    if parent[0] != -1 or hlod.depth[0] != 0 or np.any(parent[1:] < 0) or np.any(parent >= n):
+
+def _validate_tree(hlod: Hlod, bad) -> None:
+    """Parent/child links and depths (int64: a wrapped int32 sum cannot pass). With every child row
+    listed once and depth = parent's depth + 1, the links form one tree rooted at row 0."""
+    n = hlod.node_count
+    parent = hlod.parent.astype(np.int64)
+    co, cc = hlod.child_offset.astype(np.int64), hlod.child_count.astype(np.int64)
+    depth = hlod.depth.astype(np.int64)
+    if parent[0] != -1 or depth[0] != 0 or np.any(parent[1:] < 0) or np.any(parent >= n):
         raise bad("parent links out of range")
     inner = cc > 0
-    if np.any(cc < 0) or np.any(co[~inner] != -1) or np.any(co[inner] < 1) or np.any(co[inner] + cc[inner] > n):
+    if np.any(cc < 0) or np.any(co[~inner] != -1) or np.any(co[inner] < 1) or np.any(co[inner] > n - cc[inner]):
         raise bad("child ranges out of range")
     if int(cc.sum()) != n - 1:
         raise bad("child counts do not add up to the node count")
     owner = np.repeat(np.flatnonzero(inner), cc[inner])
     rows = segment_ranges(co[inner], cc[inner])  # every child row, grouped by parent
     if rows.shape[0] != n - 1 or np.any(np.sort(rows) != np.arange(1, n)) or np.any(parent[rows] != owner) \
-            or np.any(hlod.depth[rows] != hlod.depth[owner] + 1):
+            or np.any(depth[rows] != depth[owner] + 1):
         raise bad("parent and child links disagree")
-    for lo, hi, total, what in ((hlod.tri_offset, hlod.tri_count, t, "triangle"),
-                                (hlod.vertex_offset, hlod.vertex_count, v, "vertex")):
-        if np.any(lo < 0) or np.any(hi <= 0) or np.any(lo + hi > total):
-            raise bad(f"{what} ranges out of range (every node needs at least one {what})")
-    floats = [hlod.lod_box_min, hlod.lod_box_max, hlod.box_min, hlod.box_max, hlod.sphere_center,
-              hlod.sphere_radius, hlod.error, hlod.cube_side, hlod.origin]
-    if not all(np.all(np.isfinite(a)) for a in floats):
-        raise bad("non-finite bounds, errors or origin")
-    if np.any(hlod.error < 0) or np.any(hlod.sphere_radius < 0) or np.any(hlod.box_max < hlod.box_min):
-        raise bad("negative error or radius, or inverted box")
-    if t and int(hlod.indices.max()) >= v:
-        raise bad(f"an index points past the {v} vertices")
+
+
+def _validate_ranges(first: np.ndarray, count: np.ndarray, *, total: int, what: str, bad) -> None:
+    """Each node's [first, first + count) is non-empty and inside 0..total, and no two overlap.
+    first, count: (n,) int64; compared one at a time against total, so first + count never wraps."""
+    inside = (first >= 0) & (count >= 1) & (first <= total)
+    inside[inside] &= count[inside] <= total - first[inside]
+    if not np.all(inside):
+        node = int(np.flatnonzero(~inside)[0])
+        raise bad(f"node {node}'s {what} range (offset {int(first[node])}, count {int(count[node])}) is empty "
+                  f"or runs past the {total} {what}s")
+    order = np.argsort(first, kind="stable")
+    ends = first[order] + count[order]  # <= total: no overflow after the check above
+    overlap = np.flatnonzero(ends[:-1] > first[order][1:])
+    if overlap.size:
+        a, b = sorted((int(order[overlap[0]]), int(order[overlap[0] + 1])))
+        raise bad(f"the {what} ranges of nodes {a} and {b} overlap")
+
+
+def _validate_meta(meta, bad) -> None:
+    """meta is an object; the fields other code reads as numbers hold numbers it can use."""
+    if not isinstance(meta, dict):
+        raise bad(f"meta is {type(meta).__name__}, expected an object")
+    for key in META_COUNTS:
+        value = meta.get(key, 0)
+        if type(value) is not int or not 0 <= value <= _INT64_MAX:
+            raise bad(f"meta field '{key}' is {_show(value)}, expected an integer in 0..{_INT64_MAX}")
+    seconds = {key: meta[key] for key in META_SECONDS if key in meta}
+    phases = meta.get("phase_seconds", {})
+    if not isinstance(phases, dict):
+        raise bad(f"meta field 'phase_seconds' is {_show(phases)}, expected an object of seconds")
+    seconds.update({f"phase_seconds.{k}": v for k, v in phases.items()})
+    for key, value in seconds.items():
+        if type(value) not in (int, float) or value < 0 or (type(value) is float and not math.isfinite(value)):
+            raise bad(f"meta field '{key}' is {_show(value)}, expected seconds >= 0")
+    for key in ("sources", "log"):
+        value = meta.get(key, [])
+        if not isinstance(value, list) or not all(isinstance(x, str) for x in value):
+            raise bad(f"meta field '{key}' is {_show(value)}, expected a list of strings")
+
+
+def _show(value) -> str:
+    """A short, printable form of a JSON value for a message."""
+    text = json.dumps(value) if isinstance(value, (int, float, str, bool, type(None))) else type(value).__name__
+    return text if len(text) <= 40 else text[:37] + "..."

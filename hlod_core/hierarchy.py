@@ -19,6 +19,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: Largest magnitude of any coordinate, bound or error (model units) the product accepts, in files
+#: and camera paths: squares and products of such numbers stay far inside float64, and differences
+#: of them inside float32 (the renderer's origin-relative query boxes).
+MAX_COORDINATE = 1e30
+
 #: Query boxes (DESIGN §5.4) are enlarged by this fraction of the root box diagonal; the cube side
 #: of DESIGN §5.3 is computed on the enlarged box so that flat boxes keep a non-zero cube.
 QUERY_BOX_PAD_FRACTION = 1e-3
@@ -137,9 +142,3 @@ def query_box_pad(box_min: np.ndarray, box_max: np.ndarray) -> float:
     diag = float(np.linalg.norm(box_max[0] - box_min[0]))
     return QUERY_BOX_PAD_FRACTION * diag if diag > 0 else QUERY_BOX_PAD_FRACTION
 
-
-def segment_ranges(offsets: np.ndarray, counts: np.ndarray) -> np.ndarray:
-    """Concatenation of arange(o, o + c) for each pair (o, c), vectorised: (sum(counts),) int64."""
-    counts = np.asarray(counts, np.int64)
-    starts = np.repeat(np.asarray(offsets, np.int64) - (np.cumsum(counts) - counts), counts)
-    return np.arange(int(counts.sum()), dtype=np.int64) + starts

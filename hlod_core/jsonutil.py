@@ -8,6 +8,7 @@ text with strings blanked out, so the parser never sees a document nested deeper
 from __future__ import annotations
 
 import json
+import math
 import re
 
 import numpy as np
@@ -15,7 +16,10 @@ import numpy as np
 #: Deepest nesting of arrays/objects accepted; our documents need 4.
 MAX_DEPTH = 64
 
-_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
+# A string, or an unterminated one up to the end of the text, in one linear pass ("unrolled loop":
+# runs of plain characters between escapes). With the closing quote required, a text like
+# `"\"\"\"...` made the search restart at every quote: quadratic, minutes for a 64 KB header.
+_STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"?', re.DOTALL)
 
 
 class JsonError(ValueError):
@@ -33,8 +37,8 @@ def nesting_depth(text: str) -> int:
 
 
 def loads(text: str | bytes, *, max_depth: int = MAX_DEPTH):
-    """json.loads that refuses documents nested deeper than `max_depth`, and NaN/Infinity literals
-    (not JSON; Python accepts them). Raises JsonError."""
+    """json.loads that refuses documents nested deeper than `max_depth`, NaN/Infinity literals
+    (not JSON; Python accepts them) and numbers that overflow float64 (1e999). Raises JsonError."""
     if isinstance(text, (bytes, bytearray)):
         try:
             text = bytes(text).decode("utf-8")
@@ -44,10 +48,18 @@ def loads(text: str | bytes, *, max_depth: int = MAX_DEPTH):
     if depth > max_depth:
         raise JsonError(f"nested {depth} levels deep (at most {max_depth})")
     try:
-        return json.loads(text, parse_constant=_refuse_constant)
+        return json.loads(text, parse_constant=_refuse_constant, parse_float=_finite_float)
     except (ValueError, RecursionError) as exc:
         raise JsonError(str(exc)) from None
 
 
 def _refuse_constant(name: str):
     raise ValueError(f"{name} is not a JSON number")
+
+
+def _finite_float(text: str) -> float:
+    """A JSON number with a fraction or exponent; refuses those that overflow to infinity (1e999)."""
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"number {text[:40]} is out of the float64 range")
+    return value

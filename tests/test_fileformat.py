@@ -1,16 +1,22 @@
 """The native .hlod container: exact round trip, clear errors for truncated/foreign/corrupt
-files, atomic writes that never leave a half-written file or lose the old one."""
+files and hostile values (ranges that wrap int64, Infinity, wrong types, deep nesting), atomic
+writes that never leave a half-written file or lose the old one, with the umask's mode."""
 import json
 import os
+import re
+import stat
 import struct
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
 
-from hlod_core import fileformat
+from hlod_core import fileformat, jsonutil
 from hlod_core.errors import FormatError
 
-from helpers import baked
+from helpers import ROOT, baked
 
 
 @pytest.fixture(scope="module")
@@ -93,9 +99,12 @@ def _rewrite_array(path, name, mutate):
 @pytest.mark.parametrize("name, mutate, message", [
     ("indices", lambda a: a.__setitem__((0, 0), 2**31), "index points past"),
     ("parent", lambda a: a.__setitem__(1, 5), "parent and child links disagree"),
-    ("tri_count", lambda a: a.__setitem__(-1, 10**9), "triangle ranges"),
+    ("tri_count", lambda a: a.__setitem__(-1, 10**9), "triangle range"),
     ("error", lambda a: a.__setitem__(0, np.nan), "non-finite"),
     ("sphere_radius", lambda a: a.__setitem__(0, -1.0), "negative error or radius"),
+    # finite but beyond MAX_COORDINATE: the renderer's float32 query boxes would overflow to inf
+    ("box_max", lambda a: a.__setitem__((0, 0), 1e200), "beyond 1e\\+30 model units"),
+    ("origin", lambda a: a.__setitem__(2, -3e30), "beyond 1e\\+30 model units"),
 ])
 def test_corrupt_arrays_are_rejected(saved, name, mutate, message):
     _rewrite_array(saved, name, mutate)
@@ -128,3 +137,186 @@ def test_failed_write_keeps_the_old_file_and_leaves_no_temp(bunny, saved, monkey
 def test_save_creates_missing_folders(bunny, tmp_path):
     path = fileformat.save(bunny, tmp_path / "a" / "b" / "x.hlod")
     assert fileformat.load(path).node_count == bunny.node_count
+
+
+# --- hostile input (issue 11): what load accepts, the renderer can draw -------------------------
+
+WRAP_OFFSET = 0x5555555555555556  # the issue's file: with tri_count = WRAP_OFFSET + 10**7 the
+# int64 sum tri_offset + tri_count wraps negative, so "offset + count > total" let it through
+
+
+def _refused(path, match):
+    """load raises one FormatError line that starts with the file and says `match` after it (the
+    test's folder name is not searched: it could contain the words)."""
+    with pytest.raises(FormatError) as info:
+        fileformat.load(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: ") and "\n" not in message, message
+    assert re.search(match, message[len(str(path)) + 2:]), message
+    return message
+
+
+def _set_node_values(path, **rows):
+    """Set node-table cells in place, without loading first: name=(row, value), row -1 the last."""
+    data = bytearray(path.read_bytes())
+    length = struct.unpack_from("<Q", data, 16)[0]
+    table = json.loads(data[24:24 + length])["arrays"]
+    for name, (row, value) in rows.items():
+        entry = table[name]
+        column = np.frombuffer(data, np.dtype(entry["dtype"]), count=entry["shape"][0], offset=entry["offset"])
+        column[row] = value
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("rows, match", [
+    ({"tri_offset": (-1, WRAP_OFFSET), "tri_count": (-1, WRAP_OFFSET + 10**7)}, "triangle range"),
+    ({"tri_offset": (3, 2**63 - 1), "tri_count": (3, 2)}, "triangle range"),
+    ({"vertex_offset": (-1, 2**63 - 1), "vertex_count": (-1, 2**63 - 1)}, "vertex range"),
+    ({"vertex_count": (0, 2**63 - 1)}, "vertex range"),
+    ({"vertex_offset": (2, WRAP_OFFSET), "vertex_count": (2, WRAP_OFFSET + 10**7)}, "vertex range"),
+    ({"tri_offset": (2, 0)}, "triangle ranges of nodes 0 and 2 overlap"),
+    ({"child_offset": (0, 2**31 - 1), "child_count": (0, 1)}, "child ranges"),
+])
+def test_ranges_that_wrap_int64_are_refused(saved, rows, match):
+    """Before: the first three loaded (the first one then crashed `run` with SIGSEGV drawing 30M
+    indices out of a small buffer), the fourth made `info` run out of memory."""
+    _set_node_values(saved, **rows)
+    _refused(saved, match)
+
+
+ROOM = 16384  # bytes, a multiple of 64 (arrays stay aligned)
+
+
+def _rewrite_header(path, mutate, raw=None):
+    """Rewrite the JSON header through `mutate(header)`, with ROOM bytes of room before the arrays (their
+    offsets shifted to match) so a longer header still fits. Strings "RAW" become the text `raw`."""
+    data = path.read_bytes()
+    length = struct.unpack_from("<Q", data, 16)[0]
+    header = json.loads(data[24:24 + length])
+    start = min(e["offset"] for e in header["arrays"].values())
+    for entry in header["arrays"].values():
+        entry["offset"] += ROOM
+    mutate(header)
+    text = json.dumps(header)
+    if raw is not None:
+        text = text.replace('"RAW"', raw)
+    blob = text.encode().ljust(start + ROOM - 24)
+    assert len(blob) == start + ROOM - 24, "mutated header does not fit"
+    path.write_bytes(data[:16] + struct.pack("<Q", len(blob)) + blob + data[start:])
+
+
+def _set(*keys, value="RAW"):
+    def mutate(header):
+        node = header
+        for k in keys[:-1]:
+            node = node[k]
+        node[keys[-1]] = value
+    return mutate
+
+
+@pytest.mark.parametrize("mutate, raw, match", [
+    (_set("arrays", "positions", "shape", 0), "Infinity", "Infinity is not a JSON number"),
+    (_set("arrays", "positions", "shape", 0), "1e999", "out of the float64 range"),
+    (_set("arrays", "indices", "offset"), "-Infinity", "not a JSON number"),
+    (_set("arrays", "error", "nbytes"), "NaN", "not a JSON number"),
+    (_set("arrays", "error", "nbytes", value=1.5e3), None, "offset and nbytes must be non-negative integers"),
+    (_set("arrays", "error", "shape", value=[2**33, 2**31]), None, "shape must be a list of 1"),
+    (_set("arrays", "positions", "shape", value=[2**62, 3]), None, r"bytes do not hold <f4\[4611686018427387904, 3\]"),
+    (_set("arrays", "positions", "shape", value=[True, 3]), None, "non-negative integers"),
+    (_set("arrays", "positions", "shape", value=None), None, "shape must be a list"),
+    (_set("arrays", "parent", value=[]), None, "not an object"),
+    (_set("arrays", "positions", "dtype", value=">f4"), None, "dtype '>f4', expected '<f4'"),
+    (_set("arrays", "error", "dtype", value="O"), None, "dtype 'O'"),
+    (_set("arrays", "error", "dtype", value="V8"), None, "dtype 'V8'"),
+    (_set("arrays", "indices", "dtype", value="U4"), None, "dtype 'U4'"),
+    (_set("arrays", "error", "dtype", value={"names": ["a"], "formats": ["<f8"]}), None, "dtype"),
+    (_set("arrays", "parent", "offset", value=64), None, "after the header"),
+    (_set("arrays", "positions", "offset", value=2**64), None, "truncated"),
+    (_set("arrays", "uvs", value={"dtype": "<f4", "shape": [1, 2], "offset": 0, "nbytes": 8}), None,
+     "unknown array 'uvs'"),
+    (_set("meta", value=None), None, "'meta' and 'arrays'"),
+    (_set("meta", value=[1, 2]), None, "'meta' and 'arrays'"),
+    (_set("meta", "input_tris", value="abc"), None, "meta field 'input_tris' is \"abc\""),
+    (_set("meta", "target_tris", value=-5), None, "meta field 'target_tris'"),
+    (_set("meta", "max_depth", value=1e300), None, "meta field 'max_depth'"),
+    (_set("meta", "input_tris", value=10**30), None, "meta field 'input_tris'"),
+    (_set("meta", "phase_seconds", value=[1]), None, "phase_seconds"),
+    (_set("meta", "sources", value=[None]), None, "sources"),
+    (_set("meta", "note"), "[" * 5000 + "]" * 5000, "nested 5002 levels deep"),
+    (_set("meta", "note"), '"' + '\\"' * 1200, "Unterminated string"),
+])
+def test_hostile_header_values_give_one_clear_line(saved, mutate, raw, match):
+    """Before: Infinity/1e999 and null or non-object meta, non-numeric meta counts and deep nesting
+    raised OverflowError/TypeError/ValueError/RecursionError tracebacks, and '>f4' or an offset
+    inside the header loaded."""
+    _rewrite_header(saved, mutate, raw)
+    _refused(saved, match)
+
+
+def test_overlapping_arrays_are_refused(saved):
+    """Before: loaded (cube_side read sphere_radius's bytes, which pass every value check)."""
+    def mutate(header):
+        header["arrays"]["cube_side"]["offset"] = header["arrays"]["sphere_radius"]["offset"]
+    _rewrite_header(saved, mutate)
+    _refused(saved, "arrays '(sphere_radius|cube_side)' and '(sphere_radius|cube_side)' overlap")
+
+
+def test_header_padding_and_extra_meta_still_load(saved, bunny):
+    """The checks above refuse what is wrong, not what is merely unusual."""
+    _rewrite_header(saved, _set("meta", "note", value={"free": ["form", 1.5, None]}))
+    assert fileformat.load(saved).node_count == bunny.node_count
+
+
+def test_json_string_scan_is_linear():
+    """A header of escaped quotes made the nesting check's string search restart at every quote
+    (quadratic: 4 s for 16 KB, 23 s for these 40 KB, minutes for the 64 MB a header may have).
+    Now about 0.3 s per MB."""
+    started = time.perf_counter()
+    with pytest.raises(jsonutil.JsonError, match="Unterminated string"):
+        jsonutil.loads('"' + '\\"' * 20_000)
+    assert time.perf_counter() - started < 1.0
+
+
+def test_saved_file_mode_follows_the_umask(bunny, tmp_path):
+    """Before: 0600 whatever the umask (tempfile.mkstemp's mode survived the rename)."""
+    for umask, mode in ((0o022, 0o644), (0o002, 0o664)):
+        old = os.umask(umask)
+        try:
+            path = fileformat.save(bunny, tmp_path / f"u{umask:o}.hlod")
+        finally:
+            os.umask(old)
+        assert stat.S_IMODE(path.stat().st_mode) == mode
+
+
+def test_a_write_past_the_file_size_limit_names_the_file(saved, tmp_path):
+    """A real EFBIG (RLIMIT_FSIZE in a child): before, the CLI said "output: File too large"."""
+    out = tmp_path / "out"
+    script = ("import resource, signal, sys\n"
+              "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
+              "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))\n"
+              "from hlod_core.cli import main\n"
+              f"sys.exit(main(['-q', 'export', {str(saved)!r}, '--format', 'hlod', '-o', {str(out)!r}]))\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONDONTWRITEBYTECODE": "1"}
+    proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == f"hlod_core: error: {out / 'bunny.hlod'}: File too large"
+    assert list(out.iterdir()) == []  # no temporary file left behind
+
+
+@pytest.mark.parametrize("command", [["info"], ["run", "--method", "coh", "--frames", "2", "--size", "64x48"]])
+def test_cli_refuses_the_wrapping_file_in_one_line(saved, command):
+    """The issue's reproducer: `info` exited 0 and `run` died with SIGSEGV."""
+    _set_node_values(saved, tri_offset=(-1, WRAP_OFFSET), tri_count=(-1, WRAP_OFFSET + 10**7))
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, "-m", "hlod_core", command[0], str(saved), *command[1:]], env=env,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("\n") == 1 and "triangle range" in proc.stderr and saved.name in proc.stderr
+
+
+def test_save_refuses_meta_that_would_not_load(bunny, tmp_path):
+    """NaN is not JSON: before, save wrote it (json.dumps allows it) into a file load refuses."""
+    path = tmp_path / "nan.hlod"
+    with pytest.raises(FormatError, match=r"nan\.hlod: cannot write the HLOD's meta as JSON"):
+        fileformat.save(bunny.replace(meta={**bunny.meta, "note": float("nan")}), path)
+    assert list(tmp_path.iterdir()) == []
