@@ -1,8 +1,13 @@
 """The Benchmark operator's work: the scene camera's animation as a camera path, evaluated with
 every method (hlod_core.evaluate, DESIGN §9) in a private headless EGL context; Blender's own
-context is made current again afterwards (DESIGN §7)."""
+context is made current again afterwards (DESIGN §7).
+
+The report's figures need matplotlib, which no Blender ships (4.2 to 5.2) and the extension does not
+bundle (about 10 MB of wheels per Python and platform for four PNGs): without it the report is
+written without figures, and the operator says so."""
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 
@@ -60,5 +65,10 @@ def run(context, folder: str, repeat: int) -> tuple[dict, str]:
     with glcontext.keep_current():
         report = evaluate.evaluate(hlod, path, size, methods=list(evaluate.METHOD_SPECS),
                                    settings=runtime_settings(props), repeat=repeat, out_dir=folder,
-                                   psnr_frames=min(20, len(path)))
+                                   psnr_frames=min(20, len(path)), figures=figures_available())
     return report, folder
+
+
+def figures_available() -> bool:
+    """Whether matplotlib can be imported in this Blender's Python (see the module notes)."""
+    return importlib.util.find_spec("matplotlib") is not None

@@ -7,6 +7,13 @@ from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, P
 
 from . import preview
 
+# Path properties that may hold a path relative to the .blend ("//..."). Blender 5.0 and later (not
+# 4.2 LTS) have the PATH_SUPPORTS_BLEND_RELATIVE option and print a RuntimeWarning ("does not support
+# blend relative "//" prefix") when such a path is stored in a property without it; 4.2 does not know
+# the option and refuses to register a property naming it. Detected by the RNA flag it sets.
+BLEND_RELATIVE_PATH = ({"PATH_SUPPORTS_BLEND_RELATIVE"}
+                       if "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties else set())
+
 METHOD_ITEMS = [
     ("coh", "Coherent (Coh)", "Coherent VMSSE traversal with refine/stop/delay prediction (the method)"),
     ("sw", "Stop and wait (SW)", "Query every node and wait: the ideal node count, slow"),
@@ -33,9 +40,9 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     max_depth: IntProperty(name="Max Depth", default=12, min=0, max=24, description="Deepest octree level (root = 0)")
     quality_threshold: FloatProperty(name="Decimation Quality", default=0.3, min=0.0, max=1.0,
                                      description="pymeshlab quadric quality threshold (higher keeps better-shaped triangles)")
-    output_path: StringProperty(name="Output", subtype="FILE_PATH", default="",
+    output_path: StringProperty(name="Output", subtype="FILE_PATH", default="", options=BLEND_RELATIVE_PATH,
                                 description="Where the .hlod goes; empty = next to the .blend, named after it")
-    file: StringProperty(name="Baked File", subtype="FILE_PATH", default="",
+    file: StringProperty(name="Baked File", subtype="FILE_PATH", default="", options=BLEND_RELATIVE_PATH,
                          description="The .hlod the preview shows (set by Bake)")
     # --- runtime ------------------------------------------------------------------------------
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="coh")

@@ -297,13 +297,18 @@ def _convex_hull(p: np.ndarray) -> np.ndarray:
     def half(points):
         out = []
         for q in points:
-            while len(out) >= 2 and np.cross(out[-1] - out[-2], q - out[-2]) <= 0:
+            while len(out) >= 2 and _cross_2d(out[-1] - out[-2], q - out[-2]) <= 0:
                 out.pop()
             out.append(q)
         return out
 
     lower, upper = half(p), half(p[::-1])
     return np.array(lower[:-1] + upper[:-1])
+
+
+def _cross_2d(a: np.ndarray, b: np.ndarray) -> float:
+    """z of the cross product of two 2-D vectors (numpy 2 refuses np.cross on 2-D vectors)."""
+    return float(a[0] * b[1] - a[1] * b[0])
 
 
 def _clip_polygon(poly: np.ndarray, x0: float, y0: float, x1: float, y1: float) -> np.ndarray:

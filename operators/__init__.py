@@ -12,6 +12,7 @@ from bpy.props import EnumProperty, IntProperty, StringProperty
 
 from ..addon import benchmark, preview, scene_mesh
 from ..addon.bake_job import BakeJob
+from ..addon.properties import BLEND_RELATIVE_PATH
 from ..addon.settings import bake_settings
 from ..hlod_core import fileformat
 from ..hlod_core.bake import bake
@@ -182,7 +183,7 @@ class HLOD_OT_export(bpy.types.Operator):
     bl_idname = "hlod.export"
     bl_label = "Export HLOD"
 
-    filepath: StringProperty(name="File Path", subtype="FILE_PATH",
+    filepath: StringProperty(name="File Path", subtype="FILE_PATH", options=BLEND_RELATIVE_PATH,
                              description="The .hlod file, or for 3D Tiles the folder to write (tileset.json, tiles/)")
     format: EnumProperty(name="Format", items=[
         ("HLOD", "HLOD (native)", "The extension's own memory-mappable format"),
@@ -224,7 +225,8 @@ class HLOD_OT_benchmark(bpy.types.Operator):
     bl_idname = "hlod.benchmark"
     bl_label = "Benchmark HLOD"
 
-    directory: StringProperty(name="Report Folder", subtype="DIR_PATH", default="//hlod_report")
+    directory: StringProperty(name="Report Folder", subtype="DIR_PATH", default="//hlod_report",
+                              options=BLEND_RELATIVE_PATH)
     repeat: IntProperty(name="Repeats", default=2, min=1, max=10)
 
     def execute(self, context):
@@ -235,6 +237,8 @@ class HLOD_OT_benchmark(bpy.types.Operator):
             return {"CANCELLED"}
         coh, boolean = report["methods"].get("coh_p"), report["methods"].get("bool")
         extra = f"; Coh(P) {coh['dn']:.1f} nodes vs Bool {boolean['dn']:.1f}" if coh and boolean else ""
+        if not report["figures"]:
+            extra += "; no figures (matplotlib is not installed in Blender's Python)"
         self.report({"INFO"}, f"HLOD report: {os.path.join(folder, 'report.md')}{extra}")
         return {"FINISHED"}
 

@@ -14,6 +14,7 @@ import argparse
 import importlib
 import importlib.util
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -39,6 +40,22 @@ def enable_from_repo(repo_dir: str, module: str = "r"):
 
 def _raise(exc):
     raise exc
+
+
+def exit_process(status: int) -> None:
+    """End a bpy-module process with `status`. The bpy 4.2 module (4.2.23 LTS, not 5.0.1 or 5.2.3)
+    can crash with a segmentation fault after Python has finalised: a C++ static destructor of a
+    space type frees a Python-registered class and calls into the finalised interpreter
+    (PyGILState_Ensure from bpy_class_free). Which scripts trigger it depends on their handler lists,
+    not on their work (removing a load_pre handler is enough), so before 5.0 the process ends here,
+    with its output flushed, before those destructors run; 5.0 and later exit normally."""
+    import bpy
+
+    if bpy.app.version >= (5, 0, 0):
+        sys.exit(status)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(status)
 
 
 def enable_from_source(name: str = "hlod_source"):
@@ -154,3 +171,4 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+    exit_process(0)

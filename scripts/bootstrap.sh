@@ -29,22 +29,36 @@ ensure_gl_packages() {
     fi
 }
 
+# find_python X.Y: prints an interpreter of Python X.Y, or returns 1. Looks at $HLOD_PYTHON (3.11) or
+# $HLOD_PYTHON313 (3.13), pythonX.Y, python3, then pyenv's installed versions (a pyenv shim answers
+# only for the versions pyenv has selected, so the versions folder is searched too).
 find_python() {
-    for candidate in "${HLOD_PYTHON:-}" python3.11 python3; do
+    local want="$1" candidate
+    local override="HLOD_PYTHON"
+    [ "$want" = 3.11 ] || override="HLOD_PYTHON${want/./}"
+    local pyenv_versions=()
+    if command -v pyenv >/dev/null 2>&1; then
+        pyenv_versions=("$(pyenv root)"/versions/"$want".*/bin/python"$want")
+    fi
+    for candidate in "${!override:-}" "python$want" python3 "${pyenv_versions[@]}"; do
         [ -n "$candidate" ] || continue
         if command -v "$candidate" >/dev/null 2>&1 &&
-           "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then
+           "$candidate" -c "import sys; sys.exit(sys.version_info[:2] != tuple(map(int, '$want'.split('.'))))" 2>/dev/null; then
             echo "$candidate"; return 0
         fi
     done
-    say "Python 3.11 is required (bpy 5.0.1 is published for 3.11 only); set HLOD_PYTHON to its path"
-    exit 1
+    return 1
 }
 
 ensure_venv() {
     if [ ! -x "$VENV/bin/python" ]; then
+        local python
+        python="$(find_python 3.11)" || {
+            say "Python 3.11 is required (bpy 5.0.1 is published for 3.11 only); set HLOD_PYTHON to its path"
+            exit 1
+        }
         say "creating $VENV"
-        "$(find_python)" -m venv "$VENV"
+        "$python" -m venv "$VENV"
     fi
     local stamp="$VENV/.requirements.sha256"
     local want
@@ -54,6 +68,34 @@ ensure_venv() {
         "$VENV/bin/python" -m pip install --disable-pip-version-check -q -r "$ROOT/requirements.txt" >&2
         echo "$want" > "$stamp"
     fi
+}
+
+ensure_blender_venvs() {
+    # The extension checks run the built zip in each Blender we support, one environment each:
+    # .venv-blender/bpy-X.Y from requirements-bpyXY.txt (its "# python-version:" line names the
+    # Python of that Blender). They hold bpy and numpy only, as a Blender install does; the
+    # extension's own dependencies come from its wheels. Each is created once and reused.
+    local req version python interp dir stamp want
+    for req in "$ROOT"/requirements-bpy*.txt; do
+        version="$(sed -n 's/^bpy==\([0-9]*\.[0-9]*\).*/\1/p' "$req")"
+        python="$(sed -n 's/^# python-version: *//p' "$req")"
+        dir="$ROOT/.venv-blender/bpy-$version"
+        if [ ! -x "$dir/bin/python" ]; then
+            interp="$(find_python "$python")" || {
+                say "Python $python not found (Blender $version runs it): install it (pyenv install $python, or your distribution's python$python package) or set HLOD_PYTHON${python/./} to its path"
+                exit 1
+            }
+            say "creating $dir (Blender $version, Python $python)"
+            "$interp" -m venv "$dir"
+        fi
+        stamp="$dir/.requirements.sha256"
+        want="$(sha256sum "$req" | cut -d' ' -f1)"
+        if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+            say "installing bpy $version into $dir (first run downloads about 400 MB)"
+            "$dir/bin/python" -m pip install --disable-pip-version-check -q -r "$req" >&2
+            echo "$want" > "$stamp"
+        fi
+    done
 }
 
 ensure_validators() {

@@ -4,22 +4,33 @@
 
 For each platform: download the wheels the manifest lists for it into ./wheels/ (pip, from PyPI,
 once; later builds reuse them), stage the package files with a manifest narrowed to that platform
-and its wheels, and run `blender_ext.py build` (shipped in the bpy wheel) on the stage, then
-`blender_ext.py validate` on the zip. Prints one line per zip: its path.
+and its wheels, and run `blender_ext.py build` (shipped in the bpy wheel of the interpreter running
+this script, whichever Blender version that is) on the stage, then `blender_ext.py validate` on the
+zip. Each zip carries every dependency for each Python that Blender ships (PYTHON_TAGS: cp311 for
+Blender 4.2 to 5.0, cp313 for 5.1 and later); Blender installs the wheels that match its own Python.
+Prints one line per zip: its path.
 """
 from __future__ import annotations
 
 import argparse
+import csv
+import io
 import re
 import shutil
 import subprocess
 import sys
 import sysconfig
+import tempfile
 import tomllib
+import zipfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from hlod_core.atomic import atomic_file  # noqa: E402 - the project's one atomic write
+
 WHEELS = ROOT / "wheels"
+FLAT_WHEELS = WHEELS / "flat"  # wheels rewritten for Blender 4.2's installer (see blender_ready)
 PACKAGE = ["__init__.py", "blender_manifest.toml", "addon", "operators", "panels", "hlod_core", "LICENSE"]
 PIP_PLATFORMS = {
     "linux-x64": ["manylinux_2_35_x86_64", "manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64",
@@ -28,38 +39,112 @@ PIP_PLATFORMS = {
     "macos-arm64": ["macosx_11_0_arm64"],
 }
 WHEEL_PLATFORM = {"linux-x64": "linux", "windows-x64": "win_amd64", "macos-arm64": "macosx_11_0_arm64"}
+# The Pythons of the Blenders we support, as wheel tags: 3.11 (Blender 4.2 LTS to 5.0), 3.13 (5.1 on).
+PYTHON_TAGS = {"cp311": "3.11", "cp313": "3.13"}
+# The extension tool inside a bpy wheel: bpy/<major.minor>/scripts/addons_core/bl_pkg/cli/blender_ext.py
+BLENDER_EXT_GLOB = "bpy/[0-9]*.[0-9]*/scripts/addons_core/bl_pkg/cli/blender_ext.py"
 
 
-def blender_ext() -> Path:
-    """The extension tool inside the installed bpy wheel (found without importing bpy)."""
-    tool = Path(sysconfig.get_paths()["platlib"]) / "bpy/5.0/scripts/addons_core/bl_pkg/cli/blender_ext.py"
-    if not tool.is_file():
-        sys.exit(f"build_extension: Blender's extension tool not found at {tool}")
-    return tool
+def blender_ext(platlib: str | None = None) -> Path:
+    """The extension tool inside the bpy wheel installed for this interpreter (or in `platlib`),
+    found without importing bpy; its folder is named after the bpy version (4.2, 5.0, 5.2, ...)."""
+    site = Path(platlib or sysconfig.get_paths()["platlib"])
+    tools = sorted(site.glob(BLENDER_EXT_GLOB))
+    if len(tools) != 1:
+        sys.exit(f"build_extension: {site}: expected one bpy wheel with blender_ext.py, found {len(tools)}")
+    return tools[0]
+
+
+def wheel_tags(wheel: str) -> tuple[str, str]:
+    """(distribution name, Python tag) of a wheel file name (name-ver[-build]-python-abi-platform.whl)."""
+    parts = Path(wheel).name[:-len(".whl")].split("-")
+    return parts[0], parts[-3]
 
 
 def wheels_for(manifest: dict, platform: str) -> list[str]:
+    """The platform's wheels; exits naming the manifest if a dependency lacks a wheel for one of the
+    PYTHON_TAGS there (a Blender with that Python could not load the extension)."""
     tag = WHEEL_PLATFORM[platform]
-    return [w for w in manifest["wheels"] if tag in Path(w).name]
+    wheels = [w for w in manifest["wheels"] if tag in Path(w).name]
+    have = {wheel_tags(w) for w in wheels}
+    names = sorted({name for name, _ in have})
+    missing = [f"{name} {python}" for name in names for python in PYTHON_TAGS if (name, python) not in have]
+    if not wheels or missing:
+        sys.exit(f"build_extension: blender_manifest.toml: {platform} lacks wheels for "
+                 f"{', '.join(missing) or 'every dependency'}")
+    return wheels
 
 
 def download(wheels: list[str], platform: str) -> None:
+    """pip-download the missing wheels, one pip call per Python tag (pip resolves for one Python)."""
     missing = [w for w in wheels if not (ROOT / w).is_file()]
     if not missing:
         return
     WHEELS.mkdir(exist_ok=True)
-    specs = []
-    for w in missing:
-        name, version = Path(w).name.split("-")[:2]
-        specs.append(f"{name}=={version}")
-    cmd = [sys.executable, "-m", "pip", "download", "--disable-pip-version-check", "-q", "--no-deps",
-           "--only-binary=:all:", "--python-version", "3.11", "-d", str(WHEELS)]
-    for tag in PIP_PLATFORMS[platform]:
-        cmd += ["--platform", tag]
-    subprocess.run(cmd + specs, check=True)
+    for python_tag, python_version in PYTHON_TAGS.items():
+        specs = []
+        for w in missing:
+            name, tag = wheel_tags(w)
+            if tag == python_tag:
+                specs.append(f"{name}=={Path(w).name.split('-')[1]}")
+        if not specs:
+            continue
+        cmd = [sys.executable, "-m", "pip", "download", "--disable-pip-version-check", "-q", "--no-deps",
+               "--only-binary=:all:", "--python-version", python_version, "-d", str(WHEELS)]
+        for tag in PIP_PLATFORMS[platform]:
+            cmd += ["--platform", tag]
+        subprocess.run(cmd + specs, check=True)
     still = [w for w in missing if not (ROOT / w).is_file()]
     if still:
         sys.exit(f"build_extension: pip did not produce {', '.join(still)} (update blender_manifest.toml)")
+
+
+def blender_ready(wheel: Path, flat_dir: Path = FLAT_WHEELS) -> Path:
+    """The wheel in a form every supported Blender installs. Blender 4.2 LTS's extension wheel
+    installer (`_bpy_internal/extensions/wheel_manager.py`) unzips a wheel into site-packages as it
+    is: unlike pip (and Blender 5.0's installer) it does not move a `<dist>.data/purelib/` or
+    `platlib/` payload to the root, and pymeshlab 2025.7.post1 ships its package there, so in 4.2
+    `import pymeshlab` failed. Such a wheel is rewritten once into `flat_dir` under the same name:
+    the same files with the payload at the root and RECORD's paths to match. Other wheels are used as
+    they are; a wheel with other `.data` folders (scripts, headers, data) stops the build."""
+    with zipfile.ZipFile(wheel) as src:
+        names = src.namelist()
+        data_dir = next((n.split("/")[0] for n in names if n.split("/")[0].endswith(".data")), None)
+        if data_dir is None:
+            return wheel
+        payload = (f"{data_dir}/purelib/", f"{data_dir}/platlib/")
+        other = sorted({n.split("/")[1] for n in names if n.startswith(data_dir + "/") and not n.startswith(payload)})
+        if other:
+            sys.exit(f"build_extension: {wheel.name}: .data folders {', '.join(other)} are not installed by Blender")
+        flat = flat_dir / wheel.name
+        if flat.is_file() and flat.stat().st_mtime >= wheel.stat().st_mtime:
+            return flat
+        flat.parent.mkdir(exist_ok=True)
+
+        def moved(name: str) -> str:
+            return next((name[len(p):] for p in payload if name.startswith(p)), name)
+
+        # atomic: builds running at once each write a private temporary file, then rename it
+        with atomic_file(flat) as f, zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED) as out:
+            for info in src.infolist():
+                data = src.read(info)
+                if info.filename.endswith(".dist-info/RECORD"):  # CSV: path, hash, size
+                    rows = [[moved(row[0]), *row[1:]] for row in csv.reader(io.StringIO(data.decode("utf-8"))) if row]
+                    text = io.StringIO()
+                    csv.writer(text, lineterminator="\n").writerows(rows)
+                    data = text.getvalue().encode("utf-8")
+                renamed = zipfile.ZipInfo(moved(info.filename), info.date_time)
+                renamed.external_attr, renamed.compress_type = info.external_attr, zipfile.ZIP_DEFLATED
+                out.writestr(renamed, data)
+    return flat
+
+
+def check_zip(zip_path: Path, wheels: list[str]) -> None:
+    """The zip holds exactly the platform's wheels (every PYTHON_TAG among them, see wheels_for)."""
+    held = sorted(n for n in zipfile.ZipFile(zip_path).namelist() if n.startswith("wheels/") and n.endswith(".whl"))
+    want = sorted(f"wheels/{Path(w).name}" for w in wheels)
+    if held != want:
+        sys.exit(f"build_extension: {zip_path}: holds wheels {held}, the manifest lists {want}")
 
 
 def stage(manifest_text: str, manifest: dict, platform: str, wheels: list[str], where: Path) -> Path:
@@ -74,7 +159,7 @@ def stage(manifest_text: str, manifest: dict, platform: str, wheels: list[str], 
             shutil.copy2(src, where / name)
     (where / "wheels").mkdir()
     for w in wheels:
-        (where / w).symlink_to(ROOT / w)
+        (where / w).symlink_to(blender_ready(ROOT / w))
     text = re.sub(r"(?ms)^platforms = \[.*?\]\n", f'platforms = ["{platform}"]\n', manifest_text)
     text = re.sub(r"(?ms)^wheels = \[.*?\]\n", "wheels = [\n" + "".join(f'  "{w}",\n' for w in wheels) + "]\n", text)
     (where / "blender_manifest.toml").write_text(text)
@@ -94,14 +179,16 @@ def main() -> None:
     for platform in args.platforms:
         wheels = wheels_for(manifest, platform)
         download(wheels, platform)
-        where = stage(manifest_text, manifest, platform, wheels, ROOT / "stage" / platform)
-        subprocess.run([sys.executable, str(tool), "build", "--source-dir", str(where), "--output-dir", str(out),
-                        "--split-platforms"], check=True, stdout=subprocess.DEVNULL)
+        # a private staging folder: test runs of several Blender versions may build at the same time
+        with tempfile.TemporaryDirectory(prefix=f"hlod-stage-{platform}-") as tmp:
+            where = stage(manifest_text, manifest, platform, wheels, Path(tmp) / "hlod")
+            subprocess.run([sys.executable, str(tool), "build", "--source-dir", str(where), "--output-dir", str(out),
+                            "--split-platforms"], check=True, stdout=subprocess.DEVNULL)
         zips = sorted(out.glob(f"{manifest['id']}-{manifest['version']}-{platform.replace('-', '_')}.zip"))
         if not zips:
             sys.exit(f"build_extension: no zip for {platform} in {out}")
         subprocess.run([sys.executable, str(tool), "validate", str(zips[-1])], check=True, stdout=subprocess.DEVNULL)
-        shutil.rmtree(where)
+        check_zip(zips[-1], wheels)
         print(zips[-1])
 
 
