@@ -1,0 +1,74 @@
+"""scripts/build_extension.py on tiny literal inputs: the manifest's wheels per platform and Python,
+the extension tool found in any bpy version, and wheels rewritten for Blender 4.2's installer."""
+import csv
+import io
+import sys
+import tomllib
+import zipfile
+
+import pytest
+
+from helpers import ROOT
+
+sys.path.insert(0, str(ROOT / "scripts"))
+import build_extension  # noqa: E402
+
+DEPENDENCIES = {"pymeshlab", "moderngl", "glcontext"}
+
+
+def test_manifest_lists_cp311_and_cp313_wheels_of_every_dependency_for_every_platform():
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
+    for platform in manifest["platforms"]:
+        tags = {build_extension.wheel_tags(w) for w in build_extension.wheels_for(manifest, platform)}
+        assert tags == {(name, python) for name in DEPENDENCIES for python in ("cp311", "cp313")}, platform
+
+
+def test_a_platform_without_a_python_stops_the_build_naming_the_manifest():
+    manifest = {"wheels": ["./wheels/moderngl-5.13.0-cp311-cp311-win_amd64.whl"]}
+    with pytest.raises(SystemExit) as stop:
+        build_extension.wheels_for(manifest, "windows-x64")
+    assert str(stop.value) == "build_extension: blender_manifest.toml: windows-x64 lacks wheels for moderngl cp313"
+
+
+def test_extension_tool_found_in_any_bpy_version_and_only_one(tmp_path):
+    tool = tmp_path / "bpy/4.2/scripts/addons_core/bl_pkg/cli/blender_ext.py"
+    tool.parent.mkdir(parents=True)
+    tool.write_text("")
+    assert build_extension.blender_ext(str(tmp_path)) == tool
+    (tmp_path / "bpy/5.2/scripts/addons_core/bl_pkg/cli").mkdir(parents=True)
+    (tmp_path / "bpy/5.2/scripts/addons_core/bl_pkg/cli/blender_ext.py").write_text("")
+    with pytest.raises(SystemExit, match="expected one bpy wheel with blender_ext.py, found 2"):
+        build_extension.blender_ext(str(tmp_path))
+
+
+def _wheel(path, files: dict[str, bytes]):
+    record = io.StringIO()
+    csv.writer(record, lineterminator="\n").writerows([[name, "sha256=x", len(data)] for name, data in files.items()])
+    with zipfile.ZipFile(path, "w") as z:
+        for name, data in files.items():
+            z.writestr(name, data)
+        z.writestr("demo-1.0.dist-info/RECORD", record.getvalue() + "demo-1.0.dist-info/RECORD,,\n")
+    return path
+
+
+def test_a_data_payload_moves_to_the_wheel_root_for_blender_4_2(tmp_path):
+    """pymeshlab's layout: the package under demo-1.0.data/purelib/. Blender 4.2 unzips wheels as
+    they are, so the package must sit at the root; same bytes, RECORD paths to match."""
+    src = _wheel(tmp_path / "demo-1.0-cp311-cp311-linux_x86_64.whl",
+                 {"demo-1.0.data/purelib/demo/__init__.py": b"X = 1\n", "demo-1.0.data/platlib/demo_c.so": b"\0elf"})
+    flat = build_extension.blender_ready(src, tmp_path / "flat")
+    assert flat == tmp_path / "flat" / src.name
+    with zipfile.ZipFile(flat) as z:
+        assert sorted(z.namelist()) == ["demo-1.0.dist-info/RECORD", "demo/__init__.py", "demo_c.so"]
+        assert z.read("demo/__init__.py") == b"X = 1\n" and z.read("demo_c.so") == b"\0elf"
+        rows = list(csv.reader(io.StringIO(z.read("demo-1.0.dist-info/RECORD").decode())))
+    assert [r[0] for r in rows] == ["demo/__init__.py", "demo_c.so", "demo-1.0.dist-info/RECORD"]
+    assert build_extension.blender_ready(src, tmp_path / "flat") == flat  # made once, then reused
+
+
+def test_a_plain_wheel_is_used_as_it_is_and_other_data_folders_stop_the_build(tmp_path):
+    plain = _wheel(tmp_path / "demo-1.0-py3-none-any.whl", {"demo/__init__.py": b""})
+    assert build_extension.blender_ready(plain, tmp_path / "flat") == plain
+    scripts = _wheel(tmp_path / "demo-1.0-cp313-cp313-win_amd64.whl", {"demo-1.0.data/scripts/demo": b"#!"})
+    with pytest.raises(SystemExit, match="demo-1.0-cp313-cp313-win_amd64.whl: .data folders scripts"):
+        build_extension.blender_ready(scripts, tmp_path / "flat")
