@@ -298,6 +298,9 @@ def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, error: floa
     elif tris > 2 * target_tris:
         bake_log.append(f"node {node}: decimation stopped at {tris} triangles (target {target_tris}); "
                         "boundary preservation keeps the cell's border")
+    if lod.zero_area:
+        bake_log.append(f"node {node}: every triangle has zero area, which decimation removes; kept "
+                        f"{tris} of the children's {lod.input_tris}")
     if lod.kept_in_place:
         bake_log.append(f"node {node}: optimal vertex placement left the node's box; decimated again "
                         "with vertices kept in place")

@@ -1,13 +1,16 @@
 """One inner node's LOD and model-space error (DESIGN §4.3-4.4), with pymeshlab.
 
 Data form: node geometry as positions (k,3) float32, in the bake's file-relative frame, and faces
-(m,3) int32 local to those positions.
+(m,3) int32 local to those positions. pymeshlab only ever sees a node in its own unit frame
+(`NodeFrame`: centred on the node's box, scaled to a box diagonal of 1), so a model baked in
+millimetres gives the LODs of the same model in metres, scaled (see `NodeFrame` for why).
 
 - The children's LODs are concatenated and welded by exact position. Seams between siblings then
   become interior edges; seams with the rest of the scene stay boundary edges, and boundary
   preservation keeps their vertices fixed, so neighbouring nodes at different levels do not crack.
-  Fixed vertices come back bit-identical (pymeshlab computes in double; our inputs are float32
-  values), which is what makes the exact weld one level up work.
+  Fixed vertices come back bit-identical: pymeshlab returns them unmoved (it computes in double) and
+  `NodeFrame.to_model` maps every unmoved vertex back to its exact float32 input, which is what
+  makes the exact weld one level up work.
 - Quadric edge collapse (Garland & Heckbert 1997, pymeshlab
   `meshing_decimation_quadric_edge_collapse`) to `target_tris`.
 - MSE = symmetric Hausdorff distance (pymeshlab `get_hausdorff_distance`, the max in both
@@ -24,6 +27,65 @@ import numpy as np
 #: A LOD vertex this far (fraction of the node's diagonal) outside its input's box means the
 #: quadric placement extrapolated; see decimate_node.
 ESCAPE_FRACTION = 0.01
+
+#: Fewest triangles asked of pymeshlab. An edge collapse removes the edge's two triangles, so a
+#: closed surface decimated to 1 triangle goes from 2 to 0 and pymeshlab returns an empty mesh.
+MIN_DECIMATION_TRIS = 2
+
+#: Box diagonal of a node in the frame pymeshlab decimates and measures it in (NodeFrame). With 1,
+#: every edge is shorter than 1, so vcglib's tie rule below (1e-15 x edge length) ranks exactly
+#: planar collapses before all others, as it does for the unit-sized models it was tuned on.
+UNIT_DIAGONAL = 1.0
+
+
+@dataclass(frozen=True)
+class NodeFrame:
+    """The unit frame pymeshlab works in: local = (model - center) * scale, with the node's box
+    centred on the origin and its diagonal UNIT_DIAGONAL (scale = 1 for a node of one point).
+
+    pymeshlab's quadric collapse (vcglib `TriEdgeCollapseQuadric`) is not unit-free: it places a
+    collapse's vertex optimally only where the raw, area-weighted quadric error (units length^6)
+    exceeds an absolute 2e-15, and ranks collapses whose normalised error falls below 1e-15 by
+    that constant times the edge length in model units. Measured on spot.obj at target 200, the
+    root error / scale went 0.068 (x1), 0.336 (x1e-3), 0.081 (x1e3). In the unit frame those
+    thresholds mean the same fraction of every node at every scale, and centring keeps the
+    quadrics' offset terms from cancelling for nodes far from the bake's origin."""
+
+    center: np.ndarray  # (3,) float64, model units
+    scale: float        # 1 / model units
+
+    @staticmethod
+    def of(positions: np.ndarray) -> "NodeFrame":
+        """The unit frame of positions (k,3), k >= 1, finite."""
+        p = np.asarray(positions, np.float64)
+        lo, hi = p.min(axis=0), p.max(axis=0)
+        diagonal = float(np.linalg.norm(hi - lo))
+        return NodeFrame(center=0.5 * (lo + hi), scale=UNIT_DIAGONAL / diagonal if diagonal > 0 else 1.0)
+
+    def to_local(self, positions: np.ndarray) -> np.ndarray:
+        """(k,3) model units -> (k,3) float64 in the unit frame."""
+        return (np.asarray(positions, np.float64) - self.center) * self.scale
+
+    def to_model(self, local_out: np.ndarray, local_in: np.ndarray, model_in: np.ndarray) -> np.ndarray:
+        """(j,3) float64 pymeshlab output -> (j,3) float32 model units. A vertex bit-identical to
+        an input `local_in` row was not moved: it gets that row's exact `model_in` (float32)
+        position, which the inverse transform would only round to."""
+        out = (np.asarray(local_out, np.float64) / self.scale + self.center).astype(np.float32)
+        if local_out.shape[0] == 0 or local_in.shape[0] == 0:
+            return out
+        keys_in = _row_keys(local_in)
+        order = np.argsort(keys_in, kind="stable")
+        sorted_in = keys_in[order]
+        keys_out = _row_keys(local_out)
+        at = np.minimum(np.searchsorted(sorted_in, keys_out), sorted_in.shape[0] - 1)
+        unmoved = sorted_in[at] == keys_out
+        out[unmoved] = np.asarray(model_in, np.float32)[order[at[unmoved]]]
+        return out
+
+
+def _row_keys(rows: np.ndarray) -> np.ndarray:
+    """(k,3) float64 rows as (k,) 24-byte keys, equal exactly when the rows are bit-identical."""
+    return np.ascontiguousarray(rows, dtype=np.float64).view(np.dtype((np.void, 24))).ravel()
 
 
 @dataclass(frozen=True)
@@ -42,7 +104,9 @@ class DecimationSettings:
 class NodeLod:
     """positions (k,3) float32; faces (m,3) int32; normals (k,3) float32 or None;
     decimated: False when kept as the children's welded union; input_tris: the welded union's
-    triangles; kept_in_place: optimal placement left the node's box, so vertices stayed in place."""
+    triangles; kept_in_place: optimal placement left the node's box, so vertices stayed in place;
+    zero_area: every triangle had zero area (pymeshlab removes them all), so the LOD is a sample
+    of the welded union's triangles (see decimate_node)."""
 
     positions: np.ndarray
     faces: np.ndarray
@@ -50,6 +114,7 @@ class NodeLod:
     decimated: bool
     input_tris: int
     kept_in_place: bool = False
+    zero_area: bool = False
 
 
 def weld(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -95,23 +160,62 @@ def decimate_node(child_lods: list[tuple[np.ndarray, np.ndarray]], settings: Dec
 
     welded_tris = int(faces.shape[0])
     decimated = welded_tris > settings.target_tris
-    ms = _decimated(positions, faces, settings, optimal_placement=True) if decimated else _mesh_set(positions, faces)
-    lo, hi = positions.min(axis=0), positions.max(axis=0)
+    frame = NodeFrame.of(positions)
+    local = frame.to_local(positions)
+    if not decimated:
+        ms = _mesh_set(local, faces)
+    else:
+        ms = _decimated(local, faces, settings, optimal_placement=True)
+    lo, hi = local.min(axis=0), local.max(axis=0)
     lod_box = ms.current_mesh().bounding_box()
     # Optimal placement may move a vertex slightly outward on curved surfaces (that lowers the
     # error); leaving the input's box by more than ESCAPE_FRACTION of its diagonal is the
     # singular-quadric extrapolation instead, so decimate again with vertices kept in place.
     slack = ESCAPE_FRACTION * float(np.linalg.norm(hi - lo))
-    kept_in_place = bool(np.any(lod_box.min() < lo - slack) or np.any(lod_box.max() > hi + slack))
+    kept_in_place = bool(ms.current_mesh().face_number() > 0
+                         and (np.any(lod_box.min() < lo - slack) or np.any(lod_box.max() > hi + slack)))
     if kept_in_place:
-        ms = _decimated(positions, faces, settings, optimal_placement=False)
+        ms = _decimated(local, faces, settings, optimal_placement=False)
+    zero_area = ms.current_mesh().face_number() == 0
+    if zero_area:
+        # Every triangle had zero area, and pymeshlab's clean-up removes such triangles: keep
+        # target_tris of the union's, evenly spaced (they draw nothing; the error measures the rest).
+        keep = np.unique(np.linspace(0, welded_tris - 1, settings.target_tris).round().astype(np.int64))
+        kept_p, kept_f, _ = compact(local, faces[keep])
+        ms = _mesh_set(kept_p, kept_f)
     lod = ms.current_mesh()
     normals = None
     if with_normals:
         ms.compute_normal_per_vertex()
-        normals = ms.current_mesh().vertex_normal_matrix().astype(np.float32)
-    return NodeLod(positions=lod.vertex_matrix().astype(np.float32), faces=lod.face_matrix().astype(np.int32),
-                   normals=normals, decimated=decimated, input_tris=welded_tris, kept_in_place=kept_in_place)
+        normals = _unit_normals(ms.current_mesh().vertex_normal_matrix(), lod.vertex_matrix(), lod.face_matrix())
+    return NodeLod(positions=frame.to_model(lod.vertex_matrix(), local, positions),
+                   faces=lod.face_matrix().astype(np.int32), normals=normals, decimated=decimated,
+                   input_tris=welded_tris, kept_in_place=kept_in_place, zero_area=zero_area)
+
+
+def _unit_normals(normals: np.ndarray, positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k,3) float32 unit vertex normals. pymeshlab's area-weighted normal is zero where a
+    vertex's faces cancel (a decimated fin: two triangles back to back); such a vertex takes the
+    normal of its largest face, and a vertex of zero-area faces only takes +z."""
+    normals = np.asarray(normals, np.float64)
+    length = np.linalg.norm(normals, axis=1)
+    lost = length < 0.5  # pymeshlab's normals are unit or zero
+    if lost.any():
+        corners = positions[faces]
+        face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        area = np.linalg.norm(face_normal, axis=1)
+        order = np.argsort(area, kind="stable")
+        rank = np.empty_like(order)
+        rank[order] = np.arange(order.size)
+        best = np.full(positions.shape[0], -1, np.int64)  # rank of each vertex's largest face
+        np.maximum.at(best, faces.ravel(), np.repeat(rank, 3))
+        largest = order[np.maximum(best, 0)]
+        fallback = np.tile([0.0, 0.0, 1.0], (positions.shape[0], 1))
+        has = (best >= 0) & (area[largest] > 0)
+        fallback[has] = face_normal[largest[has]] / area[largest[has], None]
+        normals[lost] = fallback[lost]
+        length[lost] = 1.0
+    return (normals / length[:, None]).astype(np.float32)
 
 
 def _mesh_set(positions: np.ndarray, faces: np.ndarray):
@@ -123,14 +227,16 @@ def _mesh_set(positions: np.ndarray, faces: np.ndarray):
 
 
 def _decimated(positions, faces, settings: DecimationSettings, *, optimal_placement: bool):
-    """Quadric edge collapse with boundary preservation. planarquadric adds the planar constraints
-    that keep flat regions (ground planes, walls) from being extrapolated: without them a flat
-    cell's singular quadric can place a vertex tens of metres away."""
+    """Quadric edge collapse with boundary preservation, on positions in the node's unit frame.
+    planarquadric adds the planar constraints that keep flat regions (ground planes, walls) from
+    being extrapolated: without them a flat cell's singular quadric can place a vertex tens of
+    metres away."""
     ms = _mesh_set(positions, faces)
     ms.meshing_decimation_quadric_edge_collapse(
-        targetfacenum=int(settings.target_tris), qualitythr=float(settings.quality_threshold),
-        preserveboundary=True, boundaryweight=float(settings.boundary_weight),
-        preservenormal=bool(settings.preserve_normals), preservetopology=False,
+        targetfacenum=max(int(settings.target_tris), MIN_DECIMATION_TRIS),
+        qualitythr=float(settings.quality_threshold), preserveboundary=True,
+        boundaryweight=float(settings.boundary_weight), preservenormal=bool(settings.preserve_normals),
+        preservetopology=False,
         optimalplacement=optimal_placement, planarquadric=True, autoclean=True)
     return ms
 
@@ -145,19 +251,20 @@ FACE_SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2
 def measure(lod: tuple[np.ndarray, np.ndarray], original: tuple[np.ndarray, np.ndarray]) -> float:
     """Symmetric Hausdorff distance between a LOD and the original triangles below its node, both
     (positions f32, faces) in the same frame: the max of (original vertices -> LOD surface) and
-    (LOD vertices and FACE_SAMPLES points -> original surface). NaN if pymeshlab gives none."""
+    (LOD vertices and FACE_SAMPLES points -> original surface), model units. Computed in the
+    node's unit frame (NodeFrame), like the decimation. NaN if pymeshlab gives none."""
     import pymeshlab
 
-    lod_p = lod[0].astype(np.float64)
+    frame = NodeFrame.of(np.concatenate([lod[0], original[0]]))
+    lod_p = frame.to_local(lod[0])
+    original_p = frame.to_local(original[0])
     samples = np.concatenate([lod_p, np.einsum("sk,fkd->fsd", FACE_SAMPLES, lod_p[lod[1]]).reshape(-1, 3)])
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=lod_p, face_matrix=lod[1]))
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=original[0].astype(np.float64), face_matrix=original[1]))
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=original_p, face_matrix=original[1]))
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=samples))
-    lo = np.minimum(lod_p.min(axis=0), original[0].min(axis=0))
-    hi = np.maximum(lod_p.max(axis=0), original[0].max(axis=0))
-    radius = pymeshlab.PureValue(2.0 * float(np.linalg.norm(hi - lo)) + 1e-30)  # no sample is dropped
+    radius = pymeshlab.PureValue(2.0 * UNIT_DIAGONAL)  # twice the box diagonal: no sample is dropped
     both = [float(ms.get_hausdorff_distance(sampledmesh=sampled, targetmesh=target, samplevert=True,
                                             sampleface=False, samplenum=int(n), maxdist=radius)["max"])
-            for sampled, target, n in ((1, 0, original[0].shape[0]), (2, 1, samples.shape[0]))]
-    return max(both) if all(np.isfinite(both)) else float("nan")
+            for sampled, target, n in ((1, 0, original_p.shape[0]), (2, 1, samples.shape[0]))]
+    return max(both) / frame.scale if all(np.isfinite(both)) else float("nan")

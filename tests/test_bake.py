@@ -4,7 +4,7 @@ import os
 import numpy as np
 import pytest
 
-from hlod_core import checks, meshio
+from hlod_core import checks, meshio, simplify
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.errors import BakeCancelled, InputError
 
@@ -200,3 +200,77 @@ def test_progress_reaches_every_node():
     hlod = bake(mesh, BakeSettings(target_tris=300), progress=lambda d, t, p: seen.append((d, t, p)))
     assert seen[-1] == (hlod.node_count, hlod.node_count, "done")
     assert [d for d, _, _ in seen] == sorted(d for d, _, _ in seen)
+
+
+# --- units (issue 11): pymeshlab's quadric collapse has absolute thresholds -----------------------
+
+def _scaled(mesh, factor: float):
+    return meshio.transform_mesh(mesh, np.diag([factor, factor, factor, 1.0]), name=f"{mesh.name}x{factor:g}")
+
+
+def test_power_of_two_units_bake_to_bit_identical_hierarchies():
+    """spot scaled by 2^-10 and 2^10 is the same float32 model up to an exact scale, so the bake must
+    be the same up to that scale, bit for bit. Before decimation ran in each node's unit frame the
+    root error / scale was 0.068 at x1, 0.354 at x2^-10, 0.081 at x2^10 (pymeshlab's absolute thresholds)."""
+    spot = load_model("spot.obj")
+    one = bake(spot, BakeSettings(target_tris=200))
+    for k in (-10, 10):
+        scaled = bake(_scaled(spot, 2.0 ** k), BakeSettings(target_tris=200))
+        assert np.array_equal(scaled.tri_count, one.tri_count) and np.array_equal(scaled.parent, one.parent)
+        assert np.array_equal(scaled.error, one.error * 2.0 ** k), k
+        assert np.array_equal(scaled.positions, one.positions * np.float32(2.0 ** k)), k
+        assert np.array_equal(scaled.origin, one.origin * 2.0 ** k)
+
+
+def test_millimetres_metres_and_kilometres_bake_alike():
+    """cow at x1e-3, x1, x1e3 (not powers of two: float32 rounds each differently): the same
+    hierarchy, root error / scale within 10%, and nearly every node's error the same. Before: the
+    root error / scale was 2.20 at x1e-3 against 0.86 at x1, and no node's error agreed."""
+    cow = load_model("cow.obj")
+    one = bake(cow, BakeSettings(target_tris=200))
+    inner = ~one.is_leaf
+    for factor in (1e-3, 1e3):
+        scaled = bake(_scaled(cow, factor), BakeSettings(target_tris=200))
+        assert np.array_equal(scaled.child_count, one.child_count) and np.array_equal(scaled.tri_count[one.is_leaf],
+                                                                                     one.tri_count[one.is_leaf])
+        assert abs(scaled.error[0] / factor / one.error[0] - 1.0) <= 0.10, factor
+        agree = np.isclose(scaled.error[inner] / factor, one.error[inner], rtol=1e-3)
+        assert agree.mean() >= 0.9, (factor, agree.mean())
+
+
+def test_decimated_node_returns_its_fixed_vertices_bit_identical():
+    """Half a cow in millimetres, cut at x = 0, its border vertices pushed to x ~ 1e-16 (coordinates
+    near 0 in a node centred away from 0: the unit frame's inverse transform rounds them to other
+    float32 values). Every border vertex, fixed by boundary preservation, still comes back
+    bit-identical, so the exact weld one level up works."""
+    cow = load_model("cow.obj")
+    p = (cow.positions * 1e-3).astype(np.float32)
+    half = cow.faces[np.all(p[cow.faces, 0] < 0, axis=1)]
+    edges = np.sort(half[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    unique, count = np.unique(edges, axis=0, return_counts=True)
+    border = np.unique(unique[count == 1])
+    p[border, 0] *= np.float32(1e-13)
+    quarters = [half[: half.shape[0] // 2], half[half.shape[0] // 2:]]
+    children = [simplify.compact(p, f)[:2] for f in quarters]
+    lod = simplify.decimate_node(children, simplify.DecimationSettings(target_tris=200), with_normals=False)
+    assert lod.decimated and lod.faces.shape[0] <= 220 and border.size > 30
+    frame = simplify.NodeFrame.of(p[np.unique(half)])
+    naive = (frame.to_local(p[border]) / frame.scale + frame.center).astype(np.float32)
+    assert np.any(naive != p[border])  # the inverse alone would move them: NodeFrame.to_model looks them up
+    out = {row.tobytes() for row in lod.positions}
+    assert all(row.tobytes() in out for row in p[border])
+
+
+def test_hausdorff_error_is_unit_free():
+    """measure() in a power-of-two scaled frame gives the error scaled exactly, and in
+    millimetres the same error up to rounding."""
+    spot = load_model("spot.obj")
+    p, f = spot.positions.astype(np.float32), spot.faces.astype(np.int32)
+    lod = simplify.decimate_node([(p, f)], simplify.DecimationSettings(target_tris=300), with_normals=False)
+    error = simplify.measure((lod.positions, lod.faces), (p, f))
+    assert error > 0
+    for factor in (2.0 ** -20, 2.0 ** 20):
+        s = np.float32(factor)
+        assert simplify.measure((lod.positions * s, lod.faces), (p * s, f)) == error * factor
+    mm = simplify.measure(((lod.positions * 1e-3).astype(np.float32), lod.faces), ((p * 1e-3).astype(np.float32), f))
+    assert mm / 1e-3 == pytest.approx(error, rel=1e-4)
