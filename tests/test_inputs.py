@@ -11,7 +11,7 @@ import numpy as np
 import pymeshlab
 import pytest
 
-from hlod_core import checks, meshio
+from hlod_core import checks, meshfiles, meshio
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.errors import InputError
 
@@ -158,7 +158,7 @@ def test_relative_indices_slashes_polygons_and_comments_read_as_pymeshlab_reads_
 @pytest.mark.parametrize("name", sorted(p.name for p in MODELS.glob("*.obj")))
 def test_every_shared_obj_passes_the_check_and_declares_what_pymeshlab_reads(name):
     path = MODELS / name
-    vertices, tris = meshio.check_obj(path, path.read_bytes())
+    vertices, tris = meshfiles.check_obj(path, path.read_bytes())
     mesh = load_model(name)
     assert (vertices, tris) == (mesh.positions.shape[0], mesh.tri_count)
 
