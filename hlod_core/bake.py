@@ -19,6 +19,7 @@ import heapq
 import logging
 import multiprocessing
 import os
+import signal
 import sys
 import tempfile
 import time
@@ -28,6 +29,7 @@ from typing import Callable
 import numpy as np
 
 from . import simplify
+from .arrays import concat_indexed
 from .errors import BakeCancelled, InputError
 from .hierarchy import Hlod, cube_sides, query_box_pad
 from .meshio import TriangleMesh
@@ -91,16 +93,16 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     phases.lap("octree")
     n = layout.node_count
     progress(0, n, "octree")
-    log.info("octree: %d nodes, %d leaves", n, int((layout.child_count == 0).sum()))
+    log.info("octree: %d nodes, %d leaves", n, int(layout.is_leaf.sum()))
 
     ordered_faces = faces[layout.tri_order]
-    lods: list[tuple] = [None] * n  # (positions f32, faces int32, normals or None)
+    lods: list[tuple] = [None] * n  # per node (positions (k,3) f32, faces (m,3) int32, normals (k,3) f32 or None)
     hausdorff = np.zeros(n, np.float64)
     normals_in = mesh.normals
-    for node in np.flatnonzero(layout.child_count == 0):
+    for node in np.flatnonzero(layout.is_leaf):
         p, f, used = simplify.compact(positions, ordered_faces[layout.tri_begin[node]:layout.tri_end[node]])
         lods[node] = (p, f, None if normals_in is None else normals_in[used])
-    done = n - int((layout.child_count > 0).sum())
+    done = int(layout.is_leaf.sum())
     phases.lap("leaves")
     progress(done, n, "simplify")
 
@@ -121,7 +123,7 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     seconds = time.perf_counter() - started
     counted_below = np.concatenate([[0], np.cumsum(counted[layout.tri_order])])
     counted_per_node = counted_below[layout.tri_end] - counted_below[layout.tri_begin]
-    over_budget = int(((layout.child_count == 0) & (counted_per_node > settings.target_tris)).sum())
+    over_budget = int((layout.is_leaf & (counted_per_node > settings.target_tris)).sum())
     meta = {
         "generator": "hlod_core",
         "input_tris": mesh.tri_count,
@@ -176,10 +178,18 @@ class _PhaseClock:
 # --- simplify phase: in this process, or in worker processes sharing the input through files ----
 
 _SHARED: dict[str, np.ndarray] = {}
-_DECIMATE, _MEASURE = 0, 1
+#: Task kinds of the simplify phase; the values order the heap (decimations before measurements).
+_TASK_DECIMATE, _TASK_MEASURE = 0, 1
+#: How often (seconds) the scheduler wakes while tasks run, to check cancel().
+_POLL_SECONDS = 0.25
 
 
 def _init_worker(positions_path: str, faces_path: str) -> None:
+    # Ctrl-C in a terminal (and a hangup) reaches the whole process group: the parent cancels and
+    # shuts the pool down, so the workers ignore these and print no tracebacks of their own.
+    for name in ("SIGINT", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
     _SHARED["positions"] = np.load(positions_path, mmap_mode="r")
     _SHARED["faces"] = np.load(faces_path, mmap_mode="r")
 
@@ -227,28 +237,29 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
     beside other work. Priority: decimations first (deepest first, they unlock the rest), then
     measurements, largest first. At most `jobs` tasks are in flight, so the priority holds.
     """
-    inner = np.flatnonzero(layout.child_count > 0)
+    inner = np.flatnonzero(~layout.is_leaf)
     if inner.size == 0:
         return
     dec = settings.decimation()
     waiting = np.zeros(layout.node_count, np.int64)
-    inner_children = np.flatnonzero((layout.child_count > 0) & (layout.parent >= 0))
+    inner_children = np.flatnonzero(~layout.is_leaf & (layout.parent >= 0))
     np.add.at(waiting, layout.parent[inner_children], 1)  # a node waits for its inner children's LODs
     heap: list[tuple] = []
+    decimated: dict[int, simplify.NodeLod] = {}  # LODs made, until their measurement is done
 
     def push(kind: int, node: int) -> None:
-        size = -int(layout.depth[node]) if kind == _DECIMATE else -int(layout.tri_end[node] - layout.tri_begin[node])
+        size = -int(layout.depth[node]) if kind == _TASK_DECIMATE else -int(layout.tri_end[node] - layout.tri_begin[node])
         heapq.heappush(heap, (kind, size, node))
 
     def submit(executor, kind: int, node: int) -> cf.Future:
-        if kind == _DECIMATE:
+        if kind == _TASK_DECIMATE:
             kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
             return executor.submit(simplify.decimate_node, [(lods[k][0], lods[k][1]) for k in kids], dec, with_normals)
         return executor.submit(_measure_task, lods[node][0], lods[node][1],
                                int(layout.tri_begin[node]), int(layout.tri_end[node]))
 
     for node in inner[waiting[inner] == 0]:
-        push(_DECIMATE, int(node))
+        push(_TASK_DECIMATE, int(node))
 
     with contextlib.ExitStack() as stack:
         if settings.jobs == 1:
@@ -270,23 +281,24 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
             while heap and len(running) < limit:
                 kind, _, node = heapq.heappop(heap)
                 running[submit(executor, kind, node)] = (kind, node)
-            finished, _ = cf.wait(running, timeout=0.25, return_when=cf.FIRST_COMPLETED)
+            finished, _ = cf.wait(running, timeout=_POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
             if cancel():
                 raise BakeCancelled("bake cancelled")
             for fut in finished:
                 kind, node = running.pop(fut)
-                if kind == _MEASURE:
+                if kind == _TASK_MEASURE:
                     hausdorff[node] = fut.result()
-                    node_done(node, lods[node][3])
+                    node_done(node, decimated.pop(node))
                     continue
                 lod = fut.result()
-                lods[node] = (lod.positions, lod.faces, lod.normals, lod)
-                push(_MEASURE, node)
+                lods[node] = (lod.positions, lod.faces, lod.normals)
+                decimated[node] = lod
+                push(_TASK_MEASURE, node)
                 parent = int(layout.parent[node])
                 if parent >= 0:
                     waiting[parent] -= 1
                     if waiting[parent] == 0:
-                        push(_DECIMATE, parent)
+                        push(_TASK_DECIMATE, parent)
 
 
 def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, error: float, target_tris: int) -> None:
@@ -320,8 +332,8 @@ def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool) -
     tri_offset = np.concatenate([[0], np.cumsum(tri_count)[:-1]])
     if vertex_count.sum() >= 2**32:
         raise InputError(f"the HLOD would need {int(vertex_count.sum())} vertices, more than 32-bit indices address")
-    positions = np.concatenate([l[0] for l in lods]).astype(np.float32)
-    indices = np.concatenate([l[1].astype(np.int64) + o for l, o in zip(lods, vertex_offset)]).astype(np.uint32)
+    positions, indices = concat_indexed((l[0], l[1]) for l in lods)
+    positions, indices = positions.astype(np.float32), indices.astype(np.uint32)
     node_normals = np.concatenate([l[2] for l in lods]).astype(np.float32) if normals else None
 
     world = positions.astype(np.float64) + origin
@@ -338,7 +350,7 @@ def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool) -
     radius = np.maximum.reduceat(np.linalg.norm(world - center[owner], axis=1), vertex_offset)
     diag = np.linalg.norm(box_max - box_min, axis=1)
     error = np.where(np.isfinite(hausdorff), hausdorff, diag)
-    error[layout.child_count == 0] = 0.0
+    error[layout.is_leaf] = 0.0
     for nodes in levels:
         parents = layout.parent[nodes]
         np.maximum.at(radius, parents, np.linalg.norm(center[nodes] - center[parents], axis=1) + radius[nodes])

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from . import jsonutil, meshfiles
+from .arrays import concat_indexed
 from .errors import InputError
 
 log = logging.getLogger(__name__)
@@ -144,9 +145,7 @@ def merge(meshes: list[TriangleMesh], *, name: str = "scene") -> TriangleMesh:
         raise InputError(f"{name}: nothing to bake (no meshes)")
     if len(meshes) == 1:
         return meshes[0]
-    offsets = np.cumsum([0] + [m.positions.shape[0] for m in meshes[:-1]])
-    positions = np.concatenate([m.positions for m in meshes])
-    faces = np.concatenate([m.faces + o for m, o in zip(meshes, offsets)])
+    positions, faces = concat_indexed((m.positions, m.faces) for m in meshes)
     normals = None
     if all(m.normals is not None for m in meshes):
         normals = np.concatenate([m.normals for m in meshes])

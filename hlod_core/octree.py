@@ -42,6 +42,11 @@ class OctreeLayout:
     def node_count(self) -> int:
         return int(self.parent.shape[0])
 
+    @property
+    def is_leaf(self) -> np.ndarray:
+        """(n,) bool."""
+        return self.child_count == 0
+
 
 def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
                  counted: np.ndarray | None = None) -> OctreeLayout:

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .arrays import concat_indexed
+
 
 #: A LOD vertex this far (fraction of the node's diagonal) outside its input's box means the
 #: quadric placement extrapolated; see decimate_node.
@@ -46,8 +48,8 @@ class NodeFrame:
     pymeshlab's quadric collapse (vcglib `TriEdgeCollapseQuadric`) is not unit-free: it places a
     collapse's vertex optimally only where the raw, area-weighted quadric error (units length^6)
     exceeds an absolute 2e-15, and ranks collapses whose normalised error falls below 1e-15 by
-    that constant times the edge length in model units. Measured on spot.obj at target 200, the
-    root error / scale went 0.068 (x1), 0.336 (x1e-3), 0.081 (x1e3). In the unit frame those
+    that constant times the edge length in model units, so the same model baked in metres and in
+    millimetres gave different LODs (README, "Unit-free bakes"). In the unit frame those
     thresholds mean the same fraction of every node at every scale, and centring keeps the
     quadrics' offset terms from cancelling for nodes far from the bake's origin."""
 
@@ -153,9 +155,7 @@ def decimate_node(child_lods: list[tuple[np.ndarray, np.ndarray]], settings: Dec
                   with_normals: bool) -> NodeLod:
     """child_lods: [(positions f32, faces)] of the children. The node's error is `measure`'s job:
     it needs the original triangles, the decimation does not, so the two run as separate tasks."""
-    offsets = np.cumsum([0] + [p.shape[0] for p, _ in child_lods[:-1]])
-    positions = np.concatenate([p for p, _ in child_lods])
-    faces = np.concatenate([f.astype(np.int64) + o for (_, f), o in zip(child_lods, offsets)])
+    positions, faces = concat_indexed(child_lods)
     positions, faces = weld(positions, faces)
 
     welded_tris = int(faces.shape[0])
