@@ -14,8 +14,8 @@ import statistics
 from hlod_core import fileformat
 from hlod_core.camera import load_path
 from hlod_core.renderer import Renderer
-from hlod_core.runner import COUNTERS, run_path
-from hlod_core.traversal import METHODS, RuntimeSettings
+from hlod_core.runner import run_path
+from hlod_core.traversal import COUNTERS, METHODS, RuntimeSettings
 
 
 def main() -> None:

@@ -4,8 +4,12 @@ Public API:
     meshio.load_inputs / meshio.from_arrays -> TriangleMesh
     bake.bake(mesh, BakeSettings, progress=, cancel=) -> hierarchy.Hlod
     fileformat.save / fileformat.load; checks.check(hlod)
-    renderer.Renderer (moderngl: standalone EGL or a caller's context)
+    renderer.Renderer (moderngl: standalone EGL or a caller's context; GL entry points and enums in
+        gl_functions, query objects in queries, host GL state in gl_state)
     traversal.make(method, hlod, renderer, RuntimeSettings).frame(metrics.View) -> FrameStats
+        (any renderer with traversal.NodeRenderer's methods; counters named in traversal.COUNTERS)
     camera.load_path / camera.inspection_path; runner.run_path
+    evaluate.evaluate (report.json, report.md via report_text, figures via report_figures and
+        showcase; image error in imagemetrics, alpha estimators in alpha_study)
 """
 __version__ = "0.1.0"

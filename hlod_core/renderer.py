@@ -1,37 +1,36 @@
-"""GL renderer for the traversal (DESIGN §7), on moderngl.
+"""GL renderer for the traversal (DESIGN §7), on moderngl: draws nodes and their query boxes.
 
-moderngl draws; it has no non-blocking "result available" check, so occlusion and timer queries
-go through the GL entry points that moderngl's own loader (glcontext) resolves, called via
-ctypes. All node geometry lives in one vertex and one index buffer; a node draw is one ranged
-draw. Query objects are pooled and reused. The renderer works on a standalone EGL context
-(`create_standalone`, headless: Mesa llvmpipe on machines without a GPU) or on a context handed
-in by the caller (Blender's, in the add-on), drawing into the caller's framebuffer.
+Data form: all node geometry in one vertex buffer (float32 positions relative to the file's
+origin) and one index buffer (uint32); node i is the ranged draw of indices
+[3 tri_offset[i], 3 (tri_offset[i] + tri_count[i])). Query boxes are one unit cube drawn with
+per-node uniforms. Raw GL entry points and enums live in `gl_functions`, the query-id pool and its
+result reads in `queries`, the host-state save/restore in `gl_state`. The renderer works on a
+standalone EGL context (`create_standalone`, headless: Mesa llvmpipe on machines without a GPU)
+or on a context handed in by the caller (Blender's, in the add-on), drawing into the caller's
+framebuffer.
 
 Query boxes (DESIGN §5.4): the node's subtree box enlarged by `hierarchy.query_box_pad`, drawn with
 colour and depth writes off and back faces culled; `q` with the depth test on, `alpha` (the
 `query` estimator) with it off, so both count the same rasterised pixels, clipping included.
+
+Colours are decided here: a node is drawn in DEFAULT_COLOUR, or with `overlay` on, in the
+modulation ramp's colour (metrics.modulation_colour) of the ratio P the traversal passes,
+looked up in a table of the ramp precomputed at OVERLAY_RAMP_STEPS + 1 values of P.
 """
 from __future__ import annotations
 
-import ctypes
 import logging
-import time
-from dataclasses import dataclass
 
 import numpy as np
 
+from . import metrics
+from .gl_functions import GL, GLFunctions
+from .gl_state import GLState  # noqa: F401  TEMPORARY re-export: addon/preview.py imports it from here
 from .hierarchy import Hlod, query_box_pad
 from .metrics import View
+from .queries import Query, QueryPool
 
 log = logging.getLogger(__name__)
-
-GL_SAMPLES_PASSED = 0x8914
-GL_TIME_ELAPSED = 0x88BF
-GL_QUERY_RESULT = 0x8866
-GL_QUERY_RESULT_AVAILABLE = 0x8867
-GL_NO_ERROR = 0
-GL_DEPTH_TEST = 0x0B71
-GL_CULL_FACE = 0x0B44
 
 _NODE_VS = """
 #version 330
@@ -72,158 +71,37 @@ _CUBE_CORNERS = np.array([[(c >> a) & 1 for a in range(3)] for c in range(8)], n
 _CUBE_TRIS = np.array([[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4],
                        [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]], np.int32)
 
-DEFAULT_COLOUR = (0.82, 0.80, 0.76)
+DEFAULT_COLOUR = (0.82, 0.80, 0.76)  # linear RGB of a node without the overlay
+#: Entries of the overlay's colour table less one: P is rounded to a multiple of 1 / OVERLAY_RAMP_STEPS
+#: (the ramp's steepest channel moves 1.7 per unit of P, so a colour errs by at most 2.1e-4, a
+#: nineteenth of an 8-bit level).
+OVERLAY_RAMP_STEPS = 4096
 
 
-class GLFunctions:
-    """The query entry points, resolved by moderngl's loader and called through ctypes."""
-
-    def __init__(self, ctx):
-        loader = ctx.mglo._context  # glcontext's backend, or moderngl's DefaultLoader for get_context()
-        load = getattr(loader, "load", None) or loader.load_opengl_function
-        u32p, u64p = ctypes.POINTER(ctypes.c_uint32), ctypes.POINTER(ctypes.c_uint64)
-
-        def fn(name, restype, *argtypes):
-            addr = load(name)
-            if not addr:
-                raise RuntimeError(f"GL function {name} is not available in this context")
-            return ctypes.CFUNCTYPE(restype, *argtypes)(addr)
-
-        self.gen_queries = fn("glGenQueries", None, ctypes.c_int32, u32p)
-        self.delete_queries = fn("glDeleteQueries", None, ctypes.c_int32, u32p)
-        self.begin_query = fn("glBeginQuery", None, ctypes.c_uint32, ctypes.c_uint32)
-        self.end_query = fn("glEndQuery", None, ctypes.c_uint32)
-        self.get_query_uiv = fn("glGetQueryObjectuiv", None, ctypes.c_uint32, ctypes.c_uint32, u32p)
-        self.get_query_ui64v = fn("glGetQueryObjectui64v", None, ctypes.c_uint32, ctypes.c_uint32, u64p)
-        self.flush = fn("glFlush", None)
-        self.get_error = fn("glGetError", ctypes.c_uint32)
-        self.is_query = fn("glIsQuery", ctypes.c_uint8, ctypes.c_uint32)
-        self.color_mask = fn("glColorMask", None, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint8, ctypes.c_uint8)
-        self.depth_mask = fn("glDepthMask", None, ctypes.c_uint8)
-        self.enable = fn("glEnable", None, ctypes.c_uint32)
-        self.disable = fn("glDisable", None, ctypes.c_uint32)
-        i32p, u8p = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_uint8)
-        self.get_integerv = fn("glGetIntegerv", None, ctypes.c_uint32, i32p)
-        self.get_booleanv = fn("glGetBooleanv", None, ctypes.c_uint32, u8p)
-        self.is_enabled = fn("glIsEnabled", ctypes.c_uint8, ctypes.c_uint32)
-        self.bind_framebuffer = fn("glBindFramebuffer", None, ctypes.c_uint32, ctypes.c_uint32)
-        self.use_program = fn("glUseProgram", None, ctypes.c_uint32)
-        self.bind_vertex_array = fn("glBindVertexArray", None, ctypes.c_uint32)
-        self.bind_buffer = fn("glBindBuffer", None, ctypes.c_uint32, ctypes.c_uint32)
-        self.depth_func = fn("glDepthFunc", None, ctypes.c_uint32)
-        self.viewport = fn("glViewport", None, ctypes.c_int32, ctypes.c_int32, ctypes.c_int32, ctypes.c_int32)
-        self.scissor = fn("glScissor", None, ctypes.c_int32, ctypes.c_int32, ctypes.c_int32, ctypes.c_int32)
-        self.active_texture = fn("glActiveTexture", None, ctypes.c_uint32)
-
-
-class GLState:
-    """The host's GL state that a moderngl pass changes, saved before it and restored after it
-    (DESIGN §7: Blender caches GL state and does not notice changes made behind its back):
-    framebuffer bindings, program, vertex array and array buffer, depth and colour write masks,
-    depth function, depth test, blend, cull and scissor flags, viewport, scissor box, active
-    texture unit."""
-
-    _INTS = {"draw_fbo": 0x8CA6, "read_fbo": 0x8CAA, "program": 0x8B8D, "vao": 0x85B5, "array_buffer": 0x8894,
-             "depth_func": 0x0B74, "active_texture": 0x84E0}
-    _FLAGS = {"depth_test": GL_DEPTH_TEST, "blend": 0x0BE2, "cull_face": GL_CULL_FACE, "scissor_test": 0x0C11}
-
-    def __init__(self, gl: GLFunctions):
-        self._gl = gl
-        self.values: dict = {}
-
-    def save(self) -> "GLState":
-        gl, v = self._gl, {}
-        one = ctypes.c_int32(0)
-        for name, pname in self._INTS.items():
-            gl.get_integerv(pname, ctypes.byref(one))
-            v[name] = one.value
-        four = (ctypes.c_int32 * 4)()
-        gl.get_integerv(0x0BA2, four)  # GL_VIEWPORT
-        v["viewport"] = tuple(four)
-        gl.get_integerv(0x0C10, four)  # GL_SCISSOR_BOX
-        v["scissor"] = tuple(four)
-        masks = (ctypes.c_uint8 * 4)()
-        gl.get_booleanv(0x0C23, masks)  # GL_COLOR_WRITEMASK
-        v["color_mask"] = tuple(masks)
-        gl.get_booleanv(0x0B72, masks)  # GL_DEPTH_WRITEMASK
-        v["depth_mask"] = masks[0]
-        for name, cap in self._FLAGS.items():
-            v[name] = bool(gl.is_enabled(cap))
-        self.values = v
-        return self
-
-    def restore(self) -> None:
-        gl, v = self._gl, self.values
-        gl.bind_framebuffer(0x8CA9, v["draw_fbo"])  # GL_DRAW_FRAMEBUFFER
-        gl.bind_framebuffer(0x8CA8, v["read_fbo"])  # GL_READ_FRAMEBUFFER
-        gl.use_program(v["program"])
-        gl.bind_vertex_array(v["vao"])
-        gl.bind_buffer(0x8892, v["array_buffer"])  # GL_ARRAY_BUFFER
-        gl.depth_func(v["depth_func"])
-        gl.active_texture(v["active_texture"])
-        gl.viewport(*v["viewport"])
-        gl.scissor(*v["scissor"])
-        gl.color_mask(*v["color_mask"])
-        gl.depth_mask(v["depth_mask"])
-        for name, cap in self._FLAGS.items():
-            (gl.enable if v[name] else gl.disable)(cap)
-
-
-class QueryPool:
-    """GL query objects, generated in blocks and reused across frames."""
-
-    def __init__(self, gl: GLFunctions):
-        self._gl = gl
-        self._free: list[int] = []
-        self._all: list[int] = []
-
-    def acquire(self) -> int:
-        if not self._free:
-            block = (ctypes.c_uint32 * 64)()
-            self._gl.gen_queries(64, block)
-            self._all.extend(block)
-            self._free.extend(block)
-        return self._free.pop()
-
-    def give_back(self, query: int) -> None:
-        self._free.append(query)
-
-    @property
-    def allocated(self) -> int:
-        return len(self._all)
-
-    @property
-    def ids(self) -> list[int]:
-        return list(self._all)
-
-    def release(self) -> None:
-        if self._all:
-            ids = (ctypes.c_uint32 * len(self._all))(*self._all)
-            self._gl.delete_queries(len(self._all), ids)
-        self._all, self._free = [], []
-
-
-@dataclass
-class Query:
-    """One node's occlusion query: `samples` (q) and optionally `alpha` (unoccluded count)."""
-
-    node: int
-    samples: int
-    alpha: int | None
+def overlay_ramp(steps: int = OVERLAY_RAMP_STEPS) -> list[tuple[float, float, float]]:
+    """The overlay colour of P = i / steps for i = 0..steps: metrics.modulation_colour(1 - P), as
+    tuples of Python floats (a uniform's value, no conversion per draw)."""
+    ratio_p = np.linspace(0.0, 1.0, steps + 1)
+    return [tuple(row) for row in metrics.modulation_colour(metrics.modulation(ratio_p)).tolist()]
 
 
 class Renderer:
-    """Draws HLOD nodes and issues their occlusion queries into the current or an own framebuffer."""
+    """Draws HLOD nodes and issues their occlusion queries into the current or an own framebuffer.
+
+    `overlay`: draw nodes in the modulation colour of the ratio P the traversal passes to
+    `draw_node` (else DEFAULT_COLOUR). `time_gpu`: time each frame with a GL timer query (False
+    inside a host that may run its own timer queries)."""
 
     def __init__(self, ctx, hlod: Hlod, *, size: tuple[int, int] | None = None, owns_context: bool = False,
-                 time_gpu: bool = True):
+                 time_gpu: bool = True, overlay: bool = False):
         import moderngl
 
         self._mgl = moderngl
         self.ctx = ctx
         self.hlod = hlod
         self._owns_context = owns_context
-        self.time_gpu = time_gpu  # False inside a host that may run its own timer queries
+        self.time_gpu = time_gpu
+        self.overlay = overlay
         self._released = False
         self.gl = GLFunctions(ctx)
         self.queries = QueryPool(self.gl)
@@ -254,6 +132,7 @@ class Renderer:
         self._qmax = [tuple(r) for r in self.query_box_max.tolist()]
         self._u_colour = self.node_program["u_colour"]
         self._u_lo, self._u_hi = self.box_program["u_lo"], self.box_program["u_hi"]
+        self._ramp = overlay_ramp()
         self._colour = None
         self._mode = None
         self._timer = None
@@ -272,9 +151,9 @@ class Renderer:
 
     # --- frame ----------------------------------------------------------------------------------
 
-    def begin_frame(self, view: View, *, clear: bool = True, time_gpu: bool | None = None) -> None:
-        """Set matrices (float64 -> float32 with the file origin folded in), bind, clear, start the
-        GPU timer."""
+    def begin_frame(self, view: View, *, time_gpu: bool | None = None) -> None:
+        """Set matrices (float64 -> float32 with the file origin folded in), bind (and clear an own
+        framebuffer), start the GPU timer (`time_gpu` overrides the renderer's setting)."""
         to_origin = np.eye(4)
         to_origin[:3, 3] = self.hlod.origin
         mv = view.view @ to_origin
@@ -286,7 +165,7 @@ class Renderer:
         if self.fbo is not None:
             self.fbo.use()
         self.ctx.viewport = (0, 0, view.width, view.height)
-        if clear and self.fbo is not None:
+        if self.fbo is not None:
             self.fbo.clear(1.0, 1.0, 1.0, 1.0, depth=1.0)
         self.ctx.enable(self._mgl.DEPTH_TEST)
         self.ctx.depth_func = "<="
@@ -295,19 +174,17 @@ class Renderer:
         self._timer = None
         if self.time_gpu if time_gpu is None else time_gpu:
             self._timer = self.queries.acquire()
-            self.gl.begin_query(GL_TIME_ELAPSED, self._timer)
+            self.gl.begin_query(GL.TIME_ELAPSED, self._timer)
 
     def end_frame(self) -> float:
         """Finish the frame; GPU milliseconds from the timer query (0 if it was not started)."""
         self._set_mode(None)
         gpu_ms = 0.0
         if self._timer is not None:
-            self.gl.end_query(GL_TIME_ELAPSED)
-            value = ctypes.c_uint64(0)
-            self.gl.get_query_ui64v(self._timer, GL_QUERY_RESULT, ctypes.byref(value))
+            self.gl.end_query(GL.TIME_ELAPSED)
+            gpu_ms = self.queries.elapsed_ms(self._timer)
             self.queries.give_back(self._timer)
             self._timer = None
-            gpu_ms = value.value / 1e6
         self.ctx.finish()
         if self.fbo is not None:
             self._host_fbo.use()  # never leave ours bound: moderngl rebinds its last one later
@@ -323,18 +200,28 @@ class Renderer:
         if mode == "draw" or mode is None:
             gl.color_mask(1, 1, 1, 1)
             gl.depth_mask(1)
-            gl.disable(GL_CULL_FACE)
-            gl.enable(GL_DEPTH_TEST)
+            gl.disable(GL.CULL_FACE)
+            gl.enable(GL.DEPTH_TEST)
         else:
             gl.color_mask(0, 0, 0, 0)
             gl.depth_mask(0)
-            gl.enable(GL_CULL_FACE)
-            (gl.enable if mode == "query" else gl.disable)(GL_DEPTH_TEST)
+            gl.enable(GL.CULL_FACE)
+            (gl.enable if mode == "query" else gl.disable)(GL.DEPTH_TEST)
         self._mode = mode
 
     # --- nodes and queries ----------------------------------------------------------------------
 
-    def draw_node(self, node: int, colour=DEFAULT_COLOUR) -> None:
+    def draw_node(self, node: int, ratio_p: float = 1.0) -> None:
+        """Draw a node chosen by a traversal; ratio_p in [0, 1] is the P that steered its LOD (1 for
+        none), shown as its modulation colour when `overlay` is on."""
+        if self.overlay:
+            step = round(min(1.0, max(0.0, float(ratio_p))) * OVERLAY_RAMP_STEPS)
+            self.draw_node_coloured(node, self._ramp[step])
+        else:
+            self.draw_node_coloured(node, DEFAULT_COLOUR)
+
+    def draw_node_coloured(self, node: int, colour) -> None:
+        """Draw a node in `colour`, linear RGB floats (the caller's choice: report figures)."""
         self._set_mode("draw")
         if colour is not self._colour:
             self._u_colour.value = tuple(float(c) for c in colour)
@@ -349,51 +236,27 @@ class Renderer:
     def issue_query(self, node: int, *, with_alpha: bool) -> Query:
         """Occlusion query of the node's box against the current depth buffer; with_alpha adds
         the depth-test-off query of the same box (the `query` estimator of alpha)."""
-        samples = self.queries.acquire()
+        samples_query_id = self.queries.acquire()
         self._set_mode("query")
-        self.gl.begin_query(GL_SAMPLES_PASSED, samples)
+        self.gl.begin_query(GL.SAMPLES_PASSED, samples_query_id)
         self._box(node)
-        self.gl.end_query(GL_SAMPLES_PASSED)
-        alpha = None
+        self.gl.end_query(GL.SAMPLES_PASSED)
+        alpha_query_id = None
         if with_alpha:
-            alpha = self.queries.acquire()
+            alpha_query_id = self.queries.acquire()
             self._set_mode("alpha")
-            self.gl.begin_query(GL_SAMPLES_PASSED, alpha)
+            self.gl.begin_query(GL.SAMPLES_PASSED, alpha_query_id)
             self._box(node)
-            self.gl.end_query(GL_SAMPLES_PASSED)
-        return Query(node=node, samples=samples, alpha=alpha)
+            self.gl.end_query(GL.SAMPLES_PASSED)
+        return Query(node=node, samples_query_id=samples_query_id, alpha_query_id=alpha_query_id)
 
     def available(self, query: Query) -> bool:
-        """Non-blocking. Flushes once when not yet available, so a deferred rasteriser starts."""
-        flag = ctypes.c_uint32(0)
-        last = query.alpha if query.alpha is not None else query.samples
-        self.gl.get_query_uiv(last, GL_QUERY_RESULT_AVAILABLE, ctypes.byref(flag))
-        if not flag.value:
-            self.gl.flush()
-            self.gl.get_query_uiv(last, GL_QUERY_RESULT_AVAILABLE, ctypes.byref(flag))
-        return bool(flag.value)
+        """Non-blocking: is the query's result back (see QueryPool.available)?"""
+        return self.queries.available(query)
 
     def result(self, query: Query) -> tuple[int, int | None, float]:
-        """(q, alpha or None, stall seconds). Blocks if the result is not available; the time
-        blocked is returned as stall. Gives the query objects back to the pool."""
-        stall = 0.0
-        if not self.available(query):
-            started = time.perf_counter()
-            value = self._get(query.samples)
-            alpha = self._get(query.alpha) if query.alpha is not None else None
-            stall = time.perf_counter() - started
-        else:
-            value = self._get(query.samples)
-            alpha = self._get(query.alpha) if query.alpha is not None else None
-        self.queries.give_back(query.samples)
-        if query.alpha is not None:
-            self.queries.give_back(query.alpha)
-        return value, alpha, stall
-
-    def _get(self, query_id: int) -> int:
-        value = ctypes.c_uint32(0)
-        self.gl.get_query_uiv(query_id, GL_QUERY_RESULT, ctypes.byref(value))
-        return int(value.value)
+        """(q, alpha or None, stall seconds), blocking if needed (see QueryPool.result)."""
+        return self.queries.result(query)
 
     # --- output and lifetime --------------------------------------------------------------------
 
@@ -403,9 +266,6 @@ class Renderer:
         w, h = fbo.size
         data = np.frombuffer(fbo.read(components=3, alignment=1), np.uint8).reshape(h, w, 3)
         return data[::-1].copy()
-
-    def gl_error(self) -> int:
-        return int(self.gl.get_error())
 
     def release(self) -> None:
         """Free every GL object this renderer made, in reverse creation order. Idempotent."""

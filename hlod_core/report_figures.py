@@ -8,6 +8,9 @@ when an evaluation writes figures).
   cost per node.
 - modulation.png: Bool, Coh(P), Coh(mu) at one frame: shaded, modulation colours from the user's
   view, and the drawn front from above (Figs. 8.1-8.3); blue weak, magenta moderate, red strong.
+
+Data form: in, the report dict (evaluate's report.json) and per_frame[key], (repeat, frames,
+len(COUNTERS)) float64; out, PNG files in the report folder.
 """
 from __future__ import annotations
 
@@ -15,7 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .runner import COUNTERS
+from .traversal import ALPHA_MODES, COUNTERS
+
+DPI = 110
+GRID_ALPHA = 0.3  # opacity of the grid lines
 
 
 def _pyplot():
@@ -27,22 +33,22 @@ def _pyplot():
     return plt
 
 
-def draw(report: dict, per_frame: dict, out_dir: Path) -> dict:
+def draw(report: dict, per_frame: dict, out_dir: Path, *, labels: dict[str, str]) -> dict:
+    """Write the figures of `report` (evaluate's JSON) and its per-frame counters into out_dir;
+    `labels`: report key -> method name shown. Returns figure title -> file name."""
     plt = _pyplot()
-    from .evaluate import LABELS
-
     files = {}
-    files["error against frame time"] = _error_vs_time(plt, report, LABELS, out_dir)
-    files["per-frame drawn nodes and frame time"] = _per_frame(plt, report, per_frame, LABELS, out_dir)
+    files["error against frame time"] = _error_vs_time(plt, report, labels, out_dir)
+    files["per-frame drawn nodes and frame time"] = _per_frame(plt, report, per_frame, labels, out_dir)
     files["alpha estimators: error against cost"] = _alpha(plt, report, out_dir)
     if report.get("showcase"):
-        files["modulation colours"] = _modulation(plt, report, LABELS, out_dir)
+        files["modulation colours"] = _modulation(plt, report, labels, out_dir)
     return {k: v for k, v in files.items() if v}
 
 
 def _save(plt, fig, out_dir: Path, name: str) -> str:
     fig.tight_layout()
-    fig.savefig(out_dir / name, dpi=110)
+    fig.savefig(out_dir / name, dpi=DPI)
     plt.close(fig)
     return name
 
@@ -62,7 +68,7 @@ def _error_vs_time(plt, report, labels, out_dir):
     ax.set_xlabel("mean frame time, ms (same run)")
     ax.set_ylabel("luminance RMSE against Full (0..255)")
     ax.set_title("Image error against frame time")
-    ax.grid(alpha=0.3)
+    ax.grid(alpha=GRID_ALPHA)
     return _save(plt, fig, out_dir, "error_vs_time.png")
 
 
@@ -79,8 +85,8 @@ def _per_frame(plt, report, per_frame, labels, out_dir):
     bottom.set_ylabel("frame ms")
     bottom.set_xlabel("frame")
     top.legend(ncol=5, fontsize=7)
-    top.grid(alpha=0.3)
-    bottom.grid(alpha=0.3)
+    top.grid(alpha=GRID_ALPHA)
+    bottom.grid(alpha=GRID_ALPHA)
     return _save(plt, fig, out_dir, "per_frame.png")
 
 
@@ -89,7 +95,7 @@ def _alpha(plt, report, out_dir):
     if not a["nodes"]:
         return None
     fig, ax = plt.subplots(figsize=(6, 4))
-    for mode in ("query", "projected", "cube"):
+    for mode in ALPHA_MODES:
         r = a[mode]
         med, p90 = r["median_rel_error_pct"], r["p90_rel_error_pct"]
         ax.errorbar([r["cost_us_per_node"]], [med], yerr=[[0.0], [p90 - med]], fmt="o", capsize=3, label=mode)
@@ -98,7 +104,7 @@ def _alpha(plt, report, out_dir):
     ax.set_xlabel("cost per node, µs (log)")
     ax.set_ylabel("error against the query count, %")
     ax.set_title(f"alpha estimators ({a['nodes']} boxes)")
-    ax.grid(alpha=0.3)
+    ax.grid(alpha=GRID_ALPHA)
     return _save(plt, fig, out_dir, "alpha_estimators.png")
 
 

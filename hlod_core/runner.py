@@ -1,4 +1,8 @@
-"""Run one traversal method over a camera path and average its counters (the `run` command)."""
+"""Run one traversal method over a camera path and average its counters (the `run` command).
+
+Data form: in, a camera path and a method name; out, a dict of per-frame means, one float per
+name in traversal.COUNTERS, plus "frames".
+"""
 from __future__ import annotations
 
 import os
@@ -10,9 +14,7 @@ from .camera import CameraPath
 from .hierarchy import Hlod
 from .png import write_png
 from .renderer import Renderer
-from .traversal import FrameStats, RuntimeSettings, make
-
-COUNTERS = ("dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms")
+from .traversal import COUNTERS, FrameStats, RuntimeSettings, make
 
 
 def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,

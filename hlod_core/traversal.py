@@ -15,7 +15,7 @@ result of 0 sets ratio = P(0) = 0 and leaves the node invisible. In Algorithm 4 
 in the previous frame counts as stopped with ratio 0, and the average ratio is over all children.
 Leaves always stop; interior nodes with d <= 0 (eye inside the sphere) always refine.
 Beyond the papers: Coh also measures the ratio of the nodes it refines, so the front can move up
-where Algorithm 4's children's average cannot see it should (`Coherent`, `shift_up`).
+where Algorithm 4's children's average cannot see it should (`Coh`, `shift_up`).
 
 Per-frame work over the whole node table (frustum test, distances, SSE, cube alpha) is numpy; the
 Python loop is the traversal itself, over the nodes it visits.
@@ -27,27 +27,39 @@ import heapq
 import math
 import time
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
 from . import metrics
+from .errors import InputError
 from .hierarchy import Hlod
 from .metrics import View
-from .renderer import DEFAULT_COLOUR, Query, Renderer
+from .queries import Query
 
+# Predictions of Algorithms 1-4 for a node popped from the priority queue; also the mode of the
+# query issued for it.
 REFINE, STOP, DELAY = "refine", "stop", "delay"
-MEASURE = "measure"  # a query on a refined node, only to measure its own ratio for the next frame
+# The mode of a query on a node that refines anyway, issued only to measure its own ratio for the
+# next frame (Coh's measured shift-up): its result draws and refines nothing.
+MEASURE_RATIO = "measure ratio"
 ALPHA_MODES = ("query", "projected", "cube")
 SHIFT_UP_MODES = ("measured", "children")
+#: Frame id of "never": far enough below frame 1 that no "visited last frame" and no "measured
+#: within Coh.measure_every_frames" test holds for it.
+NEVER_FRAME = -10
+MS_PER_S = 1e3
 
 
 @dataclass(frozen=True)
 class RuntimeSettings:
     """tau: pixels; s, t in [0, 1] and k > 0 (inf = step) for P_{s,t}; bias "P" or "mu" (s = 0);
-    alpha: "query" | "projected" | "cube"; overlay: colour drawn nodes by modulation;
+    alpha: "query" | "projected" | "cube";
     shift_up (Coh only): "measured" queries refined nodes too and moves the front up where their own
-    ratio says stop, "children" is Algorithm 4 as published (the children's average ratio)."""
+    ratio says stop, "children" is Algorithm 4 as published (the children's average ratio).
+    overlay: TEMPORARY (issue 12), only until addon/ sets `Renderer.overlay` itself: `make` copies
+    it to the renderer; the traversal does not read it."""
 
     tau: float = 1.0
     s: float = 0.9
@@ -60,22 +72,25 @@ class RuntimeSettings:
 
     def __post_init__(self):
         if not self.tau > 0:
-            raise ValueError(f"tau must be > 0 pixels, got {self.tau}")
+            raise InputError(f"tau must be > 0 pixels, got {self.tau}")
         if self.bias not in ("P", "mu"):
-            raise ValueError(f"bias must be 'P' or 'mu', got {self.bias!r}")
+            raise InputError(f"bias must be 'P' or 'mu', got {self.bias!r}")
         if self.alpha not in ALPHA_MODES:
-            raise ValueError(f"alpha must be one of {ALPHA_MODES}, got {self.alpha!r}")
+            raise InputError(f"alpha must be one of {ALPHA_MODES}, got {self.alpha!r}")
         if self.shift_up not in SHIFT_UP_MODES:
-            raise ValueError(f"shift_up must be one of {SHIFT_UP_MODES}, got {self.shift_up!r}")
-        metrics.bias(0.5, self.s, self.t, self.k)  # validates s, t, k
+            raise InputError(f"shift_up must be one of {SHIFT_UP_MODES}, got {self.shift_up!r}")
+        try:
+            metrics.bias(0.5, self.s, self.t, self.k)  # validates s, t, k (the messages are metrics')
+        except ValueError as exc:
+            raise InputError(str(exc)) from None
 
-    def p(self, mu) -> np.ndarray:
-        """P_{s,t}(mu) (s = 0 for bias "mu"); a Python float in, a float out (the per-node path)."""
-        if isinstance(mu, float):
-            return metrics.bias_scalar(mu, 0.0 if self.bias == "mu" else self.s, self.t, self.k)
-        if self.bias == "mu":
-            return metrics.bias(mu, 0.0, self.t, self.k)
-        return metrics.bias(mu, self.s, self.t, self.k)
+    def p(self, mu: float) -> float:
+        """P_{s,t}(mu) of one node (s = 0 for bias "mu"), in plain Python: the traversal's per-node path."""
+        return metrics.bias_scalar(float(mu), 0.0 if self.bias == "mu" else self.s, self.t, self.k)
+
+
+#: FrameStats' counters, in the order of its fields (the columns of per-frame tables).
+COUNTERS = ("dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms")
 
 
 @dataclass
@@ -96,11 +111,27 @@ class FrameStats:
     delayed: list = field(default_factory=list)     # the nodes counted in d
     refined_after_draw: list = field(default_factory=list)  # the nodes counted in rarn
 
-    def counters(self) -> dict:
-        out = asdict(self)
-        for name in ("drawn", "delayed", "refined_after_draw"):
-            out.pop(name)
-        return out
+
+class NodeRenderer(Protocol):
+    """What a traversal needs from the drawing side (`renderer.Renderer` is one; tests wrap it).
+    The traversal says which node it draws and with which ratio P; colours are the drawing side's."""
+
+    query_box_pad: float  # model units the query boxes are enlarged by (hierarchy.query_box_pad)
+
+    def begin_frame(self, view: View) -> None: ...
+
+    def end_frame(self) -> float:
+        """Finish the frame; GPU milliseconds (0 when not timed)."""
+
+    def draw_node(self, node: int, ratio_p: float) -> None: ...
+
+    def issue_query(self, node: int, *, with_alpha: bool) -> Query: ...
+
+    def available(self, query: Query) -> bool:
+        """Non-blocking: is the result back?"""
+
+    def result(self, query: Query) -> tuple[int, int | None, float]:
+        """(q, alpha or None, stall seconds), blocking if needed."""
 
 
 @dataclass
@@ -117,24 +148,25 @@ class Traversal(abc.ABC):
     """Shared state and helpers. Subclasses implement `_traverse(stats)`."""
 
     name = "base"
-    modulates = True  # does VMSSE decide its LOD (else the overlay shows no modulation: blue)
+    modulates = True  # does VMSSE decide its LOD (else it draws with P = 1: no modulation)
 
-    def __init__(self, hlod: Hlod, renderer: Renderer, settings: RuntimeSettings = RuntimeSettings()):
+    def __init__(self, hlod: Hlod, renderer: NodeRenderer, settings: RuntimeSettings = RuntimeSettings()):
         self.hlod = hlod
         self.renderer = renderer
         self.settings = settings
         n = hlod.node_count
         self.visible = np.zeros(n, bool)
-        self.last_visited = np.full(n, -10, np.int64)
+        self.last_visited = np.full(n, NEVER_FRAME, np.int64)
         self.stop_refinement = np.zeros(n, bool)
         self.ratio = np.zeros(n, np.float64)
-        self.rendered = np.full(n, -1, np.int64)
+        self.rendered = np.full(n, NEVER_FRAME, np.int64)  # frame the node was last drawn in
         self.frame_id = 0
+        self._is_leaf = hlod.is_leaf
         self._child_offset = hlod.child_offset.tolist()
         self._child_count = hlod.child_count.tolist()
         self._parent = hlod.parent.tolist()
         self._tri_count = hlod.tri_count.tolist()
-        self._leaf = (hlod.child_count == 0).tolist()
+        self._leaf = self._is_leaf.tolist()
 
     # --- per frame, vectorised ------------------------------------------------------------------
 
@@ -142,7 +174,7 @@ class Traversal(abc.ABC):
         h = self.hlod
         self.view = view
         self.in_frustum = metrics.boxes_in_frustum(view, h.box_min, h.box_max).tolist()
-        self.sse = metrics.sse(view, h.error, h.sphere_center, h.sphere_radius, h.child_count == 0).tolist()
+        self.sse = metrics.sse(view, h.error, h.sphere_center, h.sphere_radius, self._is_leaf).tolist()
         self.key = metrics.box_distance(view.eye, h.box_min, h.box_max).tolist()
         pad = self.renderer.query_box_pad
         lo, hi = h.box_min - pad, h.box_max + pad
@@ -163,8 +195,8 @@ class Traversal(abc.ABC):
         traversed_at = time.perf_counter()
         stats.gpu_ms = self.renderer.end_frame()
         ended = time.perf_counter()
-        stats.frame_ms = (ended - started) * 1e3
-        stats.cpu_ms = (traversed_at - started) * 1e3 - stats.stall_ms
+        stats.frame_ms = (ended - started) * MS_PER_S
+        stats.cpu_ms = (traversed_at - started) * MS_PER_S - stats.stall_ms
         return stats
 
     @abc.abstractmethod
@@ -190,10 +222,7 @@ class Traversal(abc.ABC):
         stats.dn += 1
         stats.tris += self._tri_count[node]
         stats.drawn.append(node)
-        colour = DEFAULT_COLOUR
-        if self.settings.overlay:
-            colour = tuple(metrics.modulation_colour(metrics.modulation(self.ratio[node] if self.modulates else 1.0)))
-        self.renderer.draw_node(node, colour)
+        self.renderer.draw_node(node, self.ratio[node] if self.modulates else 1.0)
         return True
 
     def _sse_stop(self, node: int) -> bool:
@@ -220,7 +249,7 @@ class Traversal(abc.ABC):
         if pending.query is None:
             return 1, 1.0
         q, alpha_q, stall = self.renderer.result(pending.query)
-        stats.stall_ms += stall * 1e3
+        stats.stall_ms += stall * MS_PER_S
         node = pending.node
         if self.settings.alpha == "query":
             alpha = float(alpha_q)
@@ -257,7 +286,7 @@ class Full(Traversal):
     modulates = False
 
     def _traverse(self, stats):
-        leaves = np.flatnonzero((self.hlod.child_count == 0) & np.asarray(self.in_frustum))
+        leaves = np.flatnonzero(self._is_leaf & np.asarray(self.in_frustum))
         order = leaves[np.argsort(np.asarray(self.key)[leaves], kind="stable")]
         stats.traversed = int(order.shape[0])
         for node in order.tolist():
@@ -327,7 +356,7 @@ class Ideal(Traversal):
             self._render(node, stats)
 
 
-class _Coherent(Traversal):
+class CoherentLoop(Traversal):
     """Algorithm 2's loop (Algorithm 1 when `predict` and `stop_on_result` are Bool's)."""
 
     @abc.abstractmethod
@@ -359,7 +388,7 @@ class _Coherent(Traversal):
                 pending = queue.popleft()
                 node = pending.node
                 q, mu = self._mu(pending, stats)
-                if pending.mode == MEASURE:
+                if pending.mode == MEASURE_RATIO:
                     self._measured(node, q, mu)
                 elif q > 0:
                     self._pull_up(node)
@@ -389,7 +418,7 @@ class _Coherent(Traversal):
                 if stop:
                     queue.append(self._issue(node, mode, stats))
                 elif self._measures_refined(node):
-                    queue.append(self._issue(node, MEASURE, stats))
+                    queue.append(self._issue(node, MEASURE_RATIO, stats))
                 if mode != DELAY:
                     descend(node, stop)
 
@@ -398,13 +427,13 @@ class _Coherent(Traversal):
         return False
 
     def _measured(self, node: int, q: int, mu: float) -> None:
-        """Hook: the result of a MEASURE query; it draws and refines nothing."""
+        """Hook: the result of a MEASURE_RATIO query; it draws and refines nothing."""
 
     def _on_push(self, node: int) -> None:
         """Hook: Simp records the insertion position."""
 
 
-class Bool(_Coherent):
+class Bool(CoherentLoop):
     """CHC adapted to HLOD (dissertation Algorithm 1, Gobbetti & Marton): queries as booleans, SSE."""
 
     name = "bool"
@@ -425,7 +454,7 @@ class Bool(_Coherent):
         return self._sse_stop(node)
 
 
-class Simp(_Coherent):
+class Simp(CoherentLoop):
     """Algorithm 2 with Algorithm 3 (2006): mu_hat = 1 - insertion position / nodes scheduled,
     both from the previous frame."""
 
@@ -459,22 +488,21 @@ class Simp(_Coherent):
         return self._vmsse_stop(node, self.ratio[node])
 
 
-class Coherent(_Coherent):
+class Coh(CoherentLoop):
     """Coh: Algorithm 2 with Algorithm 4, the cached ratio of the previous frame.
 
     Shift-up, "measured" (default, our extension): Algorithm 4 learns that the front may move up
     only from the children's average ratio, and only when all of them stopped. Visibility is not
-    additive over the hierarchy: a node 3% visible (P ~ 0) can hold a child 20% visible (P ~ 0.9),
-    so the children keep refining where stop-and-wait, which queries the node itself, stops; the
-    front then stays too deep for as long as the view lasts (measured on the crowd scene: most of
-    Coh's excess over SW(P) on slow paths). So refined nodes in the frustum are queried too, without
-    waiting (MEASURE: the result only stores the node's ratio), each every `measure_every_frames`-th
-    frame, staggered by node index; a refined node with a ratio measured that recently predicts Delay
-    (verified by its own query, as Algorithm 4's shift-up is) when the ratio stops it, Refine
-    otherwise; without one, Algorithm 4 decides as published. Refined nodes are the large boxes,
-    which a CPU rasteriser pays for by area: measuring every frame cost 20% more queries and 15% more
-    frame time on llvmpipe for DN 1.010 x SW(P); every 4th frame, 0.7% more queries for 1.012
-    (Algorithm 4 alone: 1.022; README evaluation path). "children" is Algorithm 4 alone (the report's Coh(P) Alg. 4 row).
+    additive over the hierarchy: a node barely visible (P ~ 0) can hold a child visible well over
+    t (P ~ 1), so the children keep refining where stop-and-wait, which queries the node itself,
+    stops, and the front stays too deep for as long as the view lasts. So refined nodes in the
+    frustum are queried too, without waiting (MEASURE_RATIO: the result only stores the node's
+    ratio), each every `measure_every_frames`-th frame, staggered by node index; a refined node with
+    a ratio measured that recently predicts Delay (verified by its own query, as Algorithm 4's
+    shift-up is) when the ratio stops it, Refine otherwise; without one, Algorithm 4 decides as
+    published. Refined nodes are the large boxes, which a CPU rasteriser pays for by area, so they
+    are measured every few frames rather than every frame (the README gives the measured trade-off).
+    "children" is Algorithm 4 alone (the report's Coh(P) Alg. 4 row).
     """
 
     measure_every_frames = 4
@@ -483,7 +511,7 @@ class Coherent(_Coherent):
 
     def __init__(self, hlod, renderer, settings=RuntimeSettings()):
         super().__init__(hlod, renderer, settings)
-        self.measured = np.full(hlod.node_count, -10, np.int64)  # frame of the node's last query result
+        self.measured = np.full(hlod.node_count, NEVER_FRAME, np.int64)  # frame of the node's last query result
         self._measure = settings.shift_up == "measured"
 
     def _predict(self, node):
@@ -523,11 +551,15 @@ class Coherent(_Coherent):
         self.measured[node] = self.frame_id
 
 
-METHODS = {"full": Full, "vfc": VFC, "bool": Bool, "sw": StopAndWait, "simp": Simp, "coh": Coherent, "ideal": Ideal}
+METHODS = {"full": Full, "vfc": VFC, "bool": Bool, "sw": StopAndWait, "simp": Simp, "coh": Coh, "ideal": Ideal}
 
 
-def make(method: str, hlod: Hlod, renderer: Renderer, settings: RuntimeSettings = RuntimeSettings()) -> Traversal:
-    try:
-        return METHODS[method](hlod, renderer, settings)
-    except KeyError:
-        raise ValueError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}") from None
+def make(method: str, hlod: Hlod, renderer: NodeRenderer, settings: RuntimeSettings = RuntimeSettings()) -> Traversal:
+    """A new traversal of `method` (a key of METHODS) with its own per-node state."""
+    cls = METHODS.get(method)
+    if cls is None:
+        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    # TEMPORARY (issue 12): until addon/settings.py and addon/preview.py set Renderer.overlay themselves
+    if hasattr(renderer, "overlay"):
+        renderer.overlay = settings.overlay
+    return cls(hlod, renderer, settings)
