@@ -299,11 +299,8 @@ def _runtime_setup(args, bias: str = "P"):
     from .traversal import RuntimeSettings
 
     size = _parse_size(args.size)
-    try:
-        settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha,
-                                   shift_up=args.shift_up)
-    except ValueError as exc:
-        raise InputError(str(exc)) from None
+    settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha,
+                               shift_up=args.shift_up)  # raises InputError
     hlod = fileformat.load(args.file)
     path = load_path(args.path) if args.path else inspection_path(hlod, seed=args.seed, frames=args.frames)
     return hlod, settings, path, size
