@@ -6,7 +6,7 @@ Public API:
     fileformat.save / fileformat.load; checks.check(hlod)
     renderer.Renderer (moderngl: standalone EGL or a caller's context; GL entry points and enums in
         gl_functions, query objects in queries, host GL state in gl_state)
-    traversal.make(method, hlod, renderer, RuntimeSettings).frame(metrics.View) -> FrameStats
+    traversal.make(method, hlod, renderer, RuntimeSettings).frame(view.View) -> FrameStats
         (any renderer with traversal.NodeRenderer's methods; counters named in traversal.COUNTERS)
     camera.load_path / camera.inspection_path; runner.run_path
     evaluate.evaluate (report.json, report.md via report_text, figures via report_figures and

@@ -11,9 +11,10 @@ import time
 
 import numpy as np
 
-from . import metrics
+from . import boxes
+from .alpha_estimators import alpha_cube, alpha_projected
 from .hierarchy import Hlod
-from .metrics import View
+from .view import View
 from .renderer import Renderer
 from .traversal import ALPHA_MODES
 
@@ -36,8 +37,8 @@ def alpha_estimators(hlod: Hlod, renderer: Renderer, views: list[View], *,
     cost_s = {mode: 0.0 for mode in ALPHA_MODES}
     count = 0
     for view in views:
-        usable = (metrics.boxes_in_frustum(view, hlod.box_min, hlod.box_max)
-                  & ~metrics.eye_in_boxes(view.eye, lo, hi) & ~metrics.boxes_cross_near_plane(view, lo, hi))
+        usable = (boxes.boxes_in_frustum(view, hlod.box_min, hlod.box_max)
+                  & ~boxes.eye_in_boxes(view.eye, lo, hi) & ~boxes.boxes_cross_near_plane(view, lo, hi))
         nodes = np.flatnonzero(usable)
         if nodes.size > max_nodes:
             nodes = np.sort(rng.choice(nodes, max_nodes, replace=False))
@@ -48,9 +49,9 @@ def alpha_estimators(hlod: Hlod, renderer: Renderer, views: list[View], *,
         pending = [renderer.issue_query(int(n), with_alpha=True) for n in nodes]
         exact = np.array([renderer.result(p)[1] for p in pending], np.float64)
         t1 = time.perf_counter()
-        projected = np.array([metrics.alpha_projected(view, lo[n], hi[n]) for n in nodes])
+        projected = np.array([alpha_projected(view, lo[n], hi[n]) for n in nodes])
         t2 = time.perf_counter()
-        cube = metrics.alpha_cube(view, hlod.cube_side, hlod.box_min, hlod.box_max)[nodes]
+        cube = alpha_cube(view, hlod.cube_side, hlod.box_min, hlod.box_max)[nodes]
         t3 = time.perf_counter()
         renderer.end_frame()
         cost_s["query"] += QUERY_ESTIMATOR_SHARE * (t1 - t0)

@@ -7,7 +7,7 @@ with "ortho_height": h (model units visible vertically) instead of "fovy_deg" fo
 orthographic path. Coordinates are world (model) units, float64. Defaults: fovy_deg 60, near 0.01,
 far 1000, up [0, 0, 1]. Every field must be a JSON number (not null, a string, a list or
 true/false), finite and at most MAX_MAGNITUDE in size; unknown keys are refused; any far/near
-ratio is accepted (metrics.frustum_planes keeps a far plane beyond float64's reach at infinity).
+ratio is accepted (boxes.frustum_planes keeps a far plane beyond float64's reach at infinity).
 
 Seeded sequences (after the dissertation's inspection sessions, §8.1: rotations and changes from
 overall views to extreme close-ups): an orbit around the scene, a fly-through across it, a dolly
@@ -27,7 +27,7 @@ from . import jsonutil
 from .atomic import write_text_atomic
 from .errors import InputError
 from .hierarchy import MAX_COORDINATE, Hlod
-from .metrics import View, look_at, orthographic, perspective
+from .view import View, look_at, orthographic, perspective
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ colour and depth writes off and back faces culled; `q` with the depth test on, `
 `query` estimator) with it off, so both count the same rasterised pixels, clipping included.
 
 Colours are decided here: a node is drawn in DEFAULT_COLOUR, or with `overlay` on, in the
-modulation ramp's colour (metrics.modulation_colour) of the ratio P the traversal passes,
+modulation ramp's colour (overlay.modulation_colour) of the ratio P the traversal passes,
 looked up in a table of the ramp precomputed at OVERLAY_RAMP_STEPS + 1 values of P.
 """
 from __future__ import annotations
@@ -23,11 +23,11 @@ import logging
 
 import numpy as np
 
-from . import metrics
 from .gl_functions import GL, GLFunctions
 from .gl_state import GLState  # noqa: F401  TEMPORARY re-export: addon/preview.py imports it from here
 from .hierarchy import Hlod, query_box_pad
-from .metrics import View
+from .overlay import OVERLAY_RAMP_STEPS, overlay_ramp
+from .view import View
 from .queries import Query, QueryPool
 
 log = logging.getLogger(__name__)
@@ -72,19 +72,6 @@ _CUBE_TRIS = np.array([[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0
                        [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]], np.int32)
 
 DEFAULT_COLOUR = (0.82, 0.80, 0.76)  # linear RGB of a node without the overlay
-#: Entries of the overlay's colour table less one: P is rounded to a multiple of 1 / OVERLAY_RAMP_STEPS
-#: (the ramp's steepest channel moves 1.7 per unit of P, so a colour errs by at most 2.1e-4, a
-#: nineteenth of an 8-bit level).
-OVERLAY_RAMP_STEPS = 4096
-
-
-def overlay_ramp(steps: int = OVERLAY_RAMP_STEPS) -> list[tuple[float, float, float]]:
-    """The overlay colour of P = i / steps for i = 0..steps: metrics.modulation_colour(1 - P), as
-    tuples of Python floats (a uniform's value, no conversion per draw)."""
-    ratio_p = np.linspace(0.0, 1.0, steps + 1)
-    return [tuple(row) for row in metrics.modulation_colour(metrics.modulation(ratio_p)).tolist()]
-
-
 class Renderer:
     """Draws HLOD nodes and issues their occlusion queries into the current or an own framebuffer.
 

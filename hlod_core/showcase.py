@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import metrics
+from . import overlay, view
 from .camera import CameraPath
 from .hierarchy import Hlod
-from .metrics import View
+from .view import View
 from .png import write_png
 from .renderer import DEFAULT_COLOUR, Renderer
 from .traversal import COUNTERS, make
@@ -47,8 +47,8 @@ def bird_view(hlod: Hlod, size: tuple[int, int], up_axis: int = 2) -> View:
     up = np.zeros(3)
     up[b] = 1.0
     far = _BIRD_FAR_DEPTHS * depth + _BIRD_FAR_MARGIN * height
-    return View(eye=eye, view=metrics.look_at(eye, centre, up),
-                projection=metrics.orthographic(height, w / h, _BIRD_NEAR_OF_FAR * far, far), width=w, height=h)
+    return View(eye=eye, view=view.look_at(eye, centre, up),
+                projection=view.orthographic(height, w / h, _BIRD_NEAR_OF_FAR * far, far), width=w, height=h)
 
 
 def draw_nodes(renderer: Renderer, view: View, *, nodes, colours) -> np.ndarray:
@@ -84,7 +84,7 @@ def modulation_frames(hlod: Hlod, renderer: Renderer, *, path: CameraPath, size:
         for i in range(frame + 1):
             stats = traversal.frame(path.view(i, size))
         shaded = renderer.read_pixels()
-        colours = metrics.modulation_colour(traversal.modulation(stats.drawn))
+        colours = overlay.modulation_colour(traversal.modulation(stats.drawn))
         user = draw_nodes(renderer, path.view(frame, size), nodes=stats.drawn, colours=colours)
         above = draw_nodes(renderer, bird, nodes=stats.drawn, colours=colours)
         files[key] = {}

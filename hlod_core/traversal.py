@@ -32,10 +32,10 @@ from typing import Protocol
 
 import numpy as np
 
-from . import metrics
+from . import alpha_estimators, boxes, metrics
 from .errors import InputError
 from .hierarchy import Hlod
-from .metrics import View
+from .view import View
 from .queries import Query
 
 # Predictions of Algorithms 1-4 for a node popped from the priority queue; also the mode of the
@@ -173,16 +173,16 @@ class Traversal(abc.ABC):
     def _prepare(self, view: View) -> None:
         h = self.hlod
         self.view = view
-        self.in_frustum = metrics.boxes_in_frustum(view, h.box_min, h.box_max).tolist()
+        self.in_frustum = boxes.boxes_in_frustum(view, h.box_min, h.box_max).tolist()
         self.sse = metrics.sse(view, h.error, h.sphere_center, h.sphere_radius, self._is_leaf).tolist()
-        self.key = metrics.box_distance(view.eye, h.box_min, h.box_max).tolist()
+        self.key = boxes.box_distance(view.eye, h.box_min, h.box_max).tolist()
         pad = self.renderer.query_box_pad
         lo, hi = h.box_min - pad, h.box_max + pad
         # DESIGN §5.4 skips the query when the eye is inside the box; a box reaching in front of
         # the near plane has the same problem (its front faces are clipped), so it is skipped too.
-        self.unqueryable = (metrics.eye_in_boxes(view.eye, lo, hi)
-                            | metrics.boxes_cross_near_plane(view, lo, hi)).tolist()
-        self.alpha_cube = metrics.alpha_cube(view, h.cube_side, h.box_min, h.box_max) \
+        self.unqueryable = (boxes.eye_in_boxes(view.eye, lo, hi)
+                            | boxes.boxes_cross_near_plane(view, lo, hi)).tolist()
+        self.alpha_cube = alpha_estimators.alpha_cube(view, h.cube_side, h.box_min, h.box_max) \
             if self.settings.alpha == "cube" else None
 
     def frame(self, view: View) -> FrameStats:
@@ -256,7 +256,7 @@ class Traversal(abc.ABC):
         elif self.settings.alpha == "cube":
             alpha = float(self.alpha_cube[node])
         else:
-            alpha = metrics.alpha_projected(self.view, self.hlod.box_min[node] - self.renderer.query_box_pad,
+            alpha = alpha_estimators.alpha_projected(self.view, self.hlod.box_min[node] - self.renderer.query_box_pad,
                                             self.hlod.box_max[node] + self.renderer.query_box_pad)
         mu = 0.0 if not alpha > 0 else min(1.0, max(0.0, q / alpha))  # alpha 0 or NaN -> 0; q > alpha -> 1
         return q, mu

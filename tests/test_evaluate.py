@@ -13,7 +13,7 @@ from hlod_core import evaluate, imagemetrics, scenes
 from hlod_core.camera import inspection_path
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.errors import InputError
-from hlod_core.metrics import look_at, perspective
+from hlod_core.view import look_at, perspective
 
 from helpers import ROOT
 from test_cli import hlod, last_json, one_line_error

@@ -4,8 +4,8 @@ import warnings
 import numpy as np
 import pytest
 
-from hlod_core import metrics
-from hlod_core.metrics import View, look_at, orthographic, perspective
+from hlod_core import alpha_estimators, boxes, metrics, overlay
+from hlod_core.view import View, look_at, orthographic, perspective
 
 MU = np.linspace(0.0, 1.0, 2001)
 KS = [1.0, 10.0, 1e3, 1e6, 1e9, np.inf]
@@ -87,7 +87,7 @@ def test_bad_bias_parameters_are_rejected():
 
 
 def test_modulation_colours_blue_magenta_red():
-    c = metrics.modulation_colour(np.array([0.0, 0.5, 1.0]))
+    c = overlay.modulation_colour(np.array([0.0, 0.5, 1.0]))
     assert c[0].argmax() == 2 and c[2].argmax() == 0  # blue, red
     assert c[1][0] > 0.5 and c[1][2] > 0.5 and c[1][1] < 0.3  # magenta
 
@@ -134,7 +134,7 @@ def test_scene_at_1e6_and_extreme_near_far():
     out = metrics.sse(v, np.array([0.01]), c, np.array([1.0]), np.array([False]))
     # d = 4; SSE = 0.01 * 240 * P11 / 4 with P11 = 1/tan(30 deg)
     assert out[0] == pytest.approx(0.01 * 240 * (1 / np.tan(np.radians(30))) / 4, rel=1e-9)
-    assert np.all(metrics.boxes_in_frustum(v, c - 1, c + 1))
+    assert np.all(boxes.boxes_in_frustum(v, c - 1, c + 1))
 
 
 def test_nodes_at_1e_minus_4_and_1e5_units():
@@ -149,21 +149,21 @@ def test_nodes_at_1e_minus_4_and_1e5_units():
 def test_frustum_keeps_boxes_in_view_and_drops_boxes_behind():
     v = _view()
     lo = np.array([[-1, -1, -1], [-1, -1, 20], [50, 50, -1]], float)
-    assert metrics.boxes_in_frustum(v, lo, lo + 2).tolist() == [True, False, False]
+    assert boxes.boxes_in_frustum(v, lo, lo + 2).tolist() == [True, False, False]
 
 
 def test_boxes_reaching_in_front_of_the_near_plane():
     v = _view(eye=(0, 0, 10), near=2.0)  # near plane at z = 8
     lo = np.array([[-1, -1, 7.0], [-1, -1, 8.5], [-1, -1, 0.0]])
     hi = np.array([[1, 1, 7.5], [1, 1, 9.0], [1, 1, 1.0]])
-    assert metrics.boxes_cross_near_plane(v, lo, hi).tolist() == [False, True, False]
+    assert boxes.boxes_cross_near_plane(v, lo, hi).tolist() == [False, True, False]
 
 
 def test_box_distance_is_zero_inside_and_on_faces():
     lo, hi = np.array([[0, 0, 0.0]]), np.array([[1, 1, 1.0]])
-    assert metrics.box_distance(np.array([0.5, 0.5, 0.5]), lo, hi)[0] == 0.0
-    assert metrics.box_distance(np.array([1.0, 0.5, 0.5]), lo, hi)[0] == 0.0  # eye on a face
-    assert metrics.box_distance(np.array([4.0, 5.0, 0.5]), lo, hi)[0] == pytest.approx(5.0)
+    assert boxes.box_distance(np.array([0.5, 0.5, 0.5]), lo, hi)[0] == 0.0
+    assert boxes.box_distance(np.array([1.0, 0.5, 0.5]), lo, hi)[0] == 0.0  # eye on a face
+    assert boxes.box_distance(np.array([4.0, 5.0, 0.5]), lo, hi)[0] == pytest.approx(5.0)
 
 
 # --- alpha estimators (geometry only; compared with the query estimator in test_traversal) ------
@@ -171,15 +171,15 @@ def test_box_distance_is_zero_inside_and_on_faces():
 def test_projected_alpha_of_a_face_on_square():
     v = _view(eye=(0, 0, 10), fovy=90.0, size=(480, 480))  # 1 unit at distance d covers 240/d px
     # unit-depth box whose front face (z = 1) is 2 x 2 at distance 9: 2 * 240 / 9 px on a side
-    area = metrics.alpha_projected(v, np.array([-1, -1, 0.0]), np.array([1, 1, 1.0]))
+    area = alpha_estimators.alpha_projected(v, np.array([-1, -1, 0.0]), np.array([1, 1, 1.0]))
     back = (2 * 240 / 10) ** 2  # the back face projects smaller and lies inside the front face
     assert area == pytest.approx((2 * 240 / 9) ** 2, rel=1e-9) and area > back
 
 
 def test_projected_alpha_clips_to_the_viewport_and_handles_the_near_plane():
     v = _view(eye=(0, 0, 0.5), size=(64, 48))  # eye inside the box: covers the whole viewport
-    assert metrics.alpha_projected(v, np.array([-1, -1, -1.0]), np.array([1, 1, 1.0])) == pytest.approx(64 * 48)
-    behind = metrics.alpha_projected(v, np.array([-1, -1, 5.0]), np.array([1, 1, 6.0]))
+    assert alpha_estimators.alpha_projected(v, np.array([-1, -1, -1.0]), np.array([1, 1, 1.0])) == pytest.approx(64 * 48)
+    behind = alpha_estimators.alpha_projected(v, np.array([-1, -1, 5.0]), np.array([1, 1, 6.0]))
     assert behind == 0.0
 
 
@@ -187,9 +187,9 @@ def test_cube_alpha_formula_and_eye_at_centre():
     v = _view(eye=(0, 0, 10), fovy=90.0, size=(480, 480))
     lo, hi = np.array([[-1, -1, -1.0]]), np.array([[1, 1, 1.0]])
     # side 2 at d = 10: (2 * 240 / 10)^2
-    assert metrics.alpha_cube(v, np.array([2.0]), lo, hi)[0] == pytest.approx((2 * 240 / 10) ** 2)
+    assert alpha_estimators.alpha_cube(v, np.array([2.0]), lo, hi)[0] == pytest.approx((2 * 240 / 10) ** 2)
     at_centre = _view(eye=(0, 0, 0), target=(0, 0, -1), fovy=90.0)
-    assert metrics.alpha_cube(at_centre, np.array([2.0]), lo, hi)[0] == np.inf
+    assert alpha_estimators.alpha_cube(at_centre, np.array([2.0]), lo, hi)[0] == np.inf
 
 
 # --- frustum planes over far/near ratios from 1e4 to 1e20 (issue 11) ---------------------------
@@ -199,10 +199,10 @@ def test_frustum_planes_exact_for_a_90_degree_camera_at_the_origin():
     v = _view(eye=(0, 0, 0), target=(0, 0, -1), fovy=90.0, size=(300, 300), near=1.0, far=100.0)
     r = 1 / np.sqrt(2)
     expected = [[r, 0, -r, 0], [-r, 0, -r, 0], [0, r, -r, 0], [0, -r, -r, 0], [0, 0, -1, -1], [0, 0, 1, 100]]
-    assert np.allclose(metrics.frustum_planes(v), expected, rtol=0, atol=1e-12)
+    assert np.allclose(boxes.frustum_planes(v), expected, rtol=0, atol=1e-12)
     # far/near 1e20: P[2][2] rounds to -1, the far plane lies at infinity and keeps everything
     huge = _view(eye=(0, 0, 0), target=(0, 0, -1), fovy=90.0, size=(300, 300), near=1.0, far=1e20)
-    assert np.array_equal(metrics.frustum_planes(huge)[5], [0.0, 0.0, 0.0, 1.0])
+    assert np.array_equal(boxes.frustum_planes(huge)[5], [0.0, 0.0, 0.0, 1.0])
 
 
 @pytest.mark.parametrize("far_over_near", [1e4, 1e8, 1e12, 1e16, 1e17, 1e20])
@@ -222,10 +222,10 @@ def test_frustum_holds_for_far_over_near_up_to_1e20(far_over_near, ortho):
     lateral = np.array([0.0, 0.0, 0.0, 0.0, 1e3, 0.0])
     centre = eye + distance[:, None] * axis + lateral[:, None] * side
     half = (0.01 * near + 1e-14 * np.abs(distance))[:, None]  # at least the rounding of the centre
-    inside = metrics.boxes_in_frustum(v, centre - half, centre + half)
+    inside = boxes.boxes_in_frustum(v, centre - half, centre + half)
     # the matrix tells a perspective far plane from infinity while P[2][2] has not rounded to -1
     far_at_infinity = ortho is None and v.projection[2, 2] == -1.0
     assert far_at_infinity == (ortho is None and far_over_near >= 1e17)
     assert inside.tolist() == [True, True, True, False, False, far_at_infinity]
-    planes = metrics.frustum_planes(v)
+    planes = boxes.frustum_planes(v)
     assert np.all(np.isfinite(planes)) and np.allclose(np.linalg.norm(planes[:, :3], axis=1)[:5], 1.0)

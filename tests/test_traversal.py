@@ -8,13 +8,14 @@ import moderngl
 import numpy as np
 import pytest
 
-from hlod_core import meshio, metrics, scenes
+from hlod_core import alpha_estimators, boxes, meshio, metrics, overlay, scenes
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.camera import CameraPath, inspection_path
 from hlod_core.errors import InputError
 from hlod_core.gl_functions import GL, GLFunctions
 from hlod_core.gl_state import GLState
-from hlod_core.renderer import DEFAULT_COLOUR, OVERLAY_RAMP_STEPS, Renderer, overlay_ramp
+from hlod_core.overlay import OVERLAY_RAMP_STEPS, overlay_ramp
+from hlod_core.renderer import DEFAULT_COLOUR, Renderer
 from hlod_core.traversal import COUNTERS, METHODS, FrameStats, RuntimeSettings, make
 
 from helpers import baked_city, load_model, street_path
@@ -140,7 +141,7 @@ def test_alpha_estimators_against_the_query_on_boxes_fully_on_screen(city_render
     view = path.view(0, SIZE)
     pad = city_renderer.query_box_pad
     lo, hi = hlod.box_min - pad, hlod.box_max + pad
-    clip = [(view.projection @ view.view @ np.c_[metrics.box_corners(lo[i], hi[i]), np.ones(8)].T).T
+    clip = [(view.projection @ view.view @ np.c_[boxes.box_corners(lo[i], hi[i]), np.ones(8)].T).T
             for i in range(hlod.node_count)]
     on_screen = [i for i, c in enumerate(clip)
                  if np.all(c[:, 3] > 0) and np.all(np.abs(c[:, :2] / c[:, 3:4]) < 0.98)]
@@ -153,8 +154,8 @@ def test_alpha_estimators_against_the_query_on_boxes_fully_on_screen(city_render
         exact.append(alpha)
     city_renderer.end_frame()
     exact = np.array(exact, float)
-    projected = np.array([metrics.alpha_projected(view, lo[i], hi[i]) for i in on_screen])
-    cube = metrics.alpha_cube(view, hlod.cube_side, hlod.box_min, hlod.box_max)[on_screen]
+    projected = np.array([alpha_estimators.alpha_projected(view, lo[i], hi[i]) for i in on_screen])
+    cube = alpha_estimators.alpha_cube(view, hlod.cube_side, hlod.box_min, hlod.box_max)[on_screen]
     big = exact >= 400  # boxes of at least 20 x 20 pixels
     projected_err = np.abs(projected[big] / exact[big] - 1)
     assert np.max(projected_err) < 0.03, np.max(projected_err)
@@ -436,15 +437,15 @@ def test_the_traversal_passes_each_drawn_node_and_its_ratio(city_renderer, metho
 
 
 def test_overlay_ramp_table_matches_the_metrics_ramp():
-    """The renderer's colour table is metrics.modulation_colour sampled at P = i / steps; between
+    """The renderer's colour table is overlay.modulation_colour sampled at P = i / steps; between
     samples, P rounds to the nearest: within 1.7 (the ramp's steepest slope, blue of magenta ->
     red) / (2 steps), plus float32 rounding."""
     ramp = np.array(overlay_ramp())
     p = np.linspace(0.0, 1.0, OVERLAY_RAMP_STEPS + 1)
-    assert np.array_equal(ramp, metrics.modulation_colour(metrics.modulation(p)).astype(np.float64))
+    assert np.array_equal(ramp, overlay.modulation_colour(metrics.modulation(p)).astype(np.float64))
     fine = np.random.default_rng(0).random(10_000)
     looked_up = ramp[np.round(fine * OVERLAY_RAMP_STEPS).astype(int)]
-    exact = metrics.modulation_colour(metrics.modulation(fine))
+    exact = overlay.modulation_colour(metrics.modulation(fine))
     assert np.max(np.abs(looked_up - exact)) <= 1.7 / (2 * OVERLAY_RAMP_STEPS) + 1e-7
 
 
@@ -461,14 +462,14 @@ def test_overlay_draws_the_modulation_colour_of_each_node(city_renderer):
         view = path.view(i, SIZE)
         recording.draws.clear()
         traversal.frame(view)
-        overlay = city_renderer.read_pixels().astype(np.int64)
+        overlaid = city_renderer.read_pixels().astype(np.int64)
         modulation = metrics.modulation([p for _, p in recording.draws])
         modulated += int(np.sum(modulation > 0))
         city_renderer.begin_frame(view)
-        for (node, _), colour in zip(recording.draws, metrics.modulation_colour(modulation)):
+        for (node, _), colour in zip(recording.draws, overlay.modulation_colour(modulation)):
             city_renderer.draw_node_coloured(node, colour)
         city_renderer.end_frame()
-        assert np.max(np.abs(overlay - city_renderer.read_pixels())) <= 1, f"frame {i}"
+        assert np.max(np.abs(overlaid - city_renderer.read_pixels())) <= 1, f"frame {i}"
     assert modulated > 0, "no node was modulated: the colours went untested"
     city_renderer.overlay = False
     stats = traversal.frame(path.view(0, SIZE))
