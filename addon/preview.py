@@ -3,12 +3,19 @@ baked hierarchy with the region's view and projection, draws the chosen nodes in
 viewport framebuffer (whose depth already holds Blender's scene, so Blender's objects occlude the
 nodes and take part in the occlusion queries), colours them by modulation, and outlines boxes.
 
-GL: moderngl attaches to Blender's context (created once, reused, `gc_mode="context_gc"` so that
-no GL call happens from the garbage collector). Blender caches GL state, so everything the pass
-changes is saved before and restored after it (`GLState`), then `gpu.shader.unbind()`.
-The handler never raises into Blender: an error turns the preview off and `status()` says why.
-GL objects are released only while the context they were made in is current (in a draw call, or
-when that context is current at unregister/file load); otherwise they are dropped and logged.
+GL: moderngl attaches to Blender's context once per native context (`_contexts`, reused across
+file loads and previews, `gc_mode="context_gc"` so that no GL call happens from the garbage
+collector). Blender caches GL state, so everything the pass changes is saved before and restored
+after it (`GLState`), then `gpu.shader.unbind()`. The handler never raises into Blender: an error
+turns the preview off and `status()` says why.
+
+GL objects are deleted only in the context they were made in (a GL delete acts on the current
+context's names): the private renderer's with its own context made current; the renderer and the
+gpu batches made in Blender's context at once when that context is current (stop, file load,
+unregister), otherwise they wait in `_orphans` and are released at the next draw in that context.
+Private mode's standalone context is made once and reused (`shutdown()` frees it): moderngl keeps
+about 40 KB of every context it creates. tests/test_addon.py's long-session test counts the GL
+objects with glIs* probes, RSS and Python's allocated blocks over 10,000 redraws to show this.
 
 Private mode (DESIGN §7 fallback, used when Blender's backend is not OpenGL (Metal, Vulkan) or
 when "Private Context" is set): the traversal and its queries run in a private headless context
@@ -25,10 +32,10 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from ..hlod_core import fileformat, metrics
+from ..hlod_core import boxes, fileformat, overlay
 from ..hlod_core.errors import HlodError
 from ..hlod_core.hierarchy import node_mesh
-from ..hlod_core.metrics import View
+from ..hlod_core.view import View
 from ..hlod_core.traversal import FrameStats, RuntimeSettings
 from . import glcontext
 
@@ -42,18 +49,33 @@ class _State:
     file: str
     hlod: object
     ctx: object = None
-    gl_context: int | None = None
+    gl_context: int | None = None  # the native context of the first draw (glcontext.current())
+    context_known: bool = False  # gl_context was set (None is a valid "cannot tell")
     renderer: object = None
     traversal: object = None
     key: tuple | None = None
     stats: FrameStats | None = None
-    private: object = None  # the private-mode Renderer (own context and framebuffer)
+    private: object = None  # the private-mode Renderer (on _private_ctx, own framebuffer)
     batches: dict | None = None  # private mode: node -> gpu batch
+
+
+@dataclass
+class _Orphan:
+    """GL objects a stopped preview made in Blender's context `gl_context`, stopped while another
+    context was current: released at the next draw (or stop) with `gl_context` current."""
+
+    gl_context: int | None
+    renderer: object = None
+    batches: dict | None = None
 
 
 _state: _State | None = None
 _handler = None
 _status = "off"
+_contexts: dict = {}  # native GL context id -> the moderngl context attached to it (made once, reused)
+_orphans: list[_Orphan] = []
+_private_ctx = None  # private mode's standalone context, made once and reused: moderngl never frees
+# about 40 KB of every context it creates, so one per start or per viewport size would pile up
 
 
 def status() -> str:
@@ -102,23 +124,97 @@ def stop(reason: str | None = None) -> None:
     state, _state = _state, None
     if state is not None:
         _release(state)
+    _release_orphans(glcontext.current())
+    if _orphans:
+        log.info("HLOD preview: %d stopped preview(s) made GL objects in a context that is not current; "
+                 "they are released at the next draw in it", len(_orphans))
     _status = f"off: {reason}" if reason else "off"
     _redraw()
 
 
 def _release(state: _State) -> None:
-    if state.private is not None:
+    """Free the state's GL objects: the private renderer's now (in its own context); those made in
+    Blender's context now if it is current, else at the next draw in it (`_orphans`)."""
+    _release_private(state)
+    if state.renderer is not None or state.batches:
+        _orphans.append(_Orphan(state.gl_context, state.renderer, state.batches))
+    state.renderer, state.batches, state.traversal, state.key = None, None, None, None
+
+
+def shutdown() -> None:
+    """stop(), then free private mode's context: for unregister, after which nothing is left."""
+    global _private_ctx
+    stop()
+    if _orphans:
+        log.warning("HLOD preview: %d stopped preview(s) left GL objects in a context that is not current",
+                    len(_orphans))
+    _orphans.clear()
+    if _private_ctx is not None:
         with glcontext.keep_current():
-            state.private.release()  # its own context: always safe to release
-        state.private = None
-    state.batches = None
-    if state.renderer is None:
+            _private_ctx.release()
+        _private_ctx = None
+
+
+def _private_context():
+    """Private mode's standalone context (as Renderer.create_standalone makes it), made once."""
+    global _private_ctx
+    if _private_ctx is None:
+        import moderngl
+
+        with glcontext.keep_current():  # a new context is current once made
+            _private_ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
+    return _private_ctx
+
+
+def _release_private(state: _State) -> None:
+    """Release the private-mode renderer with its own context current: Renderer.release() deletes
+    names in whichever context is current, and in Blender's those names are Blender's objects."""
+    private, state.private = state.private, None
+    if private is None:
         return
-    if state.gl_context is not None and glcontext.current() == state.gl_context:
-        state.renderer.release()
-    else:
-        log.warning("HLOD preview: GL context not current at release; its GL objects are left to Blender")
-    state.renderer = None
+    state.traversal, state.key = None, None
+    with glcontext.keep_current(), private.ctx:  # Blender's context is current again afterwards
+        private.release()
+
+
+def _release_orphans(current: int | None) -> None:
+    """Release the stopped previews' GL objects made in `current`, the context current now, and drop
+    moderngl's records of objects already released there (they pile up under "context_gc")."""
+    kept = []
+    for orphan in _orphans:
+        if orphan.gl_context != current:
+            kept.append(orphan)
+            continue
+        if orphan.renderer is not None:
+            orphan.renderer.release()
+        orphan.renderer, orphan.batches = None, None  # Blender frees the batches' buffers here, now
+    _orphans[:] = kept
+    ctx = _contexts.get(current)
+    if ctx is not None and ctx.objects:
+        import moderngl
+
+        unreleased = [obj for obj in ctx.objects if not isinstance(obj, moderngl.InvalidObject)]
+        ctx.objects.clear()
+        ctx.objects.extend(unreleased)
+        ctx.gc()  # objects dropped without release(), made in this context: released here
+
+
+def _attach(current: int | None):
+    """The moderngl context on the native context current now, made once per native context. Not
+    `moderngl.get_context()` alone: that is moderngl's process-wide default, which every standalone
+    context (private mode, the benchmark) replaces while it lives."""
+    ctx = _contexts.get(current)
+    if ctx is None:
+        import moderngl
+
+        # init_context() attaches through moderngl's default loader, which finds the current
+        # EGL/GLX/WGL context (create_context() with settings goes through glcontext's detect
+        # mode, which on Linux knows GLX only and fails on the bpy module's EGL context)
+        moderngl.init_context()
+        ctx = moderngl.get_context()
+        ctx.gc_mode = "context_gc"
+        _contexts[current] = ctx
+    return ctx
 
 
 def _backend() -> str:
@@ -181,26 +277,29 @@ def draw_view(scene, view_matrix, window_matrix, width, height, *, xray: bool = 
         return None
     import gpu
 
-    from ..hlod_core.renderer import GLState, Renderer
+    from ..hlod_core.gl_state import GLState
+    from ..hlod_core.renderer import Renderer
     from ..hlod_core.traversal import make
 
     props = scene.hlod
-    if props.private_context or _backend() != "OPENGL":
-        return _draw_private(scene, state, view_matrix, window_matrix, int(width), int(height))
     current = glcontext.current()
-    if state.ctx is None:
-        import moderngl
-
-        # get_context() attaches through moderngl's default loader, which finds the current EGL/GLX/WGL
-        # context (create_context() with settings goes through glcontext's detect mode, which on
-        # Linux knows GLX only and fails on the bpy module's EGL context)
-        state.ctx = moderngl.get_context()
-        state.ctx.gc_mode = "context_gc"
-        state.gl_context = current
-        state.renderer = Renderer(state.ctx, state.hlod, time_gpu=False)
+    _release_orphans(current)
+    if not state.context_known:
+        state.gl_context, state.context_known = current, True
     elif current != state.gl_context:
         _status = "on: drawing in the first window's context only"
         return None
+    if props.private_context or _backend() != "OPENGL":
+        if state.renderer is not None:  # switched modes: free the other mode's objects (current here)
+            state.renderer.release()
+            state.renderer, state.traversal, state.key = None, None, None
+        return _draw_private(scene, state, view_matrix, window_matrix, int(width), int(height))
+    _release_private(state)
+    state.batches = None
+    if state.renderer is None:
+        state.ctx = _attach(current)
+        state.renderer = Renderer(state.ctx, state.hlod, time_gpu=False)
+        state.traversal, state.key = None, None
     settings = runtime_settings(props)
     key = (props.method, settings)
     if state.key != key:
@@ -229,22 +328,20 @@ def _draw_private(scene, state, view_matrix, window_matrix, width: int, height: 
     from ..hlod_core.traversal import make
 
     props = scene.hlod
-    with glcontext.keep_current():
-        if state.private is not None and state.private.fbo.size != (width, height):
-            state.private.release()
-            state.private, state.key = None, None
+    if state.private is not None and state.private.fbo.size != (width, height):
+        _release_private(state)
+    with glcontext.keep_current(), _private_context() as ctx:  # Blender's is current again after it
         if state.private is None:
-            state.private = Renderer.create_standalone(state.hlod, (width, height))
-            state.batches = {}
+            state.private = Renderer(ctx, state.hlod, size=(width, height))
         settings = runtime_settings(props)
         key = ("private", props.method, settings)
         if state.key != key:
             state.traversal = make(props.method, state.hlod, state.private, settings)
             state.key = key
-        view = view_from_matrices(view_matrix, window_matrix, width, height)
-        with state.private.ctx:
-            stats = state.traversal.frame(view)
-    colours = metrics.modulation_colour(state.traversal.modulation(stats.drawn)) if props.show_modulation else None
+        stats = state.traversal.frame(view_from_matrices(view_matrix, window_matrix, width, height))
+    if state.batches is None:
+        state.batches = {}
+    colours = overlay.modulation_colour(state.traversal.modulation(stats.drawn)) if props.show_modulation else None
     shader = gpu.shader.from_builtin("UNIFORM_COLOR")
     gpu.state.depth_test_set("LESS_EQUAL")
     gpu.state.depth_mask_set(True)
@@ -288,11 +385,11 @@ def _draw_boxes(props, state, stats: FrameStats) -> None:
 
     shader = gpu.shader.from_builtin("UNIFORM_COLOR")
     hlod = state.hlod
-    edges = metrics.BOX_EDGES
+    edges = boxes.BOX_EDGES
     gpu.state.depth_test_set("LESS_EQUAL")
     for name, nodes in groups:
         nodes = np.asarray(nodes, np.int64)
-        corners = metrics.box_corners(hlod.box_min[nodes][:, None], hlod.box_max[nodes][:, None])  # (n, 8, 3)
+        corners = boxes.box_corners(hlod.box_min[nodes][:, None], hlod.box_max[nodes][:, None])  # (n, 8, 3)
         lines = corners[:, edges.ravel()].reshape(-1, 3).astype(np.float32)
         batch = batch_for_shader(shader, "LINES", {"pos": lines})
         shader.uniform_float("color", BOX_COLOURS[name])

@@ -7,6 +7,7 @@ add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON objec
 """
 from __future__ import annotations
 
+import gc
 import importlib
 import json
 import sys
@@ -34,7 +35,7 @@ def _registered() -> dict:
             ops[op] = False
     return {"scene_hlod": hasattr(bpy.types.Scene, "hlod"), "operators": ops,
             "panel": hasattr(bpy.types, "HLOD_PT_main"),
-            "cli_command": getattr(sys.modules.get(NAME + ".addon"), "_cli_command", None) is not None,
+            "cli_command": getattr(sys.modules.get(NAME + ".addon.cli"), "_cli_command", None) is not None,
             "handlers": sum(
                 1 for h in bpy.app.handlers.load_pre if getattr(h, "__module__", "").startswith(NAME))}
 
@@ -175,43 +176,59 @@ def check_bake(repo, work) -> dict:
     return out
 
 
+def _occluder_quad(shader) -> None:
+    """Blender's own drawing before the preview: a grey quad in clip space at depth -0.9 (near) over
+    the left 40% of the view, depth written, so it hides and occludes the nodes behind it."""
+    import gpu
+    from gpu_extras.batch import batch_for_shader
+    from mathutils import Matrix
+
+    with gpu.matrix.push_pop():
+        gpu.matrix.load_identity()
+        with gpu.matrix.push_pop_projection():
+            gpu.matrix.load_projection_matrix(Matrix.Identity(4))
+            gpu.state.depth_test_set("LESS_EQUAL")
+            gpu.state.depth_mask_set(True)
+            quad = [(-1, -1, -0.9), (-0.2, -1, -0.9), (-0.2, 1, -0.9), (-1, 1, -0.9)]
+            batch = batch_for_shader(shader, "TRI_FAN", {"pos": quad})
+            shader.uniform_float("color", (0.5, 0.5, 0.5, 1.0))
+            batch.draw(shader)
+            gpu.state.depth_test_set("NONE")
+            gpu.state.depth_mask_set(False)
+
+
+def _green_triangle(shader) -> None:
+    """Blender's own drawing after the preview: a green triangle in the top right corner."""
+    import gpu
+    from gpu_extras.batch import batch_for_shader
+    from mathutils import Matrix
+
+    with gpu.matrix.push_pop():
+        gpu.matrix.load_identity()
+        with gpu.matrix.push_pop_projection():
+            gpu.matrix.load_projection_matrix(Matrix.Identity(4))
+            tri = [(0.8, 0.8, 0.0), (0.95, 0.8, 0.0), (0.95, 0.95, 0.0)]
+            batch = batch_for_shader(shader, "TRIS", {"pos": tri})
+            shader.uniform_float("color", (0.0, 1.0, 0.0, 1.0))
+            batch.draw(shader)
+
+
 def _draw_checks(package, scene, size, occlude: bool) -> dict:
     """Draw with a grey occluder over the left 40% of the view (drawn before, with depth) and a green
     triangle after; classify the pixels."""
     import gpu
-    from gpu_extras.batch import batch_for_shader
-    from mathutils import Matrix
 
     shader = gpu.shader.from_builtin("UNIFORM_COLOR")
     state = {}
 
     def occluder():
         state["before"] = (gpu.state.depth_mask_get(), gpu.state.depth_test_get(), tuple(gpu.state.viewport_get()))
-        if not occlude:
-            return
-        with gpu.matrix.push_pop():  # a quad in clip space at depth -0.9 (near), left 40% of the view
-            gpu.matrix.load_identity()
-            with gpu.matrix.push_pop_projection():
-                gpu.matrix.load_projection_matrix(Matrix.Identity(4))
-                gpu.state.depth_test_set("LESS_EQUAL")
-                gpu.state.depth_mask_set(True)
-                quad = [(-1, -1, -0.9), (-0.2, -1, -0.9), (-0.2, 1, -0.9), (-1, 1, -0.9)]
-                batch = batch_for_shader(shader, "TRI_FAN", {"pos": quad})
-                shader.uniform_float("color", (0.5, 0.5, 0.5, 1.0))
-                batch.draw(shader)
-                gpu.state.depth_test_set("NONE")
-                gpu.state.depth_mask_set(False)
+        if occlude:
+            _occluder_quad(shader)
 
     def green():
         state["after"] = (gpu.state.depth_mask_get(), gpu.state.depth_test_get(), tuple(gpu.state.viewport_get()))
-        with gpu.matrix.push_pop():
-            gpu.matrix.load_identity()
-            with gpu.matrix.push_pop_projection():
-                gpu.matrix.load_projection_matrix(Matrix.Identity(4))
-                tri = [(0.8, 0.8, 0.0), (0.95, 0.8, 0.0), (0.95, 0.95, 0.0)]
-                batch = batch_for_shader(shader, "TRIS", {"pos": tri})
-                shader.uniform_float("color", (0.0, 1.0, 0.0, 1.0))
-                batch.draw(shader)
+        _green_triangle(shader)
 
     pixels = blender_preview.draw_offscreen(package, scene, size, before=occluder, after=green)
     rgb = pixels[..., :3].astype(np.int64)
@@ -334,6 +351,321 @@ def check_make_blends(repo, work) -> dict:
     # expected triangles of the collection: the monkey (500 faces: 468 quads?) counted by Blender
     depsgraph = bpy.context.evaluated_depsgraph_get()
     out["monkeys_tris"] = sum(len(o.evaluated_get(depsgraph).to_mesh().loop_triangles) for o in props.objects)
+    return out
+
+
+
+# --- the long session (issue 11): redraws, file switches, re-bakes, toggles, every method -------------
+
+SESSIONS = 50  # file switches, each followed by a re-bake
+REDRAWS_PER_SESSION = 200  # 50 x 200 = 10,000 redraws
+LONG_SIZE = (160, 120)  # offscreen pixels: small, so 10,000 llvmpipe redraws fit in a few minutes
+CENSUS_MIN_NAMES = 4096  # GL names probed at least (1..4096)
+
+
+class GLCensus:
+    """Counts the GL objects that exist in the current context, independently of the add-on's own
+    bookkeeping: every name is probed with glIsBuffer / glIsVertexArray / glIsQuery / glIsProgram
+    (and glIsFramebuffer / glIsTexture), resolved through libEGL's eglGetProcAddress and called via
+    ctypes. Names run from 1 to the larger of CENSUS_MIN_NAMES and twice the name a fresh
+    glGen* / glCreateProgram hands out now (deleted at once): drivers hand out names either in
+    increasing order (then every live name is below the fresh one) or lowest-free first (then live
+    names stay below the most ever alive at once); the range doubles while a live name lies in its
+    upper half. Call inside `offscreen.bind()`, where Blender's context is current."""
+
+    KINDS = {"buffers": ("glIsBuffer", "glGenBuffers", "glDeleteBuffers"),
+             "vertex_arrays": ("glIsVertexArray", "glGenVertexArrays", "glDeleteVertexArrays"),
+             "queries": ("glIsQuery", "glGenQueries", "glDeleteQueries"),
+             "programs": ("glIsProgram", None, None),
+             "framebuffers": ("glIsFramebuffer", "glGenFramebuffers", "glDeleteFramebuffers"),
+             "textures": ("glIsTexture", "glGenTextures", "glDeleteTextures")}
+
+    def __init__(self):
+        import ctypes
+        import ctypes.util
+
+        egl = ctypes.CDLL(ctypes.util.find_library("EGL") or "libEGL.so.1")
+        egl.eglGetProcAddress.restype = ctypes.c_void_p
+        egl.eglGetProcAddress.argtypes = [ctypes.c_char_p]
+        self._c = ctypes
+
+        def fn(name, restype, *argtypes):
+            address = egl.eglGetProcAddress(name.encode())
+            if not address:
+                raise RuntimeError(f"GL function {name} not found through eglGetProcAddress")
+            return ctypes.CFUNCTYPE(restype, *argtypes)(address)
+
+        u32p = ctypes.POINTER(ctypes.c_uint32)
+        self._is = {}
+        self._gen = {}
+        for kind, (is_name, gen_name, delete_name) in self.KINDS.items():
+            self._is[kind] = fn(is_name, ctypes.c_uint8, ctypes.c_uint32)
+            if gen_name is not None:
+                self._gen[kind] = (fn(gen_name, None, ctypes.c_int32, u32p), fn(delete_name, None, ctypes.c_int32, u32p))
+        self._create_program = fn("glCreateProgram", ctypes.c_uint32)
+        self._delete_program = fn("glDeleteProgram", None, ctypes.c_uint32)
+        self._get_error = fn("glGetError", ctypes.c_uint32)
+        self.largest_name = 0
+
+    def _fresh_name(self, kind: str) -> int:
+        if kind == "programs":
+            name = int(self._create_program())
+            self._delete_program(name)
+            return name
+        gen, delete = self._gen[kind]
+        name = self._c.c_uint32(0)
+        gen(1, self._c.byref(name))
+        delete(1, self._c.byref(name))
+        return int(name.value)
+
+    def count(self) -> dict:
+        out = {}
+        for kind, is_object in self._is.items():
+            limit = max(CENSUS_MIN_NAMES, 2 * self._fresh_name(kind))
+            while True:
+                live = [name for name in range(1, limit + 1) if is_object(name)]
+                if not live or live[-1] <= limit // 2:
+                    break
+                limit *= 2
+            self.largest_name = max(self.largest_name, limit)
+            out[kind] = len(live)
+        return out
+
+    def drain_errors(self) -> list[int]:
+        """Every GL error pending in the current context (glGetError until GL_NO_ERROR)."""
+        errors = []
+        while (code := int(self._get_error())) != 0 and len(errors) < 16:
+            errors.append(code)
+        return errors
+
+
+def _rss_mb() -> float:
+    """Resident set size of this process, MB (/proc/self/statm: pages)."""
+    import resource
+
+    return int(Path("/proc/self/statm").read_text().split()[1]) * resource.getpagesize() / 1e6
+
+
+def _look_at(eye, target) -> np.ndarray:
+    """(4, 4) world -> view matrix, OpenGL convention (camera looks down -z), z up."""
+    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    side = np.cross(forward, (0.0, 0.0, 1.0))
+    side /= np.linalg.norm(side)
+    up = np.cross(side, forward)
+    view = np.eye(4)
+    view[0, :3], view[1, :3], view[2, :3] = side, up, -forward
+    view[:3, 3] = -view[:3, :3] @ eye
+    return view
+
+
+def _perspective(fovy_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
+    f = 1.0 / np.tan(np.radians(fovy_deg) / 2.0)
+    return np.array([[f / aspect, 0, 0, 0], [0, f, 0, 0],
+                     [0, 0, (far + near) / (near - far), 2 * far * near / (near - far)], [0, 0, -1, 0]])
+
+
+def _orbit_view(hlod, step: int, steps_per_turn: int) -> np.ndarray:
+    """The camera on a circle around the baked scene's root box, a little above it, looking at its
+    centre: a new view every redraw."""
+    lo, hi = hlod.box_min[0], hlod.box_max[0]
+    centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    angle = 2.0 * np.pi * step / steps_per_turn
+    distance = radius * (1.1 + 0.5 * np.sin(3.0 * angle))  # moving in and out: the levels of detail change
+    eye = centre + distance * np.array([np.cos(angle), np.sin(angle), 0.35])
+    return _look_at(eye, centre)
+
+
+def _monkey_scene():
+    """File B of the long session: four subdivided monkeys on a plane, all selected."""
+    for obj in list(bpy.data.objects):
+        bpy.data.objects.remove(obj)
+    for i in range(4):
+        bpy.ops.mesh.primitive_monkey_add(size=2.0, location=(3.0 * (i % 2), 3.0 * (i // 2), 1.0))
+        bpy.context.active_object.modifiers.new("smooth", "SUBSURF").levels = 1
+    bpy.ops.mesh.primitive_plane_add(size=12.0, location=(1.5, 1.5, 0.0))
+    bpy.ops.object.select_all(action="SELECT")
+
+
+def _toggle_in_another_context(glcontext, other) -> bool:
+    """Turn the preview off while the moderngl context `other` is current (in Blender: a second
+    window's), where the preview's GL objects cannot be released; returns whether it was current."""
+    blender = glcontext.current()
+    with glcontext.keep_current(), other:
+        was_other = glcontext.current() not in (None, blender)
+        bpy.ops.hlod.preview_toggle()
+    return was_other
+
+
+def _blender_drawing(package, scene, size) -> np.ndarray:
+    """Blender's own gpu drawing around the preview's pass (the occluder before, the green triangle
+    after), from the scene camera; (H, W, 4) uint8."""
+    import gpu
+
+    shader = gpu.shader.from_builtin("UNIFORM_COLOR")
+    pixels = None
+    for _ in range(3):  # a few frames of the same view, as the viewport redraws
+        pixels = blender_preview.draw_offscreen(package, scene, size, before=lambda: _occluder_quad(shader),
+                                                after=lambda: _green_triangle(shader))
+    return pixels
+
+
+def _drawing_kept(package, preview, scene, size) -> dict:
+    """Blender's drawing with the preview off (the reference) and on: wherever Blender drew, the
+    pixels with the preview equal the reference. Stop-and-wait waits for every query, so what it
+    draws does not depend on timing (the coherent methods' does: they use results as they arrive)."""
+    props = scene.hlod
+    props.method, props.bias, props.show_modulation, props.private_context = "sw", "mu", True, False
+    props.show_boxes = props.show_delayed = props.show_rarn = False
+    reference = _blender_drawing(package, scene, size)
+    bpy.ops.hlod.preview_toggle()
+    with_preview = _blender_drawing(package, scene, size)
+    bpy.ops.hlod.preview_toggle()
+    blender_drew = np.any(reference[..., :3] != 255, axis=2)
+    preview_drew = np.any(with_preview[..., :3] != reference[..., :3], axis=2)
+    return {"reference": reference, "with_preview": with_preview,
+            "blender_pixels": int(blender_drew.sum()), "preview_pixels": int(preview_drew.sum()),
+            "blender_pixels_changed": int((blender_drew & preview_drew).sum())}
+
+
+def _redraw(preview, scene, offscreen, census, view: np.ndarray, projection: np.ndarray) -> list[int]:
+    """One redraw as Blender's viewport does it: clear, Blender's own object (the occluder, depth
+    written), the add-on's draw path; returns the GL errors left pending."""
+    import gpu
+    from mathutils import Matrix
+
+    shader = gpu.shader.from_builtin("UNIFORM_COLOR")
+    with offscreen.bind():
+        gpu.state.active_framebuffer_get().clear(color=(1.0, 1.0, 1.0, 1.0), depth=1.0)
+        with gpu.matrix.push_pop():
+            gpu.matrix.load_matrix(Matrix(view.tolist()))
+            gpu.matrix.load_projection_matrix(Matrix(projection.tolist()))
+            _occluder_quad(shader)
+            preview.safe_draw(scene, view, projection, *LONG_SIZE)
+        return census.drain_errors()
+
+
+def _long_session_files(work: Path) -> list[Path]:
+    """The two .blend files the long session switches between (the box row, 5,028 triangles; the
+    monkeys, 15,746), each with a scene camera and saved with its baked file's path."""
+    files = [work / "boxes.blend", work / "monkeys.blend"]
+    for blend, build, target_tris in ((files[0], _box_row_scene, 300), (files[1], _monkey_scene, 1000)):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        build()
+        scene = bpy.context.scene
+        scene.hlod.output_path, scene.hlod.target_tris = str(blend.with_suffix(".hlod")), target_tris
+        blender_preview.camera(scene, eye=(1.5, -8.0, 1.5), target=(0.0, 6.0, 1.0), lens_mm=30.0)
+        bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+        bpy.ops.hlod.bake()
+        bpy.ops.wm.save_mainfile()
+    return files
+
+
+def _session(out: dict, *, session: int, blend: Path, preview, glcontext, other, census, methods) -> None:
+    """One session of the long session: load `blend` (load_pre stops a preview left on), census of
+    Blender's context, re-bake, then REDRAWS_PER_SESSION redraws with the configuration of
+    `session % 6`; the census again (preview on), RSS and Python's allocated blocks."""
+    import gpu
+
+    bpy.ops.wm.open_mainfile(filepath=str(blend))
+    out["running_after_load"].append(preview.running())
+    scene = bpy.context.scene
+    props = scene.hlod
+    offscreen = gpu.types.GPUOffScreen(*LONG_SIZE)
+    with offscreen.bind():
+        out["census_stopped"].append(census.count())
+    started = time.perf_counter()
+    out["bakes"].append(sorted(bpy.ops.hlod.bake()))
+    out["bake_seconds"] += time.perf_counter() - started
+    props.method = methods[session % len(methods)]
+    props.private_context = session % 3 == 2
+    props.show_boxes = session % 2 == 1
+    props.show_delayed = props.show_rarn = session % 6 == 1
+    bpy.ops.hlod.preview_toggle()
+    hlod = preview.current_hlod()
+    projection = _perspective(50.0, LONG_SIZE[0] / LONG_SIZE[1], 0.1, 500.0)
+    for redraw in range(REDRAWS_PER_SESSION):
+        if redraw and redraw % 50 == 0:
+            props.method = methods[(session + redraw // 50) % len(methods)]
+        if redraw == REDRAWS_PER_SESSION // 2:
+            props.private_context = not props.private_context
+        if redraw == 150:
+            if session % 3 == 1:
+                out["other_context_current"].append(_toggle_in_another_context(glcontext, other))
+            else:
+                bpy.ops.hlod.preview_toggle()
+            bpy.ops.hlod.preview_toggle()
+        view = _orbit_view(hlod, session * REDRAWS_PER_SESSION + redraw, 240)
+        errors = _redraw(preview, scene, offscreen, census, view, projection)
+        out["redraws"] += 1
+        out["methods_drawn"] = sorted({*out["methods_drawn"], props.method})
+        out["private_redraws"] += int(props.private_context)
+        if errors:
+            out["gl_errors"].append([session, redraw, errors])
+        if not preview.running():
+            out["turned_off"].append([session, redraw, preview.status()])
+            preview.start(scene)
+    with offscreen.bind():
+        out["census_running"].append(census.count())
+    offscreen.free()
+    out["rss_mb"].append(round(_rss_mb(), 2))
+    gc.collect()
+    out["python_blocks"].append(sys.getallocatedblocks())
+
+
+def check_long_session(repo, work) -> dict:
+    """SESSIONS file switches between two .blend files (load_pre stops the preview), each followed by
+    a re-bake (the hlod.bake operator's execute path) and REDRAWS_PER_SESSION redraws of the draw
+    path in a GPUOffScreen with an orbiting camera and Blender's own occluder; the method changes
+    every 50 redraws (every item of scene.hlod.method), the private-context mode flips half-way, and
+    the preview is toggled off and on at redraw 150, every third session while another GL context is
+    current. The configuration repeats every 6 sessions. Recorded: the GL object census of Blender's
+    context after each load (preview stopped) and at each session's end (preview on), the RSS and
+    Python's allocated blocks after each session, the GL errors left pending after each redraw, any
+    unplanned stop of the preview, and Blender's own drawing with and without the preview at the
+    start and at the end."""
+    import gpu
+    import moderngl
+
+    started = time.perf_counter()
+    package = blender_preview.enable_from_repo(repo)
+    preview = importlib.import_module(NAME + ".addon.preview")
+    glcontext = importlib.import_module(NAME + ".addon.glcontext")
+    blender_preview.init_gpu()
+    census = GLCensus()
+    with glcontext.keep_current():  # "another window's" context, made once (each costs moderngl ~40 KB)
+        other = moderngl.create_context(standalone=True, backend="egl")
+    methods = [item.identifier for item in bpy.context.scene.hlod.bl_rna.properties["method"].enum_items]
+    files = _long_session_files(Path(work))
+    bpy.ops.wm.open_mainfile(filepath=str(files[0]))
+    first = _drawing_kept(package, preview, bpy.context.scene, LONG_SIZE)
+    out = {"methods": methods, "sessions": SESSIONS, "redraws": 0, "bakes": [], "bake_seconds": 0.0,
+           "gl_errors": [], "turned_off": [], "running_after_load": [], "other_context_current": [],
+           "census_stopped": [], "census_running": [], "rss_mb": [], "python_blocks": [], "methods_drawn": [],
+           "private_redraws": 0}
+    sessions_started = time.perf_counter()
+    for session in range(SESSIONS):
+        _session(out, session=session, blend=files[session % 2], preview=preview, glcontext=glcontext,
+                 other=other, census=census, methods=methods)
+    out["seconds"] = {"redraws_and_loads": round(time.perf_counter() - sessions_started - out["bake_seconds"], 1),
+                      "bakes": round(out.pop("bake_seconds"), 1)}
+    bpy.ops.wm.open_mainfile(filepath=str(files[0]))  # the same file, camera and baked output as at the start
+    out["running_after_load"].append(preview.running())
+    last = _drawing_kept(package, preview, bpy.context.scene, LONG_SIZE)
+    out["drawing"] = {name: {k: v for k, v in kept.items() if k not in ("reference", "with_preview")}
+                      for name, kept in (("first", first), ("last", last))}
+    out["reference_same"] = bool(np.array_equal(first["reference"], last["reference"]))
+    out["preview_same"] = bool(np.array_equal(first["with_preview"], last["with_preview"]))
+    preview.shutdown()  # stop() and free private mode's context (for unregister)
+    with glcontext.keep_current():
+        other.release()
+    offscreen = gpu.types.GPUOffScreen(*LONG_SIZE)
+    with offscreen.bind():
+        out["census_end"] = census.count()
+    offscreen.free()
+    out["census_largest_name"] = census.largest_name
+    out["status_end"] = preview.status()
+    out["seconds"]["total"] = round(time.perf_counter() - started, 1)
     return out
 
 
