@@ -22,6 +22,7 @@ import os
 import signal
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import asdict, dataclass
 from typing import Callable
@@ -200,6 +201,32 @@ def _measure_task(lod_positions, lod_faces, tri_begin: int, tri_end: int) -> flo
     return simplify.measure((lod_positions, lod_faces), original[:2])
 
 
+#: Signals whose Python handlers may raise (Ctrl-C's KeyboardInterrupt, the command line's SIGTERM
+#: and SIGHUP exceptions); `_signals_deferred` holds them while a worker process is being started.
+_DEFERRED_SIGNALS = tuple(getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """Hold the signals above while the body runs, then deliver them. Starting a spawned worker
+    writes its start-up data down a pipe; an exception raised in the middle of that write leaves
+    the child reading half of it, and it dies printing an EOFError traceback. Python runs signal
+    handlers in the main thread only, so elsewhere (a Blender bake thread) nothing is deferred."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    held = [sig for sig in _DEFERRED_SIGNALS if signal.getsignal(sig) is not None]  # None: not set from Python
+    previous = {sig: signal.signal(sig, lambda number, _frame: caught.append(number)) for sig in held}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        for number in dict.fromkeys(caught):
+            signal.raise_signal(number)
+
+
 @contextlib.contextmanager
 def _main_module_importable():
     """Spawned workers re-import the parent's __main__ from its __file__. When that is no file
@@ -280,7 +307,8 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
         while heap or running:
             while heap and len(running) < limit:
                 kind, _, node = heapq.heappop(heap)
-                running[submit(executor, kind, node)] = (kind, node)
+                with _signals_deferred():  # a submit may start a worker process
+                    running[submit(executor, kind, node)] = (kind, node)
             finished, _ = cf.wait(running, timeout=_POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
             if cancel():
                 raise BakeCancelled("bake cancelled")
