@@ -52,7 +52,7 @@ def unregister() -> None:
 
     from .addon import cli, preview, properties
 
-    preview.stop()
+    preview.shutdown()  # stops the preview and frees the private context too
     cli.unregister()
     if _on_load_pre in bpy.app.handlers.load_pre:
         bpy.app.handlers.load_pre.remove(_on_load_pre)

@@ -36,8 +36,9 @@ from ..hlod_core import boxes, fileformat, overlay
 from ..hlod_core.errors import HlodError
 from ..hlod_core.hierarchy import node_mesh
 from ..hlod_core.view import View
-from ..hlod_core.traversal import FrameStats, RuntimeSettings
+from ..hlod_core.traversal import FrameStats
 from . import glcontext
+from .settings import runtime_settings
 
 log = logging.getLogger(__name__)
 
@@ -237,11 +238,6 @@ def _redraw() -> None:
 
 # --- drawing ---------------------------------------------------------------------------------------
 
-def runtime_settings(props) -> RuntimeSettings:
-    return RuntimeSettings(tau=props.tau, s=props.s, t=props.t, k=float("inf") if props.step else props.k,
-                           bias=props.bias, alpha=props.alpha, overlay=props.show_modulation)
-
-
 def view_from_matrices(view_matrix, window_matrix, width: int, height: int) -> View:
     view = np.array(view_matrix, np.float64).reshape(4, 4)
     projection = np.array(window_matrix, np.float64).reshape(4, 4)
@@ -306,6 +302,7 @@ def draw_view(scene, view_matrix, window_matrix, width, height, *, xray: bool = 
         state.traversal = make(props.method, state.hlod, state.renderer, settings)
         state.key = key
     view = view_from_matrices(view_matrix, window_matrix, width, height)
+    state.renderer.overlay = bool(props.show_modulation)  # colour is the drawing side's choice
     saved = GLState(state.renderer.gl).save()
     try:
         stats = state.traversal.frame(view)

@@ -17,6 +17,7 @@ def bake_settings(source, *, jobs: int = 1) -> BakeSettings:
 
 
 def runtime_settings(props) -> RuntimeSettings:
-    """scene.hlod -> the traversal's settings (step on means k = inf)."""
+    """scene.hlod -> the traversal's settings (step on means k = inf). The overlay is not one of
+    them: the preview sets it on its renderer (`Renderer.overlay`), the drawing side."""
     return RuntimeSettings(tau=props.tau, s=props.s, t=props.t, k=float("inf") if props.step else props.k,
-                           bias=props.bias, alpha=props.alpha, overlay=props.show_modulation)
+                           bias=props.bias, alpha=props.alpha)

@@ -19,12 +19,13 @@ looked up in a table of the ramp precomputed at OVERLAY_RAMP_STEPS + 1 values of
 """
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import logging
 
 import numpy as np
 
 from .gl_functions import GL, GLFunctions
-from .gl_state import GLState  # noqa: F401  TEMPORARY re-export: addon/preview.py imports it from here
 from .hierarchy import Hlod, query_box_pad
 from .overlay import OVERLAY_RAMP_STEPS, overlay_ramp
 from .view import View
@@ -148,7 +149,7 @@ class Renderer:
         for program in (self.node_program, self.box_program):
             program["u_mvp"].write(mvp.T.astype(np.float32).tobytes())
         self.node_program["u_mv"].write(mv.T.astype(np.float32).tobytes())
-        self._host_fbo = self.ctx.detect_framebuffer()  # the caller's, this frame (it may change)
+        self._refresh_host_framebuffer()
         if self.fbo is not None:
             self.fbo.use()
         self.ctx.viewport = (0, 0, view.width, view.height)
@@ -254,16 +255,29 @@ class Renderer:
         data = np.frombuffer(fbo.read(components=3, alignment=1), np.uint8).reshape(h, w, 3)
         return data[::-1].copy()
 
+    def _refresh_host_framebuffer(self) -> None:
+        """Follow the caller's draw framebuffer, which may change between frames. moderngl's
+        detect_framebuffer() keeps a few hundred bytes per call while a non-zero framebuffer is
+        bound (Blender's viewport always is: tens of MB an hour at 60 fps), so it is asked only
+        when the binding has changed."""
+        bound = ctypes.c_int32(0)
+        self.gl.get_integerv(GL.DRAW_FRAMEBUFFER_BINDING, ctypes.byref(bound))
+        if self._host_fbo.glo != bound.value:
+            self._host_fbo = self.ctx.detect_framebuffer()
+
     def release(self) -> None:
-        """Free every GL object this renderer made, in reverse creation order. Idempotent."""
+        """Free every GL object this renderer made, in reverse creation order, with the context
+        that made them current when the renderer owns it (GL names are per context: deleting them
+        in another one would delete that context's objects). Idempotent."""
         if self._released:
             return
         self._released = True
-        self.queries.release()
-        if self.fbo is not None:
-            self._host_fbo.use()
-        for resource in reversed(self._resources):
-            resource.release()
-        self._resources.clear()
+        with self.ctx if self._owns_context else contextlib.nullcontext():
+            self.queries.release()
+            if self.fbo is not None:
+                self._host_fbo.use()
+            for resource in reversed(self._resources):
+                resource.release()
+            self._resources.clear()
         if self._owns_context:
             self.ctx.release()

@@ -57,9 +57,7 @@ class RuntimeSettings:
     """tau: pixels; s, t in [0, 1] and k > 0 (inf = step) for P_{s,t}; bias "P" or "mu" (s = 0);
     alpha: "query" | "projected" | "cube";
     shift_up (Coh only): "measured" queries refined nodes too and moves the front up where their own
-    ratio says stop, "children" is Algorithm 4 as published (the children's average ratio).
-    overlay: TEMPORARY (issue 12), only until addon/ sets `Renderer.overlay` itself: `make` copies
-    it to the renderer; the traversal does not read it."""
+    ratio says stop, "children" is Algorithm 4 as published (the children's average ratio)."""
 
     tau: float = 1.0
     s: float = 0.9
@@ -67,7 +65,6 @@ class RuntimeSettings:
     k: float = float("inf")
     bias: str = "P"
     alpha: str = "query"
-    overlay: bool = False
     shift_up: str = "measured"
 
     def __post_init__(self):
@@ -559,7 +556,4 @@ def make(method: str, hlod: Hlod, renderer: NodeRenderer, settings: RuntimeSetti
     cls = METHODS.get(method)
     if cls is None:
         raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
-    # TEMPORARY (issue 12): until addon/settings.py and addon/preview.py set Renderer.overlay themselves
-    if hasattr(renderer, "overlay"):
-        renderer.overlay = settings.overlay
     return cls(hlod, renderer, settings)
