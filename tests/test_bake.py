@@ -27,7 +27,8 @@ def _input_triangles(mesh, origin) -> np.ndarray:
     return world[np.lexsort(world.T[::-1])]
 
 
-@pytest.mark.parametrize("name, jobs", [("stanford-bunny.obj", 1), ("igea.ply", 2), ("nefertiti.obj", 1)])
+@pytest.mark.parametrize("name, jobs", [("stanford-bunny.obj", 1), pytest.param("igea.ply", 2, marks=pytest.mark.slow),
+                                        ("nefertiti.obj", 1)])
 def test_shared_models_bake_with_every_invariant(name, jobs):
     mesh, hlod = baked(name, jobs=jobs)
     assert checks.check(hlod)["checks"] == ALL_TRUE
@@ -50,6 +51,7 @@ def test_igea_triangle_strips_are_read_as_triangles():
     assert mesh.tri_count == 268686  # SOURCES.md: binary PLY stored as triangle strips
 
 
+@pytest.mark.slow
 def test_model_far_from_origin_keeps_its_precision():
     """nefertiti (coordinates in the hundreds) and a copy 1e6 away bake to the same hierarchy."""
     mesh, near = baked("nefertiti.obj")

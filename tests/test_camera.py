@@ -100,6 +100,7 @@ def _drawn_nodes(ctx, hlod, method: str, size=(128, 96)) -> np.ndarray:
         renderer.release()
 
 
+@pytest.mark.gl
 @pytest.mark.parametrize("factor", [1e-9, 1e9])
 def test_inspection_path_is_scale_free(gl_ctx, factor):
     """A model scaled by 1e-9 or 1e9 gives the same nodes per frame as at scale 1, for VFC (no

@@ -60,6 +60,7 @@ def test_several_inputs_merge_into_one_scene(tmp_path):
     assert summary["input_tris"] == 5804 + 5856
 
 
+@pytest.mark.slow
 def test_million_triangle_instanced_spec_passes_every_check(tmp_path):
     out = tmp_path / "gallery.hlod"
     summary = last_json(hlod("-q", "bake", SCENES / "gallery_1m.json", "-o", out, "--jobs", "2"))
@@ -139,12 +140,14 @@ def cow_hlod(tmp_path_factory):
     return out
 
 
+@pytest.mark.gl
 @pytest.mark.parametrize("method", ["full", "vfc", "bool", "sw", "simp", "coh", "ideal"])
 def test_run_every_method(cow_hlod, method):
     out = last_json(hlod("-q", "run", cow_hlod, "--method", method, "--frames", "6", "--size", "160x120"))
     assert RUN_KEYS <= out.keys() and out["frames"] == 6 and out["dn"] > 0
 
 
+@pytest.mark.gl
 def test_run_with_a_path_file_orthographic_and_saved_frames(cow_hlod, tmp_path):
     path = tmp_path / "path.json"
     path.write_text(json.dumps({"ortho_height": 1.5, "near": 0.01, "far": 100, "frames": [

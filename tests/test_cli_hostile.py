@@ -134,6 +134,7 @@ def _path_file(folder, name, **fields):
     return path
 
 
+@pytest.mark.gl
 @pytest.mark.parametrize("far_over_near", [1e17, 1e20])
 def test_huge_far_over_near_draws_what_a_normal_far_draws(cow_file, tmp_path, far_over_near):
     """The frustum's far plane cancelled to a zero normal: every node was culled, the run drew

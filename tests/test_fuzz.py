@@ -7,9 +7,13 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from benchmarks import fuzz_hlod
 
 from helpers import ROOT
+
+pytestmark = [pytest.mark.gl, pytest.mark.slow]  # renders every accepted file; about 20 s
 
 FUZZ_CASES = 800  # about 20 s here; every mutation kind gets FUZZ_CASES / 8
 FUZZ_SEED = int(os.environ.get("HLOD_FUZZ_SEED", "1"))  # reproduce with --seed S --case I

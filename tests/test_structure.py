@@ -110,6 +110,7 @@ def test_the_graph_sees_known_edges(graph):
     assert "bpy" in graph["addon.preview"][1] and "numpy" in graph["hlod_core.bake"][1]
 
 
+@pytest.mark.slow
 def test_every_core_module_imports_first_in_a_fresh_interpreter():
     names = [n for n in _modules() if n.startswith("hlod_core")]
     script = "import importlib, sys\nfor n in sys.argv[1:]:\n    importlib.import_module(n)\n"
@@ -126,6 +127,7 @@ def test_every_core_module_imports_first_in_a_fresh_interpreter():
         assert proc.returncode == 0, f"{name}: {proc.stderr[-2000:]}"
 
 
+@pytest.mark.blender
 def test_every_extension_module_imports_first_under_a_package_name():
     """addon/, operators/ and panels/ use relative imports: import the folder as a package (as
     Blender does, under another name) and each module first, in a fresh bpy interpreter, in two orders."""

@@ -20,6 +20,8 @@ from hlod_core.traversal import COUNTERS, METHODS, FrameStats, RuntimeSettings, 
 
 from helpers import baked_city, load_model, street_path
 
+pytestmark = pytest.mark.gl  # every test here draws with a real OpenGL context
+
 SIZE = (320, 240)
 
 
@@ -187,16 +189,27 @@ def test_mu_stays_in_0_1_when_alpha_is_underestimated(city_renderer):
             assert seen_over > 0, "the path never produced q > alpha; the clamp went untested"
 
 
-@pytest.mark.parametrize("size", [(1, 1), (7680, 4320)])
-def test_extreme_viewports(gl_ctx, size):
-    renderer = Renderer(gl_ctx, baked_city(), size=size)
-    try:
-        path = street_path(3)
-        for method in ("vfc", "bool", "coh", "sw"):
-            for stats, _ in _frames(renderer, method, path, size=size):
-                assert stats.dn >= 0 and np.isfinite(stats.frame_ms)
-    finally:
-        renderer.release()
+@pytest.mark.slow
+def test_extreme_viewports(gl_ctx):
+    """1x1 and 8k viewports: every method's counters agree with what it drew, and the SSE follows
+    the viewport height (DESIGN §5.1: SSE is proportional to H): at 1x1 only nodes whose sphere holds
+    the eye (SSE = inf) refine, at 8k far more do, so every frame draws fewer nodes at 1x1."""
+    hlod = baked_city()
+    path = street_path(3)
+    drawn = {}
+    for size in ((1, 1), (7680, 4320)):
+        renderer = Renderer(gl_ctx, hlod, size=size)
+        try:
+            for method in ("vfc", "bool", "coh", "sw"):
+                for stats, _ in _frames(renderer, method, path, size=size):
+                    assert len(stats.drawn) == len(set(stats.drawn)) == stats.dn >= 1, (size, method)
+                    assert stats.tris == int(hlod.tri_count[stats.drawn].sum()) and np.isfinite(stats.frame_ms)
+                    drawn.setdefault((size, method), []).append(sorted(stats.drawn))
+        finally:
+            renderer.release()
+    for method in ("vfc", "bool", "coh", "sw"):
+        for tiny, huge in zip(drawn[((1, 1), method)], drawn[((7680, 4320), method)]):
+            assert 1 <= len(tiny) < len(huge), method
 
 
 def test_eye_inside_boxes_and_on_a_box_face(city_renderer):
