@@ -1,0 +1,64 @@
+"""Is the bake unit-free? Root error / scale and node count of shared models baked at x1e-3, x1 and
+x1e3, and, for comparison, the spread of the root error at one scale when every float32 coordinate
+moves by at most one step (seeded): what rounding alone does to greedy decimation.
+
+    python -m benchmarks.unit_free [--jitter-seeds 6]
+
+Prints one JSON line per model, then the jitter lines (README "Unit-free bakes").
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from hlod_core import meshio
+from hlod_core.bake import BakeSettings, bake
+
+from .bake_throughput import ROOT
+
+MODELS = (("spot.obj", 200), ("cow.obj", 200), ("fandisk.obj", 500), ("rocker-arm.obj", 500),
+          ("teapot.obj", 200), ("homer.obj", 500), ("stanford-bunny.obj", 2000))
+SCALES = (1e-3, 1.0, 1e3)
+JITTERED = ("spot.obj", "fandisk.obj")
+
+
+def _scaled(mesh: meshio.TriangleMesh, scale: float) -> meshio.TriangleMesh:
+    m = np.eye(4) * scale
+    m[3, 3] = 1.0
+    return meshio.transform_mesh(mesh, m, name=f"{mesh.name} x{scale:g}")
+
+
+def _jittered(mesh: meshio.TriangleMesh, seed: int) -> meshio.TriangleMesh:
+    """Each float32 coordinate moved one step down, kept, or moved one step up, at random."""
+    rng = np.random.default_rng(seed)
+    p32 = mesh.positions.astype(np.float32)
+    step = rng.integers(-1, 2, size=p32.shape)
+    moved = np.nextafter(p32, np.where(step > 0, np.float32(np.inf), np.float32(-np.inf)))
+    return meshio.from_arrays(np.where(step == 0, p32, moved).astype(np.float64), mesh.faces, name=mesh.name)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.unit_free", description=__doc__.splitlines()[0])
+    parser.add_argument("--jitter-seeds", type=int, default=6)
+    args = parser.parse_args(argv)
+    models = {name: target for name, target in MODELS}
+    for name, target in MODELS:
+        mesh = meshio.load_mesh(ROOT.parent / "shared" / "models" / name)
+        row = {"model": name, "target_tris": target}
+        for scale in SCALES:
+            hlod = bake(_scaled(mesh, scale), BakeSettings(target_tris=target))
+            row[f"x{scale:g}"] = {"root_error_over_scale": float(hlod.error[0] / scale), "nodes": hlod.node_count}
+        errors = [row[f"x{scale:g}"]["root_error_over_scale"] for scale in SCALES]
+        row["spread"] = max(errors) / min(errors) - 1.0
+        print(json.dumps(row), flush=True)
+    for name in JITTERED:
+        mesh = meshio.load_mesh(ROOT.parent / "shared" / "models" / name)
+        errors = [float(bake(_jittered(mesh, seed), BakeSettings(target_tris=models[name])).error[0])
+                  for seed in range(args.jitter_seeds)]
+        print(json.dumps({"model": name, "jitter_one_step_root_errors": errors}), flush=True)
+
+
+if __name__ == "__main__":
+    main()
