@@ -5,13 +5,16 @@ Path file:
      "frames": [{"eye": [x, y, z], "target": [x, y, z], "up": [x, y, z]}, ...]}
 with "ortho_height": h (model units visible vertically) instead of "fovy_deg" for an
 orthographic path. Coordinates are world (model) units, float64. Defaults: fovy_deg 60, near 0.01,
-far 1000, up [0, 0, 1]. Every field must be a JSON number (not null, a string, a list or
+far 1000, up [0, 0, 1]. Optional "parts": [{"name": "orbit", "start": 0}, ...], the path's named
+parts in order (a part runs from its start frame to the next part's start; the first starts at
+frame 0; the evaluation report marks them on its frame axis). Every field must be a JSON number (not null, a string, a list or
 true/false), finite and at most MAX_MAGNITUDE in size; unknown keys are refused; any far/near
 ratio is accepted (boxes.frustum_planes keeps a far plane beyond float64's reach at infinity).
 
 Seeded sequences (after the dissertation's inspection sessions, §8.1: rotations and changes from
 overall views to extreme close-ups): an orbit around the scene, a fly-through across it, a dolly
-from the overview down to an extreme close-up of a surface point, and a rotation in place there.
+from the overview down to an extreme close-up of a surface point, and a rotation in place there;
+the parts are recorded as such.
 """
 from __future__ import annotations
 
@@ -32,13 +35,15 @@ from .view import View, look_at, orthographic, perspective
 
 @dataclass(frozen=True)
 class CameraPath:
-    """frames: (F, 3, 3) float64 rows eye, target, up; fovy_deg or ortho_height; near, far."""
+    """frames: (F, 3, 3) float64 rows eye, target, up; fovy_deg or ortho_height; near, far;
+    parts: ((name, start frame), ...), starts rising from 0 (empty: the path is one part)."""
 
     frames: np.ndarray
     near: float
     far: float
     fovy_deg: float | None = 60.0
     ortho_height: float | None = None
+    parts: tuple[tuple[str, int], ...] = ()
 
     def view(self, i: int, size: tuple[int, int]) -> View:
         w, h = size
@@ -59,6 +64,8 @@ class CameraPath:
             out["ortho_height"] = self.ortho_height
         else:
             out["fovy_deg"] = self.fovy_deg
+        if self.parts:
+            out["parts"] = [{"name": name, "start": start} for name, start in self.parts]
         return out
 
     def save(self, path: str | os.PathLike) -> None:
@@ -67,8 +74,10 @@ class CameraPath:
 
 #: Keys of a path file and of each frame; anything else is refused (a misspelt "fov_deg" would
 #: otherwise leave the default in place without a word).
-PATH_KEYS = ("fovy_deg", "ortho_height", "near", "far", "frames")
+PATH_KEYS = ("fovy_deg", "ortho_height", "near", "far", "frames", "parts")
 FRAME_KEYS = ("eye", "target", "up")
+PART_KEYS = ("name", "start")
+MAX_PART_NAME = 40  # characters of a part's name (a label on a figure's frame axis)
 DEFAULT_FOVY_DEG, DEFAULT_NEAR, DEFAULT_FAR = 60.0, 0.01, 1000.0
 #: Largest magnitude of a coordinate, near, far or ortho_height (squares and products of such
 #: numbers, in look_at's norms and the projection, stay far inside float64).
@@ -119,17 +128,18 @@ def path_from_json(data, *, source: str) -> CameraPath:
     same = np.flatnonzero(np.all(frames[:, 1] == frames[:, 0], axis=1))
     if same.size:
         raise InputError(f"{source}: a frame's eye equals its target (frames[{same[0]}])")
+    parts = _parts(data.get("parts", []), len(frames), source)
     if "fovy_deg" in data and "ortho_height" in data:
         raise InputError(f"{source}: give fovy_deg (perspective) or ortho_height (orthographic), not both")
     if "ortho_height" in data:
         height = _number(data["ortho_height"], source, "ortho_height")
         if not height > 0:
             raise InputError(f"{source}: ortho_height must be > 0, got {height:g}")
-        return CameraPath(frames=frames, near=near, far=far, fovy_deg=None, ortho_height=height)
+        return CameraPath(frames=frames, near=near, far=far, fovy_deg=None, ortho_height=height, parts=parts)
     fovy = _number(data.get("fovy_deg", DEFAULT_FOVY_DEG), source, "fovy_deg")
     if not 0 < fovy < 180:
         raise InputError(f"{source}: fovy_deg must lie in (0, 180), got {fovy:g}")
-    return CameraPath(frames=frames, near=near, far=far, fovy_deg=fovy)
+    return CameraPath(frames=frames, near=near, far=far, fovy_deg=fovy, parts=parts)
 
 
 def _kind(value) -> str:
@@ -166,6 +176,33 @@ def _number(value, source: str, where: str) -> float:
         raise InputError(f"{source}: {where} must be a finite number of magnitude at most {MAX_MAGNITUDE:g}, "
                          f"got {str(value)[:40]}")
     return number
+
+
+def _parts(value, frame_count: int, source: str) -> tuple[tuple[str, int], ...]:
+    """The optional "parts" list: objects {name, start}, names non-empty strings of at most
+    MAX_PART_NAME characters, starts whole numbers rising from 0 and below frame_count."""
+    if not isinstance(value, list):
+        raise InputError(f"{source}: \"parts\" must be a list of {{name, start}}, got {_kind(value)}")
+    parts = []
+    for i, part in enumerate(value):
+        where = f"parts[{i}]"
+        if not isinstance(part, dict):
+            raise InputError(f"{source}: {where} must be an object with name and start, got {_kind(part)}")
+        _known_keys(part, PART_KEYS, source, where)
+        name, start = part.get("name"), part.get("start")
+        if not isinstance(name, str) or not 0 < len(name) <= MAX_PART_NAME:
+            raise InputError(f"{source}: {where}.name must be a string of 1 to {MAX_PART_NAME} characters, "
+                             f"got {_kind(name)}")
+        if isinstance(start, bool) or not isinstance(start, int):
+            raise InputError(f"{source}: {where}.start must be a whole number (a frame index), got {_kind(start)}")
+        low = 0 if i == 0 else parts[-1][1] + 1
+        high = 0 if i == 0 else frame_count - 1
+        if not low <= start <= high:
+            expected = "0 (the first part starts the path)" if i == 0 else \
+                f"in {low}..{high} (after the previous part's start, within the {frame_count} frames)"
+            raise InputError(f"{source}: {where}.start must be {expected}, got {start}")
+        parts.append((name, start))
+    return tuple(parts)
 
 
 def _vector3(value, source: str, where: str) -> list[float]:
@@ -240,4 +277,7 @@ def inspection_path(hlod: Hlod, *, seed: int, frames: int, up_axis: int = 2) -> 
         d[a], d[b] = c * look[a] - s * look[b], s * look[a] + c * look[b]
         out.append((near_eye, near_eye + d, up))
     near = max(1e-4 * radius, 0.01 * close_dist)
-    return CameraPath(frames=np.array(out, np.float64), near=near, far=8.0 * radius, fovy_deg=60.0)
+    counts = (("orbit", n_orbit), ("fly-through", n_fly), ("dolly", n_dolly), ("rotate", n_rotate))
+    starts = np.cumsum([0] + [n for _, n in counts[:-1]])
+    parts = tuple((name, int(start)) for (name, n), start in zip(counts, starts) if n > 0)
+    return CameraPath(frames=np.array(out, np.float64), near=near, far=8.0 * radius, fovy_deg=60.0, parts=parts)

@@ -12,7 +12,12 @@ reads a report.json and says which hold.
 
 Data form: per_frame[key] is a (repeat, frames, len(COUNTERS)) float64 array of FrameStats
 counters (traversal.COUNTERS order) per report key; the report is a JSON-ready dict of measured
-figures (report.json).
+figures (report.json). Written beside it: per_frame.npz, the per-frame medians over repeats that
+the figures draw ("keys" (V,) report keys, "counters" (C,) COUNTERS, "median" (V, frames, C)
+float32), report.md, report.html (report_html: one self-contained page, figures embedded) and the
+figures; `redraw` draws the figures and pages again from report.json and per_frame.npz alone:
+
+    python -m hlod_core.evaluate --redraw DIR
 
 All variants run in one process on one renderer over the same path, interleaved frame by frame
 (each keeps its own traversal state; the order rotates every frame and runs backwards on odd
@@ -22,19 +27,24 @@ over frames of that. Images for PSNR come from the first repeat, read back outsi
 """
 from __future__ import annotations
 
+import argparse
+import importlib.util
 import json
 import logging
 import os
+import sys
 import time
+import zipfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from . import jsonutil, report_html
 from .alpha_study import alpha_estimators
-from .atomic import write_text_atomic
+from .atomic import atomic_file, write_text_atomic
 from .camera import CameraPath
-from .errors import InputError
+from .errors import HlodError, InputError
 from .hierarchy import Hlod
 from .imagemetrics import psnr, rmse_y
 from .renderer import Renderer
@@ -62,6 +72,8 @@ PSNR_REFERENCES = ("bool", "full")  # the PSNR columns are against these methods
 ALPHA_STUDY_VIEWS = 5  # the first of the PSNR frames, reused as the alpha estimators' views
 PROGRESS_STEPS = 10  # log lines per repeat
 MS_PER_S = 1e3
+PER_FRAME_FILE = "per_frame.npz"
+REPORT_FILE = "report.json"
 
 
 @dataclass(frozen=True)
@@ -97,8 +109,9 @@ def variants(methods: list[str], settings: RuntimeSettings, sweep: str | None) -
 def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: list[str],
              settings: RuntimeSettings = RuntimeSettings(), repeat: int = 2, sweep: str | None = None,
              out_dir: str | os.PathLike, psnr_frames: int = 20, seed: int = 1, figures: bool = True) -> dict:
-    """Runs, measures and writes report.json, report.md and the figures into out_dir; returns the
-    report (the JSON contents)."""
+    """Runs, measures and writes report.json, per_frame.npz, report.md, report.html and (with
+    `figures`, which needs matplotlib) the figures into out_dir; returns the report (the JSON
+    contents)."""
     unknown = [m for m in methods if m not in METHOD_SPECS]
     if unknown:
         raise InputError(f"unknown method(s) {', '.join(unknown)}; expected some of {', '.join(METHOD_SPECS)}")
@@ -145,15 +158,84 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     report["figures"] = {}
     if showcase is not None:
         report["showcase"] = showcase
+    report["parts"] = [{"name": name, "start": start} for name, start in path.parts]
     report["seconds"] = time.perf_counter() - started
+    medians = {key: np.median(counters, axis=0) for key, counters in per_frame.items()}
+    save_per_frame(out_dir / PER_FRAME_FILE, medians)
+    path.save(out_dir / "path.json")
+    write_report(report, medians, out_dir, figures=figures)
+    return report
+
+
+def write_report(report: dict, medians: dict | None, out_dir: Path, *, figures: bool) -> None:
+    """The figures (with `figures`; `medians`: key -> (frames, len(COUNTERS)) per-frame medians, None
+    when there are none: no per-frame figure), report.json, report.md and report.html into out_dir."""
+    report["figures"] = {}
     if figures:
         from . import report_figures  # matplotlib: loaded only when figures are made
 
-        report["figures"] = report_figures.draw(report, per_frame, out_dir, labels=LABELS)
-    path.save(out_dir / "path.json")
-    write_text_atomic(out_dir / "report.json", json.dumps(report, indent=1))
+        report["figures"] = report_figures.draw(report, medians, out_dir, labels=LABELS)
+    write_text_atomic(out_dir / REPORT_FILE, json.dumps(report, indent=1))
     write_text_atomic(out_dir / "report.md", markdown(report, labels=LABELS))
+    write_text_atomic(out_dir / "report.html", report_html.page(report, labels=LABELS, folder=out_dir))
+
+
+def redraw(out_dir: str | os.PathLike) -> dict:
+    """The figures, report.md and report.html of an evaluation folder again, from its report.json
+    and per_frame.npz (a folder without per_frame.npz gets no per-frame figure); returns the
+    report. Raises InputError naming the file when one is missing or not an evaluation's."""
+    out_dir = Path(out_dir)
+    source = out_dir / REPORT_FILE
+    try:
+        report = jsonutil.loads(source.read_bytes())
+    except OSError as exc:
+        raise InputError(f"{source}: cannot read the report ({exc.strerror or exc})") from None
+    except jsonutil.JsonError as exc:
+        raise InputError(f"{source}: not an evaluation report ({exc})") from None
+    if not isinstance(report, dict) or not isinstance(report.get("methods"), dict):
+        raise InputError(f"{source}: not an evaluation report (no \"methods\" table)")
+    unknown = sorted(set(report["methods"]) - set(LABELS))
+    if unknown:
+        raise InputError(f"{source}: unknown method {unknown[0][:40]!r}; expected some of {', '.join(LABELS)}")
+    medians = None
+    if (out_dir / PER_FRAME_FILE).exists():
+        medians = load_per_frame(out_dir / PER_FRAME_FILE, frames=report.get("frames"))
+    else:
+        log.warning("%s: not found; the per-frame figure is left out", out_dir / PER_FRAME_FILE)
+    if importlib.util.find_spec("matplotlib") is None:  # the figures' only extra requirement
+        raise InputError("redrawing the figures needs matplotlib, which this Python lacks")
+    try:
+        write_report(report, medians, out_dir, figures=True)
+    except (KeyError, TypeError) as exc:  # a field missing or of the wrong kind: not evaluate's report
+        raise InputError(f"{source}: not an evaluation report ({type(exc).__name__}: {exc})") from None
     return report
+
+
+def save_per_frame(target: Path, medians: dict) -> None:
+    """per_frame.npz (module docstring) of `medians`: report key -> (frames, len(COUNTERS))."""
+    keys = list(medians)
+    with atomic_file(target) as f:
+        np.savez_compressed(f, keys=np.array(keys, dtype=str), counters=np.array(COUNTERS, dtype=str),
+                            median=np.array([medians[k] for k in keys], dtype=np.float32))
+
+
+def load_per_frame(source: Path, *, frames: int | None = None) -> dict:
+    """report key -> (frames, len(COUNTERS)) float64 medians from per_frame.npz, in COUNTERS order
+    whatever order the file lists its counters in. Raises InputError naming the file when it is not
+    one (or holds another number of frames than `frames`, the report's)."""
+    try:
+        with np.load(source, allow_pickle=False) as data:
+            keys, counters, median = data["keys"], data["counters"], data["median"]
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise InputError(f"{source}: not an evaluation's per-frame file ({exc})") from None
+    missing = [c for c in COUNTERS if c not in counters.tolist()]
+    if median.ndim != 3 or median.shape[0] != len(keys) or median.shape[2] != len(counters) or missing:
+        raise InputError(f"{source}: not an evaluation's per-frame file (median {median.shape}, "
+                         f"{len(keys)} keys, counters missing: {', '.join(missing) or 'none'})")
+    if frames is not None and median.shape[1] != frames:
+        raise InputError(f"{source}: {median.shape[1]} frames, its report.json {frames}")
+    order = [counters.tolist().index(c) for c in COUNTERS]
+    return {str(k): median[i][:, order].astype(np.float64) for i, k in enumerate(keys)}
 
 
 def _summarise(hlod: Hlod, *, frames: int, size: tuple[int, int], runs: list[Variant], per_frame: dict,
@@ -220,3 +302,28 @@ def summary_line(report: dict, out_dir) -> dict:
         out["sweep"] = {k: {c: r[c] for c in keys} for k, r in report["sweep"]["points"].items()}
     return out
 
+
+def main(argv: list[str] | None = None) -> int:
+    """python -m hlod_core.evaluate --redraw DIR (`redraw`). Exit status 0, or 2 with one line on
+    stderr naming the file at fault. (The evaluation itself is `python -m hlod_core evaluate`.)"""
+    parser = argparse.ArgumentParser(prog="python -m hlod_core.evaluate",
+                                     description="Draw an evaluation folder's figures, report.md and report.html "
+                                                 "again from its report.json and per_frame.npz.")
+    parser.add_argument("--redraw", required=True, metavar="DIR", help="an evaluation's --out folder")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="hlod_core: %(message)s")
+    try:
+        report = redraw(args.redraw)
+    except HlodError as exc:
+        print(f"hlod_core: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"hlod_core: error: {exc.filename or args.redraw}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    for name, file in report["figures"].items():
+        log.info("%s: %s", name, Path(args.redraw) / file)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

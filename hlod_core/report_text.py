@@ -1,4 +1,5 @@
-"""The evaluation report as Markdown (report.md): the dissertation's tables and the figures' links.
+"""The evaluation report as Markdown (report.md): the figures first, with captions saying what to
+read in them, then the dissertation's tables. report_html renders the same text as one page.
 
 Data form: in, the report dict that evaluate.evaluate writes as report.json (measured figures only)
 and the method labels; out, one Markdown string.
@@ -6,6 +7,21 @@ and the method labels; out, one Markdown string.
 from __future__ import annotations
 
 from .traversal import ALPHA_MODES
+
+# figure file -> what a reader sees in it (report_figures draws them)
+FIGURE_CAPTIONS = {
+    "error_vs_time.png": "Each method's mean frame time and image error (luminance RMSE against Full): lower left "
+                         "is better; the grey band joins the methods that no other beats on both (the Pareto front).",
+    "per_frame.png": "Per frame: drawn nodes relative to SW(P)'s (the count VMSSE asks for) and frame time relative "
+                     "to Ideal's (SW(P)'s nodes without queries) for the methods that query; Full and VFC below; "
+                     "the camera path's parts marked.",
+    "alpha_estimators.png": "Error of each alpha estimator against the exact query count, against its cost per node.",
+    "modulation.png": "Bool, Coh(P) and Coh(mu) at the frame where Coh(P) saves the most nodes: shaded, modulation "
+                      "colours (blue weak, magenta moderate, red strong) and the drawn front from above.",
+}
+NO_FIGURES = ("No figures: they were not drawn here (they need matplotlib, which Blender's Python lacks). "
+              "`python -m hlod_core.evaluate --redraw DIR` draws them into this folder, from report.json and "
+              "per_frame.npz, with a Python that has matplotlib.")
 
 
 def _f(x, digits=2) -> str:
@@ -25,11 +41,12 @@ def markdown(report: dict, *, labels: dict[str, str]) -> str:
              f"k = {'inf' if st['k'] is None else st['k']}, alpha = {st['alpha']}. {report['repeat']} repeats, methods "
              f"interleaved frame by frame in a rotating order; per frame the median over repeats, then the mean over frames. Timings compare as "
              f"ratios within this run (on llvmpipe, absolute times are the CPU rasteriser's).",
-             "",
-             "## Per method (Table 8.2 columns and more)",
-             "",
-             "| method | FPS | frame ms | DN | RARN | D | triangles | queries | stall ms | CPU ms | GPU ms |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             ""]
+    lines += _figures(report)
+    lines += ["## Per method (Table 8.2 columns and more)",
+              "",
+              "| method | FPS | frame ms | DN | RARN | D | triangles | queries | stall ms | CPU ms | GPU ms |",
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for key, r in m.items():
         lines.append(f"| {labels[key]} | {_f(r['fps'], 1)} | {_f(r['frame_ms'])} | {_f(r['dn'])} | {_f(r['rarn'])} | "
                      f"{_f(r['d'])} | {_f(r['tris'], 0)} | {_f(r['queries'], 1)} | {_f(r['stall_ms'])} | "
@@ -65,9 +82,16 @@ def markdown(report: dict, *, labels: dict[str, str]) -> str:
     lines.append("")
     lines.append("`query` is exact by definition (its cost is one extra GL query per node: charged as half "
                  "the measured time of issuing and reading both queries).")
-    if report.get("figures"):
-        lines += ["", "## Figures", ""]
-        for name, file in report["figures"].items():
-            lines.append(f"![{name}]({file})")
-            lines.append("")
     return "\n".join(lines) + "\n"
+
+
+def _figures(report: dict) -> list[str]:
+    """The Figures section: each figure and its caption, or why there are none."""
+    lines = ["## Figures", ""]
+    if not report.get("figures"):
+        return lines + [NO_FIGURES, ""]
+    for name, file in report["figures"].items():
+        lines += [f"![{name}]({file})", ""]
+        if file in FIGURE_CAPTIONS:
+            lines += [f"*{FIGURE_CAPTIONS[file]}*", ""]
+    return lines

@@ -1,6 +1,8 @@
 """The evaluation (issue "Evaluation"): procedural scenes, image error, the evaluate command and
-its report."""
+its report (issue 19: per_frame.npz, report.html, figures redrawn from the saved files)."""
+import base64
 import json
+import re
 import subprocess
 import sys
 
@@ -13,10 +15,12 @@ from hlod_core import evaluate, imagemetrics, scenes
 from hlod_core.camera import inspection_path
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.errors import InputError
+from hlod_core.traversal import COUNTERS
 from hlod_core.view import look_at, perspective
 
 from helpers import ROOT
 from test_cli import hlod, last_json, one_line_error
+from test_report_figures import PNG_SIGNATURE, legible
 
 ISSUE_KEYS = {"fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms",
               "psnr_y_vs_bool", "psnr_cb_vs_bool", "psnr_cr_vs_bool", "psnr_y_vs_full"}
@@ -94,10 +98,17 @@ def small_high(tmp_path_factory):
     return out
 
 
-def test_evaluate_writes_the_report_and_its_last_line(small_high, tmp_path):
-    out_dir = tmp_path / "report"
+@pytest.fixture(scope="module")
+def short_run(small_high, tmp_path_factory):
+    """(the command's process, its --out folder): every method and the (s, t) sweep, 16 frames."""
+    out_dir = tmp_path_factory.mktemp("short") / "report"
     proc = hlod("-q", "evaluate", small_high, "--out", out_dir, "--frames", "16", "--size", "160x120",
                 "--repeat", "2", "--psnr-frames", "5", "--sweep", "st")
+    return proc, out_dir
+
+
+def test_evaluate_writes_the_report_and_its_last_line(short_run):
+    proc, out_dir = short_run
     line = last_json(proc)
     assert set(line["methods"]) == set(evaluate.METHOD_SPECS)
     for key, row in line["methods"].items():
@@ -126,12 +137,79 @@ def test_evaluate_writes_the_report_and_its_last_line(small_high, tmp_path):
     a = report["alpha_estimators"]
     assert a["nodes"] > 0 and a["query"]["cost_us_per_node"] > 0
     assert a["projected"]["median_rel_error_pct"] < 5.0 < a["cube"]["median_rel_error_pct"]
-    for name in ("report.md", "path.json", "error_vs_time.png", "per_frame.png", "alpha_estimators.png",
-                 "modulation.png"):
+    for name in ("report.md", "report.html", "per_frame.npz", "path.json", "error_vs_time.png", "per_frame.png",
+                 "alpha_estimators.png", "modulation.png"):
         assert (out_dir / name).stat().st_size > 0, name
     md = (out_dir / "report.md").read_text()
     assert "| Coh(P) | Bool |" in md and "Table 8.1" in md and "![modulation colours](modulation.png)" in md
     assert "Targets" not in md
+
+
+def test_short_run_figures_legible_and_per_frame_saved(short_run):
+    """per_frame.npz holds each variant's per-frame medians over the repeats (their means are the
+    report's figures), the generated path's parts reach the report, and the figures drawn from
+    the saved files have no two texts overlapping."""
+    from hlod_core import report_figures
+
+    _, out_dir = short_run
+    report = json.loads((out_dir / "report.json").read_text())
+    medians = evaluate.load_per_frame(out_dir / "per_frame.npz", frames=16)
+    assert set(medians) == set(report["methods"]) | set(report["sweep"]["points"])
+    for key, row in report["methods"].items():
+        assert medians[key].shape == (16, len(COUNTERS))
+        assert np.mean(medians[key][:, COUNTERS.index("dn")]) == pytest.approx(row["dn"], rel=1e-6), key
+        assert np.mean(medians[key][:, COUNTERS.index("frame_ms")]) == pytest.approx(row["frame_ms"], rel=1e-5), key
+    assert [p["name"] for p in report["parts"]] == ["orbit", "fly-through", "dolly", "rotate"]
+    for fig in (report_figures.error_vs_time_figure(report, labels=evaluate.LABELS),
+                report_figures.per_frame_figure(report, medians, labels=evaluate.LABELS),
+                report_figures.alpha_figure(report)):
+        assert legible(fig) == []
+        fig.clf()
+
+
+def test_report_html_is_self_contained(short_run):
+    """One page, nothing outside it: no http(s) address, every image a PNG data URI (the four
+    figures), a table row for every method."""
+    _, out_dir = short_run
+    page = (out_dir / "report.html").read_text()
+    assert not re.search(r"https?://|\bsrc=\"(?!data:)|\bhref=", page)
+    images = re.findall(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
+    assert len(images) == page.count("<img") == 4
+    assert all(base64.b64decode(data).startswith(PNG_SIGNATURE) for data in images)
+    report = json.loads((out_dir / "report.json").read_text())
+    for key in report["methods"]:
+        assert f"<tr><td>{evaluate.LABELS[key]}</td>" in page, key
+    for key in report["sweep"]["points"]:
+        assert f"<tr><td>{key}</td>" in page, key
+
+
+def test_redraw_from_the_saved_files(short_run, tmp_path):
+    """`python -m hlod_core.evaluate --redraw DIR` draws the figures, report.md and report.html again
+    from report.json and per_frame.npz alone; a folder that is not an evaluation's, or a per-frame
+    file that is not one, is one line naming the file."""
+    import shutil
+
+    _, out_dir = short_run
+    folder = tmp_path / "copy"
+    shutil.copytree(out_dir, folder)
+    for name in ("error_vs_time.png", "per_frame.png", "alpha_estimators.png", "report.html", "report.md"):
+        (folder / name).unlink()
+    proc = subprocess.run([sys.executable, "-m", "hlod_core.evaluate", "--redraw", folder], capture_output=True,
+                          text=True, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    for name in ("error_vs_time.png", "per_frame.png", "alpha_estimators.png", "modulation.png"):
+        assert (folder / name).read_bytes().startswith(PNG_SIGNATURE), name
+    assert (folder / "report.md").read_text() == (out_dir / "report.md").read_text()
+    assert (folder / "report.html").stat().st_size > 0
+    (folder / "per_frame.npz").write_bytes(b"not a zip")
+    (tmp_path / "bad").mkdir()
+    (tmp_path / "bad" / "report.json").write_text('{"methods": {"bool": {"frame_ms": 1.0}}}')
+    for target, message in ((tmp_path / "none", "report.json: cannot read the report"),
+                            (folder, "per_frame.npz: not an evaluation's per-frame file"),
+                            (tmp_path / "bad", "report.json: not an evaluation report (KeyError")):
+        proc = subprocess.run([sys.executable, "-m", "hlod_core.evaluate", "--redraw", target], capture_output=True,
+                              text=True, cwd=ROOT)
+        assert proc.returncode == 2 and message in one_line_error(proc), proc.stderr
 
 
 def test_modulation_frames_use_only_the_colour_ramp(small_high, tmp_path):
@@ -161,6 +239,10 @@ def test_modulation_frames_use_only_the_colour_ramp(small_high, tmp_path):
         shaded = read_png(tmp_path / f"{key}_shaded.png").astype(np.int64)
         grey = shaded[np.any(shaded != white, axis=2)]
         assert np.all(np.abs(grey[:, 0] - grey[:, 1]) <= 0.05 * grey[:, 0] + 2)
+    # without figures (Blender has no matplotlib) the report is complete and says why they are missing
+    page = (tmp_path / "report.html").read_text()
+    assert "<img" not in page and "No figures" in page and "python -m hlod_core.evaluate --redraw" in page
+    assert "<td>Coh(mu)</td>" in page and (tmp_path / "per_frame.npz").stat().st_size > 0
 
 
 def test_evaluate_bad_options_are_one_line(small_high, tmp_path):

@@ -10,7 +10,9 @@ from inside or beside the crowd the nearest statues hide most of the others, whi
 slivers through the gaps: the README's high-depth-complexity evaluation scene. crowd_walk_path.json
 is a fast 320-frame tour of it (orbit at ground level, aisle walk, turn in place, dolly to close-up;
 up to 4.5 degrees or 1.35 units per frame), crowd_inspection_path.json the README's evaluation path:
-the same four parts at interactive speeds sampled at 60 frames per second (1,020 frames).
+the same four parts at interactive speeds sampled at 60 frames per second (1,020 frames). Both
+paths name their parts ("parts": orbit, walk, turn, dolly with their start frames), which the
+evaluation report marks on its frame axis.
 """
 import json
 from pathlib import Path
@@ -71,10 +73,17 @@ def _dolly(centre: np.ndarray, side: float, n: int) -> list:
     return out
 
 
-def _path_json(frames: list) -> dict:
+PARTS = ("orbit", "walk", "turn", "dolly")
+
+
+def _path_json(frames: list, part_frames: list[int]) -> dict:
+    """The path file of (eye, target) pairs in PARTS order, `part_frames` frames each."""
+    assert len(part_frames) == len(PARTS) and sum(part_frames) == len(frames)
+    starts = np.cumsum([0] + part_frames[:-1])
     return {"fovy_deg": 60, "near": 0.01, "far": 400,
             "frames": [{"eye": [round(float(c), 6) for c in e], "target": [round(float(c), 6) for c in t],
-                        "up": [0, 0, 1]} for e, t in frames]}
+                        "up": [0, 0, 1]} for e, t in frames],
+            "parts": [{"name": name, "start": int(start)} for name, start in zip(PARTS, starts)]}
 
 
 def crowd_walk(frames_per_part: int = 80) -> dict:
@@ -95,7 +104,7 @@ def crowd_walk(frames_per_part: int = 80) -> dict:
     for i in range(n):
         a = 2 * np.pi * i / n
         frames.append((crossing, crossing + [10 * np.cos(a), 10 * np.sin(a), 0.0]))
-    return _path_json(frames + _dolly(centre, side, n))
+    return _path_json(frames + _dolly(centre, side, n), [n] * len(PARTS))
 
 
 def crowd_inspection(fps: float = 60.0) -> dict:
@@ -109,19 +118,20 @@ def crowd_inspection(fps: float = 60.0) -> dict:
     side, gap = CROWD_SPACING * (CROWD_SIDE - 1), CROWD_SPACING / 2
     centre = np.array([side / 2, side / 2, 0.0])
     frames = []
-    n = round(3.0 * fps)
+    counts = [round(3.0 * fps), round(6.0 * fps), round(4.0 * fps), round(4.0 * fps)]
+    n = counts[0]
     for i in range(n):
         a = np.radians(200.0) + np.radians(12.0) * i / fps
         frames.append((centre + [1.2 * side * np.cos(a), 1.2 * side * np.sin(a), 0.5], centre))
-    n = round(6.0 * fps)
+    n = counts[1]
     for i in range(n):
         x = -10.0 + 6.0 * i / fps
         frames.append(([x, gap, 0.0], [x + 20.0, gap + 8.0 * np.sin(2 * np.pi * i / n), 0.0]))
     crossing = centre  # an aisle crossing (statues stand at multiples of the spacing)
-    for i in range(round(4.0 * fps)):
+    for i in range(counts[2]):
         a = np.radians(45.0) * i / fps
         frames.append((crossing, crossing + [10 * np.cos(a), 10 * np.sin(a), 0.0]))
-    return _path_json(frames + _dolly(centre, side, round(4.0 * fps)))
+    return _path_json(frames + _dolly(centre, side, counts[3]), counts)
 
 
 def write_spec(path: Path, spec: dict) -> None:
