@@ -26,8 +26,9 @@ ROOT = Path(__file__).resolve().parents[1]
 def enable_from_repo(repo_dir: str, module: str = "r"):
     """Register `repo_dir` (made by `blender_ext.py install-files`) as an extension repository and
     enable the add-on in it under its real package name bl_ext.<module>.hlod."""
+    import bpy  # first: importing bpy puts Blender's scripts/modules (addon_utils) on sys.path
+
     import addon_utils
-    import bpy
 
     prefs = bpy.context.preferences.extensions
     if not any(r.module == module for r in prefs.repos):

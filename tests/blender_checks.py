@@ -4,6 +4,9 @@
 
 REPO_DIR is an extension repository made by `blender_ext.py install-files` from the built zip; the
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
+The same checks run in every Blender of tests/helpers.py BLENDERS (4.2 LTS, 5.0.1, 5.2.3), each with
+its own interpreter; what differs between them is handled in the add-on and in
+scripts/blender_preview.py (exit_process: bpy 4.2's crash at exit), not here.
 """
 from __future__ import annotations
 
@@ -40,11 +43,25 @@ def _registered() -> dict:
                 1 for h in bpy.app.handlers.load_pre if getattr(h, "__module__", "").startswith(NAME))}
 
 
+def _dependency_files() -> dict:
+    """Where the extension's dependencies import from, with the add-on enabled: Blender installs the
+    wheels of its zip that match its Python into the user's extensions/.local/lib/pythonX.Y/site-packages
+    and puts that folder on sys.path."""
+    files = {}
+    for name in ("pymeshlab", "moderngl", "glcontext"):
+        try:
+            files[name] = importlib.import_module(name).__file__
+        except ImportError as exc:
+            files[name] = f"ImportError: {exc}"
+    return files
+
+
 def check_registration(repo, work) -> dict:
     import addon_utils
 
     package = blender_preview.enable_from_repo(repo)
-    out = {"module": package.__name__, "first": _registered()}
+    out = {"module": package.__name__, "first": _registered(), "blender": list(bpy.app.version[:2]),
+           "python": list(sys.version_info[:2]), "dependencies": _dependency_files()}
     addon_utils.disable(NAME, default_set=True)
     out["disabled"] = _registered()
     package = blender_preview.enable_from_repo(repo)
@@ -247,6 +264,8 @@ def _draw_checks(package, scene, size, occlude: bool) -> dict:
 
 
 def check_preview(repo, work) -> dict:
+    import gpu
+
     package = blender_preview.enable_from_repo(repo)
     preview = importlib.import_module(NAME + ".addon.preview")
     blender_preview.init_gpu()
@@ -258,7 +277,8 @@ def check_preview(repo, work) -> dict:
     blender_preview.camera(scene, eye=(1.5, -8.0, 1.5), target=(0.0, 6.0, 1.0), lens_mm=30.0)
     props.method, props.bias, props.show_modulation = "coh", "mu", True
     bpy.ops.hlod.preview_toggle()
-    out = {"running": preview.running(), "status_on": props.status}
+    # the backend moderngl attaches to: OpenGL, Blender's default on Linux in 4.2, 5.0 and 5.2
+    out = {"running": preview.running(), "status_on": props.status, "backend": gpu.platform.backend_type_get()}
     size = (320, 240)
     for _ in range(3):
         frame = _draw_checks(package, scene, size, occlude=True)
@@ -282,6 +302,7 @@ def check_preview(repo, work) -> dict:
     out["benchmark"] = sorted(bpy.ops.hlod.benchmark(directory=str(Path(work) / "report"), repeat=1))
     report = json.loads((Path(work) / "report" / "report.json").read_text())
     out["benchmark_frames"], out["benchmark_methods"] = report["frames"], sorted(report["methods"])
+    out["benchmark_figures"] = sorted(report["figures"])
     out["after_benchmark"] = _draw_checks(package, scene, size, occlude=True)
     # the fallback for backends moderngl cannot attach to: a private context, drawn with the gpu module
     props.private_context = True
@@ -295,8 +316,6 @@ def check_preview(repo, work) -> dict:
     out["ortho"] = _draw_checks(package, scene, size, occlude=False)["ramp_pixels"]
     scene.camera.data.type = "PERSP"
     view, projection = blender_preview.camera_matrices(scene, size)
-    import gpu
-
     offscreen = gpu.types.GPUOffScreen(*size)
     with offscreen.bind():
         preview.safe_draw(scene, view, projection, *size, xray=True)
@@ -674,3 +693,4 @@ if __name__ == "__main__":
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     result = globals()[f"check_{check}"](repo_dir, work_dir)
     print(json.dumps(result))
+    blender_preview.exit_process(0)  # bpy 4.2 can crash at exit (see exit_process)

@@ -1,7 +1,9 @@
-"""Test helpers: the real meshes in ../shared/models, and bakes cached for the session."""
+"""Test helpers: the real meshes in ../shared/models, bakes cached for the session, and the Blenders
+the extension checks run in (BLENDERS: version "X.Y" -> that environment's Python interpreter)."""
 from __future__ import annotations
 
 import functools
+import re
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +13,31 @@ from hlod_core.bake import BakeSettings, bake
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT.parent / "shared" / "models"
 SCENES = ROOT / "tests" / "scenes"
+BLENDER_VENVS = ROOT / ".venv-blender"
+
+
+def _blenders() -> dict[str, Path]:
+    """One Blender per requirements-bpyXY.txt, where scripts/bootstrap.sh `ensure_blender_venvs` makes
+    it: the bpy pin's major.minor names the folder .venv-blender/bpy-X.Y, and bin/python there is
+    its interpreter (Python 3.11 or 3.13, as that Blender ships)."""
+    out = {}
+    for req in sorted(ROOT.glob("requirements-bpy*.txt")):
+        pin = re.search(r"^bpy==(\d+\.\d+)\.\d+", req.read_text(), re.M)
+        assert pin, f"{req.name}: no bpy==X.Y.Z line"
+        out[pin.group(1)] = BLENDER_VENVS / f"bpy-{pin.group(1)}" / "bin" / "python"
+    return out
+
+
+BLENDERS = _blenders()  # {"4.2": .venv-blender/bpy-4.2/bin/python, "5.0": ..., "5.2": ...}
+
+
+def blender_python(version: str) -> Path:
+    """The interpreter of Blender `version`'s environment; a missing one is an error, never a skip:
+    the extension checks must run in every Blender we support."""
+    python = BLENDERS[version]
+    assert python.is_file(), (f"Blender {version}'s environment is missing ({python}): run `bash test.sh`, "
+                              f"which makes it (scripts/bootstrap.sh ensure_blender_venvs)")
+    return python
 
 
 def model(name: str) -> Path:

@@ -1,7 +1,13 @@
 """The Blender extension with the real bpy module: built into a zip by Blender's own extension tool,
 installed into a temporary extension repository and enabled as Blender does (bl_ext.r.hlod).
 Each check runs in its own Python process (tests/blender_checks.py): bpy keeps global state, and
-the user's Blender configuration is kept out of it (BLENDER_USER_RESOURCES points at a temp dir)."""
+the user's Blender configuration is kept out of it (BLENDER_USER_RESOURCES points at a temp dir).
+
+The zip is built once per session (the linux one: cp311 and cp313 wheels, the same zip for every
+Blender). `versioned_repo` installs it in each Blender of BLENDERS (4.2 LTS, 5.0.1, 5.2.3), each in its
+own environment holding only bpy and numpy, as a Blender install does: the extension's dependencies
+come from its own wheels. `repo` installs it for the main .venv's bpy 5.0.1, for the checks that do
+not depend on the version (the long session; the preview's own tests import it with `blender`)."""
 import json
 import os
 import statistics
@@ -9,40 +15,97 @@ import subprocess
 import sys
 import sysconfig
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
 from hlod_core.evaluate import METHOD_SPECS
 
-from helpers import ROOT
+from helpers import BLENDERS, ROOT, blender_python
+
+sys.path.insert(0, str(ROOT / "scripts"))
+import build_extension  # noqa: E402
 
 BLENDER_EXT = Path(sysconfig.get_paths()["platlib"]) / "bpy/5.0/scripts/addons_core/bl_pkg/cli/blender_ext.py"
+DEPENDENCIES = ("pymeshlab", "moderngl", "glcontext")
+BLENDER_PYTHON = {"4.2": (3, 11), "5.0": (3, 11), "5.2": (3, 13)}  # the Python each Blender ships
+
+
+@dataclass(frozen=True)
+class Installed:
+    """The extension installed for one Blender: base/repo is the extension repository, base/user
+    the BLENDER_USER_RESOURCES of its processes, python that Blender's interpreter."""
+    version: str
+    python: Path
+    base: Path
+
+    def __truediv__(self, name: str) -> Path:  # `repo / "user"` as with the main .venv's `repo`
+        return self.base / name
+
+
+# Built and installed once per session, not per module: tests in other modules import the fixtures.
+_ZIP: dict[str, Path] = {}
+_INSTALLED: dict[str, Installed] = {}
+
+
+def extension_zip(tmp_path_factory) -> Path:
+    """The linux-x64 zip, built once per session by scripts/build_extension.py (main .venv)."""
+    if "linux-x64" not in _ZIP:
+        dist = tmp_path_factory.mktemp("dist")
+        build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms", "linux-x64",
+                                "--output-dir", str(dist)], capture_output=True, text=True, timeout=900)
+        assert build.returncode == 0, build.stderr
+        _ZIP["linux-x64"] = Path(build.stdout.strip().splitlines()[-1])
+    return _ZIP["linux-x64"]
+
+
+def _extension_tool(python: Path) -> Path:
+    """blender_ext.py of the bpy installed for `python` (whichever version)."""
+    platlib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['platlib'])"],
+                             capture_output=True, text=True, check=True).stdout.strip()
+    return build_extension.blender_ext(platlib)
+
+
+def _install(zip_path: Path, python: Path, base: Path) -> None:
+    """Validate the zip and install it with that Blender's own extension tool, as Blender does."""
+    tool = _extension_tool(python)
+    for args in (["validate", str(zip_path)], ["install-files", "--local-dir", str(base / "repo"), str(zip_path)]):
+        proc = subprocess.run([str(python), str(tool), *args], capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, f"{tool} {args[0]}: {proc.stdout[-2000:]}{proc.stderr[-2000:]}"
+    (base / "user").mkdir()
 
 
 @pytest.fixture(scope="module")
 def repo(tmp_path_factory):
     base = tmp_path_factory.mktemp("extension")
-    build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms", "linux-x64",
-                            "--output-dir", str(base / "dist")], capture_output=True, text=True, timeout=900)
-    assert build.returncode == 0, build.stderr
-    zip_path = Path(build.stdout.strip().splitlines()[-1])
-    names = zipfile.ZipFile(zip_path).namelist()
-    assert "blender_manifest.toml" in names and "hlod_core/traversal.py" in names
-    assert any(n.startswith("wheels/pymeshlab-") for n in names) and not any(n.startswith("tests/") for n in names)
     (base / "repo").mkdir()
-    install = subprocess.run([sys.executable, str(BLENDER_EXT), "install-files", "--local-dir", str(base / "repo"),
-                              str(zip_path)], capture_output=True, text=True, timeout=300)
-    assert install.returncode == 0, install.stderr
-    (base / "user").mkdir()
+    _install(extension_zip(tmp_path_factory), Path(sys.executable), base)
     return base
 
 
-def blender(repo, check: str, tmp_path, *, timeout_s: float = 600) -> dict:
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(repo / "user"), "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([sys.executable, str(ROOT / "tests/blender_checks.py"), str(repo / "repo"), check,
+@pytest.fixture(scope="module", params=sorted(BLENDERS), ids=lambda version: f"blender-{version}")
+def versioned_repo(request, tmp_path_factory) -> Installed:
+    """The zip installed for Blender `request.param`, once per session."""
+    version = request.param
+    if version not in _INSTALLED:
+        python = blender_python(version)
+        base = tmp_path_factory.mktemp(f"extension-{version}")
+        (base / "repo").mkdir()
+        _install(extension_zip(tmp_path_factory), python, base)
+        _INSTALLED[version] = Installed(version, python, base)
+    return _INSTALLED[version]
+
+
+def blender(repo, check: str, tmp_path, *, timeout_s: float = 600, quiet: bool = False) -> dict:
+    """Run tests/blender_checks.py CHECK in `repo`'s Blender (an Installed; a plain folder is the main
+    .venv's); its JSON result. quiet: the process must print nothing on stderr (no warnings)."""
+    python, base = (repo.python, repo.base) if isinstance(repo, Installed) else (Path(sys.executable), repo)
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([str(python), str(ROOT / "tests/blender_checks.py"), str(base / "repo"), check,
                            str(tmp_path)], capture_output=True, text=True, timeout=timeout_s, env=env, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-4000:]
+    assert not (quiet and proc.stderr), proc.stderr[-4000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
@@ -51,9 +114,41 @@ def test_manifest_validates_with_blenders_tool():
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
-def test_enable_disable_twice_under_the_real_package_name(repo, tmp_path):
-    out = blender(repo, "registration", tmp_path)
+def test_zip_holds_the_package_and_cp311_and_cp313_wheels_of_each_dependency(tmp_path_factory):
+    """One zip for every Blender: Blender 4.2 to 5.0 install the cp311 wheels, 5.1 and later cp313."""
+    names = zipfile.ZipFile(extension_zip(tmp_path_factory)).namelist()
+    assert "blender_manifest.toml" in names and "hlod_core/traversal.py" in names
+    assert not any(n.startswith("tests/") for n in names)
+    wheels = [n for n in names if n.startswith("wheels/") and n.endswith(".whl")]
+    assert sorted(build_extension.wheel_tags(w) for w in wheels) == sorted(
+        (name, python) for name in DEPENDENCIES for python in ("cp311", "cp313"))
+    assert all(w.endswith("_x86_64.whl") for w in wheels), wheels
+
+
+def test_the_checks_run_in_blender_4_2_5_0_and_5_2_and_a_missing_environment_is_an_error(monkeypatch, tmp_path):
+    assert sorted(BLENDERS) == ["4.2", "5.0", "5.2"]  # requirements-bpy42/50/52.txt
+    monkeypatch.setitem(BLENDERS, "4.2", tmp_path / "bin" / "python")
+    with pytest.raises(AssertionError, match=r"Blender 4\.2's environment is missing .*: run `bash test.sh`"):
+        blender_python("4.2")
+
+
+def test_enable_disable_twice_under_the_real_package_name(versioned_repo, tmp_path):
+    """In each Blender: enabled from the installed zip under its real name, registered twice,
+    disabled twice; the dependencies come from the zip's wheels for that Blender's Python (its
+    environment has none of them), installed where Blender installs extension wheels."""
+    out = blender(versioned_repo, "registration", tmp_path, quiet=True)
     assert out["module"] == "bl_ext.r.hlod"
+    version = versioned_repo.version
+    assert out["blender"] == [int(v) for v in version.split(".")]
+    assert tuple(out["python"]) == BLENDER_PYTHON[version]
+    python_dir = "python{}.{}".format(*BLENDER_PYTHON[version])
+    site = versioned_repo / "user" / "extensions" / ".local" / "lib" / python_dir / "site-packages"
+    for name in DEPENDENCIES:
+        assert Path(out["dependencies"][name]).is_relative_to(site), (name, out["dependencies"][name])
+    # the environment itself has none of them (as Blender), or the check above would not test the wheels
+    own = subprocess.run([str(versioned_repo.python), "-c", "import importlib.util, sys; "
+                          f"sys.exit(any(importlib.util.find_spec(n) for n in {DEPENDENCIES!r}))"])
+    assert own.returncode == 0, f"{versioned_repo.python} has its own copy of one of {DEPENDENCIES}"
     on = {"scene_hlod": True, "operators": dict.fromkeys(["bake", "clear", "preview_toggle", "materialize", "export",
                                                           "benchmark"], True), "panel": True, "cli_command": True, "handlers": 1}
     off = {"scene_hlod": False, "operators": dict.fromkeys(on["operators"], False), "panel": False,
@@ -62,8 +157,10 @@ def test_enable_disable_twice_under_the_real_package_name(repo, tmp_path):
     assert out["disabled"] == out["disabled_twice"] == off
 
 
-def test_bake_operator_on_modifiers_and_instances(repo, tmp_path):
-    out = blender(repo, "bake", tmp_path)
+def test_bake_operator_on_modifiers_and_instances(versioned_repo, tmp_path):
+    """Bake, Materialize, export (.hlod and 3D Tiles), clear and the modal bake's job, in each Blender,
+    without a warning (5.0 and later warned about paths without blend-relative support)."""
+    out = blender(versioned_repo, "bake", tmp_path, quiet=True)
     assert "the .blend is not saved" in out["unsaved_error"]
     assert out["result"] == ["FINISHED"] and Path(out["file"]).is_file()
     # evaluated geometry: subdivision and array modifiers applied, collection instances realised
@@ -82,14 +179,16 @@ def test_bake_operator_on_modifiers_and_instances(repo, tmp_path):
     assert Path(out["collection_file"]) == tmp_path / "project" / "city.hlod"
 
 
-def test_preview_draw_path_in_an_offscreen(repo, tmp_path):
+def test_preview_draw_path_in_an_offscreen(versioned_repo, tmp_path):
     """The add-on's draw path inside a GPUOffScreen with a scene camera's matrices: nodes drawn in
     modulation colours, none over Blender's own occluder (its depth hides them), strongly modulated
     (red) nodes where occlusion lowered their LOD, Blender's gpu drawing after the pass still shows,
     its GL state is as before, statistics are updated; the private-context fallback draws through
     Blender's gpu module; the benchmark's private EGL context leaves
-    Blender's drawing working; an exception in the draw path turns the preview off, not raised."""
-    out = blender(repo, "preview", tmp_path)
+    Blender's drawing working; an exception in the draw path turns the preview off, not raised.
+    In each Blender, on its default GPU backend (OpenGL in all three)."""
+    out = blender(versioned_repo, "preview", tmp_path)
+    assert out["backend"] == "OPENGL"
     assert out["running"] and out["status_on"].startswith("on:")
     for frame in (out["occluded"], out["after_benchmark"]):
         assert frame["ramp_pixels"] > 1000 and frame["red_pixels"] > 50
@@ -105,6 +204,7 @@ def test_preview_draw_path_in_an_offscreen(repo, tmp_path):
     assert out["stats"]["drawn"] > 0 and out["stats"]["queries"] > 0 and out["stats"]["tris"] > 0
     assert out["with_boxes"] > 200  # box outlines drawn with Blender's gpu module
     assert out["benchmark"] == ["FINISHED"] and out["benchmark_frames"] == 4 and out["benchmark_methods"] == sorted(METHOD_SPECS)
+    assert out["benchmark_figures"] == []  # no Blender ships matplotlib: the report is written without figures
     assert out["injected_return"] == "None" and not out["running_after_error"]
     assert out["status_after_error"] == "off: RuntimeError: injected failure"
     assert out["running_after_toggle"] and not out["running_after_load"]

@@ -13,7 +13,7 @@ import pytest
 from helpers import ROOT, baked
 from hlod_core import fileformat, meshio, tiles3d
 from hlod_core.bake import BakeSettings, bake
-from test_addon import repo  # noqa: F401 - the installed-extension fixture
+from test_addon import versioned_repo  # noqa: F401 - the extension installed in each Blender
 from test_addon import blender
 from test_cli import hlod, last_json, one_line_error
 
@@ -108,18 +108,24 @@ def test_export_refuses_to_replace_a_foreign_folder(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
-def test_background_batch_over_blend_files(repo, tmp_path):  # noqa: F811
+def test_background_batch_over_blend_files(versioned_repo, tmp_path):  # noqa: F811
     """Two .blend files made here plus a broken one, baked and exported in one background call of
-    the add-on's command (through the bpy module): the broken one fails alone, the summary says
-    so, the exit status is 1, and both good files give a .hlod and a 3D Tiles folder that pass the
-    validators."""
-    made = blender(repo, "make_blends", tmp_path)
+    the installed extension's command (through each Blender's bpy module; the extension enabled
+    from its repository, its dependencies from its wheels): the broken one fails alone, the summary
+    says so, the exit status is 1 (bpy 4.2 crashed at exit, 139, before exit_process), and both good
+    files give a .hlod and a 3D Tiles folder that pass the validators."""
+    made = blender(versioned_repo, "make_blends", tmp_path)
     broken = tmp_path / "broken.blend"
     broken.write_text("not a blend file")
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(repo / "user")}
-    run = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "bake", made["boxes"], str(broken),
-                          made["monkeys"], "-o", str(tmp_path / "out"), "--format", "hlod", "3dtiles",
-                          "--target-tris", "400"], capture_output=True, text=True, timeout=600, env=env, cwd=ROOT)
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(versioned_repo / "user")}
+
+    def command(*args):
+        return subprocess.run([str(versioned_repo.python), str(ROOT / "scripts/hlod_blender.py"), "--extension-repo",
+                               str(versioned_repo / "repo"), *map(str, args)], capture_output=True, text=True,
+                              timeout=600, env=env, cwd=ROOT)
+
+    run = command("bake", made["boxes"], broken, made["monkeys"], "-o", tmp_path / "out", "--format", "hlod", "3dtiles",
+                  "--target-tris", "400")
     assert run.returncode == 1, run.stderr[-3000:]
     summary = json.loads(run.stdout.strip().splitlines()[-1])
     assert [r["ok"] for r in summary["files"]] == [True, False, True] and summary["failed"] == 1
@@ -127,16 +133,21 @@ def test_background_batch_over_blend_files(repo, tmp_path):  # noqa: F811
     for stem in ("boxes", "monkeys"):
         assert_matches(tmp_path / "out" / f"{stem}_3dtiles", tmp_path / "out" / f"{stem}.hlod")
     # --collection picks only the monkeys' collection (the plane is outside it)
-    one = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "bake", made["monkeys"],
-                          "--collection", "props", "-o", str(tmp_path / "props")], capture_output=True, text=True,
-                         timeout=600, env=env, cwd=ROOT)
+    one = command("bake", made["monkeys"], "--collection", "props", "-o", tmp_path / "props")
     assert one.returncode == 0, one.stderr[-3000:]
     result = json.loads(one.stdout.strip().splitlines()[-1])["files"][0]
     assert result["input_tris"] == made["monkeys_tris"]
-    bad = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "bake", made["monkeys"],
-                          "--collection", "nope", "-o", str(tmp_path / "x")], capture_output=True, text=True,
-                         timeout=600, env=env, cwd=ROOT)
+    bad = command("bake", made["monkeys"], "--collection", "nope", "-o", tmp_path / "x")
     assert bad.returncode == 1 and "no such collection" in bad.stdout.strip().splitlines()[-1]
+
+
+def test_background_command_names_a_missing_extension_repository(tmp_path):
+    run = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "--extension-repo", str(tmp_path),
+                          "bake", "-o", str(tmp_path / "x.hlod")], capture_output=True, text=True, timeout=120,
+                         cwd=ROOT)
+    assert run.returncode == 2 and run.stderr.strip().splitlines() == [
+        f"hlod_blender: --extension-repo {tmp_path}: not an extension repository holding hlod "
+        "(make one with blender_ext.py install-files --local-dir DIR hlod-*.zip)"]
 
 
 def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_children():
