@@ -256,7 +256,7 @@ def inspection_path(hlod: Hlod, *, seed: int, frames: int, up_axis: int = 2) -> 
     for i in range(n_fly):
         eye = fly_from + (fly_to - fly_from) * (i / max(n_fly - 1, 1))
         out.append((eye, eye + heading * radius, up))
-    leaves = np.flatnonzero(hlod.child_count == 0)
+    leaves = np.flatnonzero(hlod.is_leaf)
     leaf = int(rng.choice(leaves))
     focus = 0.5 * (hlod.lod_box_min[leaf] + hlod.lod_box_max[leaf])
     far_eye = orbit_eye(start + 0.75 * np.pi, 1.6 * radius)
