@@ -27,6 +27,8 @@ from helpers import BLENDERS, ROOT, blender_python
 sys.path.insert(0, str(ROOT / "scripts"))
 import build_extension  # noqa: E402
 
+pytestmark = pytest.mark.blender  # the extension in the real bpy module (or Blender's own extension tool)
+
 BLENDER_EXT = Path(sysconfig.get_paths()["platlib"]) / "bpy/5.0/scripts/addons_core/bl_pkg/cli/blender_ext.py"
 DEPENDENCIES = ("pymeshlab", "moderngl", "glcontext")
 BLENDER_PYTHON = {"4.2": (3, 11), "5.0": (3, 11), "5.2": (3, 13)}  # the Python each Blender ships
@@ -109,6 +111,13 @@ def blender(repo, check: str, tmp_path, *, timeout_s: float = 600, quiet: bool =
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+def all_hold(out: dict, **checks: bool) -> None:
+    """Assert every named check of one check's result at once, so a failing run lists every check
+    that failed (and the result), not only the first."""
+    failed = sorted(name for name, ok in checks.items() if not ok)
+    assert not failed, f"failed: {failed}; result: {json.dumps(out, default=str)[:4000]}"
+
+
 def test_manifest_validates_with_blenders_tool():
     proc = subprocess.run([sys.executable, str(BLENDER_EXT), "validate", str(ROOT)], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -161,23 +170,25 @@ def test_bake_operator_on_modifiers_and_instances(versioned_repo, tmp_path):
     """Bake, Materialize, export (.hlod and 3D Tiles), clear and the modal bake's job, in each Blender,
     without a warning (5.0 and later warned about paths without blend-relative support)."""
     out = blender(versioned_repo, "bake", tmp_path, quiet=True)
-    assert "the .blend is not saved" in out["unsaved_error"]
-    assert out["result"] == ["FINISHED"] and Path(out["file"]).is_file()
-    # evaluated geometry: subdivision and array modifiers applied, collection instances realised
-    assert out["input_tris"] == out["expected_tris"]
-    assert out["box_min"][0] == pytest.approx(-9.5, abs=0.02) and out["box_max"][0] == pytest.approx(8.5, abs=0.02)
-    assert out["sources_untouched"]
-    assert "the selection has no objects" in out["empty_selection_error"]
-    assert out["materialize"] == ["FINISHED"] and out["materialized_objects"] > 1
-    assert out["materialized_tris"] == out["cut_tris"]
-    assert out["export"] == ["FINISHED"] and out["exported_nodes"] == out["nodes"]
-    assert out["export_3dtiles"] == ["FINISHED"] and out["tileset_tiles"] == out["nodes"]
-    assert out["clear"] == ["FINISHED"] and out["file_after_clear"] == ""
-    assert out["job_cancelled"] == "BakeCancelled" and not out["job_cancelled_file"]
-    assert out["job_done"][0] and out["job_done"][1] == 100.0 and out["job_done"][2] and out["job_done"][3] > 1
-    assert out["collection_result"] == ["FINISHED"] and out["collection_tris"] == 6 * 64 * 2
-    assert Path(out["collection_file"]) == tmp_path / "project" / "city.hlod"
-
+    all_hold(out,
+             unsaved_refused="the .blend is not saved" in out["unsaved_error"],
+             baked=out["result"] == ["FINISHED"] and Path(out["file"]).is_file(),
+             # evaluated geometry: subdivision and array modifiers applied, collection instances realised
+             evaluated_triangles=out["input_tris"] == out["expected_tris"],
+             evaluated_extent=out["box_min"][0] == pytest.approx(-9.5, abs=0.02)
+             and out["box_max"][0] == pytest.approx(8.5, abs=0.02),
+             sources_untouched=out["sources_untouched"],
+             empty_selection_refused="the selection has no objects" in out["empty_selection_error"],
+             materialized=out["materialize"] == ["FINISHED"] and out["materialized_objects"] > 1,
+             materialized_the_cut=out["materialized_tris"] == out["cut_tris"],
+             exported=out["export"] == ["FINISHED"] and out["exported_nodes"] == out["nodes"],
+             exported_3dtiles=out["export_3dtiles"] == ["FINISHED"] and out["tileset_tiles"] == out["nodes"],
+             cleared=out["clear"] == ["FINISHED"] and out["file_after_clear"] == "",
+             cancelled_job_wrote_nothing=out["job_cancelled"] == "BakeCancelled" and not out["job_cancelled_file"],
+             finished_job=bool(out["job_done"][0]) and out["job_done"][1] == 100.0 and bool(out["job_done"][2])
+             and out["job_done"][3] > 1,
+             collection_baked=out["collection_result"] == ["FINISHED"] and out["collection_tris"] == 6 * 64 * 2,
+             collection_output_next_to_blend=Path(out["collection_file"]) == tmp_path / "project" / "city.hlod")
 
 def test_preview_draw_path_in_an_offscreen(versioned_repo, tmp_path):
     """The add-on's draw path inside a GPUOffScreen with a scene camera's matrices: nodes drawn in
@@ -188,28 +199,34 @@ def test_preview_draw_path_in_an_offscreen(versioned_repo, tmp_path):
     Blender's drawing working; an exception in the draw path turns the preview off, not raised.
     In each Blender, on its default GPU backend (OpenGL in all three)."""
     out = blender(versioned_repo, "preview", tmp_path)
-    assert out["backend"] == "OPENGL"
-    assert out["running"] and out["status_on"].startswith("on:")
-    for frame in (out["occluded"], out["after_benchmark"]):
-        assert frame["ramp_pixels"] > 1000 and frame["red_pixels"] > 50
-        assert frame["ramp_in_occluder"] == 0 and frame["grey_in_occluder"] == frame["occluder_pixels"]
-        assert frame["green_pixels"] > 100 and frame["other_pixels"] == 0
-        assert frame["state_after"] == frame["state_before"]
+    frames = {"occluded": out["occluded"], "after_benchmark": out["after_benchmark"]}
     private = out["private"]  # fallback: traversal in a private context, nodes drawn with the gpu module
-    assert private["ramp_pixels"] > 1000 and private["ramp_in_occluder"] == 0 and private["green_pixels"] > 100
-    assert private["state_after"] == private["state_before"] and out["private_drawn"] > 0
-    assert out["status_private"].startswith("on (private context)")
-    assert out["ortho"] > 1000 and "X-ray clears the depth" in out["status_xray"]
-    assert out["materialize_front"] == ["FINISHED"] and out["front_objects"] == out["stats"]["drawn"]
-    assert out["stats"]["drawn"] > 0 and out["stats"]["queries"] > 0 and out["stats"]["tris"] > 0
-    assert out["with_boxes"] > 200  # box outlines drawn with Blender's gpu module
-    assert out["benchmark"] == ["FINISHED"] and out["benchmark_frames"] == 4 and out["benchmark_methods"] == sorted(METHOD_SPECS)
-    assert out["benchmark_figures"] == []  # no Blender ships matplotlib: the report is written without figures
-    assert out["injected_return"] == "None" and not out["running_after_error"]
-    assert out["status_after_error"] == "off: RuntimeError: injected failure"
-    assert out["running_after_toggle"] and not out["running_after_load"]
-    assert out["status_after_load"] == "off: a file was loaded"
-
+    checks = {"opengl_backend": out["backend"] == "OPENGL",
+              "running": out["running"] and out["status_on"].startswith("on:")}
+    for name, frame in frames.items():
+        checks |= {f"{name}_modulation_colours": frame["ramp_pixels"] > 1000 and frame["red_pixels"] > 50,
+                   f"{name}_occluder_hides_nodes": frame["ramp_in_occluder"] == 0
+                   and frame["grey_in_occluder"] == frame["occluder_pixels"],
+                   f"{name}_blender_draws_after": frame["green_pixels"] > 100 and frame["other_pixels"] == 0,
+                   f"{name}_gl_state_restored": frame["state_after"] == frame["state_before"]}
+    all_hold(out, **checks,
+             private_draws=private["ramp_pixels"] > 1000 and private["ramp_in_occluder"] == 0
+             and private["green_pixels"] > 100,
+             private_gl_state_restored=private["state_after"] == private["state_before"] and out["private_drawn"] > 0,
+             private_status=out["status_private"].startswith("on (private context)"),
+             orthographic_and_xray=out["ortho"] > 1000 and "X-ray clears the depth" in out["status_xray"],
+             materialize_front=out["materialize_front"] == ["FINISHED"]
+             and out["front_objects"] == out["stats"]["drawn"],
+             statistics=out["stats"]["drawn"] > 0 and out["stats"]["queries"] > 0 and out["stats"]["tris"] > 0,
+             box_outlines=out["with_boxes"] > 200,  # drawn with Blender's gpu module
+             benchmark=out["benchmark"] == ["FINISHED"] and out["benchmark_frames"] == 4
+             and out["benchmark_methods"] == sorted(METHOD_SPECS),
+             # no Blender ships matplotlib: the report is written without figures
+             benchmark_without_figures=out["benchmark_figures"] == [],
+             error_turns_preview_off=out["injected_return"] == "None" and not out["running_after_error"]
+             and out["status_after_error"] == "off: RuntimeError: injected failure",
+             file_load_stops_preview=out["running_after_toggle"] and not out["running_after_load"]
+             and out["status_after_load"] == "off: a file was loaded")
 
 WARMUP_SESSIONS = 6  # one period of the long session's configuration (file, method, private mode, toggles)
 RSS_GROWTH_MB = 4.0  # median RSS of the last 10 sessions over that of the 10 after warm-up (measured 0.7-1.7;

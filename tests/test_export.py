@@ -108,6 +108,7 @@ def test_export_refuses_to_replace_a_foreign_folder(tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
+@pytest.mark.blender
 def test_background_batch_over_blend_files(versioned_repo, tmp_path):  # noqa: F811
     """Two .blend files made here plus a broken one, baked and exported in one background call of
     the installed extension's command (through each Blender's bpy module; the extension enabled
@@ -141,6 +142,7 @@ def test_background_batch_over_blend_files(versioned_repo, tmp_path):  # noqa: F
     assert bad.returncode == 1 and "no such collection" in bad.stdout.strip().splitlines()[-1]
 
 
+@pytest.mark.blender
 def test_background_command_names_a_missing_extension_repository(tmp_path):
     run = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "--extension-repo", str(tmp_path),
                           "bake", "-o", str(tmp_path / "x.hlod")], capture_output=True, text=True, timeout=120,
