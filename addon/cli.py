@@ -24,7 +24,7 @@ import bpy
 
 from ..hlod_core import fileformat
 from ..hlod_core.bake import BakeSettings, bake
-from ..hlod_core.cli import export_hlod
+from ..hlod_core.export import export_hlod
 from ..hlod_core.errors import HlodError, InputError
 from . import scene_mesh
 from .settings import bake_settings
