@@ -80,6 +80,12 @@ def test_adapters_import_no_ui(graph):
     assert not any(offending.values()), offending
 
 
+def test_the_command_line_is_a_front_end(graph):
+    """Library code lives in library modules: only `python -m hlod_core` imports the core's CLI."""
+    importers = sorted(name for name, (project, _) in graph.items() if "hlod_core.cli" in project)
+    assert importers == ["hlod_core.__main__"], importers
+
+
 def test_no_import_cycles(graph):
     edges = {name: set(project) for name, (project, _) in graph.items()}
     for name in list(edges):  # importing a.b runs a/__init__.py first: a package is a dependency
