@@ -9,6 +9,16 @@ Both are reversible and safe to run twice: register() on a registered add-on unr
 unregister() on an unregistered one does nothing. unregister() and loading a .blend stop the
 preview, which removes its draw handler and frees its GL objects. The imports are deferred so the
 package (and hlod_core below it) can be imported outside Blender.
+
+Application handlers (all persistent, listed once in `_HANDLERS`, removed in unregister; issue 20:
+the preview hides the objects the bake took, and no way out may leave them hidden):
+- load_pre: stop the preview (it shows the sources it hid in the file being left);
+- load_post: a record of hidden objects in the loaded file is a leftover (an autosave or
+  quit.blend written while a preview ran): show those objects again;
+- save_pre / save_post: show the hidden sources for the write, hide them again after it;
+- undo_post / redo_post: hide the running preview's sources again (or restore a leftover record),
+  and recount the sources changed since the bake;
+- depsgraph_update_post / frame_change_post: recount the changed sources from the update.
 """
 _registered = False
 
@@ -27,6 +37,44 @@ def _on_load_pre(*_args) -> None:
     preview.stop(reason="a file was loaded")
 
 
+def _on_load_post(*_args) -> None:
+    from .addon import source_hiding
+
+    source_hiding.restore_leftovers()
+
+
+def _on_save_pre(*_args) -> None:
+    from .addon import source_hiding
+
+    source_hiding.suspend()
+
+
+def _on_save_post(*_args) -> None:
+    from .addon import source_hiding
+
+    source_hiding.resume()
+
+
+def _on_undo_redo(*_args) -> None:
+    from .addon import preview, source_hiding, source_record
+
+    source_hiding.on_undo()
+    source_record.on_undo()
+    preview.redraw()
+
+
+def _on_depsgraph_update(scene, depsgraph=None, *_args) -> None:
+    from .addon import preview, source_record
+
+    if depsgraph is not None and source_record.on_depsgraph_update(scene, depsgraph):
+        preview.redraw()  # the panel and the corner text show the new count
+
+
+_HANDLERS = (("load_pre", _on_load_pre), ("load_post", _on_load_post), ("save_pre", _on_save_pre),
+             ("save_post", _on_save_post), ("undo_post", _on_undo_redo), ("redo_post", _on_undo_redo),
+             ("depsgraph_update_post", _on_depsgraph_update), ("frame_change_post", _on_depsgraph_update))
+
+
 def register() -> None:
     global _registered
     import bpy
@@ -39,7 +87,8 @@ def register() -> None:
     for cls in _classes():
         bpy.utils.register_class(cls)
     properties.register()
-    bpy.app.handlers.load_pre.append(persistent(_on_load_pre))  # persistent returns the function itself
+    for event, handler in _HANDLERS:
+        getattr(bpy.app.handlers, event).append(persistent(handler))  # persistent returns the function itself
     cli.register()  # blender -b --command hlod ...
     _registered = True
 
@@ -52,10 +101,12 @@ def unregister() -> None:
 
     from .addon import cli, preview, properties
 
-    preview.shutdown()  # stops the preview and frees the private context too
+    preview.shutdown()  # stops the preview (the hidden sources are shown) and frees the private context too
     cli.unregister()
-    if _on_load_pre in bpy.app.handlers.load_pre:
-        bpy.app.handlers.load_pre.remove(_on_load_pre)
+    for event, handler in reversed(_HANDLERS):
+        handlers = getattr(bpy.app.handlers, event)
+        if handler in handlers:
+            handlers.remove(handler)
     properties.unregister()
     for cls in reversed(_classes()):
         bpy.utils.unregister_class(cls)

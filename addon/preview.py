@@ -22,9 +22,18 @@ when "Private Context" is set): the traversal and its queries run in a private h
 with its own depth pass (Blender's objects then do not occlude the queries), and the chosen nodes
 are drawn into the viewport with Blender's gpu module (flat colour, depth-tested against Blender's
 scene). The status line says which mode is on.
+
+In place of the sources (issue 20): while the preview runs, the objects the bake took (the scene's
+record, addon/source_record.py) are hidden in the viewport (addon/source_hiding.py says how, and how
+every way out gives the visibility back), so the HLOD is drawn in their place while Blender's other
+objects still draw, occlude the nodes and take part in the queries. A StaleTracker counts the
+sources changed since the bake. A POST_PIXEL handler writes the statistics in the viewport's corner
+(addon/viewport_text.py; `scene.hlod.show_corner_text`). An error in the draw path stops the
+preview there; the sources are then shown again from a timer, outside Blender's drawing.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import traceback
 from dataclasses import dataclass
@@ -37,7 +46,7 @@ from ..hlod_core.errors import HlodError
 from ..hlod_core.hierarchy import node_mesh
 from ..hlod_core.view import View
 from ..hlod_core.traversal import FrameStats
-from . import glcontext
+from . import glcontext, source_hiding, source_record, viewport_text
 from .settings import runtime_settings
 
 log = logging.getLogger(__name__)
@@ -58,6 +67,9 @@ class _State:
     stats: FrameStats | None = None
     private: object = None  # the private-mode Renderer (on _private_ctx, own framebuffer)
     batches: dict | None = None  # private mode: node -> gpu batch
+    source_tris: int = 0  # triangles the bake took (the file's input_tris)
+    recorded: int = 0  # objects the scene's record names for this file (0: none recorded)
+    hidden: int = 0  # objects hidden for the preview
 
 
 @dataclass
@@ -72,6 +84,7 @@ class _Orphan:
 
 _state: _State | None = None
 _handler = None
+_text_handler = None
 _status = "off"
 _contexts: dict = {}  # native GL context id -> the moderngl context attached to it (made once, reused)
 _orphans: list[_Orphan] = []
@@ -97,31 +110,54 @@ def statistic(name: str):
     return float(value) if name.endswith("_ms") else int(value)
 
 
+def sources_in_place() -> tuple[int, int]:
+    """(objects the record names for the running preview's file, objects it hid); (0, 0) when off."""
+    return (_state.recorded, _state.hidden) if _state is not None else (0, 0)
+
+
 def current_hlod():
     return _state.hlod if _state is not None else None
 
 
 def start(scene) -> None:
-    """Load scene.hlod.file and install the draw handler. Raises HlodError for a missing/bad file."""
-    global _state, _handler, _status
+    """Load scene.hlod.file, hide the objects its bake took (the scene's record) and install the
+    draw handlers. Raises HlodError for a missing/bad file (then nothing is hidden)."""
+    global _state, _handler, _text_handler, _status
     stop()
     path = bpy.path.abspath(scene.hlod.file)
     if not scene.hlod.file:
         raise HlodError("no baked file: run Bake first or set Baked File")
     hlod = fileformat.load(path)
-    _state = _State(file=path, hlod=hlod)
+    rows = source_record.stored(scene.hlod, path)
+    view_layer, depsgraph = _view_layer_and_depsgraph(scene)
+    _state = _State(file=path, hlod=hlod, source_tris=int(hlod.meta.get("input_tris", 0)), recorded=len(rows))
+    _state.hidden = len(source_hiding.hide(scene, view_layer, [name for name, _ in rows]).entries)
+    source_record.track(scene, rows, depsgraph)
     if not bpy.app.background:
         _handler = bpy.types.SpaceView3D.draw_handler_add(_draw_handler, (), "WINDOW", "POST_VIEW")
+        _text_handler = bpy.types.SpaceView3D.draw_handler_add(_draw_text_handler, (), "WINDOW", "POST_PIXEL")
     _status = f"on: {bpy.path.basename(path)} ({hlod.node_count} nodes)"
-    _redraw()
+    redraw()
 
 
-def stop(reason: str | None = None) -> None:
-    """Remove the handler and free GL objects (see module notes). Safe to call when off."""
-    global _state, _handler, _status
-    if _handler is not None:
-        bpy.types.SpaceView3D.draw_handler_remove(_handler, "WINDOW")
-        _handler = None
+def _view_layer_and_depsgraph(scene):
+    """The window's view layer and its evaluated depsgraph when `scene` is the context's, else the
+    scene's first view layer and its depsgraph."""
+    if bpy.context.scene == scene and bpy.context.view_layer is not None:
+        return bpy.context.view_layer, bpy.context.evaluated_depsgraph_get()
+    view_layer = scene.view_layers[0]
+    return view_layer, view_layer.depsgraph
+
+
+def stop(reason: str | None = None, *, defer_restore: bool = False) -> None:
+    """Remove the handlers, free GL objects (see module notes) and show the hidden sources again.
+    defer_restore: from inside Blender's drawing, where data must not change: show them from a
+    timer (at once in background mode, which runs no timers). Safe to call when off."""
+    global _state, _handler, _text_handler, _status
+    for handler in (_handler, _text_handler):
+        if handler is not None:
+            bpy.types.SpaceView3D.draw_handler_remove(handler, "WINDOW")
+    _handler = _text_handler = None
     state, _state = _state, None
     if state is not None:
         _release(state)
@@ -129,8 +165,21 @@ def stop(reason: str | None = None) -> None:
     if _orphans:
         log.info("HLOD preview: %d stopped preview(s) made GL objects in a context that is not current; "
                  "they are released at the next draw in it", len(_orphans))
+    source_record.untrack()
+    hidden = source_hiding.hidden()
+    if hidden is not None and defer_restore and not bpy.app.background:
+        bpy.app.timers.register(functools.partial(_restore_later, hidden), first_interval=0.0)
+    else:
+        source_hiding.restore()
     _status = f"off: {reason}" if reason else "off"
-    _redraw()
+    redraw()
+
+
+def _restore_later(hidden) -> None:
+    """Timer: show the sources `hidden` holds, unless a newer preview hides its own by now."""
+    source_hiding.restore(only=hidden)
+    redraw()
+    return None  # a timer that returns None runs once
 
 
 def _release(state: _State) -> None:
@@ -227,7 +276,8 @@ def _backend() -> str:
         return "OPENGL"
 
 
-def _redraw() -> None:
+def redraw() -> None:
+    """Tag every 3D viewport for a redraw (its panels and the corner text too)."""
     if bpy.app.background or bpy.context.window_manager is None:
         return
     for window in bpy.context.window_manager.windows:
@@ -254,13 +304,54 @@ def _draw_handler() -> None:
     safe_draw(context.scene, rv3d.view_matrix, rv3d.window_matrix, region.width, region.height, xray=xray)
 
 
+def _draw_text_handler() -> None:
+    context = bpy.context
+    if _state is None or context.region is None:
+        return
+    try:
+        draw_corner_text(context.scene, left_px=_toolbar_px(context))
+    except Exception as exc:  # noqa: BLE001 - nothing may escape into Blender's draw loop
+        log.error("HLOD preview turned off:\n%s", traceback.format_exc())
+        stop(reason=f"{type(exc).__name__}: {exc}", defer_restore=True)
+
+
+def _toolbar_px(context) -> float:
+    """Width of the toolbar where it overlaps the region (Region Overlap on), else 0."""
+    if context.area is None or not context.preferences.system.use_region_overlap:
+        return 0.0
+    return float(next((r.width for r in context.area.regions if r.type == "TOOLS"), 0))
+
+
+def draw_corner_text(scene, *, left_px: float = 0.0) -> int:
+    """The corner statistics (viewport_text), drawn into the bound pixel-space projection (POST_PIXEL's:
+    region pixels, origin bottom left). Returns the number of lines drawn: 0 when the preview is
+    off or scene.hlod.show_corner_text is."""
+    state, props = _state, scene.hlod
+    if state is None or not props.show_corner_text:
+        return 0
+    tracker = source_record.tracker()
+    lines = viewport_text.corner_lines(
+        label=viewport_text.method_label(props.method, props.bias), stats=state.stats, source_tris=state.source_tris,
+        private=bool(props.private_context) or _backend() != "OPENGL",
+        changed=len(tracker.changed) if tracker is not None else None, recorded=state.recorded)
+    viewport_text.draw(lines, left_px=left_px, ui_scale=_ui_scale())
+    return len(lines)
+
+
+def _ui_scale() -> float:
+    """The effective UI scale (display DPI and the Resolution Scale preference); the bpy module,
+    with no window, leaves the effective one at 0: then the preference alone."""
+    prefs = bpy.context.preferences
+    return float(prefs.system.ui_scale or prefs.view.ui_scale or 1.0)
+
+
 def safe_draw(scene, view_matrix, window_matrix, width, height, *, xray: bool = False) -> FrameStats | None:
     """The handler's body: never raises; on error the preview turns off and status() says why."""
     try:
         return draw_view(scene, view_matrix, window_matrix, width, height, xray=xray)
     except Exception as exc:  # noqa: BLE001 - nothing may escape into Blender's draw loop
         log.error("HLOD preview turned off:\n%s", traceback.format_exc())
-        stop(reason=f"{type(exc).__name__}: {exc}")
+        stop(reason=f"{type(exc).__name__}: {exc}", defer_restore=True)
         return None
 
 

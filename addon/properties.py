@@ -1,11 +1,13 @@
 """Scene properties under `scene.hlod` (DESIGN §8): bake settings, runtime settings, overlay settings,
-and read-only live statistics (getters over the running preview; nothing is written from the draw
-handler)."""
+read-only live statistics (getters over the running preview; nothing is written from the draw
+handler), and two records (issue 20): the objects the last bake took, with content keys
+(`source_objects`, `source_file`; addon/source_record.py) and the objects the running preview hid
+(`hidden_objects`, `hidden_view_layer`; addon/source_hiding.py)."""
 import bpy
-from bpy.props import (BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty,
-                       StringProperty)
+from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
+                       PointerProperty, StringProperty)
 
-from . import preview
+from . import preview, source_record
 
 # Path properties that may hold a path relative to the .blend ("//..."). Blender 5.0 and later (not
 # 4.2 LTS) have the PATH_SUPPORTS_BLEND_RELATIVE option and print a RuntimeWarning ("does not support
@@ -26,6 +28,23 @@ METHOD_ITEMS = [
 
 def _stat(name):
     return lambda self: preview.statistic(name)
+
+
+def _changed_sources(self) -> int:
+    tracker = source_record.tracker()
+    return len(tracker.changed) if tracker is not None else 0
+
+
+class HLOD_PG_source_object(bpy.types.PropertyGroup):
+    """One object a bake took: `name` (the PropertyGroup's own) and its content key at the bake."""
+
+    key: StringProperty(name="Content Key", description="blake2b of the evaluated geometry and world matrix")
+
+
+class HLOD_PG_hidden_object(bpy.types.PropertyGroup):
+    """One object the running preview hid: `name`, and whether it was selected before."""
+
+    selected: BoolProperty(name="Was Selected")
 
 
 class HLOD_PG_settings(bpy.types.PropertyGroup):
@@ -65,6 +84,17 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     show_boxes: BoolProperty(name="Node Boxes", default=False)
     show_delayed: BoolProperty(name="Delayed Nodes", default=False, description="Boxes of nodes drawn after their own query (yellow)")
     show_rarn: BoolProperty(name="Refined After Draw", default=False, description="Boxes of RARN nodes (green)")
+    show_corner_text: BoolProperty(name="Viewport Statistics", default=True,
+                                   description="Method, drawn nodes, triangles (share of the sources'), queries and "
+                                               "the last frame's milliseconds in the viewport's corner")
+    # --- records (issue 20) ---------------------------------------------------------------------
+    source_objects: CollectionProperty(type=HLOD_PG_source_object, name="Baked Objects",
+                                       description="The objects the last bake took, with content keys")
+    source_file: StringProperty(name="Record Of", subtype="FILE_PATH", options=BLEND_RELATIVE_PATH,
+                                description="The baked file the Baked Objects record belongs to")
+    hidden_objects: CollectionProperty(type=HLOD_PG_hidden_object, name="Hidden by the Preview",
+                                       description="Objects the running preview hid; never in a saved file")
+    hidden_view_layer: StringProperty(name="Hidden in View Layer")
     # --- live statistics (read-only) ----------------------------------------------------------
     stat_drawn: IntProperty(name="Drawn Nodes", get=_stat("dn"))
     stat_tris: IntProperty(name="Triangles", get=_stat("tris"))
@@ -73,10 +103,12 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     stat_d: IntProperty(name="Delayed (D)", get=_stat("d"))
     stat_stall_ms: FloatProperty(name="Stall ms", get=_stat("stall_ms"))
     stat_frame_ms: FloatProperty(name="Frame ms", get=_stat("frame_ms"))
+    stat_changed: IntProperty(name="Changed Since Bake", get=_changed_sources,
+                              description="Baked objects that changed since the bake (while the preview runs)")
     status: StringProperty(name="Status", get=lambda self: preview.status())
 
 
-CLASSES = [HLOD_PG_settings]
+CLASSES = [HLOD_PG_source_object, HLOD_PG_hidden_object, HLOD_PG_settings]
 
 
 def register() -> None:

@@ -29,11 +29,27 @@ def source_objects(context, props) -> list:
     return objects
 
 
-def evaluated_mesh(context, objects) -> meshio.TriangleMesh:
-    """Triangles of every object in `objects` and of every instance they make, world space."""
+def recorded_objects(context, props) -> tuple[list, list[str]]:
+    """The objects the scene's record names (the last bake's sources, addon/source_record.py) that
+    the scene still has, and the names it has no object for (renamed or deleted since)."""
+    names = [item.name for item in props.source_objects]
+    if not names:
+        raise InputError("Re-bake: the scene has no record of the objects a bake took; bake them first")
+    found = [context.scene.objects.get(name) for name in names]
+    missing = [name for name, obj in zip(names, found) if obj is None]
+    objects = [obj for obj in found if obj is not None]
+    if not objects:
+        raise InputError(f"Re-bake: none of the {len(names)} recorded objects is in the scene any more "
+                         "(renamed or deleted); choose the sources and Bake")
+    return objects, missing
+
+
+def evaluated_mesh(context, objects, *, taken: list | None = None) -> meshio.TriangleMesh:
+    """Triangles of every object in `objects` and of every instance they make, world space.
+    taken: if given, receives the objects of `objects` that gave triangles, in `objects`' order."""
     depsgraph = context.evaluated_depsgraph_get()
     wanted = {o.name_full for o in objects}
-    parts, names = [], []
+    parts, names, owners = [], [], set()
     for inst in depsgraph.object_instances:
         owner = inst.parent.original if inst.is_instance and inst.parent is not None else inst.object.original
         if owner.name_full not in wanted:
@@ -60,8 +76,11 @@ def evaluated_mesh(context, objects) -> meshio.TriangleMesh:
         label = f"{owner.name}" + (f" (instance of {obj.original.name})" if inst.is_instance else "")
         parts.append(meshio.from_arrays(positions, faces, name=label))
         names.append(label)
+        owners.add(owner.name_full)
     if not parts:
         raise InputError("Bake: the chosen objects have no triangles (meshes, curves or text with faces)")
+    if taken is not None:
+        taken.extend(o for o in objects if o.name_full in owners)
     return meshio.merge(parts, name=", ".join(names[:3]) + (" ..." if len(names) > 3 else ""))
 
 

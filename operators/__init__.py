@@ -1,6 +1,11 @@
 """Operators (DESIGN §8; ids fixed: hlod.bake, hlod.clear, hlod.preview_toggle, hlod.materialize,
 hlod.export, hlod.benchmark). Thin: they gather input, call hlod_core / addon modules, and map
 typed errors (HlodError) to reports. Nothing here changes the source objects.
+
+Bake records the objects it took and their content keys on the scene (addon/source_record.py);
+`hlod.bake(recorded=True)` is Re-bake: it bakes the recorded objects again. A bake while the
+preview runs stops the preview first (its sources are hidden, and hidden objects give the depsgraph
+no instances to read), then starts it again on the new file, or on the old one if the bake fails.
 """
 from __future__ import annotations
 
@@ -8,9 +13,9 @@ import os
 import time
 
 import bpy
-from bpy.props import EnumProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from ..addon import benchmark, preview, scene_mesh
+from ..addon import benchmark, preview, scene_mesh, source_record
 from ..addon.bake_job import BakeJob
 from ..addon.properties import BLEND_RELATIVE_PATH
 from ..addon.settings import bake_settings
@@ -47,31 +52,62 @@ class HLOD_OT_bake(bpy.types.Operator):
     bl_label = "Bake HLOD"
     bl_options = {"REGISTER", "UNDO"}
 
+    recorded: BoolProperty(name="Recorded Sources", default=False, options={"SKIP_SAVE"},
+                           description="Bake the objects the last bake took (Re-bake), not the Source setting")
+
     def _prepare(self, context):
+        """(mesh, output path, settings, record rows). Stops a running preview first (module notes)."""
         props = context.scene.hlod
+        self._restart = preview.running()
+        if self._restart:
+            preview.stop()
         out = output_path(props)
         folder = os.path.dirname(out) or "."
         if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
             raise InputError(f"Bake: cannot write {out}: folder {folder} is missing or not writable")
-        mesh = scene_mesh.evaluated_mesh(context, scene_mesh.source_objects(context, props))
-        return mesh, out, bake_settings(props)
+        if self.recorded:
+            objects, missing = scene_mesh.recorded_objects(context, props)
+            if missing:
+                shown = ", ".join(repr(name) for name in missing[:5]) + (" ..." if len(missing) > 5 else "")
+                self.report({"WARNING"}, f"Re-bake: {len(missing)} recorded object(s) renamed or deleted, "
+                                         f"left out: {shown}")
+        else:
+            objects = scene_mesh.source_objects(context, props)
+        taken: list = []
+        mesh = scene_mesh.evaluated_mesh(context, objects, taken=taken)
+        rows = source_record.record(taken, context.evaluated_depsgraph_get())
+        return mesh, out, bake_settings(props), rows
 
-    def _finish(self, context, hlod, out, seconds) -> None:
-        context.scene.hlod.file = _stored_path(out)
+    def _finish(self, context, hlod, out, rows, seconds) -> None:
+        props = context.scene.hlod
+        props.file = _stored_path(out)
+        source_record.store(props, rows, props.file)
         self.report({"INFO"}, f"HLOD baked: {hlod.node_count} nodes, {int(hlod.meta.get('input_tris', 0)):,} "
-                              f"triangles in {seconds:.1f} s -> {out}")
+                              f"triangles of {len(rows)} objects in {seconds:.1f} s -> {out}")
+        self._restart_preview(context)
+
+    def _restart_preview(self, context) -> None:
+        """Start the preview again if the bake stopped it (on the new file, or the old one)."""
+        if not getattr(self, "_restart", False):
+            return
+        self._restart = False
+        try:
+            preview.start(context.scene)
+        except (HlodError, OSError) as exc:
+            self.report({"WARNING"}, f"HLOD preview not restarted: {exc}")
 
     def execute(self, context):
         """Synchronous (background mode, scripts)."""
         started = time.perf_counter()
         try:
-            mesh, out, settings = self._prepare(context)
+            mesh, out, settings, rows = self._prepare(context)
             hlod = bake(mesh, settings)
             fileformat.save(hlod, out)
         except HlodError as exc:
             self.report({"ERROR"}, str(exc))
+            self._restart_preview(context)
             return {"CANCELLED"}
-        self._finish(context, hlod, out, time.perf_counter() - started)
+        self._finish(context, hlod, out, rows, time.perf_counter() - started)
         return {"FINISHED"}
 
     def invoke(self, context, event):
@@ -79,9 +115,10 @@ class HLOD_OT_bake(bpy.types.Operator):
         if bpy.app.background:
             return self.execute(context)
         try:
-            mesh, out, settings = self._prepare(context)
+            mesh, out, settings, self._rows = self._prepare(context)
         except HlodError as exc:
             self.report({"ERROR"}, str(exc))
+            self._restart_preview(context)
             return {"CANCELLED"}
         self._job = BakeJob(mesh, settings, out)
         wm = context.window_manager
@@ -107,12 +144,14 @@ class HLOD_OT_bake(bpy.types.Operator):
         context.workspace.status_text_set(None)
         if isinstance(job.error, BakeCancelled):
             self.report({"WARNING"}, "HLOD bake cancelled; nothing written")
+            self._restart_preview(context)
             return {"CANCELLED"}
         if job.error is not None:
             self.report({"ERROR"}, str(job.error) if isinstance(job.error, HlodError)
                         else f"HLOD bake failed: {type(job.error).__name__}: {job.error}")
+            self._restart_preview(context)
             return {"CANCELLED"}
-        self._finish(context, job.result, job.output, job.seconds)
+        self._finish(context, job.result, job.output, self._rows, job.seconds)
         return {"FINISHED"}
 
 
@@ -125,7 +164,9 @@ class HLOD_OT_clear(bpy.types.Operator):
 
     def execute(self, context):
         preview.stop()
-        context.scene.hlod.file = ""
+        props = context.scene.hlod
+        props.file = ""
+        source_record.store(props, [], "")  # the record belongs to the file
         return {"FINISHED"}
 
 
@@ -144,6 +185,12 @@ class HLOD_OT_preview_toggle(bpy.types.Operator):
         except (HlodError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
+        recorded, hidden = preview.sources_in_place()
+        if not recorded:
+            self.report({"WARNING"}, "HLOD preview: the scene has no record of the objects this file was baked "
+                                     "from; they stay visible (bake or re-bake to record them)")
+        else:
+            self.report({"INFO"}, f"HLOD preview: {hidden} of {recorded} baked objects hidden while it runs")
         return {"FINISHED"}
 
 

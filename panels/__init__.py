@@ -1,7 +1,9 @@
-"""The 3D viewport's sidebar tab "HLOD" (N panel): sections Bake, Preview, Overlay, Statistics."""
+"""The 3D viewport's sidebar tab "HLOD" (N panel): sections Bake, Preview, Overlay, Statistics.
+Draw code reads state only: the count of changed sources is kept current by the depsgraph handler
+(addon/source_record.py), not computed here."""
 import bpy
 
-from ..addon import preview
+from ..addon import preview, source_record, viewport_text
 
 
 class _HlodPanel:
@@ -47,6 +49,8 @@ class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
         on = preview.running()
         layout.operator("hlod.preview_toggle", text="Stop Preview" if on else "Start Preview",
                         icon="HIDE_OFF" if on else "HIDE_ON", depress=on)
+        if on:
+            _draw_sources(layout)
         layout.prop(props, "method")
         col = layout.column(align=True)
         col.prop(props, "tau")
@@ -66,6 +70,20 @@ class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
         layout.operator("hlod.benchmark", icon="TIME")
 
 
+def _draw_sources(layout) -> None:
+    """What the preview stands in for: hidden sources, and those changed since the bake (Re-bake)."""
+    recorded, hidden = preview.sources_in_place()
+    if not recorded:
+        layout.label(text="Sources not recorded for this file: they stay visible", icon="INFO")
+        layout.operator("hlod.bake", text="Bake to Record Them", icon="MOD_DECIM")
+        return
+    layout.label(text=f"{hidden} of {recorded} baked objects hidden", icon="HIDE_ON")
+    tracker = source_record.tracker()
+    if tracker is not None and tracker.changed:
+        layout.label(text=viewport_text.stale_message(len(tracker.changed), recorded), icon="ERROR")
+        layout.operator("hlod.bake", text="Re-bake", icon="FILE_REFRESH").recorded = True
+
+
 class HLOD_PT_overlay(_HlodPanel, bpy.types.Panel):
     bl_label = "Overlay"
     bl_parent_id = "HLOD_PT_main"
@@ -77,6 +95,7 @@ class HLOD_PT_overlay(_HlodPanel, bpy.types.Panel):
         layout.prop(props, "show_boxes")
         layout.prop(props, "show_delayed")
         layout.prop(props, "show_rarn")
+        layout.prop(props, "show_corner_text")
 
 
 class HLOD_PT_statistics(_HlodPanel, bpy.types.Panel):
@@ -85,7 +104,8 @@ class HLOD_PT_statistics(_HlodPanel, bpy.types.Panel):
 
     def draw(self, context):
         props, col = context.scene.hlod, self.layout.column(align=True)
-        for name in ("stat_drawn", "stat_tris", "stat_queries", "stat_rarn", "stat_d", "stat_stall_ms", "stat_frame_ms"):
+        for name in ("stat_drawn", "stat_tris", "stat_queries", "stat_rarn", "stat_d", "stat_stall_ms", "stat_frame_ms",
+                     "stat_changed"):
             row = col.row()
             row.enabled = False
             row.prop(props, name)

@@ -1,0 +1,70 @@
+"""The preview's statistics in the viewport's corner (issue 20): a few lines of text drawn with blf in
+a POST_PIXEL draw handler, in region pixels (origin bottom left), bottom left of the region, above
+its margin and right of an overlapping toolbar.
+
+Lines (top to bottom): the method and what it drew (nodes, triangles and their share of the
+sources' triangles), the queries and the last frame's milliseconds, then a warning when sources
+changed since the bake or the file has no record of them.
+"""
+from __future__ import annotations
+
+FONT_ID = 0  # Blender's built-in UI font
+FONT_SIZE_PX = 12.0  # at a UI scale of 1
+MARGIN_PX = 12.0
+LINE_SPACING = 1.45  # line pitch over the font size
+TEXT_COLOUR = (1.0, 1.0, 1.0, 0.95)
+WARNING_COLOUR = (1.0, 0.75, 0.2, 1.0)
+SHADOW_COLOUR = (0.0, 0.0, 0.0, 0.9)
+SHADOW_BLUR = 3  # blf.shadow levels: 0, 3, 5 (6: outline, 5.x)
+
+METHOD_LABELS = {"coh": "Coh", "sw": "SW", "simp": "Simp", "bool": "Bool", "vfc": "VFC", "full": "Full"}
+BIASED = {"coh", "sw", "simp"}  # the methods that take the bias P or mu
+
+
+def method_label(method: str, bias: str) -> str:
+    """The report's names: Coh(P), SW(mu), Bool, ..."""
+    label = METHOD_LABELS.get(method, method)
+    return f"{label}({bias})" if method in BIASED else label
+
+
+def stale_message(changed: int, total: int) -> str:
+    """The panel's and the corner's words for sources changed since the bake."""
+    return f"{changed} of {total} baked objects changed since the bake"
+
+
+def corner_lines(*, label: str, stats, source_tris: int, private: bool,
+                 changed: int | None, recorded: int) -> list[tuple[str, bool]]:
+    """(text, is_warning) per line. stats: the last FrameStats or None; source_tris: triangles
+    the bake took; changed: baked objects changed since the bake (None: not tracked);
+    recorded: baked objects on record (0: the file's sources are not recorded)."""
+    if stats is None:
+        lines = [(f"HLOD {label}: no frame drawn yet", False)]
+    else:
+        share = f" ({stats.tris / source_tris:.1%} of {source_tris:,})" if source_tris > 0 else ""
+        lines = [(f"HLOD {label}: {stats.dn:,} nodes, {stats.tris:,} triangles{share}", False),
+                 (f"{stats.queries:,} queries, {stats.frame_ms:.1f} ms" + (", private context" if private else ""), False)]
+    if recorded == 0:
+        lines.append(("sources not recorded for this file: they stay visible (re-bake)", True))
+    elif changed:
+        lines.append((stale_message(changed, recorded), True))
+    return lines
+
+
+def draw(lines: list[tuple[str, bool]], *, left_px: float = 0.0, ui_scale: float = 1.0) -> None:
+    """Draw `lines` at the bottom left of the bound pixel-space projection (POST_PIXEL's)."""
+    import blf  # Blender's; the formatting above runs without it
+
+    size = FONT_SIZE_PX * ui_scale
+    blf.size(FONT_ID, size)
+    blf.enable(FONT_ID, blf.SHADOW)
+    blf.shadow(FONT_ID, SHADOW_BLUR, *SHADOW_COLOUR)
+    blf.shadow_offset(FONT_ID, 1, -1)
+    try:
+        x, y = left_px + MARGIN_PX * ui_scale, MARGIN_PX * ui_scale
+        for text, warning in reversed(lines):  # bottom line first
+            blf.color(FONT_ID, *(WARNING_COLOUR if warning else TEXT_COLOUR))
+            blf.position(FONT_ID, x, y, 0.0)
+            blf.draw(FONT_ID, text)
+            y += size * LINE_SPACING
+    finally:
+        blf.disable(FONT_ID, blf.SHADOW)
