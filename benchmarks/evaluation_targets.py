@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Callable
 
 from hlod_core import jsonutil
+from hlod_core.errors import InputError
 
 NEEDED_METHODS = ("coh_p", "sw_p", "bool")
 
@@ -80,11 +81,9 @@ def read_report(path: str | Path) -> dict:
     if path.is_dir():
         path = path / "report.json"
     try:
-        report = jsonutil.loads(path.read_bytes())
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read it ({exc.strerror})") from None
-    except jsonutil.JsonError as exc:
-        raise ValueError(f"{path}: not a report ({exc})") from None
+        report = jsonutil.read(path, what="the evaluation report")
+    except InputError as exc:
+        raise ValueError(str(exc)) from None
     if not isinstance(report, dict) or not isinstance(report.get("methods"), dict):
         raise ValueError(f"{path}: not an evaluation report (no \"methods\" table)")
     return report

@@ -92,15 +92,7 @@ def load_path(path: str | os.PathLike) -> CameraPath:
     the field at fault: not JSON, nested too deep, a missing or unknown key, a field that is not
     a finite number (null, a string, a list, true/false, 1e999), near/far out of order."""
     path = Path(path)
-    try:
-        text = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read camera path ({exc.strerror or exc})") from None
-    try:
-        data = jsonutil.loads(text)
-    except jsonutil.JsonError as exc:
-        raise InputError(f"{path}: camera path is not valid JSON ({exc})") from None
-    return path_from_json(data, source=str(path))
+    return path_from_json(jsonutil.read(path, what="camera path"), source=str(path))
 
 
 def path_from_json(data, *, source: str) -> CameraPath:

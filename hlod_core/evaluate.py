@@ -186,12 +186,7 @@ def redraw(out_dir: str | os.PathLike) -> dict:
     report. Raises InputError naming the file when one is missing or not an evaluation's."""
     out_dir = Path(out_dir)
     source = out_dir / REPORT_FILE
-    try:
-        report = jsonutil.loads(source.read_bytes())
-    except OSError as exc:
-        raise InputError(f"{source}: cannot read the report ({exc.strerror or exc})") from None
-    except jsonutil.JsonError as exc:
-        raise InputError(f"{source}: not an evaluation report ({exc})") from None
+    report = jsonutil.read(source, what="the evaluation report")
     if not isinstance(report, dict) or not isinstance(report.get("methods"), dict):
         raise InputError(f"{source}: not an evaluation report (no \"methods\" table)")
     unknown = sorted(set(report["methods"]) - set(LABELS))

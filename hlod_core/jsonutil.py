@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 
 import numpy as np
+
+from .errors import InputError
 
 #: Deepest nesting of arrays/objects accepted; our documents need 4.
 MAX_DEPTH = 64
@@ -51,6 +54,20 @@ def loads(text: str | bytes, *, max_depth: int = MAX_DEPTH):
         return json.loads(text, parse_constant=_refuse_constant, parse_float=_finite_float)
     except (ValueError, RecursionError) as exc:
         raise JsonError(str(exc)) from None
+
+
+def read(path: str | os.PathLike, *, what: str):
+    """Load the JSON file `path` (with `loads`' limits). Raises InputError naming the file and
+    `what` it should be ("camera path", "scene spec", ...) when it cannot be read or parsed."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read {what} ({exc.strerror or exc})") from None
+    try:
+        return loads(data)
+    except JsonError as exc:
+        raise InputError(f"{path}: {what} is not valid JSON ({exc})") from None
 
 
 def _refuse_constant(name: str):

@@ -155,12 +155,7 @@ def merge(meshes: list[TriangleMesh], *, name: str = "scene") -> TriangleMesh:
 def load_scene_spec(path: str | os.PathLike) -> list[TriangleMesh]:
     """Read a JSON scene spec; one TriangleMesh per placed instance. Each model file is read once."""
     path = Path(path)
-    try:
-        spec = jsonutil.loads(path.read_bytes())
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read scene spec ({exc.strerror or exc})") from exc
-    except jsonutil.JsonError as exc:
-        raise InputError(f"{path}: scene spec is not valid JSON ({exc})") from exc
+    spec = jsonutil.read(path, what="scene spec")
     models = spec.get("models") if isinstance(spec, dict) else None
     if not isinstance(models, list) or not models:
         raise InputError(f"{path}: scene spec needs a non-empty list \"models\"")

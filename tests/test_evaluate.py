@@ -204,7 +204,7 @@ def test_redraw_from_the_saved_files(short_run, tmp_path):
     (folder / "per_frame.npz").write_bytes(b"not a zip")
     (tmp_path / "bad").mkdir()
     (tmp_path / "bad" / "report.json").write_text('{"methods": {"bool": {"frame_ms": 1.0}}}')
-    for target, message in ((tmp_path / "none", "report.json: cannot read the report"),
+    for target, message in ((tmp_path / "none", "report.json: cannot read the evaluation report"),
                             (folder, "per_frame.npz: not an evaluation's per-frame file"),
                             (tmp_path / "bad", "report.json: not an evaluation report (KeyError")):
         proc = subprocess.run([sys.executable, "-m", "hlod_core.evaluate", "--redraw", target], capture_output=True,
@@ -277,7 +277,7 @@ def test_evaluation_targets_bad_report_is_one_line(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "benchmarks.evaluation_targets", tmp_path], capture_output=True,
                           text=True, cwd=ROOT)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1
-    assert f"{tmp_path / 'report.json'}: not a report" in proc.stderr
+    assert f"{tmp_path / 'report.json'}: the evaluation report is not valid JSON" in proc.stderr
 
 
 def test_evaluate_bad_arguments_raise_input_error(tmp_path):
