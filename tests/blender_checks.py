@@ -23,6 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import blender_preview  # noqa: E402
 
 import bpy  # noqa: E402
+from hlod_core.view import look_at, perspective  # noqa: E402
 
 NAME = "bl_ext.r.hlod"
 OPERATORS = ["bake", "clear", "preview_toggle", "materialize", "export", "benchmark"]
@@ -465,25 +466,6 @@ def _rss_mb() -> float:
     return int(Path("/proc/self/statm").read_text().split()[1]) * resource.getpagesize() / 1e6
 
 
-def _look_at(eye, target) -> np.ndarray:
-    """(4, 4) world -> view matrix, OpenGL convention (camera looks down -z), z up."""
-    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    side = np.cross(forward, (0.0, 0.0, 1.0))
-    side /= np.linalg.norm(side)
-    up = np.cross(side, forward)
-    view = np.eye(4)
-    view[0, :3], view[1, :3], view[2, :3] = side, up, -forward
-    view[:3, 3] = -view[:3, :3] @ eye
-    return view
-
-
-def _perspective(fovy_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
-    f = 1.0 / np.tan(np.radians(fovy_deg) / 2.0)
-    return np.array([[f / aspect, 0, 0, 0], [0, f, 0, 0],
-                     [0, 0, (far + near) / (near - far), 2 * far * near / (near - far)], [0, 0, -1, 0]])
-
-
 def _orbit_view(hlod, step: int, steps_per_turn: int) -> np.ndarray:
     """The camera on a circle around the baked scene's root box, a little above it, looking at its
     centre: a new view every redraw."""
@@ -492,7 +474,7 @@ def _orbit_view(hlod, step: int, steps_per_turn: int) -> np.ndarray:
     angle = 2.0 * np.pi * step / steps_per_turn
     distance = radius * (1.1 + 0.5 * np.sin(3.0 * angle))  # moving in and out: the levels of detail change
     eye = centre + distance * np.array([np.cos(angle), np.sin(angle), 0.35])
-    return _look_at(eye, centre)
+    return look_at(eye, centre, (0.0, 0.0, 1.0))
 
 
 def _monkey_scene():
@@ -602,7 +584,7 @@ def _session(out: dict, *, session: int, blend: Path, preview, glcontext, other,
     props.show_delayed = props.show_rarn = session % 6 == 1
     bpy.ops.hlod.preview_toggle()
     hlod = preview.current_hlod()
-    projection = _perspective(50.0, LONG_SIZE[0] / LONG_SIZE[1], 0.1, 500.0)
+    projection = perspective(50.0, LONG_SIZE[0] / LONG_SIZE[1], 0.1, 500.0)
     for redraw in range(REDRAWS_PER_SESSION):
         if redraw and redraw % 50 == 0:
             props.method = methods[(session + redraw // 50) % len(methods)]
