@@ -7,7 +7,8 @@ Layout (all integers little-endian):
     offset 12  u32       0 (reserved)
     offset 16  u64       header length in bytes (H)
     offset 24  H bytes   UTF-8 JSON header: {"meta": {...}, "arrays": {name: {"dtype": "<f8",
-                         "shape": [...], "offset": bytes from file start, "nbytes": ...}}}
+                         "shape": [...], "offset": bytes from file start, "nbytes": ...}},
+                         "materials": [...]}  (version 2; absent when the scene has none)
     then       arrays, raw C-order, each starting on a 64-byte boundary
 
 Arrays are memory-mapped on load (numpy.memmap, read-only), so opening a ten-million-triangle file
@@ -22,6 +23,12 @@ two arrays overlapping. `meta` is an object; the fields read as numbers are chec
 META_SECONDS). Then `validate`: tree links, triangle and vertex ranges (each node owns a non-empty
 range inside its buffer; ranges do not overlap, so all of them together fit the buffer), index
 bounds, finite bounds, non-negative errors.
+
+Versions: 2 adds appearance (issue 13): the optional arrays `uvs` (v,2) <f4, `colors` (v,4) <f4 and
+`tri_material` (t,) <u2, and the header's material table (appearance.Material.to_json; texture
+paths relative to the file's folder where they can be). A scene without appearance writes none of
+them. Version 1 files (positions only) still load, as HLODs without appearance: version 2 only
+added optional parts, so a version 1 file is a version 2 file without them.
 """
 from __future__ import annotations
 
@@ -35,13 +42,16 @@ from pathlib import Path
 import numpy as np
 
 from . import jsonutil
+from .appearance import materials_from_json
 from .atomic import atomic_file
-from .errors import FormatError
+from .errors import FormatError, InputError
 from .arrays import segment_ranges
 from .hierarchy import MAX_COORDINATE, NODE_ARRAYS, Hlod
 
 MAGIC = b"HLODBAKE"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Versions this build reads (1: before appearance; it loads as an HLOD without appearance).
+READABLE_VERSIONS = (1, 2)
 _PREAMBLE = struct.Struct("<8sIIQ")
 _ALIGN = 64
 _MAX_HEADER_BYTES = 64 * 1024 * 1024
@@ -59,7 +69,11 @@ _GEOMETRY_ARRAYS: dict[str, tuple[str, tuple[int | None, ...]]] = {
     "positions": ("<f4", (None, 3)),
     "indices": ("<u4", (None, 3)),
     "normals": ("<f4", (None, 3)),  # optional
+    "uvs": ("<f4", (None, 2)),  # optional, version 2
+    "colors": ("<f4", (None, 4)),  # optional, version 2
+    "tri_material": ("<u2", (None,)),  # optional, version 2
 }
+_OPTIONAL_ARRAYS = ("normals", "uvs", "colors", "tri_material")
 
 
 def _aligned(n: int) -> int:
@@ -74,8 +88,9 @@ def save(hlod: Hlod, path: str | os.PathLike) -> Path:
     arrays["origin"] = hlod.origin
     arrays["positions"] = hlod.positions
     arrays["indices"] = hlod.indices
-    if hlod.normals is not None:
-        arrays["normals"] = hlod.normals
+    for name in _OPTIONAL_ARRAYS:
+        if getattr(hlod, name) is not None:
+            arrays[name] = getattr(hlod, name)
     wanted = {**{k: v[0] for k, v in NODE_ARRAYS.items()}, **{k: v[0] for k, v in _GEOMETRY_ARRAYS.items()}}
     arrays = {k: np.ascontiguousarray(v, dtype=np.dtype(wanted[k])) for k, v in arrays.items()}
 
@@ -90,7 +105,11 @@ def save(hlod: Hlod, path: str | os.PathLike) -> Path:
             table[name] = {"dtype": arr.dtype.str, "shape": list(arr.shape), "offset": cursor, "nbytes": arr.nbytes}
             cursor = _aligned(cursor + arr.nbytes)
         try:  # allow_nan=False: what is written must load (the reader refuses NaN and Infinity)
-            header = json.dumps({"meta": hlod.meta, "arrays": table}, sort_keys=True, allow_nan=False).encode("utf-8")
+            content = {"meta": hlod.meta, "arrays": table}
+            if hlod.materials:
+                folder = path.resolve().parent
+                content["materials"] = [m.to_json(relative_to=folder) for m in hlod.materials]
+            header = json.dumps(content, sort_keys=True, allow_nan=False).encode("utf-8")
         except (TypeError, ValueError) as exc:
             raise FormatError(f"{path}: cannot write the HLOD's meta as JSON ({exc})") from None
         needed = _aligned(_PREAMBLE.size + len(header))
@@ -115,12 +134,14 @@ def load(path: str | os.PathLike, *, mmap: bool = True) -> Hlod:
     """Open a .hlod file. Raises FormatError naming the file and what is wrong."""
     path = Path(path)
     size, header_end, raw = _read_header(path)
-    meta, table = _parse_header(path, raw)
+    meta, table, materials = _parse_header(path, raw)
     entries = _array_entries(path, table, size=size, header_end=header_end)
     arrays = {name: _map_array(path, entry, mmap) for name, entry in entries.items()}
     hlod = Hlod(**{name: arrays[name] for name in NODE_ARRAYS},
                 origin=np.array(arrays["origin"]), positions=arrays["positions"],
-                indices=arrays["indices"], normals=arrays.get("normals"), meta=meta)
+                indices=arrays["indices"], normals=arrays.get("normals"), meta=meta,
+                uvs=arrays.get("uvs"), colors=arrays.get("colors"), tri_material=arrays.get("tri_material"),
+                materials=materials)
     validate(hlod, source=str(path))
     return hlod
 
@@ -134,9 +155,9 @@ def _read_header(path: Path) -> tuple[int, int, bytes]:
             if len(pre) < _PREAMBLE.size or pre[:8] != MAGIC:
                 raise FormatError(f"{path}: not a .hlod file (missing HLODBAKE signature)")
             _, version, _, header_len = _PREAMBLE.unpack(pre)
-            if version != FORMAT_VERSION:
-                raise FormatError(f"{path}: .hlod format version {version} is not supported "
-                                  f"(this build reads version {FORMAT_VERSION})")
+            if version not in READABLE_VERSIONS:
+                raise FormatError(f"{path}: .hlod format version {version} is not supported (this build reads "
+                                  f"versions {', '.join(map(str, READABLE_VERSIONS))}; re-bake the scene with it)")
             if header_len > min(_MAX_HEADER_BYTES, size - _PREAMBLE.size):
                 raise FormatError(f"{path}: truncated .hlod file (header runs past the end of the file)")
             raw = f.read(header_len)
@@ -147,8 +168,8 @@ def _read_header(path: Path) -> tuple[int, int, bytes]:
     return size, _PREAMBLE.size + header_len, raw
 
 
-def _parse_header(path: Path, raw: bytes) -> tuple[dict, dict]:
-    """(meta, arrays table) of the JSON header, types checked before anything reads them."""
+def _parse_header(path: Path, raw: bytes) -> tuple[dict, dict, tuple]:
+    """(meta, arrays table, materials) of the JSON header, types checked before anything reads them."""
     try:
         header = jsonutil.loads(raw, max_depth=_MAX_HEADER_DEPTH)
     except jsonutil.JsonError as exc:
@@ -156,7 +177,12 @@ def _parse_header(path: Path, raw: bytes) -> tuple[dict, dict]:
     if not isinstance(header, dict) or not isinstance(header.get("meta"), dict) \
             or not isinstance(header.get("arrays"), dict):
         raise FormatError(f"{path}: corrupt .hlod header (expected an object with objects 'meta' and 'arrays')")
-    return header["meta"], header["arrays"]
+    try:
+        materials = materials_from_json(header.get("materials", []), where="materials",
+                                        relative_to=path.resolve().parent)
+    except InputError as exc:
+        raise FormatError(f"{path}: corrupt .hlod header ({exc})") from None
+    return header["meta"], header["arrays"], materials
 
 
 @dataclass(frozen=True, order=True)
@@ -258,14 +284,16 @@ def validate(hlod: Hlod, *, source: str = "HLOD") -> None:
             raise bad(f"array '{name}' is {arr.dtype}{list(arr.shape)}, expected {np.dtype(dtype)}{[n, *trailing]}")
     for name, (dtype, shape) in _GEOMETRY_ARRAYS.items():
         arr = getattr(hlod, name)
-        if arr is None and name == "normals":
+        if arr is None and name in _OPTIONAL_ARRAYS:
             continue
         if arr.dtype != np.dtype(dtype) or len(arr.shape) != len(shape) or any(
                 want is not None and got != want for got, want in zip(arr.shape, shape)):
             raise bad(f"array '{name}' is {arr.dtype}{list(arr.shape)}, expected {np.dtype(dtype)}{list(shape)}")
     v, t = hlod.positions.shape[0], hlod.indices.shape[0]
-    if hlod.normals is not None and hlod.normals.shape[0] != v:
-        raise bad("normals and positions differ in length")
+    for name in ("normals", "uvs", "colors"):
+        if getattr(hlod, name) is not None and getattr(hlod, name).shape[0] != v:
+            raise bad(f"{name} and positions differ in length")
+    _validate_appearance(hlod, t, bad)
     _validate_tree(hlod, bad)
     for lo, count, total, what in ((hlod.tri_offset, hlod.tri_count, t, "triangle"),
                                    (hlod.vertex_offset, hlod.vertex_count, v, "vertex")):
@@ -281,6 +309,21 @@ def validate(hlod: Hlod, *, source: str = "HLOD") -> None:
     if t and int(hlod.indices.max()) >= v:
         raise bad(f"an index points past the {v} vertices")
     _validate_meta(hlod.meta, bad)
+
+
+def _validate_appearance(hlod: Hlod, t: int, bad) -> None:
+    """Material ids index the material table; UVs finite; colours in [0, 1]."""
+    if hlod.tri_material is not None:
+        if hlod.tri_material.shape[0] != t:
+            raise bad("tri_material and indices differ in length")
+        if t and int(hlod.tri_material.max()) >= len(hlod.materials):
+            raise bad(f"a triangle's material id is past the {len(hlod.materials)} materials")
+    elif hlod.materials:
+        raise bad(f"{len(hlod.materials)} materials but no per-triangle material ids")
+    if hlod.uvs is not None and not np.all(np.isfinite(hlod.uvs)):
+        raise bad("non-finite UVs")
+    if hlod.colors is not None and not (np.all(hlod.colors >= 0.0) and np.all(hlod.colors <= 1.0)):
+        raise bad("vertex colours outside [0, 1] (or NaN)")
 
 
 def _validate_tree(hlod: Hlod, bad) -> None:

@@ -1,7 +1,9 @@
 """Bake input: triangle meshes as numpy arrays, read from OBJ/PLY/STL/GLB files or scene specs.
 
 Data form: `TriangleMesh` = positions (v,3) float64 model units, faces (f,3) int64 rows of
-positions, optional normals (v,3) float32. Several meshes merge into one scene by concatenation.
+positions, optional normals (v,3) float32, and optional appearance (appearance.py): uvs (v,2)
+float32, colors (v,4) float32 linear RGBA, material_ids (f,) int32 rows of `materials`. Several
+meshes merge into one scene by concatenation (material tables appended, ids shifted).
 
 A scene spec is a JSON file
     {"models": [{"path": "relative/or/absolute.obj",
@@ -19,6 +21,7 @@ pymeshlab misreads), since its reader drops faces that index past the vertex lis
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 from dataclasses import dataclass
@@ -27,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from . import jsonutil, meshfiles
+from .appearance import DEFAULT_BASE_COLOR, Material, check_material_ids, check_vertex_attributes
 from .arrays import concat_indexed
 from .errors import InputError
 
@@ -42,20 +46,31 @@ SINGULAR_TRANSFORM_RATIO = 1e-12
 
 @dataclass(frozen=True, eq=False)
 class TriangleMesh:
-    """positions (v,3) float64; faces (f,3) int64; normals (v,3) float32 or None; name for messages."""
+    """positions (v,3) float64; faces (f,3) int64; normals (v,3) float32 or None; name for messages;
+    appearance (all optional, see appearance.py): uvs (v,2) float32, colors (v,4) float32,
+    material_ids (f,) int32 into `materials` (a tuple of appearance.Material)."""
 
     positions: np.ndarray
     faces: np.ndarray
     normals: np.ndarray | None = None
     name: str = "mesh"
+    uvs: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    material_ids: np.ndarray | None = None
+    materials: tuple = ()
 
     @property
     def tri_count(self) -> int:
         return int(self.faces.shape[0])
 
+    @property
+    def has_appearance(self) -> bool:
+        return self.uvs is not None or self.colors is not None or self.material_ids is not None
 
-def from_arrays(positions, faces, normals=None, *, name: str = "mesh") -> TriangleMesh:
-    """Validate and wrap caller arrays. Raises InputError naming `name`."""
+
+def from_arrays(positions, faces, normals=None, *, name: str = "mesh", uvs=None, colors=None,
+                material_ids=None, materials=()) -> TriangleMesh:
+    """Validate and wrap caller arrays (appearance: see TriangleMesh). Raises InputError naming `name`."""
     try:
         p = np.asarray(positions, dtype=np.float64)
         f = np.asarray(faces)
@@ -82,7 +97,13 @@ def from_arrays(positions, faces, normals=None, *, name: str = "mesh") -> Triang
         if n.shape != p.shape:
             raise InputError(f"{name}: normals must have the shape of positions {list(p.shape)}, got {list(n.shape)}")
         n = np.where(np.isfinite(n), n, 0.0).astype(np.float32)
-    return TriangleMesh(positions=p, faces=f, normals=n, name=name)
+    uv, col = check_vertex_attributes(name, p.shape[0], uvs, colors)
+    materials = tuple(materials)
+    if not all(isinstance(m, Material) for m in materials):
+        raise InputError(f"{name}: materials must be appearance.Material rows")
+    ids = check_material_ids(name, f.shape[0], material_ids, materials)
+    return TriangleMesh(positions=p, faces=f, normals=n, name=name, uvs=uv, colors=col, material_ids=ids,
+                        materials=materials)
 
 
 def load_mesh(path: str | os.PathLike) -> TriangleMesh:
@@ -136,11 +157,13 @@ def transform_mesh(mesh: TriangleMesh, matrix: np.ndarray, *, name: str) -> Tria
         nrm = mesh.normals.astype(np.float64) @ np.linalg.inv(m[:3, :3])
         length = np.linalg.norm(nrm, axis=1, keepdims=True)
         normals = (nrm / np.where(length > 0, length, 1.0)).astype(np.float32)
-    return TriangleMesh(positions=p, faces=faces, normals=normals, name=name)
+    return dataclasses.replace(mesh, positions=p, faces=faces, normals=normals, name=name)
 
 
 def merge(meshes: list[TriangleMesh], *, name: str = "scene") -> TriangleMesh:
-    """Concatenate meshes into one; normals kept only if every mesh has them."""
+    """Concatenate meshes into one; normals kept only if every mesh has them. Appearance is kept if
+    any mesh has it: a mesh without UVs gets (0, 0), without colours white, without materials a
+    default material (one for all such meshes); material tables are appended, equal rows shared."""
     if not meshes:
         raise InputError(f"{name}: nothing to bake (no meshes)")
     if len(meshes) == 1:
@@ -149,7 +172,25 @@ def merge(meshes: list[TriangleMesh], *, name: str = "scene") -> TriangleMesh:
     normals = None
     if all(m.normals is not None for m in meshes):
         normals = np.concatenate([m.normals for m in meshes])
-    return TriangleMesh(positions=positions, faces=faces, normals=normals, name=name)
+    uvs = colors = material_ids = None
+    materials: tuple = ()
+    if any(m.uvs is not None for m in meshes):
+        uvs = np.concatenate([m.uvs if m.uvs is not None else np.zeros((m.positions.shape[0], 2), np.float32)
+                              for m in meshes])
+    if any(m.colors is not None for m in meshes):
+        colors = np.concatenate([m.colors if m.colors is not None else np.ones((m.positions.shape[0], 4), np.float32)
+                                 for m in meshes])
+    if any(m.material_ids is not None for m in meshes):
+        table: dict[Material, int] = {}
+        ids = []
+        for m in meshes:
+            rows = m.materials if m.material_ids is not None else (Material("default", DEFAULT_BASE_COLOR),)
+            remap = np.array([table.setdefault(row, len(table)) for row in rows], np.int32)
+            ids.append(remap[m.material_ids] if m.material_ids is not None else np.full(m.tri_count, remap[0], np.int32))
+        material_ids = np.concatenate(ids)
+        materials = tuple(table)
+    return TriangleMesh(positions=positions, faces=faces, normals=normals, name=name, uvs=uvs, colors=colors,
+                        material_ids=material_ids, materials=materials)
 
 
 def load_scene_spec(path: str | os.PathLike) -> list[TriangleMesh]:
