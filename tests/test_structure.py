@@ -108,6 +108,31 @@ def test_no_import_cycles(graph):
     assert not cycles, cycles
 
 
+#: Libraries of the command line only (requirements.txt): Blender ships none of them, nor does the
+#: extension's manifest, so no module the extension can reach may import them.
+COMMAND_LINE_ONLY = {"trimesh", "PIL", "matplotlib"}
+#: Modules the extension reaches that may touch a command-line-only library, each behind a guard
+#: that works without it (and the test suite runs that path with the library blocked).
+GUARDED = {"hlod_core.report_figures": {"matplotlib"}, "hlod_core.textures": {"PIL"}}
+
+
+def test_the_extension_reaches_no_command_line_only_library(graph):
+    """Everything the extension imports, transitively (deferred imports included), from the
+    registration module `<root>`: none of it imports trimesh, PIL or matplotlib except the
+    guarded modules above."""
+    reached, todo = set(), ["<root>"]
+    while todo:
+        name = todo.pop()
+        if name in reached or name not in graph:
+            continue
+        reached.add(name)
+        todo.extend(graph[name][0])
+    offending = {name: sorted((graph[name][1] & COMMAND_LINE_ONLY) - GUARDED.get(name, set()))
+                 for name in reached}
+    assert "hlod_core.bake" in reached and "addon.preview" in reached  # the walk sees the extension
+    assert not any(offending.values()), {k: v for k, v in offending.items() if v}
+
+
 def test_the_graph_sees_known_edges(graph):
     """The checks above would pass on an empty graph: pin a few edges that must be found."""
     assert "hlod_core.fileformat" in graph["hlod_core.cli"][0]
