@@ -30,7 +30,8 @@ def check_output_file(path: str, option: str = "-o", example: str = "scene.hlod"
 
 
 def export_hlod(hlod, fmt: str, out_dir, stem: str) -> dict:
-    """Export into out_dir: 3D Tiles (tileset.json, tiles/) or the native file <stem>.hlod."""
+    """Export into out_dir: 3D Tiles (tileset.json, tiles/, textures/ when textured) or the native
+    file <stem>.hlod."""
     if fmt == "3dtiles":
         return tiles3d.export(hlod, out_dir)
     target = Path(out_dir) / f"{stem}.hlod"

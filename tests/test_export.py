@@ -1,7 +1,9 @@
 """3D Tiles export and batch baking from background mode (issue "Batch export ... 3D Tiles"),
 checked by independent tools: the Khronos glTF validator for every GLB and CesiumGS 3d-tiles-tools
 reading the tileset back (tools/validators/check_tileset.mjs)."""
+import hashlib
 import json
+import logging
 import os
 import struct
 import subprocess
@@ -9,12 +11,15 @@ import sys
 
 import numpy as np
 import pytest
+from PIL import Image
 
-from helpers import ROOT, baked
+from helpers import ROOT, baked, textured_scene
 from hlod_core import fileformat, meshio, tiles3d
+from hlod_core.appearance import Material
 from hlod_core.bake import BakeSettings, bake
+from hlod_core.hierarchy import Hlod, node_geometry
 from test_addon import versioned_repo  # noqa: F401 - the extension installed in each Blender
-from test_addon import blender
+from test_addon import blender, repo  # noqa: F401 - the extension installed for this bpy module
 from test_cli import hlod, last_json, one_line_error
 
 VALIDATORS = ROOT / "tools/validators"
@@ -27,14 +32,48 @@ def independent_read(folder) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+# Every GLB under a folder through the Khronos validator, with its external images loaded relative
+# to the GLB, reporting which images it read (for tests of the image files themselves).
+VALIDATE_WITH_IMAGES = r"""
+import fs from "node:fs";
+import path from "node:path";
+import validator from "gltf-validator";
+const dir = path.resolve(process.argv[1]);
+const out = {};
+for (const name of fs.readdirSync(dir, { recursive: true }).filter((n) => n.endsWith(".glb")).sort()) {
+  const file = path.join(dir, name);
+  const report = await validator.validateBytes(new Uint8Array(fs.readFileSync(file)), {
+    uri: name, maxIssues: 0, writeTimestamp: false,
+    externalResourceFunction: (uri) => fs.promises.readFile(path.resolve(path.dirname(file), decodeURIComponent(uri)))
+      .then((data) => new Uint8Array(data)),
+  });
+  out[name.split(path.sep).join("/")] = {
+    errors: report.issues.numErrors, warnings: report.issues.numWarnings,
+    messages: report.issues.messages.filter((m) => m.severity <= 1).map((m) => `${m.code}: ${m.message}`),
+    images: (report.info.resources ?? []).filter((r) => r.image).map((r) => r.uri),
+  };
+}
+console.log(JSON.stringify(out));
+"""
+
+
+def validate_with_images(folder) -> dict:
+    """{GLB path relative to folder: {errors, warnings, messages, images (URIs read and decoded)}}."""
+    proc = subprocess.run(["node", "--input-type=module", "-e", VALIDATE_WITH_IMAGES, str(folder)], capture_output=True,
+                          text=True, timeout=600, cwd=VALIDATORS)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 def assert_matches(tiles_dir, hlod_file):
-    """Every GLB valid; the reader's tiles are the hierarchy's nodes, with their triangle counts,
-    boxes and errors; each parent's geometricError is at least its children's."""
+    """Every GLB valid (with the images it refers to); the reader's tiles are the hierarchy's nodes,
+    with their triangle counts, boxes and errors; each parent's geometricError is at least its
+    children's."""
     h = fileformat.load(hlod_file)
     read = independent_read(tiles_dir)
     tiles = read["tiles"]
     assert len(tiles) == h.node_count == sum(1 for t in tiles if t["uri"])
-    bad = [(t["uri"], t["messages"]) for t in tiles if t["errors"]]
+    bad = [(t["uri"], t["messages"]) for t in tiles if t["errors"]]  # images read relative to each GLB
     assert not bad, bad[:3]
     origin = np.asarray(h.origin)
     diag = float(np.linalg.norm(h.box_max[0] - h.box_min[0]))
@@ -174,15 +213,280 @@ def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_ch
 @pytest.mark.parametrize("umask", [0o022, 0o027])
 def test_export_modes_follow_the_umask(tmp_path, umask):
     """Issue 11: the tileset folder came out 0700 (mkdtemp's mode) whatever the umask; now folders
-    are 0777 and files 0666 less the umask, like any other tool's output, also when replacing."""
+    are 0777 and files 0666 less the umask, like any other tool's output, also when replacing.
+    Issue 13: the copied textures too, whatever the modes of their sources."""
     _, h = baked("cow.obj", target_tris=500)
+    png, jpeg = write_textures(tmp_path)
+    os.chmod(png, 0o600)
+    os.chmod(jpeg, 0o755)
+    textured = with_appearance(literal_hlod(normals=False), png, jpeg)
     old = os.umask(umask)
     try:
         for _ in range(2):  # a fresh export, then one replacing it
             tiles3d.export(h, tmp_path / "tiles")
-            folders = [tmp_path / "tiles", tmp_path / "tiles" / "tiles"]
-            files = [tmp_path / "tiles" / "tileset.json", *(tmp_path / "tiles" / "tiles").iterdir()]
+            tiles3d.export(textured, tmp_path / "textured")
+            folders = [tmp_path / "tiles", tmp_path / "tiles" / "tiles", tmp_path / "textured" / "textures"]
+            files = [tmp_path / "tiles" / "tileset.json", *(tmp_path / "tiles" / "tiles").iterdir(),
+                     *(tmp_path / "textured" / "textures").iterdir()]
             assert {oct(p.stat().st_mode & 0o777) for p in folders} == {oct(0o777 & ~umask)}
             assert {oct(p.stat().st_mode & 0o777) for p in files} == {oct(0o666 & ~umask)}
     finally:
         os.umask(old)
+
+
+# --- appearance (issue 13) ----------------------------------------------------------------------
+
+def literal_hlod(*, normals: bool) -> Hlod:
+    """A 3-node HLOD written out by hand, no bake: the root's 2-triangle LOD over [0,2]x[0,1], leaves
+    1 and 2 with 8 triangles each over [0,1]x[0,1] and [1,2]x[0,1]. Coordinates are binary fractions
+    (normals too, but for a (0, 0.6, 0.8) the export normalises with IEEE sqrt and division), so
+    every byte an export writes is the same on every machine."""
+    def grid(x0):
+        xs, ys = np.meshgrid(np.arange(3) * 0.5 + x0, np.arange(3) * 0.5, indexing="xy")
+        z = 0.25 * ((np.arange(9) % 3) * (np.arange(9) // 3) % 3)
+        quads = np.array([[0, 1, 4, 3], [1, 2, 5, 4], [3, 4, 7, 6], [4, 5, 8, 7]])
+        return np.stack([xs.ravel(), ys.ravel(), z], axis=1), np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+
+    root_pos = np.array([[0, 0, 0], [2, 0, 0], [2, 1, 0], [0, 1, 0]], float)
+    root_tris = np.array([[0, 1, 2], [0, 2, 3]])
+    (p1, t1), (p2, t2) = grid(0.0), grid(1.0)
+    positions = np.concatenate([root_pos, p1, p2]).astype(np.float32)
+    nrm = None
+    if normals:
+        nrm = np.tile(np.array([[0, 0, 1], [0, 0.6, 0.8], [0, 0, 2]], np.float32), (positions.shape[0] // 3 + 1, 1))
+        nrm = nrm[:positions.shape[0]]
+    lod_min = np.array([root_pos.min(0), p1.min(0), p2.min(0)])
+    lod_max = np.array([root_pos.max(0), p1.max(0), p2.max(0)])
+    box_min = np.concatenate([np.minimum(lod_min[0], lod_min[1:].min(0))[None], lod_min[1:]])
+    box_max = np.concatenate([np.maximum(lod_max[0], lod_max[1:].max(0))[None], lod_max[1:]])
+    origin, centre = np.array([100.0, -50.0, 2.5]), 0.5 * (box_min + box_max)
+    return Hlod(parent=np.array([-1, 0, 0], np.int32), child_offset=np.array([1, -1, -1], np.int32),
+                child_count=np.array([2, 0, 0], np.int32), depth=np.array([0, 1, 1], np.int32),
+                lod_box_min=lod_min + origin, lod_box_max=lod_max + origin, box_min=box_min + origin,
+                box_max=box_max + origin, sphere_center=centre + origin,
+                sphere_radius=np.linalg.norm(box_max - centre, axis=1), error=np.array([0.125, 0.0, 0.0]),
+                cube_side=np.ones(3), tri_offset=np.array([0, 2, 10], np.int64),
+                tri_count=np.array([2, 8, 8], np.int64), vertex_offset=np.array([0, 4, 13], np.int64),
+                vertex_count=np.array([4, 9, 9], np.int64), origin=origin, positions=positions,
+                indices=np.concatenate([root_tris, t1 + 4, t2 + 13]).astype(np.uint32), normals=nrm)
+
+
+def folder_digest(folder) -> tuple[list[str], str]:
+    files = sorted(p for p in folder.rglob("*") if p.is_file())
+    digest = hashlib.sha256()
+    for p in files:
+        digest.update(p.relative_to(folder).as_posix().encode() + b"\0" + p.read_bytes())
+    return [p.relative_to(folder).as_posix() for p in files], digest.hexdigest()
+
+
+# SHA-256 of the export of literal_hlod (file names and bytes, see folder_digest) by the code before
+# issue 13: recorded with hlod_core/tiles3d.py at commit 6d77cb6 (unchanged since 844ae1f), running
+# `tiles3d.export(literal_hlod(normals=...), DIR)` then `folder_digest(DIR)`.
+BEFORE_APPEARANCE_DIGESTS = {False: "93e9e14dca7b80309e75213edcbea1d67289dcef4ac23a4c31036573010ea475",
+                             True: "369da809dca32415f02196c25d4f9fa7b3e3c67b6559f746f4caf1afbcd4eb60"}
+
+
+@pytest.mark.parametrize("normals", [False, True])
+def test_an_export_without_appearance_is_byte_identical_to_before(tmp_path, normals):
+    summary = tiles3d.export(literal_hlod(normals=normals), tmp_path / "tiles")
+    names, digest = folder_digest(tmp_path / "tiles")
+    assert names == ["tiles/0.glb", "tiles/1.glb", "tiles/2.glb", "tileset.json"]
+    assert digest == BEFORE_APPEARANCE_DIGESTS[normals]
+    assert summary["image_files"] == 0 and summary["warnings"] == []
+
+
+def read_glb(path) -> tuple[dict, bytes]:
+    data = path.read_bytes()
+    json_len = struct.unpack("<I", data[12:16])[0]
+    bin_len = struct.unpack("<I", data[20 + json_len:24 + json_len])[0]
+    return json.loads(data[20:20 + json_len]), data[28 + json_len:28 + json_len + bin_len]
+
+
+def accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
+    """An accessor's values as (count, components) (count,) for scalars, read from the BIN chunk."""
+    acc = gltf["accessors"][index]
+    view = gltf["bufferViews"][acc["bufferView"]]
+    dtype = {tiles3d.FLOAT: np.float32, tiles3d.UNSIGNED_SHORT: np.uint16, tiles3d.UNSIGNED_INT: np.uint32}[
+        acc["componentType"]]
+    width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[acc["type"]]
+    values = np.frombuffer(binary, dtype, acc["count"] * width, view["byteOffset"] + acc.get("byteOffset", 0))
+    return values.reshape(acc["count"], width) if width > 1 else values
+
+
+def write_textures(folder) -> tuple[str, str]:
+    """A 4x2 PNG (with alpha) and an 8x8 JPEG written by Pillow; returns their paths."""
+    png, jpeg = folder / "brick wall.png", folder / "label.jpeg"
+    Image.fromarray(np.arange(32, dtype=np.uint8).reshape(2, 4, 4) * 8, "RGBA").save(png)
+    Image.fromarray(np.full((8, 8, 3), (200, 30, 60), np.uint8), "RGB").save(jpeg)
+    return str(png), str(jpeg)
+
+
+def with_appearance(h: Hlod, png: str, jpeg: str) -> Hlod:
+    """`h` with UVs and colours from its positions and four materials by triangle centroid: "brick"
+    and "brick dark" share the PNG, "label" has the JPEG, "paint" has no texture; triangles sorted by
+    material within each node, as the bake stores them."""
+    materials = (Material("brick", (1.0, 0.9, 0.8, 1.0), 0.0, 0.75, png),
+                 Material("brick dark", (0.5, 0.4, 0.4, 1.0), 0.25, 0.5, png),
+                 Material("label", (1.0, 1.0, 1.0, 1.0), 0.0, 0.5, jpeg),
+                 Material("paint", (0.1, 0.6, 0.2, 1.0), 1.0, 0.3))
+    lo, hi = h.positions.min(0), h.positions.max(0)
+    unit = (h.positions - lo) / np.where(hi > lo, hi - lo, 1)
+    centroid = unit[h.indices.astype(np.int64)].mean(axis=1)
+    material = (np.minimum((centroid[:, 0] * 2).astype(int), 1) * 2 + (centroid[:, 1] > 0.5)).astype(np.uint16)
+    by_offset = np.argsort(h.tri_offset, kind="stable")
+    owner = np.repeat(np.arange(h.node_count), h.tri_count[by_offset])  # the rank of each triangle's node range
+    order = np.lexsort((material, owner))  # keeps every node's range, sorts materials within it
+    colors = np.concatenate([unit, np.ones((unit.shape[0], 1))], axis=1).astype(np.float32)
+    return h.replace(indices=h.indices[order], tri_material=material[order], materials=materials,
+                     uvs=np.ascontiguousarray(unit[:, :2] * [2.0, 1.0] - [0.0, 0.25], np.float32), colors=colors)
+
+
+def test_textured_glbs_carry_materials_uvs_colours_and_share_images(tmp_path):
+    png, jpeg = write_textures(tmp_path)
+    h = with_appearance(literal_hlod(normals=True), png, jpeg)
+    summary = tiles3d.export(h, tmp_path / "tiles")
+    assert summary["image_files"] == 2 and summary["warnings"] == []
+    # one file per distinct texture, the original bytes, whatever the number of materials and tiles
+    assert sorted(p.name for p in (tmp_path / "tiles/textures").iterdir()) == ["brick_wall.png", "label.jpg"]
+    assert (tmp_path / "tiles/textures/brick_wall.png").read_bytes() == open(png, "rb").read()
+    assert (tmp_path / "tiles/textures/label.jpg").read_bytes() == open(jpeg, "rb").read()
+    report = validate_with_images(tmp_path / "tiles")
+    assert sorted(report) == ["tiles/0.glb", "tiles/1.glb", "tiles/2.glb"]
+    assert {name: r["errors"] for name, r in report.items()} == dict.fromkeys(report, 0), report
+    # the validator read and decoded the shared images from the GLBs' URIs: the root ("brick dark"
+    # and "label" by centroid) uses both, leaf 1 ("brick", "brick dark") the PNG only
+    assert sorted(report["tiles/0.glb"]["images"]) == ["../textures/brick_wall.png", "../textures/label.jpg"]
+    assert report["tiles/1.glb"]["images"] == ["../textures/brick_wall.png"]
+    for node in range(h.node_count):
+        gltf, binary = read_glb(tmp_path / f"tiles/tiles/{node}.glb")
+        geometry = node_geometry(h, node)
+        primitives = gltf["meshes"][0]["primitives"]
+        used = np.unique(geometry.face_material)
+        # one primitive per material of the node, sharing the vertex accessors, triangles kept
+        assert [gltf["materials"][p["material"]]["name"] for p in primitives] == [h.materials[m].name for m in used]
+        assert [accessor(gltf, binary, p["indices"]).size // 3 for p in primitives] == np.bincount(
+            geometry.face_material)[used].tolist()
+        indices = np.concatenate([accessor(gltf, binary, p["indices"]) for p in primitives]).reshape(-1, 3)
+        assert np.array_equal(indices, geometry.faces[np.argsort(geometry.face_material, kind="stable")])
+        attributes = primitives[0]["attributes"]
+        assert all(p["attributes"] == attributes for p in primitives)
+        st = accessor(gltf, binary, attributes["TEXCOORD_0"])
+        assert np.array_equal(st[:, 0], geometry.uvs[:, 0]) and np.array_equal(st[:, 1], 1 - geometry.uvs[:, 1])
+        assert np.array_equal(accessor(gltf, binary, attributes["COLOR_0"]), geometry.colors)
+        for p in primitives:
+            material, row = h.materials[used[primitives.index(p)]], gltf["materials"][p["material"]]
+            pbr = row["pbrMetallicRoughness"]
+            assert pbr["baseColorFactor"] == pytest.approx(material.base_color)
+            factors = (pbr["metallicFactor"], pbr["roughnessFactor"])
+            assert factors == pytest.approx((material.metallic, material.roughness))
+            image = None
+            if "baseColorTexture" in pbr:
+                image = gltf["images"][gltf["textures"][pbr["baseColorTexture"]["index"]]["source"]]
+            expected = {png: {"uri": "../textures/brick_wall.png", "mimeType": "image/png"},
+                        jpeg: {"uri": "../textures/label.jpg", "mimeType": "image/jpeg"}, None: None}[material.texture]
+            assert image == expected
+        assert len(gltf.get("images", [])) == len({h.materials[m].texture for m in used} - {None})
+    # the root: textured, with TEXCOORD_0; a known vertex: the
+    # root's corner (0, 1) has our uv (0, 0.75), glTF's (0, 0.25)
+    gltf, binary = read_glb(tmp_path / "tiles/tiles/0.glb")
+    assert any("baseColorTexture" in m["pbrMetallicRoughness"] for m in gltf["materials"])
+    corner = np.flatnonzero(np.all(node_geometry(h, 0).positions == [0, 1, 0], axis=1))[0]
+    attributes = gltf["meshes"][0]["primitives"][0]["attributes"]
+    assert accessor(gltf, binary, attributes["TEXCOORD_0"])[corner].tolist() == [0.0, 0.25]
+    assert node_geometry(h, 0).uvs[corner].tolist() == [0.0, 0.75]
+
+
+def test_a_texture_that_cannot_be_used_is_named_with_its_materials_and_left_out(tmp_path, caplog):
+    png, _ = write_textures(tmp_path)
+    not_an_image = tmp_path / "notes.png"
+    not_an_image.write_text("not a picture")
+    h = with_appearance(literal_hlod(normals=False), png, str(tmp_path / "gone.jpeg"))
+    h = h.replace(materials=(*h.materials[:3], Material("paint", texture=str(not_an_image))))
+    with caplog.at_level(logging.WARNING, logger="hlod_core.tiles3d"):
+        summary = tiles3d.export(h, tmp_path / "tiles")
+    assert summary["warnings"] == [line.getMessage() for line in caplog.records]
+    assert len(summary["warnings"]) == 2
+    assert f"{tmp_path / 'gone.jpeg'}: texture of material 'label' cannot be read" in summary["warnings"][0]
+    assert f"{not_an_image}: texture of material 'paint' is neither PNG nor JPEG" in summary["warnings"][1]
+    assert [p.name for p in (tmp_path / "tiles/textures").iterdir()] == ["brick_wall.png"]
+    report = validate_with_images(tmp_path / "tiles")
+    assert [r["errors"] for r in report.values()] == [0, 0, 0], report
+    gltf, _ = read_glb(tmp_path / "tiles/tiles/2.glb")  # leaf 2: "label" and "paint", both untextured now
+    assert [m["name"] for m in gltf["materials"]] == ["label", "paint"] and "images" not in gltf
+    assert not any("baseColorTexture" in m["pbrMetallicRoughness"] for m in gltf["materials"])
+    # without UVs no texture can be bound (a baseColorTexture needs TEXCOORD_0): one warning, no images
+    summary = tiles3d.export(h.replace(uvs=None), tmp_path / "no_uvs")
+    assert summary["warnings"] == ["3D Tiles export: the HLOD has no UVs; the textures of materials 'brick', "
+                                   "'brick dark', 'label', 'paint' are left out"]
+    assert summary["image_files"] == 0 and not (tmp_path / "no_uvs/textures").exists()
+    assert [r["errors"] for r in validate_with_images(tmp_path / "no_uvs").values()] == [0, 0, 0]
+
+
+def test_an_interrupted_textured_export_leaves_the_earlier_one(tmp_path, monkeypatch):
+    """The textures are copied into the staging folder like the tiles: a failure after they are
+    copied leaves nothing beside the output and the earlier export as it was."""
+    png, jpeg = write_textures(tmp_path)
+    h = with_appearance(literal_hlod(normals=False), png, jpeg)
+    tiles3d.export(h, tmp_path / "out" / "tiles")
+    before = folder_digest(tmp_path / "out" / "tiles")
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(tiles3d, "glb_bytes", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        tiles3d.export(h.replace(materials=(Material("other", texture=jpeg),) * 4), tmp_path / "out" / "tiles")
+    assert folder_digest(tmp_path / "out" / "tiles") == before
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["tiles"]
+
+
+def test_textured_bake_exported_by_the_command_passes_the_validators(tmp_path):
+    """A bake of a numpy mesh (a wavy 64x64 grid), given UVs, colours and four materials, saved as
+    .hlod (texture paths relative to it) and exported by `hlod export`: every GLB valid with its
+    images read, the tiles the hierarchy's nodes, the root textured with TEXCOORD_0 and COLOR_0, one
+    image file per distinct texture."""
+    n = 64
+    xs, ys = np.meshgrid(np.linspace(0, 8, n), np.linspace(0, 8, n))
+    positions = np.stack([xs.ravel(), ys.ravel(), 0.3 * np.sin(xs.ravel()) * np.cos(ys.ravel())], axis=1)
+    cell = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
+    faces = np.concatenate([np.stack([cell, cell + 1, cell + n + 1], 1), np.stack([cell, cell + n + 1, cell + n], 1)])
+    h = bake(meshio.from_arrays(positions, faces, name="grid"), BakeSettings(target_tris=1000))
+    assert h.node_count > 1 and not h.has_appearance
+    png, jpeg = write_textures(tmp_path)
+    src = fileformat.save(with_appearance(h, png, jpeg), tmp_path / "grid.hlod")
+    out = last_json(hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "grid_tiles"))
+    assert out["image_files"] == 2 and out["warnings"] == [] and out["glb_files"] == h.node_count
+    assert sorted(p.name for p in (tmp_path / "grid_tiles/textures").iterdir()) == ["brick_wall.png", "label.jpg"]
+    assert_matches(tmp_path / "grid_tiles", src)
+    report = validate_with_images(tmp_path / "grid_tiles")
+    assert len(report) == h.node_count and not [(k, r["messages"]) for k, r in report.items() if r["errors"]]
+    gltf, _ = read_glb(tmp_path / "grid_tiles/tiles/0.glb")
+    assert any("baseColorTexture" in m["pbrMetallicRoughness"] for m in gltf["materials"])
+    assert {"TEXCOORD_0", "COLOR_0"} <= set(gltf["meshes"][0]["primitives"][0]["attributes"])
+    assert len(gltf["meshes"][0]["primitives"]) == 4  # the root covers all four materials
+
+
+@pytest.mark.slow
+@pytest.mark.blender
+def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_path):  # noqa: F811
+    """The shared textured scene (tests/scenes/textured_scene.py, small) baked from its .blend by the
+    installed extension's background command, with 3D Tiles: every GLB valid with its images, the
+    root tile textured with TEXCOORD_0 (and COLOR_0: the scene has colour attributes), one image
+    file per distinct texture of the scene, each the source's bytes."""
+    scene = textured_scene("small")
+    run = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "--extension-repo", str(repo / "repo"),
+                          "bake", str(scene["blend"]), "-o", str(tmp_path / "out"), "--format", "hlod", "3dtiles"],
+                         capture_output=True, text=True, timeout=600, cwd=ROOT,
+                         env={**os.environ, "BLENDER_USER_RESOURCES": str(repo / "user")})
+    assert run.returncode == 0, run.stderr[-3000:]
+    tiles_dir, src = tmp_path / "out" / "textured_3dtiles", tmp_path / "out" / "textured.hlod"
+    h = fileformat.load(src)
+    assert h.node_count > 1 and h.uvs is not None and h.colors is not None
+    assert_matches(tiles_dir, src)
+    textures = sorted(scene["textures"].iterdir())
+    assert len({m.texture for m in h.materials} - {None}) == len(textures)
+    copied = sorted((tiles_dir / "textures").iterdir())
+    assert sorted(p.read_bytes() for p in copied) == sorted(p.read_bytes() for p in textures)
+    gltf, _ = read_glb(tiles_dir / "tiles/0.glb")
+    assert any("baseColorTexture" in m["pbrMetallicRoughness"] for m in gltf["materials"])
+    assert {"TEXCOORD_0", "COLOR_0"} <= set(gltf["meshes"][0]["primitives"][0]["attributes"])

@@ -1,7 +1,7 @@
 // Independent checks of a 3D Tiles export (used by tests/test_export.py):
 //   node check_tileset.mjs DIR
 // Reads DIR/tileset.json with CesiumGS 3d-tiles-tools (its tileset traversal), and validates every
-// tile's GLB content with the Khronos glTF validator. Prints one JSON object:
+// tile's GLB content with the Khronos glTF validator (external images read relative to the GLB). Prints one JSON object:
 // {"tiles": [{"path", "level", "uri", "geometricError", "box", "parentGeometricError",
 //   "errors", "warnings", "triangles", "vertices"}], "tilesetGeometricError"}
 import fs from "node:fs";
@@ -28,7 +28,12 @@ for await (const traversed of iterable) {
   if (contents.length > 0) {
     row.uri = contents[0].uri;
     const bytes = fs.readFileSync(path.join(dir, row.uri));
-    const report = await validator.validateBytes(new Uint8Array(bytes), { uri: row.uri, maxIssues: 50 });
+    const glbFolder = path.dirname(path.join(dir, row.uri));  // images are shared by URI (../textures/)
+    const report = await validator.validateBytes(new Uint8Array(bytes), {
+      uri: row.uri, maxIssues: 50,
+      externalResourceFunction: (uri) => fs.promises.readFile(path.resolve(glbFolder, decodeURIComponent(uri)))
+        .then((data) => new Uint8Array(data)),
+    });
     row.errors = report.issues.numErrors;
     row.warnings = report.issues.numWarnings;
     row.messages = report.issues.messages.filter((m) => m.severity === 0).map((m) => `${m.code}: ${m.message}`);
