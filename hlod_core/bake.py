@@ -1,15 +1,24 @@
 """Bake an octree HLOD from triangles (DESIGN §4), as a pipeline of named phases:
 
-    prepare  -> file-relative float32 positions, triangle centroids
+    prepare  -> file-relative float32 positions, triangle centroids; with appearance, the
+                vertices become attribute rows (appearance.pack: a vertex split per material)
     octree   -> top-down partition (octree.build_octree)
-    leaves   -> each leaf keeps its original triangles
+    leaves   -> each leaf keeps its original triangles (and their exact attribute rows)
     simplify -> inner nodes bottom-up: weld, quadric decimation, Hausdorff MSE (simplify.py);
                 independent subtrees run in parallel worker processes (`jobs`)
-    assemble -> one vertex and one index buffer, node ranges
+    assemble -> one vertex and one index buffer, node ranges; with appearance, UVs, colours and
+                triangle materials, each node's triangles sorted by material (one draw per
+                (node, material))
     bounds   -> tight nested boxes, nested spheres, monotone MSE, cube sides (vectorised per level)
 
 After Charalambos' dissertation (`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`
 §3.3, §8: octree, one LOD of ~2000 triangles per node, offline bottom-up simplification).
+
+Appearance (issue 13): a mesh with materials, UVs or colours bakes on attribute rows instead of
+vertices; leaves keep them exact, inner nodes keep materials and UVs exact (simplify.py: material
+borders and UV seams stay where they are, a LOD vertex takes the row of the input vertex it sits
+on) and blend colours only where a colour jumps. A mesh without any takes the path it always took,
+with no attribute arrays. The node error stays the geometric Hausdorff MSE.
 """
 from __future__ import annotations
 
@@ -29,7 +38,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import simplify
+from . import appearance, simplify
 from .arrays import concat_indexed
 from .errors import BakeCancelled, InputError
 from .hierarchy import Hlod, cube_sides, query_box_pad
@@ -76,9 +85,13 @@ class BakeSettings:
 
 def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
          progress: ProgressFn | None = None, cancel: CancelFn | None = None,
-         sources: list[str] | None = None) -> Hlod:
+         sources: list[str] | None = None, extra_meta: dict | None = None) -> Hlod:
     """Bake `mesh` into an Hlod. Raises InputError for unusable input, BakeCancelled if `cancel()`
-    turns true (checked between nodes). Writes nothing to disk except worker scratch files."""
+    turns true (checked between nodes). Writes nothing to disk except worker scratch files.
+    extra_meta: JSON-serialisable entries added to the HLOD's meta (the Blender side records the
+    UV map and colour attribute names, "uv_map" and "color_attribute"); they may not replace the
+    bake's own entries. The HLOD carries uvs / colors / tri_material and mesh.materials exactly
+    when the mesh has them."""
     started = time.perf_counter()
     progress = progress or (lambda done, total, phase: None)
     cancel = cancel or (lambda: False)
@@ -86,6 +99,10 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     phases = _PhaseClock()
 
     origin, positions, faces, centroids = _prepare(mesh)
+    normals_in = mesh.normals
+    row_layout, rows = appearance.AttributeLayout(False, False, False), None
+    if mesh.has_appearance:
+        row_layout, positions, faces, normals_in, rows = _pack_rows(mesh, positions, normals_in)
     counted = ~simplify.collapsed(positions, faces)
     phases.lap("prepare")
     layout = build_octree(centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
@@ -97,12 +114,12 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     log.info("octree: %d nodes, %d leaves", n, int(layout.is_leaf.sum()))
 
     ordered_faces = faces[layout.tri_order]
-    lods: list[tuple] = [None] * n  # per node (positions (k,3) f32, faces (m,3) int32, normals (k,3) f32 or None)
+    # per node (positions (k,3) f32, faces (m,3) int32, normals (k,3) f32 or None, attribute rows (k,A) f32 or None)
+    lods: list[tuple] = [None] * n
     hausdorff = np.zeros(n, np.float64)
-    normals_in = mesh.normals
     for node in np.flatnonzero(layout.is_leaf):
         p, f, used = simplify.compact(positions, ordered_faces[layout.tri_begin[node]:layout.tri_end[node]])
-        lods[node] = (p, f, None if normals_in is None else normals_in[used])
+        lods[node] = (p, f, None if normals_in is None else normals_in[used], None if rows is None else rows[used])
     done = int(layout.is_leaf.sum())
     phases.lap("leaves")
     progress(done, n, "simplify")
@@ -114,12 +131,15 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         progress(done, n, "simplify")
 
     _simplify_inner_nodes(layout, lods, hausdorff, positions, ordered_faces, settings,
-                          with_normals=normals_in is not None, cancel=cancel, node_done=node_done)
+                          with_normals=normals_in is not None, row_layout=None if rows is None else row_layout,
+                          cancel=cancel, node_done=node_done)
     if cancel():
         raise BakeCancelled("bake cancelled")
     phases.lap("simplify")
 
-    hlod = _assemble(layout, lods, origin, hausdorff, normals=normals_in is not None)
+    hlod = _assemble(layout, lods, origin, hausdorff, normals=normals_in is not None, row_layout=row_layout)
+    if mesh.has_appearance:
+        hlod = hlod.replace(materials=tuple(mesh.materials))
     phases.lap("assemble")
     seconds = time.perf_counter() - started
     counted_below = np.concatenate([[0], np.cumsum(counted[layout.tri_order])])
@@ -140,6 +160,10 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         "log": bake_log[:_MAX_LOG_LINES],
         "log_lines_dropped": max(0, len(bake_log) - _MAX_LOG_LINES),
     }
+    clash = sorted(set(meta) & set(extra_meta or {}))
+    if clash:
+        raise InputError(f"extra_meta may not replace the bake's own meta entries ({', '.join(clash)})")
+    meta.update(extra_meta or {})
     progress(n, n, "done")
     return hlod.replace(meta=meta)
 
@@ -163,6 +187,18 @@ def _prepare(mesh: TriangleMesh):
     tri = positions[mesh.faces].astype(np.float64)
     centroids = tri.mean(axis=1)
     return origin, positions, mesh.faces, centroids
+
+
+def _pack_rows(mesh: TriangleMesh, positions: np.ndarray, normals):
+    """The bake's vertices as attribute rows (appearance.pack): (layout, positions (r,3) f32,
+    faces (f,3) int64 rows, normals (r,3) f32 or None, rows (r,A) f32). A vertex used by
+    triangles of several materials becomes one row per material, at the vertex's position."""
+    layout, vertex, rows, faces = appearance.pack(positions.shape[0], mesh.faces, material_ids=mesh.material_ids,
+                                                  uvs=mesh.uvs, colors=mesh.colors)
+    rows = rows + np.float32(0.0)  # -0.0 -> 0.0: the weld compares bytes
+    log.info("appearance: %d attribute rows of %d columns for %d vertices", rows.shape[0], layout.width,
+             positions.shape[0])
+    return layout, positions[vertex], faces, None if normals is None else normals[vertex], rows
 
 
 class _PhaseClock:
@@ -255,8 +291,11 @@ class _InlineExecutor:
 
 
 def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarray, positions, ordered_faces,
-                          settings: BakeSettings, *, with_normals: bool, cancel: CancelFn, node_done) -> None:
+                          settings: BakeSettings, *, with_normals: bool,
+                          row_layout: appearance.AttributeLayout | None, cancel: CancelFn, node_done) -> None:
     """Fill lods[node] and hausdorff[node] for every inner node; node_done(node, lod) as each completes.
+    Attribute rows (the 4th entry of each LOD, None without) travel with the child LODs; row_layout:
+    their columns (None without).
 
     Two kinds of task: DECIMATE a node once its children's LODs exist, MEASURE its Hausdorff error
     once its own LOD exists. Measuring needs every original triangle below the node, so the top
@@ -281,7 +320,8 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
     def submit(executor, kind: int, node: int) -> cf.Future:
         if kind == _TASK_DECIMATE:
             kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
-            return executor.submit(simplify.decimate_node, [(lods[k][0], lods[k][1]) for k in kids], dec, with_normals)
+            return executor.submit(simplify.decimate_node, [(lods[k][0], lods[k][1], lods[k][3]) for k in kids], dec,
+                                   with_normals, row_layout)
         return executor.submit(_measure_task, lods[node][0], lods[node][1],
                                int(layout.tri_begin[node]), int(layout.tri_end[node]))
 
@@ -319,7 +359,7 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
                     node_done(node, decimated.pop(node))
                     continue
                 lod = fut.result()
-                lods[node] = (lod.positions, lod.faces, lod.normals)
+                lods[node] = (lod.positions, lod.faces, lod.normals, lod.attributes)
                 decimated[node] = lod
                 push(_TASK_MEASURE, node)
                 parent = int(layout.parent[node])
@@ -350,7 +390,11 @@ def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, error: floa
 
 # --- assemble and bounds ------------------------------------------------------------------------
 
-def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool) -> Hlod:
+def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool,
+              row_layout: appearance.AttributeLayout) -> Hlod:
+    """lods: per node (positions, faces, normals, attribute rows); row_layout: the rows' columns
+    (empty: none). The Hlod's appearance arrays come from the rows; within a node, triangles are sorted
+    by material (stable)."""
     n = layout.node_count
     vertex_count = np.array([l[0].shape[0] for l in lods], np.int64)
     tri_count = np.array([l[1].shape[0] for l in lods], np.int64)
@@ -363,6 +407,12 @@ def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool) -
     positions, indices = concat_indexed((l[0], l[1]) for l in lods)
     positions, indices = positions.astype(np.float32), indices.astype(np.uint32)
     node_normals = np.concatenate([l[2] for l in lods]).astype(np.float32) if normals else None
+    uvs = colors = tri_material = None
+    if not row_layout.empty:
+        uvs, colors, face_material = appearance.unpack(row_layout, np.concatenate([l[3] for l in lods]), indices)
+        if face_material is not None:
+            order = np.lexsort((face_material, np.repeat(np.arange(n), tri_count)))  # node, then material
+            indices, tri_material = indices[order], face_material[order].astype(np.uint16)
 
     world = positions.astype(np.float64) + origin
     lod_box_min = np.minimum.reduceat(world, vertex_offset, axis=0)
@@ -390,4 +440,4 @@ def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool) -
                 cube_side=cube_sides(box_min, box_max, query_box_pad(box_min, box_max)),
                 tri_offset=tri_offset, tri_count=tri_count, vertex_offset=vertex_offset,
                 vertex_count=vertex_count, origin=np.asarray(origin, np.float64), positions=positions,
-                indices=indices, normals=node_normals)
+                indices=indices, normals=node_normals, uvs=uvs, colors=colors, tri_material=tri_material)

@@ -1,9 +1,11 @@
 """One inner node's LOD and model-space error (DESIGN §4.3-4.4), with pymeshlab.
 
-Data form: node geometry as positions (k,3) float32, in the bake's file-relative frame, and faces
-(m,3) int32 local to those positions. pymeshlab only ever sees a node in its own unit frame
-(`NodeFrame`: centred on the node's box, scaled to a box diagonal of 1), so a model baked in
-millimetres gives the LODs of the same model in metres, scaled (see `NodeFrame` for why).
+Data form: node geometry as positions (k,3) float32, in the bake's file-relative frame, faces
+(m,3) int32 local to those positions and, when the scene has appearance, attribute rows (k,A)
+float32 (appearance.pack: [material, u, v, r, g, b, a], the columns the scene has), one per
+vertex. pymeshlab only ever sees a node in its own unit frame (`NodeFrame`: centred on the
+node's box, scaled to a box diagonal of 1), so a model baked in millimetres gives the LODs of the
+same model in metres, scaled (see `NodeFrame` for why).
 
 - The children's LODs are concatenated and welded by exact position. Seams between siblings then
   become interior edges; seams with the rest of the scene stay boundary edges, and boundary
@@ -13,6 +15,20 @@ millimetres gives the LODs of the same model in metres, scaled (see `NodeFrame` 
   makes the exact weld one level up work.
 - Quadric edge collapse (Garland & Heckbert 1997, pymeshlab
   `meshing_decimation_quadric_edge_collapse`) to `target_tris`.
+- With attribute rows (issue 13) the weld is by exact (position, material, UV) bytes, so vertices
+  that share a position but differ in material or UV stay distinct: material borders and UV seams
+  become open boundaries, which boundary preservation keeps where they are, while seams between
+  siblings (same position, same row) still weld. Colours do not split vertices: a welded vertex
+  takes the mean colour of the vertices it merges, so a colour jump (corner-domain colours) becomes
+  a blend across the triangles beside it one level up, instead of a seam no level could simplify.
+  Such nodes decimate with vertices kept in place (no optimal placement): every LOD vertex then
+  sits exactly on an input vertex and takes that vertex's row (`_row_sources`), so UVs stay the
+  input's function of position (no texture sliding) and colours are the (welded) input vertices'
+  colours: with kept positions there is nothing between vertices to interpolate. The costs: kept
+  placement raises node errors (about 1.5x), and every material-border and UV-seam vertex is kept
+  at every level, so nodes rich in seams decimate less (benchmarks/appearance_overhead.py --errors
+  measures both). pymeshlab's texture-aware collapse (`..._with_texture`, on the mesh welded by
+  position) simplifies seams instead, but lets material borders drift and extrapolates UVs past them.
 - MSE = symmetric Hausdorff distance (pymeshlab `get_hausdorff_distance`, the max in both
   directions, from deterministic samples) between the LOD and the original triangles below the node. The bake takes the max
   with the children's MSE so the error is monotone.
@@ -23,7 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .arrays import concat_indexed
+from .appearance import AttributeLayout
+from .arrays import concat_indexed, segment_ranges
 
 
 #: A LOD vertex this far (fraction of the node's diagonal) outside its input's box means the
@@ -104,7 +121,8 @@ class DecimationSettings:
 
 @dataclass(frozen=True, eq=False)
 class NodeLod:
-    """positions (k,3) float32; faces (m,3) int32; normals (k,3) float32 or None;
+    """positions (k,3) float32; faces (m,3) int32; normals (k,3) float32 or None; attributes (k,A)
+    float32 attribute rows or None (a scene without appearance);
     decimated: False when kept as the children's welded union; input_tris: the welded union's
     triangles; kept_in_place: optimal placement left the node's box, so vertices stayed in place;
     zero_area: every triangle had zero area (pymeshlab removes them all), so the LOD is a sample
@@ -117,6 +135,7 @@ class NodeLod:
     input_tris: int
     kept_in_place: bool = False
     zero_area: bool = False
+    attributes: np.ndarray | None = None
 
 
 def weld(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -126,6 +145,30 @@ def weld(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarr
     welded = inverse.reshape(-1)[faces]
     keep = (welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 0] != welded[:, 2])
     return positions[first], welded[keep].astype(np.int32)
+
+
+def weld_rows(positions: np.ndarray, rows: np.ndarray, faces: np.ndarray,
+              key_columns: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`weld` for vertices with attribute rows (k,A) float32: merge vertices whose float32 position
+    AND first `key_columns` row columns (all by default) are bit-identical; the other columns of a
+    merged vertex are the mean of its vertices'. Drops triangles that collapse. Returns
+    (positions, rows (float32), faces int32)."""
+    p = np.ascontiguousarray(positions, dtype=np.float32)
+    r = np.ascontiguousarray(rows, dtype=np.float32)
+    keyed = r.shape[1] if key_columns is None else key_columns
+    both = np.concatenate([p.view(np.uint8).reshape(-1, 12),
+                           np.ascontiguousarray(r[:, :keyed]).view(np.uint8).reshape(p.shape[0], -1)], axis=1)
+    key = np.ascontiguousarray(both).view(np.dtype((np.void, 4 * (3 + keyed)))).ravel()
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    welded_rows = r[first]
+    if keyed < r.shape[1]:
+        members = np.bincount(inverse, minlength=first.shape[0]).astype(np.float64)
+        for column in range(keyed, r.shape[1]):
+            welded_rows[:, column] = np.bincount(inverse, weights=r[:, column], minlength=first.shape[0]) / members
+    welded = inverse[faces]
+    keep = (welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 0] != welded[:, 2])
+    return positions[first], welded_rows, welded[keep].astype(np.int32)
 
 
 def collapsed(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -151,11 +194,16 @@ def compact(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.nd
     return np.asarray(positions[used]), local.reshape(-1, 3).astype(np.int32), used
 
 
-def decimate_node(child_lods: list[tuple[np.ndarray, np.ndarray]], settings: DecimationSettings,
-                  with_normals: bool) -> NodeLod:
-    """child_lods: [(positions f32, faces)] of the children. The node's error is `measure`'s job:
-    it needs the original triangles, the decimation does not, so the two run as separate tasks."""
-    positions, faces = concat_indexed(child_lods)
+def decimate_node(child_lods: list[tuple], settings: DecimationSettings, with_normals: bool,
+                  layout: AttributeLayout | None = None) -> NodeLod:
+    """child_lods: [(positions f32, faces)] or [(positions f32, faces, attribute rows (k,A) f32 or
+    None)] of the children, all with rows or all without; layout: the rows' columns (None: every
+    column is kept exact, as a UV). The node's error is `measure`'s job: it needs the original
+    triangles, the decimation does not, so the two run as separate tasks."""
+    rows = _child_rows(child_lods)
+    if rows is not None:
+        return _decimate_with_rows(child_lods, rows, settings, with_normals, layout)
+    positions, faces = concat_indexed((child[0], child[1]) for child in child_lods)
     positions, faces = weld(positions, faces)
 
     welded_tris = int(faces.shape[0])
@@ -180,8 +228,7 @@ def decimate_node(child_lods: list[tuple[np.ndarray, np.ndarray]], settings: Dec
     if zero_area:
         # Every triangle had zero area, and pymeshlab's clean-up removes such triangles: keep
         # target_tris of the union's, evenly spaced (they draw nothing; the error measures the rest).
-        keep = np.unique(np.linspace(0, welded_tris - 1, settings.target_tris).round().astype(np.int64))
-        kept_p, kept_f, _ = compact(local, faces[keep])
+        kept_p, kept_f, _ = compact(local, faces[_evenly_spaced(welded_tris, settings.target_tris)])
         ms = _mesh_set(kept_p, kept_f)
     lod = ms.current_mesh()
     normals = None
@@ -191,6 +238,98 @@ def decimate_node(child_lods: list[tuple[np.ndarray, np.ndarray]], settings: Dec
     return NodeLod(positions=frame.to_model(lod.vertex_matrix(), local, positions),
                    faces=lod.face_matrix().astype(np.int32), normals=normals, decimated=decimated,
                    input_tris=welded_tris, kept_in_place=kept_in_place, zero_area=zero_area)
+
+
+def _child_rows(child_lods: list[tuple]) -> np.ndarray | None:
+    """The children's attribute rows, concatenated, or None when they have none."""
+    rows = [child[2] if len(child) > 2 else None for child in child_lods]
+    if all(r is None for r in rows):
+        return None
+    if any(r is None for r in rows):
+        raise ValueError("decimate_node: some children have attribute rows and some do not")
+    return np.concatenate(rows)
+
+
+def _evenly_spaced(count: int, wanted: int) -> np.ndarray:
+    """Up to `wanted` distinct indices into range(count), evenly spaced, ascending."""
+    return np.unique(np.linspace(0, count - 1, wanted).round().astype(np.int64))
+
+
+def _decimate_with_rows(child_lods: list[tuple], rows: np.ndarray, settings: DecimationSettings,
+                        with_normals: bool, layout: AttributeLayout | None) -> NodeLod:
+    """decimate_node for children with attribute rows (module docstring): weld by (position,
+    material, UV), colours averaged, collapse with vertices kept in place, and give every LOD
+    vertex the row of the input vertex it sits on. pymeshlab carries each input vertex's id
+    through the collapse as its vertex scalar."""
+    positions, faces = concat_indexed((child[0], child[1]) for child in child_lods)
+    colour = layout.columns().get("color") if layout is not None else None
+    positions, rows, faces = weld_rows(positions, rows, faces, key_columns=None if colour is None else colour.start)
+    welded_tris = int(faces.shape[0])
+    decimated = welded_tris > settings.target_tris
+    frame = NodeFrame.of(positions)
+    local = frame.to_local(positions)
+    ids = np.arange(local.shape[0], dtype=np.float64)  # exact: far fewer than 2**53 vertices
+    if decimated:
+        ms = _decimated(local, faces, settings, optimal_placement=False, vertex_ids=ids)
+    else:
+        ms = _mesh_set(local, faces, vertex_ids=ids)
+    zero_area = ms.current_mesh().face_number() == 0
+    if zero_area:  # as in decimate_node
+        kept_p, kept_f, used = compact(local, faces[_evenly_spaced(welded_tris, settings.target_tris)])
+        ms = _mesh_set(kept_p, kept_f, vertex_ids=ids[used])
+    lod = ms.current_mesh()
+    local_out = lod.vertex_matrix()
+    faces_out = lod.face_matrix().astype(np.int32)
+    source = _row_sources(local_out, lod.vertex_scalar_array().round().astype(np.int64), local, rows)
+    normals = _normals_by_position(local_out, faces_out) if with_normals else None
+    return NodeLod(positions=frame.to_model(local_out, local, positions), faces=faces_out, normals=normals,
+                   decimated=decimated, input_tris=welded_tris, zero_area=zero_area,
+                   attributes=np.ascontiguousarray(rows[source], np.float32))
+
+
+def _row_sources(local_out: np.ndarray, survivor: np.ndarray, local_in: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """(j,) int64: the input vertex whose attribute row each LOD vertex takes.
+
+    local_out (j,3) float64: LOD positions, each bit-identical to some input position (collapse
+    without optimal placement); survivor (j,) int64: the input vertex each LOD vertex was (its
+    pymeshlab vertex scalar); local_in (k,3) float64 and rows (k,A): the welded input.
+    A survivor at its own input position keeps its own row (pymeshlab 2025.7 always keeps the
+    survivor where it was). One moved onto another input vertex's position takes that vertex's
+    row: boundary vertices (every seam and border) never move and after the (position, row) weld
+    interior positions are unique, so that vertex is unique, except where input vertices share a
+    position without being on a boundary (two surfaces touching at a point): then the one whose
+    row is nearest the survivor's (Euclidean, then the lowest id) decides, deterministically. A
+    vertex on no input position (not expected) keeps its survivor's row."""
+    keys_in, keys_out = _row_keys(local_in), _row_keys(local_out)
+    source = survivor.copy()
+    moved = np.flatnonzero(keys_out != keys_in[survivor])
+    if moved.size == 0:
+        return source
+    order = np.argsort(keys_in, kind="stable")
+    sorted_keys = keys_in[order]
+    first = np.searchsorted(sorted_keys, keys_out[moved], side="left")
+    count = np.searchsorted(sorted_keys, keys_out[moved], side="right") - first
+    moved, first, count = moved[count > 0], first[count > 0], count[count > 0]
+    candidate = order[segment_ranges(first, count)]
+    owner = np.repeat(np.arange(moved.size), count)
+    gap = rows[candidate].astype(np.float64) - rows[survivor[moved]][owner]
+    best = np.lexsort((candidate, np.einsum("ij,ij->i", gap, gap), owner))  # by owner, then distance, then id
+    source[moved] = candidate[best[np.cumsum(count) - count]]
+    return source
+
+
+def _normals_by_position(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k,3) float32 unit vertex normals of a LOD split at attribute seams, computed on the LOD
+    welded by position only, so a UV seam or material border shades like the same surface
+    without attributes (and like the bake without attributes)."""
+    _, first, inverse = np.unique(_row_keys(positions), return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    welded = inverse[faces]
+    welded = welded[(welded[:, 0] != welded[:, 1]) & (welded[:, 1] != welded[:, 2]) & (welded[:, 0] != welded[:, 2])]
+    welded = welded.astype(np.int32)
+    ms = _mesh_set(positions[first], welded)
+    ms.compute_normal_per_vertex()
+    return _unit_normals(ms.current_mesh().vertex_normal_matrix(), positions[first], welded)[inverse]
 
 
 def _unit_normals(normals: np.ndarray, positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -218,26 +357,38 @@ def _unit_normals(normals: np.ndarray, positions: np.ndarray, faces: np.ndarray)
     return (normals / length[:, None]).astype(np.float32)
 
 
-def _mesh_set(positions: np.ndarray, faces: np.ndarray):
+def _mesh_set(positions: np.ndarray, faces: np.ndarray, vertex_ids: np.ndarray | None = None):
+    """A pymeshlab MeshSet of one mesh; vertex_ids (k,) float64, when given, as its vertex scalar."""
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=positions.astype(np.float64), face_matrix=faces))
+    if vertex_ids is None:
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=positions.astype(np.float64), face_matrix=faces))
+    else:
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=positions.astype(np.float64), face_matrix=faces,
+                                   v_scalar_array=np.asarray(vertex_ids, np.float64)))
     return ms
 
 
-def _decimated(positions, faces, settings: DecimationSettings, *, optimal_placement: bool):
+def _decimated(positions, faces, settings: DecimationSettings, *, optimal_placement: bool,
+               vertex_ids: np.ndarray | None = None):
     """Quadric edge collapse with boundary preservation, on positions in the node's unit frame.
     planarquadric adds the planar constraints that keep flat regions (ground planes, walls) from
     being extrapolated: without them a flat cell's singular quadric can place a vertex tens of
-    metres away."""
-    ms = _mesh_set(positions, faces)
+    metres away. With vertex_ids (a node with attribute rows) the vertices may share positions
+    (seams), and pymeshlab's autoclean would merge them (it removes duplicate vertices): the rest
+    of its clean-up, null faces and unreferenced vertices, runs alone."""
+    ms = _mesh_set(positions, faces, vertex_ids)
+    seams = vertex_ids is not None
     ms.meshing_decimation_quadric_edge_collapse(
         targetfacenum=max(int(settings.target_tris), MIN_DECIMATION_TRIS),
         qualitythr=float(settings.quality_threshold), preserveboundary=True,
         boundaryweight=float(settings.boundary_weight), preservenormal=bool(settings.preserve_normals),
         preservetopology=False,
-        optimalplacement=optimal_placement, planarquadric=True, autoclean=True)
+        optimalplacement=optimal_placement, planarquadric=True, autoclean=not seams)
+    if seams:
+        ms.meshing_remove_null_faces()
+        ms.meshing_remove_unreferenced_vertices()
     return ms
 
 
