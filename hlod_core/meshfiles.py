@@ -8,6 +8,8 @@ file (and the line, for text) at fault.
 - OBJ is checked here (`check_obj`: vertex numbers, face indices inside their lists, and the layouts
   pymeshlab misreads), vectorised over the bytes: pymeshlab drops faces that index past the
   vertex list, reads `v 1 x 0` as (1, 0, 0), and crashes on a face whose vertex it skipped.
+  An OBJ with a material library is read here too (`read_obj`: triangles, UVs, normals, `usemtl`
+  groups; its MTL is read in scenefiles.py); pymeshlab reads the others.
 """
 from __future__ import annotations
 
@@ -98,6 +100,12 @@ def check_obj(path: Path, data: bytes) -> tuple[int, int]:
     declared, triangles the faces triangulate to); raises InputError naming the file and line.
     Vectorised over the bytes: measured at 0.7 to 0.9 times pymeshlab's own reading time."""
     text = _ObjText.of(data)
+    _check_obj_layout(path, text)
+    return _check_obj_vertices(path, text), _check_obj_faces(path, text)
+
+
+def _check_obj_layout(path: Path, text: _ObjText) -> None:
+    """check_obj's line layout checks: the indented vertex lines and face comments pymeshlab misreads."""
     misread = np.flatnonzero(text.indented & np.isin(text.keyword, (_V, _VT, _VN)))
     if misread.size:
         raise text.fail(path, int(misread[0]), "an indented vertex line, which pymeshlab's OBJ reader skips "
@@ -106,8 +114,129 @@ def check_obj(path: Path, data: bytes) -> tuple[int, int]:
     if commented.size:
         raise text.fail(path, int(commented[0]), "a comment after a face, which pymeshlab's OBJ reader reads as "
                                                  "indices (move it to a line of its own)")
-    vertices = _check_obj_vertices(path, text)
-    return vertices, _check_obj_faces(path, text)
+
+
+@dataclass(frozen=True, eq=False)
+class ObjArrays:
+    """An OBJ file's triangles with what they refer to (`read_obj`): positions (v,3) float64,
+    faces (f,3) int64 rows of positions, uvs (v,2) float32 or None (the file's `vt`, v up as
+    OBJ and Blender have it), normals (v,3) float32 or None (`vn`, where every corner has one),
+    face_group (f,) int32 index into `material_names` (the `usemtl` in force; -1 before the
+    first), mtllibs: the `mtllib` file names as written. A vertex is one distinct (v, vt, vn)
+    corner, so UV seams split vertices."""
+
+    positions: np.ndarray
+    faces: np.ndarray
+    uvs: np.ndarray | None
+    normals: np.ndarray | None
+    face_group: np.ndarray
+    material_names: list[str]
+    mtllibs: list[str]
+    dropped: int
+
+
+_USEMTL = re.compile(rb"(?m)^[ \t]*(usemtl|mtllib)[ \t]+([^\r\n#]*?)[ \t]*\r?$")
+
+
+def obj_has_appearance(data: bytes) -> bool:
+    """Whether an OBJ file names a material library (then `read_obj` reads it, with its texture
+    coordinates; otherwise pymeshlab does, as before: texture coordinates without materials have
+    no texture to map, and are left out)."""
+    return re.search(rb"(?m)^[ \t]*mtllib[ \t]", data) is not None
+
+
+def read_obj(path: Path, data: bytes) -> ObjArrays:
+    """Read an OBJ file's vertices, texture coordinates, normals, faces and `usemtl` groups
+    (validated by `check_obj` first). Polygons are fan-triangulated (exact for convex ones, as
+    exporters write them); a triangle that repeats a vertex is dropped (`dropped` counts them,
+    as pymeshlab drops them). Raises InputError naming the file and line."""
+    text = _ObjText.of(data)
+    _check_obj_layout(path, text)
+    _, face_sizes, corners = _check_obj_faces(path, text, corners=True)
+    v = _line_vectors(path, text, _V, "vertex", 3, 3)
+    vt = _line_vectors(path, text, _VT, "texture coordinate", 1, 2)
+    vn = _line_vectors(path, text, _VN, "normal", 3, 3)
+    first = np.cumsum(face_sizes) - face_sizes  # each face's first corner
+    per_face = face_sizes - 2
+    face = np.repeat(np.arange(face_sizes.size), per_face)
+    step = np.arange(face.size) - np.repeat(np.cumsum(per_face) - per_face, per_face)
+    tri = np.stack([first[face], first[face] + step + 1, first[face] + step + 2], axis=1)
+    tv = corners[tri, 0]
+    keep = (tv[:, 0] != tv[:, 1]) & (tv[:, 1] != tv[:, 2]) & (tv[:, 0] != tv[:, 2])
+    tri, face = tri[keep], face[keep]
+    if tri.size == 0:
+        raise InputError(f"{path}: the mesh has no triangles")
+    used = corners[tri.ravel()]
+    has_uv = vt.shape[0] > 0 and bool((used[:, 1] >= 0).any())
+    has_normal = vn.shape[0] > 0 and bool((used[:, 2] >= 0).all())
+    unique, inverse = _unique_corners(used, uv_lists=vt.shape[0] if has_uv else 0,
+                                      normal_lists=vn.shape[0] if has_normal else 0)
+    uvs = None
+    if has_uv:  # a corner without `vt` gets (0, 0), as merge gives a mesh without UVs
+        uvs = np.where(unique[:, 1:2] >= 0, vt[np.maximum(unique[:, 1], 0)], 0.0).astype(np.float32)
+    normals = vn[unique[:, 2]].astype(np.float32) if has_normal else None
+    names, group_at, libs = [], [], []
+    for m in _USEMTL.finditer(text.data):
+        name = m.group(2).decode("utf-8", "replace")
+        if m.group(1) == b"mtllib":
+            libs.append(name)
+        else:
+            names.append(name)
+            group_at.append(m.start())
+    group_line = text.line_of(np.asarray(group_at, np.int64))
+    group = np.searchsorted(group_line, np.flatnonzero(text.keyword == _F)) - 1  # last usemtl above a face
+    distinct = {n: i for i, n in enumerate(dict.fromkeys(names))}
+    rank = np.array([distinct[n] for n in names] + [-1], np.int32)  # group -1 -> rank[-1] = -1
+    return ObjArrays(positions=v[unique[:, 0]], faces=inverse.reshape(-1, 3).astype(np.int64), uvs=uvs,
+                     normals=normals, face_group=rank[group[face]], material_names=list(distinct), mtllibs=libs,
+                     dropped=int((~keep).sum()))
+
+
+def _unique_corners(used: np.ndarray, *, uv_lists: int, normal_lists: int) -> tuple[np.ndarray, np.ndarray]:
+    """(distinct (u,3) [v, vt, vn] rows, (c,) row of each corner) of corner indices (-1: none),
+    ignoring vt (vn) when uv_lists (normal_lists) is 0. One int64 key per corner (sorting rows
+    with np.unique(axis=0) takes several times longer)."""
+    t_span, n_span = uv_lists + 1, normal_lists + 1
+    t = used[:, 1] + 1 if uv_lists else np.zeros(used.shape[0], np.int64)
+    n = used[:, 2] + 1 if normal_lists else np.zeros(used.shape[0], np.int64)
+    if (int(used[:, 0].max()) + 1) * t_span * n_span >= 2 ** 62:  # no room for one key: sort rows
+        unique, inverse = np.unique(np.stack([used[:, 0], t, n], axis=1), axis=0, return_inverse=True)
+    else:
+        keys, inverse = np.unique((used[:, 0] * t_span + t) * n_span + n, return_inverse=True)
+        unique = np.stack([keys // (t_span * n_span), keys // n_span % t_span, keys % n_span], axis=1)
+    return unique - np.array([0, 1, 1]), inverse.reshape(-1)
+
+
+def _line_vectors(path: Path, text: _ObjText, code: int, noun: str, least: int, width: int) -> np.ndarray:
+    """(lines, width) float64: the first `width` numbers of every line of keyword `code` (a line
+    needs `least`; missing ones are 0). InputError naming the line of a token that is no number."""
+    lines = text.keyword == code
+    if not lines.any():
+        return np.zeros((0, width))
+    body = (text.body == code) & ~text.blank
+    token = _run_starts(body)
+    count = _per_line(token, text.line_start)[lines]
+    short = np.flatnonzero(lines)[count < least]
+    if short.size:
+        raise text.fail(path, int(short[0]), "a vertex needs three coordinates" if code == _V
+                        else f"a {noun} needs {least} or more numbers")
+    values = _body_numbers(body, text, lines, np.float64, int(token.sum()))
+    if values is None or not np.all(np.isfinite(values)):
+        for pos in np.flatnonzero(token):
+            word = _TOKEN.match(text.data, pos).group()
+            try:
+                ok = np.isfinite(float(word))
+            except ValueError:
+                ok = False
+            if not ok:
+                raise text.fail(path, int(text.line_of(pos)),
+                                f"'{word.decode('utf-8', 'replace')}' is not a finite number")
+    start = np.cumsum(count) - count
+    out = np.zeros((count.size, width))
+    for k in range(width):
+        has = count > k
+        out[has, k] = values[start[has] + k]
+    return out
 
 
 def _has_byte(text: _ObjText, byte: int) -> np.ndarray:
@@ -140,9 +269,10 @@ def _check_obj_vertices(path: Path, text: _ObjText) -> int:
     return vertices
 
 
-def _check_obj_faces(path: Path, text: _ObjText) -> int:
+def _check_obj_faces(path: Path, text: _ObjText, *, corners: bool = False):
     """Every `f` line: three or more corners of integer indices inside their lists. Returns the
-    number of triangles the faces triangulate to."""
+    number of triangles the faces triangulate to; with `corners`, also (faces,) corner counts and
+    (c,3) int64 0-based [vertex, texture coordinate, normal] indices per corner (-1: none)."""
     buf, is_f = text.buf, text.keyword == _F
     body = (text.body == _F) & ~text.blank
     corner = _run_starts(body)
@@ -175,6 +305,8 @@ def _check_obj_faces(path: Path, text: _ObjText) -> int:
     values = _body_numbers(number, text, is_f, np.int64, starts.size)
     lists = ((_V, 0, "vertex", "vertices"), (_VT, 1, "texture coordinate", "texture coordinates"),
              (_VN, 2, "normal", "normals"))
+    table = np.full((int(corner.sum()) if corners else 0, 3), -1, np.int64)
+    corner_of = np.searchsorted(np.flatnonzero(corner), starts, side="right") - 1 if corners else None
     for code, what, noun, nouns in lists:
         listed = text.keyword == code
         count = int(listed.sum())
@@ -183,6 +315,7 @@ def _check_obj_faces(path: Path, text: _ObjText) -> int:
         index, at = values[role == what], starts[role == what]
         inside = (index >= 1) & (index <= count)
         relative = np.flatnonzero(index < 0)
+        above = None
         if relative.size:  # -k: the k-th entry above the face's line
             above = (np.cumsum(listed) - listed)[text.line_of(at[relative])]
             inside[relative] = -index[relative] <= above
@@ -191,7 +324,13 @@ def _check_obj_faces(path: Path, text: _ObjText) -> int:
             known = f"{count} {nouns}" if index[k] >= 0 else f"fewer {nouns} above this line"
             raise text.fail(path, int(text.line_of(at[k])), f"a face refers to {noun} {index[k]}, but the file has "
                                                             f"{known}")
-    return int((per_face[is_f] - 2).sum())
+        if corners:
+            zero_based = index - 1
+            if above is not None:
+                zero_based[relative] = above + index[relative]
+            table[corner_of[role == what], what] = zero_based
+    triangles = int((per_face[is_f] - 2).sum())
+    return (triangles, per_face[is_f], table) if corners else triangles
 
 
 def _blank(byte: np.ndarray) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""Bake input: triangle meshes as numpy arrays, read from OBJ/PLY/STL/GLB files or scene specs.
+"""Bake input: triangle meshes as numpy arrays, read from OBJ/PLY/STL/glTF/GLB files or scene specs.
 
 Data form: `TriangleMesh` = positions (v,3) float64 model units, faces (f,3) int64 rows of
 positions, optional normals (v,3) float32, and optional appearance (appearance.py): uvs (v,2)
@@ -18,6 +18,11 @@ pymeshlab's STL reader loops without end on some truncated files; an OBJ file's 
 lines are checked here (`check_obj`: numbers, indices inside their lists, and the layouts
 pymeshlab misreads), since its reader drops faces that index past the vertex list, reads
 `v 1 x 0` as (1, 0, 0), and crashes on a face whose vertex it skipped.
+
+Appearance from files (scenefiles.py says how): a glTF/GLB file is read as a scene (every node
+of its default scene placed with its world transform, every primitive, materials, TEXCOORD_0,
+COLOR_0), an OBJ with a material library with its UVs and MTL materials, a PLY with its vertex
+colours. Other files (an OBJ with UVs but no materials too) carry no appearance, and read as before.
 """
 from __future__ import annotations
 
@@ -29,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import jsonutil, meshfiles
+from . import jsonutil, meshfiles, scenefiles
 from .appearance import DEFAULT_BASE_COLOR, Material, check_material_ids, check_vertex_attributes
 from .arrays import concat_indexed
 from .errors import InputError
@@ -37,6 +42,7 @@ from .errors import InputError
 log = logging.getLogger(__name__)
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
+GLTF_SUFFIXES = (".glb", ".gltf")
 
 #: A scene transform whose linear part has |det| <= SINGULAR_TRANSFORM_RATIO * (product of its
 #: row lengths) flattens space (Hadamard: the ratio is 1 for orthogonal rows, 0 for singular ones);
@@ -106,9 +112,13 @@ def from_arrays(positions, faces, normals=None, *, name: str = "mesh", uvs=None,
                         materials=materials)
 
 
-def load_mesh(path: str | os.PathLike) -> TriangleMesh:
-    """Read a mesh file: STL here, the rest through pymeshlab (polygons are triangulated by the
-    reader), OBJ text validated first. Raises InputError naming the file (and line) at fault."""
+def load_mesh(path: str | os.PathLike, *, texture_dir: str | os.PathLike | None = None) -> TriangleMesh:
+    """Read a mesh file: STL here; glTF/GLB as a scene with its materials, UVs and colours, and an
+    OBJ with a material library with its materials and UVs (scenefiles.py); the rest
+    through pymeshlab (polygons are triangulated by the reader, OBJ text validated first; PLY
+    vertex colours kept). Images embedded in a glTF file are written into `texture_dir` (made
+    when needed; None: such textures are left out, with a warning). Raises InputError naming the
+    file (and line) at fault."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
@@ -119,7 +129,12 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
     if suffix == ".stl":
         positions, faces = meshfiles.read_stl(path)
         return from_arrays(positions, faces, name=str(path))
-    declared = meshfiles.check_obj(path, path.read_bytes()) if suffix == ".obj" else None
+    if suffix in GLTF_SUFFIXES:
+        return _load_gltf(path, texture_dir)
+    data = path.read_bytes() if suffix == ".obj" else None
+    if data is not None and meshfiles.obj_has_appearance(data):
+        return _load_obj(path, data)
+    declared = meshfiles.check_obj(path, data) if data is not None else None
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
@@ -132,10 +147,58 @@ def load_mesh(path: str | os.PathLike) -> TriangleMesh:
         vertices, tris = declared
         if m.vertex_number() < vertices:  # check_obj read them all: pymeshlab should have too
             raise InputError(f"{path}: {vertices - m.vertex_number()} of {vertices} vertices could not be read")
-        if m.face_number() < tris:
-            log.warning("%s: the reader dropped %d of %d triangles (degenerate faces, such as ones that "
-                        "repeat a vertex)", path, tris - m.face_number(), tris)
-    return from_arrays(m.vertex_matrix(), m.face_matrix(), name=str(path))
+        _warn_dropped(path, tris - m.face_number(), tris)
+    colors = None
+    if suffix == ".ply" and m.has_vertex_color():
+        colors = scenefiles.srgb_to_linear(m.vertex_color_matrix())
+    return from_arrays(m.vertex_matrix(), m.face_matrix(), name=str(path), colors=colors)
+
+
+def _warn_dropped(path: Path, dropped: int, tris: int) -> None:
+    if dropped > 0:
+        log.warning("%s: the reader dropped %d of %d triangles (degenerate faces, such as ones that "
+                    "repeat a vertex)", path, dropped, tris)
+
+
+def _load_gltf(path: Path, texture_dir) -> TriangleMesh:
+    """A glTF scene: each primitive read once, placed once per node that uses it (transform_mesh:
+    a mirroring node flips the winding), all merged into one mesh named after the file."""
+    scene = scenefiles.read_gltf(path, texture_dir=None if texture_dir is None else Path(texture_dir))
+    base: dict[int, TriangleMesh] = {}
+    for i, prim in enumerate(scene.primitives):
+        if prim.faces.shape[0] == 0:
+            continue
+        material = () if prim.material is None else (scene.materials[prim.material],)
+        base[i] = from_arrays(prim.positions, prim.faces, prim.normals, name=f"{path}: primitive {i}", uvs=prim.uvs,
+                              colors=prim.colors, materials=material,
+                              material_ids=np.zeros(prim.faces.shape[0], np.int32) if material else None)
+    placed = []
+    for index, world, node in scene.placements:
+        if index not in base:
+            continue
+        with np.errstate(over="ignore", invalid="ignore"):
+            mesh = transform_mesh(base[index], world, name=f"{path}: node {node}")
+        if not np.all(np.isfinite(mesh.positions[mesh.faces])):
+            raise InputError(f"{path}: node {node}'s transform moves its mesh out of the floating-point range")
+        placed.append(mesh)
+    if not placed:
+        raise InputError(f"{path}: the mesh has no triangles")
+    return dataclasses.replace(merge(placed, name=str(path)), name=str(path))
+
+
+def _load_obj(path: Path, data: bytes) -> TriangleMesh:
+    """An OBJ with a material library: meshfiles.read_obj, and its MTL."""
+    obj = meshfiles.read_obj(path, data)
+    _warn_dropped(path, obj.dropped, obj.dropped + obj.faces.shape[0])
+    materials, ids = (), None
+    if obj.material_names:
+        materials = scenefiles.obj_materials(path, obj.mtllibs, obj.material_names)
+        ids = obj.face_group
+        if (ids < 0).any():  # faces above the first usemtl
+            ids = np.where(ids < 0, len(materials), ids)
+            materials = materials + (Material("default", DEFAULT_BASE_COLOR),)
+    return from_arrays(obj.positions, obj.faces, obj.normals, name=str(path), uvs=obj.uvs, material_ids=ids,
+                       materials=materials)
 
 
 def _one_line(message: str) -> str:
@@ -193,8 +256,9 @@ def merge(meshes: list[TriangleMesh], *, name: str = "scene") -> TriangleMesh:
                         material_ids=material_ids, materials=materials)
 
 
-def load_scene_spec(path: str | os.PathLike) -> list[TriangleMesh]:
-    """Read a JSON scene spec; one TriangleMesh per placed instance. Each model file is read once."""
+def load_scene_spec(path: str | os.PathLike, *, texture_dir: str | os.PathLike | None = None) -> list[TriangleMesh]:
+    """Read a JSON scene spec; one TriangleMesh per placed instance. Each model file is read once
+    (texture_dir: see load_mesh)."""
     path = Path(path)
     spec = jsonutil.read(path, what="scene spec")
     models = spec.get("models") if isinstance(spec, dict) else None
@@ -211,7 +275,7 @@ def load_scene_spec(path: str | os.PathLike) -> list[TriangleMesh]:
         if model_path.suffix.lower() == ".json":
             raise InputError(f"{path}: models[{i}] refers to another scene spec ({model_path}); nesting is not supported")
         if model_path not in cache:
-            cache[model_path] = load_mesh(model_path)
+            cache[model_path] = load_mesh(model_path, texture_dir=texture_dir)
         transforms = model.get("transforms", [np.eye(4).ravel().tolist()])
         if not isinstance(transforms, list) or not transforms:
             raise InputError(f"{path}: models[{i}].transforms must be a non-empty list of 16-number lists")
@@ -251,13 +315,14 @@ def _parse_transform(spec: Path, i: int, j: int, t) -> np.ndarray:
     return m
 
 
-def load_inputs(paths: list[str | os.PathLike]) -> TriangleMesh:
-    """Read every INPUT (mesh file or scene spec) and merge them into one scene."""
+def load_inputs(paths: list[str | os.PathLike], *, texture_dir: str | os.PathLike | None = None) -> TriangleMesh:
+    """Read every INPUT (mesh file or scene spec) and merge them into one scene (texture_dir: the
+    folder for images embedded in glTF files, see load_mesh)."""
     meshes: list[TriangleMesh] = []
     for p in paths:
         if Path(p).suffix.lower() == ".json":
-            meshes.extend(load_scene_spec(p))
+            meshes.extend(load_scene_spec(p, texture_dir=texture_dir))
         else:
-            meshes.append(load_mesh(p))
+            meshes.append(load_mesh(p, texture_dir=texture_dir))
     log.info("loaded %d meshes, %d triangles", len(meshes), sum(m.tri_count for m in meshes))
     return merge(meshes, name=", ".join(str(p) for p in paths))

@@ -3,7 +3,14 @@ the extension checks run in (BLENDERS: version "X.Y" -> that environment's Pytho
 from __future__ import annotations
 
 import functools
+import hashlib
+import json
+import os
 import re
+import shutil
+import subprocess
+import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT.parent / "shared" / "models"
 SCENES = ROOT / "tests" / "scenes"
 BLENDER_VENVS = ROOT / ".venv-blender"
+CACHE = ROOT / ".cache"
 
 
 def _blenders() -> dict[str, Path]:
@@ -85,3 +93,48 @@ def street_path(frames: int = 30, *, static: bool = False):
         sway = 0.0 if static else 8.0 * np.sin(i / 5.0)
         out.append(([10.0, y, 1.7], [10.0 + sway, y + 30.0, 4.0], [0.0, 0.0, 1.0]))
     return CameraPath(frames=np.array(out, float), near=0.05, far=400.0, fovy_deg=60.0)
+
+
+@functools.lru_cache(maxsize=None)
+def textured_scene(scale: str = "small") -> dict:
+    """The textured test scene of issue 13 (tests/scenes/textured_scene.py, run in the bpy module):
+    generated once into .cache/textured_scene-<scale>/ and again when the generator changes (a hash
+    stamp). Written to a temporary folder and renamed, so a concurrent test process never sees a
+    half-written folder. Returns the paths: dir, blend, glb, obj, mtl, gltf (separate/textured.gltf,
+    external buffer and images), json, textures (the folder), and facts (scene.json read:
+    triangles, materials, ...)."""
+    generator = SCENES / "textured_scene.py"
+    stamp = hashlib.sha256(generator.read_bytes() + scale.encode()).hexdigest()
+    folder = CACHE / f"textured_scene-{scale}"
+    if not _stamped(folder, stamp):
+        CACHE.mkdir(exist_ok=True)
+        scratch = Path(tempfile.mkdtemp(prefix=f".textured_scene-{scale}-", dir=CACHE))
+        try:
+            done = subprocess.run([sys.executable, str(generator), str(scratch), "--scale", scale],
+                                  capture_output=True, text=True, timeout=300)
+            assert done.returncode == 0, f"{generator.name} failed:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
+            (scratch / "stamp.txt").write_text(stamp)
+            if folder.exists():  # stale: move it aside first (rename is atomic, rmtree is not)
+                stale = Path(tempfile.mkdtemp(prefix=".stale-", dir=CACHE))
+                try:
+                    os.rename(folder, stale / "old")
+                except OSError:
+                    pass  # another process moved it
+                shutil.rmtree(stale, ignore_errors=True)
+            try:
+                os.rename(scratch, folder)
+            except OSError:  # another process put its (equal) folder there first
+                assert _stamped(folder, stamp), f"{folder}: cannot replace it"
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
+    facts = json.loads((folder / "scene.json").read_text())
+    return {"dir": folder, "blend": folder / facts["blend"], "glb": folder / facts["glb"], "obj": folder / facts["obj"],
+            "mtl": folder / facts["mtl"], "gltf": folder / facts["gltf"], "json": folder / "scene.json",
+            "textures": folder / "textures", "facts": facts}
+
+
+def _stamped(folder: Path, stamp: str) -> bool:
+    try:
+        return (folder / "stamp.txt").read_text() == stamp
+    except OSError:
+        return False

@@ -113,7 +113,8 @@ def test_no_import_cycles(graph):
 COMMAND_LINE_ONLY = {"trimesh", "PIL", "matplotlib"}
 #: Modules the extension reaches that may touch a command-line-only library, each behind a guard
 #: that works without it (and the test suite runs that path with the library blocked).
-GUARDED = {"hlod_core.report_figures": {"matplotlib"}, "hlod_core.textures": {"PIL"}}
+GUARDED = {"hlod_core.report_figures": {"matplotlib"}, "hlod_core.textures": {"PIL"},
+           "hlod_core.scenefiles": {"trimesh"}}
 
 
 def test_the_extension_reaches_no_command_line_only_library(graph):
