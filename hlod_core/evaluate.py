@@ -23,7 +23,9 @@ All variants run in one process on one renderer over the same path, interleaved 
 (each keeps its own traversal state; the order rotates every frame and runs backwards on odd
 repeats), so a drift in the machine's speed hits them alike and timings compare as ratios within
 the run. Per frame, a counter's value is the median over repeats; a method's figure is the mean
-over frames of that. Images for PSNR come from the first repeat, read back outside the timed frame.
+over frames of that. Images for PSNR come from the first repeat, read back outside the timed frame,
+drawn with the HLOD's appearance where it has one (base-colour textures: textures.load_images),
+so the Cb/Cr columns compare coloured images.
 """
 from __future__ import annotations
 
@@ -50,6 +52,7 @@ from .imagemetrics import psnr, rmse_y
 from .renderer import Renderer
 from .report_text import markdown
 from .showcase import modulation_frames
+from .textures import load_images
 from .traversal import ALPHA_MODES, COUNTERS, RuntimeSettings, make
 
 log = logging.getLogger(__name__)
@@ -129,7 +132,7 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     per_frame = {v.key: np.zeros((repeat, frames, len(COUNTERS))) for v in runs}
     images: dict[str, dict[int, np.ndarray]] = {v.key: {} for v in runs}
     started = time.perf_counter()
-    renderer = Renderer.create_standalone(hlod, size)
+    renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod))  # coloured images: Cb/Cr
     try:
         for rep in range(repeat):
             # Interleaved per frame, each method keeping its own traversal state: a drift in the

@@ -16,6 +16,19 @@ colour and depth writes off and back faces culled; `q` with the depth test on, `
 Colours are decided here: a node is drawn in DEFAULT_COLOUR, or with `overlay` on, in the
 modulation ramp's colour (overlay.modulation_colour) of the ratio P the traversal passes,
 looked up in a table of the ramp precomputed at OVERLAY_RAMP_STEPS + 1 values of P.
+
+Appearance (issue 13), only for an HLOD with vertex colours or a material table and only with the
+overlay off: a second program draws each node as its parts (`Hlod.draw_parts`: one ranged draw per
+(node, material)) in colour = material base colour x vertex colour x base-colour texture, lit by
+the same flat term. Extra vertex buffers beside the positions: UVs (only when some material has an
+image) and colours (when the HLOD has them); no material table counts as glTF's default material
+(base colour 1). Base and vertex colours are linear; images (`images`: material index -> (h, w, 4)
+uint8 RGBA, top row first, sRGB-encoded) become sRGB8_ALPHA8 textures, so samples are linear, one
+texture per distinct array object, rows uploaded bottom row first (UV origin bottom-left), mipmapped,
+repeat wrap, trilinear. The result is written sRGB-encoded: by the shader, unless the target
+framebuffer encodes itself (GL_FRAMEBUFFER_SRGB on and an sRGB colour attachment, as Blender's
+viewport has). The untextured path (DEFAULT_COLOUR, one draw per node) and the overlay are
+unchanged: their output is written as it always was.
 """
 from __future__ import annotations
 
@@ -25,6 +38,7 @@ import logging
 
 import numpy as np
 
+from .errors import InputError
 from .gl_functions import GL, GLFunctions
 from .hierarchy import Hlod, query_box_pad
 from .overlay import OVERLAY_RAMP_STEPS, overlay_ramp
@@ -54,6 +68,61 @@ void main() {
     f_colour = vec4(u_colour * (0.25 + 0.75 * abs(n.z)), 1.0);
 }
 """
+# The appearance program; HAS_UV / HAS_COLOR are defined when the attribute is uploaded.
+_PARTS_VS = """
+in vec3 in_pos;
+uniform mat4 u_mvp;
+uniform mat4 u_mv;
+out vec3 v_view;
+#ifdef HAS_UV
+in vec2 in_uv;
+out vec2 v_uv;
+#endif
+#ifdef HAS_COLOR
+in vec4 in_color;
+out vec4 v_color;
+#endif
+void main() {
+    v_view = (u_mv * vec4(in_pos, 1.0)).xyz;
+#ifdef HAS_UV
+    v_uv = in_uv;
+#endif
+#ifdef HAS_COLOR
+    v_color = in_color;
+#endif
+    gl_Position = u_mvp * vec4(in_pos, 1.0);
+}
+"""
+_PARTS_FS = """
+in vec3 v_view;
+#ifdef HAS_UV
+in vec2 v_uv;
+uniform sampler2D u_texture;  // sRGB8_ALPHA8: samples are linear
+uniform bool u_textured;
+#endif
+#ifdef HAS_COLOR
+in vec4 v_color;
+#endif
+uniform vec4 u_base_color;    // linear RGBA
+uniform bool u_encode_srgb;   // false when the framebuffer encodes itself
+out vec4 f_colour;
+vec3 srgb_from_linear(vec3 c) {  // IEC 61966-2-1
+    c = clamp(c, 0.0, 1.0);
+    return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
+}
+void main() {
+    vec3 n = normalize(cross(dFdx(v_view), dFdy(v_view)));  // flat shading, as _NODE_FS
+    vec4 colour = u_base_color;
+#ifdef HAS_COLOR
+    colour *= v_color;
+#endif
+#ifdef HAS_UV
+    if (u_textured) colour *= texture(u_texture, v_uv);
+#endif
+    vec3 lit = colour.rgb * (0.25 + 0.75 * abs(n.z));
+    f_colour = vec4(u_encode_srgb ? srgb_from_linear(lit) : lit, 1.0);
+}
+"""
 _BOX_VS = """
 #version 330
 in vec3 in_unit;
@@ -73,15 +142,220 @@ _CUBE_TRIS = np.array([[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0
                        [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5]], np.int32)
 
 DEFAULT_COLOUR = (0.82, 0.80, 0.76)  # linear RGB of a node without the overlay
+#: Base colour of parts without a material table: glTF's default material, so vertex colours show as they are.
+NO_MATERIAL_BASE_COLOR = (1.0, 1.0, 1.0, 1.0)
+#: The texture unit the appearance program samples; its previous binding is restored after each frame.
+TEXTURE_UNIT = 0
+
+
+class _TextureGL:
+    """The GL enums and entry points of textures and framebuffer colour encoding that gl_functions
+    does not have yet, resolved through the same loader (candidates for gl_functions.GL/GLFunctions)."""
+
+    NONE = 0x0000
+    FRONT_LEFT = 0x0400
+    BACK_LEFT = 0x0402
+    FRONT = 0x0404
+    BACK = 0x0405
+    TEXTURE_2D = 0x0DE1
+    TEXTURE_BINDING_2D = 0x8069
+    TEXTURE0 = 0x84C0
+    DRAW_BUFFER0 = 0x8825
+    SAMPLER_BINDING = 0x8919
+    SRGB = 0x8C40
+    SRGB8_ALPHA8 = 0x8C43
+    FRAMEBUFFER_ATTACHMENT_COLOR_ENCODING = 0x8210
+    FRAMEBUFFER_ATTACHMENT_OBJECT_TYPE = 0x8CD0
+    FRAMEBUFFER_SRGB = 0x8DB9
+
+    def __init__(self, ctx):
+        loader = ctx.mglo._context  # as GLFunctions
+        load = getattr(loader, "load", None) or loader.load_opengl_function
+        u32, i32p = ctypes.c_uint32, ctypes.POINTER(ctypes.c_int32)
+
+        def fn(name, *argtypes):
+            addr = load(name)
+            if not addr:
+                raise RuntimeError(f"GL function {name} is not available in this context")
+            return ctypes.CFUNCTYPE(None, *argtypes)(addr)
+
+        self.bind_texture = fn("glBindTexture", u32, u32)
+        self.bind_sampler = fn("glBindSampler", u32, u32)
+        self.get_framebuffer_attachment_parameteriv = fn("glGetFramebufferAttachmentParameteriv", u32, u32, u32, i32p)
+
+
+class _Parts:
+    """The appearance program (module docstring), its extra vertex buffers and textures, and every
+    node's parts as Python lists: node i draws parts part_first[i] .. part_end[i] - 1; part j is
+    index_count[j] indices from index_first[j] in material[j]. Per material m: base[m] (the
+    base-colour uniform's bytes) and texture[m] (moderngl.Texture or None); row -1 (the last) is
+    the no-material entry when the HLOD has no material table. GL objects go to `keep` (the
+    renderer releases them)."""
+
+    def __init__(self, ctx, hlod: Hlod, *, vbo, ibo, gl: GLFunctions, images: dict | None, keep):
+        self.gl = gl
+        self.tgl = _TextureGL(ctx)
+        materials = hlod.materials
+        textures = self._textures(ctx, hlod, images or {}, keep)
+        self.has_uv = any(t is not None for t in textures)
+        has_color = hlod.colors is not None
+        defines = "#version 330\n" + "#define HAS_UV\n" * self.has_uv + "#define HAS_COLOR\n" * has_color
+        self.program = keep(ctx.program(vertex_shader=defines + _PARTS_VS, fragment_shader=defines + _PARTS_FS))
+        content = [(vbo, "3f", "in_pos")]
+        for present, values, layout, name in ((self.has_uv, hlod.uvs, "2f", "in_uv"),
+                                              (has_color, hlod.colors, "4f", "in_color")):
+            if present:
+                content.append((keep(ctx.buffer(np.ascontiguousarray(values, np.float32).tobytes())), layout, name))
+        self.vao = keep(ctx.vertex_array(self.program, content, index_buffer=ibo, index_element_size=4))
+        parts = hlod.draw_parts()
+        self.part_first = parts.first.tolist()
+        self.part_end = (parts.first + parts.count).tolist()
+        self.index_first = (parts.tri_offset * 3).tolist()
+        self.index_count = (parts.tri_count * 3).tolist()
+        self.material = parts.material.tolist()
+        bases = [m.base_color for m in materials] or [NO_MATERIAL_BASE_COLOR]
+        self.base = [np.asarray(b, np.float32).tobytes() for b in bases]
+        self.texture = textures or [None]
+        self.u_base = self.program["u_base_color"]
+        self.u_encode = self.program["u_encode_srgb"]
+        self.u_textured = self.program["u_textured"] if self.has_uv else None
+        if self.has_uv:
+            self.program["u_texture"].value = TEXTURE_UNIT
+        self.host_textures = None  # (active unit, texture, sampler) saved at the frame's first bind
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the per-frame bindings (start of a frame)."""
+        self.current_material = None
+        self.textured = None
+        self.bound = None
+
+    def _textures(self, ctx, hlod: Hlod, images: dict, keep) -> list:
+        """Per material row: its moderngl.Texture (one per distinct image array) or None."""
+        n = len(hlod.materials)
+        out = [None] * n
+        bad = [k for k in images if not isinstance(k, (int, np.integer)) or not 0 <= k < n]
+        if bad:
+            raise InputError(f"images: key {bad[0]!r} is not a material row of this HLOD (it has {n} materials)")
+        given = {int(k): v for k, v in images.items() if v is not None}
+        if not given:
+            return out
+        if hlod.uvs is None:
+            log.warning("%d material images given but the HLOD has no UVs: drawn in base colours", len(given))
+            return out
+        max_side = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
+        made = {}
+        with self._default_unit_kept(ctx):
+            for index, image in given.items():
+                name = hlod.materials[index].name
+                if not (isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.ndim == 3
+                        and image.shape[2] == 4 and image.shape[0] > 0 and image.shape[1] > 0):
+                    got = f"{image.dtype}{list(image.shape)}" if isinstance(image, np.ndarray) else type(image).__name__
+                    raise InputError(f"image of material {index} ({name!r}): expected (h, w, 4) uint8 RGBA, got {got}")
+                if max(image.shape[:2]) > max_side:
+                    log.warning("image of material %d (%r) is %dx%d, larger than this GL's %d: drawn in its base "
+                                "colour", index, name, image.shape[1], image.shape[0], max_side)
+                    continue
+                if id(image) not in made:
+                    made[id(image)] = self._texture(ctx, image, keep)
+                out[index] = made[id(image)]
+        return out
+
+    def _texture(self, ctx, image: np.ndarray, keep):
+        """(h, w, 4) uint8 sRGB RGBA, top row first -> an sRGB8_ALPHA8 texture, bottom row first."""
+        height, width = image.shape[:2]
+        texture = keep(ctx.texture((width, height), 4, np.ascontiguousarray(image[::-1]),
+                                   internal_format=self.tgl.SRGB8_ALPHA8))
+        texture.repeat_x = texture.repeat_y = True
+        texture.build_mipmaps()
+        texture.filter = (ctx.LINEAR_MIPMAP_LINEAR, ctx.LINEAR)
+        return texture
+
+    @contextlib.contextmanager
+    def _default_unit_kept(self, ctx):
+        """moderngl binds textures it makes or changes on ctx.default_texture_unit: put back the
+        host's binding there and its active unit (Blender caches both)."""
+        saved = self._save_unit(ctx.default_texture_unit)
+        try:
+            yield
+        finally:
+            self._restore_unit(ctx.default_texture_unit, saved)
+
+    def _save_unit(self, unit: int) -> tuple[int, int, int]:
+        gl, value = self.gl, ctypes.c_int32(0)
+        gl.get_integerv(GL.ACTIVE_TEXTURE, ctypes.byref(value))
+        active = value.value
+        gl.active_texture(self.tgl.TEXTURE0 + unit)
+        gl.get_integerv(self.tgl.TEXTURE_BINDING_2D, ctypes.byref(value))
+        texture = value.value
+        gl.get_integerv(self.tgl.SAMPLER_BINDING, ctypes.byref(value))
+        return active, texture, value.value
+
+    def _restore_unit(self, unit: int, saved: tuple[int, int, int]) -> None:
+        active, texture, sampler = saved
+        self.gl.active_texture(self.tgl.TEXTURE0 + unit)
+        self.tgl.bind_texture(self.tgl.TEXTURE_2D, texture)
+        self.tgl.bind_sampler(unit, sampler)
+        self.gl.active_texture(active)
+
+    def begin_frame(self, mvp: bytes, mv: bytes, *, own_framebuffer: bool) -> None:
+        self.program["u_mvp"].write(mvp)
+        self.program["u_mv"].write(mv)
+        self.u_encode.value = own_framebuffer or not self._target_encodes_srgb()
+        self.reset()
+
+    def end_frame(self) -> None:
+        """Give the texture unit back to the host."""
+        if self.host_textures is not None:
+            self._restore_unit(TEXTURE_UNIT, self.host_textures)
+            self.host_textures = None
+
+    def _target_encodes_srgb(self) -> bool:
+        """Does the bound draw framebuffer convert linear output to sRGB itself (GL_FRAMEBUFFER_SRGB
+        on and an sRGB first draw buffer)?"""
+        gl, tgl, value = self.gl, self.tgl, ctypes.c_int32(0)
+        if not gl.is_enabled(tgl.FRAMEBUFFER_SRGB):
+            return False
+        gl.get_integerv(tgl.DRAW_BUFFER0, ctypes.byref(value))
+        attachment = {tgl.BACK: tgl.BACK_LEFT, tgl.FRONT: tgl.FRONT_LEFT}.get(value.value, value.value)
+        if attachment == tgl.NONE:
+            return False
+        tgl.get_framebuffer_attachment_parameteriv(GL.DRAW_FRAMEBUFFER, attachment,
+                                                   tgl.FRAMEBUFFER_ATTACHMENT_OBJECT_TYPE, ctypes.byref(value))
+        if value.value == tgl.NONE:
+            return False
+        tgl.get_framebuffer_attachment_parameteriv(GL.DRAW_FRAMEBUFFER, attachment,
+                                                   tgl.FRAMEBUFFER_ATTACHMENT_COLOR_ENCODING, ctypes.byref(value))
+        return value.value == tgl.SRGB
+
+    def use_material(self, material: int) -> None:
+        self.u_base.write(self.base[material])
+        if self.has_uv:
+            texture = self.texture[material]
+            if (texture is not None) is not self.textured:
+                self.textured = texture is not None
+                self.u_textured.value = self.textured
+            if texture is not None and texture is not self.bound:
+                if self.host_textures is None:
+                    self.host_textures = self._save_unit(TEXTURE_UNIT)
+                    self.tgl.bind_sampler(TEXTURE_UNIT, 0)  # the texture's own filter and wrap
+                texture.use(TEXTURE_UNIT)
+                self.bound = texture
+        self.current_material = material
+
+
 class Renderer:
     """Draws HLOD nodes and issues their occlusion queries into the current or an own framebuffer.
 
     `overlay`: draw nodes in the modulation colour of the ratio P the traversal passes to
-    `draw_node` (else DEFAULT_COLOUR). `time_gpu`: time each frame with a GL timer query (False
-    inside a host that may run its own timer queries)."""
+    `draw_node` (else DEFAULT_COLOUR, or the HLOD's appearance where it has one). `time_gpu`: time
+    each frame with a GL timer query (False inside a host that may run its own timer queries).
+    `images`: material row -> (h, w, 4) uint8 RGBA, top row first, sRGB-encoded (module docstring);
+    materials given the same array object share one texture; a material without one draws in its
+    base colour. InputError for an image of another form or a key that is no material row."""
 
     def __init__(self, ctx, hlod: Hlod, *, size: tuple[int, int] | None = None, owns_context: bool = False,
-                 time_gpu: bool = True, overlay: bool = False):
+                 time_gpu: bool = True, overlay: bool = False, images: dict[int, np.ndarray] | None = None):
         import moderngl
 
         self._mgl = moderngl
@@ -120,18 +394,28 @@ class Renderer:
         self._qmax = [tuple(r) for r in self.query_box_max.tolist()]
         self._u_colour = self.node_program["u_colour"]
         self._u_lo, self._u_hi = self.box_program["u_lo"], self.box_program["u_hi"]
+        self._parts = None
+        if hlod.colors is not None or hlod.materials:
+            self._parts = _Parts(ctx, hlod, vbo=self.vbo, ibo=self.ibo, gl=self.gl, images=images, keep=self._keep)
+        elif images:
+            log.warning("%d material images given but the HLOD has no materials: not drawn", len(images))
         self._ramp = overlay_ramp()
         self._colour = None
         self._mode = None
         self._timer = None
 
     @classmethod
-    def create_standalone(cls, hlod: Hlod, size: tuple[int, int]) -> "Renderer":
+    def create_standalone(cls, hlod: Hlod, size: tuple[int, int], *,
+                          images: dict[int, np.ndarray] | None = None) -> "Renderer":
         """A private headless EGL context (llvmpipe where there is no GPU) and an own framebuffer."""
         import moderngl
 
         ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
-        return cls(ctx, hlod, size=size, owns_context=True)
+        try:
+            return cls(ctx, hlod, size=size, owns_context=True, images=images)
+        except BaseException:
+            ctx.release()
+            raise
 
     def _keep(self, resource):
         self._resources.append(resource)
@@ -146,12 +430,15 @@ class Renderer:
         to_origin[:3, 3] = self.hlod.origin
         mv = view.view @ to_origin
         mvp = view.projection @ mv
+        mvp_bytes, mv_bytes = mvp.T.astype(np.float32).tobytes(), mv.T.astype(np.float32).tobytes()
         for program in (self.node_program, self.box_program):
-            program["u_mvp"].write(mvp.T.astype(np.float32).tobytes())
-        self.node_program["u_mv"].write(mv.T.astype(np.float32).tobytes())
+            program["u_mvp"].write(mvp_bytes)
+        self.node_program["u_mv"].write(mv_bytes)
         self._refresh_host_framebuffer()
         if self.fbo is not None:
             self.fbo.use()
+        if self._parts is not None:
+            self._parts.begin_frame(mvp_bytes, mv_bytes, own_framebuffer=self.fbo is not None)
         self.ctx.viewport = (0, 0, view.width, view.height)
         if self.fbo is not None:
             self.fbo.clear(1.0, 1.0, 1.0, 1.0, depth=1.0)
@@ -167,6 +454,8 @@ class Renderer:
     def end_frame(self) -> float:
         """Finish the frame; GPU milliseconds from the timer query (0 if it was not started)."""
         self._set_mode(None)
+        if self._parts is not None:
+            self._parts.end_frame()
         gpu_ms = 0.0
         if self._timer is not None:
             self.gl.end_query(GL.TIME_ELAPSED)
@@ -205,8 +494,20 @@ class Renderer:
         if self.overlay:
             step = round(min(1.0, max(0.0, float(ratio_p))) * OVERLAY_RAMP_STEPS)
             self.draw_node_coloured(node, self._ramp[step])
+        elif self._parts is not None:
+            self._draw_parts(node)
         else:
             self.draw_node_coloured(node, DEFAULT_COLOUR)
+
+    def _draw_parts(self, node: int) -> None:
+        """The node's parts, each in its material (module docstring)."""
+        self._set_mode("draw")
+        parts, render, triangles = self._parts, self._parts.vao.render, self._mgl.TRIANGLES
+        for j in range(parts.part_first[node], parts.part_end[node]):
+            material = parts.material[j]
+            if material != parts.current_material:
+                parts.use_material(material)
+            render(triangles, vertices=parts.index_count[j], first=parts.index_first[j])
 
     def draw_node_coloured(self, node: int, colour) -> None:
         """Draw a node in `colour`, linear RGB floats (the caller's choice: report figures)."""

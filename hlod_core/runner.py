@@ -14,14 +14,16 @@ from .camera import CameraPath
 from .hierarchy import Hlod
 from .png import write_png
 from .renderer import Renderer
+from .textures import load_images
 from .traversal import COUNTERS, FrameStats, RuntimeSettings, make
 
 
 def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,
              renderer: Renderer | None = None, save_frames: str | os.PathLike | None = None) -> dict:
-    """Per-frame means of every counter, plus "frames". Uses `renderer` or a standalone one."""
+    """Per-frame means of every counter, plus "frames". Uses `renderer` or a standalone one (with the
+    HLOD's texture images, textures.load_images)."""
     own = renderer is None
-    renderer = renderer or Renderer.create_standalone(hlod, size)
+    renderer = renderer or Renderer.create_standalone(hlod, size, images=load_images(hlod))
     try:
         traversal = make(method, hlod, renderer, settings)
         stats: list[FrameStats] = []

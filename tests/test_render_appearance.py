@@ -1,0 +1,515 @@
+"""The renderer's appearance (issue 13): materials' base colours, vertex colours and base-colour
+textures drawn per (node, material) part, colour spaces, the untouched untextured and overlay
+paths, and the textures' GL lifetime; real OpenGL (Mesa llvmpipe through EGL without a GPU)."""
+import ctypes
+import importlib.util
+import logging
+import subprocess
+import sys
+
+import moderngl
+import numpy as np
+import pytest
+from PIL import Image
+
+from hlod_core import fileformat, meshio, textures
+from hlod_core import view as viewmod
+from hlod_core.appearance import Material
+from hlod_core.bake import BakeSettings, bake
+from hlod_core.errors import InputError
+from hlod_core.gl_functions import GL, GLFunctions
+from hlod_core.imagemetrics import psnr
+from hlod_core.overlay import OVERLAY_RAMP_STEPS, overlay_ramp
+from hlod_core.renderer import TEXTURE_UNIT, Renderer
+from hlod_core.traversal import RuntimeSettings, make
+from hlod_core.view import View
+
+from helpers import ROOT, baked
+
+pytestmark = pytest.mark.gl
+
+SIZE = (320, 240)
+#: 8-bit levels a drawn colour may differ from the expected one (float rounding in the shader and
+#: the sRGB texture decode; an orientation or colour-space error moves them by tens of levels).
+LEVELS = 2
+#: The renderer before issue 13's appearance (the contract commit): the reference of the unchanged paths.
+BEFORE_COMMIT = "b4edc98"
+# the checker's quadrants as seen in the image file (top row first): sRGB bytes, four distinct colours
+TOP_LEFT, TOP_RIGHT, BOTTOM_LEFT, BOTTOM_RIGHT = (200, 30, 40), (20, 180, 60), (40, 60, 220), (230, 210, 20)
+GL_TEXTURE_2D, GL_TEXTURE_BINDING_2D, GL_TEXTURE0, GL_SAMPLER_BINDING = 0x0DE1, 0x8069, 0x84C0, 0x8919
+GL_FRAMEBUFFER_SRGB, GL_SRGB8_ALPHA8 = 0x8DB9, 0x8C43
+
+
+@pytest.fixture(scope="module")
+def _gl_context():
+    ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
+    ctx.gc_mode = "context_gc"
+    yield ctx
+    ctx.release()
+
+
+@pytest.fixture
+def gl_ctx(_gl_context):
+    """The module's context, current for the test (`run`/`evaluate` make and release their own);
+    no GL error may be pending after the test."""
+    with _gl_context:
+        yield _gl_context
+        assert GLFunctions(_gl_context).get_error() == 0, "a GL error is pending after the test"
+
+
+def _gl_function(ctx, name, restype, *argtypes):
+    loader = ctx.mglo._context
+    load = getattr(loader, "load", None) or loader.load_opengl_function
+    return ctypes.CFUNCTYPE(restype, *argtypes)(load(name))
+
+
+def _integer(gl: GLFunctions, pname: int) -> int:
+    value = ctypes.c_int32(0)
+    gl.get_integerv(pname, ctypes.byref(value))
+    return value.value
+
+
+def srgb_bytes(linear) -> np.ndarray:
+    """IEC 61966-2-1 encoding of linear [0, 1] values, as 8-bit levels (float, unrounded)."""
+    c = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
+    return 255.0 * np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
+
+
+def linear_from_srgb(levels) -> np.ndarray:
+    """IEC 61966-2-1 decoding of 8-bit levels to linear [0, 1]."""
+    c = np.asarray(levels, np.float64) / 255.0
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def _checker_png(path, *, side: int = 64) -> np.ndarray:
+    image = np.full((side, side, 4), 255, np.uint8)
+    half = side // 2
+    image[:half, :half, :3], image[:half, half:, :3] = TOP_LEFT, TOP_RIGHT
+    image[half:, :half, :3], image[half:, half:, :3] = BOTTOM_LEFT, BOTTOM_RIGHT
+    Image.fromarray(image[..., :3]).save(path)  # RGB file: load_images adds the alpha
+    return image
+
+
+def _plane(columns: int = 1):
+    """A 2 x 2 square at z = 0 facing +z, made of `columns` side-by-side quads, baked into one node."""
+    xs = np.linspace(-1.0, 1.0, columns + 1)
+    positions = np.array([[x, y, 0.0] for x in xs for y in (-1.0, 1.0)])
+    faces = []
+    for c in range(columns):
+        a, b, d, e = 2 * c, 2 * c + 2, 2 * c + 3, 2 * c + 1  # (x0,-1) (x1,-1) (x1,1) (x0,1)
+        faces += [[a, b, d], [a, d, e]]
+    hlod = bake(meshio.from_arrays(positions, np.array(faces), name="plane"), BakeSettings(target_tris=64))
+    assert hlod.node_count == 1
+    return hlod
+
+
+def _with_appearance(hlod, *, materials, tri_material=None, uv=False, colors=None):
+    """The baked HLOD with UVs from positions (u = (x + 1) / 2, v = (y + 1) / 2: the image's
+    bottom-left at (-1, -1)), per-vertex colours and per-triangle materials (triangles reordered by
+    material within the node, as a bake stores them); checked by the file format's validation."""
+    world = hlod.positions.astype(np.float64) + hlod.origin
+    indices = hlod.indices
+    if tri_material is not None:
+        order = np.argsort(tri_material(world[indices].mean(axis=1)), kind="stable")
+        indices = np.ascontiguousarray(indices[order])
+        tri_material = np.sort(tri_material(world[indices].mean(axis=1))).astype(np.uint16)
+    out = hlod.replace(indices=indices, materials=tuple(materials), tri_material=tri_material,
+                       uvs=((world[:, :2] + 1.0) / 2.0).astype(np.float32) if uv else None,
+                       colors=None if colors is None else np.ascontiguousarray(colors(world), np.float32))
+    fileformat.validate(out, source="test HLOD")
+    return out
+
+
+def _front_view(size=SIZE) -> View:
+    eye = np.array([0.0, 0.0, 3.0])
+    return View(eye=eye, view=viewmod.look_at(eye, [0, 0, 0], [0, 1, 0]),
+                projection=viewmod.perspective(45.0, size[0] / size[1], 0.1, 10.0), width=size[0], height=size[1])
+
+
+def _pixel(image: np.ndarray, view: View, x: float, y: float, *, radius: int = 3) -> np.ndarray:
+    """(2r+1)^2 pixels around the world point (x, y, 0), as (k, 3) int."""
+    clip = view.projection @ view.view @ np.array([x, y, 0.0, 1.0])
+    ndc = clip[:2] / clip[3]
+    col, row = int((ndc[0] + 1) / 2 * view.width), int((1 - ndc[1]) / 2 * view.height)
+    return image[row - radius:row + radius + 1, col - radius:col + radius + 1].reshape(-1, 3).astype(int)
+
+
+def _draw(renderer: Renderer, view: View, nodes=(0,), ratio_p: float = 1.0) -> np.ndarray:
+    renderer.begin_frame(view, time_gpu=False)
+    for node in nodes:
+        renderer.draw_node(node, ratio_p)
+    renderer.end_frame()
+    return renderer.read_pixels()
+
+
+def _renderer_before():
+    """hlod_core/renderer.py as it was before this change, loaded as a module of the package."""
+    source = subprocess.run(["git", "show", f"{BEFORE_COMMIT}:hlod_core/renderer.py"], cwd=ROOT, check=True,
+                            capture_output=True, text=True).stdout
+    assert "images" not in source  # the old renderer, not this one
+    spec = importlib.util.spec_from_loader("hlod_core._renderer_before", loader=None)
+    module = importlib.util.module_from_spec(spec)
+    module.__package__ = "hlod_core"
+    exec(compile(source, f"{BEFORE_COMMIT}:hlod_core/renderer.py", "exec"), module.__dict__)
+    return module.Renderer
+
+
+@pytest.fixture(scope="module")
+def checker(tmp_path_factory):
+    """The textured plane, its material's image file and the images load_images reads from it."""
+    png = tmp_path_factory.mktemp("textures") / "checker.png"
+    image = _checker_png(png)
+    hlod = _with_appearance(_plane(), materials=[Material("Checker", (1.0, 1.0, 1.0, 1.0), texture=str(png))],
+                            tri_material=lambda c: np.zeros(len(c), int), uv=True)
+    return hlod, png, image
+
+
+# --- what the textured and coloured paths draw -----------------------------------------------------
+
+def test_texture_quadrants_are_where_the_image_has_them_in_its_own_colours(gl_ctx, checker):
+    """UV origin bottom-left and sRGB in = sRGB out: each quadrant of the plane, facing the camera
+    (lighting factor 1), shows the image's quadrant colour to within LEVELS."""
+    hlod, _, image = checker
+    images = textures.load_images(hlod)
+    assert list(images) == [0] and np.array_equal(images[0], image)
+    renderer = Renderer(gl_ctx, hlod, size=SIZE, images=images)
+    try:
+        picture = _draw(renderer, _front_view())
+    finally:
+        renderer.release()
+    view = _front_view()
+    for (x, y), colour in (((-0.5, 0.5), TOP_LEFT), ((0.5, 0.5), TOP_RIGHT),
+                           ((-0.5, -0.5), BOTTOM_LEFT), ((0.5, -0.5), BOTTOM_RIGHT)):
+        assert np.abs(_pixel(picture, view, x, y) - colour).max() <= LEVELS, (x, y, colour)
+
+
+def test_base_colour_times_vertex_colour_without_a_texture(gl_ctx):
+    """A red material on green-ish vertices: the product of the two linear colours, sRGB-encoded."""
+    base, vertex = (0.8, 0.1, 0.1, 1.0), (0.5, 1.0, 0.25, 1.0)
+    hlod = _with_appearance(_plane(), materials=[Material("Red", base)], tri_material=lambda c: np.zeros(len(c), int),
+                            colors=lambda w: np.tile(vertex, (len(w), 1)))
+    renderer = Renderer(gl_ctx, hlod, size=SIZE)
+    try:
+        picture = _draw(renderer, _front_view())
+    finally:
+        renderer.release()
+    expected = srgb_bytes(np.multiply(base, vertex)[:3])
+    assert np.abs(_pixel(picture, _front_view(), 0.0, 0.0) - expected).max() <= LEVELS
+
+
+def test_vertex_colours_without_a_material_table_show_as_they_are(gl_ctx):
+    """No material table (a PLY with colours): glTF's default material, base colour 1."""
+    hlod = _with_appearance(_plane(), materials=[], colors=lambda w: np.tile((0.2, 0.6, 0.9, 1.0), (len(w), 1)))
+    renderer = Renderer(gl_ctx, hlod, size=SIZE)
+    try:
+        picture = _draw(renderer, _front_view())
+    finally:
+        renderer.release()
+    assert np.abs(_pixel(picture, _front_view(), 0.0, 0.0) - srgb_bytes((0.2, 0.6, 0.9))).max() <= LEVELS
+
+
+def test_two_materials_in_one_node_are_two_parts_each_in_its_own_colour(gl_ctx, tmp_path):
+    """Left half: a textured material (a flat-colour image, base colour 0.5 grey); right half: a
+    material whose image file names a texture that was not given: its base colour only."""
+    flat = np.zeros((8, 8, 4), np.uint8)
+    flat[...] = (60, 200, 120, 255)
+    hlod = _with_appearance(_plane(columns=2), uv=True, tri_material=lambda c: (c[:, 0] > 0).astype(int),
+                            materials=[Material("Tex", (0.5, 0.5, 0.5, 1.0), texture=str(tmp_path / "a.png")),
+                                       Material("Blue", (0.05, 0.1, 0.7, 1.0), texture=str(tmp_path / "b.png"))])
+    parts = hlod.draw_parts()
+    assert parts.count.tolist() == [2] and parts.material.tolist() == [0, 1]
+    renderer = Renderer(gl_ctx, hlod, size=SIZE, images={0: flat})
+    try:
+        picture = _draw(renderer, _front_view())
+    finally:
+        renderer.release()
+    left = srgb_bytes(0.5 * linear_from_srgb(flat[0, 0, :3]))
+    assert np.abs(_pixel(picture, _front_view(), -0.5, 0.0) - left).max() <= LEVELS
+    assert np.abs(_pixel(picture, _front_view(), 0.5, 0.0) - srgb_bytes((0.05, 0.1, 0.7))).max() <= LEVELS
+
+
+def test_overlay_draws_the_ramp_as_before_and_no_texture(gl_ctx, checker):
+    """overlay=True replaces the appearance: the same pixels as the renderer before issue 13 (which
+    knew no appearance) drew with the overlay, the ramp colour of P, nowhere the checker."""
+    hlod, _, image = checker
+    old = _renderer_before()(gl_ctx, hlod, size=SIZE, overlay=True)
+    new = Renderer(gl_ctx, hlod, size=SIZE, overlay=True, images={0: image})
+    try:
+        before, after = _draw(old, _front_view(), ratio_p=0.25), _draw(new, _front_view(), ratio_p=0.25)
+    finally:
+        new.release()
+        old.release()
+    assert np.array_equal(before, after)
+    ramp = np.round(255 * np.array(overlay_ramp()[round(0.25 * OVERLAY_RAMP_STEPS)]))
+    assert np.abs(_pixel(after, _front_view(), -0.5, 0.5) - ramp).max() <= 1
+
+
+def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
+    """No appearance: the renderer before issue 13 and this one draw identical frames (Coh with
+    its queries, a cow baked into several levels, from three views)."""
+    _, hlod = baked("cow.obj", target_tris=400)
+    assert not hlod.has_appearance and hlod.node_count > 1
+    centre = (hlod.box_min[0] + hlod.box_max[0]) / 2
+    radius = float(np.linalg.norm(hlod.box_max[0] - hlod.box_min[0]))
+    old, new = _renderer_before()(gl_ctx, hlod, size=SIZE), Renderer(gl_ctx, hlod, size=SIZE)
+    try:
+        assert new._parts is None
+        settings = RuntimeSettings()
+        old_coh, new_coh = make("coh", hlod, old, settings), make("coh", hlod, new, settings)
+        for k, distance in enumerate((0.6, 1.0, 2.5)):
+            eye = centre + distance * radius * np.array([np.cos(k), 0.4, np.sin(k)])
+            view = View(eye=eye, view=viewmod.look_at(eye, centre, [0, 1, 0]),
+                        projection=viewmod.perspective(50.0, SIZE[0] / SIZE[1], 0.01 * radius, 10 * radius),
+                        width=SIZE[0], height=SIZE[1])
+            old_coh.frame(view)
+            before = old.read_pixels()
+            new_coh.frame(view)
+            after = new.read_pixels()
+            assert (before != 255).any(axis=2).sum() > 500  # the cow is on screen
+            assert np.array_equal(before, after), k
+    finally:
+        new.release()
+        old.release()
+
+
+def test_the_framebuffer_that_encodes_srgb_itself_is_not_encoded_twice(gl_ctx, checker):
+    """Drawing into the caller's sRGB framebuffer: with GL_FRAMEBUFFER_SRGB on (Blender's viewport)
+    the hardware encodes, off the shader does; both store the texture's own bytes."""
+    hlod, _, image = checker
+    gl = GLFunctions(gl_ctx)
+    previous = gl_ctx.detect_framebuffer()
+    colour = gl_ctx.texture(SIZE, 4, internal_format=GL_SRGB8_ALPHA8)
+    depth = gl_ctx.depth_renderbuffer(SIZE)
+    host = gl_ctx.framebuffer(color_attachments=[colour], depth_attachment=depth)
+    renderer = Renderer(gl_ctx, hlod, images={0: image})
+    try:
+        for srgb_on in (True, False):
+            host.use()
+            host.clear(1.0, 1.0, 1.0, 1.0, depth=1.0)
+            (gl.enable if srgb_on else gl.disable)(GL_FRAMEBUFFER_SRGB)
+            _draw(renderer, _front_view())
+            gl.disable(GL_FRAMEBUFFER_SRGB)
+            stored = np.frombuffer(colour.read(), np.uint8).reshape(SIZE[1], SIZE[0], 4)[::-1, :, :3]
+            assert np.abs(_pixel(stored, _front_view(), -0.5, 0.5) - TOP_LEFT).max() <= LEVELS, srgb_on
+            assert np.abs(_pixel(stored, _front_view(), 0.5, -0.5) - BOTTOM_RIGHT).max() <= LEVELS, srgb_on
+    finally:
+        gl.disable(GL_FRAMEBUFFER_SRGB)
+        renderer.release()
+        previous.use()
+        for resource in (host, depth, colour):
+            resource.release()
+
+
+def _front_path(frames: int = 2):
+    from hlod_core.camera import CameraPath
+
+    return CameraPath(frames=np.array([([0.0, 0.0, 3.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0])] * frames), near=0.1,
+                      far=10.0, fovy_deg=45.0)
+
+
+def test_run_draws_the_textures_of_the_hlods_materials(checker, tmp_path):
+    """`run` (runner.run_path with its own renderer) loads the material's image file."""
+    from hlod_core.runner import run_path
+
+    hlod, _, _ = checker
+    run_path(hlod, "vfc", RuntimeSettings(), _front_path(1), SIZE, save_frames=tmp_path)
+    frame = np.asarray(Image.open(tmp_path / "vfc_00000.png").convert("RGB"))
+    assert np.abs(_pixel(frame, _front_view(), 0.5, 0.5) - TOP_RIGHT).max() <= LEVELS
+    assert np.abs(_pixel(frame, _front_view(), -0.5, -0.5) - BOTTOM_LEFT).max() <= LEVELS
+
+
+def test_evaluate_compares_textured_images(checker, tmp_path):
+    """`evaluate` draws with the textures: Coh(P)'s shaded showcase picture shows the checker, and
+    its chroma PSNR against Full is that of identical coloured images."""
+    from hlod_core import evaluate
+
+    hlod, _, _ = checker
+    report = evaluate.evaluate(hlod, _front_path(2), SIZE, methods=["full", "coh_p"], repeat=1, out_dir=tmp_path,
+                               psnr_frames=2, figures=False)
+    shaded = np.asarray(Image.open(tmp_path / report["showcase"]["images"]["coh_p"]["shaded"]).convert("RGB"))
+    assert np.abs(_pixel(shaded, _front_view(), -0.5, 0.5) - TOP_LEFT).max() <= LEVELS
+    assert report["methods"]["coh_p"]["psnr_cb_vs_full"] == pytest.approx(100.0)
+
+
+# --- GL lifetime and the host's state --------------------------------------------------------------
+
+def test_textures_are_shared_per_image_and_released(gl_ctx, checker):
+    """Two materials given the same array share one texture; release() deletes it (glIsTexture)
+    with every other GL object, and is idempotent."""
+    hlod, png, image = checker
+    twice = hlod.replace(materials=hlod.materials + (Material("Again", texture=str(png)),))
+    renderer = Renderer(gl_ctx, twice, size=SIZE, images={0: image, 1: image})
+    made = [r for r in renderer._resources if isinstance(r, moderngl.Texture)]
+    names = [t.glo for t in made]
+    assert len(made) == 1 and renderer._parts.texture[0] is renderer._parts.texture[1] is made[0]
+    is_texture = _gl_function(gl_ctx, "glIsTexture", ctypes.c_uint8, ctypes.c_uint32)
+    _draw(renderer, _front_view())
+    assert all(is_texture(n) for n in names)
+    renderer.release()
+    renderer.release()
+    assert not any(is_texture(n) for n in names)
+
+
+def test_the_hosts_texture_unit_is_given_back(gl_ctx, checker):
+    """Blender caches its texture bindings: after construction (moderngl binds new textures on its
+    default unit) and after a frame (the renderer samples TEXTURE_UNIT with sampler 0), the host's
+    texture, sampler and active unit are what they were."""
+    hlod, _, image = checker
+    gl = GLFunctions(gl_ctx)
+    bind_texture = _gl_function(gl_ctx, "glBindTexture", None, ctypes.c_uint32, ctypes.c_uint32)
+    bind_sampler = _gl_function(gl_ctx, "glBindSampler", None, ctypes.c_uint32, ctypes.c_uint32)
+    host = gl_ctx.texture((2, 2), 4)
+    sampler = gl_ctx.sampler()
+    units = sorted({TEXTURE_UNIT, gl_ctx.default_texture_unit})
+    for unit in units:
+        gl.active_texture(GL_TEXTURE0 + unit)
+        bind_texture(GL_TEXTURE_2D, host.glo)
+        sampler.use(unit)
+    sampler_name = _integer(gl, GL_SAMPLER_BINDING)  # moderngl does not say it
+    assert sampler_name != 0
+    gl.active_texture(GL_TEXTURE0 + 5)
+
+    def bindings():
+        active = _integer(gl, GL.ACTIVE_TEXTURE)
+        out = []
+        for unit in units:
+            gl.active_texture(GL_TEXTURE0 + unit)
+            out.append((_integer(gl, GL_TEXTURE_BINDING_2D), _integer(gl, GL_SAMPLER_BINDING)))
+        gl.active_texture(active)
+        return active, out
+
+    expected = (GL_TEXTURE0 + 5, [(host.glo, sampler_name)] * len(units))
+    renderer = Renderer(gl_ctx, hlod, size=SIZE, images={0: image})
+    try:
+        assert bindings() == expected
+        picture = _draw(renderer, _front_view())
+        assert bindings() == expected
+        assert np.abs(_pixel(picture, _front_view(), -0.5, 0.5) - TOP_LEFT).max() <= LEVELS  # it did sample
+    finally:
+        renderer.release()
+        for unit in units:
+            bind_sampler(unit, 0)
+        gl.active_texture(GL_TEXTURE0)
+        sampler.release()
+        host.release()
+
+
+def test_images_of_the_wrong_form_are_refused_with_one_line(gl_ctx, checker):
+    hlod, _, image = checker
+    with pytest.raises(InputError, match=r"image of material 0 \('Checker'\): expected \(h, w, 4\) uint8"):
+        Renderer(gl_ctx, hlod, size=SIZE, images={0: image[..., :3]})
+    with pytest.raises(InputError, match="key 3 is not a material row"):
+        Renderer(gl_ctx, hlod, size=SIZE, images={3: image})
+
+
+# --- textures.load_images --------------------------------------------------------------------------
+
+def test_load_images_reads_each_file_once_and_warns_once_per_missing_file(tmp_path, caplog):
+    palette = Image.new("P", (4, 2))
+    palette.putpalette([10, 20, 30, 200, 100, 50] + [0] * 762)
+    palette.putdata([0, 1, 0, 1, 1, 0, 1, 0])
+    palette.save(tmp_path / "palette.png")
+    Image.new("L", (3, 3), 77).save(tmp_path / "grey.jpg")
+    (tmp_path / "broken.png").write_bytes(b"not a png")
+    names = ["palette.png", "grey.jpg", "palette.png", "missing.png", "broken.png"]
+    hlod = _with_appearance(_plane(), uv=True, tri_material=lambda c: np.zeros(len(c), int),
+                            materials=[Material(f"m{i}", texture=str(tmp_path / n)) for i, n in enumerate(names)]
+                            + [Material("plain")])
+    with caplog.at_level(logging.WARNING, logger="hlod_core.textures"):
+        images = textures.load_images(hlod)
+    assert sorted(images) == [0, 1, 2]
+    assert images[0] is images[2]  # one read, one array: one texture in the renderer
+    assert images[0].shape == (2, 4, 4) and images[0].dtype == np.uint8
+    assert images[0][0, :2].tolist() == [[10, 20, 30, 255], [200, 100, 50, 255]]
+    assert images[1].shape == (3, 3, 4) and np.all(np.abs(images[1][..., :3].astype(int) - 77) <= 1)
+    warnings = [r.getMessage() for r in caplog.records]
+    assert len(warnings) == 2
+    assert "missing.png" in warnings[0] and "'m3'" in warnings[0]
+    assert "broken.png" in warnings[1] and "'m4'" in warnings[1]
+
+
+def test_load_images_without_pillow_draws_base_colours(checker, monkeypatch, caplog):
+    hlod, _, _ = checker
+    monkeypatch.setitem(sys.modules, "PIL", None)  # `from PIL import ...` raises ImportError
+    with caplog.at_level(logging.WARNING, logger="hlod_core.textures"):
+        assert textures.load_images(hlod) == {}
+    assert len(caplog.records) == 1 and "Pillow" in caplog.records[0].getMessage()
+
+
+def test_load_images_of_an_untextured_hlod_is_empty_and_imports_nothing(monkeypatch):
+    _, hlod = baked("cow.obj", target_tris=400)
+    monkeypatch.setitem(sys.modules, "PIL", None)
+    assert textures.load_images(hlod) == {}
+
+
+# --- the issue's acceptance check on the textured scene ---------------------------------------------
+
+ACCEPTANCE_SIZE = (640, 480)
+ACCEPTANCE_SCALE = "small"  # tests/scenes/textured_scene.py --scale; "full" is the README's figure
+ACCEPTANCE_FRAMES = 6  # frames at the view before the measured one: Coh's prediction settles
+#: Issue 13's thresholds, dB: Y, Cb, Cr of the textured preview against Full's picture.
+MIN_PSNR_DB = (30.0, 35.0, 35.0)
+
+
+def _overview(hlod, size, *, distance: float) -> View:
+    """Looking down at the root box's centre from `distance` box diagonals, 35 degrees above the
+    ground; the up axis is the box's thinnest (a scene of buildings on a ground)."""
+    lo, hi = hlod.box_min[0], hlod.box_max[0]
+    centre, diagonal = (lo + hi) / 2, float(np.linalg.norm(hi - lo))
+    up = np.zeros(3)
+    up[int(np.argmin(hi - lo))] = 1.0
+    side = np.roll(up, 1)
+    direction = np.cos(np.radians(35)) * (side + np.roll(up, 2)) / np.sqrt(2) + np.sin(np.radians(35)) * up
+    eye = centre + distance * diagonal * direction
+    return View(eye=eye, view=viewmod.look_at(eye, centre, up),
+                projection=viewmod.perspective(45.0, size[0] / size[1], 0.01 * diagonal, 10 * diagonal),
+                width=size[0], height=size[1])
+
+
+def acceptance_figures(hlod, images, *, method: str = "coh", distance: float = 0.6, size=ACCEPTANCE_SIZE) -> dict:
+    """Full's and `method`'s (tau = 1 px) pictures of one overview, textured: PSNR (Y, Cb, Cr) dB
+    by the evaluation's measure, the drawn cut's largest SSE over inner nodes (px), node and
+    triangle counts, the fraction of pixels covered. `method` runs ACCEPTANCE_FRAMES frames at
+    the view first."""
+    view = _overview(hlod, size, distance=distance)
+    renderer = Renderer.create_standalone(hlod, size, images=images)
+    try:
+        full = make("full", hlod, renderer, RuntimeSettings())
+        full_stats = full.frame(view)
+        reference = renderer.read_pixels()
+        traversal = make(method, hlod, renderer, RuntimeSettings(tau=1.0))
+        for _ in range(ACCEPTANCE_FRAMES):
+            stats = traversal.frame(view)
+        picture = renderer.read_pixels()
+    finally:
+        renderer.release()
+    inner = [n for n in stats.drawn if not hlod.is_leaf[n]]
+    return {"psnr_db": psnr(picture, reference).tolist(),
+            "max_sse_px": max((traversal.sse[n] for n in inner), default=0.0),
+            "inner_nodes": len(inner), "nodes": len(stats.drawn), "tris": stats.tris, "full_tris": full_stats.tris,
+            "covered": float((reference != 255).any(axis=2).mean()),
+            "picture": picture, "reference": reference}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("source", ["glb", "obj"])
+def test_textured_scene_preview_matches_full_at_one_pixel(source, tmp_path):
+    """Issue 13, done when: the textured scene baked from Blender's glTF / OBJ export keeps its
+    materials and UVs, and at a view where the drawn cut's SSE is at most 1 px (Coh, tau = 1),
+    its textured picture against Full's at 640x480 has PSNR-Y >= 30 dB, PSNR-Cb/Cr >= 35 dB."""
+    from helpers import textured_scene
+
+    scene = textured_scene(ACCEPTANCE_SCALE)
+    hlod = bake(meshio.load_inputs([scene[source]], texture_dir=tmp_path), BakeSettings(jobs=2))
+    textured = [i for i, m in enumerate(hlod.materials) if m.texture is not None]
+    assert hlod.uvs is not None and hlod.tri_material is not None and textured, "the bake lost the appearance"
+    images = textures.load_images(hlod)
+    assert sorted(images) == textured
+    figures = acceptance_figures(hlod, images)
+    shown = {k: v for k, v in figures.items() if k not in ("picture", "reference")}
+    assert figures["covered"] > 0.3 and figures["inner_nodes"] > 0 and figures["tris"] < figures["full_tris"], shown
+    assert figures["max_sse_px"] <= 1.0, shown
+    assert all(db >= want for db, want in zip(figures["psnr_db"], MIN_PSNR_DB)), shown
+    # and the pictures compared are textured: the same cut in base colours alone is far from them
+    base_only = acceptance_figures(hlod, {})["picture"]
+    assert psnr(figures["picture"], base_only)[0] < MIN_PSNR_DB[0], shown
