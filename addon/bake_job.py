@@ -19,19 +19,22 @@ log = logging.getLogger(__name__)
 
 
 class BakeJob:
-    def __init__(self, mesh: TriangleMesh, settings: BakeSettings, output: str):
+    def __init__(self, mesh: TriangleMesh, settings: BakeSettings, output: str, *, extra_meta: dict | None = None):
+        """extra_meta: entries for the file's meta (bake's extra_meta: the UV map's and colour
+        attribute's names of a bake from Blender)."""
         self.output = output
         self.progress: tuple[int, int, str] = (0, 1, "octree")
         self.result = None
         self.error: BaseException | None = None
         self.started = time.perf_counter()
         self._cancel = threading.Event()
-        self._thread = threading.Thread(target=self._work, args=(mesh, settings), name="hlod-bake", daemon=True)
+        self._thread = threading.Thread(target=self._work, args=(mesh, settings, extra_meta),
+                                        name="hlod-bake", daemon=True)
         self._thread.start()
 
-    def _work(self, mesh, settings) -> None:
+    def _work(self, mesh, settings, extra_meta) -> None:
         try:
-            hlod = bake(mesh, settings, progress=self._on_progress, cancel=self._cancel.is_set)
+            hlod = bake(mesh, settings, progress=self._on_progress, cancel=self._cancel.is_set, extra_meta=extra_meta)
             fileformat.save(hlod, self.output)
             self.result = hlod
         except BaseException as exc:  # noqa: BLE001 - collected by the main thread, which reports it

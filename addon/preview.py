@@ -20,8 +20,16 @@ objects with glIs* probes, RSS and Python's allocated blocks over 10,000 redraws
 Private mode (DESIGN §7 fallback, used when Blender's backend is not OpenGL (Metal, Vulkan) or
 when "Private Context" is set): the traversal and its queries run in a private headless context
 with its own depth pass (Blender's objects then do not occlude the queries), and the chosen nodes
-are drawn into the viewport with Blender's gpu module (flat colour, depth-tested against Blender's
-scene). The status line says which mode is on.
+are drawn into the viewport with Blender's gpu module (depth-tested against Blender's scene). The
+status line says which mode is on.
+
+Appearance (issue 13): start() reads the image of every material that names one (the datablock of
+the material's Image Texture node, `Material.image`) from bpy.data.images once, as the renderer
+takes it (`material_images`: (h, w, 4) uint8 RGBA, sRGB-encoded, top row first); the GL mode's
+renderer draws base colour x vertex colour x texture per (node, material). Private mode draws
+each node with the gpu module in base colour x vertex colour per vertex, lit as the renderer lights,
+and the texture where the material has one (`_look_shader`). The modulation overlay replaces
+the colours in both modes.
 
 In place of the sources (issue 20): while the preview runs, the objects the bake took (the scene's
 record, addon/source_record.py) are hidden in the viewport (addon/source_hiding.py says how, and how
@@ -43,7 +51,7 @@ import numpy as np
 
 from ..hlod_core import boxes, fileformat, overlay
 from ..hlod_core.errors import HlodError
-from ..hlod_core.hierarchy import node_mesh
+from ..hlod_core.hierarchy import node_geometry, node_mesh
 from ..hlod_core.view import View
 from ..hlod_core.traversal import FrameStats
 from . import glcontext, source_hiding, source_record, viewport_text
@@ -70,6 +78,7 @@ class _State:
     source_tris: int = 0  # triangles the bake took (the file's input_tris)
     recorded: int = 0  # objects the scene's record names for this file (0: none recorded)
     hidden: int = 0  # objects hidden for the preview
+    images: dict | None = None  # material row -> (h, w, 4) uint8 RGBA for the renderer (material_images)
 
 
 @dataclass
@@ -130,7 +139,8 @@ def start(scene) -> None:
     hlod = fileformat.load(path)
     rows = source_record.stored(scene.hlod, path)
     view_layer, depsgraph = _view_layer_and_depsgraph(scene)
-    _state = _State(file=path, hlod=hlod, source_tris=int(hlod.meta.get("input_tris", 0)), recorded=len(rows))
+    _state = _State(file=path, hlod=hlod, source_tris=int(hlod.meta.get("input_tris", 0)), recorded=len(rows),
+                    images=material_images(hlod.materials))
     _state.hidden = len(source_hiding.hide(scene, view_layer, [name for name, _ in rows]).entries)
     source_record.track(scene, rows, depsgraph)
     if not bpy.app.background:
@@ -286,6 +296,56 @@ def redraw() -> None:
                 area.tag_redraw()
 
 
+# --- images ----------------------------------------------------------------------------------------
+
+def material_images(materials) -> dict[int, np.ndarray]:
+    """material row -> its image (`Material.image`, a bpy.data.images name) as the renderer takes
+    it: (h, w, 4) uint8 RGBA, sRGB-encoded, top row first. Each datablock is read once; materials
+    sharing it share the array (one texture). A name that is not in bpy.data.images, or an image
+    without pixels (a missing file), logs a warning: the material draws in its base colour."""
+    out, read = {}, {}
+    for row, material in enumerate(materials):
+        if not material.image:
+            continue
+        if material.image not in read:
+            image = bpy.data.images.get(material.image)
+            read[material.image] = image_rgba8(image) if image is not None else None
+            if read[material.image] is None:
+                log.warning("HLOD preview: material %r: image %r %s; drawn in its base colour", material.name,
+                            material.image, "is not in this .blend" if image is None else "has no pixels")
+        if read[material.image] is not None:
+            out[row] = read[material.image]
+    return out
+
+
+def image_rgba8(image) -> np.ndarray | None:
+    """A bpy image's pixels as (h, w, 4) uint8 RGBA, sRGB-encoded, top row first (Blender's rows are
+    bottom row first); None when it has none. Byte images hold their file's (sRGB) values, float
+    images (is_float) linear ones, which are encoded here."""
+    width, height = (int(v) for v in image.size)
+    channels = int(image.channels)
+    if width < 1 or height < 1 or channels not in (1, 2, 3, 4):
+        return None
+    values = np.empty(width * height * channels, np.float32)
+    image.pixels.foreach_get(values)
+    values = values.reshape(height, width, channels)
+    rgba = np.ones((height, width, 4), np.float32)
+    if channels >= 3:
+        rgba[..., :channels] = values
+    else:  # grey, grey + alpha
+        rgba[..., :3] = values[..., :1]
+        rgba[..., 3] = values[..., -1] if channels == 2 else 1.0
+    if image.is_float:
+        rgba[..., :3] = srgb_from_linear(rgba[..., :3])
+    return np.ascontiguousarray(np.round(np.clip(rgba[::-1], 0.0, 1.0) * 255.0).astype(np.uint8))
+
+
+def srgb_from_linear(linear: np.ndarray) -> np.ndarray:
+    """IEC 61966-2-1 encoding of linear values in [0, 1] (clipped)."""
+    c = np.clip(linear, 0.0, 1.0)
+    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1.0 / 2.4) - 0.055).astype(np.float32)
+
+
 # --- drawing ---------------------------------------------------------------------------------------
 
 def view_from_matrices(view_matrix, window_matrix, width: int, height: int) -> View:
@@ -385,7 +445,7 @@ def draw_view(scene, view_matrix, window_matrix, width, height, *, xray: bool = 
     state.batches = None
     if state.renderer is None:
         state.ctx = _attach(current)
-        state.renderer = Renderer(state.ctx, state.hlod, time_gpu=False)
+        state.renderer = Renderer(state.ctx, state.hlod, time_gpu=False, images=state.images)
         state.traversal, state.key = None, None
     settings = runtime_settings(props)
     key = (props.method, settings)
@@ -430,16 +490,19 @@ def _draw_private(scene, state, view_matrix, window_matrix, width: int, height: 
     if state.batches is None:
         state.batches = {}
     colours = overlay.modulation_colour(state.traversal.modulation(stats.drawn)) if props.show_modulation else None
-    shader = gpu.shader.from_builtin("UNIFORM_COLOR")
     gpu.state.depth_test_set("LESS_EQUAL")
     gpu.state.depth_mask_set(True)
     with gpu.matrix.push_pop():
         gpu.matrix.translate(tuple(float(c) for c in state.hlod.origin))  # float32 positions are origin-relative
-        for i, node in enumerate(stats.drawn):
-            batch = state.batches.get(node) or state.batches.setdefault(node, _node_batch(shader, state.hlod, node))
-            colour = tuple(colours[i]) if colours is not None else (0.82, 0.80, 0.76)
-            shader.uniform_float("color", (*colour, 1.0))
-            batch.draw(shader)
+        if colours is None and state.hlod.has_appearance:
+            _draw_looks(state, stats.drawn, view_matrix)
+        else:
+            shader = gpu.shader.from_builtin("UNIFORM_COLOR")
+            for i, node in enumerate(stats.drawn):
+                batch = state.batches.get(node) or state.batches.setdefault(node, _node_batch(shader, state.hlod, node))
+                colour = tuple(colours[i]) if colours is not None else (0.82, 0.80, 0.76)
+                shader.uniform_float("color", (*colour, 1.0))
+                batch.draw(shader)
     gpu.state.depth_mask_set(False)
     gpu.state.depth_test_set("NONE")
     state.stats = stats
@@ -454,6 +517,101 @@ def _node_batch(shader, hlod, node: int):
 
     positions, faces, _ = node_mesh(hlod, node)
     return batch_for_shader(shader, "TRIS", {"pos": positions}, indices=faces.astype(np.int32))
+
+
+# Private mode's appearance shader: colour = base colour x vertex colour (per vertex, linear) x the
+# material's texture (a white texel without one), lit by the renderer's flat term 0.25 + 0.75 |n_z|
+# (n in view space: the face normal in world space dotted with the view's z axis), written
+# sRGB-encoded unless the framebuffer encodes itself (srgbTarget: set by Blender for every shader
+# that declares it, as its own shaders do).
+_LOOK_VS = """
+void main() {
+    v_pos = pos;
+    v_color = color;
+    v_uv = uv;
+    gl_Position = ModelViewProjectionMatrix * vec4(pos, 1.0);
+}
+"""
+_LOOK_FS = """
+vec3 srgb_from_linear(vec3 c) {  // IEC 61966-2-1
+    c = clamp(c, 0.0, 1.0);
+    return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
+}
+void main() {
+    vec3 n = normalize(cross(dFdx(v_pos), dFdy(v_pos)));
+    vec3 lit = (v_color * texture(u_image, v_uv)).rgb * (0.25 + 0.75 * abs(dot(n, u_view_z)));
+    FragColor = vec4(srgbTarget ? lit : srgb_from_linear(lit), 1.0);
+}
+"""
+
+
+def _look_shader():
+    """(shader, white 1x1 texture) of private mode's appearance drawing (the notes above)."""
+    import gpu
+
+    info = gpu.types.GPUShaderCreateInfo()
+    info.push_constant("MAT4", "ModelViewProjectionMatrix")
+    info.push_constant("VEC3", "u_view_z")
+    info.push_constant("BOOL", "srgbTarget")
+    info.sampler(0, "FLOAT_2D", "u_image")
+    for slot, (kind, name) in enumerate((("VEC3", "pos"), ("VEC4", "color"), ("VEC2", "uv"))):
+        info.vertex_in(slot, kind, name)
+    varyings = gpu.types.GPUStageInterfaceInfo("hlod_look")
+    for kind, name in (("VEC3", "v_pos"), ("VEC4", "v_color"), ("VEC2", "v_uv")):
+        varyings.smooth(kind, name)
+    info.vertex_out(varyings)
+    info.fragment_out(0, "VEC4", "FragColor")
+    info.vertex_source(_LOOK_VS)
+    info.fragment_source(_LOOK_FS)
+    white = gpu.types.GPUTexture((1, 1), format="RGBA8", data=gpu.types.Buffer("FLOAT", 4, [1.0, 1.0, 1.0, 1.0]))
+    return gpu.shader.create_from_info(info), white
+
+
+def _draw_looks(state, nodes, view_matrix) -> None:
+    """Private mode: the nodes in their materials, vertex colours and textures (_look_shader). The
+    shader, the textures and each node's batches are made at first use and kept in state.batches
+    (released with them)."""
+    import gpu
+
+    batches = state.batches
+    if "look" not in batches:
+        batches["look"] = _look_shader()
+        batches["look textures"] = {row: gpu.texture.from_image(bpy.data.images[material.image])
+                                    for row, material in enumerate(state.hlod.materials)
+                                    if row in (state.images or {})}
+    shader, white = batches["look"]
+    textures = batches["look textures"]
+    shader.bind()
+    shader.uniform_float("u_view_z", tuple(float(v) for v in np.array(view_matrix, np.float64).reshape(4, 4)[2, :3]))
+    for node in nodes:
+        key = ("look", int(node))
+        if key not in batches:
+            batches[key] = _look_batches(shader, state.hlod, int(node))
+        for material, batch in batches[key]:
+            shader.uniform_sampler("u_image", textures.get(material, white))
+            batch.draw(shader)
+
+
+def _look_batches(shader, hlod, node: int) -> list:
+    """[(material row or -1, batch)] of one node: its triangles per material, each vertex coloured
+    base colour x vertex colour (linear), with its UVs (0 without)."""
+    from gpu_extras.batch import batch_for_shader
+
+    from ..hlod_core.renderer import NO_MATERIAL_BASE_COLOR
+
+    g = node_geometry(hlod, node)
+    face_material = g.face_material if g.face_material is not None else np.full(g.faces.shape[0], -1, np.int32)
+    bases = np.array([m.base_color for m in hlod.materials] + [NO_MATERIAL_BASE_COLOR], np.float32)  # row -1: none
+    out = []
+    for material in np.unique(face_material).tolist():
+        used, faces = np.unique(g.faces[face_material == material], return_inverse=True)
+        colour = np.broadcast_to(bases[material], (used.size, 4))
+        if g.colors is not None:
+            colour = colour * g.colors[used]
+        uvs = g.uvs[used] if g.uvs is not None else np.zeros((used.size, 2), np.float32)
+        content = {"pos": g.positions[used], "color": np.ascontiguousarray(colour, np.float32), "uv": uvs}
+        out.append((material, batch_for_shader(shader, "TRIS", content, indices=faces.reshape(-1, 3).astype(np.int32))))
+    return out
 
 
 def _draw_boxes(props, state, stats: FrameStats) -> None:

@@ -56,7 +56,8 @@ class HLOD_OT_bake(bpy.types.Operator):
                            description="Bake the objects the last bake took (Re-bake), not the Source setting")
 
     def _prepare(self, context):
-        """(mesh, output path, settings, record rows). Stops a running preview first (module notes)."""
+        """(mesh, output path, settings, record rows, the bake's extra meta: the UV map's and colour
+        attribute's names). Stops a running preview first (module notes)."""
         props = context.scene.hlod
         self._restart = preview.running()
         if self._restart:
@@ -74,9 +75,10 @@ class HLOD_OT_bake(bpy.types.Operator):
         else:
             objects = scene_mesh.source_objects(context, props)
         taken: list = []
-        mesh = scene_mesh.evaluated_mesh(context, objects, taken=taken)
+        attributes: dict = {}
+        mesh = scene_mesh.evaluated_mesh(context, objects, taken=taken, attributes=attributes)
         rows = source_record.record(taken, context.evaluated_depsgraph_get())
-        return mesh, out, bake_settings(props), rows
+        return mesh, out, bake_settings(props), rows, attributes or None
 
     def _finish(self, context, hlod, out, rows, seconds) -> None:
         props = context.scene.hlod
@@ -100,8 +102,8 @@ class HLOD_OT_bake(bpy.types.Operator):
         """Synchronous (background mode, scripts)."""
         started = time.perf_counter()
         try:
-            mesh, out, settings, rows = self._prepare(context)
-            hlod = bake(mesh, settings)
+            mesh, out, settings, rows, extra_meta = self._prepare(context)
+            hlod = bake(mesh, settings, extra_meta=extra_meta)
             fileformat.save(hlod, out)
         except HlodError as exc:
             self.report({"ERROR"}, str(exc))
@@ -115,12 +117,12 @@ class HLOD_OT_bake(bpy.types.Operator):
         if bpy.app.background:
             return self.execute(context)
         try:
-            mesh, out, settings, self._rows = self._prepare(context)
+            mesh, out, settings, self._rows, extra_meta = self._prepare(context)
         except HlodError as exc:
             self.report({"ERROR"}, str(exc))
             self._restart_preview(context)
             return {"CANCELLED"}
-        self._job = BakeJob(mesh, settings, out)
+        self._job = BakeJob(mesh, settings, out, extra_meta=extra_meta)
         wm = context.window_manager
         self._timer = wm.event_timer_add(0.2, window=context.window)
         wm.progress_begin(0, 100)
