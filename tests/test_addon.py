@@ -99,13 +99,14 @@ def versioned_repo(request, tmp_path_factory) -> Installed:
     return _INSTALLED[version]
 
 
-def blender(repo, check: str, tmp_path, *, timeout_s: float = 600, quiet: bool = False) -> dict:
-    """Run tests/blender_checks.py CHECK in `repo`'s Blender (an Installed; a plain folder is the main
-    .venv's); its JSON result. quiet: the process must print nothing on stderr (no warnings)."""
-    python, base = (repo.python, repo.base) if isinstance(repo, Installed) else (Path(sys.executable), repo)
+def blender(repo, check: str, tmp_path, *arguments: str, timeout_s: float = 600, quiet: bool = False,
+            script: str = "blender_checks.py") -> dict:
+    """Run tests/SCRIPT CHECK TMP [ARGUMENTS] in `repo`'s Blender (an Installed; a plain folder is the
+    main .venv's); its JSON result. quiet: the process must print nothing on stderr (no warnings)."""
+    python, base = (repo.python, repo.base) if isinstance(repo, Installed) else (Path(sys.executable), Path(repo))
     env = {**os.environ, "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([str(python), str(ROOT / "tests/blender_checks.py"), str(base / "repo"), check,
-                           str(tmp_path)], capture_output=True, text=True, timeout=timeout_s, env=env, cwd=ROOT)
+    proc = subprocess.run([str(python), str(ROOT / "tests" / script), str(base / "repo"), check, str(tmp_path),
+                           *arguments], capture_output=True, text=True, timeout=timeout_s, env=env, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-4000:]
     assert not (quiet and proc.stderr), proc.stderr[-4000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])

@@ -11,16 +11,11 @@ colour, per material. The preview draws the texture (GL mode through the rendere
 through the gpu module). Materialize gives the source's materials, UV map and colour attribute by
 name, and its root node renders like the source in Cycles (PSNR).
 """
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-from helpers import ROOT, textured_scene
-from test_addon import Installed, all_hold, repo, versioned_repo  # noqa: F401 - fixtures
+from helpers import textured_scene
+from test_addon import all_hold, blender, repo, versioned_repo  # noqa: F401 - fixtures
 
 pytestmark = pytest.mark.blender
 
@@ -35,16 +30,8 @@ FAR_VIEW_SSE_PX = 1.0
 
 
 def appearance_check(installed, check: str, tmp_path, *arguments: str, timeout_s: float = 600) -> dict:
-    """tests/blender_appearance_checks.py CHECK in `installed`'s Blender, as test_addon.blender runs
-    tests/blender_checks.py (an Installed, or a folder for the main .venv's bpy); its JSON result."""
-    python, base = ((installed.python, installed.base) if isinstance(installed, Installed)
-                    else (Path(sys.executable), installed))
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([str(python), str(ROOT / "tests/blender_appearance_checks.py"), str(base / "repo"), check,
-                           str(tmp_path), *arguments], capture_output=True, text=True, timeout=timeout_s, env=env,
-                          cwd=ROOT)
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    """tests/blender_appearance_checks.py CHECK in `installed`'s Blender; its JSON result."""
+    return blender(installed, check, tmp_path, *arguments, timeout_s=timeout_s, script="blender_appearance_checks.py")
 
 
 def test_extraction_carries_materials_uvs_and_colours(versioned_repo, tmp_path):

@@ -3,17 +3,13 @@ from. The extension is built by Blender's tool and installed as Blender installs
 fixtures); each check runs in its own bpy process (tests/blender_preview_checks.py), where Blender's
 own drawing is real (`GPUOffScreen.draw_view3d`). The corner text's wording is checked without Blender.
 """
-import json
-import os
 import re
-import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
 from helpers import ROOT
-from test_addon import repo, versioned_repo  # noqa: F401 - fixtures
+from test_addon import blender, repo, versioned_repo  # noqa: F401 - fixtures
 
 sys.path.insert(0, str(ROOT))
 from addon import viewport_text  # noqa: E402 - formatting only; blf is imported when drawing
@@ -25,15 +21,8 @@ NODES_COVER = 0.8  # share of the sources' pixels the nodes must cover (simplifi
 
 
 def preview_check(installed, check: str, tmp_path, *, timeout_s: float = 300) -> dict:
-    """Run tests/blender_preview_checks.py CHECK in `installed`'s Blender (test_addon's Installed, or
-    the main .venv's bpy for a plain folder); its JSON result."""
-    python, base = ((installed.python, installed.base) if hasattr(installed, "python")
-                    else (Path(sys.executable), Path(installed)))
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([str(python), str(ROOT / "tests/blender_preview_checks.py"), str(base / "repo"), check,
-                           str(tmp_path)], capture_output=True, text=True, timeout=timeout_s, env=env, cwd=ROOT)
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    return json.loads(proc.stdout.strip().splitlines()[-1])
+    """tests/blender_preview_checks.py CHECK in `installed`'s Blender; its JSON result."""
+    return blender(installed, check, tmp_path, timeout_s=timeout_s, script="blender_preview_checks.py")
 
 
 def hidden_names(visibility: dict) -> list[str]:
