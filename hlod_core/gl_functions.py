@@ -43,6 +43,22 @@ class GL:
     QUERY_RESULT = 0x8866
     QUERY_RESULT_AVAILABLE = 0x8867
     SAMPLES_PASSED = 0x8914
+    # textures and the framebuffer's colour encoding (the renderer's appearance path)
+    NONE = 0x0000
+    FRONT_LEFT = 0x0400
+    BACK_LEFT = 0x0402
+    FRONT = 0x0404
+    BACK = 0x0405
+    TEXTURE_2D = 0x0DE1
+    TEXTURE_BINDING_2D = 0x8069
+    TEXTURE0 = 0x84C0
+    DRAW_BUFFER0 = 0x8825
+    SAMPLER_BINDING = 0x8919
+    SRGB = 0x8C40
+    SRGB8_ALPHA8 = 0x8C43
+    FRAMEBUFFER_ATTACHMENT_COLOR_ENCODING = 0x8210
+    FRAMEBUFFER_ATTACHMENT_OBJECT_TYPE = 0x8CD0
+    FRAMEBUFFER_SRGB = 0x8DB9
 
 
 class GLFunctions:
@@ -87,3 +103,8 @@ class GLFunctions:
         self.viewport = fn("glViewport", None, i32, i32, i32, i32)
         self.scissor = fn("glScissor", None, i32, i32, i32, i32)
         self.active_texture = fn("glActiveTexture", None, u32)
+        # textures
+        self.bind_texture = fn("glBindTexture", None, u32, u32)
+        self.bind_sampler = fn("glBindSampler", None, u32, u32)
+        self.get_framebuffer_attachment_parameteriv = fn("glGetFramebufferAttachmentParameteriv", None, u32, u32, u32,
+                                                         i32p)

@@ -148,42 +148,6 @@ NO_MATERIAL_BASE_COLOR = (1.0, 1.0, 1.0, 1.0)
 TEXTURE_UNIT = 0
 
 
-class _TextureGL:
-    """The GL enums and entry points of textures and framebuffer colour encoding that gl_functions
-    does not have yet, resolved through the same loader (candidates for gl_functions.GL/GLFunctions)."""
-
-    NONE = 0x0000
-    FRONT_LEFT = 0x0400
-    BACK_LEFT = 0x0402
-    FRONT = 0x0404
-    BACK = 0x0405
-    TEXTURE_2D = 0x0DE1
-    TEXTURE_BINDING_2D = 0x8069
-    TEXTURE0 = 0x84C0
-    DRAW_BUFFER0 = 0x8825
-    SAMPLER_BINDING = 0x8919
-    SRGB = 0x8C40
-    SRGB8_ALPHA8 = 0x8C43
-    FRAMEBUFFER_ATTACHMENT_COLOR_ENCODING = 0x8210
-    FRAMEBUFFER_ATTACHMENT_OBJECT_TYPE = 0x8CD0
-    FRAMEBUFFER_SRGB = 0x8DB9
-
-    def __init__(self, ctx):
-        loader = ctx.mglo._context  # as GLFunctions
-        load = getattr(loader, "load", None) or loader.load_opengl_function
-        u32, i32p = ctypes.c_uint32, ctypes.POINTER(ctypes.c_int32)
-
-        def fn(name, *argtypes):
-            addr = load(name)
-            if not addr:
-                raise RuntimeError(f"GL function {name} is not available in this context")
-            return ctypes.CFUNCTYPE(None, *argtypes)(addr)
-
-        self.bind_texture = fn("glBindTexture", u32, u32)
-        self.bind_sampler = fn("glBindSampler", u32, u32)
-        self.get_framebuffer_attachment_parameteriv = fn("glGetFramebufferAttachmentParameteriv", u32, u32, u32, i32p)
-
-
 class _Parts:
     """The appearance program (module docstring), its extra vertex buffers and textures, and every
     node's parts as Python lists: node i draws parts part_first[i] .. part_end[i] - 1; part j is
@@ -194,7 +158,6 @@ class _Parts:
 
     def __init__(self, ctx, hlod: Hlod, *, vbo, ibo, gl: GLFunctions, images: dict | None, keep):
         self.gl = gl
-        self.tgl = _TextureGL(ctx)
         materials = hlod.materials
         textures = self._textures(ctx, hlod, images or {}, keep)
         self.has_uv = any(t is not None for t in textures)
@@ -265,7 +228,7 @@ class _Parts:
         """(h, w, 4) uint8 sRGB RGBA, top row first -> an sRGB8_ALPHA8 texture, bottom row first."""
         height, width = image.shape[:2]
         texture = keep(ctx.texture((width, height), 4, np.ascontiguousarray(image[::-1]),
-                                   internal_format=self.tgl.SRGB8_ALPHA8))
+                                   internal_format=GL.SRGB8_ALPHA8))
         texture.repeat_x = texture.repeat_y = True
         texture.build_mipmaps()
         texture.filter = (ctx.LINEAR_MIPMAP_LINEAR, ctx.LINEAR)
@@ -285,17 +248,17 @@ class _Parts:
         gl, value = self.gl, ctypes.c_int32(0)
         gl.get_integerv(GL.ACTIVE_TEXTURE, ctypes.byref(value))
         active = value.value
-        gl.active_texture(self.tgl.TEXTURE0 + unit)
-        gl.get_integerv(self.tgl.TEXTURE_BINDING_2D, ctypes.byref(value))
+        gl.active_texture(GL.TEXTURE0 + unit)
+        gl.get_integerv(GL.TEXTURE_BINDING_2D, ctypes.byref(value))
         texture = value.value
-        gl.get_integerv(self.tgl.SAMPLER_BINDING, ctypes.byref(value))
+        gl.get_integerv(GL.SAMPLER_BINDING, ctypes.byref(value))
         return active, texture, value.value
 
     def _restore_unit(self, unit: int, saved: tuple[int, int, int]) -> None:
         active, texture, sampler = saved
-        self.gl.active_texture(self.tgl.TEXTURE0 + unit)
-        self.tgl.bind_texture(self.tgl.TEXTURE_2D, texture)
-        self.tgl.bind_sampler(unit, sampler)
+        self.gl.active_texture(GL.TEXTURE0 + unit)
+        self.gl.bind_texture(GL.TEXTURE_2D, texture)
+        self.gl.bind_sampler(unit, sampler)
         self.gl.active_texture(active)
 
     def begin_frame(self, mvp: bytes, mv: bytes, *, own_framebuffer: bool) -> None:
@@ -313,20 +276,20 @@ class _Parts:
     def _target_encodes_srgb(self) -> bool:
         """Does the bound draw framebuffer convert linear output to sRGB itself (GL_FRAMEBUFFER_SRGB
         on and an sRGB first draw buffer)?"""
-        gl, tgl, value = self.gl, self.tgl, ctypes.c_int32(0)
-        if not gl.is_enabled(tgl.FRAMEBUFFER_SRGB):
+        gl, value = self.gl, ctypes.c_int32(0)
+        if not gl.is_enabled(GL.FRAMEBUFFER_SRGB):
             return False
-        gl.get_integerv(tgl.DRAW_BUFFER0, ctypes.byref(value))
-        attachment = {tgl.BACK: tgl.BACK_LEFT, tgl.FRONT: tgl.FRONT_LEFT}.get(value.value, value.value)
-        if attachment == tgl.NONE:
+        gl.get_integerv(GL.DRAW_BUFFER0, ctypes.byref(value))
+        attachment = {GL.BACK: GL.BACK_LEFT, GL.FRONT: GL.FRONT_LEFT}.get(value.value, value.value)
+        if attachment == GL.NONE:
             return False
-        tgl.get_framebuffer_attachment_parameteriv(GL.DRAW_FRAMEBUFFER, attachment,
-                                                   tgl.FRAMEBUFFER_ATTACHMENT_OBJECT_TYPE, ctypes.byref(value))
-        if value.value == tgl.NONE:
+        gl.get_framebuffer_attachment_parameteriv(GL.DRAW_FRAMEBUFFER, attachment,
+                                                   GL.FRAMEBUFFER_ATTACHMENT_OBJECT_TYPE, ctypes.byref(value))
+        if value.value == GL.NONE:
             return False
-        tgl.get_framebuffer_attachment_parameteriv(GL.DRAW_FRAMEBUFFER, attachment,
-                                                   tgl.FRAMEBUFFER_ATTACHMENT_COLOR_ENCODING, ctypes.byref(value))
-        return value.value == tgl.SRGB
+        gl.get_framebuffer_attachment_parameteriv(GL.DRAW_FRAMEBUFFER, attachment,
+                                                   GL.FRAMEBUFFER_ATTACHMENT_COLOR_ENCODING, ctypes.byref(value))
+        return value.value == GL.SRGB
 
     def use_material(self, material: int) -> None:
         self.u_base.write(self.base[material])
@@ -338,7 +301,7 @@ class _Parts:
             if texture is not None and texture is not self.bound:
                 if self.host_textures is None:
                     self.host_textures = self._save_unit(TEXTURE_UNIT)
-                    self.tgl.bind_sampler(TEXTURE_UNIT, 0)  # the texture's own filter and wrap
+                    self.gl.bind_sampler(TEXTURE_UNIT, 0)  # the texture's own filter and wrap
                 texture.use(TEXTURE_UNIT)
                 self.bound = texture
         self.current_material = material

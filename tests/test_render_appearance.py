@@ -37,8 +37,6 @@ LEVELS = 2
 BEFORE_COMMIT = "b4edc98"
 # the checker's quadrants as seen in the image file (top row first): sRGB bytes, four distinct colours
 TOP_LEFT, TOP_RIGHT, BOTTOM_LEFT, BOTTOM_RIGHT = (200, 30, 40), (20, 180, 60), (40, 60, 220), (230, 210, 20)
-GL_TEXTURE_2D, GL_TEXTURE_BINDING_2D, GL_TEXTURE0, GL_SAMPLER_BINDING = 0x0DE1, 0x8069, 0x84C0, 0x8919
-GL_FRAMEBUFFER_SRGB, GL_SRGB8_ALPHA8 = 0x8DB9, 0x8C43
 #: SHA-256 of the frames the renderer at BEFORE_COMMIT drew in the two tests below (llvmpipe, this
 #: project's pinned moderngl), for checkouts without that commit; with it, the frames are compared.
 FRAMES_BEFORE = {"overlay": "e485d44211be50b763d4ea2af7969d07bd4fc6813dc9ef2732f474cf2bb19e86",
@@ -302,12 +300,12 @@ def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
 
 
 def test_the_framebuffer_that_encodes_srgb_itself_is_not_encoded_twice(gl_ctx, checker):
-    """Drawing into the caller's sRGB framebuffer: with GL_FRAMEBUFFER_SRGB on (Blender's viewport)
+    """Drawing into the caller's sRGB framebuffer: with GL.FRAMEBUFFER_SRGB on (Blender's viewport)
     the hardware encodes, off the shader does; both store the texture's own bytes."""
     hlod, _, image = checker
     gl = GLFunctions(gl_ctx)
     previous = gl_ctx.detect_framebuffer()
-    colour = gl_ctx.texture(SIZE, 4, internal_format=GL_SRGB8_ALPHA8)
+    colour = gl_ctx.texture(SIZE, 4, internal_format=GL.SRGB8_ALPHA8)
     depth = gl_ctx.depth_renderbuffer(SIZE)
     host = gl_ctx.framebuffer(color_attachments=[colour], depth_attachment=depth)
     renderer = Renderer(gl_ctx, hlod, images={0: image})
@@ -315,14 +313,14 @@ def test_the_framebuffer_that_encodes_srgb_itself_is_not_encoded_twice(gl_ctx, c
         for srgb_on in (True, False):
             host.use()
             host.clear(1.0, 1.0, 1.0, 1.0, depth=1.0)
-            (gl.enable if srgb_on else gl.disable)(GL_FRAMEBUFFER_SRGB)
+            (gl.enable if srgb_on else gl.disable)(GL.FRAMEBUFFER_SRGB)
             _draw(renderer, _front_view())
-            gl.disable(GL_FRAMEBUFFER_SRGB)
+            gl.disable(GL.FRAMEBUFFER_SRGB)
             stored = np.frombuffer(colour.read(), np.uint8).reshape(SIZE[1], SIZE[0], 4)[::-1, :, :3]
             assert np.abs(_pixel(stored, _front_view(), -0.5, 0.5) - TOP_LEFT).max() <= LEVELS, srgb_on
             assert np.abs(_pixel(stored, _front_view(), 0.5, -0.5) - BOTTOM_RIGHT).max() <= LEVELS, srgb_on
     finally:
-        gl.disable(GL_FRAMEBUFFER_SRGB)
+        gl.disable(GL.FRAMEBUFFER_SRGB)
         renderer.release()
         previous.use()
         for resource in (host, depth, colour):
@@ -391,23 +389,23 @@ def test_the_hosts_texture_unit_is_given_back(gl_ctx, checker):
     sampler = gl_ctx.sampler()
     units = sorted({TEXTURE_UNIT, gl_ctx.default_texture_unit})
     for unit in units:
-        gl.active_texture(GL_TEXTURE0 + unit)
-        bind_texture(GL_TEXTURE_2D, host.glo)
+        gl.active_texture(GL.TEXTURE0 + unit)
+        bind_texture(GL.TEXTURE_2D, host.glo)
         sampler.use(unit)
-    sampler_name = _integer(gl, GL_SAMPLER_BINDING)  # moderngl does not say it
+    sampler_name = _integer(gl, GL.SAMPLER_BINDING)  # moderngl does not say it
     assert sampler_name != 0
-    gl.active_texture(GL_TEXTURE0 + 5)
+    gl.active_texture(GL.TEXTURE0 + 5)
 
     def bindings():
         active = _integer(gl, GL.ACTIVE_TEXTURE)
         out = []
         for unit in units:
-            gl.active_texture(GL_TEXTURE0 + unit)
-            out.append((_integer(gl, GL_TEXTURE_BINDING_2D), _integer(gl, GL_SAMPLER_BINDING)))
+            gl.active_texture(GL.TEXTURE0 + unit)
+            out.append((_integer(gl, GL.TEXTURE_BINDING_2D), _integer(gl, GL.SAMPLER_BINDING)))
         gl.active_texture(active)
         return active, out
 
-    expected = (GL_TEXTURE0 + 5, [(host.glo, sampler_name)] * len(units))
+    expected = (GL.TEXTURE0 + 5, [(host.glo, sampler_name)] * len(units))
     renderer = Renderer(gl_ctx, hlod, size=SIZE, images={0: image})
     try:
         assert bindings() == expected
@@ -418,7 +416,7 @@ def test_the_hosts_texture_unit_is_given_back(gl_ctx, checker):
         renderer.release()
         for unit in units:
             bind_sampler(unit, 0)
-        gl.active_texture(GL_TEXTURE0)
+        gl.active_texture(GL.TEXTURE0)
         sampler.release()
         host.release()
 
