@@ -17,7 +17,10 @@ After Charalambos' dissertation (`../shared/papers/charalambos2007-dissertation-
 Appearance (issue 13): a mesh with materials, UVs or colours bakes on attribute rows instead of
 vertices; leaves keep them exact, inner nodes keep materials and UVs exact (simplify.py: material
 borders and UV seams stay where they are, a LOD vertex takes the row of the input vertex it sits
-on) and blend colours only where a colour jumps. A mesh without any takes the path it always took,
+on) and blend colours only where a colour jumps. Where keeping the UV seams would keep a LOD
+above twice its target, that node crosses them (material borders still stay): faces inside one
+UV island keep exact UVs, faces spanning two are stretched; the log names such nodes and
+meta["uv_seams_crossed_nodes"] counts them. A mesh without any takes the path it always took,
 with no attribute arrays. The node error stays the geometric Hausdorff MSE.
 """
 from __future__ import annotations
@@ -124,9 +127,12 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     phases.lap("leaves")
     progress(done, n, "simplify")
 
+    uv_seams_crossed_nodes = 0
+
     def node_done(node: int, lod: simplify.NodeLod) -> None:
-        nonlocal done
+        nonlocal done, uv_seams_crossed_nodes
         _note_lod(bake_log, node, lod, hausdorff[node], settings.target_tris)
+        uv_seams_crossed_nodes += int(lod.uv_seams_crossed)
         done += 1
         progress(done, n, "simplify")
 
@@ -160,6 +166,8 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         "log": bake_log[:_MAX_LOG_LINES],
         "log_lines_dropped": max(0, len(bake_log) - _MAX_LOG_LINES),
     }
+    if mesh.has_appearance:
+        meta["uv_seams_crossed_nodes"] = uv_seams_crossed_nodes
     clash = sorted(set(meta) & set(extra_meta or {}))
     if clash:
         raise InputError(f"extra_meta may not replace the bake's own meta entries ({', '.join(clash)})")
@@ -378,6 +386,9 @@ def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, error: floa
     elif tris > 2 * target_tris:
         bake_log.append(f"node {node}: decimation stopped at {tris} triangles (target {target_tris}); "
                         "boundary preservation keeps the cell's border")
+    if lod.uv_seams_crossed:
+        bake_log.append(f"node {node}: UV seams crossed to reach {tris} triangles ({lod.seam_kept_tris} keeping "
+                        f"them); {lod.island_spanning_faces} faces span two UV islands")
     if lod.zero_area:
         bake_log.append(f"node {node}: every triangle has zero area, which decimation removes; kept "
                         f"{tris} of the children's {lod.input_tris}")
