@@ -83,6 +83,44 @@ def test_future_version_is_rejected(saved):
         fileformat.load(saved)
 
 
+def test_version_1_files_load_without_appearance(bunny, saved):
+    """Version 2 only added optional parts: a version 1 file (positions only, as the previous
+    release wrote them: the same layout and header) loads as an HLOD without appearance."""
+    data = bytearray(saved.read_bytes())
+    assert struct.unpack("<I", data[8:12])[0] == fileformat.FORMAT_VERSION == 2
+    data[8:12] = struct.pack("<I", 1)
+    saved.write_bytes(bytes(data))
+    loaded = fileformat.load(saved)
+    assert not loaded.has_appearance and loaded.materials == ()
+    assert np.array_equal(loaded.indices, bunny.indices) and np.array_equal(loaded.error, bunny.error)
+
+
+def test_appearance_round_trip_and_its_checks(bunny, tmp_path):
+    """uvs, colors, tri_material and the material table come back as written, the texture path
+    relative to the file in it and absolute in memory; bad ids, NaN UVs and colours outside [0, 1]
+    are refused with one line."""
+    from hlod_core.appearance import Material
+
+    v, t = bunny.positions.shape[0], bunny.indices.shape[0]
+    texture = tmp_path / "textures" / "a.png"
+    textured = bunny.replace(uvs=np.asarray(bunny.positions[:, :2], np.float32), colors=np.full((v, 4), 0.5, np.float32),
+                             tri_material=(np.arange(t) % 2).astype(np.uint16),
+                             materials=(Material("A", (1, 0, 0, 1), texture=str(texture)), Material("B")))
+    path = fileformat.save(textured, tmp_path / "t.hlod")
+    header = json.loads(path.read_bytes()[24:24 + struct.unpack("<Q", path.read_bytes()[16:24])[0]])
+    assert header["materials"][0]["texture"] == "textures/a.png"
+    loaded = fileformat.load(path)
+    assert loaded.materials == textured.materials and loaded.materials[0].texture == str(texture)
+    for name in ("uvs", "colors", "tri_material"):
+        assert np.array_equal(getattr(loaded, name), getattr(textured, name)), name
+    for bad, match in ((dict(tri_material=np.full(t, 2, np.uint16)), "past the 2 materials"),
+                       (dict(uvs=np.full((v, 2), np.nan, np.float32)), "non-finite UVs"),
+                       (dict(colors=np.full((v, 4), 1.5, np.float32)), "outside \\[0, 1\\]"),
+                       (dict(tri_material=None), "no per-triangle material ids")):
+        with pytest.raises(FormatError, match=match):
+            fileformat.validate(textured.replace(**bad))
+
+
 def _rewrite_array(path, name, mutate):
     """Change one stored array in place (same size), as a corrupt file would have it."""
     loaded = fileformat.load(path, mmap=False)
