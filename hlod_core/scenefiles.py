@@ -8,7 +8,11 @@ them into one TriangleMesh (this module does not import meshio, which the Blende
   file is a scene: every node of the default scene (`scene`, else the first; a file without
   scenes: every root node) is placed with its world transform (its `matrix`, or T * R * S, times
   its parents'), every triangle primitive (modes TRIANGLES and TRIANGLE_STRIP) of its mesh once
-  per node. Coordinates stay in the file's axes (glTF's +Y up), as with every other format.
+  per node, in Blender's axes: glTF defines +Y up and +Z forward, so every world matrix is
+  preceded by GLTF_TO_BLENDER, (x, y, z) -> (x, -z, y), the rotation Blender's glTF importer
+  applies; a scene baked from its GLB then lies where the same scene baked in Blender does (and
+  3D Tiles, which take model space as Z up, export it upright). OBJ, PLY, STL and OFF have no
+  defined up axis and keep their file axes, as before.
   Per primitive: POSITION, NORMAL, TEXCOORD_0 in Blender/OpenGL convention (trimesh already
   stores 1 - v), COLOR_0 (linear, as glTF defines it; normalized integers divided by their
   maximum; RGB gets alpha 1) and the material: baseColorFactor (linear RGBA), metallicFactor,
@@ -94,6 +98,10 @@ class GltfScene:
 
 # --- glTF / GLB ----------------------------------------------------------------------------------
 
+#: glTF's +Y-up axes to Blender's +Z-up ones: (x, y, z) -> (x, -z, y), a rotation (no mirror).
+GLTF_TO_BLENDER = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+
 def read_gltf(path: Path, *, texture_dir: Path | None) -> GltfScene:
     """Read a .gltf or .glb file as a scene (see the module docstring)."""
     header, binary = _gltf_json(path)
@@ -122,7 +130,7 @@ def read_gltf(path: Path, *, texture_dir: Path | None) -> GltfScene:
         if not isinstance(mesh, int) or not 0 <= mesh < len(mesh_primitives):
             raise InputError(f"{path}: nodes[{node}].mesh {mesh!r} is not a mesh of the file")
         name = str(header["nodes"][node].get("name", f"node {node}"))
-        placements.extend((index, world, name) for index in mesh_primitives[mesh])
+        placements.extend((index, GLTF_TO_BLENDER @ world, name) for index in mesh_primitives[mesh])
     if not placements:
         raise InputError(f"{path}: the default scene places no triangles")
     return GltfScene(primitives=primitives, placements=placements, materials=materials)

@@ -35,7 +35,8 @@ UV_TOL = 1e-5
 
 
 def _to_blender_axes(p: np.ndarray) -> np.ndarray:
-    """glTF's (and Blender's OBJ exporter's) +Y up to Blender's +Z up: (x, y, z) -> (x, -z, y)."""
+    """Blender's OBJ exporter's +Y up to Blender's +Z up: (x, y, z) -> (x, -z, y). (The glTF reader
+    does this itself: glTF defines its up axis, OBJ does not.)"""
     return np.stack([p[:, 0], -p[:, 2], p[:, 1]], axis=1)
 
 
@@ -115,12 +116,13 @@ def ours(scene, tmp_path_factory):
             "obj": meshio.load_mesh(scene["obj"]), "textures": textures}
 
 
-def _per_material(mesh: meshio.TriangleMesh) -> dict:
+def _per_material(mesh: meshio.TriangleMesh, *, y_up: bool) -> dict:
     out = {}
     corners = mesh.positions[mesh.faces]
     for i, material in enumerate(mesh.materials):
         pick = mesh.material_ids == i
-        p = _to_blender_axes(corners[pick].reshape(-1, 3))
+        p = corners[pick].reshape(-1, 3)
+        p = _to_blender_axes(p) if y_up else p
         uv = mesh.uvs[mesh.faces[pick]].reshape(-1, 2).astype(np.float64)
         out[material.name] = {"tris": int(pick.sum()), "lo": p.min(0), "hi": p.max(0), "uv_mean": uv.mean(0),
                               "uv_lo": uv.min(0), "uv_hi": uv.max(0)}
@@ -136,7 +138,7 @@ def test_triangles_and_materials_match_blenders_import_and_the_generator(kind, s
     facts, theirs, mesh = scene["facts"], blender_import[kind], ours[kind]
     assert mesh.tri_count == theirs["triangles"] == facts["triangles"]
     assert len(mesh.materials) == len(theirs["materials"]) == facts["materials"]
-    mine = _per_material(mesh)
+    mine = _per_material(mesh, y_up=kind == "obj")
     assert {k: v["tris"] for k, v in mine.items()} == {k: v["tris"] for k, v in theirs["materials"].items()} \
         == facts["triangles_per_material"]
     for name, m in mine.items():
@@ -150,7 +152,7 @@ def test_uvs_match_blenders_import(kind, blender_import, ours):
     """UVs in Blender's convention: each material's UV range matches Blender's import (a v left
     as glTF stores it would come out mirrored); for the GLB, whose triangles are fixed by the
     file, the mean UV over all triangle corners matches too."""
-    mine, theirs = _per_material(ours[kind]), blender_import[kind]["materials"]
+    mine, theirs = _per_material(ours[kind], y_up=kind == "obj"), blender_import[kind]["materials"]
     for name, m in mine.items():
         t = theirs[name]
         np.testing.assert_allclose(m["uv_lo"], t["uv_lo"], atol=UV_TOL, err_msg=name)
@@ -164,12 +166,15 @@ def test_uvs_match_blenders_import(kind, blender_import, ours):
 @pytest.mark.parametrize("kind", ["glb", "obj"])
 def test_ground_uvs_follow_the_grid(kind, ours):
     """Blender's grid primitive maps its 80 x 80 square to [0, 1]^2: u = (x + 40) / 80 and
-    v = (y_blender + 40) / 80 = (40 - z) / 80 in the files' +Y-up axes. Pins the v flip."""
+    v = (y_blender + 40) / 80: y_blender is the GLB as read (Blender's axes) and -z in the OBJ's
+    +Y-up axes. Pins the v flip, and that the GLB comes out in Blender's axes."""
     mesh = ours[kind]
     ground = np.unique(mesh.faces[mesh.material_ids == [m.name for m in mesh.materials].index("Ground")])
     p, uv = mesh.positions[ground], mesh.uvs[ground]
+    y_blender = p[:, 1] if kind == "glb" else -p[:, 2]
     np.testing.assert_allclose(uv[:, 0], (p[:, 0] + 40.0) / 80.0, atol=UV_TOL)
-    np.testing.assert_allclose(uv[:, 1], (40.0 - p[:, 2]) / 80.0, atol=UV_TOL)
+    np.testing.assert_allclose(uv[:, 1], (y_blender + 40.0) / 80.0, atol=UV_TOL)
+    assert np.ptp(p[:, 2]) < 1e-3 * np.ptp(p[:, 0]) if kind == "glb" else np.ptp(p[:, 1]) < 1e-3 * np.ptp(p[:, 0])
 
 
 def test_glb_appearance(scene, ours):
@@ -294,7 +299,8 @@ def _glb(gltf: dict) -> bytes:
 def test_hand_written_scene_places_the_shared_mesh_per_node(tmp_path, container):
     """2 triangles: the mesh once per node of the default scene (not node 3 of scene 1, nor the
     points and line loop), at each node's world transform (node 1 through its parent's matrix),
-    the mirrored copy with its winding flipped so that it faces +z like its normals."""
+    the mirrored copy with its winding flipped so that it faces +z like its normals; all in
+    Blender's axes ((x, y, z) of the file -> (x, -z, y))."""
     gltf = _hand_gltf()
     path = tmp_path / f"hand.{container}"
     if container == "glb":
@@ -304,20 +310,20 @@ def test_hand_written_scene_places_the_shared_mesh_per_node(tmp_path, container)
     mesh = meshio.load_mesh(path, texture_dir=tmp_path / "textures")
     assert mesh.tri_count == 2
     corners = mesh.positions[mesh.faces]
-    plain = np.array([[10, 0, 0], [11, 0, 0], [10, 1, 0]], float)
-    mirrored = np.array([[0, 5, 0], [0, 4, 0], [-1, 5, 0]], float)  # x -> -x, turn 90 about z, +5 y
+    plain = _to_blender_axes(np.array([[10, 0, 0], [11, 0, 0], [10, 1, 0]], float))
+    mirrored = _to_blender_axes(np.array([[0, 5, 0], [0, 4, 0], [-1, 5, 0]], float))  # x -> -x, 90 about z, +5 y
     found = sorted(corners.tolist(), key=lambda t: t[0][0])
     assert sorted(map(tuple, found[1])) == sorted(map(tuple, plain))
     assert sorted(map(tuple, found[0])) == sorted(map(tuple, mirrored))
     normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    np.testing.assert_allclose(normal, [[0, 0, 1], [0, 0, 1]], atol=1e-12)  # both face +z
-    np.testing.assert_allclose(mesh.normals[mesh.faces].reshape(-1, 3), [[0, 0, 1]] * 6, atol=1e-6)
+    np.testing.assert_allclose(normal, [[0, -1, 0], [0, -1, 0]], atol=1e-12)  # both face the file's +z
+    np.testing.assert_allclose(mesh.normals[mesh.faces].reshape(-1, 3), [[0, -1, 0]] * 6, atol=1e-6)
     # appearance: v flipped, colours normalized, the material's factors and its image
     by_corner = {tuple(np.round(p, 6)): (uv, c) for p, uv, c in zip(mesh.positions, mesh.uvs, mesh.colors)}
     uv, color = by_corner[(11.0, 0.0, 0.0)]
     np.testing.assert_allclose(uv, [1.0, 1.0])
     np.testing.assert_allclose(color, [0.0, 128 / 255, 0.0, 1.0], atol=1e-6)
-    uv, color = by_corner[(10.0, 1.0, 0.0)]
+    uv, color = by_corner[(10.0, 0.0, 1.0)]
     np.testing.assert_allclose(uv, [0.0, 0.75])
     np.testing.assert_allclose(color, [0.0, 0.0, 1.0, 0.2], atol=1e-6)
     (material,) = mesh.materials
