@@ -339,7 +339,7 @@ def check_appearance(repo, work) -> dict:
     props = scene.hlod
     props.output_path, props.target_tris = str(work / "textured.hlod"), 300
     out = {"bake": sorted(bpy.ops.hlod.bake())}
-    hlod = fileformat.load(props.file)
+    hlod = fileformat.load(bpy.path.abspath(props.file))
     out["file"] = {"nodes": hlod.node_count, "depth": int(hlod.depth.max()), "input_tris": int(hlod.meta["input_tris"]),
                    "uv_map": hlod.meta.get("uv_map"), "color_attribute": hlod.meta.get("color_attribute"),
                    "materials": [[m.name, m.texture, m.image] for m in hlod.materials],
@@ -454,7 +454,7 @@ def check_render(repo, work) -> dict:
     props = scene.hlod
     props.output_path, props.target_tris = str(work / "textured.hlod"), RENDER_TARGET_TRIS
     out = {"bake": sorted(bpy.ops.hlod.bake())}
-    hlod = fileformat.load(props.file)
+    hlod = fileformat.load(bpy.path.abspath(props.file))
     out["root_tris"], out["input_tris"] = int(hlod.tri_count[0]), int(hlod.meta["input_tris"])
     out["materialize"] = sorted(bpy.ops.hlod.materialize(depth=0))
     materialized = list(bpy.data.collections["HLOD depth 0"].objects)
@@ -507,7 +507,7 @@ def check_shared_scene(repo, work, blend) -> dict:
     props.output_path = str(Path(work) / "shared.hlod")
     started = time.perf_counter()
     out = {"bake": sorted(bpy.ops.hlod.bake()), "bake_seconds": round(time.perf_counter() - started, 2)}
-    hlod = fileformat.load(props.file)
+    hlod = fileformat.load(bpy.path.abspath(props.file))  # stored relative to the .blend where it can be
     leaves = hlod.child_count == 0
     per_material = {}
     for node in np.flatnonzero(leaves):

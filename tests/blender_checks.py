@@ -135,7 +135,7 @@ def check_bake(repo, work) -> dict:
     props.output_path = str(Path(work) / "scene.hlod")
     props.target_tris = 400
     out["result"] = sorted(bpy.ops.hlod.bake())
-    hlod = fileformat.load(props.file)
+    hlod = fileformat.load(bpy.path.abspath(props.file))
     out.update(file=props.file, nodes=hlod.node_count, input_tris=int(hlod.meta["input_tris"]),
                box_min=hlod.box_min[0].tolist(), box_max=hlod.box_max[0].tolist())
     out["sources_untouched"] = before == {o.name: (len(o.data.vertices) if o.type == "MESH" else None, len(o.modifiers))
