@@ -21,7 +21,6 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -129,6 +128,8 @@ def check_material_ids(name: str, faces: int, material_ids, materials) -> np.nda
         raise InputError(f"{name}: material ids must be integers of shape ({faces},), got {ids.dtype}{list(ids.shape)}")
     if not materials:
         raise InputError(f"{name}: has material ids but no materials")
+    if len(materials) > MAX_MATERIALS:
+        raise InputError(f"{name}: has {len(materials)} materials, more than the {MAX_MATERIALS} a .hlod file holds")
     if ids.size and (ids.min() < 0 or ids.max() >= len(materials)):
         raise InputError(f"{name}: a material id is outside 0..{len(materials) - 1}")
     return ids.astype(np.int32, copy=False)
@@ -205,7 +206,3 @@ def unpack(layout: AttributeLayout, rows: np.ndarray | None, faces: np.ndarray):
 def texture_paths(materials) -> list[str]:
     """Distinct texture paths of a material table, in first-use order."""
     return list(dict.fromkeys(m.texture for m in materials if m.texture is not None))
-
-
-def resolve(path: str | os.PathLike) -> str:
-    return str(Path(path).resolve())

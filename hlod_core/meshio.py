@@ -252,6 +252,7 @@ def merge(meshes: list[TriangleMesh], *, name: str = "scene") -> TriangleMesh:
             ids.append(remap[m.material_ids] if m.material_ids is not None else np.full(m.tri_count, remap[0], np.int32))
         material_ids = np.concatenate(ids)
         materials = tuple(table)
+        check_material_ids(name, material_ids.shape[0], material_ids, materials)
     return TriangleMesh(positions=positions, faces=faces, normals=normals, name=name, uvs=uvs, colors=colors,
                         material_ids=material_ids, materials=materials)
 
