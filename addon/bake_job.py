@@ -1,58 +1,170 @@
-"""A bake running in a worker thread for the modal Bake operator: progress to poll, cancel to ask for,
-the result or the error to collect on the main thread. No bpy here: the operator gathers the mesh
-on the main thread first, and Blender data is never touched from the thread.
+"""A bake in a child process (issue 14), for the Bake operator (modal or not) and the background
+command. No bpy here: the caller gathers the mesh on Blender's main thread first.
 
-Cancelling is checked between bake tasks (hlod_core.bake); a cancelled or failed bake writes
-nothing (the file is written only at the end, atomically), so an earlier file stays as it was."""
+`BakeJob` writes the mesh into a private scratch folder (`hlod-blender-*` in the temp folder;
+hlod_core/bake_child.py says what is in it), then runs `python -m hlod_core.bake_child` with
+Blender's own Python (`sys.executable`: Blender's bundled interpreter, or the bpy module's) and only
+this extension's folder and the folders of its dependencies' wheels on PYTHONPATH, so `hlod_core`
+imports as from the command line and the bake runs `settings.jobs` worker processes. The child is
+the leader of its own process group (POSIX; on Windows its own process group too, without the
+signals), and it writes its temporary files into the scratch folder (TMPDIR).
+
+State, read from the main thread: `progress` (done, total, phase), from the child's progress lines
+(read by a thread, never blocking the caller); once `running` is false, `result` (a BakeResult) or
+`error`: BakeCancelled after `cancel()`, the core's typed error (InputError, ...) the child
+reported, or BakeProcessError for a child that died (killed, crashed, out of memory) with its exit
+signal or status and the last lines it wrote on stderr.
+
+Cancel sends SIGTERM to the child's group (the workers end at once, the child unwinds its pool and
+its atomic write) and SIGKILL after STOP_GRACE_SECONDS. Whatever ends the child, the watcher thread
+then kills what is left of its group, removes the scratch folder and any temporary file the child's
+atomic write left beside the output, and only then reports the job finished: an earlier .hlod stays
+as it was unless the child renamed a complete new one over it. The child's stdin is a pipe this
+process keeps open: if Blender dies, the child sees it close, stops its group and removes the job's
+files itself. On Windows, cancel terminates the child; its workers end when they next read from it.
+"""
 from __future__ import annotations
 
+import collections
+import importlib.util
+import json
 import logging
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
 import threading
 import time
+from dataclasses import dataclass
+from pathlib import Path
 
-from ..hlod_core import fileformat
-from ..hlod_core.bake import BakeSettings, bake
+from ..hlod_core import bake_child
+from ..hlod_core.bake import BakeSettings
 from ..hlod_core.errors import BakeCancelled, HlodError
 from ..hlod_core.meshio import TriangleMesh
 
 log = logging.getLogger(__name__)
 
+#: The folder holding this extension's packages (hlod_core among them).
+EXTENSION_DIR = Path(__file__).resolve().parents[1]
+#: Modules the bake imports besides hlod_core and the standard library: their folders go on the
+#: child's path (in Blender, pymeshlab comes from the extension's wheels, numpy with Blender).
+CHILD_MODULES = ("pymeshlab", "numpy")
+SCRATCH_PREFIX = "hlod-blender-"
+#: Between SIGTERM and SIGKILL of the child's process group after a cancel.
+STOP_GRACE_SECONDS = 0.5
+#: How often the watcher looks at the child (and the cancel deadline).
+POLL_SECONDS = 0.02
+#: stderr lines kept, and how many of them an error message quotes.
+STDERR_TAIL_LINES, REPORTED_TAIL_LINES = 40, 6
+
+_POSIX = hasattr(os, "killpg")
+_KILL = getattr(signal, "SIGKILL", signal.SIGTERM)  # Windows has no SIGKILL: terminate() is its kill
+_active: list["BakeJob"] = []  # running jobs, for the panel
+
+
+class BakeProcessError(HlodError):
+    """The bake's child process ended without a result: killed, crashed, or out of memory."""
+
+
+@dataclass(frozen=True)
+class BakeResult:
+    """What a finished child reported: output path, node count, input triangles, the bake's own
+    seconds (bake() alone, in the child), worker processes, and the cache's statistics of the
+    bake (None without a cache)."""
+
+    output: str
+    node_count: int
+    input_tris: int
+    bake_seconds: float
+    jobs: int
+    cache: dict | None = None
+
+
+def child_path() -> list[str]:
+    """The child's PYTHONPATH: this extension's folder, then the folder each of CHILD_MODULES
+    imports from here (for pymeshlab: where Blender installed the extension's wheels)."""
+    folders = [str(EXTENSION_DIR)]
+    for name in CHILD_MODULES:
+        spec = importlib.util.find_spec(name)
+        if spec is None:
+            raise BakeProcessError(f"HLOD bake: {name} does not import in Blender's Python; reinstall the extension")
+        where = Path(spec.submodule_search_locations[0] if spec.submodule_search_locations else spec.origin)
+        folder = str(where.parent)
+        if folder not in folders:
+            folders.append(folder)
+    return folders
+
+
+def child_environment(scratch: str) -> dict[str, str]:
+    """Blender's environment without Python's own variables (PYTHONHOME, a user's PYTHONPATH...),
+    with the child's path, no user site-packages, and the temp folder inside `scratch`."""
+    env = {k: v for k, v in os.environ.items() if not k.upper().startswith("PYTHON")}
+    env.update(PYTHONPATH=os.pathsep.join(child_path()), PYTHONNOUSERSITE="1", PYTHONIOENCODING="utf-8",
+               TMPDIR=scratch, TMP=scratch, TEMP=scratch)
+    return env
+
 
 class BakeJob:
-    def __init__(self, mesh: TriangleMesh, settings: BakeSettings, output: str, *, extra_meta: dict | None = None):
-        """extra_meta: entries for the file's meta (bake's extra_meta: the UV map's and colour
-        attribute's names of a bake from Blender)."""
-        self.output = output
-        self.progress: tuple[int, int, str] = (0, 1, "octree")
-        self.result = None
+    def __init__(self, mesh: TriangleMesh, settings: BakeSettings, output: str | os.PathLike, *,
+                 extra_meta: dict | None = None, cache_dir: str | os.PathLike | None = None):
+        """Start the bake of `mesh` into `output` (module notes). extra_meta: entries for the file's
+        meta (the UV map's and colour attribute's names of a bake from Blender); cache_dir: the
+        bake's cache folder (None: no cache)."""
+        self.output = os.path.abspath(output)
+        self.progress: tuple[int, int, str] = (0, 1, "starting")
+        self.result: BakeResult | None = None
         self.error: BaseException | None = None
+        self.jobs = settings.jobs
         self.started = time.perf_counter()
-        self._cancel = threading.Event()
-        self._thread = threading.Thread(target=self._work, args=(mesh, settings, extra_meta),
-                                        name="hlod-bake", daemon=True)
-        self._thread.start()
-
-    def _work(self, mesh, settings, extra_meta) -> None:
+        self.stderr_tail: collections.deque[str] = collections.deque(maxlen=STDERR_TAIL_LINES)
+        self._events: dict[str, dict] = {}
+        self._lock = threading.Lock()
+        self._stop_at: float | None = None  # monotonic time of cancel()
+        self._killed = False
+        self._reaped = False
+        self._finished = threading.Event()
+        self._temp_before = self._output_temps()
+        self._scratch = tempfile.mkdtemp(prefix=SCRATCH_PREFIX)
         try:
-            hlod = bake(mesh, settings, progress=self._on_progress, cancel=self._cancel.is_set, extra_meta=extra_meta)
-            fileformat.save(hlod, self.output)
-            self.result = hlod
-        except BaseException as exc:  # noqa: BLE001 - collected by the main thread, which reports it
-            if not isinstance(exc, HlodError):  # an unexpected failure: keep its traceback in the log
-                log.exception("HLOD bake failed")
-            elif not isinstance(exc, BakeCancelled):
-                log.error("HLOD bake: %s", exc)
-            self.error = exc
+            job_file = bake_child.write_job(self._scratch, mesh, settings, self.output, extra_meta=extra_meta,
+                                            cache_dir=cache_dir)
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", bake_child.MODULE, str(job_file), bake_child.PARENT_STDIN],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=self._scratch,
+                env=child_environment(self._scratch), start_new_session=_POSIX,
+                creationflags=0 if _POSIX else subprocess.CREATE_NEW_PROCESS_GROUP | subprocess.CREATE_NO_WINDOW)
+        except BaseException:
+            shutil.rmtree(self._scratch, ignore_errors=True)
+            raise
+        self.pid = self._proc.pid
+        self._readers = [threading.Thread(target=self._read_events, name="hlod-bake-events", daemon=True),
+                         threading.Thread(target=self._read_stderr, name="hlod-bake-stderr", daemon=True)]
+        for reader in self._readers:
+            reader.start()
+        _active.append(self)
+        self._watcher = threading.Thread(target=self._watch, name="hlod-bake-watch", daemon=True)
+        self._watcher.start()
 
-    def _on_progress(self, done: int, total: int, phase: str) -> None:
-        self.progress = (done, total, phase)
+    # --- the caller's side --------------------------------------------------------------------
 
     def cancel(self) -> None:
-        self._cancel.set()
+        """Stop the bake: SIGTERM to the child's group now, SIGKILL after the grace (module notes)."""
+        with self._lock:
+            if self._stop_at is None and not self._reaped:
+                self._stop_at = time.monotonic()
+                self._signal_group(signal.SIGTERM)
+
+    @property
+    def cancelled(self) -> bool:
+        """Whether cancel() was called."""
+        return self._stop_at is not None
 
     @property
     def running(self) -> bool:
-        return self._thread.is_alive()
+        return not self._finished.is_set()
 
     @property
     def percent(self) -> float:
@@ -60,9 +172,156 @@ class BakeJob:
         return 100.0 * done / total if total else 100.0
 
     def wait(self, timeout: float | None = None) -> bool:
-        self._thread.join(timeout)
-        return not self._thread.is_alive()
+        """Wait until the job has finished (child gone, scratch removed); whether it has."""
+        return self._finished.wait(timeout)
+
+    def join(self) -> None:
+        """Wait for the end; Ctrl-C (KeyboardInterrupt) cancels the bake, waits for it, and is raised."""
+        try:
+            while not self._finished.wait(0.1):
+                pass
+        except KeyboardInterrupt:
+            self.cancel()
+            self._finished.wait()
+            raise
 
     @property
     def seconds(self) -> float:
         return time.perf_counter() - self.started
+
+    def status_line(self) -> str:
+        done, total, phase = self.progress
+        return f"HLOD bake ({self.jobs} job{'s' if self.jobs > 1 else ''}): {phase} {done}/{total} nodes ({self.percent:.0f}%)"
+
+    # --- threads ------------------------------------------------------------------------------
+
+    def _read_events(self) -> None:
+        for raw in self._proc.stdout:
+            line = raw.decode("utf-8", "replace").strip()
+            try:
+                event = json.loads(line)
+                kind = event["event"]
+            except (ValueError, TypeError, KeyError):
+                self.stderr_tail.append(line)  # not the protocol: keep it with the messages
+                continue
+            if kind == "progress":
+                self.progress = (int(event["done"]), int(event["total"]), str(event["phase"]))
+            else:
+                self._events[kind] = event
+
+    def _read_stderr(self) -> None:
+        for raw in self._proc.stderr:
+            line = raw.decode("utf-8", "replace").rstrip()
+            if line:
+                self.stderr_tail.append(line)
+                log.debug("bake child: %s", line)
+
+    def _watch(self) -> None:
+        try:
+            returncode = self._wait_child()
+            for reader in self._readers:
+                reader.join(timeout=2.0)
+            self._collect(returncode)
+        except BaseException as exc:  # noqa: BLE001 - reported through `error`, never lost in a thread
+            log.exception("HLOD bake watcher failed")
+            self.error = self.error or exc
+        finally:
+            self._clean_up()
+            if self in _active:
+                _active.remove(self)
+            self._finished.set()
+
+    def _wait_child(self) -> int:
+        """Wait for the child to end, escalating a cancel to SIGKILL after the grace; then kill what
+        is left of its group (orphaned workers) while the child's pid still names the group, and reap it."""
+        while not self._exited():
+            time.sleep(POLL_SECONDS)
+            stop_at = self._stop_at
+            if stop_at is not None and not self._killed and time.monotonic() - stop_at >= STOP_GRACE_SECONDS:
+                with self._lock:
+                    self._signal_group(_KILL)
+                    self._killed = True
+        with self._lock:
+            self._signal_group(_KILL)
+            returncode = self._proc.wait()
+            self._reaped = True
+        self._proc.stdin.close()
+        return returncode
+
+    def _exited(self) -> bool:
+        """Whether the child has ended. POSIX: without reaping it (waitid WNOWAIT), so that its pid
+        keeps naming its process group until the group is killed."""
+        if _POSIX and hasattr(os, "waitid") and hasattr(os, "WNOWAIT"):
+            try:
+                return os.waitid(os.P_PID, self.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
+            except ChildProcessError:
+                return True
+        return self._proc.poll() is not None
+
+    def _signal_group(self, signum: int) -> None:
+        """Signal the child's process group (POSIX) or the child (Windows). Call with the lock held."""
+        if self._reaped:
+            return
+        if not _POSIX:
+            (self._proc.terminate if signum == signal.SIGTERM else self._proc.kill)()
+            return
+        try:
+            os.killpg(self.pid, signum)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+    def _collect(self, returncode: int) -> None:
+        done, failed = self._events.get("done"), self._events.get("error")
+        if returncode == 0 and done is not None:
+            self.result = BakeResult(output=done["output"], node_count=int(done["nodes"]),
+                                     input_tris=int(done["input_tris"]), bake_seconds=float(done["bake_seconds"]),
+                                     jobs=int(done["jobs"]), cache=done.get("cache"))
+            self.progress = (self.progress[1], self.progress[1], "done")
+        elif failed is not None:
+            kind = bake_child.ERROR_TYPES.get(failed["type"], HlodError)
+            self.error = kind(failed["message"]) if failed["type"] != "OSError" else HlodError(
+                f"HLOD bake: cannot write {failed['message']}")
+        elif self._stop_at is not None:
+            self.error = BakeCancelled("bake cancelled")
+        else:
+            self.error = BakeProcessError(self._death_message(returncode))
+            log.error("%s", self.error)
+
+    def _death_message(self, returncode: int) -> str:
+        if returncode < 0:
+            try:
+                name = signal.Signals(-returncode).name
+            except ValueError:
+                name = "?"
+            how = f"was killed by signal {name} ({-returncode})"
+            if -returncode == _KILL:
+                how += ": out of memory, or killed from outside"
+        else:
+            how = f"exited with status {returncode}"
+        tail = [line for line in self.stderr_tail if line][-REPORTED_TAIL_LINES:]
+        return (f"HLOD bake: the bake process (pid {self.pid}) {how}; nothing was written. Its last messages: "
+                + (" | ".join(tail) if tail else "(none)"))
+
+    def _clean_up(self) -> None:
+        """Remove the scratch folder (the child's temporary files with it) and temporary files of
+        the child's atomic write beside the output that were not there before the job."""
+        shutil.rmtree(self._scratch, ignore_errors=True)
+        for leftover in self._output_temps() - self._temp_before:
+            try:
+                os.unlink(leftover)
+            except OSError:
+                pass
+
+    def _output_temps(self) -> set[str]:
+        """Temporary files of an atomic write to the output (hlod_core.atomic names them .NAME.*.tmp)."""
+        folder, name = os.path.split(self.output)
+        try:
+            return {os.path.join(folder, entry) for entry in os.listdir(folder or ".")
+                    if entry.startswith(f".{name}.") and entry.endswith(".tmp")}
+        except OSError:
+            return set()
+
+
+def active() -> BakeJob | None:
+    """The running bake, if any (the panel shows its progress)."""
+    return _active[-1] if _active else None

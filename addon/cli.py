@@ -3,9 +3,14 @@ with `bpy.utils.register_cli_command`, and the same code through the bpy module
 (`python scripts/hlod_blender.py ...`, for machines with the bpy wheel and no Blender install).
 
     hlod bake [FILE.blend ...] [--collection NAME | --objects A,B] -o OUT [--format hlod 3dtiles]
-              [--target-tris 2000] [--max-depth 12] [--quality-threshold 0.3]
+              [--target-tris 2000] [--max-depth 12] [--quality-threshold 0.3] [--jobs N] [--no-cache]
     hlod export IN.hlod --format 3dtiles|hlod -o DIR
 
+`bake` gathers each file's meshes in Blender and bakes them in a child process of Blender's Python
+with N worker processes (addon/bake_job.py, as the Bake operator; default 0 = all cores but one);
+Ctrl-C stops the child and its workers and writes nothing for that file. The bake keeps its cache
+(hlod_core/bake_cache.py) in OUT.hlod.cache beside each .hlod, so a re-bake redoes only what
+changed; --no-cache bakes from scratch and keeps none.
 `bake` without .blend files bakes the open file into OUT (a .hlod path); with files, OUT is a
 folder and each file FILE.blend gives OUT/FILE.hlod and, with `--format 3dtiles`, OUT/FILE_3dtiles/.
 A file that fails is reported and the others go on. The last stdout line is a JSON summary
@@ -22,11 +27,12 @@ from pathlib import Path
 
 import bpy
 
-from ..hlod_core import fileformat
-from ..hlod_core.bake import BakeSettings, bake
+from ..hlod_core import bake_cache, fileformat
+from ..hlod_core.bake import BakeSettings
 from ..hlod_core.export import export_hlod
 from ..hlod_core.errors import HlodError, InputError
 from . import scene_mesh
+from .bake_job import BakeJob
 from .settings import bake_settings
 
 _cli_command = None  # the handle of the registered command
@@ -51,6 +57,9 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--target-tris", type=int, default=BakeSettings.target_tris)
     b.add_argument("--max-depth", type=int, default=BakeSettings.max_depth)
     b.add_argument("--quality-threshold", type=float, default=BakeSettings.quality_threshold)
+    b.add_argument("--jobs", type=int, default=0, metavar="N",
+                   help="worker processes of the bake (default 0: all cores but one)")
+    b.add_argument("--no-cache", action="store_true", help="bake from scratch and keep no cache beside the output")
     e = sub.add_parser("export", help="export a baked .hlod")
     e.add_argument("file", metavar="IN.hlod")
     e.add_argument("--format", choices=["3dtiles", "hlod"], required=True)
@@ -116,20 +125,28 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
     try:
         if target.suffix != ".hlod":
             raise InputError(f"-o {target}: give a .hlod file name when baking the open file")
+        if args.jobs < 0:
+            raise InputError(f"--jobs {args.jobs}: give 0 (all cores but one) or a number of worker processes")
         objects = _objects(args)
         mesh = scene_mesh.evaluated_mesh(bpy.context, objects)
-        hlod = bake(mesh, bake_settings(args))
+        settings = bake_settings(args)
         target.parent.mkdir(parents=True, exist_ok=True)
-        fileformat.save(hlod, target)
+        cache_dir = None if args.no_cache else bake_cache.default_folder(target)
+        bake_cache.check_folder(cache_dir)
+        job = BakeJob(mesh, settings, str(target), cache_dir=cache_dir)
+        job.join()
+        if job.error is not None:
+            raise job.error
         outputs = {"hlod": str(target)}
         if "3dtiles" in args.format:
             tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
-            outputs["3dtiles"] = export_hlod(hlod, "3dtiles", tiles_dir, target.stem)["output"]
+            outputs["3dtiles"] = export_hlod(fileformat.load(target), "3dtiles", tiles_dir, target.stem)["output"]
     except (HlodError, OSError) as exc:
         print(f"hlod: {blend}: {exc}", file=sys.stderr)
         return {"blend": blend, "ok": False, "error": str(exc)}
-    return {"blend": blend, "ok": True, "outputs": outputs, "nodes": hlod.node_count,
-            "input_tris": int(hlod.meta["input_tris"]), "seconds": time.perf_counter() - started}
+    return {"blend": blend, "ok": True, "outputs": outputs, "nodes": job.result.node_count,
+            "input_tris": job.result.input_tris, "jobs": job.result.jobs, "cache": job.result.cache,
+            "seconds": time.perf_counter() - started}
 
 
 def _objects(args) -> list:

@@ -1,4 +1,5 @@
-"""Scene properties under `scene.hlod` (DESIGN §8): bake settings, runtime settings, overlay settings,
+"""Scene properties under `scene.hlod` (DESIGN §8): bake settings (with `jobs`, the bake's worker
+processes, and `last_bake`, the line the panel shows about the last bake), runtime settings, overlay settings,
 read-only live statistics (getters over the running preview; nothing is written from the draw
 handler), and two records (issue 20): the objects the last bake took, with content keys
 (`source_objects`, `source_file`; addon/source_record.py) and the objects the running preview hid
@@ -59,8 +60,16 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     max_depth: IntProperty(name="Max Depth", default=12, min=0, max=24, description="Deepest octree level (root = 0)")
     quality_threshold: FloatProperty(name="Decimation Quality", default=0.3, min=0.0, max=1.0,
                                      description="pymeshlab quadric quality threshold (higher keeps better-shaped triangles)")
+    jobs: IntProperty(name="Jobs", default=0, min=0, max=256,
+                      description="Worker processes of the bake, which runs outside Blender's process; "
+                                  "0 = all cores but one")
+    use_cache: BoolProperty(name="Bake Cache", default=True,
+                            description="Keep a cache folder beside the output (OUT.hlod.cache, safe to delete) so that "
+                                        "a re-bake redoes only the parts of the octree that changed")
     output_path: StringProperty(name="Output", subtype="FILE_PATH", default="", options=BLEND_RELATIVE_PATH,
                                 description="Where the .hlod goes; empty = next to the .blend, named after it")
+    last_bake: StringProperty(name="Last Bake", default="",
+                              description="How the last bake went: seconds, jobs, and what came from the cache")
     file: StringProperty(name="Baked File", subtype="FILE_PATH", default="", options=BLEND_RELATIVE_PATH,
                          description="The .hlod the preview shows (set by Bake)")
     # --- runtime ------------------------------------------------------------------------------

@@ -4,14 +4,24 @@ command's parsed arguments (addon/cli.py) carry the same field names, so both go
 """
 from __future__ import annotations
 
+import os
+
 from ..hlod_core.bake import BakeSettings
 from ..hlod_core.traversal import RuntimeSettings
 
 
-def bake_settings(source, *, jobs: int = 1) -> BakeSettings:
-    """`source`: scene.hlod or the command's arguments (target_tris, max_depth, quality_threshold).
-    jobs = 1: worker processes would have to import this package by its Blender name
-    (bl_ext.<repo>.hlod), which a plain Python child cannot; the bake runs in this process."""
+def default_jobs() -> int:
+    """All the cores this process may use but one, at least 1: Blender keeps a core while the
+    bake's worker processes (issue 14) use the rest."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, cores - 1)
+
+
+def bake_settings(source) -> BakeSettings:
+    """`source`: scene.hlod or the command's arguments (target_tris, max_depth, quality_threshold,
+    jobs: worker processes, 0 = default_jobs()). The bake runs in a child process of Blender's
+    Python (addon/bake_job.py), where worker processes import hlod_core as from the command line."""
+    jobs = int(getattr(source, "jobs", 0) or 0) or default_jobs()
     return BakeSettings(target_tris=int(source.target_tris), max_depth=int(source.max_depth), jobs=jobs,
                         quality_threshold=float(source.quality_threshold))
 

@@ -1,11 +1,15 @@
 """Bake an octree HLOD from triangles (DESIGN §4), as a pipeline of named phases:
 
-    prepare  -> file-relative float32 positions, triangle centroids; with appearance, the
-                vertices become attribute rows (appearance.pack: a vertex split per material)
-    octree   -> top-down partition (octree.build_octree)
+    prepare  -> the origin (the centre of the used vertices' box); file-relative float32
+                positions, triangle centroids, the root cell (octree.tight_cube); with appearance, the vertices become attribute rows
+                (appearance.pack: a vertex split per material)
+    octree   -> top-down partition of the root cell, split at cell centres (octree.build_octree)
     leaves   -> each leaf keeps its original triangles (and their exact attribute rows)
-    simplify -> inner nodes bottom-up: weld, quadric decimation, Hausdorff MSE (simplify.py);
-                independent subtrees run in parallel worker processes (`jobs`)
+    cache    -> with a cache folder (bake_cache.py): an input it holds the whole result of comes
+                back from it at once; otherwise the inner nodes whose subtree it holds take their
+                LODs and errors from it
+    simplify -> the other inner nodes bottom-up: weld, quadric decimation, Hausdorff MSE
+                (simplify.py); independent subtrees run in parallel worker processes (`jobs`)
     assemble -> one vertex and one index buffer, node ranges; with appearance, UVs, colours and
                 triangle materials, each node's triangles sorted by material (one draw per
                 (node, material))
@@ -13,6 +17,15 @@
 
 After Charalambos' dissertation (`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`
 §3.3, §8: octree, one LOD of ~2000 triangles per node, offline bottom-up simplification).
+
+An edit that keeps the input's box (and its centroids' box) keeps the origin, the float32 positions
+of everything the edit does not touch, the octree's cells (octree.py) and the cache keys of their
+subtrees; one that changes the box changes them all (a full re-bake). A node's LOD and error depend on its
+subtree's input triangles and the settings only: decimation reads the children's LODs, and the
+error compares the LOD with the leaves' triangles below the node (each leaf's vertices as that leaf
+keeps them). That is what lets a re-bake take the unchanged subtrees from the cache, and the result
+is the same file as a bake from scratch except for `VOLATILE_META` (timings and cache statistics);
+the bake log lists nodes in id order, whichever way their LODs came.
 
 Appearance (issue 13): a mesh with materials, UVs or colours bakes on attribute rows instead of
 vertices; leaves keep them exact, inner nodes keep materials and UVs exact (simplify.py: material
@@ -41,12 +54,12 @@ from typing import Callable
 
 import numpy as np
 
-from . import appearance, simplify
+from . import appearance, bake_cache, simplify
 from .arrays import concat_indexed
 from .errors import BakeCancelled, InputError
 from .hierarchy import Hlod, cube_sides, query_box_pad
 from .meshio import TriangleMesh
-from .octree import OctreeLayout, build_octree
+from .octree import OctreeLayout, RootCube, build_octree, tight_cube
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +68,17 @@ ProgressFn = Callable[[int, int, str], None]
 CancelFn = Callable[[], bool]
 
 _MAX_LOG_LINES = 200
+
+#: meta entries that differ between two bakes of the same input at the same settings: timings, and
+#: what the cache did ("cache": {"nodes", "reused_nodes", "rebuilt_nodes", "reused_tris",
+#: "rejected_entries"}, present when the bake had a cache folder). Everything else in the file is
+#: the same whether a bake came from scratch or from the cache (`stable_meta`).
+VOLATILE_META = ("bake_seconds", "phase_seconds", "cache")
+
+
+def stable_meta(meta: dict) -> dict:
+    """meta without VOLATILE_META: what two bakes of the same input and settings agree on."""
+    return {k: v for k, v in meta.items() if k not in VOLATILE_META}
 
 
 @dataclass(frozen=True)
@@ -88,9 +112,12 @@ class BakeSettings:
 
 def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
          progress: ProgressFn | None = None, cancel: CancelFn | None = None,
-         sources: list[str] | None = None, extra_meta: dict | None = None) -> Hlod:
+         sources: list[str] | None = None, extra_meta: dict | None = None,
+         cache_dir: str | os.PathLike | None = None) -> Hlod:
     """Bake `mesh` into an Hlod. Raises InputError for unusable input, BakeCancelled if `cancel()`
-    turns true (checked between nodes). Writes nothing to disk except worker scratch files.
+    turns true (checked between nodes). Writes nothing to disk except worker scratch files and,
+    with `cache_dir`, once the bake is complete, the cache folder (bake_cache.py: what it did not
+    hold is added, the entries this bake did not use are removed).
     extra_meta: JSON-serialisable entries added to the HLOD's meta (the Blender side records the
     UV map and colour attribute names, "uv_map" and "color_attribute"); they may not replace the
     bake's own entries. The HLOD carries uvs / colors / tri_material and mesh.materials exactly
@@ -98,59 +125,130 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     started = time.perf_counter()
     progress = progress or (lambda done, total, phase: None)
     cancel = cancel or (lambda: False)
-    bake_log: list[str] = []
+    clash = sorted(set(extra_meta or {}) & _OWN_META)
+    if clash:
+        raise InputError(f"extra_meta may not replace the bake's own meta entries ({', '.join(clash)})")
     phases = _PhaseClock()
+    cache = result_key = None
+    if cache_dir is not None:
+        row_layout = appearance.AttributeLayout(material=mesh.material_ids is not None, uv=mesh.uvs is not None,
+                                                color=mesh.colors is not None)
+        cache = bake_cache.BakeCache(cache_dir, decimation=settings.decimation(), with_normals=mesh.normals is not None,
+                                     row_layout=row_layout)
+        result_key = bake_cache.input_key(mesh, max_depth=settings.max_depth, context=cache.context)
+        found = cache.load_result(result_key, tuple(mesh.materials) if mesh.has_appearance else ())
+        if found is not None:
+            hlod, derived = found
+            phases.lap("cache")
+            inner = ~hlod.is_leaf
+            stats = _cache_stats(cache, nodes=int(inner.sum()), reused=int(inner.sum()), whole=True)
+            stats["reused_tris"] = int(hlod.tri_count[inner].sum())
+            progress(hlod.node_count, hlod.node_count, "done")
+            return hlod.replace(meta=_meta(mesh, settings, derived, stats, sources=sources, extra_meta=extra_meta,
+                                           seconds=time.perf_counter() - started, phases=phases))
 
-    origin, positions, faces, centroids = _prepare(mesh)
-    normals_in = mesh.normals
-    row_layout, rows = appearance.AttributeLayout(False, False, False), None
-    if mesh.has_appearance:
-        row_layout, positions, faces, normals_in, rows = _pack_rows(mesh, positions, normals_in)
-    counted = ~simplify.collapsed(positions, faces)
+    prepared = _prepare(mesh)
     phases.lap("prepare")
-    layout = build_octree(centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
-                          counted=counted)
-    del centroids
+    layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
+                          counted=prepared.counted, root=prepared.root_cell)
     phases.lap("octree")
     n = layout.node_count
     progress(0, n, "octree")
     log.info("octree: %d nodes, %d leaves", n, int(layout.is_leaf.sum()))
-
-    ordered_faces = faces[layout.tri_order]
     # per node (positions (k,3) f32, faces (m,3) int32, normals (k,3) f32 or None, attribute rows (k,A) f32 or None)
     lods: list[tuple] = [None] * n
-    hausdorff = np.zeros(n, np.float64)
-    for node in np.flatnonzero(layout.is_leaf):
-        p, f, used = simplify.compact(positions, ordered_faces[layout.tri_begin[node]:layout.tri_end[node]])
-        lods[node] = (p, f, None if normals_in is None else normals_in[used], None if rows is None else rows[used])
-    done = int(layout.is_leaf.sum())
+    _leaf_lods(layout, lods, prepared)
     phases.lap("leaves")
+
+    hausdorff = np.zeros(n, np.float64)
+    made: dict[int, simplify.NodeLod] = {}  # inner node -> its LOD (and what the log says of it)
+    inner = np.flatnonzero(~layout.is_leaf)
+    keys = None
+    if cache is not None:
+        keys = bake_cache.node_keys(layout, lods, origin=prepared.origin, context=cache.context)
+        for node in inner:
+            hit = cache.load(keys[node])
+            if hit is not None:
+                made[int(node)], hausdorff[node] = hit
+                lods[node] = (hit[0].positions, hit[0].faces, hit[0].normals, hit[0].attributes)
+    from_cache = set(made)
+    if cache is not None:
+        phases.lap("cache")
+    done = n - inner.size + len(from_cache)
     progress(done, n, "simplify")
 
-    uv_seams_crossed_nodes = 0
-
     def node_done(node: int, lod: simplify.NodeLod) -> None:
-        nonlocal done, uv_seams_crossed_nodes
-        _note_lod(bake_log, node, lod, hausdorff[node], settings.target_tris)
-        uv_seams_crossed_nodes += int(lod.uv_seams_crossed)
+        nonlocal done
+        made[node] = lod
         done += 1
         progress(done, n, "simplify")
 
-    _simplify_inner_nodes(layout, lods, hausdorff, positions, ordered_faces, settings,
-                          with_normals=normals_in is not None, row_layout=None if rows is None else row_layout,
-                          cancel=cancel, node_done=node_done)
+    rows = None if prepared.rows is None else prepared.row_layout
+    _simplify_inner_nodes(layout, lods, hausdorff, settings, with_normals=prepared.normals is not None,
+                          row_layout=rows, cancel=cancel, node_done=node_done)
     if cancel():
         raise BakeCancelled("bake cancelled")
     phases.lap("simplify")
 
-    hlod = _assemble(layout, lods, origin, hausdorff, normals=normals_in is not None, row_layout=row_layout)
+    hlod = _assemble(layout, lods, prepared.origin, hausdorff, normals=prepared.normals is not None,
+                     row_layout=prepared.row_layout)
     if mesh.has_appearance:
         hlod = hlod.replace(materials=tuple(mesh.materials))
     phases.lap("assemble")
-    seconds = time.perf_counter() - started
-    counted_below = np.concatenate([[0], np.cumsum(counted[layout.tri_order])])
+    derived = _derived_meta(layout, made, hausdorff, prepared, settings, with_rows=mesh.has_appearance)
+    stats = None
+    if cache is not None:
+        cache.store({keys[node]: (made[int(node)], float(hausdorff[node])) for node in inner if node not in from_cache})
+        cache.store_result(result_key, hlod, derived)
+        cache.prune({keys[node] for node in inner}, result_key)
+        stats = _cache_stats(cache, nodes=int(inner.size), reused=len(from_cache), whole=False)
+        phases.lap("cache_write")
+    progress(n, n, "done")
+    return hlod.replace(meta=_meta(mesh, settings, derived, stats, sources=sources, extra_meta=extra_meta,
+                                   seconds=time.perf_counter() - started, phases=phases))
+
+
+#: The meta entries a bake writes itself (extra_meta may not replace them).
+_OWN_META = frozenset({"generator", "input_tris", "input_vertices", "settings", "target_tris", "max_depth", "sources",
+                       "bake_seconds", "phase_seconds", "cache", *bake_cache.RESULT_META})
+
+
+def _derived_meta(layout: OctreeLayout, made: dict, hausdorff: np.ndarray, prepared: "_Prepared",
+                  settings: BakeSettings, *, with_rows: bool) -> dict:
+    """The meta entries the bake derives (bake_cache.RESULT_META): the log lists inner nodes in id
+    order, however their LODs came."""
+    bake_log: list[str] = []
+    inner = np.flatnonzero(~layout.is_leaf)
+    for node in inner:
+        _note_lod(bake_log, int(node), made[int(node)], hausdorff[node], settings.target_tris)
+    counted_below = np.concatenate([[0], np.cumsum(prepared.counted[layout.tri_order])])
     counted_per_node = counted_below[layout.tri_end] - counted_below[layout.tri_begin]
-    over_budget = int((layout.is_leaf & (counted_per_node > settings.target_tris)).sum())
+    derived = {
+        "leaves_over_budget": int((layout.is_leaf & (counted_per_node > settings.target_tris)).sum()),
+        "collapsed_input_tris": int((~prepared.counted).sum()),
+        "log": bake_log[:_MAX_LOG_LINES],
+        "log_lines_dropped": max(0, len(bake_log) - _MAX_LOG_LINES),
+    }
+    if with_rows:
+        derived["uv_seams_crossed_nodes"] = sum(int(made[int(node)].uv_seams_crossed) for node in inner)
+    return derived
+
+
+def _cache_stats(cache: bake_cache.BakeCache, *, nodes: int, reused: int, whole: bool) -> dict:
+    """meta["cache"]: nodes (inner nodes: leaves keep their triangles and are never cached),
+    reused_nodes / rebuilt_nodes (decimated and measured in this bake), reused_tris (LOD triangles
+    of the reused nodes), rejected_entries (corrupt ones, rebuilt), reused_result (the whole result
+    came from the cache: the input had not changed)."""
+    cache.report()
+    log.info("bake cache %s: %d of %d inner nodes reused%s", cache.folder, reused, nodes,
+             " (the whole result: the input is unchanged)" if whole else "")
+    return {"nodes": nodes, "reused_nodes": reused, "rebuilt_nodes": nodes - reused, "reused_tris": cache.reused_tris,
+            "rejected_entries": len(cache.rejected), "reused_result": whole}
+
+
+def _meta(mesh: TriangleMesh, settings: BakeSettings, derived: dict, cache_stats: dict | None, *,
+          sources, extra_meta, seconds: float, phases: "_PhaseClock") -> dict:
+    """The HLOD's meta, in one order whichever way the bake went (the file's bytes depend on it)."""
     meta = {
         "generator": "hlod_core",
         "input_tris": mesh.tri_count,
@@ -159,26 +257,45 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         "target_tris": settings.target_tris,
         "max_depth": settings.max_depth,
         "sources": list(sources or [mesh.name]),
-        "leaves_over_budget": over_budget,
-        "collapsed_input_tris": int((~counted).sum()),
+        "leaves_over_budget": derived["leaves_over_budget"],
+        "collapsed_input_tris": derived["collapsed_input_tris"],
         "bake_seconds": seconds,
         "phase_seconds": phases.seconds,
-        "log": bake_log[:_MAX_LOG_LINES],
-        "log_lines_dropped": max(0, len(bake_log) - _MAX_LOG_LINES),
+        "log": derived["log"],
+        "log_lines_dropped": derived["log_lines_dropped"],
     }
-    if mesh.has_appearance:
-        meta["uv_seams_crossed_nodes"] = uv_seams_crossed_nodes
-    clash = sorted(set(meta) & set(extra_meta or {}))
-    if clash:
-        raise InputError(f"extra_meta may not replace the bake's own meta entries ({', '.join(clash)})")
+    if "uv_seams_crossed_nodes" in derived:
+        meta["uv_seams_crossed_nodes"] = derived["uv_seams_crossed_nodes"]
+    if cache_stats is not None:
+        meta["cache"] = cache_stats
     meta.update(extra_meta or {})
-    progress(n, n, "done")
-    return hlod.replace(meta=meta)
+    return meta
 
 
-def _prepare(mesh: TriangleMesh):
-    """origin (3,) f64 = centre of the used vertices' box; positions (v,3) f32 relative to it;
-    faces (f,3) int64; centroids (f,3) f64 of the float32 positions (what is stored is what is split)."""
+@dataclass(frozen=True, eq=False)
+class _Prepared:
+    """The bake's input as the octree and the leaves see it: root (octree.RootCube, model units)
+    and origin (3,) f64, its centre; positions (r,3) f32 relative to it, faces (f,3) int64, normals
+    (r,3) f32 or None and attribute rows (r,A) f32 or None (with appearance the rows of
+    appearance.pack, else the vertices); centroids (f,3) f64 origin-relative; counted (f,) bool
+    (not collapsed: simplify.collapsed)."""
+
+    origin: np.ndarray
+    root_cell: RootCube
+    positions: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray | None
+    rows: np.ndarray | None
+    row_layout: appearance.AttributeLayout
+    centroids: np.ndarray
+    counted: np.ndarray
+
+
+
+def _prepare(mesh: TriangleMesh) -> _Prepared:
+    """The origin (centre of the used vertices' box); float32 positions relative to it; triangle
+    centroids (f,3) f64 of the float32 positions (what is stored is what is
+    split); with appearance, the vertices become attribute rows (_pack_rows)."""
     if mesh.tri_count == 0:
         raise InputError(f"{mesh.name}: the mesh has no triangles")
     used = np.zeros(mesh.positions.shape[0], bool)
@@ -187,14 +304,53 @@ def _prepare(mesh: TriangleMesh):
     if not np.all(np.isfinite(p_used)):
         raise InputError(f"{mesh.name}: vertices used by faces have NaN or infinite coordinates")
     origin = 0.5 * (p_used.min(axis=0) + p_used.max(axis=0))
+    del p_used
     rel = mesh.positions - origin
     rel[~used] = 0.0  # unused vertices may hold anything (even NaN); they are never stored
     positions = rel.astype(np.float32)
     if not np.all(np.isfinite(positions)):
         raise InputError(f"{mesh.name}: coordinates exceed the float32 range after centring")
-    tri = positions[mesh.faces].astype(np.float64)
+    faces = mesh.faces
+    tri = positions[faces].astype(np.float64)
     centroids = tri.mean(axis=1)
-    return origin, positions, mesh.faces, centroids
+    del tri
+    counted = ~simplify.collapsed(positions, faces)
+    root_cell = tight_cube(centroids.min(axis=0), centroids.max(axis=0))
+    normals, rows, row_layout = mesh.normals, None, appearance.AttributeLayout(False, False, False)
+    if mesh.has_appearance:
+        row_layout, positions, faces, normals, rows = _pack_rows(mesh, positions, normals)
+    return _Prepared(origin=origin, root_cell=root_cell, positions=positions, faces=faces, normals=normals, rows=rows, row_layout=row_layout,
+                     centroids=centroids, counted=counted)
+
+
+def _leaf_lods(layout: OctreeLayout, lods: list, prepared: _Prepared) -> None:
+    """lods[leaf] = (positions, faces local to them, normals, rows) of the vertices the leaf's
+    triangles use, in ascending input order (simplify.compact), for every leaf."""
+    ordered_faces = prepared.faces[layout.tri_order]
+    normals, rows = prepared.normals, prepared.rows
+    for node in np.flatnonzero(layout.is_leaf):
+        p, f, used = _compact(prepared.positions, ordered_faces[layout.tri_begin[node]:layout.tri_end[node]])
+        lods[node] = (p, f, None if normals is None else normals[used], None if rows is None else rows[used])
+
+
+#: A leaf whose vertex ids span more than this many times its corners is compacted by sorting.
+_WINDOW_FACTOR = 16
+
+
+def _compact(positions: np.ndarray, faces: np.ndarray):
+    """simplify.compact, the same result: by a mask over the span of vertex ids the faces use when
+    that span is short (a leaf's vertices mostly come from one object), else by sorting."""
+    flat = faces.reshape(-1)
+    lo = int(flat.min())
+    span = int(flat.max()) - lo + 1
+    if span > _WINDOW_FACTOR * flat.shape[0]:
+        return simplify.compact(positions, faces)
+    mask = np.zeros(span, bool)
+    shifted = flat - lo
+    mask[shifted] = True
+    used = np.flatnonzero(mask) + lo
+    local = (np.cumsum(mask, dtype=np.int32) - 1)[shifted]
+    return positions[used], local.reshape(-1, 3), used
 
 
 def _pack_rows(mesh: TriangleMesh, positions: np.ndarray, normals):
@@ -239,10 +395,31 @@ def _init_worker(positions_path: str, faces_path: str) -> None:
     _SHARED["faces"] = np.load(faces_path, mmap_mode="r")
 
 
-def _measure_task(lod_positions, lod_faces, tri_begin: int, tri_end: int) -> float:
-    """Runs in a worker (or inline): the node's original triangles come from the shared arrays."""
-    original = simplify.compact(_SHARED["positions"], np.asarray(_SHARED["faces"][tri_begin:tri_end]))
-    return simplify.measure((lod_positions, lod_faces), original[:2])
+def _measure_task(lod_positions, lod_faces, vertex_begin: int, vertex_end: int, tri_begin: int, tri_end: int) -> float:
+    """Runs in a worker (or inline): the node's original triangles are the leaves' below it, one
+    range of the shared leaf arrays (`_leaf_arrays`)."""
+    original = (np.asarray(_SHARED["positions"][vertex_begin:vertex_end]),
+                (np.asarray(_SHARED["faces"][tri_begin:tri_end]) - vertex_begin).astype(np.int32))
+    return simplify.measure((lod_positions, lod_faces), original)
+
+
+def _leaf_arrays(layout: OctreeLayout, lods: list):
+    """The leaves' (positions, faces) concatenated in depth-first order: (positions (V,3) f32,
+    faces (F,3) int64 rows into them, in tri_order, so a node's triangles are rows
+    tri_begin..tri_end), and each node's vertex range (vertex_begin, vertex_end) (n,) int64."""
+    leaves = np.flatnonzero(layout.is_leaf)
+    leaves = leaves[np.argsort(layout.tri_begin[leaves], kind="stable")]  # depth-first
+    positions, faces = concat_indexed((lods[leaf][0], lods[leaf][1]) for leaf in leaves)
+    counts = np.array([lods[leaf][0].shape[0] for leaf in leaves], np.int64)
+    ends = np.cumsum(counts)
+    begin = np.zeros(layout.node_count, np.int64)
+    end = np.zeros(layout.node_count, np.int64)
+    begin[leaves], end[leaves] = ends - counts, ends
+    for d in range(int(layout.depth.max()), -1, -1):  # deepest first: children before their parent
+        nodes = np.flatnonzero((layout.depth == d) & ~layout.is_leaf)
+        begin[nodes] = begin[layout.child_offset[nodes]]
+        end[nodes] = end[layout.child_offset[nodes] + layout.child_count[nodes] - 1]
+    return positions, faces, begin, end
 
 
 #: Signals whose Python handlers may raise (Ctrl-C's KeyboardInterrupt, the command line's SIGTERM
@@ -298,12 +475,12 @@ class _InlineExecutor:
         return fut
 
 
-def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarray, positions, ordered_faces,
-                          settings: BakeSettings, *, with_normals: bool,
-                          row_layout: appearance.AttributeLayout | None, cancel: CancelFn, node_done) -> None:
-    """Fill lods[node] and hausdorff[node] for every inner node; node_done(node, lod) as each completes.
-    Attribute rows (the 4th entry of each LOD, None without) travel with the child LODs; row_layout:
-    their columns (None without).
+def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarray, settings: BakeSettings, *,
+                          with_normals: bool, row_layout: appearance.AttributeLayout | None, cancel: CancelFn,
+                          node_done) -> None:
+    """Fill lods[node] and hausdorff[node] for every inner node whose LOD is not there yet (the
+    cache's are); node_done(node, lod) as each completes. Attribute rows (the 4th entry of each
+    LOD, None without) travel with the child LODs; row_layout: their columns (None without).
 
     Two kinds of task: DECIMATE a node once its children's LODs exist, MEASURE its Hausdorff error
     once its own LOD exists. Measuring needs every original triangle below the node, so the top
@@ -311,15 +488,17 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
     beside other work. Priority: decimations first (deepest first, they unlock the rest), then
     measurements, largest first. At most `jobs` tasks are in flight, so the priority holds.
     """
-    inner = np.flatnonzero(~layout.is_leaf)
-    if inner.size == 0:
+    todo = np.array([lod is None for lod in lods]) & ~layout.is_leaf
+    nodes = np.flatnonzero(todo)
+    if nodes.size == 0:
         return
     dec = settings.decimation()
     waiting = np.zeros(layout.node_count, np.int64)
-    inner_children = np.flatnonzero(~layout.is_leaf & (layout.parent >= 0))
-    np.add.at(waiting, layout.parent[inner_children], 1)  # a node waits for its inner children's LODs
+    todo_children = np.flatnonzero(todo & (layout.parent >= 0))
+    np.add.at(waiting, layout.parent[todo_children], 1)  # a node waits for its children's LODs still to make
     heap: list[tuple] = []
     decimated: dict[int, simplify.NodeLod] = {}  # LODs made, until their measurement is done
+    leaf_positions, leaf_faces, vertex_begin, vertex_end = _leaf_arrays(layout, lods)
 
     def push(kind: int, node: int) -> None:
         size = -int(layout.depth[node]) if kind == _TASK_DECIMATE else -int(layout.tri_end[node] - layout.tri_begin[node])
@@ -330,22 +509,22 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
             kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
             return executor.submit(simplify.decimate_node, [(lods[k][0], lods[k][1], lods[k][3]) for k in kids], dec,
                                    with_normals, row_layout)
-        return executor.submit(_measure_task, lods[node][0], lods[node][1],
-                               int(layout.tri_begin[node]), int(layout.tri_end[node]))
+        return executor.submit(_measure_task, lods[node][0], lods[node][1], int(vertex_begin[node]),
+                               int(vertex_end[node]), int(layout.tri_begin[node]), int(layout.tri_end[node]))
 
-    for node in inner[waiting[inner] == 0]:
+    for node in nodes[waiting[nodes] == 0]:
         push(_TASK_DECIMATE, int(node))
 
     with contextlib.ExitStack() as stack:
         if settings.jobs == 1:
             executor, limit = _InlineExecutor(), 1
-            _SHARED.update(positions=positions, faces=ordered_faces)
+            _SHARED.update(positions=leaf_positions, faces=leaf_faces)
             stack.callback(_SHARED.clear)
         else:
             scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="hlod-bake-"))
             paths = os.path.join(scratch, "positions.npy"), os.path.join(scratch, "faces.npy")
-            np.save(paths[0], positions)
-            np.save(paths[1], ordered_faces)
+            np.save(paths[0], leaf_positions)
+            np.save(paths[1], leaf_faces)
             stack.enter_context(_main_module_importable())
             executor = cf.ProcessPoolExecutor(max_workers=settings.jobs, initializer=_init_worker, initargs=paths,
                                               mp_context=multiprocessing.get_context("spawn"))
@@ -371,7 +550,7 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
                 decimated[node] = lod
                 push(_TASK_MEASURE, node)
                 parent = int(layout.parent[node])
-                if parent >= 0:
+                if parent >= 0 and todo[parent]:
                     waiting[parent] -= 1
                     if waiting[parent] == 0:
                         push(_TASK_DECIMATE, parent)

@@ -8,9 +8,12 @@ after removing scratch files and partial outputs. `-o` of a file refuses a name 
 path separator (it names a folder).
 
     bake INPUT [INPUT ...] -o OUT.hlod [--target-tris 2000] [--max-depth 12] [--jobs N]
-        (images embedded in glTF inputs are written to OUT.textures/ beside OUT.hlod)
+              [--cache DIR | --no-cache]
+        (images embedded in glTF inputs are written to OUT.textures/ beside OUT.hlod; the bake
+        cache, which lets a re-bake redo only what changed, is OUT.hlod.cache/ unless --cache
+        names another folder; safe to delete)
     info FILE.hlod
-    scene low|middle|high|default -o OUT.hlod [--seed N] [--scale S] [--jobs N]
+    scene low|middle|high|default -o OUT.hlod [--seed N] [--scale S] [--jobs N] [--cache DIR | --no-cache]
     run FILE.hlod --method M [...]
     evaluate FILE.hlod --out DIR [...]
     export IN.hlod --format 3dtiles|hlod -o DIR
@@ -31,7 +34,7 @@ import time
 import warnings
 from pathlib import Path
 
-from . import checks, fileformat, meshio, scenes
+from . import bake_cache, checks, fileformat, meshio, scenes
 from .bake import BakeSettings, bake
 from .errors import HlodError, InputError
 from .export import check_output_file, export_hlod
@@ -223,6 +226,10 @@ def _bake_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--jobs", type=_whole_number(0), default=1, help="worker processes (default 1; 0 = one per core)")
     p.add_argument("--quality-threshold", type=float, default=BakeSettings.quality_threshold)
     p.add_argument("--preserve-normals", action="store_true", help="forbid face flips during decimation")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--cache", metavar="DIR", help="bake cache folder (default OUT.hlod.cache beside the output): "
+                                                      "a re-bake takes the unchanged subtrees from it; safe to delete")
+    where.add_argument("--no-cache", action="store_true", help="bake from scratch and keep no cache")
 
 
 def _settings(args) -> BakeSettings:
@@ -231,10 +238,18 @@ def _settings(args) -> BakeSettings:
                         quality_threshold=args.quality_threshold, preserve_normals=args.preserve_normals)
 
 
+def _cache_dir(args) -> Path | None:
+    """The bake's cache folder: --cache, else OUT.hlod.cache beside the output; None with --no-cache."""
+    if args.no_cache:
+        return None
+    return Path(args.cache) if args.cache else bake_cache.default_folder(args.output)
+
+
 def _bake_and_save(mesh, args, sources) -> dict:
     settings = _settings(args)
+    cache_dir = _cache_dir(args)
     started = time.perf_counter()
-    hlod = bake(mesh, settings, progress=_Progress(), sources=sources)
+    hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir)
     fileformat.save(hlod, args.output)
     seconds = time.perf_counter() - started
     for line in hlod.meta["log"]:
@@ -242,12 +257,14 @@ def _bake_and_save(mesh, args, sources) -> dict:
     summary = hlod.summary()
     summary.update(output=str(args.output), jobs=settings.jobs, seconds=seconds,
                    phase_seconds=hlod.meta["phase_seconds"],
-                   tris_per_second=summary["input_tris"] / seconds if seconds > 0 else None)
+                   tris_per_second=summary["input_tris"] / seconds if seconds > 0 else None,
+                   cache=None if cache_dir is None else {"folder": str(cache_dir), **hlod.meta["cache"]})
     return summary
 
 
 def _cmd_bake(args) -> dict:
     check_output_file(args.output)
+    bake_cache.check_folder(_cache_dir(args))
     started = time.perf_counter()
     with _EmbeddedTextures(Path(args.output)) as textures:
         mesh = textures.relocate(meshio.load_inputs(args.inputs, texture_dir=textures.scratch))
@@ -306,6 +323,7 @@ class _EmbeddedTextures:
 
 def _cmd_scene(args) -> dict:
     check_output_file(args.output)
+    bake_cache.check_folder(_cache_dir(args))
     if not 0 < args.scale <= 64:
         raise InputError(f"--scale {args.scale}: expected a factor in (0, 64]")
     mesh = scenes.SCENES[args.name](seed=args.seed, scale=args.scale)

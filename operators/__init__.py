@@ -2,6 +2,11 @@
 hlod.export, hlod.benchmark). Thin: they gather input, call hlod_core / addon modules, and map
 typed errors (HlodError) to reports. Nothing here changes the source objects.
 
+Bake gathers the evaluated meshes on Blender's main thread and bakes them in a child process of
+Blender's Python with `scene.hlod.jobs` worker processes (addon/bake_job.py; modal with progress in
+the status bar and the panel, Esc cancels; synchronous in execute(), as in background mode). A bake
+that fails or dies is reported; Blender and an earlier .hlod stay as they were.
+
 Bake records the objects it took and their content keys on the scene (addon/source_record.py);
 `hlod.bake(recorded=True)` is Re-bake: it bakes the recorded objects again. A bake while the
 preview runs stops the preview first (its sources are hidden, and hidden objects give the depsgraph
@@ -10,7 +15,6 @@ no instances to read), then starts it again on the new file, or on the old one i
 from __future__ import annotations
 
 import os
-import time
 
 import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
@@ -19,8 +23,7 @@ from ..addon import benchmark, preview, scene_mesh, source_record
 from ..addon.bake_job import BakeJob
 from ..addon.properties import BLEND_RELATIVE_PATH
 from ..addon.settings import bake_settings
-from ..hlod_core import fileformat
-from ..hlod_core.bake import bake
+from ..hlod_core import bake_cache, fileformat
 from ..hlod_core.errors import BakeCancelled, HlodError, InputError
 
 
@@ -80,12 +83,35 @@ class HLOD_OT_bake(bpy.types.Operator):
         rows = source_record.record(taken, context.evaluated_depsgraph_get())
         return mesh, out, bake_settings(props), rows, attributes or None
 
-    def _finish(self, context, hlod, out, rows, seconds) -> None:
+    def _start(self, context) -> BakeJob:
+        """Gather the mesh here, on Blender's main thread, and start the bake's child process (with
+        the cache folder beside the output, unless the Bake Cache setting is off)."""
+        mesh, out, settings, self._rows, extra_meta = self._prepare(context)
+        cache_dir = bake_cache.default_folder(out) if context.scene.hlod.use_cache else None
+        bake_cache.check_folder(cache_dir)
+        return BakeJob(mesh, settings, out, extra_meta=extra_meta, cache_dir=cache_dir)
+
+    def _end(self, context, job: BakeJob) -> set[str]:
+        """Report how the finished job went; the operator's return value."""
+        if isinstance(job.error, BakeCancelled):
+            self.report({"WARNING"}, "HLOD bake cancelled; nothing written")
+        elif job.error is not None:
+            self.report({"ERROR"}, str(job.error) if isinstance(job.error, HlodError)
+                        else f"HLOD bake failed: {type(job.error).__name__}: {job.error}")
+        else:
+            self._finish(context, job)
+            return {"FINISHED"}
+        self._restart_preview(context)
+        return {"CANCELLED"}
+
+    def _finish(self, context, job: BakeJob) -> None:
         props = context.scene.hlod
-        props.file = _stored_path(out)
-        source_record.store(props, rows, props.file)
-        self.report({"INFO"}, f"HLOD baked: {hlod.node_count} nodes, {int(hlod.meta.get('input_tris', 0)):,} "
-                              f"triangles of {len(rows)} objects in {seconds:.1f} s -> {out}")
+        result = job.result
+        props.file = _stored_path(job.output)
+        source_record.store(props, self._rows, props.file)
+        props.last_bake = bake_summary(result, job.seconds)
+        self.report({"INFO"}, f"HLOD baked: {result.node_count} nodes, {result.input_tris:,} triangles of "
+                              f"{len(self._rows)} objects -> {job.output}; {props.last_bake}")
         self._restart_preview(context)
 
     def _restart_preview(self, context) -> None:
@@ -99,32 +125,28 @@ class HLOD_OT_bake(bpy.types.Operator):
             self.report({"WARNING"}, f"HLOD preview not restarted: {exc}")
 
     def execute(self, context):
-        """Synchronous (background mode, scripts)."""
-        started = time.perf_counter()
+        """Synchronous (background mode, scripts): the same child process, waited for here."""
         try:
-            mesh, out, settings, rows, extra_meta = self._prepare(context)
-            hlod = bake(mesh, settings, extra_meta=extra_meta)
-            fileformat.save(hlod, out)
+            job = self._start(context)
         except HlodError as exc:
             self.report({"ERROR"}, str(exc))
             self._restart_preview(context)
             return {"CANCELLED"}
-        self._finish(context, hlod, out, rows, time.perf_counter() - started)
-        return {"FINISHED"}
+        job.join()
+        return self._end(context, job)
 
     def invoke(self, context, event):
-        """Modal with status-bar progress; Esc cancels; the UI stays responsive."""
+        """Modal with progress in the status bar and the panel; Esc cancels; the UI stays responsive."""
         if bpy.app.background:
             return self.execute(context)
         try:
-            mesh, out, settings, self._rows, extra_meta = self._prepare(context)
+            self._job = self._start(context)
         except HlodError as exc:
             self.report({"ERROR"}, str(exc))
             self._restart_preview(context)
             return {"CANCELLED"}
-        self._job = BakeJob(mesh, settings, out, extra_meta=extra_meta)
         wm = context.window_manager
-        self._timer = wm.event_timer_add(0.2, window=context.window)
+        self._timer = wm.event_timer_add(0.1, window=context.window)
         wm.progress_begin(0, 100)
         wm.modal_handler_add(self)
         return {"RUNNING_MODAL"}
@@ -135,26 +157,37 @@ class HLOD_OT_bake(bpy.types.Operator):
             job.cancel()
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
-        done, total, phase = job.progress
         context.window_manager.progress_update(job.percent)
-        context.workspace.status_text_set(f"HLOD bake: {phase} {done}/{total} nodes ({job.percent:.0f}%) - Esc to cancel")
+        cancelling = " - cancelling" if job.cancelled else " - Esc to cancel"
+        context.workspace.status_text_set(job.status_line() + cancelling)
+        _redraw_sidebars(context)
         if job.running:
             return {"PASS_THROUGH"}
         wm = context.window_manager
         wm.event_timer_remove(self._timer)
         wm.progress_end()
         context.workspace.status_text_set(None)
-        if isinstance(job.error, BakeCancelled):
-            self.report({"WARNING"}, "HLOD bake cancelled; nothing written")
-            self._restart_preview(context)
-            return {"CANCELLED"}
-        if job.error is not None:
-            self.report({"ERROR"}, str(job.error) if isinstance(job.error, HlodError)
-                        else f"HLOD bake failed: {type(job.error).__name__}: {job.error}")
-            self._restart_preview(context)
-            return {"CANCELLED"}
-        self._finish(context, job.result, job.output, self._rows, job.seconds)
-        return {"FINISHED"}
+        return self._end(context, job)
+
+
+def bake_summary(result, seconds: float) -> str:
+    """One line about a finished bake for the panel: wall time, worker processes, and how much came
+    from the bake's cache (its meta["cache"]: inner nodes reused of all inner nodes; leaves are
+    never decimated, so they are not counted)."""
+    text = f"{seconds:.1f} s, {result.jobs} job{'s' if result.jobs > 1 else ''}"
+    cache = result.cache
+    if cache is None:
+        return text + "; no cache"
+    return text + f"; cache: {cache['reused_nodes']} of {cache['nodes']} inner nodes reused"
+
+
+def _redraw_sidebars(context) -> None:
+    """The panel shows the running bake's progress: redraw the 3D views' sidebars."""
+    for area in context.screen.areas if context.screen else ():
+        if area.type == "VIEW_3D":
+            for region in area.regions:
+                if region.type == "UI":
+                    region.tag_redraw()
 
 
 class HLOD_OT_clear(bpy.types.Operator):

@@ -1,9 +1,10 @@
-"""The 3D viewport's sidebar tab "HLOD" (N panel): sections Bake, Preview, Overlay, Statistics.
+"""The 3D viewport's sidebar tab "HLOD" (N panel): sections Bake (with a running bake's progress and
+the last bake's summary), Preview, Overlay, Statistics.
 Draw code reads state only: the count of changed sources is kept current by the depsgraph handler
 (addon/source_record.py), not computed here."""
 import bpy
 
-from ..addon import preview, source_record, viewport_text
+from ..addon import bake_job, preview, source_record, viewport_text
 
 
 class _HlodPanel:
@@ -33,11 +34,26 @@ class HLOD_PT_bake(_HlodPanel, bpy.types.Panel):
         layout.prop(props, "target_tris")
         layout.prop(props, "max_depth")
         layout.prop(props, "quality_threshold")
+        row = layout.row()
+        row.prop(props, "jobs")
+        row.prop(props, "use_cache")
         layout.prop(props, "output_path")
         row = layout.row(align=True)
         row.operator("hlod.bake", icon="MOD_DECIM")
         row.operator("hlod.clear", icon="X", text="")
+        _draw_bake_state(layout, props)
         layout.prop(props, "file")
+
+
+def _draw_bake_state(layout, props) -> None:
+    """The running bake's progress (read from its child process's progress lines), else how the
+    last bake went (time, jobs, and how much of it came from the cache)."""
+    job = bake_job.active()
+    if job is not None:
+        layout.progress(factor=job.percent / 100.0, type="BAR", text=job.status_line())  # Blender 4.0+
+        layout.label(text="Esc cancels", icon="CANCEL")
+    elif props.last_bake:
+        layout.label(text=props.last_bake, icon="INFO")
 
 
 class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):

@@ -1,7 +1,8 @@
 """Octree partition on tiny literal inputs with exact expected layouts."""
 import numpy as np
 
-from hlod_core.octree import build_octree
+from hlod_core import bake_cache
+from hlod_core.octree import build_octree, tight_cube
 
 
 def _corner_centroids():
@@ -61,3 +62,54 @@ def test_subtree_ranges_are_contiguous_and_breadth_first_children_contiguous():
         assert np.all(layout.tri_end[kids[:-1]] == layout.tri_begin[kids[1:]])
     leaves = layout.child_count == 0
     assert np.all(layout.tri_end[leaves] - layout.tri_begin[leaves] <= 100)
+
+
+# --- stable cells (issue 14) ------------------------------------------------------------------------
+
+def _subtrees_of(layout, owner: np.ndarray, which: int):
+    """{(cell centre, half, level): sorted triangle ids} of the nodes holding only triangles of `which`."""
+    out = {}
+    for node in range(layout.node_count):
+        tris = layout.tri_order[layout.tri_begin[node]:layout.tri_end[node]]
+        if np.all(owner[tris] == which):
+            out[(tuple(layout.cell_center[node]), float(layout.cell_half[node]), int(layout.cell_level[node]))] = \
+                np.sort(tris)
+    return out
+
+
+def _keys_of(layout, centroids, owner, which):
+    """The bake cache's keys of the nodes holding only `which`'s triangles, with each leaf's 'LOD'
+    its centroids (what node_keys hashes for a leaf is the leaf's own data)."""
+    lods = [None] * layout.node_count
+    for leaf in np.flatnonzero(layout.child_count == 0):
+        tris = layout.tri_order[layout.tri_begin[leaf]:layout.tri_end[leaf]]
+        lods[leaf] = (centroids[tris].astype(np.float32), np.arange(tris.size, dtype=np.int32), None, None)
+    keys = bake_cache.node_keys(layout, lods, origin=np.zeros(3), context=b"context")
+    return {keys[n] for n in range(layout.node_count)
+            if np.all(owner[layout.tri_order[layout.tri_begin[n]:layout.tri_end[n]]] == which)}
+
+
+def test_moving_an_object_leaves_another_objects_cells_and_keys_unchanged():
+    """Object A (a cloud near one corner) and object B (near the other); B moves by 0.3 inside a
+    box C marks (the scene's extent is unchanged, so is the root cell). Every node holding only A's
+    triangles keeps its cell, its triangles and its cache key."""
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(3000, 3)) * 2 + [5, 5, 5]
+    b = rng.normal(size=(3000, 3)) * 2 + [25, 20, 6]
+    owner = np.repeat([0, 1], 3000)
+    before = np.concatenate([a, b])
+    after = np.concatenate([a, b + [0.3, -0.2, 0.1]])
+    corners = np.array([[-5.0, -5.0, -5.0], [40.0, 40.0, 40.0]])  # C: two points spanning the scene
+    owner = np.concatenate([owner, [2, 2]])
+    before, after = np.concatenate([before, corners]), np.concatenate([after, corners])
+    for box in (before, after):  # the same root cell before and after the move
+        cube = tight_cube(box.min(0), box.max(0))
+        assert cube.corner.tolist() == [-5.0] * 3 and cube.side == 45.0
+    old = build_octree(before, target_tris=50, max_depth=12)
+    new = build_octree(after, target_tris=50, max_depth=12)
+    old_a, new_a = _subtrees_of(old, owner, 0), _subtrees_of(new, owner, 0)
+    assert len(old_a) > 50 and old_a.keys() == new_a.keys()
+    assert all(np.array_equal(old_a[cell], new_a[cell]) for cell in old_a)
+    assert _keys_of(old, before, owner, 0) == _keys_of(new, after, owner, 0)
+    # and B's did change: the keys are not blind
+    assert _keys_of(old, before, owner, 1) != _keys_of(new, after, owner, 1)

@@ -552,7 +552,8 @@ def test_cli_bake_writes_embedded_images_beside_the_output(tmp_path, scene, caps
         assert cli.main(["-q", "bake", str(scene["glb"]), str(bad), "-o", str(target)]) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("hlod_core: error: ") and str(bad) in err and "\n" not in err
-        assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.obj", "obj.hlod", "scene.hlod", "scene.textures"]
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.obj", "obj.hlod", "obj.hlod.cache", "scene.hlod",
+                                                              "scene.hlod.cache", "scene.textures"]
     assert {p.name: p.read_bytes() for p in [out, *folder.iterdir()]} == before
 
 

@@ -1,0 +1,105 @@
+"""Re-bake times with the bake cache (issue 14): a full bake, a re-bake after moving one object,
+a re-bake after changing nothing, in one run.
+
+    PYTHONPATH=. .venv/bin/python -m benchmarks.rebake [--spec tests/scenes/crowd_1m.json]
+        [--move 77] [--by 1.5 0 0] [--jobs 2] [--verify] [--out DIR]
+
+The spec's instances are numbered in file order (models, then transforms); --move picks one and
+--by translates it (model units), written as a modified spec in a temporary folder (model paths
+made absolute). Times are bake() alone, as in bake_throughput.py (reading the input excluded):
+    full       the spec, into an empty cache folder (it writes the cache);
+    unchanged  the same mesh again with that cache;
+    moved      the modified spec with that cache.
+--verify also bakes the modified spec from scratch (no cache) and checks that the re-bake gave the
+same arrays and the same meta but bake.VOLATILE_META (the issue's byte-identity).
+The machine's load average is recorded before and after: other processes on a 2-core VM slow the
+full bake (many seconds of decimation) and the re-bakes alike, but not in the same proportion.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hlod_core import meshio
+from hlod_core.bake import BakeSettings, bake, stable_meta
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def moved_spec(spec_path: Path, instance: int, offset: np.ndarray, folder: Path) -> Path:
+    """A copy of the spec in `folder` with instance `instance` translated by `offset`."""
+    spec = json.loads(spec_path.read_text())
+    seen = 0
+    for model in spec["models"]:
+        model["path"] = str((spec_path.parent / model["path"]).resolve())
+        transforms = model.setdefault("transforms", [np.eye(4).ravel().tolist()])
+        if seen <= instance < seen + len(transforms):
+            m = np.asarray(transforms[instance - seen], np.float64).reshape(4, 4)
+            m[:3, 3] += offset
+            transforms[instance - seen] = m.ravel().tolist()
+        seen += len(transforms)
+    if instance >= seen:
+        raise SystemExit(f"--move {instance}: the spec has {seen} instances")
+    out = folder / spec_path.name
+    out.write_text(json.dumps(spec))
+    return out
+
+
+def identical(a, b) -> bool:
+    arrays = all(np.array_equal(x, getattr(b, name)) for name, x in a.node_arrays().items())
+    geometry = all(np.array_equal(getattr(a, name), getattr(b, name)) for name in ("origin", "positions", "indices"))
+    return arrays and geometry and stable_meta(a.meta) == stable_meta(b.meta)
+
+
+def timed_bake(mesh, settings, cache_dir) -> tuple[float, object]:
+    started = time.perf_counter()
+    hlod = bake(mesh, settings, cache_dir=cache_dir)
+    return time.perf_counter() - started, hlod
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--spec", type=Path, default=ROOT / "tests" / "scenes" / "crowd_1m.json")
+    parser.add_argument("--move", type=int, default=41, help="instance to move (file order)")
+    parser.add_argument("--by", type=float, nargs=3, default=[1.5, 0.0, 0.0], help="translation, model units")
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--verify", action="store_true", help="also bake the moved spec from scratch and compare")
+    parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench")
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    settings = BakeSettings(jobs=args.jobs)
+    result: dict = {"spec": str(args.spec), "jobs": args.jobs, "moved_instance": args.move, "by": args.by,
+                    "load_before": os.getloadavg()}
+    with tempfile.TemporaryDirectory(prefix="rebake-") as scratch:
+        cache = Path(scratch) / "crowd.hlod.cache"
+        mesh = meshio.load_inputs([args.spec])
+        moved_mesh = meshio.load_inputs([moved_spec(args.spec, args.move, np.asarray(args.by), Path(scratch))])
+        runs = {}
+        for name, m in (("full", mesh), ("unchanged", mesh), ("moved", moved_mesh)):
+            seconds, hlod = timed_bake(m, settings, cache)
+            runs[name] = {"seconds": seconds, "nodes": hlod.node_count, "cache": hlod.meta["cache"],
+                          "phase_seconds": hlod.meta["phase_seconds"]}
+            print(json.dumps({name: runs[name]}), flush=True)
+            if name == "moved":
+                moved_hlod = hlod
+        result["input_tris"] = mesh.tri_count
+        result["runs"] = runs
+        result["speedup_unchanged"] = runs["full"]["seconds"] / runs["unchanged"]["seconds"]
+        result["speedup_moved"] = runs["full"]["seconds"] / runs["moved"]["seconds"]
+        if args.verify:
+            seconds, scratch_hlod = timed_bake(moved_mesh, settings, None)
+            result["moved_from_scratch_seconds"] = seconds
+            result["moved_rebake_identical_to_scratch"] = identical(moved_hlod, scratch_hlod)
+    result["load_after"] = os.getloadavg()
+    (args.out / "rebake.json").write_text(json.dumps(result, indent=2))
+    print(json.dumps({k: v for k, v in result.items() if k != "runs"}))
+
+
+if __name__ == "__main__":
+    main()

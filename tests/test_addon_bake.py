@@ -1,0 +1,164 @@
+"""The bake outside Blender's process (issue 14) with the real bpy module: the extension built by
+Blender's tool and installed as Blender installs it (tests/test_addon.py's fixtures), each check in
+its own bpy process (tests/blender_bake_checks.py), watching the bake's processes through /proc.
+
+The operator and the background command gather the mesh in Blender, write it to a private scratch
+folder and bake in a child process of Blender's Python with worker processes (addon/bake_job.py,
+hlod_core/bake_child.py). Checked: the child is another process, run by Blender's interpreter with
+the extension's folder first on its path, and its file equals an in-process bake; cancel ends the
+child and its workers within 1 s and writes nothing; a child killed from outside is reported with
+its signal and last messages while Blender goes on; `--jobs 2` in the background command; every
+operator of the extension runs where only Blender's modules and the wheels import.
+"""
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+from test_addon import all_hold, blender, repo, versioned_repo  # noqa: F401 - fixtures
+
+pytestmark = pytest.mark.blender
+
+GONE_WITHIN_SECONDS = 1.0  # issue 14: child and workers gone within 1 s of Esc
+SPEEDUP_JOBS_2 = 1.6  # issue 14: jobs 2 against jobs 1 on about 1M triangles, same run
+
+
+def bake_check(installed, check: str, tmp_path, *arguments: str, timeout_s: float = 600) -> dict:
+    """tests/blender_bake_checks.py CHECK in `installed`'s Blender; its JSON result."""
+    return blender(installed, check, tmp_path, *arguments, timeout_s=timeout_s, script="blender_bake_checks.py")
+
+
+def test_the_operator_bakes_in_a_child_process_with_workers(repo, tmp_path):
+    """Bake with jobs 2: one child of the Blender process runs `python -m hlod_core.bake_child` with
+    Blender's interpreter, with the extension's folder first on its PYTHONPATH and TMPDIR in its
+    scratch folder, and starts 2 workers; the file equals an in-process jobs-1 bake of the same
+    mesh in every array and in its meta (timings, jobs and cache statistics aside) and records
+    jobs 2; the panel's line says 2 jobs and 0 nodes from the cache; a re-bake of the unchanged
+    scene takes every inner node from OUT.hlod.cache and the panel's line says so; the core's
+    InputError and a failed write in the child come back as such; no scratch."""
+    out = bake_check(repo, "child_bake", tmp_path)
+    children = out["children"]
+    child = next(iter(children.values()), {"cmdline": "", "max_workers": 0})
+    all_hold(out,
+             finished=out["result"] == ["FINISHED"],
+             one_child=len(children) == 1 and str(out["blender_pid"]) not in children,
+             blenders_python=child["cmdline"].startswith(out["executable"] + " -m hlod_core.bake_child "),
+             two_workers=child["max_workers"] == 2,
+             extension_first_on_path=out["child_pythonpath"][:1] == [out["extension_dir"]],
+             tmpdir_in_scratch=Path(out["child_tmpdir"] or "/").parent == tmp_path / "tmp",
+             same_arrays=all(out["arrays_equal"].values()),
+             same_meta=out["meta_equal"],
+             file_records_jobs_2=out["file_jobs"] == 2,
+             panel_line="2 jobs" in out["last_bake"] and "cache: 0 of" in out["last_bake"],
+             cache_beside="row.hlod.cache" in out["cache_folder"] and out["first_cache"]["reused_nodes"] == 0,
+             rebake_from_cache=out["again"] == ["FINISHED"] and out["again_same"]
+             and out["again_cache"]["reused_nodes"] == out["again_cache"]["nodes"] > 0
+             and f"cache: {out['again_cache']['nodes']} of {out['again_cache']['nodes']} inner nodes reused"
+             in out["again_last_bake"],
+             typed_input_error=out["errors"]["clash"][0] == "InputError"
+             and "extra_meta may not replace" in out["errors"]["clash"][1],
+             write_error_named=out["errors"]["unwritable"][0] == "HlodError"
+             and "cannot write" in out["errors"]["unwritable"][1] and "a_file" in out["errors"]["unwritable"][1],
+             no_scratch=out["tmp_left"] == [] and out["temps_beside"] == [],
+             no_process_left=out["group_alive"] == [])
+
+
+def test_cancel_ends_child_and_workers_within_a_second_and_writes_nothing(repo, tmp_path):
+    """Cancel (Esc's path) mid-bake, while 2 workers decimate 251,904 triangles: every process of
+    the child's group is gone within 1 s, the job ends with BakeCancelled, the earlier file is
+    byte-identical, no temporary file beside it, and the scratch folder with the child's own
+    hlod-bake-* folder is gone (it existed while the bake ran)."""
+    out = bake_check(repo, "cancel", tmp_path)
+    all_hold(out,
+             was_baking=out["workers_started_s"] is not None and len(out["workers"]) == 2
+             and out["progress"][2] == "simplify",
+             scratch_existed=len(out["scratch_seen"]) == 1 and out["scratch_seen"][0].startswith("hlod-blender-"),
+             gone_within_1_s=out["gone_s"] is not None and out["gone_s"] < GONE_WITHIN_SECONDS,
+             cancelled=out["error"] == "BakeCancelled" and not out["running"],
+             earlier_kept=out["earlier_kept"] and out["temps_beside"] == [],
+             no_scratch=out["tmp_left"] == [],
+             none_alive=out["alive_after"] == [])
+
+
+def test_a_killed_child_is_reported_and_blender_goes_on(repo, tmp_path):
+    """SIGKILL to the child mid-bake (out of memory looks the same): the operator reports the
+    signal, the child's pid and its last stderr line (the octree it built); the earlier .hlod is
+    byte-identical and still the scene's file; the orphaned workers are gone; no scratch; the same
+    Blender process then bakes again."""
+    out = bake_check(repo, "kill", tmp_path)
+    killed = out["killed"]
+    all_hold(out,
+             first_bake=out["first"] == ["FINISHED"],
+             killed_mid_bake=bool(killed) and len(killed["workers"]) == 2,
+             reported=out["result"] == ["CANCELLED"] and "killed by signal SIGKILL (9)" in out["message"]
+             and f"pid {killed.get('child')}" in out["message"],
+             stderr_tail="hlod_core: octree:" in out["message"],
+             earlier_kept=out["earlier_kept"] and out["file_kept"] and out["temps_beside"] == [],
+             workers_gone=out["alive_after"] == [],
+             no_scratch=out["tmp_left"] == [] and out["tmp_left_after_again"] == [],
+             blender_goes_on=out["again"] == ["FINISHED"])
+
+
+def _alive(pid: int) -> bool:
+    """Exists and is not a zombie (/proc/PID/stat's state; a zombie has ended)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2] != "Z"
+
+
+def test_when_blender_dies_the_child_stops_its_workers_and_removes_the_scratch(repo, tmp_path):
+    """Blender ends mid-bake without cleaning up (os._exit): the child sees its stdin close, stops
+    its group (itself and its workers) and removes the job's files, within a second or two."""
+    out = bake_check(repo, "parent_dies", tmp_path)
+    assert out["workers_started_s"] is not None and len(out["group"]) >= 3, out  # child, 2 workers (+ tracker)
+    assert len(out["scratch"]) == 1, out
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline and (any(_alive(pid) for pid in out["group"]) or os.listdir(out["tmp"])):
+        time.sleep(0.05)
+    assert not [pid for pid in out["group"] if _alive(pid)], out
+    assert os.listdir(out["tmp"]) == [], out
+
+
+def test_background_command_with_jobs_2(versioned_repo, tmp_path):
+    """In each Blender: `--command hlod bake --jobs 2` bakes through a child with 2 workers (exit 0,
+    the summary and the file say jobs 2); `--jobs -1` is refused in one line."""
+    out = bake_check(versioned_repo, "cli_jobs", tmp_path)
+    all_hold(out,
+             status=out["status"] == 0 and out["summary"]["failed"] == 0,
+             summary_jobs=out["summary"]["files"][0].get("jobs") == 2,
+             child_with_two_workers=out["children"] == [2],
+             file_jobs=out["file_jobs"] == 2,
+             bad_jobs=out["bad_status"] == 1 and "--jobs -1" in out["bad_summary"]["files"][0]["error"],
+             no_scratch=out["tmp_left"] == [])
+
+
+def test_every_operator_runs_with_only_blenders_modules_and_the_wheels(versioned_repo, tmp_path):
+    """In each Blender's environment (bpy and numpy only, as a Blender install; the extension's
+    dependencies from its wheels; no matplotlib): every hlod.* operator registered, enumerated at
+    run time, runs to FINISHED, and the Benchmark writes its report without figures, saying so."""
+    out = bake_check(versioned_repo, "every_operator", tmp_path)
+    all_hold(out,
+             known_operators=out["unknown"] == [] and {"bake", "clear", "preview_toggle", "materialize", "export",
+                                                       "benchmark"} <= set(out["registered"]),
+             all_finished=all(runs and all(r == ["FINISHED"] for r in runs) for runs in out["results"].values()),
+             every_registered_ran=set(out["results"]) == set(out["registered"]),
+             no_matplotlib=not out["matplotlib"],
+             report_without_figures=out["report_says_no_figures"] and out["report_figures"] == {},
+             no_scratch=out["tmp_left"] == [])
+
+
+@pytest.mark.slow
+def test_bake_jobs_2_is_at_least_1_6x_jobs_1_on_a_million_triangles(repo, tmp_path):
+    """Measurement (issue 14's "done when"): 64 subdivided Suzannes (1,007,616 triangles) in a
+    collection, baked by the operator with jobs 1 and jobs 2 in the same run; also the child's
+    overhead on a small scene against an in-process bake. Prints the figures."""
+    out = bake_check(repo, "bake_speed", tmp_path, os.environ.get("HLOD_BAKE_SPEED_REPEATS", "1"), timeout_s=1200)
+    print(f"\nbake of {out['baked_tris']:,} triangles: jobs 1 {out['jobs1_s']} s, jobs 2 {out['jobs2_s']} s, "
+          f"speed-up {out['speedup']:.2f}x (load {out['load_1min']:.2f} on {out['cores']} cores); "
+          f"{out['small_tris']:,} triangles: child {out['small_child_s']:.2f} s, in process "
+          f"{out['small_in_process_s']:.2f} s, overhead {out['small_overhead_s']:.2f} s")
+    assert out["baked_tris"] == out["tris"]
+    assert out["speedup"] >= SPEEDUP_JOBS_2, out

@@ -1,0 +1,393 @@
+"""The bake cache (issue 14): a re-bake takes the unchanged subtrees from it and writes the file a
+bake from scratch writes; corrupt entries are ignored and rebuilt; settings and versions are in
+the key. Real pymeshlab bakes of small meshes; decimations and measurements are counted by wrapping
+the real functions (jobs = 1 runs them in this process)."""
+from __future__ import annotations
+
+import hashlib
+import logging
+import shutil
+
+import numpy as np
+import pytest
+
+from hlod_core import bake as bake_module
+from hlod_core import bake_cache, checks, fileformat, meshio, simplify
+from hlod_core.appearance import AttributeLayout
+from hlod_core.bake import VOLATILE_META, BakeSettings, bake, stable_meta
+from hlod_core.errors import BakeCancelled, InputError
+from hlod_core.octree import build_octree
+
+from helpers import load_model, model
+from test_bake_appearance import TARGET_TRIS as SPHERE_TARGET_TRIS, textured_sphere
+from test_cli import hlod, last_json, one_line_error
+
+COW = BakeSettings(target_tris=300)
+#: The 3 x 3 herd: cows (about 10 units long) 12 units apart; the one in the middle moves.
+HERD_SPACING, HERD_MOVER = 12.0, 4
+HERD = BakeSettings(target_tris=600)
+
+
+def _translated(mesh, offset, name):
+    m = np.eye(4)
+    m[:3, 3] = offset
+    return meshio.transform_mesh(mesh, m, name=name)
+
+
+def _herd(moved_by=(0.0, 0.0, 0.0)) -> tuple[meshio.TriangleMesh, np.ndarray]:
+    """Nine cows on a grid, the middle one moved by `moved_by`; and the (f,) bool mask of its triangles."""
+    cow = load_model("cow.obj")
+    parts = []
+    for k in range(9):
+        offset = np.array([HERD_SPACING * (k % 3), HERD_SPACING * (k // 3), 0.0])
+        if k == HERD_MOVER:
+            offset = offset + np.asarray(moved_by)
+        parts.append(_translated(cow, offset, f"cow{k}"))
+    mover = np.repeat(np.arange(9) == HERD_MOVER, cow.tri_count)
+    return meshio.merge(parts, name="herd"), mover
+
+
+class _Counted:
+    """Counts the real decimations and measurements of a jobs = 1 bake, and the nodes measured (by
+    their range in the bake's triangle order)."""
+
+    def __init__(self, monkeypatch):
+        self.decimations = 0
+        self.measured: list[tuple[int, int]] = []
+        decimate, measure = simplify.decimate_node, bake_module._measure_task
+
+        def counting_decimate(*args):
+            self.decimations += 1
+            return decimate(*args)
+
+        def counting_measure(lod_positions, lod_faces, vertex_begin, vertex_end, tri_begin, tri_end):
+            self.measured.append((tri_begin, tri_end))
+            return measure(lod_positions, lod_faces, vertex_begin, vertex_end, tri_begin, tri_end)
+
+        monkeypatch.setattr(simplify, "decimate_node", counting_decimate)
+        monkeypatch.setattr(bake_module, "_measure_task", counting_measure)
+
+
+def _file_bytes(hlod, path) -> bytes:
+    """The .hlod file of `hlod` with the volatile meta removed: what must be byte-identical."""
+    return fileformat.save(hlod.replace(meta=stable_meta(hlod.meta)), path).read_bytes()
+
+
+def _assert_same_file(a, b, tmp_path):
+    assert set(VOLATILE_META) >= {"bake_seconds", "phase_seconds", "cache"}
+    assert _file_bytes(a, tmp_path / "a.hlod") == _file_bytes(b, tmp_path / "b.hlod")
+
+
+def _inner(hlod) -> int:
+    return int((~hlod.is_leaf).sum())
+
+
+def _entries(folder) -> set[str]:
+    return {p.name for p in folder.glob(f"*{bake_cache.ENTRY_SUFFIX}")}
+
+
+def _results(folder) -> set[str]:
+    return {p.name for p in folder.glob(f"*{bake_cache.RESULT_SUFFIX}")}
+
+
+def _remove_results(folder) -> None:
+    for name in _results(folder):
+        (folder / name).unlink()
+
+
+# --- the same file, cold or warm ------------------------------------------------------------------
+
+@pytest.mark.parametrize("which, jobs", [("cow", 1), ("textured sphere", 1), ("textured sphere", 2)])
+def test_warm_and_cold_bakes_write_the_file_a_bake_from_scratch_writes(which, jobs, tmp_path, monkeypatch):
+    mesh, settings = (load_model("cow.obj"), COW) if which == "cow" else \
+        (textured_sphere(), BakeSettings(target_tris=SPHERE_TARGET_TRIS))
+    settings = BakeSettings(**{**settings.__dict__, "jobs": jobs})
+    scratch = bake(mesh, settings)
+    assert "cache" not in scratch.meta and _inner(scratch) >= 3
+    folder = tmp_path / "cache"
+    cold = bake(mesh, settings, cache_dir=folder)
+    assert cold.meta["cache"] == {"nodes": _inner(cold), "reused_nodes": 0, "rebuilt_nodes": _inner(cold),
+                                  "reused_tris": 0, "rejected_entries": 0, "reused_result": False}
+    assert len(_entries(folder)) == _inner(cold) and len(_results(folder)) == 1
+    assert (folder / "CACHEDIR.TAG").is_file()
+    counted = _Counted(monkeypatch)
+    warm = bake(mesh, settings, cache_dir=folder)  # the input is unchanged: the whole result
+    _remove_results(folder)
+    from_nodes = bake(mesh, settings, cache_dir=folder)  # every inner node from its own entry
+    inner = ~warm.is_leaf
+    everything = {"nodes": int(inner.sum()), "reused_nodes": int(inner.sum()), "rebuilt_nodes": 0,
+                  "reused_tris": int(warm.tri_count[inner].sum()), "rejected_entries": 0}
+    assert warm.meta["cache"] == {**everything, "reused_result": True}
+    assert from_nodes.meta["cache"] == {**everything, "reused_result": False}
+    if jobs == 1:
+        assert counted.decimations == 0 and counted.measured == []
+    for other in (cold, warm, from_nodes):
+        _assert_same_file(scratch, other, tmp_path)
+    assert checks.check(from_nodes)["checks"] == {"leaf_tris_equal_input": True, "nested_bounds": True,
+                                                  "monotone_error": True, "leaf_budget": True}
+    if which != "cow":
+        assert warm.uvs is not None and np.array_equal(warm.uvs, scratch.uvs)
+        assert warm.materials == scratch.materials and from_nodes.materials == scratch.materials
+
+
+# --- an edit rebuilds what it touches -------------------------------------------------------------
+
+def _dfs_ranges(hlod) -> dict[tuple[int, int], int]:
+    """{(first, end) range of the node's leaf triangles in depth-first leaf order: node}, the ranges
+    the bake measures nodes by."""
+    ranges, cursor = {}, 0
+
+    def visit(node):
+        nonlocal cursor
+        begin = cursor
+        if hlod.child_count[node] == 0:
+            cursor += int(hlod.tri_count[node])
+        for child in range(hlod.child_offset[node], hlod.child_offset[node] + hlod.child_count[node]):
+            visit(child)
+        ranges[(begin, cursor)] = node
+
+    visit(0)
+    return ranges
+
+
+def _subtree_signatures(hlod) -> list[bytes]:
+    """Per node, a digest of its subtree's shape and leaf triangles (world coordinates as stored),
+    computed from the file alone: equal signatures = the same subtree."""
+    sig = [b""] * hlod.node_count
+    for node in range(hlod.node_count - 1, -1, -1):
+        if hlod.child_count[node] == 0:
+            tris = hlod.indices[hlod.tri_offset[node]:hlod.tri_offset[node] + hlod.tri_count[node]]
+            world = hlod.positions[tris.ravel()].astype(np.float64) + hlod.origin
+            sig[node] = hashlib.sha256(b"leaf" + world.tobytes()).digest()
+        else:
+            kids = range(hlod.child_offset[node], hlod.child_offset[node] + hlod.child_count[node])
+            sig[node] = hashlib.sha256(b"node" + b"".join(sig[k] for k in kids)).digest()
+    return sig
+
+
+def _cells(mesh):
+    """The octree the bake builds for `mesh` at HERD's settings (its cells, origin-relative)."""
+    prepared = bake_module._prepare(mesh)
+    return build_octree(prepared.centroids, target_tris=HERD.target_tris, max_depth=HERD.max_depth,
+                        counted=prepared.counted, root=prepared.root_cell)
+
+
+def test_moving_one_object_rebuilds_only_the_cells_it_overlaps_and_their_ancestors(tmp_path, monkeypatch):
+    """Nine cows; the middle one moves 1.5 units. The re-bake decimates and measures exactly the
+    inner nodes whose subtree is not one of the first bake's (signatures from the files), every one
+    of them overlaps the cow's old or new box, and the result is the file a bake from scratch of
+    the moved herd writes. Before issue 14 the origin (the centre of the input's box) and every
+    cell were free to move with any edit."""
+    herd, mover = _herd()
+    moved, _ = _herd(moved_by=(1.5, 0.0, 0.0))
+    folder = tmp_path / "cache"
+    first = bake(herd, HERD, cache_dir=folder)
+    counted = _Counted(monkeypatch)
+    again = bake(moved, HERD, cache_dir=folder)
+    monkeypatch.undo()
+    scratch = bake(moved, HERD)
+    _assert_same_file(scratch, again, tmp_path)
+
+    old = set(_subtree_signatures(first))
+    new_sig = _subtree_signatures(again)
+    changed = {node for node in np.flatnonzero(~again.is_leaf) if new_sig[node] not in old}
+    measured = {_dfs_ranges(again)[r] for r in counted.measured}
+    assert measured == changed and counted.decimations == len(changed) == again.meta["cache"]["rebuilt_nodes"]
+    assert again.meta["cache"]["reused_nodes"] == _inner(again) - len(changed)
+    assert 0 < len(changed) <= _inner(again) // 3, (len(changed), _inner(again))
+    # the edit touches only the cells it overlaps: every rebuilt node's cell meets the cow's old or new box
+    assert np.array_equal(first.origin, again.origin)
+    cells = _cells(moved)
+    assert cells.node_count == again.node_count and np.array_equal(cells.child_count, again.child_count)
+    cow_boxes = [(p.min(axis=0), p.max(axis=0)) for p in
+                 (herd.positions[herd.faces[mover].ravel()], moved.positions[moved.faces[mover].ravel()])]
+    lo_cell = cells.cell_center - cells.cell_half[:, None] + again.origin
+    hi_cell = cells.cell_center + cells.cell_half[:, None] + again.origin
+    for node in changed:
+        assert any(np.all(lo_cell[node] <= hi) and np.all(hi_cell[node] >= lo) for lo, hi in cow_boxes), node
+    # most leaves (the other cows') are stored bit for bit as before, relative to the same origin
+    kept = set(new_sig) & {s for s, leaf in zip(_subtree_signatures(first), first.is_leaf) if leaf}
+    assert len(kept) >= first.is_leaf.sum() // 2
+
+
+# --- keys -----------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("change", ["quality_threshold", "preserve_normals", "boundary_weight", "target_tris",
+                                    "format version", "cache version"])
+def test_changed_settings_or_versions_miss(change, tmp_path, monkeypatch):
+    cow = load_model("cow.obj")
+    folder = tmp_path / "cache"
+    bake(cow, COW, cache_dir=folder)
+    settings = COW
+    if change == "format version":
+        monkeypatch.setattr(fileformat, "FORMAT_VERSION", fileformat.FORMAT_VERSION + 1)
+    elif change == "cache version":
+        monkeypatch.setattr(bake_cache, "CACHE_VERSION", bake_cache.CACHE_VERSION + 1)
+    else:
+        value = {"quality_threshold": 0.5, "preserve_normals": True, "boundary_weight": 2.0, "target_tris": 299}[change]
+        settings = BakeSettings(**{**COW.__dict__, change: value})
+    hlod = bake(cow, settings, cache_dir=folder)
+    # a miss, not a rejection: the old entries sit under other keys (and are pruned after the bake)
+    assert hlod.meta["cache"]["reused_nodes"] == 0 and hlod.meta["cache"]["rebuilt_nodes"] == _inner(hlod)
+    assert hlod.meta["cache"]["rejected_entries"] == 0 and len(_entries(folder)) == _inner(hlod)
+
+
+def test_jobs_and_an_unreached_max_depth_reuse_everything(tmp_path):
+    """Neither changes a LOD or an error: jobs never does, max_depth only through the subtree's shape,
+    which the key holds (here the tree stops above both depths)."""
+    cow = load_model("cow.obj")
+    folder = tmp_path / "cache"
+    first = bake(cow, COW, cache_dir=folder)
+    assert int(first.depth.max()) < 10
+    jobs = bake(cow, BakeSettings(**{**COW.__dict__, "jobs": 2}), cache_dir=folder)
+    assert jobs.meta["cache"]["reused_result"]  # jobs is not in the input's key
+    depth = bake(cow, BakeSettings(**{**COW.__dict__, "max_depth": 10}), cache_dir=folder)
+    assert not depth.meta["cache"]["reused_result"]  # max_depth is, but no node's key has it
+    assert depth.meta["cache"]["reused_nodes"] == _inner(depth) == _inner(first)
+
+
+# --- corrupt entries ------------------------------------------------------------------------------
+
+def _corrupt(folder) -> dict[str, str]:
+    """Spoil five entries in five ways; returns {entry name: how}."""
+    names = sorted(_entries(folder))
+    assert len(names) >= 6
+    how = {}
+    path = folder / names[0]
+    path.write_bytes(path.read_bytes()[:-7])
+    how[names[0]] = "truncated"
+    path = folder / names[1]
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x40
+    path.write_bytes(bytes(data))
+    how[names[1]] = "a byte flipped"
+    key = bytes.fromhex(names[2].removesuffix(bake_cache.ENTRY_SUFFIX))
+    faces = np.array([[0, 1], [1, 2]], np.int32)  # (m,2): a well-formed entry of the wrong shape
+    bad = simplify.NodeLod(positions=np.zeros((3, 3), np.float32), faces=faces, normals=None, decimated=True,
+                           input_tris=5)
+    (folder / names[2]).write_bytes(bake_cache._node_bytes(key, bad, 0.5))
+    how[names[2]] = "wrong-shaped faces"
+    key = bytes.fromhex(names[3].removesuffix(bake_cache.ENTRY_SUFFIX))
+    bad = simplify.NodeLod(positions=np.zeros((3, 3), np.float32), faces=np.array([[0, 1, 7]], np.int32),
+                           normals=None, decimated=True, input_tris=5)
+    (folder / names[3]).write_bytes(bake_cache._node_bytes(key, bad, 0.5))
+    how[names[3]] = "a face outside the LOD"
+    shutil.copyfile(folder / names[5], folder / names[4])
+    how[names[4]] = "another key's entry"
+    (result,) = _results(folder)
+    data = bytearray((folder / result).read_bytes())
+    data[-100] ^= 0x01
+    (folder / result).write_bytes(bytes(data))
+    how[result] = "the result entry, a byte flipped"
+    return how
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_corrupt_entries_are_ignored_logged_once_and_rebuilt(jobs, tmp_path, caplog):
+    cow = load_model("cow.obj")
+    settings = BakeSettings(**{**COW.__dict__, "jobs": jobs})
+    scratch = bake(cow, settings)
+    folder = tmp_path / "cache"
+    bake(cow, settings, cache_dir=folder)
+    spoiled = _corrupt(folder)
+    with caplog.at_level(logging.WARNING, logger="hlod_core.bake_cache"):
+        warm = bake(cow, settings, cache_dir=folder)
+    assert warm.meta["cache"]["rejected_entries"] == len(spoiled) == warm.meta["cache"]["rebuilt_nodes"] + 1
+    assert not warm.meta["cache"]["reused_result"]
+    warnings = [r for r in caplog.records if r.name == "hlod_core.bake_cache"]
+    assert len(warnings) == 1 and f"{len(spoiled)} entries ignored and rebuilt" in warnings[0].getMessage()
+    _assert_same_file(scratch, warm, tmp_path)
+    _remove_results(folder)
+    again = bake(cow, settings, cache_dir=folder)  # the rebuilt entries were written back
+    assert again.meta["cache"]["reused_nodes"] == _inner(again) and again.meta["cache"]["rejected_entries"] == 0
+
+
+def _cache(folder) -> bake_cache.BakeCache:
+    return bake_cache.BakeCache(folder, decimation=simplify.DecimationSettings(), with_normals=False,
+                                row_layout=AttributeLayout(False, False, False))
+
+
+@pytest.mark.parametrize("spoil, why", [
+    (lambda d: d[:10], "truncated"),
+    (lambda d: b"NOTANODE" + d[8:], "bad magic"),
+    (lambda d: d[:8] + (bake_cache.CACHE_VERSION + 1).to_bytes(4, "little") + d[12:], "cache format"),
+    (lambda d: d + b"\0", "payload of"),
+    (lambda d: d[:-1] + bytes([d[-1] ^ 1]), "digest mismatch"),
+])
+def test_a_spoiled_entry_is_a_miss_with_its_reason(spoil, why, tmp_path):
+    key = bytes(range(32))
+    lod = simplify.NodeLod(positions=np.eye(3, dtype=np.float32), faces=np.array([[0, 1, 2]], np.int32), normals=None,
+                           decimated=False, input_tris=1)
+    cache = _cache(tmp_path)
+    cache.store({key: (lod, 0.25)})
+    got, error = _cache(tmp_path).load(key)
+    assert np.array_equal(got.positions, lod.positions) and np.array_equal(got.faces, lod.faces) and error == 0.25
+    cache.path(key).write_bytes(spoil(cache.path(key).read_bytes()))
+    spoilt = _cache(tmp_path)
+    assert spoilt.load(key) is None and len(spoilt.rejected) == 1 and why in spoilt.rejected[0][1]
+    assert spoilt.reused_nodes == 0
+
+
+# --- the folder -----------------------------------------------------------------------------------
+
+def test_two_bakes_sharing_a_folder_evict_each_others_entries_and_stay_correct(tmp_path):
+    """After a bake the folder holds its inner nodes only (the size bound): a bake of another mesh
+    in the same folder leaves the first mesh a cold bake, which is still the file from scratch."""
+    cow, spot = load_model("cow.obj"), load_model("spot.obj")
+    folder = tmp_path / "shared"
+    cow_first = bake(cow, COW, cache_dir=folder)
+    assert len(_entries(folder)) == _inner(cow_first) and len(_results(folder)) == 1
+    spot_first = bake(spot, COW, cache_dir=folder)
+    assert len(_entries(folder)) == _inner(spot_first) and spot_first.meta["cache"]["reused_nodes"] == 0
+    assert len(_results(folder)) == 1
+    cow_again = bake(cow, COW, cache_dir=folder)
+    assert cow_again.meta["cache"]["reused_nodes"] == 0
+    _assert_same_file(cow_first, cow_again, tmp_path)
+    assert bake(cow, COW, cache_dir=folder).meta["cache"]["reused_nodes"] == _inner(cow_first)
+
+
+def test_a_removed_cache_folder_is_a_cold_bake(tmp_path):
+    cow = load_model("cow.obj")
+    folder = tmp_path / "cache"
+    first = bake(cow, COW, cache_dir=folder)
+    shutil.rmtree(folder)
+    again = bake(cow, COW, cache_dir=folder)
+    assert again.meta["cache"]["reused_nodes"] == 0 and len(_entries(folder)) == _inner(again)
+    _assert_same_file(first, again, tmp_path)
+
+
+def test_a_cancelled_bake_writes_no_cache(tmp_path):
+    calls = []
+
+    def cancel():
+        return len(calls) >= 3
+
+    with pytest.raises(BakeCancelled):
+        bake(load_model("cow.obj"), COW, cache_dir=tmp_path / "cache", cancel=cancel,
+             progress=lambda done, total, phase: calls.append(phase))
+    assert not (tmp_path / "cache").exists()
+
+
+def test_a_file_where_the_cache_folder_goes_is_a_clear_error(tmp_path):
+    (tmp_path / "cache").write_bytes(b"not a folder")
+    with pytest.raises(InputError, match="cache: is a file; the bake cache is a folder"):
+        bake(load_model("cow.obj"), COW, cache_dir=tmp_path / "cache")
+
+
+def test_command_line_keeps_the_cache_beside_the_output(tmp_path):
+    out = tmp_path / "cow.hlod"
+    first = last_json(hlod("-q", "bake", model("cow.obj"), "-o", out, "--target-tris", "300"))
+    folder = tmp_path / "cow.hlod.cache"
+    assert first["cache"]["folder"] == str(folder) and first["cache"]["reused_nodes"] == 0
+    assert len(_entries(folder)) == first["cache"]["nodes"] > 0
+    second = last_json(hlod("-q", "bake", model("cow.obj"), "-o", out, "--target-tris", "300"))
+    assert second["cache"]["reused_nodes"] == second["cache"]["nodes"] == first["cache"]["nodes"]
+    other = tmp_path / "elsewhere"
+    third = last_json(hlod("-q", "bake", model("cow.obj"), "-o", tmp_path / "b.hlod", "--target-tris",
+                           "300", "--cache", other))
+    assert third["cache"]["folder"] == str(other) and _entries(other) == _entries(folder)
+    none = last_json(hlod("-q", "bake", model("cow.obj"), "-o", tmp_path / "c.hlod", "--no-cache"))
+    assert none["cache"] is None and not (tmp_path / "c.hlod.cache").exists()
+    (tmp_path / "d.hlod.cache").write_bytes(b"x")
+    line = one_line_error(hlod("bake", model("cow.obj"), "-o", tmp_path / "d.hlod", check=False))
+    assert f"{tmp_path / 'd.hlod.cache'}: is a file; the bake cache is a folder" in line
