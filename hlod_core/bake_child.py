@@ -50,6 +50,7 @@ from .appearance import materials_from_json
 from .atomic import atomic_file, write_text_atomic
 from .bake import BakeSettings, bake
 from .errors import FormatError, HlodError, InputError
+from .signals import Terminated, signals_as_exceptions
 
 log = logging.getLogger("hlod_core")
 
@@ -62,7 +63,6 @@ OPTIONAL_ARRAYS = ("normals", "uvs", "colors", "material_ids")
 #: Typed errors the error event may name (re-raised by that type in the parent).
 ERROR_TYPES = {cls.__name__: cls for cls in (InputError, FormatError, HlodError)}
 #: Signals that stop a bake (SIGHUP does not exist on Windows).
-STOP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
 
 
 # --- the job files (written by the parent, read here) -------------------------------------------
@@ -106,34 +106,6 @@ def read_job(path: str | os.PathLike) -> tuple[meshio.TriangleMesh, BakeSettings
 
 # --- the child ----------------------------------------------------------------------------------
 
-class Stopped(BaseException):
-    """A stop signal arrived (SIGTERM from the parent's cancel, SIGHUP). Not an Exception, so no
-    `except Exception` swallows it: every context manager unwinds (the worker pool, the bake's
-    scratch folder, the atomic write)."""
-
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signum = signum
-
-
-@contextlib.contextmanager
-def _stop_signals_raise():
-    """The first stop signal raises Stopped in the main thread; later ones are ignored, so they
-    cannot cut the cleanup short."""
-    raised = False
-
-    def handler(signum, _frame):
-        nonlocal raised
-        if not raised:
-            raised = True
-            raise Stopped(signum)
-
-    previous = {sig: signal.signal(sig, handler) for sig in STOP_SIGNALS}
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
 
 
 _parent_gone = threading.Event()
@@ -203,11 +175,11 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="hlod_core: %(message)s")
     parent = os.getppid()
     try:
-        with _stop_signals_raise():
+        with signals_as_exceptions():
             if watch_parent:
                 threading.Thread(target=_stop_when_parent_goes, name="hlod-parent-watch", daemon=True).start()
             return run(argv[0], events)
-    except Stopped as exc:
+    except Terminated as exc:
         with contextlib.suppress(OSError):  # stderr is a broken pipe when the parent has gone
             print(f"hlod_core: bake stopped by {signal.Signals(exc.signum).name}", file=sys.stderr)
         return 128 + exc.signum

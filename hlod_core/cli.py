@@ -21,7 +21,6 @@ path separator (it names a folder).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import json
 import logging
@@ -29,7 +28,6 @@ import os
 import shutil
 import signal
 import sys
-import threading
 import time
 import warnings
 from pathlib import Path
@@ -38,6 +36,7 @@ from . import bake_cache, checks, fileformat, meshio, scenes
 from .bake import BakeSettings, bake
 from .errors import HlodError, InputError
 from .export import check_output_file, export_hlod
+from .signals import Terminated, signals_as_exceptions
 
 log = logging.getLogger("hlod_core")
 
@@ -51,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
         args = _parser().parse_args(argv)
         logging.basicConfig(level=logging.ERROR if args.quiet else logging.INFO, stream=sys.stderr,
                             format="hlod_core: %(message)s")
-        with warnings.catch_warnings(), _signals_as_exceptions():
+        with warnings.catch_warnings(), signals_as_exceptions():
             warnings.showwarning = _log_warning
             result = args.run(args)
     except HlodError as exc:
@@ -71,42 +70,6 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-class Terminated(BaseException):
-    """SIGTERM or SIGHUP arrived during a command. Raised in the main thread like Ctrl-C's
-    KeyboardInterrupt (and like it not an Exception, so no `except Exception` swallows it), so
-    every context manager unwinds: the bake's worker pool and scratch folder, atomic writes."""
-
-    def __init__(self, signum: int):
-        super().__init__(signum)
-        self.signum = signum
-
-
-#: Signals turned into Terminated while a command runs (SIGHUP does not exist on Windows).
-TERMINATING_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
-
-
-@contextlib.contextmanager
-def _signals_as_exceptions():
-    """Install the handlers for the command's duration and restore the old ones after. The first
-    signal raises; later ones are ignored so that they cannot cut the cleanup short. Signal
-    handlers can only be set from the main thread: elsewhere (an embedding host) nothing changes."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    raised = False
-
-    def handler(signum, frame):
-        nonlocal raised
-        if not raised:
-            raised = True
-            raise Terminated(signum)
-
-    previous = {sig: signal.signal(sig, handler) for sig in TERMINATING_SIGNALS}
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
 
 
 def _log_warning(message, category, filename, lineno, file=None, line=None) -> None:
