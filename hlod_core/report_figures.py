@@ -286,16 +286,17 @@ def _free_spot(point: np.ndarray, w: float, h: float, *, inner: np.ndarray, take
         return np.any((xy[None, :, 0] > boxes[:, None, 0]) & (xy[None, :, 0] < boxes[:, None, 2])
                       & (xy[None, :, 1] > boxes[:, None, 1]) & (xy[None, :, 1] < boxes[:, None, 3]), axis=1)
 
-    def free(corners: np.ndarray) -> np.ndarray:
-        """corners (n, 2) lower-left -> (n,) bool: inside the axes, clear of everything taken."""
+    def free(corners: np.ndarray, *, leaders_clear: bool = True) -> np.ndarray:
+        """corners (n, 2) lower-left -> (n,) bool: inside the axes, clear of everything taken (and,
+        with leaders_clear, of every leader line, its own leader crossing no label)."""
         boxes = np.concatenate([corners - gap, corners + [w + gap, h + gap]], axis=1)
         inside = ((boxes[:, 0] >= inner[0]) & (boxes[:, 1] >= inner[1]) & (boxes[:, 2] <= inner[2])
                   & (boxes[:, 3] <= inner[3]))
         clear = ~np.any((boxes[:, None, 0] < occupied[None, :, 2]) & (boxes[:, None, 2] > occupied[None, :, 0])
                         & (boxes[:, None, 1] < occupied[None, :, 3]) & (boxes[:, None, 3] > occupied[None, :, 1]),
                         axis=1)
-        ok = inside & clear & ~inside_any(leaders, boxes) if leaders.size else inside & clear
-        for j in np.flatnonzero(ok):  # its own leader line must not cross a label
+        ok = inside & clear & ~inside_any(leaders, boxes) if leaders.size and leaders_clear else inside & clear
+        for j in np.flatnonzero(ok) if leaders_clear else ():  # its own leader line must not cross a label
             nearest = np.clip(point, corners[j], corners[j] + [w, h])
             if np.linalg.norm(nearest - point) > LEADER_MIN_PX and occupied.size:
                 samples = _segment_samples(point, nearest)[1:-1]
@@ -315,8 +316,8 @@ def _free_spot(point: np.ndarray, w: float, h: float, *, inner: np.ndarray, take
     xs = np.arange(inner[0], inner[2] - w, FALLBACK_STEP_PX)
     ys = np.arange(inner[1], inner[3] - h, FALLBACK_STEP_PX)
     grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)
-    if grid.size:
-        ok = free(grid)
+    for leaders_clear in (True, False):  # a crossed leader line is legible; overlapping text is not
+        ok = free(grid, leaders_clear=leaders_clear) if grid.size else np.zeros(0, bool)
         if ok.any():
             candidates = grid[ok]
             centre_distance = np.linalg.norm(candidates + [w / 2, h / 2] - point, axis=1)
