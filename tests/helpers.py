@@ -2,6 +2,8 @@
 the extension checks run in (BLENDERS: version "X.Y" -> that environment's Python interpreter)."""
 from __future__ import annotations
 
+import contextlib
+
 import functools
 import hashlib
 import json
@@ -138,3 +140,17 @@ def _stamped(folder: Path, stamp: str) -> bool:
         return (folder / "stamp.txt").read_text() == stamp
     except OSError:
         return False
+
+
+@contextlib.contextmanager
+def standalone_gl():
+    """A headless EGL context (Mesa llvmpipe where there is no GPU), garbage-collected only by its
+    own gc() and released at the end: the GL tests' fixtures."""
+    import moderngl
+
+    ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
+    ctx.gc_mode = "context_gc"
+    try:
+        yield ctx
+    finally:
+        ctx.release()

@@ -2,11 +2,10 @@
 arithmetic, and the generated inspection path is scale-free (real bakes, real OpenGL)."""
 import json
 
-import moderngl
 import numpy as np
 import pytest
 
-from helpers import baked
+from helpers import baked, standalone_gl
 from hlod_core import jsonutil, meshio
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.camera import MAX_MAGNITUDE, inspection_path, load_path
@@ -85,9 +84,8 @@ def _scaled(hlod, factor: float):
 
 @pytest.fixture(scope="module")
 def gl_ctx():
-    ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
-    yield ctx
-    ctx.release()
+    with standalone_gl() as ctx:
+        yield ctx
 
 
 def _drawn_nodes(ctx, hlod, method: str, size=(128, 96)) -> np.ndarray:

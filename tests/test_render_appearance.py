@@ -26,7 +26,7 @@ from hlod_core.renderer import TEXTURE_UNIT, Renderer
 from hlod_core.traversal import RuntimeSettings, make
 from hlod_core.view import View
 
-from helpers import ROOT, baked
+from helpers import ROOT, baked, standalone_gl
 from test_addon import repo  # noqa: F401 - fixture: the extension installed in the main .venv's bpy
 
 pytestmark = pytest.mark.gl
@@ -51,10 +51,8 @@ def _digest(frames) -> str:
 
 @pytest.fixture(scope="module")
 def _gl_context():
-    ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
-    ctx.gc_mode = "context_gc"
-    yield ctx
-    ctx.release()
+    with standalone_gl() as ctx:
+        yield ctx
 
 
 @pytest.fixture

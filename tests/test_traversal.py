@@ -18,7 +18,7 @@ from hlod_core.overlay import OVERLAY_RAMP_STEPS, overlay_ramp
 from hlod_core.renderer import DEFAULT_COLOUR, Renderer
 from hlod_core.traversal import COUNTERS, METHODS, FrameStats, RuntimeSettings, make
 
-from helpers import baked_city, load_model, street_path
+from helpers import baked_city, load_model, standalone_gl, street_path
 
 pytestmark = pytest.mark.gl  # every test here draws with a real OpenGL context
 
@@ -27,10 +27,8 @@ SIZE = (320, 240)
 
 @pytest.fixture(scope="session")
 def gl_ctx():
-    ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
-    ctx.gc_mode = "context_gc"
-    yield ctx
-    ctx.release()
+    with standalone_gl() as ctx:
+        yield ctx
 
 
 @pytest.fixture(autouse=True)
