@@ -1,6 +1,7 @@
 """Estimators of alpha, the pixels a node's box covers with nothing in front (DESIGN §5.3), besides
 the exact `query` count that the renderer measures: `cube` (the 2006 paper's cube of equal volume,
-vectorised over nodes) and `projected` (the box's silhouette, clipped to the viewport, one box).
+vectorised over nodes) and `projected` (the box's silhouette clipped to the viewport: the summed
+area of its back faces' projections, vectorised over nodes).
 
 Papers: the VMSSE `SSE * P(q/alpha)` and the cube estimate of alpha come from Charalambos,
 "Coherent hierarchical level-of-detail (HLOD) refinement through hardware occlusion queries"
@@ -12,8 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .boxes import BOX_EDGES, box_corners
-from .polygon import clip_to_rectangle, convex_hull, polygon_area
+from .boxes import box_corners
 from .view import View
 
 #: Clip-space w below this magnitude is replaced by it before the perspective divide (a point on
@@ -37,22 +37,71 @@ def alpha_cube(view: View, cube_side: np.ndarray, box_min: np.ndarray, box_max: 
     return out
 
 
-def alpha_projected(view: View, box_min: np.ndarray, box_max: np.ndarray) -> float:
-    """Pixels covered by one box's silhouette: corners (and edge crossings of the near plane)
-    in front of the near plane, projected, convex hull, clipped to the viewport. One box."""
-    corners = box_corners(box_min, box_max)
-    clip = (view.projection @ view.view @ np.c_[corners, np.ones(8)].T).T
-    near = clip[:, 2] + clip[:, 3]  # >= 0 in front of the near plane
-    pts = [clip[i] for i in range(8) if near[i] >= 0]
-    for a, b in BOX_EDGES:
-        if (near[a] >= 0) != (near[b] >= 0):
-            u = near[a] / (near[a] - near[b])
-            pts.append(clip[a] + u * (clip[b] - clip[a]))
-    if len(pts) < 3:
-        return 0.0
-    pts = np.array(pts)
-    w = np.where(np.abs(pts[:, 3]) < _MIN_CLIP_W, _MIN_CLIP_W, pts[:, 3])
-    xy = (pts[:, :2] / w[:, None] * 0.5 + 0.5) * [view.width, view.height]
-    hull = convex_hull(xy)
-    poly = clip_to_rectangle(hull, 0.0, 0.0, float(view.width), float(view.height))
-    return polygon_area(poly)
+#: The six faces of a box as corner indices (box_corners' numbering), counter-clockwise seen from
+#: outside: a face turned to the eye projects counter-clockwise (positive area, GL's front face).
+BOX_FACES = np.array([[0, 4, 6, 2], [1, 3, 7, 5], [0, 1, 5, 4], [2, 6, 7, 3], [0, 2, 3, 1], [4, 5, 7, 6]])
+#: Clip-space half-spaces kept, as rows r with r . (x, y, z, w) >= 0: near, left, right, bottom,
+#: top. The far plane is not clipped (a box beyond it still covers its pixels in the estimate).
+_CLIP_PLANES = np.array([[0, 0, 1, 1], [1, 0, 0, 1], [-1, 0, 0, 1], [0, 1, 0, 1], [0, -1, 0, 1]], np.float64)
+
+
+def alpha_projected(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray | float:
+    """Pixels covered by boxes' silhouettes in the viewport, vectorised over boxes: (n,3) bounds
+    give (n,) float64; (3,) bounds give a float.
+
+    A ray from the eye through the silhouette of a convex body leaves it exactly once, through a
+    face turned away from the eye; so the silhouette's area is the summed area of the back faces'
+    projections. Each face is clipped in clip space (Sutherland-Hodgman, all faces at once) to the
+    near plane and the viewport's four sides, projected, and its signed area taken; back faces
+    project clockwise. The near plane's cut through the box faces the eye, so back faces alone
+    stay exact for a box crossing the near plane or holding the eye (the whole viewport)."""
+    lo, hi = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
+    single = lo.ndim == 1
+    lo, hi = np.atleast_2d(lo), np.atleast_2d(hi)
+    corners = box_corners(lo[:, None, :], hi[:, None, :])  # (n,8,3)
+    clip = np.c_[corners.reshape(-1, 3), np.ones(corners.shape[0] * 8)] @ (view.projection @ view.view).T
+    polys = clip.reshape(-1, 8, 4)[:, BOX_FACES].reshape(-1, 4, 4)  # (6n, 4 vertices, xyzw)
+    count = np.full(len(polys), 4)
+    for plane in _CLIP_PLANES:
+        polys, count = _clip_polygons(polys, count, plane)
+    w = polys[..., 3]
+    w = np.where(np.abs(w) < _MIN_CLIP_W, _MIN_CLIP_W, w)
+    xy = (polys[..., :2] / w[..., None] * 0.5 + 0.5) * [view.width, view.height]
+    x, y = xy[..., 0], xy[..., 1]
+    signed = 0.5 * np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
+    back = np.where(count >= 3, np.maximum(-signed, 0.0), 0.0).reshape(-1, 6).sum(axis=1)
+    return float(back[0]) if single else back
+
+
+def _clip_polygons(polys: np.ndarray, count: np.ndarray, plane: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One Sutherland-Hodgman pass over (m,k,4) convex polygons with count (m,) vertices each,
+    keeping plane . v >= 0; only polygons with a vertex outside are cut. Out: (m,k',4) polygons and
+    their counts; slots past a polygon's count repeat its first vertex (they add nothing to a
+    shoelace sum)."""
+    d = polys @ plane
+    slot = np.arange(polys.shape[1])
+    used = slot[None, :] < count[:, None]
+    cut_rows = np.flatnonzero(np.any(used & (d < 0), axis=1))
+    if cut_rows.size == 0:
+        return polys, count
+    part, part_count = polys[cut_rows], count[cut_rows]
+    d, used = d[cut_rows], used[cut_rows]
+    m, k = part.shape[:2]
+    nxt = np.where(slot[None, :] + 1 < part_count[:, None], slot[None, :] + 1, 0)
+    d_next = np.take_along_axis(d, nxt, axis=1)
+    inside, inside_next = d >= 0, d_next >= 0
+    crossing = used & (inside != inside_next)
+    denom = np.where(crossing, d - d_next, 1.0)
+    t = np.where(crossing, d / denom, 0.0)
+    cut = part + t[..., None] * (np.take_along_axis(part, nxt[..., None], axis=1) - part)
+    both = np.stack([part, cut], axis=2).reshape(m, 2 * k, 4)  # vertex j, then the cut of edge j
+    keep = np.stack([used & inside, crossing], axis=2).reshape(m, 2 * k)
+    order = np.argsort(~keep, axis=1, kind="stable")[:, :k + 1]
+    part_count = keep.sum(axis=1)
+    part = np.take_along_axis(both, order[..., None], axis=1)
+    part = np.where((np.arange(k + 1)[None, :] >= part_count[:, None])[..., None], part[:, :1], part)
+    out = np.concatenate([polys, polys[:, :1]], axis=1)  # one slot more, the first vertex repeated
+    out[cut_rows] = part
+    count = count.copy()
+    count[cut_rows] = part_count
+    return out, count

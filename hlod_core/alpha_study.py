@@ -49,7 +49,7 @@ def alpha_estimators(hlod: Hlod, renderer: Renderer, views: list[View], *,
         pending = [renderer.issue_query(int(n), with_alpha=True) for n in nodes]
         exact = np.array([renderer.result(p)[1] for p in pending], np.float64)
         t1 = time.perf_counter()
-        projected = np.array([alpha_projected(view, lo[n], hi[n]) for n in nodes])
+        projected = alpha_projected(view, lo[nodes], hi[nodes])
         t2 = time.perf_counter()
         cube = alpha_cube(view, hlod.cube_side, hlod.box_min, hlod.box_max)[nodes]
         t3 = time.perf_counter()

@@ -179,8 +179,13 @@ class Traversal(abc.ABC):
         # the near plane has the same problem (its front faces are clipped), so it is skipped too.
         self.unqueryable = (boxes.eye_in_boxes(view.eye, lo, hi)
                             | boxes.boxes_cross_near_plane(view, lo, hi)).tolist()
-        self.alpha_cube = alpha_estimators.alpha_cube(view, h.cube_side, h.box_min, h.box_max) \
-            if self.settings.alpha == "cube" else None
+        self.alpha_estimate = None  # (n,) pixels, for the estimators other than `query`
+        if self.settings.alpha == "cube":
+            self.alpha_estimate = alpha_estimators.alpha_cube(view, h.cube_side, h.box_min, h.box_max)
+        elif self.settings.alpha == "projected":  # only boxes that can be queried this frame
+            candidates = np.flatnonzero(np.asarray(self.in_frustum) & ~np.asarray(self.unqueryable))
+            self.alpha_estimate = np.zeros(h.node_count)
+            self.alpha_estimate[candidates] = alpha_estimators.alpha_projected(view, lo[candidates], hi[candidates])
 
     def frame(self, view: View) -> FrameStats:
         self.frame_id += 1
@@ -247,14 +252,7 @@ class Traversal(abc.ABC):
             return 1, 1.0
         q, alpha_q, stall = self.renderer.result(pending.query)
         stats.stall_ms += stall * MS_PER_S
-        node = pending.node
-        if self.settings.alpha == "query":
-            alpha = float(alpha_q)
-        elif self.settings.alpha == "cube":
-            alpha = float(self.alpha_cube[node])
-        else:
-            alpha = alpha_estimators.alpha_projected(self.view, self.hlod.box_min[node] - self.renderer.query_box_pad,
-                                            self.hlod.box_max[node] + self.renderer.query_box_pad)
+        alpha = float(alpha_q) if self.settings.alpha == "query" else float(self.alpha_estimate[pending.node])
         mu = 0.0 if not alpha > 0 else min(1.0, max(0.0, q / alpha))  # alpha 0 or NaN -> 0; q > alpha -> 1
         return q, mu
 

@@ -154,7 +154,7 @@ def test_alpha_estimators_against_the_query_on_boxes_fully_on_screen(city_render
         exact.append(alpha)
     city_renderer.end_frame()
     exact = np.array(exact, float)
-    projected = np.array([alpha_estimators.alpha_projected(view, lo[i], hi[i]) for i in on_screen])
+    projected = alpha_estimators.alpha_projected(view, lo[on_screen], hi[on_screen])
     cube = alpha_estimators.alpha_cube(view, hlod.cube_side, hlod.box_min, hlod.box_max)[on_screen]
     big = exact >= 400  # boxes of at least 20 x 20 pixels
     projected_err = np.abs(projected[big] / exact[big] - 1)
@@ -175,7 +175,7 @@ def test_mu_stays_in_0_1_when_alpha_is_underestimated(city_renderer):
             q, mu = original(pending, stats)
             nonlocal seen_over
             if pending.query is not None and alpha == "cube":
-                seen_over += int(q > traversal.alpha_cube[pending.node])
+                seen_over += int(q > traversal.alpha_estimate[pending.node])
             assert 0.0 <= mu <= 1.0
             return q, mu
 

@@ -1,9 +1,16 @@
-"""Plane polygons for the projected alpha estimator: the convex hull of points, clipping to a
-rectangle (the viewport), and the area. Data form: (k,2) float64 vertices in pixels, in order.
+"""An independent reference for the vectorised `projected` alpha estimator (hlod_core.alpha_estimators):
+one box at a time, its corners in front of the near plane and its edges' crossings of that plane
+projected, their convex hull clipped to the viewport, the hull's area. (This was the product's own
+estimator before it was vectorised; tests compare the two.) Polygons are (k,2) float64 pixels.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from hlod_core.boxes import BOX_EDGES, box_corners
+from hlod_core.view import View
+
+_MIN_CLIP_W = 1e-300
 
 
 def convex_hull(p: np.ndarray) -> np.ndarray:
@@ -55,3 +62,24 @@ def polygon_area(poly: np.ndarray) -> float:
         return 0.0
     x, y = poly[:, 0], poly[:, 1]
     return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def silhouette_pixels(view: View, box_min: np.ndarray, box_max: np.ndarray) -> float:
+    """Pixels covered by one box's silhouette: corners (and edge crossings of the near plane)
+    in front of the near plane, projected, convex hull, clipped to the viewport. One box."""
+    corners = box_corners(box_min, box_max)
+    clip = (view.projection @ view.view @ np.c_[corners, np.ones(8)].T).T
+    near = clip[:, 2] + clip[:, 3]  # >= 0 in front of the near plane
+    pts = [clip[i] for i in range(8) if near[i] >= 0]
+    for a, b in BOX_EDGES:
+        if (near[a] >= 0) != (near[b] >= 0):
+            u = near[a] / (near[a] - near[b])
+            pts.append(clip[a] + u * (clip[b] - clip[a]))
+    if len(pts) < 3:
+        return 0.0
+    pts = np.array(pts)
+    w = np.where(np.abs(pts[:, 3]) < _MIN_CLIP_W, _MIN_CLIP_W, pts[:, 3])
+    xy = (pts[:, :2] / w[:, None] * 0.5 + 0.5) * [view.width, view.height]
+    hull = convex_hull(xy)
+    poly = clip_to_rectangle(hull, 0.0, 0.0, float(view.width), float(view.height))
+    return polygon_area(poly)
