@@ -9,7 +9,8 @@
                 back from it at once; otherwise the inner nodes whose subtree it holds take their
                 LODs and errors from it
     simplify -> the other inner nodes bottom-up: weld, quadric decimation, Hausdorff MSE
-                (simplify.py); independent subtrees run in parallel worker processes (`jobs`)
+                (simplify.py, `BakeSettings.error`); independent subtrees run in parallel worker
+                processes (`jobs`)
     assemble -> one vertex and one index buffer, node ranges; with appearance, UVs, colours and
                 triangle materials, each node's triangles sorted by material (one draw per
                 (node, material))
@@ -35,6 +36,17 @@ above twice its target, that node crosses them (material borders still stay): fa
 UV island keep exact UVs, faces spanning two are stretched; the log names such nodes and
 meta["uv_seams_crossed_nodes"] counts them. A mesh without any takes the path it always took,
 with no attribute arrays. The node error stays the geometric Hausdorff MSE.
+
+Error measures (issue 16, `BakeSettings.error`): "exact" measures each inner node's LOD against
+every original triangle below it (simplify.measure); "bound" measures it against its children's
+LODs only (simplify.measure_to_children, h) and adds the largest child error (`_compose_bounds`):
+    bound(leaf) = 0;  bound(n) = h(n) + max over children c of bound(c),  h(n) = H(LOD_n, U_c LOD_c).
+Proof that bound(n) >= H(LOD_n, O_n) (O_n: the originals below n; by induction, H(LOD_c, O_c) <= bound(c)):
+  x on LOD_n: some z on a child LOD_c has |x - z| <= h(n), and z is within bound(c) of O_c, a part of O_n;
+  y in O_n lies in some O_c: within bound(c) of a point z of LOD_c, and z is within h(n) of LOD_n.
+Both directions are at most h(n) + max bound(c) (triangle inequality); leaves are their originals.
+Both figures are measured from samples (simplify.measure_to_children samples as measure does), so
+the measured ones obey this up to the sampling (tests/test_error_bound.py says how much).
 """
 from __future__ import annotations
 
@@ -55,7 +67,7 @@ from typing import Callable
 import numpy as np
 
 from . import appearance, bake_cache, simplify
-from .arrays import concat_indexed
+from .arrays import concat_indexed, segment_ranges
 from .errors import BakeCancelled, InputError
 from .hierarchy import Hlod, cube_sides, query_box_pad
 from .meshio import TriangleMesh
@@ -81,11 +93,17 @@ def stable_meta(meta: dict) -> dict:
     return {k: v for k, v in meta.items() if k not in VOLATILE_META}
 
 
+#: BakeSettings.error: the inner nodes' error measures (module docstring).
+ERROR_MEASURES = ("exact", "bound")
+
+
 @dataclass(frozen=True)
 class BakeSettings:
     """target_tris: triangles per node (leaf budget and LOD size); max_depth: deepest node level
-    (root = 0); jobs: worker processes for decimation (1 = in this process); the rest go to
-    simplify.DecimationSettings."""
+    (root = 0); jobs: worker processes for decimation (1 = in this process); error: the inner nodes'
+    error measure, "exact" (against every original triangle below the node) or "bound" (against
+    the children's LODs, plus their largest error: an upper bound, cheaper; module docstring); the
+    rest go to simplify.DecimationSettings."""
 
     target_tris: int = 2000
     max_depth: int = 12
@@ -93,6 +111,7 @@ class BakeSettings:
     quality_threshold: float = 0.3
     preserve_normals: bool = False
     boundary_weight: float = 1.0
+    error: str = "exact"
 
     def __post_init__(self):
         if self.target_tris < 1:
@@ -103,6 +122,8 @@ class BakeSettings:
             raise InputError(f"jobs must be at least 1, got {self.jobs}")
         if not 0.0 <= self.quality_threshold <= 1.0:
             raise InputError(f"quality_threshold must be in [0, 1], got {self.quality_threshold}")
+        if self.error not in ERROR_MEASURES:
+            raise InputError(f"error must be one of {', '.join(ERROR_MEASURES)}, got {self.error!r}")
 
     def decimation(self) -> simplify.DecimationSettings:
         return simplify.DecimationSettings(target_tris=self.target_tris, quality_threshold=self.quality_threshold,
@@ -134,7 +155,7 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         row_layout = appearance.AttributeLayout(material=mesh.material_ids is not None, uv=mesh.uvs is not None,
                                                 color=mesh.colors is not None)
         cache = bake_cache.BakeCache(cache_dir, decimation=settings.decimation(), with_normals=mesh.normals is not None,
-                                     row_layout=row_layout)
+                                     row_layout=row_layout, error=settings.error)
         result_key = bake_cache.input_key(mesh, max_depth=settings.max_depth, context=cache.context)
         found = cache.load_result(result_key, tuple(mesh.materials) if mesh.has_appearance else ())
         if found is not None:
@@ -188,6 +209,8 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
                           row_layout=rows, cancel=cancel, node_done=node_done)
     if cancel():
         raise BakeCancelled("bake cancelled")
+    if settings.error == "bound":
+        _compose_bounds(layout, hausdorff, rebuilt=np.setdiff1d(inner, np.fromiter(from_cache, np.int64)))
     phases.lap("simplify")
 
     hlod = _assemble(layout, lods, prepared.origin, hausdorff, normals=prepared.normals is not None,
@@ -253,7 +276,7 @@ def _meta(mesh: TriangleMesh, settings: BakeSettings, derived: dict, cache_stats
         "generator": "hlod_core",
         "input_tris": mesh.tri_count,
         "input_vertices": int(mesh.positions.shape[0]),
-        "settings": asdict(settings),
+        "settings": _settings_meta(settings),
         "target_tris": settings.target_tris,
         "max_depth": settings.max_depth,
         "sources": list(sources or [mesh.name]),
@@ -270,6 +293,34 @@ def _meta(mesh: TriangleMesh, settings: BakeSettings, derived: dict, cache_stats
         meta["cache"] = cache_stats
     meta.update(extra_meta or {})
     return meta
+
+
+def _settings_meta(settings: BakeSettings) -> dict:
+    """meta["settings"]: the settings' fields, but `error` only when it is not "exact": a file
+    without it was measured exactly (every file from before issue 16 too), and an exact bake
+    writes the bytes it wrote before."""
+    fields = asdict(settings)
+    if fields["error"] == "exact":
+        del fields["error"]
+    return fields
+
+
+def _compose_bounds(layout: OctreeLayout, hausdorff: np.ndarray, *, rebuilt: np.ndarray) -> None:
+    """Bound mode: hausdorff[node] holds h(node) (simplify.measure_to_children) for the `rebuilt`
+    inner nodes and the final bound for the others (leaves 0, cache entries); make the rebuilt ones
+    h + the largest child bound, deepest level first (module docstring). A NaN (no distance from
+    pymeshlab) stays NaN up the tree, and _assemble bounds each such node by its box diagonal."""
+    pending = np.zeros(layout.node_count, bool)
+    pending[rebuilt] = True
+    for d in range(int(layout.depth.max()) - 1, -1, -1):
+        nodes = np.flatnonzero((layout.depth == d) & pending)
+        if nodes.size == 0:
+            continue
+        first, count = layout.child_offset[nodes], layout.child_count[nodes]
+        kids = segment_ranges(first, count)
+        worst = np.full(nodes.size, -np.inf)
+        np.maximum.at(worst, np.repeat(np.arange(nodes.size), count), hausdorff[kids])
+        hausdorff[nodes] += worst
 
 
 @dataclass(frozen=True, eq=False)
@@ -385,12 +436,16 @@ _TASK_DECIMATE, _TASK_MEASURE = 0, 1
 _POLL_SECONDS = 0.25
 
 
-def _init_worker(positions_path: str, faces_path: str) -> None:
+def _init_worker(positions_path: str | None = None, faces_path: str | None = None) -> None:
+    """positions_path / faces_path: the leaf arrays (exact error measure); None: the bound, which
+    measures against the children's LODs sent with each task, needs none."""
     # Ctrl-C in a terminal (and a hangup) reaches the whole process group: the parent cancels and
     # shuts the pool down, so the workers ignore these and print no tracebacks of their own.
     for name in ("SIGINT", "SIGHUP"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), signal.SIG_IGN)
+    if positions_path is None:
+        return
     _SHARED["positions"] = np.load(positions_path, mmap_mode="r")
     _SHARED["faces"] = np.load(faces_path, mmap_mode="r")
 
@@ -483,10 +538,14 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
     LOD, None without) travel with the child LODs; row_layout: their columns (None without).
 
     Two kinds of task: DECIMATE a node once its children's LODs exist, MEASURE its Hausdorff error
-    once its own LOD exists. Measuring needs every original triangle below the node, so the top
-    nodes' measurements are the big tasks; keeping them off the decimation chain lets them run
+    once its own LOD exists. Measuring exactly needs every original triangle below the node, so the
+    top nodes' measurements are the big tasks; keeping them off the decimation chain lets them run
     beside other work. Priority: decimations first (deepest first, they unlock the rest), then
     measurements, largest first. At most `jobs` tasks are in flight, so the priority holds.
+    With settings.error "bound" a MEASURE task is h(node) against its children's LODs (a few
+    thousand triangles, sent with the task like a decimation's; no leaf arrays are made or shared);
+    the caller composes the bounds (`_compose_bounds`). It stays a task of the pool, not inline in
+    this process: inline it would run on the scheduling thread, beside `jobs` busy workers.
     """
     todo = np.array([lod is None for lod in lods]) & ~layout.is_leaf
     nodes = np.flatnonzero(todo)
@@ -498,17 +557,22 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
     np.add.at(waiting, layout.parent[todo_children], 1)  # a node waits for its children's LODs still to make
     heap: list[tuple] = []
     decimated: dict[int, simplify.NodeLod] = {}  # LODs made, until their measurement is done
-    leaf_positions, leaf_faces, vertex_begin, vertex_end = _leaf_arrays(layout, lods)
+    bound = settings.error == "bound"
+    if not bound:
+        leaf_positions, leaf_faces, vertex_begin, vertex_end = _leaf_arrays(layout, lods)
 
     def push(kind: int, node: int) -> None:
         size = -int(layout.depth[node]) if kind == _TASK_DECIMATE else -int(layout.tri_end[node] - layout.tri_begin[node])
         heapq.heappush(heap, (kind, size, node))
 
     def submit(executor, kind: int, node: int) -> cf.Future:
+        kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
         if kind == _TASK_DECIMATE:
-            kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
             return executor.submit(simplify.decimate_node, [(lods[k][0], lods[k][1], lods[k][3]) for k in kids], dec,
                                    with_normals, row_layout)
+        if bound:
+            return executor.submit(simplify.measure_to_children, (lods[node][0], lods[node][1]),
+                                   [(lods[k][0], lods[k][1]) for k in kids])
         return executor.submit(_measure_task, lods[node][0], lods[node][1], int(vertex_begin[node]),
                                int(vertex_end[node]), int(layout.tri_begin[node]), int(layout.tri_end[node]))
 
@@ -518,13 +582,16 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
     with contextlib.ExitStack() as stack:
         if settings.jobs == 1:
             executor, limit = _InlineExecutor(), 1
-            _SHARED.update(positions=leaf_positions, faces=leaf_faces)
-            stack.callback(_SHARED.clear)
+            if not bound:
+                _SHARED.update(positions=leaf_positions, faces=leaf_faces)
+                stack.callback(_SHARED.clear)
         else:
-            scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="hlod-bake-"))
-            paths = os.path.join(scratch, "positions.npy"), os.path.join(scratch, "faces.npy")
-            np.save(paths[0], leaf_positions)
-            np.save(paths[1], leaf_faces)
+            paths = ()
+            if not bound:
+                scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="hlod-bake-"))
+                paths = os.path.join(scratch, "positions.npy"), os.path.join(scratch, "faces.npy")
+                np.save(paths[0], leaf_positions)
+                np.save(paths[1], leaf_faces)
             stack.enter_context(_main_module_importable())
             executor = cf.ProcessPoolExecutor(max_workers=settings.jobs, initializer=_init_worker, initargs=paths,
                                               mp_context=multiprocessing.get_context("spawn"))

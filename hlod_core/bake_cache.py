@@ -4,7 +4,7 @@ Data form: a folder (by default `OUT.hlod.cache/` beside the output; safe to del
 the next bake is then a bake from scratch) holding a CACHEDIR.TAG and
 - one file per inner node, `<key>.hlodc`: the node's LOD (positions (k,3) float32 origin-relative,
   faces (m,3) int32, normals (k,3) float32 and attribute rows (k,A) float32 when the bake has
-  them), its Hausdorff error (float64, model units) and what the bake log says of it
+  them), its error (float64, model units: the Hausdorff error, or its bound with --error bound) and what the bake log says of it
   (`SUMMARY_FIELDS`);
 - one file for the whole result of the last bake, `<input key>.hlodr`: every array of its Hlod and
   the meta entries the bake derives (`RESULT_META`), keyed by the whole input (`input_key`: the
@@ -19,7 +19,7 @@ Keys (blake2b, 32 bytes) are a Merkle tree over the octree (`node_keys`):
 - an inner node's key hashes its cell and its children's keys, in order;
 - both hash `context_digest`: the cache format (CACHE_VERSION), the .hlod format version, every
   setting that changes a LOD or an error (target_tris, quality_threshold, preserve_normals,
-  boundary_weight), whether the bake carries normals and which attribute columns, the versions of
+  boundary_weight, the error measure: exact or bound), whether the bake carries normals and which attribute columns, the versions of
   pymeshlab and numpy, and the source of the modules that compute LODs and errors (`RESULT_MODULES`:
   editing them retires every entry).
 A node's LOD and error are functions of its subtree's input triangles and these settings alone
@@ -105,8 +105,10 @@ def check_folder(folder: str | os.PathLike | None) -> None:
 
 
 def context_digest(settings: simplify.DecimationSettings, *, with_normals: bool,
-                   row_layout: AttributeLayout | None) -> bytes:
-    """32 bytes: everything besides a subtree's triangles that its LODs and errors depend on."""
+                   row_layout: AttributeLayout | None, error: str = "exact") -> bytes:
+    """32 bytes: everything besides a subtree's triangles that its LODs and errors depend on;
+    error: the error measure (bake.BakeSettings.error), so a bound is never served for an exact
+    error nor the other way round."""
     here = Path(__file__).resolve().parent
     code = hashlib.blake2b(digest_size=_KEY_BYTES)
     for name in RESULT_MODULES:
@@ -119,6 +121,7 @@ def context_digest(settings: simplify.DecimationSettings, *, with_normals: bool,
         "hlod_format": fileformat.FORMAT_VERSION,
         "decimation": dataclasses.asdict(settings),
         "with_normals": bool(with_normals),
+        "error": str(error),
         "rows": None if row_layout is None or row_layout.empty else [row_layout.material, row_layout.uv,
                                                                      row_layout.color],
         "pymeshlab": _version("pymeshlab"),
@@ -181,16 +184,17 @@ def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: 
 class BakeCache:
     """One bake's view of a cache folder: `load` node entries and `store` the bake's new ones,
     `load_result` / `store_result` the whole result, `prune`. with_normals / row_layout: what the
-    bake carries (part of the keys; every entry must match it). Statistics for the bake's meta:
+    bake carries (part of the keys; every entry must match it); error: the error measure (part of
+    the keys). Statistics for the bake's meta:
     reused_nodes, reused_tris, rejected (entries ignored: (file name, why))."""
 
     def __init__(self, folder: str | os.PathLike, *, decimation: simplify.DecimationSettings, with_normals: bool,
-                 row_layout: AttributeLayout):
+                 row_layout: AttributeLayout, error: str = "exact"):
         check_folder(folder)
         self.folder = Path(folder)
         self.with_normals = with_normals
         self.row_width = row_layout.width
-        self.context = context_digest(decimation, with_normals=with_normals, row_layout=row_layout)
+        self.context = context_digest(decimation, with_normals=with_normals, row_layout=row_layout, error=error)
         self.reused_nodes = 0
         self.reused_tris = 0
         self.rejected: list[tuple[str, str]] = []
