@@ -3,6 +3,7 @@ import ctypes
 import dataclasses
 import subprocess
 import sys
+import time
 
 import moderngl
 import numpy as np
@@ -518,3 +519,33 @@ def test_gl_state_is_restored_after_a_frame(gl_ctx):
         gl.disable(GL.SCISSOR_TEST)
         gl.depth_mask(1)
         renderer.release()
+
+
+def test_traversal_cpu_benchmark_leaves_the_renderer_out(city_renderer):
+    """benchmarks/traversal_cpu: the traversal's Python time per visited node excludes the time inside
+    the renderer. A renderer made 2 ms slower per draw (real GL plus a sleep) leaves the per-node
+    Python time below those 2 ms and shows up in the renderer's share instead."""
+    from benchmarks import traversal_cpu
+    path = street_path(6)
+    plain = traversal_cpu.measure(city_renderer.hlod, "coh", RuntimeSettings(), path, SIZE, renderer=city_renderer,
+                                  call_overhead_s=traversal_cpu._proxy_overhead_s())
+    delay_s = 0.002
+
+    class SlowDraws:
+        def __init__(self, renderer):
+            self._renderer = renderer
+
+        def draw_node(self, node, ratio_p=1.0):
+            time.sleep(delay_s)
+            self._renderer.draw_node(node, ratio_p)
+
+        def __getattr__(self, name):
+            return getattr(self._renderer, name)
+
+    slow = traversal_cpu.measure(city_renderer.hlod, "coh", RuntimeSettings(), path, SIZE,
+                                 renderer=SlowDraws(city_renderer), call_overhead_s=0.0)
+    assert plain["visited"] > 10 and slow["visited"] == plain["visited"]
+    drawn_per_frame = slow["renderer_ms"] - plain["renderer_ms"]
+    assert drawn_per_frame > 5 * delay_s * 1e3  # several draws a frame, each 2 ms slower
+    extra_us_per_node = 1e3 * drawn_per_frame / slow["visited"]  # what the sleeps would add if counted
+    assert 0 < slow["python_us_per_node"] < 0.25 * extra_us_per_node, (slow, extra_us_per_node)
