@@ -1,50 +1,126 @@
 """Per-method means on one path, all methods in one process with their order alternating across
 repeats (timings compare as ratios within the run; node counts are what the method decides).
 
-    .venv/bin/python -m benchmarks.traversal_table FILE.hlod --path PATH.json [--size 640x480] [--repeat 2]
+    .venv/bin/python -m benchmarks.traversal_table FILE.hlod (--path PATH.json | --inspection SEED:FRAMES)
+        [--size 640x480] [--repeat 2] [--methods vfc,bool,coh,coh:skip_queries=off]
+        [--psnr-frames 5] [--psnr-reference bool]
 
-Prints one JSON line per method (median over repeats of each per-frame mean) and a Markdown table.
+A method is a traversal name, optionally with RuntimeSettings fields after a colon
+(`coh:skip_queries=off,alpha=projected`): each such entry is a row. Prints one JSON line per row
+(median over repeats of each per-frame mean), the renderer's cost model, a Markdown table with
+each row's frame time relative to the faster of VFC and Bool when both run, and, with
+--psnr-frames N, the mean PSNR-Y of each row's image against --psnr-reference's on N frames spread
+over the path (each row and the reference run frame by frame side by side, own state each).
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import statistics
 
-from hlod_core import fileformat
-from hlod_core.camera import load_path
+import numpy as np
+
+from hlod_core import fileformat, imagemetrics
+from hlod_core.camera import inspection_path, load_path
 from hlod_core.renderer import Renderer
 from hlod_core.runner import run_path
-from hlod_core.traversal import COUNTERS, METHODS, RuntimeSettings
+from hlod_core.traversal import COUNTERS, RuntimeSettings, make
+
+
+def parse_entry(entry: str) -> tuple[str, RuntimeSettings]:
+    """'coh:skip_queries=off,alpha=projected' -> ('coh', RuntimeSettings(skip_queries='off', ...))."""
+    method, _, rest = entry.partition(":")
+    fields = {f.name: f.type for f in dataclasses.fields(RuntimeSettings)}
+    values = {}
+    for item in filter(None, rest.split(",")):
+        key, _, value = item.partition("=")
+        if key not in fields:
+            raise SystemExit(f"{entry}: unknown setting {key!r}; known: {', '.join(fields)}")
+        default = getattr(RuntimeSettings(), key)
+        values[key] = type(default)(value) if not isinstance(default, str) else value
+    return method, RuntimeSettings(**values)
+
+
+def psnr_y(hlod, renderer, path, size, entries: list[str], reference: str, frames: int) -> dict[str, float]:
+    """Mean PSNR-Y (dB) of each entry's frames against the reference's on `frames` frames spread
+    over the path; every traversal runs every frame (coherence), images compared where chosen."""
+    chosen = set(np.linspace(0, len(path) - 1, frames).round().astype(int).tolist())
+    ref = _make(reference, hlod, renderer)
+    runs = {e: _make(e, hlod, renderer) for e in entries}
+    scores = {e: [] for e in entries}
+    for i in range(len(path)):
+        view = path.view(i, size)
+        ref.frame(view)
+        ref_image = renderer.read_pixels() if i in chosen else None
+        for e, traversal in runs.items():
+            traversal.frame(view)
+            if ref_image is not None:
+                scores[e].append(float(imagemetrics.psnr(ref_image, renderer.read_pixels())[0]))
+    return {e: float(np.mean(v)) for e, v in scores.items()}
+
+
+def _make(entry, hlod, renderer):
+    method, settings = parse_entry(entry)
+    return make(method, hlod, renderer, settings)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("file")
-    parser.add_argument("--path", required=True)
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--path")
+    where.add_argument("--inspection", help="SEED:FRAMES of camera.inspection_path")
     parser.add_argument("--size", default="640x480")
     parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--methods", default="full,vfc,bool,sw,simp,coh,ideal")
+    parser.add_argument("--psnr-frames", type=int, default=0)
+    parser.add_argument("--psnr-reference", default="bool")
     args = parser.parse_args()
     size = tuple(int(x) for x in args.size.split("x"))
-    hlod, path = fileformat.load(args.file), load_path(args.path)
-    methods = list(METHODS)
-    runs: dict[str, list[dict]] = {m: [] for m in methods}
+    hlod = fileformat.load(args.file)
+    if args.path:
+        path = load_path(args.path)
+    else:
+        seed, frames = (int(x) for x in args.inspection.split(":"))
+        path = inspection_path(hlod, seed=seed, frames=frames)
+    entries = _split_entries(args.methods)
+    runs: dict[str, list[dict]] = {e: [] for e in entries}
     renderer = Renderer.create_standalone(hlod, size)
     try:
+        print("cost model:", renderer.cost_model.describe())
         for rep in range(args.repeat):
-            for method in (methods if rep % 2 == 0 else methods[::-1]):
-                runs[method].append(run_path(hlod, method, RuntimeSettings(), path, size, renderer=renderer))
+            for entry in (entries if rep % 2 == 0 else entries[::-1]):
+                method, settings = parse_entry(entry)
+                runs[entry].append(run_path(hlod, method, settings, path, size, renderer=renderer))
+        psnr = psnr_y(hlod, renderer, path, size, entries, args.psnr_reference, args.psnr_frames) \
+            if args.psnr_frames else {}
     finally:
         renderer.release()
-    table = {m: {c: statistics.median(r[c] for r in runs[m]) for c in COUNTERS} for m in methods}
-    for m in methods:
-        print(json.dumps({"method": m, **table[m]}))
-    print("| method | DN | RARN | D | triangles | queries | stall ms | cpu ms | frame ms |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for m in methods:
-        t = table[m]
-        print(f"| {m} | {t['dn']:.2f} | {t['rarn']:.2f} | {t['d']:.2f} | {t['tris']:,.0f} | {t['queries']:.1f} | "
-              f"{t['stall_ms']:.2f} | {t['cpu_ms']:.1f} | {t['frame_ms']:.1f} |")
+    table = {e: {c: statistics.median(r[c] for r in runs[e]) for c in COUNTERS} for e in entries}
+    best = min((table[e]["frame_ms"] for e in ("vfc", "bool") if e in table), default=None)
+    for e in entries:
+        print(json.dumps({"method": e, **table[e], **({"psnr_y": psnr[e]} if e in psnr else {})}))
+    print("| method | DN | RARN | D | triangles | queries | stall ms | cpu ms | frame ms | / min(VFC, Bool) | PSNR-Y |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for e in entries:
+        t = table[e]
+        ratio = f"{t['frame_ms'] / best:.2f}" if best else "-"
+        score = f"{psnr[e]:.1f}" if e in psnr else "-"
+        print(f"| {e} | {t['dn']:.2f} | {t['rarn']:.2f} | {t['d']:.2f} | {t['tris']:,.0f} | {t['queries']:.1f} | "
+              f"{t['stall_ms']:.2f} | {t['cpu_ms']:.1f} | {t['frame_ms']:.1f} | {ratio} | {score} |")
+
+
+def _split_entries(text: str) -> list[str]:
+    """Comma-separated entries, where a setting's comma stays with its entry
+    ('vfc,coh:skip_queries=off,alpha=cube,bool' -> ['vfc', 'coh:skip_queries=off,alpha=cube', 'bool'])."""
+    out: list[str] = []
+    for part in text.split(","):
+        if out and ":" in out[-1] and "=" in part and ":" not in part:
+            out[-1] += "," + part
+        else:
+            out.append(part)
+    return out
 
 
 if __name__ == "__main__":

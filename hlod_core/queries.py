@@ -3,7 +3,8 @@
 Data form: a query object is a GL id (int). `Query` pairs a node with the ids of its occlusion
 query (q, depth test on) and, for the `query` alpha estimator, of its unoccluded count (alpha,
 depth test off). The pool generates ids in blocks of QUERY_BLOCK_SIZE and hands them out again
-once their result has been read.
+once their result has been read, to queries of the same target only: GL gives a query object the
+type of its first glBeginQuery, and beginning it with another target is GL_INVALID_OPERATION.
 """
 from __future__ import annotations
 
@@ -32,21 +33,23 @@ class QueryPool:
 
     def __init__(self, gl: GLFunctions):
         self._gl = gl
-        self._free: list[int] = []
+        self._free: dict[int, list[int]] = {}  # target -> ids free for it
         self._all: list[int] = []
 
     # --- ids --------------------------------------------------------------------------------------
 
-    def acquire(self) -> int:
-        if not self._free:
+    def acquire(self, target: int = GL.SAMPLES_PASSED) -> int:
+        """A free id for queries of `target` (GL_SAMPLES_PASSED, or GL_TIME_ELAPSED for timers)."""
+        free = self._free.setdefault(target, [])
+        if not free:
             block = (ctypes.c_uint32 * QUERY_BLOCK_SIZE)()
             self._gl.gen_queries(QUERY_BLOCK_SIZE, block)
             self._all.extend(block)
-            self._free.extend(block)
-        return self._free.pop()
+            free.extend(block)
+        return free.pop()
 
-    def give_back(self, query_id: int) -> None:
-        self._free.append(query_id)
+    def give_back(self, query_id: int, target: int = GL.SAMPLES_PASSED) -> None:
+        self._free.setdefault(target, []).append(query_id)
 
     @property
     def allocated(self) -> int:
@@ -61,7 +64,7 @@ class QueryPool:
         if self._all:
             ids = (ctypes.c_uint32 * len(self._all))(*self._all)
             self._gl.delete_queries(len(self._all), ids)
-        self._all, self._free = [], []
+        self._all, self._free = [], {}
 
     # --- results ----------------------------------------------------------------------------------
 

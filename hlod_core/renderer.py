@@ -13,6 +13,10 @@ Query boxes (DESIGN §5.4): the node's subtree box enlarged by `hierarchy.query_
 colour and depth writes off and back faces culled; `q` with the depth test on, `alpha` (the
 `query` estimator) with it off, so both count the same rasterised pixels, clipping included.
 
+Cost model (issue 15): `cost_model` times synthetic query boxes and real node draws in this
+renderer's framebuffer once, on first use, and fits query_cost's linear costs (per query and box
+pixel, per draw call and triangle); Bool and Coh use it to leave out queries that do not pay.
+
 Colours are decided here: a node is drawn in DEFAULT_COLOUR, or with `overlay` on, in the
 modulation ramp's colour (overlay.modulation_colour) of the ratio P the traversal passes,
 looked up in a table of the ramp precomputed at OVERLAY_RAMP_STEPS + 1 values of P.
@@ -35,6 +39,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import logging
+import time
 
 import numpy as np
 
@@ -42,7 +47,8 @@ from .errors import InputError
 from .gl_functions import GL, GLFunctions
 from .hierarchy import Hlod, query_box_pad
 from .overlay import OVERLAY_RAMP_STEPS, overlay_ramp
-from .view import View
+from .query_cost import CostModel, fit_linear
+from .view import View, look_at, perspective
 from .queries import Query, QueryPool
 
 log = logging.getLogger(__name__)
@@ -146,6 +152,27 @@ DEFAULT_COLOUR = (0.82, 0.80, 0.76)  # linear RGB of a node without the overlay
 NO_MATERIAL_BASE_COLOR = (1.0, 1.0, 1.0, 1.0)
 #: The texture unit the appearance program samples; its previous binding is restored after each frame.
 TEXTURE_UNIT = 0
+
+# Cost calibration (Renderer.cost_model): query boxes as centred squares of these NDC half-sides
+# (so their pixel counts span a dot to the whole framebuffer), each size timed as a batch of
+# CALIBRATION_QUERIES queries, every sample taken CALIBRATION_ROUNDS times (the median kept);
+# node draws of CALIBRATION_DRAW_NODES real nodes of spread triangle counts, each drawn often
+# enough to reach about CALIBRATION_DRAW_TRIANGLES triangles (at most CALIBRATION_MAX_REPEATS
+# draws), seen from outside the root box. A renderer without an own framebuffer calibrates in a
+# temporary one of CALIBRATION_SIZE pixels.
+CALIBRATION_BOX_HALF_SIDES = (0.01, 0.1, 0.25, 0.5)
+CALIBRATION_QUERIES = 4
+CALIBRATION_ROUNDS = 3
+CALIBRATION_DRAW_NODES = 4
+CALIBRATION_DRAW_TRIANGLES = 4_000
+CALIBRATION_MAX_REPEATS = 16
+CALIBRATION_SIZE = (256, 256)
+#: Distance of the calibration eye from the root box's centre, in root-box diagonals.
+CALIBRATION_EYE_DIAGONALS = 1.2
+#: The default clock: "wall" (seconds between two glFinish: what a frame pays, the Python and driver
+#: work of each call included). llvmpipe's GL_TIME_ELAPSED leaves the rasterisation of draws out
+#: (measured: 0-3 us for batches of 10,000 triangles that take 2 ms between two glFinish).
+CALIBRATION_CLOCK = "wall"
 
 
 class _Parts:
@@ -366,6 +393,7 @@ class Renderer:
         self._colour = None
         self._mode = None
         self._timer = None
+        self._cost_model: CostModel | None = None
 
     @classmethod
     def create_standalone(cls, hlod: Hlod, size: tuple[int, int], *,
@@ -411,7 +439,7 @@ class Renderer:
         self._colour = None
         self._timer = None
         if self.time_gpu if time_gpu is None else time_gpu:
-            self._timer = self.queries.acquire()
+            self._timer = self.queries.acquire(GL.TIME_ELAPSED)
             self.gl.begin_query(GL.TIME_ELAPSED, self._timer)
 
     def end_frame(self) -> float:
@@ -423,7 +451,7 @@ class Renderer:
         if self._timer is not None:
             self.gl.end_query(GL.TIME_ELAPSED)
             gpu_ms = self.queries.elapsed_ms(self._timer)
-            self.queries.give_back(self._timer)
+            self.queries.give_back(self._timer, GL.TIME_ELAPSED)
             self._timer = None
         self.ctx.finish()
         if self.fbo is not None:
@@ -509,6 +537,139 @@ class Renderer:
     def result(self, query: Query) -> tuple[int, int | None, float]:
         """(q, alpha or None, stall seconds), blocking if needed (see QueryPool.result)."""
         return self.queries.result(query)
+
+    # --- cost model ------------------------------------------------------------------------------
+
+    @property
+    def cost_model(self) -> CostModel:
+        """This renderer's fitted query and draw costs (query_cost.CostModel), calibrated on first
+        use and kept (`calibrate_costs`)."""
+        if self._cost_model is None:
+            self._cost_model = self.calibrate_costs()
+        return self._cost_model
+
+    def calibrate_costs(self, *, clock: str | None = None) -> CostModel:
+        """Time synthetic work and fit query_cost's linear models: query boxes of a few sizes
+        (module constants), issued as the traversal issues them, and real nodes of the HLOD drawn as
+        the traversal draws them. clock "wall" (default, CALIBRATION_CLOCK) times between two
+        glFinish, "gpu" with GL_TIME_ELAPSED (not inside a host whose own timer query may be running). Call between
+        frames: it uses the own framebuffer (or a temporary one), clears it, and leaves the draw
+        state, the host's framebuffer and the viewport as a frame's end leaves them. Logs the fit."""
+        clock = clock or CALIBRATION_CLOCK
+        if clock not in ("gpu", "wall"):
+            raise InputError(f"clock must be 'gpu' or 'wall', got {clock!r}")
+        saved_viewport = self.ctx.viewport
+        fbo = self.fbo
+        if fbo is None:
+            colour = self.ctx.renderbuffer(CALIBRATION_SIZE, components=4)
+            depth = self.ctx.depth_renderbuffer(CALIBRATION_SIZE)
+            fbo = self.ctx.framebuffer(color_attachments=[colour], depth_attachment=depth)
+        try:
+            fbo.use()
+            self.ctx.viewport = (0, 0, *fbo.size)
+            self._mode = None
+            queries = self._time_queries(fbo, clock)
+            draws = self._time_draws(fbo, clock)
+        finally:
+            self._set_mode(None)
+            self._colour = None
+            if fbo is not self.fbo:
+                for resource in (fbo, colour, depth):
+                    resource.release()
+            self._host_fbo.use()
+            self.ctx.viewport = saved_viewport
+        model = CostModel(query=fit_linear(*queries), draw=fit_linear(*draws), clock=clock)
+        log.info("renderer cost model: %s", model.describe())
+        return model
+
+    def _timed(self, clock: str, work) -> float:
+        """Seconds `work()` takes on `clock`."""
+        if clock == "gpu":
+            timer = self.queries.acquire(GL.TIME_ELAPSED)
+            self.gl.begin_query(GL.TIME_ELAPSED, timer)
+            work()
+            self.gl.end_query(GL.TIME_ELAPSED)
+            seconds = self.queries.elapsed_ms(timer) / 1e3
+            self.queries.give_back(timer, GL.TIME_ELAPSED)
+            return seconds
+        self.ctx.finish()
+        started = time.perf_counter()
+        work()
+        self.ctx.finish()
+        return time.perf_counter() - started
+
+    def _time_queries(self, fbo, clock: str) -> tuple[list, list, list]:
+        """(queries, pixels, seconds) per sample: CALIBRATION_QUERIES boxes of one size, each in its
+        own occlusion query with the depth test on against a cleared depth buffer (every pixel
+        passes: the pixels counted are the pixels rasterised), results read as the traversal reads."""
+        self.box_program["u_mvp"].write(np.eye(4, dtype=np.float32).tobytes())
+        counts, pixels, seconds = [], [], []
+        for half in CALIBRATION_BOX_HALF_SIDES:
+            self._u_lo.value, self._u_hi.value = (-half, -half, -0.5), (half, half, 0.5)
+            rounds, covered = [], 0
+            for _ in range(CALIBRATION_ROUNDS):
+                fbo.clear(1.0, 1.0, 1.0, 1.0, depth=1.0)
+                self._mode = None  # moderngl's clear puts its own depth mask back: set the query state again
+                issued = []
+
+                def work():
+                    self._set_mode("query")
+                    for _ in range(CALIBRATION_QUERIES):
+                        query_id = self.queries.acquire()
+                        self.gl.begin_query(GL.SAMPLES_PASSED, query_id)
+                        self.cube_vao.render(self._mgl.TRIANGLES)
+                        self.gl.end_query(GL.SAMPLES_PASSED)
+                        issued.append(query_id)
+                    covered_now = 0
+                    for query_id in issued:
+                        covered_now += self.queries.result(Query(-1, query_id, None))[0]
+                    issued.clear()
+                    issued.append(covered_now)
+
+                rounds.append(self._timed(clock, work))
+                covered = issued[0]
+            counts.append(CALIBRATION_QUERIES)
+            pixels.append(covered)
+            seconds.append(float(np.median(rounds)))
+        return counts, pixels, seconds
+
+    def _time_draws(self, fbo, clock: str) -> tuple[list, list, list]:
+        """(draw calls, triangles, seconds) per sample: one real node drawn repeatedly, seen from
+        outside the root box, for nodes of spread triangle counts."""
+        h = self.hlod
+        lo, hi = h.box_min[0] - h.origin, h.box_max[0] - h.origin
+        centre, diagonal = 0.5 * (lo + hi), max(float(np.linalg.norm(hi - lo)), 1e-30)
+        eye = centre + CALIBRATION_EYE_DIAGONALS * diagonal * np.array([0.6, -0.7, 0.4])
+        width, height = fbo.size
+        mv = look_at(eye, centre, [0.0, 0.0, 1.0])
+        mvp = perspective(60.0, width / height, 0.05 * diagonal, 4.0 * diagonal) @ mv
+        self.node_program["u_mvp"].write(mvp.T.astype(np.float32).tobytes())
+        self.node_program["u_mv"].write(mv.T.astype(np.float32).tobytes())
+        tris = np.asarray(h.tri_count, np.int64)
+        drawable = np.flatnonzero(tris > 0)
+        if drawable.size == 0:
+            raise InputError("the HLOD has no triangles: no draw cost to calibrate")
+        by_count = drawable[np.argsort(tris[drawable], kind="stable")]
+        picks = np.unique(by_count[np.linspace(0, by_count.size - 1, CALIBRATION_DRAW_NODES).round().astype(int)])
+        calls, triangles, seconds = [], [], []
+        for divisor in (2, 1):  # each node at two repeat counts
+            for node in picks.tolist():
+                full = int(np.clip(CALIBRATION_DRAW_TRIANGLES // int(tris[node]), 1, CALIBRATION_MAX_REPEATS))
+                repeats = max(1, full // divisor)
+                rounds = []
+                for _ in range(CALIBRATION_ROUNDS):
+                    fbo.clear(1.0, 1.0, 1.0, 1.0, depth=1.0)
+                    self._mode = None
+
+                    def work():
+                        for _ in range(repeats):
+                            self.draw_node_coloured(node, DEFAULT_COLOUR)
+
+                    rounds.append(self._timed(clock, work))
+                calls.append(repeats)
+                triangles.append(repeats * int(tris[node]))
+                seconds.append(float(np.median(rounds)))
+        return calls, triangles, seconds
 
     # --- output and lifetime --------------------------------------------------------------------
 

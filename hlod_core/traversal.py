@@ -32,7 +32,7 @@ from typing import Protocol
 
 import numpy as np
 
-from . import alpha_estimators, boxes, metrics
+from . import alpha_estimators, boxes, metrics, query_cost
 from .errors import InputError
 from .hierarchy import Hlod
 from .view import View
@@ -46,6 +46,11 @@ REFINE, STOP, DELAY = "refine", "stop", "delay"
 MEASURE_RATIO = "measure ratio"
 ALPHA_MODES = ("query", "projected", "cube")
 SHIFT_UP_MODES = ("measured", "children")
+#: Queries of visible, stopped nodes that Bool and Coh leave out (CoherentLoop): "off" none,
+#: "cheap" where drawing the node costs less than its query (the renderer's cost_model),
+#: "expected" where the measured chance that such a query changes anything, times the draw cost,
+#: is below the query cost ("cheap" is its case of chance 1).
+SKIP_QUERY_MODES = ("off", "cheap", "expected")
 #: Frame id of "never": far enough below frame 1 that no "visited last frame" and no "measured
 #: within Coh.measure_every_frames" test holds for it.
 NEVER_FRAME = -10
@@ -57,7 +62,8 @@ class RuntimeSettings:
     """tau: pixels; s, t in [0, 1] and k > 0 (inf = step) for P_{s,t}; bias "P" or "mu" (s = 0);
     alpha: "query" | "projected" | "cube";
     shift_up (Coh only): "measured" queries refined nodes too and moves the front up where their own
-    ratio says stop, "children" is Algorithm 4 as published (the children's average ratio)."""
+    ratio says stop, "children" is Algorithm 4 as published (the children's average ratio);
+    skip_queries (Bool, Coh): one of SKIP_QUERY_MODES (CoherentLoop)."""
 
     tau: float = 1.0
     s: float = 0.9
@@ -66,6 +72,7 @@ class RuntimeSettings:
     bias: str = "P"
     alpha: str = "query"
     shift_up: str = "measured"
+    skip_queries: str = "off"  # "expected" measured faster (benchmarks.traversal_table); see CoherentLoop
 
     def __post_init__(self):
         if not self.tau > 0:
@@ -76,6 +83,8 @@ class RuntimeSettings:
             raise InputError(f"alpha must be one of {ALPHA_MODES}, got {self.alpha!r}")
         if self.shift_up not in SHIFT_UP_MODES:
             raise InputError(f"shift_up must be one of {SHIFT_UP_MODES}, got {self.shift_up!r}")
+        if self.skip_queries not in SKIP_QUERY_MODES:
+            raise InputError(f"skip_queries must be one of {SKIP_QUERY_MODES}, got {self.skip_queries!r}")
         try:
             metrics.bias(0.5, self.s, self.t, self.k)  # validates s, t, k (the messages are metrics')
         except ValueError as exc:
@@ -107,6 +116,7 @@ class FrameStats:
     drawn: list = field(default_factory=list)       # node ids in draw order (not counters)
     delayed: list = field(default_factory=list)     # the nodes counted in d
     refined_after_draw: list = field(default_factory=list)  # the nodes counted in rarn
+    skipped: list = field(default_factory=list)  # visible, stopped nodes drawn without their query (CoherentLoop)
 
 
 class NodeRenderer(Protocol):
@@ -352,7 +362,75 @@ class Ideal(Traversal):
 
 
 class CoherentLoop(Traversal):
-    """Algorithm 2's loop (Algorithm 1 when `predict` and `stop_on_result` are Bool's)."""
+    """Algorithm 2's loop (Algorithm 1 when `predict` and `stop_on_result` are Bool's).
+
+    Skipped queries (issue 15; for the classes with `skips_queries`, Bool and Coh; settings
+    skip_queries): a node predicted STOP (visible and stopped last frame) is drawn at once and, in
+    the published loops, queried. Where the query does not pay for itself it is left out: the node
+    is pulled up as visible, keeps its ratio and is drawn, as CHC (2004, §5.1 "conservative
+    visibility testing") and CHC++ (Mattausch, Bittner, Wimmer 2008) assume visible nodes stay
+    visible for a few frames. The test, per node and frame, vectorised in `_prepare` from the
+    renderer's `cost_model` (query_cost): "cheap" skips where drawing the node's triangles costs
+    less than rasterising its query box (query_cost.box_pixels, or the projected alpha where that
+    estimator runs); "expected" where that draw cost times `change_rate` (the running share of
+    queried stopped nodes whose result changed something: hidden, or refined) is below the query
+    cost. A skipped node is queried again on its next re-check frame: every `recheck_frames`-th
+    frame, at a phase drawn per node from a generator seeded with `recheck_seed`. This is CHC++'s
+    randomised first re-check (after a query finds a node visible, the next one comes 1 to
+    recheck_frames frames later, at random) made a fixed per-node phase, so the re-checks of nodes
+    that become skippable together (the change rate falls for all at once) spread over frames too.
+    A node hidden meanwhile is found within recheck_frames frames. A renderer without a cost_model
+    (tests' wrappers) skips nothing.
+    """
+
+    skips_queries = False
+    #: CHC++'s n_av, the frames a visible node is assumed visible between queries (MinSG's
+    #: CHC++ renderer defaults to 5 skipped frames).
+    recheck_frames = 5
+    #: Weight of one query result in the running change_rate (about the last 64 results count).
+    change_rate_weight = 1.0 / 64
+
+    def __init__(self, hlod, renderer, settings=RuntimeSettings(), *, recheck_seed: int = 0):
+        super().__init__(hlod, renderer, settings)
+        self._skip_mode = settings.skip_queries if self.skips_queries else "off"
+        self.recheck_due = np.zeros(hlod.node_count, np.int64)  # frame from which a skip needs a query again
+        rng = np.random.default_rng(recheck_seed)
+        self._recheck_phase = rng.integers(0, self.recheck_frames, hlod.node_count).tolist()
+        self.change_rate = 1.0  # nothing measured yet: every query may change something
+        self.skippable: list | None = None
+        self._tris = np.asarray(hlod.tri_count, np.float64)
+
+    def _prepare(self, view):
+        super()._prepare(view)
+        self.skippable = None
+        model = getattr(self.renderer, "cost_model", None) if self._skip_mode != "off" else None
+        if model is None:
+            return
+        h, pad = self.hlod, self.renderer.query_box_pad
+        candidates = np.flatnonzero(np.asarray(self.in_frustum) & ~np.asarray(self.unqueryable))
+        if self.settings.alpha == "projected":
+            pixels = self.alpha_estimate[candidates]
+        else:
+            pixels = query_cost.box_pixels(view, h.box_min[candidates] - pad, h.box_max[candidates] + pad)
+        draw_s = model.draw_seconds(self._tris[candidates])
+        if self._skip_mode == "expected":
+            draw_s = draw_s * self.change_rate
+        skippable = np.zeros(h.node_count, bool)
+        skippable[candidates] = draw_s < model.query_seconds(pixels)
+        self.skippable = skippable.tolist()
+
+    def _skips(self, node: int) -> bool:
+        """Draw this STOP-predicted node without its query?"""
+        return self.skippable is not None and self.skippable[node] and self.frame_id < self.recheck_due[node]
+
+    def _queried(self, node: int, mode: str, changed: bool) -> None:
+        """Bookkeeping of a finished STOP / DELAY query: the next re-check (the node's next frame f
+        with (f + its seeded phase) % recheck_frames == 0: 1 to recheck_frames frames on), the
+        change rate."""
+        n = self.recheck_frames
+        self.recheck_due[node] = self.frame_id + 1 + (-(self.frame_id + 1) - self._recheck_phase[node]) % n
+        if mode == STOP:
+            self.change_rate += (float(changed) - self.change_rate) * self.change_rate_weight
 
     @abc.abstractmethod
     def _predict(self, node: int) -> str:
@@ -369,6 +447,7 @@ class CoherentLoop(Traversal):
         heap: list = [(self.key[0], 0)]
         self._on_push(0)
         queue: deque[_Pending] = deque()
+        skipping = self.skippable is not None
 
         def descend(node, stop):
             if stop:
@@ -389,6 +468,8 @@ class CoherentLoop(Traversal):
                     self._pull_up(node)
                     stop = self._stop_on_result(node, mu)
                     self.stop_refinement[node] = stop
+                    if skipping:
+                        self._queried(node, pending.mode, not stop)
                     if stop:
                         if self._render(node, stats) and pending.mode == DELAY:
                             stats.d += 1
@@ -400,6 +481,8 @@ class CoherentLoop(Traversal):
                         descend(node, False)
                 else:
                     self.ratio[node] = 0.0  # P(0) = 0; the node stays invisible
+                    if skipping:
+                        self._queried(node, pending.mode, True)
             if heap:
                 _, node = heapq.heappop(heap)
                 if not self.in_frustum[node]:
@@ -411,7 +494,11 @@ class CoherentLoop(Traversal):
                 self.visible[node] = False
                 self.last_visited[node] = self.frame_id
                 if stop:
-                    queue.append(self._issue(node, mode, stats))
+                    if mode == STOP and skipping and self._skips(node):
+                        self._pull_up(node)  # assumed visible: stays so, keeps its ratio
+                        stats.skipped.append(node)
+                    else:
+                        queue.append(self._issue(node, mode, stats))
                 elif self._measures_refined(node):
                     queue.append(self._issue(node, MEASURE_RATIO, stats))
                 if mode != DELAY:
@@ -433,9 +520,10 @@ class Bool(CoherentLoop):
 
     name = "bool"
     modulates = False
+    skips_queries = True
 
-    def __init__(self, hlod, renderer, settings=RuntimeSettings()):
-        super().__init__(hlod, renderer, settings)
+    def __init__(self, hlod, renderer, settings=RuntimeSettings(), **kwargs):
+        super().__init__(hlod, renderer, settings, **kwargs)
         self.ratio[:] = 1.0  # queries are booleans: VMSSE never lowers its LOD
 
     def _predict(self, node):
@@ -503,9 +591,10 @@ class Coh(CoherentLoop):
     measure_every_frames = 4
 
     name = "coh"
+    skips_queries = True
 
-    def __init__(self, hlod, renderer, settings=RuntimeSettings()):
-        super().__init__(hlod, renderer, settings)
+    def __init__(self, hlod, renderer, settings=RuntimeSettings(), **kwargs):
+        super().__init__(hlod, renderer, settings, **kwargs)
         self.measured = np.full(hlod.node_count, NEVER_FRAME, np.int64)  # frame of the node's last query result
         self._measure = settings.shift_up == "measured"
 
