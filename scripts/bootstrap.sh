@@ -98,26 +98,52 @@ ensure_blender_venvs() {
     done
 }
 
+ensure_npm() {
+    # $1: what needs it (for the messages)
+    command -v npm >/dev/null 2>&1 && return 0
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        say "installing nodejs and npm (for $1)"
+        DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nodejs npm >&2
+    else
+        say "npm not found: install Node.js 18+ and npm (for $1)"
+        exit 1
+    fi
+}
+
+npm_ci() {
+    # npm ci in folder $1 when its package-lock.json changed since the last install; $2 says what
+    local folder="$1" stamp="$1/node_modules/.lock.sha256" want
+    want="$(sha256sum "$folder/package-lock.json" | cut -d' ' -f1)"
+    if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+        say "installing $2 into $folder/node_modules"
+        (cd "$folder" && npm ci --silent --no-audit --no-fund >&2)
+        echo "$want" > "$stamp"
+    fi
+}
+
 ensure_validators() {
     # The tests' independent readers of the 3D Tiles export (npm: Khronos glTF validator, CesiumGS
     # 3d-tiles-tools), pinned in tools/validators/package-lock.json; installed once.
-    local tools="$ROOT/tools/validators"
-    if ! command -v npm >/dev/null 2>&1; then
+    ensure_npm "the export validators"
+    npm_ci "$ROOT/tools/validators" "the export validators (npm ci, about 230 MB)"
+}
+
+ensure_viewer() {
+    # The 3D Tiles viewer (python -m hlod_core view): CesiumJS from npm, pinned in
+    # tools/viewer/package-lock.json, served from there (never a CDN); and, for its browser test,
+    # Debian's chromium (Playwright drives it; Playwright's own browser download is not used).
+    ensure_npm "the 3D Tiles viewer's CesiumJS"
+    npm_ci "$ROOT/tools/viewer" "CesiumJS for the 3D Tiles viewer (npm ci, about 130 MB)"
+    if ! command -v chromium >/dev/null 2>&1; then
         if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-            say "installing nodejs and npm (for the export validators)"
+            say "installing chromium (the viewer page's browser test)"
             DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2
-            DEBIAN_FRONTEND=noninteractive apt-get install -y -qq nodejs npm >&2
+            DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >&2
         else
-            say "npm not found: install Node.js 18+ and npm (the tests validate 3D Tiles exports with npm packages)"
+            say "chromium not found: run as root:  apt-get install -y chromium   (the viewer page's browser test)"
             exit 1
         fi
-    fi
-    local stamp="$tools/node_modules/.lock.sha256" want
-    want="$(sha256sum "$tools/package-lock.json" | cut -d' ' -f1)"
-    if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
-        say "installing the export validators into $tools/node_modules (npm ci, about 230 MB)"
-        (cd "$tools" && npm ci --silent --no-audit --no-fund >&2)
-        echo "$want" > "$stamp"
     fi
 }
 

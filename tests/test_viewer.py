@@ -1,0 +1,227 @@
+"""Issue 17: the 3D Tiles viewer. The server (hlod_core/viewer.py: localhost only, its folders only),
+the `view` command, and the page itself in a real browser: Debian's Chromium driven by Playwright,
+WebGL through SwiftShader, CesiumJS from tools/viewer's npm install, loading an export of the
+default city."""
+from __future__ import annotations
+
+import http.client
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from hlod_core import tiles3d, viewer
+from hlod_core.errors import InputError
+
+from helpers import ROOT, baked_city
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+VIEWPORT = {"width": 640, "height": 480}
+LOAD_TIMEOUT_MS = 120_000
+#: The page's background (viewer.css and viewer.js), and how far a pixel may be from it and still count
+BACKGROUND_RGB = (0x30, 0x34, 0x3A)
+BACKGROUND_TOLERANCE = 6
+#: Share of the picture the city covers at the fitted first view, measured 0.30: not only background.
+MIN_GEOMETRY_SHARE = 0.15
+
+
+@pytest.fixture(scope="module")
+def tiles(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("viewer") / "tiles"
+    tiles3d.export(baked_city(), folder)
+    return folder
+
+
+def _get(url: str, path: str, method: str = "GET") -> tuple[int, dict, bytes]:
+    host, port = url.removeprefix("http://").rstrip("/").split(":")
+    conn = http.client.HTTPConnection(host, int(port), timeout=10)
+    try:
+        conn.request(method, path)
+        response = conn.getresponse()
+        return response.status, dict(response.getheaders()), response.read()
+    finally:
+        conn.close()
+
+
+# --- the server -----------------------------------------------------------------------------------
+
+def test_server_serves_the_page_cesium_and_the_tiles_with_their_types(tiles):
+    with viewer.serve(tiles) as server:
+        server.start()
+        assert server.url == f"http://localhost:{server.port}/" and server.server_address[0] == "127.0.0.1"
+        status, headers, body = _get(server.url, "/")
+        assert status == 200 and headers["Content-Type"].startswith("text/html") and b"/viewer/viewer.js" in body
+        for path, kind in (("/viewer/viewer.js", "text/javascript"), ("/viewer/viewer.css", "text/css"),
+                           ("/cesium/Cesium.js", "text/javascript"), ("/tiles/tileset.json", "application/json")):
+            status, headers, body = _get(server.url, path)
+            assert status == 200 and headers["Content-Type"].startswith(kind), (path, status, headers)
+            assert int(headers["Content-Length"]) == len(body) > 0
+        tileset = json.loads(_get(server.url, "/tiles/tileset.json")[2])
+        uri = tileset["root"]["content"]["uri"]
+        status, headers, body = _get(server.url, f"/tiles/{uri}")
+        assert status == 200 and headers["Content-Type"] == "model/gltf-binary" and body[:4] == b"glTF"
+        status, headers, body = _get(server.url, f"/tiles/{uri}", method="HEAD")
+        assert status == 200 and body == b"" and int(headers["Content-Length"]) == (tiles / uri).stat().st_size
+
+
+def test_server_serves_nothing_outside_its_folders(tiles, tmp_path):
+    secret = tmp_path / "secret.txt"
+    secret.write_text("not for the browser")
+    link = tiles / "escape.txt"
+    link.symlink_to(secret)
+    try:
+        with viewer.serve(tiles) as server:
+            server.start()
+            for path in ("/secret.txt", "/tiles/../tiles/tileset.json", "/tiles/%2e%2e/secret.txt", "//etc/passwd",
+                         "/cesium/../../../etc/passwd", "/tiles/escape.txt", "/tiles/", "/tiles/tiles",
+                         "/viewer/../viewer.py", "/tiles/.%2F..%2Fsecret.txt", "/etc/passwd", "/tiles//tileset.json",
+                         "/tiles/..%5Csecret.txt", "/nothing"):
+                status, _, body = _get(server.url, path)
+                assert status == 404 and b"not for the browser" not in body, path
+    finally:
+        link.unlink()
+
+
+def test_server_listens_on_loopback_only(tiles):
+    """Not reachable on the machine's other addresses (where it has one besides loopback)."""
+    with viewer.serve(tiles) as server:
+        server.start()
+        assert server.socket.getsockname()[0] == "127.0.0.1"
+        probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            probe.connect(("192.0.2.1", 9))  # no packet is sent: this only picks the outgoing address
+            address = probe.getsockname()[0]
+        except OSError:
+            address = "127.0.0.1"
+        finally:
+            probe.close()
+        if address.startswith("127."):
+            address = socket.gethostbyname(socket.gethostname())
+        assert not address.startswith("127."), f"no address besides loopback to check: {address}"
+        with pytest.raises(OSError):
+            socket.create_connection((address, server.port), timeout=2).close()
+
+
+def test_bad_folder_missing_cesium_and_a_taken_port_are_one_line_errors(tiles, tmp_path):
+    with pytest.raises(InputError, match=rf"{tmp_path}: no tileset\.json"):
+        viewer.serve(tmp_path)
+    with pytest.raises(InputError, match=r"CesiumJS not found .*npm ci --prefix tools/viewer"):
+        viewer.serve(tiles, cesium_dir=tmp_path)
+    with viewer.serve(tiles) as server:
+        with pytest.raises(InputError, match=rf"port {server.port}: cannot listen"):
+            viewer.serve(tiles, port=server.port)
+
+
+def test_view_command_prints_the_url_serves_and_ends_cleanly_on_sigterm(tiles, tmp_path):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), BROWSER="true")
+    proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "view", str(tiles), "--no-browser"], cwd=tmp_path,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = proc.stdout.readline().strip()
+        assert url.startswith("http://localhost:"), url
+        assert _get(url, "/tiles/tileset.json")[0] == 200
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert json.loads(out.strip().splitlines()[-1])["url"] == url
+    bad = subprocess.run([sys.executable, "-m", "hlod_core", "view", str(tmp_path), "--no-browser"], env=env,
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0
+    assert f"{tmp_path}: no tileset.json" in bad.stderr
+
+
+# --- the page, in Chromium ------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def page(tiles):
+    """The viewer page on the city's export, loaded; console errors and failed requests collected."""
+    from playwright.sync_api import sync_playwright
+
+    with viewer.serve(tiles) as server, sync_playwright() as pw:
+        server.start()
+        browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+        try:
+            tab = browser.new_page(viewport=VIEWPORT)
+            problems: list[str] = []
+            tab.on("console", lambda m: m.type == "error" and problems.append(f"console: {m.text}"))
+            tab.on("pageerror", lambda e: problems.append(f"page error: {e}"))
+            tab.on("response", lambda r: r.status >= 400 and problems.append(f"HTTP {r.status}: {r.url}"))
+            tab.goto(server.url)
+            _wait_loaded(tab)
+            tab.problems = problems
+            yield tab
+        finally:
+            browser.close()
+
+
+def _wait_loaded(tab) -> None:
+    """Until the tileset is loaded for the current view and two more frames have been drawn."""
+    tab.wait_for_function("window.hlodViewer && hlodViewer.ready && hlodViewer.allTilesLoaded",
+                          timeout=LOAD_TIMEOUT_MS)
+    tab.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
+    tab.wait_for_function("hlodViewer.allTilesLoaded", timeout=LOAD_TIMEOUT_MS)
+
+
+def _picture(tab, tmp_path: Path, name: str) -> np.ndarray:
+    """The 3D view (the panel left out), RGB."""
+    file = tmp_path / f"{name}.png"
+    tab.locator("#cesium canvas").screenshot(path=str(file))
+    return np.asarray(Image.open(file).convert("RGB"), np.int16)
+
+
+def _geometry_share(rgb: np.ndarray) -> float:
+    return float(np.mean(np.abs(rgb - np.array(BACKGROUND_RGB)).max(axis=2) > BACKGROUND_TOLERANCE))
+
+
+def test_page_loads_every_tile_and_shows_the_city_without_errors(page, tmp_path):
+    stats = page.evaluate("hlodViewer.stats()")
+    assert stats["tilesLoaded"] >= stats["tilesDrawn"] > 0 and stats["trianglesDrawn"] > 0, stats
+    assert page.evaluate("hlodViewer.errors") == [] and page.problems == []
+    assert _geometry_share(_picture(page, tmp_path, "fitted")) > MIN_GEOMETRY_SHARE
+    assert page.locator("#tiles-drawn").inner_text() == f"{stats['tilesDrawn']:,}"
+
+
+def test_lower_screen_space_error_loads_more_tiles_and_deeper_levels(page):
+    page.evaluate("hlodViewer.setMaximumScreenSpaceError(32)")
+    _wait_loaded(page)
+    coarse = page.evaluate("hlodViewer.stats()")
+    page.evaluate("hlodViewer.setMaximumScreenSpaceError(2)")
+    _wait_loaded(page)
+    fine = page.evaluate("hlodViewer.stats()")
+    assert fine["tilesLoaded"] > coarse["tilesLoaded"] and fine["tilesDrawn"] > coarse["tilesDrawn"], (coarse, fine)
+    assert fine["maxDepthDrawn"] > coarse["maxDepthDrawn"] and fine["trianglesDrawn"] > coarse["trianglesDrawn"]
+    assert page.locator("#sse-value").inner_text() == "2"
+    assert page.problems == []
+
+
+def test_colour_by_depth_and_boxes_change_the_picture(page, tmp_path):
+    page.evaluate("hlodViewer.setMaximumScreenSpaceError(4)")
+    _wait_loaded(page)
+    plain = _picture(page, tmp_path, "plain")
+    page.locator("#depth-colours").check()
+    page.wait_for_timeout(500)
+    coloured = _picture(page, tmp_path, "depth")
+    page.locator("#depth-colours").uncheck()
+    page.locator("#boxes").check()
+    page.wait_for_timeout(500)
+    boxed = _picture(page, tmp_path, "boxes")
+    page.locator("#boxes").uncheck()
+    page.wait_for_timeout(500)
+    again = _picture(page, tmp_path, "again")
+    changed = lambda a, b: float(np.mean(np.abs(a - b).max(axis=2) > BACKGROUND_TOLERANCE))  # noqa: E731
+    # the city's grey turns to the depth palette's hues: a picture of several saturated colours
+    saturation = coloured.max(axis=2) - coloured.min(axis=2)
+    assert changed(plain, coloured) > 0.5 * _geometry_share(plain) and np.mean(saturation > 60) > 0.1
+    assert changed(plain, boxed) > 0.002  # box outlines: thin lines
+    assert changed(plain, again) < 0.002  # and back
+    assert page.problems == []
