@@ -33,10 +33,11 @@ import warnings
 from pathlib import Path
 
 from . import bake_cache, checks, fileformat, meshio, scenes
-from .bake import BakeSettings, bake
+from .bake import ERROR_MEASURES, BakeSettings, bake
 from .errors import HlodError, InputError
 from .export import check_output_file, export_hlod
 from .signals import Terminated, signals_as_exceptions
+from .traversal import SKIP_QUERY_MODES
 
 log = logging.getLogger("hlod_core")
 
@@ -160,6 +161,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (replaced atomically)")
     p.set_defaults(run=_cmd_export)
 
+    p = sub.add_parser("view", help="serve a 3D Tiles export and a CesiumJS viewer page on localhost; open the browser")
+    p.add_argument("dir", metavar="DIR", help="a 3D Tiles export folder (holding tileset.json)")
+    p.add_argument("--port", type=_whole_number(0), default=0, help="port on 127.0.0.1 (default 0: a free one)")
+    p.add_argument("--no-browser", action="store_true", help="only serve (scripts, remote machines)")
+    p.add_argument("--cesium", metavar="DIR", help="CesiumJS's Build/Cesium folder (default: tools/viewer's npm install)")
+    p.set_defaults(run=_cmd_view)
+
     p = sub.add_parser("scene", help="bake a procedural scene made by the project (no input files)")
     p.add_argument("name", choices=list(scenes.SCENES),
                    help="low / middle / high depth complexity (terrain / sparse town / dense downtown), "
@@ -178,6 +186,10 @@ def _runtime_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--k", type=float, default=float("inf"), help="sigmoid steepness; inf = step (default)")
     p.add_argument("--tau", type=float, default=1.0, help="screen-space error threshold, pixels")
     p.add_argument("--alpha", choices=["query", "projected", "cube"], default="query", help="alpha estimator")
+    p.add_argument("--skip-queries", choices=list(SKIP_QUERY_MODES), default="off",
+                   help="draw a visible node without a query where the query does not pay (the renderer's measured "
+                        "costs): off (default), cheap (its draw costs less than the query), expected (the draw "
+                        "times the share of queries that changed something costs less); re-checked every 5 frames")
     p.add_argument("--shift-up", choices=["measured", "children"], default="measured",
                    help="Coh's shift-up: measured (default; refined nodes are queried too) or children "
                         "(the dissertation's Algorithm 4 alone)")
@@ -189,6 +201,10 @@ def _bake_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--jobs", type=_whole_number(0), default=1, help="worker processes (default 1; 0 = one per core)")
     p.add_argument("--quality-threshold", type=float, default=BakeSettings.quality_threshold)
     p.add_argument("--preserve-normals", action="store_true", help="forbid face flips during decimation")
+    p.add_argument("--error", choices=list(ERROR_MEASURES), default=BakeSettings.error,
+                   help="inner nodes' error: exact (against every original triangle below the node; default) or "
+                        "bound (against the children's LODs plus their largest error: faster bakes, looser errors, "
+                        "more nodes drawn)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--cache", metavar="DIR", help="bake cache folder (default OUT.hlod.cache beside the output): "
                                                       "a re-bake takes the unchanged subtrees from it; safe to delete")
@@ -198,7 +214,8 @@ def _bake_options(p: argparse.ArgumentParser) -> None:
 def _settings(args) -> BakeSettings:
     jobs = args.jobs if args.jobs > 0 else (os.cpu_count() or 1)
     return BakeSettings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=jobs,
-                        quality_threshold=args.quality_threshold, preserve_normals=args.preserve_normals)
+                        quality_threshold=args.quality_threshold, preserve_normals=args.preserve_normals,
+                        error=args.error)
 
 
 def _cache_dir(args) -> Path | None:
@@ -303,6 +320,23 @@ def _cmd_export(args) -> dict:
     return export_hlod(hlod, args.format, out, Path(args.file).stem)
 
 
+def _cmd_view(args) -> dict:
+    """Serve until Ctrl-C or SIGTERM (a normal end: exit 0). The URL is the first stdout line."""
+    import webbrowser
+
+    from . import viewer
+
+    with viewer.serve(args.dir, port=args.port, cesium_dir=args.cesium) as server:
+        print(server.url, flush=True)
+        if not args.no_browser and not webbrowser.open(server.url):
+            log.info("no web browser found: open %s", server.url)
+        try:
+            server.serve_forever()
+        except (KeyboardInterrupt, Terminated):
+            pass
+    return {"url": server.url, "dir": str(args.dir)}
+
+
 def _cmd_info(args) -> dict:
     started = time.perf_counter()
     hlod = fileformat.load(args.file)
@@ -332,7 +366,7 @@ def _runtime_setup(args, bias: str = "P"):
 
     size = _parse_size(args.size)
     settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha,
-                               shift_up=args.shift_up)  # raises InputError
+                               shift_up=args.shift_up, skip_queries=args.skip_queries)  # raises InputError
     hlod = fileformat.load(args.file)
     path = load_path(args.path) if args.path else inspection_path(hlod, seed=args.seed, frames=args.frames)
     return hlod, settings, path, size
