@@ -12,7 +12,8 @@ package (and hlod_core below it) can be imported outside Blender.
 
 Application handlers (all persistent, listed once in `_HANDLERS`, removed in unregister; issue 20:
 the preview hides the objects the bake took, and no way out may leave them hidden):
-- load_pre: stop the preview (it shows the sources it hid in the file being left);
+- load_pre: stop the preview (it shows the sources it hid in the file being left) and the 3D Tiles
+  viewer's server (View in Browser);
 - load_post: a record of hidden objects in the loaded file is a leftover (an autosave or
   quit.blend written while a preview ran): show those objects again;
 - save_pre / save_post: show the hidden sources for the write, hide them again after it;
@@ -33,8 +34,10 @@ def _classes() -> list:
 
 def _on_load_pre(*_args) -> None:
     from .addon import preview
+    from .operators import viewer_stop
 
     preview.stop(reason="a file was loaded")
+    viewer_stop()
 
 
 def _on_load_post(*_args) -> None:

@@ -5,6 +5,7 @@ with `bpy.utils.register_cli_command`, and the same code through the bpy module
     hlod bake [FILE.blend ...] [--collection NAME | --objects A,B] -o OUT [--format hlod 3dtiles]
               [--target-tris 2000] [--max-depth 12] [--quality-threshold 0.3] [--jobs N] [--no-cache]
     hlod export IN.hlod --format 3dtiles|hlod -o DIR
+    hlod view DIR [--port N] [--no-browser] [--cesium CESIUM_DIR]
 
 `bake` gathers each file's meshes in Blender and bakes them in a child process of Blender's Python
 with N worker processes (addon/bake_job.py, as the Bake operator; default 0 = all cores but one);
@@ -16,6 +17,11 @@ folder and each file FILE.blend gives OUT/FILE.hlod and, with `--format 3dtiles`
 A file that fails is reported and the others go on. The last stdout line is a JSON summary
 ({"files": [{"blend", "ok", "outputs" | "error"}], "failed": N}); the exit status is 1 if any
 failed, 2 for bad arguments.
+`view` (issue 17) serves a 3D Tiles export (DIR holds tileset.json) and the CesiumJS viewer page on
+127.0.0.1 (hlod_core/viewer.py, imported only by this command) until Ctrl-C or SIGTERM, then exits
+0; the first line it prints is the page's URL (http://localhost:N/), for scripts. It opens the page
+with `webbrowser` unless --no-browser; --port 0 (the default) takes a free port. A folder without
+tileset.json, CesiumJS not found or a port in use is one line on stderr and exit status 2.
 """
 from __future__ import annotations
 
@@ -44,7 +50,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="blender -b [FILE.blend] --command hlod", description="Bake and export octree HLODs in batch.")
+    p = _Parser(prog="blender -b [FILE.blend] --command hlod",
+                description="Bake, export and view octree HLODs in batch.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
     b = sub.add_parser("bake", help="bake the open file, or each FILE.blend given")
     b.add_argument("blends", nargs="*", metavar="FILE.blend")
@@ -64,6 +71,12 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument("file", metavar="IN.hlod")
     e.add_argument("--format", choices=["3dtiles", "hlod"], required=True)
     e.add_argument("-o", "--output", required=True, metavar="DIR")
+    v = sub.add_parser("view", help="serve a 3D Tiles export and a CesiumJS viewer on localhost until Ctrl-C")
+    v.add_argument("dir", metavar="DIR", help="a 3D Tiles export: the folder holding tileset.json")
+    v.add_argument("--port", type=int, default=0, metavar="N", help="the port (default 0: a free one)")
+    v.add_argument("--no-browser", action="store_true", help="only serve (scripts, remote machines)")
+    v.add_argument("--cesium", metavar="CESIUM_DIR",
+                   help="CesiumJS's built files (npm cesium/Build/Cesium; default: the one the extension carries)")
     return p
 
 
@@ -80,7 +93,8 @@ def unregister() -> None:
 
 
 def execute(argv: list[str]) -> int:
-    """The registered command: never raises; prints the JSON summary last."""
+    """The registered command: never raises; bake and export print a JSON summary last, view its
+    URL first."""
     try:
         args = parser().parse_args(list(argv))
     except SystemExit as exc:  # --help
@@ -88,6 +102,8 @@ def execute(argv: list[str]) -> int:
     except InputError as exc:
         print(f"hlod: error: {exc}", file=sys.stderr)
         return 2
+    if args.command == "view":
+        return _view(args)
     if args.command == "export":
         try:
             summary = export_hlod(fileformat.load(args.file), args.format, Path(args.output), Path(args.file).stem)
@@ -105,6 +121,33 @@ def execute(argv: list[str]) -> int:
     failed = sum(1 for r in results if not r["ok"])
     print(json.dumps({"files": results, "failed": failed}))
     return 1 if failed else 0
+
+
+def _view(args) -> int:
+    """Serve until Ctrl-C or SIGTERM (signals as exceptions from before the URL is printed, so a
+    script that stops it once it has read the URL always gets exit status 0)."""
+    import webbrowser
+
+    from ..hlod_core import viewer  # here: the add-on imports no viewer code until it is used
+    from ..hlod_core.signals import Terminated, signals_as_exceptions
+
+    with signals_as_exceptions():
+        try:
+            if not 0 <= args.port <= 65535:
+                raise InputError(f"--port {args.port}: give 0 (a free port) or a port in 1..65535")
+            server = viewer.serve(Path(args.dir), port=args.port, cesium_dir=Path(args.cesium) if args.cesium else None)
+        except (HlodError, OSError) as exc:
+            print(f"hlod: error: {exc}", file=sys.stderr)
+            return 2
+        with server:
+            print(server.url, flush=True)
+            if not args.no_browser:
+                webbrowser.open(server.url)
+            try:
+                server.serve_forever()
+            except (KeyboardInterrupt, Terminated):
+                pass
+    return 0
 
 
 def _bake_file(args, blend: Path) -> dict:

@@ -1,7 +1,8 @@
 """Scene properties under `scene.hlod` (DESIGN §8): bake settings (with `jobs`, the bake's worker
 processes, and `last_bake`, the line the panel shows about the last bake), runtime settings, overlay settings,
 read-only live statistics (getters over the running preview; nothing is written from the draw
-handler), and two records (issue 20): the objects the last bake took, with content keys
+handler), `tiles_dir` (the last 3D Tiles export, which View in Browser serves; issue 17), and two
+records (issue 20): the objects the last bake took, with content keys
 (`source_objects`, `source_file`; addon/source_record.py) and the objects the running preview hid
 (`hidden_objects`, `hidden_view_layer`; addon/source_hiding.py)."""
 import bpy
@@ -72,6 +73,9 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
                               description="How the last bake went: seconds, jobs, and what came from the cache")
     file: StringProperty(name="Baked File", subtype="FILE_PATH", default="", options=BLEND_RELATIVE_PATH,
                          description="The .hlod the preview shows (set by Bake)")
+    tiles_dir: StringProperty(name="3D Tiles Export", subtype="DIR_PATH", default="", options=BLEND_RELATIVE_PATH,
+                              description="The folder of the last 3D Tiles export (tileset.json); View in Browser "
+                                          "serves it (set by Export and by View in Browser's folder)")
     # --- runtime ------------------------------------------------------------------------------
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="coh")
     bias: EnumProperty(name="Bias", items=[("P", "P(s,t)", "VMSSE ratio P_{s,t}(mu), visual masking"),

@@ -1,9 +1,11 @@
 """The 3D viewport's sidebar tab "HLOD" (N panel): sections Bake (with a running bake's progress and
-the last bake's summary), Preview, Overlay, Statistics.
+the last bake's summary), Preview (with Export and View in Browser, and the viewer's address and Stop
+while it serves), Overlay, Statistics.
 Draw code reads state only: the count of changed sources is kept current by the depsgraph handler
 (addon/source_record.py), not computed here."""
 import bpy
 
+from .. import operators
 from ..addon import bake_job, preview, source_record, viewport_text
 
 
@@ -80,10 +82,22 @@ class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
             sub.prop(props, "k")
         col.prop(props, "alpha")
         layout.prop(props, "private_context")
+        layout.operator("hlod.materialize", icon="OUTLINER_OB_MESH")
         row = layout.row(align=True)
-        row.operator("hlod.materialize", icon="OUTLINER_OB_MESH")
         row.operator("hlod.export", icon="EXPORT")
+        row.operator("hlod.view_tiles", icon="URL")
+        _draw_viewer(layout)
         layout.operator("hlod.benchmark", icon="TIME")
+
+
+def _draw_viewer(layout) -> None:
+    """While the 3D Tiles viewer serves: its address, and Stop."""
+    url = operators.viewer_url()
+    if url is None:
+        return
+    row = layout.row(align=True)
+    row.label(text=f"Serving at {url}", icon="WORLD")
+    row.operator("hlod.view_tiles", text="Stop", icon="CANCEL").stop = True
 
 
 def _draw_sources(layout) -> None:

@@ -1,6 +1,7 @@
 """Build the Blender extension zip(s) with Blender's own extension tool.
 
     .venv/bin/python scripts/build_extension.py [--platforms linux-x64 windows-x64 macos-arm64] [--output-dir dist]
+                                                [--viewer auto|bundle|none] [--cesium CESIUM_DIR]
 
 For each platform: download the wheels the manifest lists for it into ./wheels/ (pip, from PyPI,
 once; later builds reuse them), stage the package files with a manifest narrowed to that platform
@@ -9,6 +10,14 @@ this script, whichever Blender version that is) on the stage, then `blender_ext.
 zip. Each zip carries every dependency for each Python that Blender ships (PYTHON_TAGS: cp311 for
 Blender 4.2 to 5.0, cp313 for 5.1 and later); Blender installs the wheels that match its own Python.
 Prints one line per zip: its path.
+
+The 3D Tiles viewer (issue 17): CesiumJS's built files (npm `cesium/Build/Cesium`, installed into
+tools/viewer by scripts/bootstrap.sh, or --cesium) go into the zip as viewer/cesium/, where
+hlod_core.viewer.find_cesium looks in an installed extension, with Cesium's licence, less its
+JavaScript-module entry points (index.js, index.cjs: the page loads Cesium.js). About 6 MB zipped;
+nothing of it is read unless View in Browser or `--command hlod view` is used. --viewer auto (the
+default) bundles it when found and otherwise builds without it, saying so on stderr; --viewer
+bundle stops the build when it is not found; --viewer none leaves it out.
 """
 from __future__ import annotations
 
@@ -41,6 +50,8 @@ PIP_PLATFORMS = {
 WHEEL_PLATFORM = {"linux-x64": "linux", "windows-x64": "win_amd64", "macos-arm64": "macosx_11_0_arm64"}
 # The Pythons of the Blenders we support, as wheel tags: 3.11 (Blender 4.2 LTS to 5.0), 3.13 (5.1 on).
 PYTHON_TAGS = {"cp311": "3.11", "cp313": "3.13"}
+VIEWER_CESIUM = "viewer/cesium"  # in the zip: where hlod_core.viewer.find_cesium looks (<hlod_core>/../viewer/cesium)
+CESIUM_LEFT_OUT = ("index.js", "index.cjs")  # Build/Cesium's module entry points (9 MB); the page loads Cesium.js
 # The extension tool inside a bpy wheel: bpy/<major.minor>/scripts/addons_core/bl_pkg/cli/blender_ext.py
 BLENDER_EXT_GLOB = "bpy/[0-9]*.[0-9]*/scripts/addons_core/bl_pkg/cli/blender_ext.py"
 
@@ -147,7 +158,44 @@ def check_zip(zip_path: Path, wheels: list[str]) -> None:
         sys.exit(f"build_extension: {zip_path}: holds wheels {held}, the manifest lists {want}")
 
 
-def stage(manifest_text: str, manifest: dict, platform: str, wheels: list[str], where: Path) -> Path:
+def cesium_build(mode: str, explicit: str | None) -> Path | None:
+    """The CesiumJS folder to bundle (mode "auto", "bundle", "none"), found as the extension finds
+    it at run time (hlod_core.viewer.find_cesium: --cesium, $HLOD_CESIUM_DIR, tools/viewer's npm
+    install); None to build without it. Exits naming where it looked when "bundle" finds none."""
+    if mode == "none":
+        return None
+    if explicit:
+        if not (Path(explicit) / "Cesium.js").is_file():
+            sys.exit(f"build_extension: --cesium {explicit}: no Cesium.js there (give npm's cesium/Build/Cesium)")
+        return Path(explicit).resolve()
+    from hlod_core import viewer
+    from hlod_core.errors import InputError
+
+    try:
+        return viewer.find_cesium()
+    except InputError as exc:
+        if mode == "bundle":
+            sys.exit(f"build_extension: --viewer bundle: {exc}")
+        print(f"build_extension: building without the 3D Tiles viewer's CesiumJS ({exc}); "
+              "View in Browser will then need $HLOD_CESIUM_DIR", file=sys.stderr)
+        return None
+
+
+def stage_cesium(cesium: Path, where: Path) -> None:
+    """Copy the CesiumJS build to where/viewer/cesium (less CESIUM_LEFT_OUT at its top) with the
+    npm package's licence (Apache-2.0) beside it."""
+    def ignore(folder: str, names: list[str]) -> list[str]:
+        return [n for n in names if n in CESIUM_LEFT_OUT or n == "__pycache__"] if Path(folder) == cesium else []
+
+    target = where / VIEWER_CESIUM
+    shutil.copytree(cesium, target, ignore=ignore)
+    for licence in ("LICENSE.md", "ThirdParty.json"):
+        if (cesium.parents[1] / licence).is_file():  # cesium/Build/Cesium -> cesium/
+            shutil.copy2(cesium.parents[1] / licence, target / licence)
+
+
+def stage(manifest_text: str, manifest: dict, platform: str, wheels: list[str], where: Path,
+          cesium: Path | None = None) -> Path:
     if where.exists():
         shutil.rmtree(where)
     where.mkdir(parents=True)
@@ -163,6 +211,8 @@ def stage(manifest_text: str, manifest: dict, platform: str, wheels: list[str], 
     text = re.sub(r"(?ms)^platforms = \[.*?\]\n", f'platforms = ["{platform}"]\n', manifest_text)
     text = re.sub(r"(?ms)^wheels = \[.*?\]\n", "wheels = [\n" + "".join(f'  "{w}",\n' for w in wheels) + "]\n", text)
     (where / "blender_manifest.toml").write_text(text)
+    if cesium is not None:
+        stage_cesium(cesium, where)
     return where
 
 
@@ -170,8 +220,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--platforms", nargs="+", default=list(PIP_PLATFORMS), choices=list(PIP_PLATFORMS))
     parser.add_argument("--output-dir", default=str(ROOT / "dist"))
+    parser.add_argument("--viewer", choices=["auto", "bundle", "none"], default="auto",
+                        help="bundle CesiumJS for View in Browser: when found (auto), or stop if not found (bundle)")
+    parser.add_argument("--cesium", metavar="CESIUM_DIR", help="CesiumJS's Build/Cesium folder (default: found)")
     args = parser.parse_args()
     tool = blender_ext()
+    cesium = cesium_build(args.viewer, args.cesium)
     manifest_text = (ROOT / "blender_manifest.toml").read_text()
     manifest = tomllib.loads(manifest_text)
     out = Path(args.output_dir).resolve()
@@ -181,7 +235,7 @@ def main() -> None:
         download(wheels, platform)
         # a private staging folder: test runs of several Blender versions may build at the same time
         with tempfile.TemporaryDirectory(prefix=f"hlod-stage-{platform}-") as tmp:
-            where = stage(manifest_text, manifest, platform, wheels, Path(tmp) / "hlod")
+            where = stage(manifest_text, manifest, platform, wheels, Path(tmp) / "hlod", cesium)
             subprocess.run([sys.executable, str(tool), "build", "--source-dir", str(where), "--output-dir", str(out),
                             "--split-platforms"], check=True, stdout=subprocess.DEVNULL)
         zips = sorted(out.glob(f"{manifest['id']}-{manifest['version']}-{platform.replace('-', '_')}.zip"))

@@ -380,7 +380,7 @@ def check_cli_jobs(repo, work) -> dict:
 
 
 # Operators this check knows how to run, in order, with their arguments (set up by check_every_operator).
-OPERATOR_RUNS = ("bake", "preview_toggle", "materialize", "export", "benchmark", "preview_toggle", "clear")
+OPERATOR_RUNS = ("bake", "preview_toggle", "materialize", "export", "view_tiles", "benchmark", "preview_toggle", "clear")
 
 
 def check_every_operator(repo, work) -> dict:
@@ -404,7 +404,8 @@ def check_every_operator(repo, work) -> dict:
     camera.location = (1.5, -6.0, 1.5)
     camera.keyframe_insert("location", frame=2)
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 120, 90, 100
-    arguments = {"materialize": {"depth": 1}, "export": {"filepath": str(Path(work) / "copy.hlod")},
+    os.environ["BROWSER"] = "true"  # View in Browser serves and "opens" the page with the `true` command
+    arguments = {"materialize": {"depth": 1}, "export": {"filepath": str(Path(work) / "copy.hlod"), "format": "3DTILES"},
                  "benchmark": {"directory": str(Path(work) / "report"), "repeat": 1}}
     registered = sorted(name for name in dir(bpy.ops.hlod) if not name.startswith("_"))
     results = {}
@@ -413,6 +414,7 @@ def check_every_operator(repo, work) -> dict:
             results.setdefault(name, []).append(sorted(getattr(bpy.ops.hlod, name)(**arguments.get(name, {}))))
         except RuntimeError as exc:
             results.setdefault(name, []).append(f"error: {exc}")
+    bpy.ops.hlod.view_tiles(stop=True)
     report = Path(work) / "report"
     return {"registered": registered, "unknown": sorted(set(registered) - set(OPERATOR_RUNS)),
             "results": results, "matplotlib": importlib.util.find_spec("matplotlib") is not None,
