@@ -59,7 +59,7 @@ def find_cesium(explicit: str | os.PathLike | None = None) -> Path:
         if (folder / "Cesium.js").is_file():
             return folder.resolve()
     raise InputError(f"CesiumJS not found (no Cesium.js in {', '.join(str(c) for c in candidates)}): "
-                     "install it with `npm ci --prefix tools/viewer` (bash test.sh or run.sh does), or give "
+                     "install it with `npm ci --prefix tools/viewer` (bash test.sh does), or give "
                      f"--cesium DIR / ${CESIUM_ENV} (a cesium/Build/Cesium folder)")
 
 
