@@ -5,6 +5,7 @@ default city."""
 from __future__ import annotations
 
 import http.client
+import contextlib
 import json
 import os
 import signal
@@ -21,7 +22,7 @@ from PIL import Image
 from hlod_core import tiles3d, viewer
 from hlod_core.errors import InputError
 
-from helpers import ROOT, baked_city
+from helpers import ROOT, baked_city, textured_scene
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
@@ -143,15 +144,25 @@ def test_view_command_prints_the_url_serves_and_ends_cleanly_on_sigterm(tiles, t
 # --- the page, in Chromium ------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def page(tiles):
-    """The viewer page on the city's export, loaded; console errors and failed requests collected."""
+def browser():
+    """Debian's Chromium through Playwright (one per module: Playwright's sync API runs one at a time)."""
     from playwright.sync_api import sync_playwright
 
-    with viewer.serve(tiles) as server, sync_playwright() as pw:
-        server.start()
-        browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
+    with sync_playwright() as pw:
+        chromium = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
         try:
-            tab = browser.new_page(viewport=VIEWPORT)
+            yield chromium
+        finally:
+            chromium.close()
+
+
+@contextlib.contextmanager
+def _open_page(browser, tiles: Path):
+    """The viewer page on `tiles`, loaded; console errors and failed requests in `.problems`."""
+    with viewer.serve(tiles) as server:
+        server.start()
+        tab = browser.new_page(viewport=VIEWPORT)
+        try:
             problems: list[str] = []
             tab.on("console", lambda m: m.type == "error" and problems.append(f"console: {m.text}"))
             tab.on("pageerror", lambda e: problems.append(f"page error: {e}"))
@@ -161,7 +172,14 @@ def page(tiles):
             tab.problems = problems
             yield tab
         finally:
-            browser.close()
+            tab.close()
+
+
+@pytest.fixture(scope="module")
+def page(browser, tiles):
+    """The viewer page on the city's export, loaded."""
+    with _open_page(browser, tiles) as tab:
+        yield tab
 
 
 def _wait_loaded(tab) -> None:
@@ -225,3 +243,25 @@ def test_colour_by_depth_and_boxes_change_the_picture(page, tmp_path):
     assert changed(plain, boxed) > 0.002  # box outlines: thin lines
     assert changed(plain, again) < 0.002  # and back
     assert page.problems == []
+
+
+def test_page_shows_the_exports_textures_and_colours(browser, tmp_path):
+    """The textured test scene (tests/scenes/textured_scene.py, read from its GLB) exported with its
+    materials, textures and vertex colours: the page draws them (the city above is one grey)."""
+    from hlod_core.bake import BakeSettings, bake
+    from hlod_core.meshio import load_mesh
+
+    mesh = load_mesh(textured_scene("small")["glb"], texture_dir=tmp_path / "images")
+    folder = tmp_path / "tiles"
+    summary = tiles3d.export(bake(mesh, BakeSettings(jobs=2)), folder)
+    assert summary["image_files"] >= 2
+    with _open_page(browser, folder) as tab:
+        rgb = _picture(tab, tmp_path, "textured")
+        assert tab.problems == [] and tab.evaluate("hlodViewer.errors") == []
+    geometry = np.abs(rgb - np.array(BACKGROUND_RGB)).max(axis=2) > BACKGROUND_TOLERANCE
+    assert geometry.mean() > MIN_GEOMETRY_SHARE
+    pixels = rgb[geometry]
+    saturated = pixels[(pixels.max(axis=1) - pixels.min(axis=1)) > 40]
+    assert len(saturated) > 0.15 * len(pixels)  # measured 0.30 (the city's grey: none)
+    dominant = np.bincount(saturated.argmax(axis=1), minlength=3) / len(saturated)
+    assert np.count_nonzero(dominant > 0.05) >= 2, dominant  # red roofs and green ground, at least
