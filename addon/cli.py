@@ -3,7 +3,7 @@ with `bpy.utils.register_cli_command`, and the same code through the bpy module
 (`python scripts/hlod_blender.py ...`, for machines with the bpy wheel and no Blender install).
 
     hlod bake [FILE.blend ...] [--collection NAME | --objects A,B] -o OUT [--format hlod 3dtiles]
-              [--target-tris 2000] [--max-depth 12] [--quality-threshold 0.3] [--jobs N] [--no-cache]
+              [--target-tris 2000] [--max-depth 12] [--quality-threshold 0.3] [--error exact|bound] [--jobs N] [--no-cache]
     hlod export IN.hlod --format 3dtiles|hlod -o DIR
     hlod view DIR [--port N] [--no-browser] [--cesium CESIUM_DIR]
 
@@ -64,6 +64,8 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--target-tris", type=int, default=BakeSettings.target_tris)
     b.add_argument("--max-depth", type=int, default=BakeSettings.max_depth)
     b.add_argument("--quality-threshold", type=float, default=BakeSettings.quality_threshold)
+    b.add_argument("--error", choices=["exact", "bound"], default=BakeSettings.error,
+                   help="inner nodes' error: exact (default) or bound (faster; looser, never smaller)")
     b.add_argument("--jobs", type=int, default=0, metavar="N",
                    help="worker processes of the bake (default 0: all cores but one)")
     b.add_argument("--no-cache", action="store_true", help="bake from scratch and keep no cache beside the output")

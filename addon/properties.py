@@ -61,6 +61,10 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     max_depth: IntProperty(name="Max Depth", default=12, min=0, max=24, description="Deepest octree level (root = 0)")
     quality_threshold: FloatProperty(name="Decimation Quality", default=0.3, min=0.0, max=1.0,
                                      description="pymeshlab quadric quality threshold (higher keeps better-shaped triangles)")
+    error: EnumProperty(name="Error", items=[
+        ("exact", "Exact", "Each inner node's error measured against every original triangle below it"),
+        ("bound", "Bound", "Against the children's LODs plus their largest error: a faster bake, a looser "
+                           "(never smaller) error, more triangles drawn")], default="exact")
     jobs: IntProperty(name="Jobs", default=0, min=0, max=256,
                       description="Worker processes of the bake, which runs outside Blender's process; "
                                   "0 = all cores but one")
@@ -88,6 +92,12 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     alpha: EnumProperty(name="Alpha", items=[("query", "Query", "Second query, depth test off: exact"),
                                              ("projected", "Projected", "Screen area of the box's silhouette"),
                                              ("cube", "Cube", "Cube of equal volume (2006 paper)")], default="query")
+    skip_queries: EnumProperty(name="Skip Queries", items=[
+        ("off", "Off", "Query every node the method queries"),
+        ("cheap", "Cheap", "Draw a visible node without a query when drawing it costs less than the query"),
+        ("expected", "Expected", "Draw a visible node without a query when its draw, times the share of queries "
+                                 "that changed anything, costs less than the query")], default="off",
+        description="Queries that cannot pay (the renderer's measured costs); a skipped node is re-checked every 5 frames")
     private_context: BoolProperty(name="Private Context", default=False,
                                   description="Run the traversal in a private GL context and draw with Blender's gpu module "
                                               "(automatic on Metal/Vulkan; Blender's objects then do not occlude the queries)")

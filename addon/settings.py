@@ -23,11 +23,12 @@ def bake_settings(source) -> BakeSettings:
     Python (addon/bake_job.py), where worker processes import hlod_core as from the command line."""
     jobs = int(getattr(source, "jobs", 0) or 0) or default_jobs()
     return BakeSettings(target_tris=int(source.target_tris), max_depth=int(source.max_depth), jobs=jobs,
-                        quality_threshold=float(source.quality_threshold))
+                        quality_threshold=float(source.quality_threshold),
+                        error=str(getattr(source, "error", "exact") or "exact"))
 
 
 def runtime_settings(props) -> RuntimeSettings:
     """scene.hlod -> the traversal's settings (step on means k = inf). The overlay is not one of
     them: the preview sets it on its renderer (`Renderer.overlay`), the drawing side."""
     return RuntimeSettings(tau=props.tau, s=props.s, t=props.t, k=float("inf") if props.step else props.k,
-                           bias=props.bias, alpha=props.alpha)
+                           bias=props.bias, alpha=props.alpha, skip_queries=props.skip_queries)

@@ -36,6 +36,7 @@ class HLOD_PT_bake(_HlodPanel, bpy.types.Panel):
         layout.prop(props, "target_tris")
         layout.prop(props, "max_depth")
         layout.prop(props, "quality_threshold")
+        layout.prop(props, "error")
         row = layout.row()
         row.prop(props, "jobs")
         row.prop(props, "use_cache")
@@ -81,6 +82,7 @@ class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
         if not props.step:
             sub.prop(props, "k")
         col.prop(props, "alpha")
+        col.prop(props, "skip_queries")
         layout.prop(props, "private_context")
         layout.operator("hlod.materialize", icon="OUTLINER_OB_MESH")
         row = layout.row(align=True)

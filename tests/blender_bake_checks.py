@@ -357,8 +357,8 @@ def check_parent_dies(repo, work) -> dict:
 
 def check_cli_jobs(repo, work) -> dict:
     """The background command (`--command hlod bake`, the function Blender registers) with
-    `--jobs 2` on the open file: exit status 0, the summary says 2 jobs, a child with 2 workers
-    baked it, and the file records jobs 2; `--jobs -1` is refused in one line."""
+    `--jobs 2 --error bound` on the open file: exit status 0, the summary says 2 jobs, a child with
+    2 workers baked it, and the file records jobs 2 and the bound; `--jobs -1` is refused in one line."""
     blender_preview.enable_from_repo(repo)
     tmp = _private_tmp(work)
     cli = importlib.import_module(NAME + ".addon.cli")
@@ -367,7 +367,7 @@ def check_cli_jobs(repo, work) -> dict:
     out_path = Path(work) / "cli.hlod"
     stdout = io.StringIO()
     with Spy() as spy, contextlib.redirect_stdout(stdout):
-        status = cli.execute(["bake", "--jobs", "2", "--target-tris", "400", "-o", str(out_path)])
+        status = cli.execute(["bake", "--jobs", "2", "--target-tris", "400", "--error", "bound", "-o", str(out_path)])
     summary = json.loads(stdout.getvalue().strip().splitlines()[-1])
     bad = io.StringIO()
     with contextlib.redirect_stdout(bad):
@@ -375,6 +375,7 @@ def check_cli_jobs(repo, work) -> dict:
     return {"status": status, "summary": summary,
             "children": [seen["max_workers"] for seen in spy.children.values()],
             "file_jobs": fileformat.load(out_path).meta["settings"]["jobs"] if out_path.is_file() else None,
+            "file_error": fileformat.load(out_path).meta["settings"].get("error") if out_path.is_file() else None,
             "bad_status": bad_status, "bad_summary": json.loads(bad.getvalue().strip().splitlines()[-1]),
             "tmp_left": _leftovers(tmp)}
 

@@ -122,14 +122,16 @@ def test_when_blender_dies_the_child_stops_its_workers_and_removes_the_scratch(r
 
 
 def test_background_command_with_jobs_2(versioned_repo, tmp_path):
-    """In each Blender: `--command hlod bake --jobs 2` bakes through a child with 2 workers (exit 0,
-    the summary and the file say jobs 2); `--jobs -1` is refused in one line."""
+    """In each Blender: `--command hlod bake --jobs 2 --error bound` bakes through a child with 2
+    workers (exit 0, the summary and the file say jobs 2, the file the bound); `--jobs -1` is refused
+    in one line."""
     out = bake_check(versioned_repo, "cli_jobs", tmp_path)
     all_hold(out,
              status=out["status"] == 0 and out["summary"]["failed"] == 0,
              summary_jobs=out["summary"]["files"][0].get("jobs") == 2,
              child_with_two_workers=out["children"] == [2],
              file_jobs=out["file_jobs"] == 2,
+             file_error_bound=out["file_error"] == "bound",
              bad_jobs=out["bad_status"] == 1 and "--jobs -1" in out["bad_summary"]["files"][0]["error"],
              no_scratch=out["tmp_left"] == [])
 
