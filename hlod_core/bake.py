@@ -38,14 +38,15 @@ meta["uv_seams_crossed_nodes"] counts them. A mesh without any takes the path it
 with no attribute arrays. The node error stays the geometric Hausdorff MSE.
 
 Error measures (issue 16, `BakeSettings.error`): "exact" measures each inner node's LOD against
-every original triangle below it (simplify.measure); "bound" measures it against its children's
-LODs only (simplify.measure_to_children, h) and adds the largest child error (`_compose_bounds`):
+every original triangle below it (hausdorff.measure, pruned: hausdorff.measure_clustered over the
+leaves' triangles cut into clusters once per bake); "bound" measures it against its children's
+LODs only (hausdorff.measure_to_children, h) and adds the largest child error (`_compose_bounds`):
     bound(leaf) = 0;  bound(n) = h(n) + max over children c of bound(c),  h(n) = H(LOD_n, U_c LOD_c).
 Proof that bound(n) >= H(LOD_n, O_n) (O_n: the originals below n; by induction, H(LOD_c, O_c) <= bound(c)):
   x on LOD_n: some z on a child LOD_c has |x - z| <= h(n), and z is within bound(c) of O_c, a part of O_n;
   y in O_n lies in some O_c: within bound(c) of a point z of LOD_c, and z is within h(n) of LOD_n.
 Both directions are at most h(n) + max bound(c) (triangle inequality); leaves are their originals.
-Both figures are measured from samples (simplify.measure_to_children samples as measure does), so
+Both figures are measured from samples (hausdorff.measure_to_children samples as measure does), so
 the measured ones obey this up to the sampling (tests/test_error_bound.py says how much).
 """
 from __future__ import annotations
@@ -66,7 +67,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import appearance, bake_cache, simplify
+from . import appearance, bake_cache, hausdorff as hausdorff_measure, simplify
 from .arrays import concat_indexed, segment_ranges
 from .errors import BakeCancelled, InputError
 from .hierarchy import Hlod, cube_sides, query_box_pad
@@ -168,50 +169,54 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
             return hlod.replace(meta=_meta(mesh, settings, derived, stats, sources=sources, extra_meta=extra_meta,
                                            seconds=time.perf_counter() - started, phases=phases))
 
-    prepared = _prepare(mesh)
-    phases.lap("prepare")
-    layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
-                          counted=prepared.counted, root=prepared.root_cell)
-    phases.lap("octree")
-    n = layout.node_count
-    progress(0, n, "octree")
-    log.info("octree: %d nodes, %d leaves", n, int(layout.is_leaf.sum()))
-    # per node (positions (k,3) f32, faces (m,3) int32, normals (k,3) f32 or None, attribute rows (k,A) f32 or None)
-    lods: list[tuple] = [None] * n
-    _leaf_lods(layout, lods, prepared)
-    phases.lap("leaves")
+    # Worker processes start now and import pymeshlab while this process prepares; an input of
+    # one leaf has no inner node to simplify.
+    jobs = settings.jobs if mesh.tri_count > settings.target_tris else 1
+    with _workers(jobs) as workers:
+        prepared = _prepare(mesh)
+        phases.lap("prepare")
+        layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
+                              counted=prepared.counted, root=prepared.root_cell)
+        phases.lap("octree")
+        n = layout.node_count
+        progress(0, n, "octree")
+        log.info("octree: %d nodes, %d leaves", n, int(layout.is_leaf.sum()))
+        # per node (positions (k,3) f32, faces (m,3) int32, normals (k,3) f32 or None, attribute rows (k,A) f32 or None)
+        lods: list[tuple] = [None] * n
+        _leaf_lods(layout, lods, prepared)
+        phases.lap("leaves")
 
-    hausdorff = np.zeros(n, np.float64)
-    made: dict[int, simplify.NodeLod] = {}  # inner node -> its LOD (and what the log says of it)
-    inner = np.flatnonzero(~layout.is_leaf)
-    keys = None
-    if cache is not None:
-        keys = bake_cache.node_keys(layout, lods, origin=prepared.origin, context=cache.context)
-        for node in inner:
-            hit = cache.load(keys[node])
-            if hit is not None:
-                made[int(node)], hausdorff[node] = hit
-                lods[node] = (hit[0].positions, hit[0].faces, hit[0].normals, hit[0].attributes)
-    from_cache = set(made)
-    if cache is not None:
-        phases.lap("cache")
-    done = n - inner.size + len(from_cache)
-    progress(done, n, "simplify")
-
-    def node_done(node: int, lod: simplify.NodeLod) -> None:
-        nonlocal done
-        made[node] = lod
-        done += 1
+        hausdorff = np.zeros(n, np.float64)
+        made: dict[int, simplify.NodeLod] = {}  # inner node -> its LOD (and what the log says of it)
+        inner = np.flatnonzero(~layout.is_leaf)
+        keys = None
+        if cache is not None:
+            keys = bake_cache.node_keys(layout, lods, origin=prepared.origin, context=cache.context)
+            for node in inner:
+                hit = cache.load(keys[node])
+                if hit is not None:
+                    made[int(node)], hausdorff[node] = hit
+                    lods[node] = (hit[0].positions, hit[0].faces, hit[0].normals, hit[0].attributes)
+        from_cache = set(made)
+        if cache is not None:
+            phases.lap("cache")
+        done = n - inner.size + len(from_cache)
         progress(done, n, "simplify")
 
-    rows = None if prepared.rows is None else prepared.row_layout
-    _simplify_inner_nodes(layout, lods, hausdorff, settings, with_normals=prepared.normals is not None,
-                          row_layout=rows, cancel=cancel, node_done=node_done)
-    if cancel():
-        raise BakeCancelled("bake cancelled")
-    if settings.error == "bound":
-        _compose_bounds(layout, hausdorff, rebuilt=np.setdiff1d(inner, np.fromiter(from_cache, np.int64)))
-    phases.lap("simplify")
+        def node_done(node: int, lod: simplify.NodeLod) -> None:
+            nonlocal done
+            made[node] = lod
+            done += 1
+            progress(done, n, "simplify")
+
+        rows = None if prepared.rows is None else prepared.row_layout
+        _simplify_inner_nodes(layout, lods, hausdorff, settings, workers=workers,
+                              with_normals=prepared.normals is not None, row_layout=rows, cancel=cancel, node_done=node_done)
+        if cancel():
+            raise BakeCancelled("bake cancelled")
+        if settings.error == "bound":
+            _compose_bounds(layout, hausdorff, rebuilt=np.setdiff1d(inner, np.fromiter(from_cache, np.int64)))
+        phases.lap("simplify")
 
     hlod = _assemble(layout, lods, prepared.origin, hausdorff, normals=prepared.normals is not None,
                      row_layout=prepared.row_layout)
@@ -306,7 +311,7 @@ def _settings_meta(settings: BakeSettings) -> dict:
 
 
 def _compose_bounds(layout: OctreeLayout, hausdorff: np.ndarray, *, rebuilt: np.ndarray) -> None:
-    """Bound mode: hausdorff[node] holds h(node) (simplify.measure_to_children) for the `rebuilt`
+    """Bound mode: hausdorff[node] holds h(node) (hausdorff.measure_to_children) for the `rebuilt`
     inner nodes and the final bound for the others (leaves 0, cache entries); make the rebuilt ones
     h + the largest child bound, deepest level first (module docstring). A NaN (no distance from
     pymeshlab) stays NaN up the tree, and _assemble bounds each such node by its box diagonal."""
@@ -362,10 +367,13 @@ def _prepare(mesh: TriangleMesh) -> _Prepared:
     if not np.all(np.isfinite(positions)):
         raise InputError(f"{mesh.name}: coordinates exceed the float32 range after centring")
     faces = mesh.faces
-    tri = positions[faces].astype(np.float64)
-    centroids = tri.mean(axis=1)
-    del tri
-    counted = ~simplify.collapsed(positions, faces)
+    a, b, c = (positions[faces[:, k]] for k in range(3))
+    counted = ~simplify.collapsed_corners(a, b, c)
+    centroids = a.astype(np.float64)  # (a + b + c) / 3 in this order: the float mean(axis=1) gives
+    centroids += b
+    centroids += c
+    centroids /= 3.0
+    del a, b, c
     root_cell = tight_cube(centroids.min(axis=0), centroids.max(axis=0))
     normals, rows, row_layout = mesh.normals, None, appearance.AttributeLayout(False, False, False)
     if mesh.has_appearance:
@@ -429,52 +437,101 @@ class _PhaseClock:
 
 # --- simplify phase: in this process, or in worker processes sharing the input through files ----
 
-_SHARED: dict[str, np.ndarray] = {}
+#: The shared arrays of the exact error measure, per scratch folder ("" inline: the parent's own
+#: arrays), as a worker has loaded them (memory-mapped): positions, and Clusters' arrays.
+_SHARED: dict[str, dict[str, np.ndarray]] = {}
 #: Task kinds of the simplify phase; the values order the heap (decimations before measurements).
 _TASK_DECIMATE, _TASK_MEASURE = 0, 1
 #: How often (seconds) the scheduler wakes while tasks run, to check cancel().
 _POLL_SECONDS = 0.25
+#: The shared arrays' names: the leaves' positions and the Clusters over their faces.
+_SHARED_ARRAYS = ("positions", *hausdorff_measure.Clusters.ARRAYS)
 
 
-def _init_worker(positions_path: str | None = None, faces_path: str | None = None) -> None:
-    """positions_path / faces_path: the leaf arrays (exact error measure); None: the bound, which
-    measures against the children's LODs sent with each task, needs none."""
+def _init_worker() -> None:
     # Ctrl-C in a terminal (and a hangup) reaches the whole process group: the parent cancels and
     # shuts the pool down, so the workers ignore these and print no tracebacks of their own.
     for name in ("SIGINT", "SIGHUP"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), signal.SIG_IGN)
-    if positions_path is None:
-        return
-    _SHARED["positions"] = np.load(positions_path, mmap_mode="r")
-    _SHARED["faces"] = np.load(faces_path, mmap_mode="r")
 
 
-def _measure_task(lod_positions, lod_faces, vertex_begin: int, vertex_end: int, tri_begin: int, tri_end: int) -> float:
+def _warm_up() -> None:
+    """A worker's first task, submitted when the pool starts: pymeshlab's import (about half a
+    second) then overlaps the bake's prepare, octree and cache phases."""
+    import pymeshlab  # noqa: F401
+
+
+def _shared(folder: str) -> dict[str, np.ndarray]:
+    """The shared arrays of `folder` ("" inline), loaded memory-mapped on a worker's first use."""
+    arrays = _SHARED.get(folder)
+    if arrays is None:
+        arrays = {name: np.load(os.path.join(folder, name + ".npy"), mmap_mode="r") for name in _SHARED_ARRAYS}
+        _SHARED.clear()  # one bake's arrays at a time
+        _SHARED[folder] = arrays
+    return arrays
+
+
+def _measure_task(folder: str, lod_positions, lod_faces, ranges: tuple[int, ...]) -> float:
     """Runs in a worker (or inline): the node's original triangles are the leaves' below it, one
-    range of the shared leaf arrays (`_leaf_arrays`)."""
-    original = (np.asarray(_SHARED["positions"][vertex_begin:vertex_end]),
-                (np.asarray(_SHARED["faces"][tri_begin:tri_end]) - vertex_begin).astype(np.int32))
-    return simplify.measure((lod_positions, lod_faces), original)
+    range of the shared arrays (`_LeafArrays`): ranges = (vertex_begin, vertex_end, cluster_begin,
+    cluster_end). Nodes with at least hausdorff.PRUNE_FROM_VERTICES original vertices are measured
+    pruned, over their clusters; the others whole. Both give hausdorff.measure's float."""
+    shared = _shared(folder)
+    vertex_begin, vertex_end, cluster_begin, cluster_end = ranges
+    clusters = hausdorff_measure.Clusters(**{name: shared[name] for name in hausdorff_measure.Clusters.ARRAYS})
+    lod = (lod_positions, lod_faces)
+    if vertex_end - vertex_begin >= hausdorff_measure.PRUNE_FROM_VERTICES:
+        return hausdorff_measure.measure_clustered(lod, shared["positions"], clusters, cluster_begin, cluster_end)
+    tri_begin, tri_end = int(clusters.start[cluster_begin]), int(clusters.start[cluster_end])
+    original = (np.asarray(shared["positions"][vertex_begin:vertex_end]),
+                (np.asarray(clusters.faces[tri_begin:tri_end]) - vertex_begin).astype(np.int32))
+    return hausdorff_measure.measure(lod, original)
 
 
-def _leaf_arrays(layout: OctreeLayout, lods: list):
-    """The leaves' (positions, faces) concatenated in depth-first order: (positions (V,3) f32,
-    faces (F,3) int64 rows into them, in tri_order, so a node's triangles are rows
-    tri_begin..tri_end), and each node's vertex range (vertex_begin, vertex_end) (n,) int64."""
+@dataclass(frozen=True, eq=False)
+class _LeafArrays:
+    """The leaves' triangles as the exact measure reads them: positions (V,3) f32, the leaves'
+    vertices concatenated in depth-first order; clusters (hausdorff.Clusters) over their faces, in
+    tri_order with each leaf's faces reordered into clusters (a leaf's face set is unchanged, so a
+    node's triangles are still rows tri_begin..tri_end); per node (n,) int64 its vertex range and
+    cluster range."""
+
+    positions: np.ndarray
+    clusters: hausdorff_measure.Clusters
+    vertex_begin: np.ndarray
+    vertex_end: np.ndarray
+    cluster_begin: np.ndarray
+    cluster_end: np.ndarray
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"positions": self.positions, **self.clusters.arrays()}
+
+    def ranges(self, node: int) -> tuple[int, int, int, int]:
+        return (int(self.vertex_begin[node]), int(self.vertex_end[node]), int(self.cluster_begin[node]),
+                int(self.cluster_end[node]))
+
+
+def _leaf_arrays(layout: OctreeLayout, lods: list) -> _LeafArrays:
+    """_LeafArrays of the bake's leaves (lods[leaf] = (positions, local faces, ...))."""
     leaves = np.flatnonzero(layout.is_leaf)
     leaves = leaves[np.argsort(layout.tri_begin[leaves], kind="stable")]  # depth-first
     positions, faces = concat_indexed((lods[leaf][0], lods[leaf][1]) for leaf in leaves)
     counts = np.array([lods[leaf][0].shape[0] for leaf in leaves], np.int64)
+    segments = np.concatenate([[0], np.cumsum([lods[leaf][1].shape[0] for leaf in leaves])]).astype(np.int64)
+    clusters = hausdorff_measure.Clusters.build(positions, faces, segments)
     ends = np.cumsum(counts)
-    begin = np.zeros(layout.node_count, np.int64)
-    end = np.zeros(layout.node_count, np.int64)
-    begin[leaves], end[leaves] = ends - counts, ends
+    n = layout.node_count
+    ranges = np.zeros((4, n), np.int64)  # vertex begin, end; cluster begin, end
+    ranges[0, leaves], ranges[1, leaves] = ends - counts, ends
+    ranges[2, leaves], ranges[3, leaves] = clusters.first_cluster[:-1], clusters.first_cluster[1:]
     for d in range(int(layout.depth.max()), -1, -1):  # deepest first: children before their parent
         nodes = np.flatnonzero((layout.depth == d) & ~layout.is_leaf)
-        begin[nodes] = begin[layout.child_offset[nodes]]
-        end[nodes] = end[layout.child_offset[nodes] + layout.child_count[nodes] - 1]
-    return positions, faces, begin, end
+        first, last = layout.child_offset[nodes], layout.child_offset[nodes] + layout.child_count[nodes] - 1
+        ranges[0, nodes], ranges[2, nodes] = ranges[0, first], ranges[2, first]
+        ranges[1, nodes], ranges[3, nodes] = ranges[1, last], ranges[3, last]
+    return _LeafArrays(positions=positions, clusters=clusters, vertex_begin=ranges[0], vertex_end=ranges[1],
+                       cluster_begin=ranges[2], cluster_end=ranges[3])
 
 
 #: Signals whose Python handlers may raise (Ctrl-C's KeyboardInterrupt, the command line's SIGTERM
@@ -530,9 +587,52 @@ class _InlineExecutor:
         return fut
 
 
+@dataclass
+class _Workers:
+    """Where the simplify phase's tasks run: executor (submit(fn, *args) -> Future), at most
+    `limit` in flight, and `scratch`, a folder every worker reads the shared arrays from ("" inline:
+    this process's own arrays, `share` puts them in _SHARED)."""
+
+    executor: object
+    limit: int
+    scratch: str
+
+    def share(self, arrays: dict[str, np.ndarray]) -> None:
+        """Make `arrays` (the _SHARED_ARRAYS) readable by every worker, before any task reads them."""
+        if not self.scratch:
+            _SHARED.clear()
+            _SHARED[""] = arrays
+            return
+        for name, array in arrays.items():
+            np.save(os.path.join(self.scratch, name + ".npy"), array)
+
+
+@contextlib.contextmanager
+def _workers(jobs: int):
+    """_Workers for `jobs`: inline for 1; else a pool of `jobs` spawned worker processes, started at
+    once (each imports pymeshlab while the bake prepares: `_warm_up`), and a scratch folder
+    (`$TMPDIR/hlod-bake-*`). Both are gone when the block exits, however it exits."""
+    if jobs == 1:
+        try:
+            yield _Workers(_InlineExecutor(), 1, "")
+        finally:
+            _SHARED.clear()
+        return
+    with contextlib.ExitStack() as stack:
+        scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="hlod-bake-"))
+        stack.enter_context(_main_module_importable())
+        executor = cf.ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker,
+                                          mp_context=multiprocessing.get_context("spawn"))
+        stack.callback(executor.shutdown, wait=True, cancel_futures=True)
+        for _ in range(jobs):
+            with _signals_deferred():  # a submit starts a worker process
+                executor.submit(_warm_up)
+        yield _Workers(executor, jobs, scratch)
+
+
 def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarray, settings: BakeSettings, *,
-                          with_normals: bool, row_layout: appearance.AttributeLayout | None, cancel: CancelFn,
-                          node_done) -> None:
+                          workers: _Workers, with_normals: bool, row_layout: appearance.AttributeLayout | None,
+                          cancel: CancelFn, node_done) -> None:
     """Fill lods[node] and hausdorff[node] for every inner node whose LOD is not there yet (the
     cache's are); node_done(node, lod) as each completes. Attribute rows (the 4th entry of each
     LOD, None without) travel with the child LODs; row_layout: their columns (None without).
@@ -541,7 +641,8 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
     once its own LOD exists. Measuring exactly needs every original triangle below the node, so the
     top nodes' measurements are the big tasks; keeping them off the decimation chain lets them run
     beside other work. Priority: decimations first (deepest first, they unlock the rest), then
-    measurements, largest first. At most `jobs` tasks are in flight, so the priority holds.
+    measurements, largest first. At most `workers.limit` tasks are in flight, so the priority holds.
+    The exact measure reads the leaves' triangles (_LeafArrays) from `workers.share`.
     With settings.error "bound" a MEASURE task is h(node) against its children's LODs (a few
     thousand triangles, sent with the task like a decimation's; no leaf arrays are made or shared);
     the caller composes the bounds (`_compose_bounds`). It stays a task of the pool, not inline in
@@ -558,69 +659,52 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
     heap: list[tuple] = []
     decimated: dict[int, simplify.NodeLod] = {}  # LODs made, until their measurement is done
     bound = settings.error == "bound"
+    executor = workers.executor
     if not bound:
-        leaf_positions, leaf_faces, vertex_begin, vertex_end = _leaf_arrays(layout, lods)
+        leaf_arrays = _leaf_arrays(layout, lods)
+        workers.share(leaf_arrays.arrays())
 
     def push(kind: int, node: int) -> None:
         size = -int(layout.depth[node]) if kind == _TASK_DECIMATE else -int(layout.tri_end[node] - layout.tri_begin[node])
         heapq.heappush(heap, (kind, size, node))
 
-    def submit(executor, kind: int, node: int) -> cf.Future:
+    def submit(kind: int, node: int) -> cf.Future:
         kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
         if kind == _TASK_DECIMATE:
             return executor.submit(simplify.decimate_node, [(lods[k][0], lods[k][1], lods[k][3]) for k in kids], dec,
                                    with_normals, row_layout)
         if bound:
-            return executor.submit(simplify.measure_to_children, (lods[node][0], lods[node][1]),
+            return executor.submit(hausdorff_measure.measure_to_children, (lods[node][0], lods[node][1]),
                                    [(lods[k][0], lods[k][1]) for k in kids])
-        return executor.submit(_measure_task, lods[node][0], lods[node][1], int(vertex_begin[node]),
-                               int(vertex_end[node]), int(layout.tri_begin[node]), int(layout.tri_end[node]))
+        return executor.submit(_measure_task, workers.scratch, lods[node][0], lods[node][1], leaf_arrays.ranges(node))
 
     for node in nodes[waiting[nodes] == 0]:
         push(_TASK_DECIMATE, int(node))
 
-    with contextlib.ExitStack() as stack:
-        if settings.jobs == 1:
-            executor, limit = _InlineExecutor(), 1
-            if not bound:
-                _SHARED.update(positions=leaf_positions, faces=leaf_faces)
-                stack.callback(_SHARED.clear)
-        else:
-            paths = ()
-            if not bound:
-                scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="hlod-bake-"))
-                paths = os.path.join(scratch, "positions.npy"), os.path.join(scratch, "faces.npy")
-                np.save(paths[0], leaf_positions)
-                np.save(paths[1], leaf_faces)
-            stack.enter_context(_main_module_importable())
-            executor = cf.ProcessPoolExecutor(max_workers=settings.jobs, initializer=_init_worker, initargs=paths,
-                                              mp_context=multiprocessing.get_context("spawn"))
-            stack.callback(executor.shutdown, wait=True, cancel_futures=True)
-            limit = settings.jobs
-        running: dict[cf.Future, tuple[int, int]] = {}
-        while heap or running:
-            while heap and len(running) < limit:
-                kind, _, node = heapq.heappop(heap)
-                with _signals_deferred():  # a submit may start a worker process
-                    running[submit(executor, kind, node)] = (kind, node)
-            finished, _ = cf.wait(running, timeout=_POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
-            if cancel():
-                raise BakeCancelled("bake cancelled")
-            for fut in finished:
-                kind, node = running.pop(fut)
-                if kind == _TASK_MEASURE:
-                    hausdorff[node] = fut.result()
-                    node_done(node, decimated.pop(node))
-                    continue
-                lod = fut.result()
-                lods[node] = (lod.positions, lod.faces, lod.normals, lod.attributes)
-                decimated[node] = lod
-                push(_TASK_MEASURE, node)
-                parent = int(layout.parent[node])
-                if parent >= 0 and todo[parent]:
-                    waiting[parent] -= 1
-                    if waiting[parent] == 0:
-                        push(_TASK_DECIMATE, parent)
+    running: dict[cf.Future, tuple[int, int]] = {}
+    while heap or running:
+        while heap and len(running) < workers.limit:
+            kind, _, node = heapq.heappop(heap)
+            with _signals_deferred():  # a submit may start a worker process
+                running[submit(kind, node)] = (kind, node)
+        finished, _ = cf.wait(running, timeout=_POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
+        if cancel():
+            raise BakeCancelled("bake cancelled")
+        for fut in finished:
+            kind, node = running.pop(fut)
+            if kind == _TASK_MEASURE:
+                hausdorff[node] = fut.result()
+                node_done(node, decimated.pop(node))
+                continue
+            lod = fut.result()
+            lods[node] = (lod.positions, lod.faces, lod.normals, lod.attributes)
+            decimated[node] = lod
+            push(_TASK_MEASURE, node)
+            parent = int(layout.parent[node])
+            if parent >= 0 and todo[parent]:
+                waiting[parent] -= 1
+                if waiting[parent] == 0:
+                    push(_TASK_DECIMATE, parent)
 
 
 def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, error: float, target_tris: int) -> None:

@@ -37,12 +37,7 @@ same model in metres, scaled (see `NodeFrame` for why).
   each LOD face takes all its corners' rows from the island most of them are in (`uv_islands`,
   `_rows_per_face`), so faces inside one island keep exact UVs, and only faces that span two
   islands (a few percent) get a stretched texture. The LOD is split again per (vertex, row).
-- MSE = symmetric Hausdorff distance (pymeshlab `get_hausdorff_distance`, the max in both
-  directions, from deterministic samples) between the LOD and the original triangles below the node. The bake takes the max
-  with the children's MSE so the error is monotone.
-- Bound (issue 16, bake.py "Error measures"): `measure_to_children` is the same distance between
-  the LOD and its children's LODs (a few thousand triangles each), to which the bake adds the
-  largest child error.
+- The error (MSE, and the bound's h) is hausdorff.py's: it measures in the same NodeFrame.
 """
 from __future__ import annotations
 
@@ -92,7 +87,11 @@ class NodeFrame:
     def of(positions: np.ndarray) -> "NodeFrame":
         """The unit frame of positions (k,3), k >= 1, finite."""
         p = np.asarray(positions, np.float64)
-        lo, hi = p.min(axis=0), p.max(axis=0)
+        return NodeFrame.of_box(p.min(axis=0), p.max(axis=0))
+
+    @staticmethod
+    def of_box(lo: np.ndarray, hi: np.ndarray) -> "NodeFrame":
+        """The unit frame of the box lo..hi (3,) float64 (`of` of positions whose box it is)."""
         diagonal = float(np.linalg.norm(hi - lo))
         return NodeFrame(center=0.5 * (lo + hi), scale=UNIT_DIAGONAL / diagonal if diagonal > 0 else 1.0)
 
@@ -196,7 +195,11 @@ def collapsed(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(f,) bool: triangles with two corners at bit-identical float32 positions, which `weld`
     drops. They do not count toward a node's triangle budget (octree and leaf budget check)."""
     p = np.asarray(positions, np.float32)
-    a, b, c = p[faces[:, 0]], p[faces[:, 1]], p[faces[:, 2]]
+    return collapsed_corners(p[faces[:, 0]], p[faces[:, 1]], p[faces[:, 2]])
+
+
+def collapsed_corners(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """`collapsed` of the triangles with corners a, b, c (f,3) float32."""
     return np.all(a == b, axis=1) | np.all(b == c, axis=1) | np.all(a == c, axis=1)
 
 
@@ -562,149 +565,3 @@ def _decimated(positions, faces, settings: DecimationSettings, *, optimal_placem
         ms.meshing_remove_null_faces()
         ms.meshing_remove_unreferenced_vertices()
     return ms
-
-
-#: Barycentric sample points per LOD face for the LOD -> original direction: centroid, three
-#: inner points and the edge midpoints. Fixed, so a bake is reproducible (pymeshlab's own face
-#: sampling is Monte Carlo with a varying seed and moved node errors by up to 30% between runs).
-FACE_SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3], [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6],
-                         [1 / 6, 1 / 6, 2 / 3], [0.5, 0.5, 0.0], [0.0, 0.5, 0.5], [0.5, 0.0, 0.5]])
-
-
-#: measure(): nodes with at least this many original vertices measure the original -> LOD direction
-#: pruned (`_original_to_lod_pruned`); below it the pruning's extra pymeshlab calls cost more than
-#: they save, and one call measures every vertex.
-PRUNE_FROM_VERTICES = 20_000
-#: Pruning cells: a uniform grid over the original's box, cells about this fraction of the LOD ->
-#: original distance a side (a cell's vertices then lie within 0.87 of it from its centre, so the
-#: cells whose centre is near the LOD are skipped), but no finer than about PRUNE_CELL_VERTICES
-#: original vertices a cell (side at most sqrt(vertices / that): a surface fills about side^2 cells).
-#: Chosen on the crowd's root (900k original vertices: 8.0 s unpruned; 3.5 s with 0.5 and 16, 2.6 s
-#: with these, 2.2 s with 2.0 and 1024) and its 128k-vertex nodes (1.2 s; 0.8, 0.64, 0.6 s).
-PRUNE_CELL_FRACTION = 1.0
-PRUNE_CELL_VERTICES = 256
-#: Slack on a cell's bound, unit-frame lengths (the frame's diagonal is UNIT_DIAGONAL): pymeshlab
-#: reports distances in float32 (relative error about 6e-8), so a cell is skipped only when its
-#: bound falls below the running maximum by more than this, and skipping never changes the result.
-PRUNE_MARGIN = 1e-5
-
-
-def measure(lod: tuple[np.ndarray, np.ndarray], original: tuple[np.ndarray, np.ndarray], *,
-            prune_from: int | None = PRUNE_FROM_VERTICES) -> float:
-    """Symmetric Hausdorff distance between a LOD and the original triangles below its node, both
-    (positions f32, faces) in the same frame: the max of (original vertices -> LOD surface) and
-    (LOD vertices and FACE_SAMPLES points -> original surface), model units. Computed in the
-    node's unit frame (NodeFrame), like the decimation. NaN if pymeshlab gives none.
-
-    With at least `prune_from` original vertices (None: never) the first direction skips the
-    original vertices that cannot raise the maximum (`_original_to_lod_pruned`); the result is the
-    same float as measuring every vertex."""
-    import pymeshlab
-
-    frame = NodeFrame.of(np.concatenate([lod[0], original[0]]))
-    lod_p = frame.to_local(lod[0])
-    original_p = frame.to_local(original[0])
-    samples = _surface_samples(lod_p, lod[1])
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=lod_p, face_matrix=lod[1]))
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=original_p, face_matrix=original[1]))
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=samples))
-    lod_to_original = _hausdorff_max(ms, sampled=2, target=1, count=samples.shape[0])
-    if prune_from is None or original_p.shape[0] < prune_from or not np.isfinite(lod_to_original):
-        original_to_lod = _hausdorff_max(ms, sampled=1, target=0, count=original_p.shape[0])
-    else:
-        original_to_lod = _original_to_lod_pruned(ms, original_p, floor=lod_to_original)
-    both = [original_to_lod, lod_to_original]
-    return max(both) / frame.scale if all(np.isfinite(both)) else float("nan")
-
-
-def measure_to_children(lod: tuple[np.ndarray, np.ndarray], children: list[tuple[np.ndarray, np.ndarray]]) -> float:
-    """h(node) of the error bound (bake.py "Error measures"): the symmetric Hausdorff distance
-    between a LOD and the union of its children's LODs, all (positions f32, faces) in one frame,
-    model units; NaN if pymeshlab gives none. Sampled as `measure` samples (the LOD's vertices and
-    FACE_SAMPLES points to the children's surface, the children's vertices to the LOD's), in the
-    unit frame of both: where the children are leaves, h is the very float `measure` gives. Sampling
-    the children's faces too (FACE_SAMPLES) made the bunny's bake 1.6x slower (2.9 s against 1.8 s,
-    jobs 1) and changed no node's bound/exact order there."""
-    import pymeshlab
-
-    kids_positions, kids_faces = concat_indexed(children)
-    frame = NodeFrame.of(np.concatenate([lod[0], kids_positions]))
-    lod_p, kids_p = frame.to_local(lod[0]), frame.to_local(kids_positions)
-    samples = _surface_samples(lod_p, lod[1])
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=lod_p, face_matrix=lod[1]))
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=kids_p, face_matrix=np.asarray(kids_faces, np.int32)))
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=samples))
-    both = [_hausdorff_max(ms, sampled=2, target=1, count=samples.shape[0]),
-            _hausdorff_max(ms, sampled=1, target=0, count=kids_p.shape[0])]
-    return max(both) / frame.scale if all(np.isfinite(both)) else float("nan")
-
-
-def _surface_samples(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(k + 7m, 3): the vertices (k,3), then the FACE_SAMPLES points of each of the m faces."""
-    return np.concatenate([positions, np.einsum("sk,fkd->fsd", FACE_SAMPLES, positions[faces]).reshape(-1, 3)])
-
-
-def _hausdorff_max(ms, *, sampled: int, target: int, count: int, save: bool = False) -> float:
-    """pymeshlab's one-sided Hausdorff distance: the max over the `count` vertices of mesh
-    `sampled` (all of them) of their distance to the surface of mesh `target`, unit frame. With
-    `save`, each sampled vertex's distance is left in its vertex quality."""
-    import pymeshlab
-
-    radius = pymeshlab.PureValue(2.0 * UNIT_DIAGONAL)  # twice the box diagonal: no sample is dropped
-    return float(ms.get_hausdorff_distance(sampledmesh=sampled, targetmesh=target, samplevert=True,
-                                           sampleface=False, samplenum=int(count), maxdist=radius,
-                                           savesample=save)["max"])
-
-
-def _original_to_lod_pruned(ms, original_p: np.ndarray, *, floor: float) -> float:
-    """max(floor, max over the rows of original_p (k,3) unit frame of their distance to mesh 0 of
-    `ms` (the LOD)), evaluating only the vertices that can exceed the running maximum.
-
-    The vertices are binned in a uniform grid (PRUNE_CELL_FRACTION); a cell's vertices lie within
-    its radius r of its box centre c, so each is at most d(c, LOD) + r from the LOD (triangle
-    inequality). Cells are measured in decreasing order of that bound, in batches growing 4x, and
-    the first cell whose bound (plus PRUNE_MARGIN) is not above the maximum so far ends it. Each
-    vertex measured gets the distance pymeshlab gives it in a single call (the same target, the
-    same point), so the maximum is the unpruned call's float. Every centre lies in the node's box
-    (diagonal UNIT_DIAGONAL), so within _hausdorff_max's search radius of the LOD: none is dropped."""
-    import pymeshlab
-
-    count = original_p.shape[0]
-    lo, hi = original_p.min(axis=0), original_p.max(axis=0)
-    extent = np.where(hi > lo, hi - lo, 1.0)
-    finest = np.sqrt(count / PRUNE_CELL_VERTICES)
-    wanted = extent.max() / (PRUNE_CELL_FRACTION * floor) if floor > 0 else finest
-    side = int(np.clip(np.ceil(min(wanted, finest)), 1, 1024))
-    cell_xyz = np.minimum(((original_p - lo) / extent * side).astype(np.int64), side - 1)
-    key = (cell_xyz[:, 0] * side + cell_xyz[:, 1]) * side + cell_xyz[:, 2]
-    order = np.argsort(key, kind="stable")
-    points = original_p[order]
-    key = key[order]
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    ends = np.r_[starts[1:], count]
-    centre = 0.5 * (np.minimum.reduceat(points, starts, axis=0) + np.maximum.reduceat(points, starts, axis=0))
-    owner = np.repeat(np.arange(starts.size), ends - starts)
-    cell_radius = np.maximum.reduceat(np.linalg.norm(points - centre[owner], axis=1), starts)
-
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=centre))
-    centres_id = ms.current_mesh_id()
-    _hausdorff_max(ms, sampled=centres_id, target=0, count=starts.size, save=True)
-    centre_distance = ms.mesh(centres_id).vertex_scalar_array()  # savesample: each centre's distance
-    bound = np.where(np.isfinite(centre_distance), centre_distance + cell_radius + PRUNE_MARGIN, np.inf)
-
-    cells = np.argsort(-bound, kind="stable")
-    best, at, batch = floor, 0, 1
-    while at < cells.size and bound[cells[at]] > best:
-        take = cells[at:at + batch]
-        take = take[bound[take] > best]
-        rows = np.concatenate([np.arange(starts[c], ends[c]) for c in take])
-        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points[rows]))
-        value = _hausdorff_max(ms, sampled=ms.current_mesh_id(), target=0, count=rows.size)
-        if not np.isfinite(value):
-            return value
-        best = max(best, value)
-        at += batch
-        batch *= 4
-    return best

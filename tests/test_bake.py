@@ -4,7 +4,7 @@ import os
 import numpy as np
 import pytest
 
-from hlod_core import checks, meshio, simplify
+from hlod_core import checks, hausdorff, meshio, simplify
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.errors import BakeCancelled, InputError
 
@@ -269,10 +269,10 @@ def test_hausdorff_error_is_unit_free():
     spot = load_model("spot.obj")
     p, f = spot.positions.astype(np.float32), spot.faces.astype(np.int32)
     lod = simplify.decimate_node([(p, f)], simplify.DecimationSettings(target_tris=300), with_normals=False)
-    error = simplify.measure((lod.positions, lod.faces), (p, f))
+    error = hausdorff.measure((lod.positions, lod.faces), (p, f))
     assert error > 0
     for factor in (2.0 ** -20, 2.0 ** 20):
         s = np.float32(factor)
-        assert simplify.measure((lod.positions * s, lod.faces), (p * s, f)) == error * factor
-    mm = simplify.measure(((lod.positions * 1e-3).astype(np.float32), lod.faces), ((p * 1e-3).astype(np.float32), f))
+        assert hausdorff.measure((lod.positions * s, lod.faces), (p * s, f)) == error * factor
+    mm = hausdorff.measure(((lod.positions * 1e-3).astype(np.float32), lod.faces), ((p * 1e-3).astype(np.float32), f))
     assert mm / 1e-3 == pytest.approx(error, rel=1e-4)

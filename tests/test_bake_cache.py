@@ -60,9 +60,10 @@ class _Counted:
             self.decimations += 1
             return decimate(*args)
 
-        def counting_measure(lod_positions, lod_faces, vertex_begin, vertex_end, tri_begin, tri_end):
-            self.measured.append((tri_begin, tri_end))
-            return measure(lod_positions, lod_faces, vertex_begin, vertex_end, tri_begin, tri_end)
+        def counting_measure(folder, lod_positions, lod_faces, ranges):
+            cluster_start = bake_module._shared(folder)["start"]  # the node's clusters' face range
+            self.measured.append((int(cluster_start[ranges[2]]), int(cluster_start[ranges[3]])))
+            return measure(folder, lod_positions, lod_faces, ranges)
 
         monkeypatch.setattr(simplify, "decimate_node", counting_decimate)
         monkeypatch.setattr(bake_module, "_measure_task", counting_measure)

@@ -2,7 +2,7 @@
 
 bake.py's module docstring proves bound(n) = h(n) + max child bound >= H(LOD_n, originals below n)
 for the true (continuous) Hausdorff distances. The bake measures both figures from samples (LOD
-vertices and simplify.FACE_SAMPLES points to the other surface, the other side's vertices to the
+vertices and hausdorff.FACE_SAMPLES points to the other surface, the other side's vertices to the
 LOD), and a sampled figure can only fall short of the true one. Where a node's children are leaves
 both measures take the same samples of the same two surfaces: the same float. One level up the
 bound's chain passes through the point z of a child's LOD nearest a sample, which is no sample
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlod_core import fileformat, meshio, simplify
+from hlod_core import fileformat, hausdorff, meshio
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.errors import InputError
 
@@ -38,7 +38,8 @@ F32_RELATIVE = 1e-6
 #: The commit before the error bound: an exact bake must write the bytes it wrote there.
 BEFORE_BOUND = "b1e28ff"
 #: SHA-256 of cow.obj baked exactly at target_tris 300 (timings zeroed) at BEFORE_BOUND, pinned
-#: pymeshlab, for checkouts without that commit; where the commit is there, both are compared.
+#: pymeshlab, on the AMD EPYC machine of that session), for checkouts without that commit; where the
+#: commit is there, the old code's own file is compared instead (the digest of floats is per CPU).
 FILE_BEFORE_BOUND = "2fab25e0e34669442784e651d8fc51fbf489f05c94501fd5e070348d42762fe7"
 
 
@@ -91,7 +92,7 @@ def test_bound_is_at_least_the_exact_error_on_every_node(bakes, name):
     # where the children are leaves both measures take the same samples: the same float
     lowest = np.array([not exact.is_leaf[n] and all(exact.is_leaf[k] for k in children(exact, n))
                        for n in range(exact.node_count)])
-    raw_exact = np.array([simplify.measure(lod(exact, n), _union(exact, n)) if lowest[n] else 0.0
+    raw_exact = np.array([hausdorff.measure(lod(exact, n), _union(exact, n)) if lowest[n] else 0.0
                           for n in range(exact.node_count)])
     assert np.array_equal(bound.error[lowest], raw_exact[lowest])
     assert np.any(bound.error[~exact.is_leaf & ~lowest] > exact.error[~exact.is_leaf & ~lowest])
@@ -114,7 +115,7 @@ def test_bound_is_h_plus_the_largest_child_bound_zero_at_leaves(bakes, name):
     assert np.all(np.isfinite(bound.error)) and np.all(bound.error[bound.is_leaf] == 0.0)
     for node in np.flatnonzero(~bound.is_leaf).tolist():
         kids = children(bound, node)
-        h = simplify.measure_to_children(lod(bound, node), [lod(bound, k) for k in kids])
+        h = hausdorff.measure_to_children(lod(bound, node), [lod(bound, k) for k in kids])
         assert h >= 0 and bound.error[node] == h + max(bound.error[k] for k in kids), node
 
 
@@ -198,4 +199,5 @@ def test_exact_bake_writes_the_bytes_it_wrote_before_the_bound(tmp_path):
         subprocess.run([sys.executable, "-c", script, str(source), str(tmp_path / "old.hlod")], cwd=old,
                        env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(old)}, check=True)
         assert new == _exact_file(fileformat.load(tmp_path / "old.hlod"), tmp_path / "resaved.hlod")
-    assert hashlib.sha256(new).hexdigest() == FILE_BEFORE_BOUND
+    else:  # the digest was taken on one CPU; pymeshlab's floats differ on another (AMD EPYC vs Intel Xeon)
+        assert hashlib.sha256(new).hexdigest() == FILE_BEFORE_BOUND

@@ -1,15 +1,16 @@
-"""simplify.measure's pruned original -> LOD direction (issue 14: the moved re-bake's time went to
-measuring the moved object's ancestors against every triangle below them). The pruning must give
-the very float the unpruned measure gives, on every inner node of real bakes, and must skip work.
-Real pymeshlab: each model (and a herd of cows, whose coarse root is where pruning pays) is baked
-(jobs = 1, so measure runs in this process) with measure wrapped to keep the (LOD, original) pairs
-the bake measures, then both ways are compared."""
+"""hausdorff's pruned measure (issue 14: a moved statue's re-bake went to measuring its ancestors
+against every triangle below them). The pruning must give the very float the unpruned measure
+gives, on every inner node of real bakes, and must skip work. Real pymeshlab: each model (and a
+herd of cows, whose coarse root is where pruning pays) is baked (jobs = 1, so the measure runs in
+this process) with the measure wrapped to keep the (LOD, original) pairs the bake measures, then
+both ways are compared, and the bake's own clusters (over every leaf) against one cluster run."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from hlod_core import meshio, simplify
+from hlod_core import bake as bake_module
+from hlod_core import hausdorff, meshio
 from hlod_core.bake import BakeSettings, bake
 
 from helpers import load_model
@@ -35,20 +36,26 @@ def _scene(name: str):
 _PAIRS: dict = {}
 
 
-def _measured_pairs(name: str, target_tris: int) -> list[tuple[tuple, tuple, float]]:
-    """Every (lod, original, error) the bake of `name` measures, error as the bake got it (once a
-    session per scene)."""
+def _measured_pairs(name: str, target_tris: int) -> list[tuple]:
+    """Every (lod, original, error, pruned_by_the_bake) the bake of `name` measures, error as the
+    bake got it (its own clusters over every leaf), once a session per scene."""
     if (name, target_tris) not in _PAIRS:
         pairs = []
-        measure = simplify.measure
+        task = bake_module._measure_task
 
-        def recording(lod, original, **kwargs):
-            error = measure(lod, original, **kwargs)
-            pairs.append((lod, original, error))
+        def recording(folder, lod_positions, lod_faces, ranges):
+            error = task(folder, lod_positions, lod_faces, ranges)
+            shared = bake_module._shared(folder)
+            vertex_begin, vertex_end, cluster_begin, cluster_end = ranges
+            tri_begin, tri_end = int(shared["start"][cluster_begin]), int(shared["start"][cluster_end])
+            original = (np.asarray(shared["positions"][vertex_begin:vertex_end]),
+                        (np.asarray(shared["faces"][tri_begin:tri_end]) - vertex_begin).astype(np.int32))
+            pairs.append(((lod_positions, lod_faces), original, error,
+                          vertex_end - vertex_begin >= hausdorff.PRUNE_FROM_VERTICES))
             return error
 
         with pytest.MonkeyPatch.context() as patch:
-            patch.setattr(simplify, "measure", recording)
+            patch.setattr(bake_module, "_measure_task", recording)
             bake(_scene(name), BakeSettings(jobs=1, target_tris=target_tris))
         _PAIRS[name, target_tris] = pairs
     return _PAIRS[name, target_tris]
@@ -57,36 +64,84 @@ def _measured_pairs(name: str, target_tris: int) -> list[tuple[tuple, tuple, flo
 @pytest.mark.parametrize("name, target_tris",
                          [("cow.obj", 300), ("stanford-bunny.obj", 2000), ("fandisk.obj", 500), ("herd", 600)])
 def test_pruned_measure_gives_the_unpruned_float_on_every_inner_node(name, target_tris):
-    """Pruned on every node (prune_from=0), not only the large ones the bake prunes: bit-identical
-    to measuring every original vertex, and what the bake itself stored."""
+    """Pruned on every node (measure_pruned, not only the large ones the bake prunes): bit-identical
+    to measuring every sample, and what the bake itself stored (pruned over its clusters, which
+    cut every leaf separately, where the node is large)."""
     pairs = _measured_pairs(name, target_tris)
     assert len(pairs) >= 3
-    for lod, original, error in pairs:
-        unpruned = simplify.measure(lod, original, prune_from=None)
-        pruned = simplify.measure(lod, original, prune_from=0)
+    if name == "herd":
+        assert any(by_bake for *_, by_bake in pairs), "the herd's root is pruned by the bake"
+    for lod, original, error, _ in pairs:
+        unpruned = hausdorff.measure(lod, original)
+        pruned = hausdorff.measure_pruned(lod, original)
         assert np.isfinite(unpruned)
         assert pruned == unpruned and error == unpruned, (name, original[0].shape, pruned, unpruned, error)
 
 
-def test_pruning_skips_most_vertices_of_a_large_node(monkeypatch):
-    """The herd's root (about 54k original vertices): the pruned direction measures under a quarter of
-    them, and the error is the unpruned one."""
-    pairs = _measured_pairs("herd", 600)
-    lod, original, _ = max(pairs, key=lambda pair: pair[1][0].shape[0])
-    assert original[0].shape[0] >= simplify.PRUNE_FROM_VERTICES
-    counted = []
-    hausdorff_max = simplify._hausdorff_max
+def test_pruning_skips_most_samples_of_a_large_node(monkeypatch):
+    """The herd's root (about 54k original vertices): the pruned measure evaluates under 60% of the
+    original vertices (30k of 54k: the cow's triangles are large, so a cluster of CLUSTER_FACES of
+    them is about half the root's error across, which loosens its bound; on the crowd's root, 1.7k
+    of 900k) and under a quarter of the LOD's samples against the original surface (none here),
+    and the error is the unpruned one."""
+    lod, original, _, _ = max(_measured_pairs("herd", 600), key=lambda pair: pair[1][0].shape[0])
+    assert original[0].shape[0] >= hausdorff.PRUNE_FROM_VERTICES
+    to_lod, to_original = [], []
+    hausdorff_max = hausdorff.hausdorff_max
 
     def counting(ms, *, sampled, target, count, save=False):
-        if target == 0 and not save:  # original vertices -> LOD
-            counted.append(count)
+        if not save:  # the exact evaluations (save=True: the bounds' centres and surface points)
+            (to_lod if target == 0 else to_original).append(count)
         return hausdorff_max(ms, sampled=sampled, target=target, count=count, save=save)
 
-    monkeypatch.setattr(simplify, "_hausdorff_max", counting)
-    pruned = simplify.measure(lod, original)
-    pruned_vertices = sum(counted)
-    counted.clear()
-    unpruned = simplify.measure(lod, original, prune_from=None)
-    assert counted == [original[0].shape[0]]
+    monkeypatch.setattr(hausdorff, "hausdorff_max", counting)
+    pruned = hausdorff.measure_pruned(lod, original)
+    samples = hausdorff.surface_samples(*lod).shape[0]
+    assert 0 < sum(to_lod) < 0.6 * original[0].shape[0], sum(to_lod)
+    assert sum(to_original) < 0.25 * samples, (sum(to_original), samples)
+    to_lod.clear(), to_original.clear()
+    unpruned = hausdorff.measure(lod, original)
+    assert to_lod == [original[0].shape[0]] and to_original == [samples]
     assert pruned == unpruned
-    assert 0 < pruned_vertices < 0.25 * original[0].shape[0], pruned_vertices
+
+
+def test_lod_to_original_pruning_finds_a_far_sample():
+    """A LOD sample far from the original (a spike the original does not have) is the maximum: the
+    pruned LOD -> original direction must measure it, not skip it. Literal input: the original is a
+    flat 20 x 20 grid in z = 0 (800 triangles), the LOD the same grid's two corner triangles plus a
+    vertex lifted to z = 0.3 (its distance to the plane, and the only sample that far)."""
+    n = 21
+    x, y = np.meshgrid(np.linspace(0.0, 1.0, n), np.linspace(0.0, 1.0, n), indexing="ij")
+    grid = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1).astype(np.float32)
+    ids = np.arange(n * n).reshape(n, n)
+    a, b, c, d = ids[:-1, :-1].ravel(), ids[1:, :-1].ravel(), ids[1:, 1:].ravel(), ids[:-1, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int32)
+    lod_p = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, 0.3]], np.float32)
+    lod_f = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]], np.int32)
+    unpruned = hausdorff.measure((lod_p, lod_f), (grid, faces))
+    assert unpruned == pytest.approx(0.3, rel=1e-5)
+    assert hausdorff.measure_pruned((lod_p, lod_f), (grid, faces)) == unpruned
+
+
+def test_clusters_cut_each_segment_and_bound_their_faces():
+    """Clusters.build on two segments of a real mesh: every face lands in exactly one cluster of its
+    own segment, each cluster's sphere holds its corners, and the surface vertex is one of them."""
+    cow = load_model("cow.obj")
+    p, f = cow.positions.astype(np.float32), cow.faces.astype(np.int64)
+    split = f.shape[0] // 3
+    segments = np.array([0, split, f.shape[0]], np.int64)
+    clusters = hausdorff.Clusters.build(p, f, segments, cluster_faces=50)
+    for j in range(2):  # the same face set per segment, reordered
+        rows = slice(segments[j], segments[j + 1])
+        assert sorted(map(tuple, clusters.faces[rows].tolist())) == sorted(map(tuple, f[rows].tolist()))
+        first, last = clusters.first_cluster[j], clusters.first_cluster[j + 1]
+        assert clusters.start[first] == segments[j] and clusters.start[last] == segments[j + 1]
+    sizes = np.diff(clusters.start)
+    assert sizes.min() >= 1 and sizes.max() <= 50
+    for k in range(clusters.radius.size):
+        corners = p[clusters.faces[clusters.start[k]:clusters.start[k + 1]]].reshape(-1, 3).astype(np.float64)
+        assert np.linalg.norm(corners - clusters.centre[k], axis=1).max() <= clusters.radius[k]
+        assert np.array_equal(corners.min(axis=0), clusters.box_min[k])
+        assert clusters.surface_vertex[k] in clusters.faces[clusters.start[k]:clusters.start[k + 1]]
+    with pytest.raises(ValueError):
+        hausdorff.Clusters.build(p, f, np.array([0, 0, f.shape[0]], np.int64))
