@@ -76,7 +76,7 @@ _HEADER_LENGTH = struct.Struct("<I")
 _MAX_HEADER_BYTES = 1024 * 1024
 _KEY_BYTES = 32
 #: Modules whose code computes LODs and errors (their source is part of every key).
-RESULT_MODULES = ("simplify", "appearance", "arrays", "octree", "bake", "bake_cache")
+RESULT_MODULES = ("simplify", "hausdorff", "appearance", "arrays", "octree", "bake", "bake_cache")
 #: NodeLod fields the bake log reads, stored per entry as one int64 each.
 SUMMARY_FIELDS = ("decimated", "input_tris", "kept_in_place", "zero_area", "uv_seams_crossed", "seam_kept_tris",
                   "island_spanning_faces")

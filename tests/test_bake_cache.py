@@ -392,3 +392,31 @@ def test_command_line_keeps_the_cache_beside_the_output(tmp_path):
     (tmp_path / "d.hlod.cache").write_bytes(b"x")
     line = one_line_error(hlod("bake", model("cow.obj"), "-o", tmp_path / "d.hlod", check=False))
     assert f"{tmp_path / 'd.hlod.cache'}: is a file; the bake cache is a folder" in line
+
+
+#: hlod_core modules the bake's code imports that compute nothing a LOD or an error depends on.
+_NOT_RESULT_MODULES = {"errors", "hierarchy", "meshio", "fileformat"}
+
+
+def test_every_module_that_computes_lods_or_errors_keys_the_cache():
+    """The cache key holds the source of RESULT_MODULES, so a change to any module that computes
+    LODs or errors invalidates every entry (a stale subtree is never served). Every hlod_core module
+    those modules import is one of them or names nothing a result depends on."""
+    import ast
+    from pathlib import Path
+
+    here = Path(bake_module.__file__).parent
+    seen, todo = set(), list(bake_cache.RESULT_MODULES)
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        tree = ast.parse((here / f"{name}.py").read_text())
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                imported = [node.module] if node.module else [alias.name for alias in node.names]
+                for module in imported:
+                    assert module in bake_cache.RESULT_MODULES or module in _NOT_RESULT_MODULES, (name, module)
+                    todo.extend([module] if module in bake_cache.RESULT_MODULES else [])
+    assert "hausdorff" in seen
