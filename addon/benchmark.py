@@ -1,6 +1,7 @@
-"""The Benchmark operator's work: the scene camera's animation as a camera path, evaluated with
-every method (hlod_core.evaluate, DESIGN §9) in a private headless EGL context; Blender's own
-context is made current again afterwards (DESIGN §7).
+"""The Benchmark and Tune to PSNR operators' work: the scene camera's animation as a camera path,
+evaluated with every method (hlod_core.evaluate, DESIGN §9), or searched for the (s, t) with the
+fewest drawn nodes that keeps PSNR-Y against Bool at the scene's target (hlod_core.tuning, issue 15),
+in a private headless EGL context; Blender's own context is made current again afterwards (DESIGN §7).
 
 The report's figures need matplotlib, which no Blender ships (4.2 to 5.2) and the extension does not
 bundle (about 10 MB of wheels per Python and platform for four PNGs): without it the report is
@@ -14,19 +15,20 @@ import os
 import bpy
 import numpy as np
 
-from ..hlod_core import evaluate, fileformat
+from ..hlod_core import evaluate, fileformat, tuning
 from ..hlod_core.camera import CameraPath
 from ..hlod_core.errors import InputError
 from . import glcontext, preview
 from .settings import runtime_settings
 
 
-def camera_path(scene, depsgraph, size: tuple[int, int]) -> CameraPath:
+def camera_path(scene, depsgraph, size: tuple[int, int], *, what: str = "Benchmark") -> CameraPath:
     """Eye, target (one unit along the view direction) and up of the scene camera at every frame
-    of the scene's range and step; projection from the camera at the first frame."""
+    of the scene's range and step; projection from the camera at the first frame. `what` names the
+    operator in errors."""
     camera = scene.camera
     if camera is None:
-        raise InputError("Benchmark: the scene has no camera")
+        raise InputError(f"{what}: the scene has no camera")
     current = scene.frame_current
     frames = []
     try:
@@ -47,25 +49,46 @@ def camera_path(scene, depsgraph, size: tuple[int, int]) -> CameraPath:
         return CameraPath(frames=np.array(frames), near=near, far=far, fovy_deg=None,
                           ortho_height=2.0 / projection[1, 1])
     if data.type != "PERSP":
-        raise InputError(f"Benchmark: camera {camera.name!r} is {data.type}; use a perspective or orthographic camera")
+        raise InputError(f"{what}: camera {camera.name!r} is {data.type}; use a perspective or orthographic camera")
     return CameraPath(frames=np.array(frames), near=near, far=far,
                       fovy_deg=math.degrees(2.0 * math.atan(1.0 / projection[1, 1])))
 
 
-def run(context, folder: str, repeat: int) -> tuple[dict, str]:
+def _setup(context, what: str):
+    """(hlod, size, path) of the scene: its baked file (the preview's, when running), the render
+    resolution, the camera's animation. `what` names the operator in errors."""
     scene = context.scene
     props = scene.hlod
     if not props.file:
-        raise InputError("Benchmark: no baked file; run Bake first")
+        raise InputError(f"{what}: no baked file; run Bake first")
     hlod = preview.current_hlod() or fileformat.load(bpy.path.abspath(props.file))
     r = scene.render
     size = (max(1, r.resolution_x * r.resolution_percentage // 100), max(1, r.resolution_y * r.resolution_percentage // 100))
-    path = camera_path(scene, context.evaluated_depsgraph_get(), size)
+    return hlod, size, camera_path(scene, context.evaluated_depsgraph_get(), size, what=what)
+
+
+def run(context, folder: str, repeat: int) -> tuple[dict, str]:
+    """Benchmark: every method on the camera's animation; the report (evaluate's) and its folder."""
+    hlod, size, path = _setup(context, "Benchmark")
     os.makedirs(folder, exist_ok=True)
     with glcontext.keep_current():
         report = evaluate.evaluate(hlod, path, size, methods=list(evaluate.METHOD_SPECS),
-                                   settings=runtime_settings(props), repeat=repeat, out_dir=folder,
+                                   settings=runtime_settings(context.scene.hlod), repeat=repeat, out_dir=folder,
                                    psnr_frames=min(20, len(path)), figures=figures_available())
+    return report, folder
+
+
+def tune(context, folder: str, repeat: int) -> tuple[dict, str]:
+    """Tune to PSNR: the (s, t) search (hlod_core.tuning.tune) at scene.hlod.psnr_target on the
+    camera's animation, with the scene's other runtime settings (tau, k, alpha, skip queries); the
+    report (with its "psnr_target" section) and its folder. Changes no property: the operator does."""
+    props = context.scene.hlod
+    target = tuning.check_target(props.psnr_target)
+    hlod, size, path = _setup(context, "Tune to PSNR")
+    os.makedirs(folder, exist_ok=True)
+    with glcontext.keep_current():
+        report = tuning.tune(hlod, path, size, target_db=target, settings=runtime_settings(props), repeat=repeat,
+                             out_dir=folder, psnr_frames=min(20, len(path)), figures=figures_available())
     return report, folder
 
 

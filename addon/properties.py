@@ -1,10 +1,11 @@
 """Scene properties under `scene.hlod` (DESIGN §8): bake settings (with `jobs`, the bake's worker
 processes, and `last_bake`, the line the panel shows about the last bake), runtime settings, overlay settings,
 read-only live statistics (getters over the running preview; nothing is written from the draw
-handler), `tiles_dir` (the last 3D Tiles export, which View in Browser serves; issue 17), and two
-records (issue 20): the objects the last bake took, with content keys
-(`source_objects`, `source_file`; addon/source_record.py) and the objects the running preview hid
-(`hidden_objects`, `hidden_view_layer`; addon/source_hiding.py)."""
+handler), `psnr_target` and `last_tuning` (Tune to PSNR's target and its last result, issue 15),
+`tiles_dir` (the last 3D Tiles export, which View in Browser serves; issue 17), and two records
+(issue 20): the objects the last bake took, with content keys (`source_objects`, `source_file`;
+addon/source_record.py) and the objects the running preview hid (`hidden_objects`,
+`hidden_view_layer`; addon/source_hiding.py)."""
 import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
                        PointerProperty, StringProperty)
@@ -98,6 +99,12 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
         ("expected", "Expected", "Draw a visible node without a query when its draw, times the share of queries "
                                  "that changed anything, costs less than the query")], default="off",
         description="Queries that cannot pay (the renderer's measured costs); a skipped node is re-checked every 5 frames")
+    psnr_target: FloatProperty(name="Target PSNR (dB)", default=40.0, min=0.0, max=100.0, precision=1,
+                               description="Tune to PSNR: the lowest luminance PSNR against Bool's image, over the "
+                                           "camera animation's sampled frames, that the tuned s and t must keep "
+                                           "(100 = identical)")
+    last_tuning: StringProperty(name="Last Tuning", default="",
+                                description="What the last Tune to PSNR chose: s, t, drawn nodes, PSNR")
     private_context: BoolProperty(name="Private Context", default=False,
                                   description="Run the traversal in a private GL context and draw with Blender's gpu module "
                                               "(automatic on Metal/Vulkan; Blender's objects then do not occlude the queries)")

@@ -15,7 +15,8 @@ path separator (it names a folder).
     info FILE.hlod
     scene low|middle|high|default -o OUT.hlod [--seed N] [--scale S] [--jobs N] [--cache DIR | --no-cache]
     run FILE.hlod --method M [...]
-    evaluate FILE.hlod --out DIR [...]
+    evaluate FILE.hlod --out DIR [...] [--psnr-target DB]
+        (--psnr-target: the (s, t) search of hlod_core/tuning.py instead of the methods)
     export IN.hlod --format 3dtiles|hlod -o DIR
 """
 from __future__ import annotations
@@ -110,6 +111,16 @@ def _whole_number(minimum: int):
     return parse
 
 
+def _psnr_db(text: str) -> float:
+    """argparse type of --psnr-target: dB in the range tuning.check_target accepts."""
+    from .tuning import check_target
+
+    try:
+        return check_target(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("PSNR target: ")) from None
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="python -m hlod_core", description="Bake and inspect octree HLODs.")
     parser.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")
@@ -153,6 +164,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--repeat", type=_whole_number(1), default=2, help="passes over the path, order alternating")
     p.add_argument("--sweep", choices=["tau", "st", "alpha"], help="add Coh(P) at each value of one parameter")
     p.add_argument("--psnr-frames", type=_whole_number(1), default=20, help="seeded random frames compared by PSNR")
+    p.add_argument("--psnr-target", type=_psnr_db, metavar="DB",
+                   help="instead of the methods: find the (s, t) with the fewest drawn nodes whose PSNR-Y against Bool "
+                        "stays >= DB at every PSNR frame (Bool and Coh(P) candidates only; see README)")
     p.set_defaults(run=_cmd_evaluate)
 
     p = sub.add_parser("export", help="export a .hlod as 3D Tiles 1.1 (tileset.json + one GLB per node) or .hlod")
@@ -382,11 +396,28 @@ def _cmd_evaluate(args) -> dict:
     out_dir = Path(args.out)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"--out {out_dir}: is a file, expected a folder")
+    if args.psnr_target is not None:
+        return _cmd_tune(args, out_dir)
     hlod, settings, path, size = _runtime_setup(args)
     report = evaluate.evaluate(hlod, path, size, methods=methods, settings=settings, repeat=args.repeat,
                                sweep=args.sweep, out_dir=out_dir, psnr_frames=args.psnr_frames, seed=args.seed)
     log.info("report: %s", out_dir / "report.md")
     return evaluate.summary_line(report, out_dir)
+
+
+def _cmd_tune(args, out_dir: Path) -> dict:
+    """evaluate --psnr-target: the (s, t) search (hlod_core/tuning.py) instead of the methods."""
+    from . import evaluate, tuning
+
+    given = [name for name, value in (("--methods", args.methods), ("--sweep", args.sweep)) if value]
+    if given:
+        raise InputError(f"--psnr-target runs Bool and the Coh(P) candidates only; leave out {' and '.join(given)} "
+                         "(evaluate the chosen --s and --t without --psnr-target for the other methods)")
+    hlod, settings, path, size = _runtime_setup(args)
+    report = tuning.tune(hlod, path, size, target_db=args.psnr_target, settings=settings, repeat=args.repeat,
+                         out_dir=out_dir, psnr_frames=args.psnr_frames, seed=args.seed)
+    log.info("report: %s", out_dir / "report.md")
+    return evaluate.summary_line(report, out_dir) | {"psnr_target": tuning.summary(report)}
 
 
 def _cmd_run(args) -> dict:

@@ -8,7 +8,9 @@ method), Tables 8.3/8.4 (speedup and node savings of Coh(P)/Coh(mu) over Bool, S
 Figures 8.1-8.3 (`showcase`) and 8.4/8.5 (`report_figures`); plus the alpha estimators of DESIGN
 §5.3 (`alpha_study`) and sweeps over tau, (s, t) and alpha. Image error is `imagemetrics`, the
 Markdown `report_text`; pass/fail targets are not the product's: benchmarks/evaluation_targets.py
-reads a report.json and says which hold.
+reads a report.json and says which hold. `tuning` (issue 15: (s, t) tuned to a PSNR target) runs
+its candidates through the same loop (`run_interleaved`) and rows (`variant_row`, `psnr_against`)
+and writes its report with `write_report`.
 
 Data form: per_frame[key] is a (repeat, frames, len(COUNTERS)) float64 array of FrameStats
 counters (traversal.COUNTERS order) per report key; the report is a JSON-ready dict of measured
@@ -125,31 +127,13 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     frames = len(path)
-    rng = np.random.default_rng(seed)
-    picked = sorted(rng.choice(frames, size=min(psnr_frames, frames), replace=False).tolist())
-    picked_set = set(picked)
+    picked = psnr_frame_indices(frames, psnr_frames, seed)
     runs = variants(methods, settings, sweep)
-    per_frame = {v.key: np.zeros((repeat, frames, len(COUNTERS))) for v in runs}
-    images: dict[str, dict[int, np.ndarray]] = {v.key: {} for v in runs}
     started = time.perf_counter()
     renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod))  # coloured images: Cb/Cr
     try:
-        for rep in range(repeat):
-            # Interleaved per frame, each method keeping its own traversal state: a drift in the
-            # machine's speed (on a shared VM, tens of percent over minutes) then hits every method
-            # alike. The order rotates every frame and runs backwards on odd repeats.
-            traversals = [(v, make(v.method, hlod, renderer, v.settings)) for v in runs]
-            for i in range(frames):
-                view = path.view(i, size)
-                turn = traversals[i % len(traversals):] + traversals[:i % len(traversals)]
-                for v, traversal in (turn if rep % 2 == 0 else turn[::-1]):
-                    stats = traversal.frame(view)
-                    per_frame[v.key][rep, i] = [getattr(stats, c) for c in COUNTERS]
-                    if rep == 0 and i in picked_set:
-                        images[v.key][i] = renderer.read_pixels()
-                if (i + 1) % max(frames // PROGRESS_STEPS, 1) == 0 or i + 1 == frames:
-                    log.info("repeat %d/%d: frame %d/%d (%.0f s)", rep + 1, repeat, i + 1, frames,
-                             time.perf_counter() - started)
+        per_frame, images = run_interleaved(hlod, renderer, path, size=size, runs=runs, repeat=repeat, picked=picked,
+                                            started=started)
         alpha_study = alpha_estimators(hlod, renderer, [path.view(i, size) for i in picked[:ALPHA_STUDY_VIEWS]])
         showcase = modulation_frames(hlod, renderer, path=path, size=size, runs=runs, per_frame=per_frame,
                                      out_dir=out_dir)
@@ -168,6 +152,43 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     path.save(out_dir / "path.json")
     write_report(report, medians, out_dir, figures=figures)
     return report
+
+
+def psnr_frame_indices(frames: int, count: int, seed: int) -> list[int]:
+    """The seeded PSNR frames: `count` distinct frame indices of a `frames`-frame path (all of them
+    when count >= frames), ascending."""
+    rng = np.random.default_rng(seed)
+    return sorted(rng.choice(frames, size=min(count, frames), replace=False).tolist())
+
+
+def run_interleaved(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: tuple[int, int], runs: list[Variant],
+                    repeat: int, picked: list[int], started: float, label: str = "") -> tuple[dict, dict]:
+    """One timed pass of `runs` over the path, `repeat` times (module docstring: interleaved per
+    frame, each variant keeping its own traversal state, the order rotating every frame and running
+    backwards on odd repeats). Returns (per_frame, images): per_frame[key] (repeat, frames,
+    len(COUNTERS)) float64 counters; images[key][frame] (H, W, 3) uint8 of the first repeat at the
+    `picked` frames, read back outside the timed frame. `label` prefixes the progress lines."""
+    frames = len(path)
+    picked_set = set(picked)
+    per_frame = {v.key: np.zeros((repeat, frames, len(COUNTERS))) for v in runs}
+    images: dict[str, dict[int, np.ndarray]] = {v.key: {} for v in runs}
+    for rep in range(repeat):
+        # Interleaved per frame, each method keeping its own traversal state: a drift in the
+        # machine's speed (on a shared VM, tens of percent over minutes) then hits every method
+        # alike. The order rotates every frame and runs backwards on odd repeats.
+        traversals = [(v, make(v.method, hlod, renderer, v.settings)) for v in runs]
+        for i in range(frames):
+            view = path.view(i, size)
+            turn = traversals[i % len(traversals):] + traversals[:i % len(traversals)]
+            for v, traversal in (turn if rep % 2 == 0 else turn[::-1]):
+                stats = traversal.frame(view)
+                per_frame[v.key][rep, i] = [getattr(stats, c) for c in COUNTERS]
+                if rep == 0 and i in picked_set:
+                    images[v.key][i] = renderer.read_pixels()
+            if (i + 1) % max(frames // PROGRESS_STEPS, 1) == 0 or i + 1 == frames:
+                log.info("%srepeat %d/%d: frame %d/%d (%.0f s)", label, rep + 1, repeat, i + 1, frames,
+                         time.perf_counter() - started)
+    return per_frame, images
 
 
 def write_report(report: dict, medians: dict | None, out_dir: Path, *, figures: bool) -> None:
@@ -240,20 +261,9 @@ def _summarise(hlod: Hlod, *, frames: int, size: tuple[int, int], runs: list[Var
                images: dict, picked: list[int], repeat: int, settings: RuntimeSettings, sweep: str | None) -> dict:
     """The report's figures from the per-frame counters and the PSNR frames' images (see module
     docstring)."""
-    index = {c: j for j, c in enumerate(COUNTERS)}
     methods, sweeps = {}, {}
     for v in runs:
-        median = np.median(per_frame[v.key], axis=0)  # per frame, over repeats
-        row = {c: float(np.mean(median[:, index[c]])) for c in COUNTERS}
-        row["fps"] = MS_PER_S / row["frame_ms"] if row["frame_ms"] > 0 else None
-        row = {k: row[k] for k in SUMMARY_KEYS} | {"traversed": row["traversed"]}
-        for ref in PSNR_REFERENCES:
-            values = _psnr_against(images, v.key, ref, picked)
-            for c, name in enumerate(("y", "cb", "cr")):
-                row[f"psnr_{name}_vs_{ref}"] = None if values is None else float(np.mean(values[:, c]))
-                row[f"psnr_{name}_vs_{ref}_sd"] = None if values is None else float(np.std(values[:, c]))
-        rmse = [rmse_y(images[v.key][i], images["full"][i]) for i in picked] if "full" in images else None
-        row["rmse_y_vs_full"] = None if rmse is None else float(np.mean(rmse))
+        row = variant_row(per_frame[v.key], images, v.key, picked)
         if v.sweep_value is None:
             methods[v.key] = row
         else:
@@ -267,7 +277,29 @@ def _summarise(hlod: Hlod, *, frames: int, size: tuple[int, int], runs: list[Var
     return report
 
 
-def _psnr_against(images, key, ref, picked) -> np.ndarray | None:
+def variant_row(counters: np.ndarray, images: dict, key: str, picked: list[int]) -> dict:
+    """One variant's row of the report: `counters` (repeat, frames, len(COUNTERS)) -> per frame the
+    median over repeats, then the mean over frames of each of SUMMARY_KEYS (and fps); PSNR mean and
+    s.d. per channel against each of PSNR_REFERENCES present in `images` (key -> frame -> image), and
+    the luminance RMSE against Full, over the `picked` frames (None where the reference is absent)."""
+    index = {c: j for j, c in enumerate(COUNTERS)}
+    median = np.median(counters, axis=0)  # per frame, over repeats
+    row = {c: float(np.mean(median[:, index[c]])) for c in COUNTERS}
+    row["fps"] = MS_PER_S / row["frame_ms"] if row["frame_ms"] > 0 else None
+    row = {k: row[k] for k in SUMMARY_KEYS} | {"traversed": row["traversed"]}
+    for ref in PSNR_REFERENCES:
+        values = psnr_against(images, key, ref, picked)
+        for c, name in enumerate(("y", "cb", "cr")):
+            row[f"psnr_{name}_vs_{ref}"] = None if values is None else float(np.mean(values[:, c]))
+            row[f"psnr_{name}_vs_{ref}_sd"] = None if values is None else float(np.std(values[:, c]))
+    rmse = [rmse_y(images[key][i], images["full"][i]) for i in picked] if "full" in images else None
+    row["rmse_y_vs_full"] = None if rmse is None else float(np.mean(rmse))
+    return row
+
+
+def psnr_against(images: dict, key: str, ref: str, picked: list[int]) -> np.ndarray | None:
+    """(len(picked), 3) PSNR dB of Y, Cb, Cr of `key`'s images against `ref`'s at the picked frames;
+    None when either has no images."""
     if ref not in images or not images[ref] or not images[key]:
         return None
     return np.array([psnr(images[key][i], images[ref][i]) for i in picked])

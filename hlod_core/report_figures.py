@@ -12,6 +12,9 @@ when figures are drawn; Blender's Python has no matplotlib and gets a report wit
   cost per node.
 - modulation.png: Bool, Coh(P), Coh(mu) at one frame: shaded, modulation colours from the user's
   view, and the drawn front from above (Figs. 8.1-8.3); blue weak, magenta moderate, red strong.
+- psnr_target.png (a tuning report, hlod_core/tuning.py): drawn nodes against the lowest PSNR-Y
+  against Bool over the PSNR frames for each (s, t) tried, one line per s, the target as a
+  vertical line, the chosen (s, t) marked.
 - queries_pay.png (benchmarks/queries_pay.py): frame time and drawn nodes relative to VFC's on the
   low, middle and high depth-complexity scenes side by side.
 
@@ -119,10 +122,13 @@ def draw(report: dict, medians: dict | None, out_dir: Path, *, labels: dict[str,
     files["error against frame time"] = fig and save(fig, out_dir / "error_vs_time.png")
     fig = per_frame_figure(report, medians, labels=labels) if medians is not None else None
     files["per-frame drawn nodes and frame time"] = fig and save(fig, out_dir / "per_frame.png")
-    fig = alpha_figure(report)
+    fig = alpha_figure(report) if report.get("alpha_estimators") else None  # none in a tuning report
     files["alpha estimators: error against cost"] = fig and save(fig, out_dir / "alpha_estimators.png")
     if report.get("showcase"):
         files["modulation colours"] = _modulation(plt, report, labels, out_dir)
+    if report.get("psnr_target"):
+        fig = psnr_target_figure(report)
+        files["drawn nodes against PSNR-Y, tuned to a target"] = save(fig, out_dir / "psnr_target.png")
     return {k: v for k, v in files.items() if v}
 
 
@@ -497,6 +503,40 @@ def _modulation(plt, report, labels, out_dir):
     fig.suptitle(f"Frame {show['frame']}: modulation blue = weak, magenta = moderate, red = strong; * = eye",
                  fontsize=9)
     return save(fig, out_dir / "modulation.png")
+
+
+# --- tuned to a PSNR target -----------------------------------------------------------------------
+
+def psnr_target_figure(report: dict):
+    """Drawn nodes against PSNR-Y of the (s, t) tried (report["psnr_target"], tuning.section):
+    one line per s in order of t, s = 0 (P = mu) a point of its own, the target as a dashed
+    vertical line, Bool's nodes as a dotted horizontal one, the chosen (s, t) as a star."""
+    plt = _pyplot()
+    p = report["psnr_target"]
+    fig, ax = plt.subplots(figsize=(9.6, 5.0), dpi=DPI, layout="constrained")
+    by_s: dict[float, list] = {}
+    for x in p["candidates"]:
+        by_s.setdefault(x["s"], []).append(x)
+    colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.9, max(len(by_s), 1)))
+    for colour, s in zip(colours, sorted(by_s)):
+        points = sorted(by_s[s], key=lambda x: x["t"])
+        ax.plot([x["psnr_y"] for x in points], [x["dn"] for x in points], marker="o", color=colour,
+                lw=LINE_WIDTH_PT, markersize=5, label="s = 0 (P = mu)" if s == 0 else f"s = {s:g}")
+    c = p["chosen"]
+    ax.axvline(p["target_db"], color="#d62728", ls="--", lw=LINE_WIDTH_PT, label=f"target {p['target_db']:g} dB")
+    ax.axhline(p["bool_dn"], color=METHOD_STYLES["bool"][0], ls=":", lw=LINE_WIDTH_PT,
+               label=f"Bool: {p['bool_dn']:.1f} nodes (the reference)")
+    ax.plot([c["psnr_y"]], [c["dn"]], marker="*", markersize=16, color="black", linestyle="none", zorder=4,
+            label=(f"chosen (s, t) = ({c['s']:g}, {c['t']:g}): {c['dn']:.1f} nodes, {c['psnr_y']:.1f} dB"
+                   + ("" if p["met"] else " (target not met)")))
+    ax.set_xlabel(f"lowest PSNR-Y against Bool over the {len(report['psnr_frames'])} PSNR frames, dB "
+                  "(100 = identical)")
+    ax.set_ylabel("drawn nodes, mean over the path")
+    ax.set_title(f"Tuning (s, t) to PSNR-Y >= {p['target_db']:g} dB: {len(p['candidates'])} candidates "
+                 f"(t rises along each line)", fontsize=9.5)
+    ax.grid(alpha=GRID_ALPHA)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside right upper", fontsize=FONT_PT)
+    return fig
 
 
 # --- when do queries pay --------------------------------------------------------------------------

@@ -18,6 +18,9 @@ FIGURE_CAPTIONS = {
     "alpha_estimators.png": "Error of each alpha estimator against the exact query count, against its cost per node.",
     "modulation.png": "Bool, Coh(P) and Coh(mu) at the frame where Coh(P) saves the most nodes: shaded, modulation "
                       "colours (blue weak, magenta moderate, red strong) and the drawn front from above.",
+    "psnr_target.png": "Each (s, t) tried: drawn nodes against its lowest PSNR-Y against Bool over the PSNR frames, "
+                       "one line per s (t rising along it); the dashed line is the target, the star the chosen "
+                       "(s, t): the fewest nodes right of the target.",
 }
 NO_FIGURES = ("No figures: they were not drawn here (they need matplotlib, which Blender's Python lacks). "
               "`python -m hlod_core.evaluate --redraw DIR` draws them into this folder, from report.json and "
@@ -43,6 +46,8 @@ def markdown(report: dict, *, labels: dict[str, str]) -> str:
              f"ratios within this run (on llvmpipe, absolute times are the CPU rasteriser's).",
              ""]
     lines += _figures(report)
+    if report.get("psnr_target"):
+        lines += _psnr_target(report["psnr_target"], frames=len(report["psnr_frames"]))
     lines += ["## Per method (Table 8.2 columns and more)",
               "",
               "| method | FPS | frame ms | DN | RARN | D | triangles | queries | stall ms | CPU ms | GPU ms |",
@@ -71,7 +76,9 @@ def markdown(report: dict, *, labels: dict[str, str]) -> str:
         for key, r in report["sweep"]["points"].items():
             lines.append(f"| {key} | {_f(r['frame_ms'])} | {_f(r['dn'])} | {_f(r['rarn'])} | {_f(r['stall_ms'])} | "
                          f"{_f(r['psnr_y_vs_bool'], 1)} | {_f(r['rmse_y_vs_full'])} |")
-    a = report["alpha_estimators"]
+    a = report.get("alpha_estimators")
+    if a is None:  # a tuning report (tuning.tune) runs no alpha study
+        return "\n".join(lines) + "\n"
     lines += ["", f"## alpha estimators ({a['nodes']} boxes over {a['views']} views; error against the exact "
               "`query` count)", "", "| estimator | cost µs per node | median error % | 90th percentile error % |",
               "|---|---:|---:|---:|"]
@@ -83,6 +90,35 @@ def markdown(report: dict, *, labels: dict[str, str]) -> str:
     lines.append("`query` is exact by definition (its cost is one extra GL query per node: charged as half "
                  "the measured time of issuing and reading both queries).")
     return "\n".join(lines) + "\n"
+
+
+def _psnr_target(p: dict, *, frames: int) -> list[str]:
+    """The tuning section (tuning.section's dict): what was chosen, then the curve, sorted by s and t."""
+    c, bounds = p["chosen"], p["search"]
+    if p["met"]:
+        verdict = (f"Chosen: **(s, t) = ({c['s']:g}, {c['t']:g})**, {_f(c['dn'])} drawn nodes (Bool "
+                   f"{_f(p['bool_dn'])} on average over the rounds), lowest PSNR-Y {_f(c['psnr_y'], 1)} dB (mean {_f(c['psnr_y_mean'], 1)}): "
+                   f"the fewest drawn nodes of the candidates that meet the target.")
+    else:
+        verdict = f"**Target not met.** {p['note']}"
+    lines = [f"## Tuned to PSNR-Y >= {p['target_db']:g} dB against Bool", "",
+             verdict, "",
+             f"The target holds for a candidate when its lowest PSNR-Y against Bool over the {frames} PSNR frames "
+             f"reaches it (the {p['criterion']}, not the mean: a mean in dB is inflated by frames identical to Bool's, "
+             "which count as 100 dB). Search: for each s in "
+             f"{', '.join(f'{s:g}' for s in bounds['s_lines'])}, a bisection for the largest t of "
+             f"{', '.join(f'{t:g}' for t in bounds['t_ladder'])} that meets the target (P_(s,t) falls as t rises), "
+             f"and s = 0 (P = mu) once; {len(p['candidates'])} candidates tried in {bounds['rounds']} rounds "
+             f"(at most {bounds['max_candidates']} in {bounds['max_rounds']}), each round Bool and its candidates "
+             "interleaved on one renderer. Frame ms compare within a round (the ratio to Bool's).", "",
+             "| s | t | DN | lowest PSNR-Y dB | mean PSNR-Y dB | frame ms | ÷ Bool's | round | meets |",
+             "|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for x in sorted(p["candidates"], key=lambda x: (x["s"], x["t"])):
+        mark = " (chosen)" if (x["s"], x["t"]) == (c["s"], c["t"]) else ""
+        lines.append(f"| {x['s']:g} | {x['t']:g} | {_f(x['dn'])} | {_f(x['psnr_y'], 1)} | {_f(x['psnr_y_mean'], 1)} | "
+                     f"{_f(x['frame_ms'])} | {_f(x['frame_ms_vs_bool'], 3)} | {x['round'] + 1} | "
+                     f"{'yes' if x['meets'] else 'no'}{mark} |")
+    return lines + [""]
 
 
 def _figures(report: dict) -> list[str]:

@@ -1,6 +1,10 @@
 """Operators (DESIGN §8; ids fixed: hlod.bake, hlod.clear, hlod.preview_toggle, hlod.materialize,
-hlod.export, hlod.benchmark, hlod.view_tiles). Thin: they gather input, call hlod_core / addon modules, and map
-typed errors (HlodError) to reports. Nothing here changes the source objects.
+hlod.export, hlod.benchmark, hlod.tune_psnr, hlod.view_tiles). Thin: they gather input, call
+hlod_core / addon modules, and map typed errors (HlodError) to reports. Nothing here changes the
+source objects.
+
+Tune to PSNR (issue 15) runs hlod_core.tuning on the scene camera's animation (addon/benchmark.py)
+and sets scene.hlod.s, t and bias to what it chose; an undo step like the other property edits.
 
 Bake gathers the evaluated meshes on Blender's main thread and bakes them in a child process of
 Blender's Python with `scene.hlod.jobs` worker processes (addon/bake_job.py; modal with progress in
@@ -334,6 +338,40 @@ class HLOD_OT_benchmark(bpy.types.Operator):
         return {"FINISHED"}
 
 
+class HLOD_OT_tune_psnr(bpy.types.Operator):
+    """Set s and t to the fewest drawn nodes that keep the target PSNR against Bool on the camera's animation"""
+
+    bl_idname = "hlod.tune_psnr"
+    bl_label = "Tune to PSNR"
+    bl_options = {"REGISTER", "UNDO"}  # s, t and bias change: one undo step
+
+    directory: StringProperty(name="Report Folder", subtype="DIR_PATH", default="//hlod_tuning",
+                              options=BLEND_RELATIVE_PATH)
+    repeat: IntProperty(name="Repeats", default=1, min=1, max=10, description="Passes over the animation per round")
+
+    def execute(self, context):
+        props = context.scene.hlod
+        try:
+            report, folder = benchmark.tune(context, bpy.path.abspath(self.directory), self.repeat)
+        except (HlodError, OSError) as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        p = report["psnr_target"]
+        c = p["chosen"]
+        props.bias, props.s, props.t = "P", c["s"], c["t"]  # bias P: s and t take effect
+        props.last_tuning = (f"{p['target_db']:g} dB: s {c['s']:g}, t {c['t']:g}, {c['dn']:.1f} nodes "
+                             f"(Bool {p['bool_dn']:.1f}), lowest PSNR-Y {c['psnr_y']:.1f} dB"
+                             + ("" if p["met"] else " (target not met)"))
+        where = os.path.join(folder, "report.md")
+        extra = "" if report["figures"] else "; no figures (matplotlib is not installed in Blender's Python)"
+        if p["met"]:
+            self.report({"INFO"}, f"HLOD tuned: {props.last_tuning}; {len(p['candidates'])} (s, t) tried; "
+                                  f"report {where}{extra}")
+        else:
+            self.report({"WARNING"}, f"HLOD tuning: {p['note']} s and t set to it; report {where}{extra}")
+        return {"FINISHED"}
+
+
 _viewer = None  # the running hlod_core.viewer.ViewerServer, or None
 _viewer_folder = ""  # the absolute folder it serves
 
@@ -423,4 +461,4 @@ class HLOD_OT_view_tiles(bpy.types.Operator):
 
 
 CLASSES = [HLOD_OT_bake, HLOD_OT_clear, HLOD_OT_preview_toggle, HLOD_OT_materialize, HLOD_OT_export,
-           HLOD_OT_benchmark, HLOD_OT_view_tiles]
+           HLOD_OT_benchmark, HLOD_OT_tune_psnr, HLOD_OT_view_tiles]

@@ -1,6 +1,6 @@
 """The 3D viewport's sidebar tab "HLOD" (N panel): sections Bake (with a running bake's progress and
 the last bake's summary), Preview (with Export and View in Browser, and the viewer's address and Stop
-while it serves), Overlay, Statistics.
+while it serves; Benchmark and Tune to PSNR with its target and last result), Overlay, Statistics.
 Draw code reads state only: the count of changed sources is kept current by the depsgraph handler
 (addon/source_record.py), not computed here."""
 import bpy
@@ -89,7 +89,12 @@ class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
         row.operator("hlod.export", icon="EXPORT")
         row.operator("hlod.view_tiles", icon="URL")
         _draw_viewer(layout)
-        layout.operator("hlod.benchmark", icon="TIME")
+        row = layout.row(align=True)
+        row.operator("hlod.benchmark", icon="TIME")
+        row.operator("hlod.tune_psnr", icon="PREFERENCES")
+        layout.prop(props, "psnr_target")
+        if props.last_tuning:
+            layout.label(text=props.last_tuning, icon="INFO")
 
 
 def _draw_viewer(layout) -> None:

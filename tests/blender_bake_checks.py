@@ -381,14 +381,17 @@ def check_cli_jobs(repo, work) -> dict:
 
 
 # Operators this check knows how to run, in order, with their arguments (set up by check_every_operator).
-OPERATOR_RUNS = ("bake", "preview_toggle", "materialize", "export", "view_tiles", "benchmark", "preview_toggle", "clear")
+OPERATOR_RUNS = ("bake", "preview_toggle", "materialize", "export", "view_tiles", "benchmark", "tune_psnr",
+                 "preview_toggle", "clear")
 
 
 def check_every_operator(repo, work) -> dict:
     """Every operator the installed extension registers (enumerated from bpy.ops.hlod, so a new one
     cannot be missed: one this check does not know is reported) runs to FINISHED in this Blender's
     environment, where only Blender's own modules and the extension's wheels import (no matplotlib:
-    the Benchmark writes its report without figures)."""
+    the Benchmark writes its report without figures). Tune to PSNR (issue 15) runs on the same
+    animated camera from s, t, bias = 0.42, 0.42, mu (no candidate of its search): what it set on
+    the scene and the report it wrote come back under "tuning"."""
     import importlib.util
 
     blender_preview.enable_from_repo(repo)
@@ -407,7 +410,9 @@ def check_every_operator(repo, work) -> dict:
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 120, 90, 100
     os.environ["BROWSER"] = "true"  # View in Browser serves and "opens" the page with the `true` command
     arguments = {"materialize": {"depth": 1}, "export": {"filepath": str(Path(work) / "copy.hlod"), "format": "3DTILES"},
-                 "benchmark": {"directory": str(Path(work) / "report"), "repeat": 1}}
+                 "benchmark": {"directory": str(Path(work) / "report"), "repeat": 1},
+                 "tune_psnr": {"directory": str(Path(work) / "tuning"), "repeat": 1}}
+    props.s, props.t, props.bias, props.psnr_target = 0.42, 0.42, "mu", 40.0
     registered = sorted(name for name in dir(bpy.ops.hlod) if not name.startswith("_"))
     results = {}
     for name in OPERATOR_RUNS:
@@ -417,7 +422,13 @@ def check_every_operator(repo, work) -> dict:
             results.setdefault(name, []).append(f"error: {exc}")
     bpy.ops.hlod.view_tiles(stop=True)
     report = Path(work) / "report"
-    return {"registered": registered, "unknown": sorted(set(registered) - set(OPERATOR_RUNS)),
+    tuned = Path(work) / "tuning"
+    done = (tuned / "report.json").is_file()
+    no_figures = done and "No figures: they were not drawn here" in (tuned / "report.md").read_text()
+    return {"tuning": {"s": props.s, "t": props.t, "bias": props.bias, "last_tuning": props.last_tuning,
+                       "psnr_target": json.loads((tuned / "report.json").read_text())["psnr_target"] if done else None,
+                       "says_no_figures": no_figures},
+            "registered": registered, "unknown": sorted(set(registered) - set(OPERATOR_RUNS)),
             "results": results, "matplotlib": importlib.util.find_spec("matplotlib") is not None,
             "report_says_no_figures": (report / "report.md").is_file()
             and "No figures: they were not drawn here" in (report / "report.md").read_text(),

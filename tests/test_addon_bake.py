@@ -139,11 +139,20 @@ def test_background_command_with_jobs_2(versioned_repo, tmp_path):
 def test_every_operator_runs_with_only_blenders_modules_and_the_wheels(versioned_repo, tmp_path):
     """In each Blender's environment (bpy and numpy only, as a Blender install; the extension's
     dependencies from its wheels; no matplotlib): every hlod.* operator registered, enumerated at
-    run time, runs to FINISHED, and the Benchmark writes its report without figures, saying so."""
+    run time, runs to FINISHED, and the Benchmark writes its report without figures, saying so. Tune to
+    PSNR (issue 15) on the camera's animation sets s and t to the (s, t) its report chose (and the
+    bias to P, so that they act), and its report holds the curve and says why it has no figures."""
     out = bake_check(versioned_repo, "every_operator", tmp_path)
+    tuning = out["tuning"]
+    chosen = (tuning["psnr_target"] or {}).get("chosen", {})
     all_hold(out,
+             tuned_s_t_set=bool(chosen) and abs(tuning["s"] - chosen["s"]) < 1e-6
+             and abs(tuning["t"] - chosen["t"]) < 1e-6 and tuning["bias"] == "P",
+             tuned_report=bool(chosen) and tuning["psnr_target"]["target_db"] == 40.0
+             and len(tuning["psnr_target"]["candidates"]) > 1 and tuning["says_no_figures"],
+             tuned_line=f"s {chosen.get('s', -1):g}, t {chosen.get('t', -1):g}" in tuning["last_tuning"],
              known_operators=out["unknown"] == [] and {"bake", "clear", "preview_toggle", "materialize", "export",
-                                                       "benchmark"} <= set(out["registered"]),
+                                                       "benchmark", "tune_psnr"} <= set(out["registered"]),
              all_finished=all(runs and all(r == ["FINISHED"] for r in runs) for runs in out["results"].values()),
              every_registered_ran=set(out["results"]) == set(out["registered"]),
              no_matplotlib=not out["matplotlib"],
