@@ -78,6 +78,22 @@ def test_pruned_measure_gives_the_unpruned_float_on_every_inner_node(name, targe
         assert pruned == unpruned and error == unpruned, (name, original[0].shape, pruned, unpruned, error)
 
 
+def test_the_measure_goes_whole_only_where_the_clusters_cannot_prune(monkeypatch):
+    """measure_clustered with `whole`: the herd's big nodes (a coarse LOD far from most clusters)
+    are pruned, small cells whose LOD hugs the surface (every cluster's bound above the floor) are
+    measured whole; both give the unpruned float."""
+    measured_whole = []
+    measure = hausdorff.measure
+    monkeypatch.setattr(hausdorff, "measure", lambda lod, original: measured_whole.append(1) or measure(lod, original))
+    went_whole = {}
+    for lod, original, error, _ in _measured_pairs("herd", 600):
+        measured_whole.clear()
+        assert hausdorff.measure_pruned(lod, original, allow_whole=True) == error
+        went_whole[original[0].shape[0]] = bool(measured_whole)
+    largest = max(went_whole)
+    assert not went_whole[largest] and any(went_whole.values()), went_whole
+
+
 def test_pruning_skips_most_samples_of_a_large_node(monkeypatch):
     """The herd's root (about 54k original vertices): the pruned measure evaluates under 60% of the
     original vertices (30k of 54k: the cow's triangles are large, so a cluster of CLUSTER_FACES of
