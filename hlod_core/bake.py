@@ -62,7 +62,7 @@ import sys
 import tempfile
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -135,7 +135,8 @@ class BakeSettings:
 def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
          progress: ProgressFn | None = None, cancel: CancelFn | None = None,
          sources: list[str] | None = None, extra_meta: dict | None = None,
-         cache_dir: str | os.PathLike | None = None) -> Hlod:
+         cache_dir: str | os.PathLike | None = None, scheduler=None,
+         scratch_dir: str | os.PathLike | None = None) -> Hlod:
     """Bake `mesh` into an Hlod. Raises InputError for unusable input, BakeCancelled if `cancel()`
     turns true (checked between nodes). Writes nothing to disk except worker scratch files and,
     with `cache_dir`, once the bake is complete, the cache folder (bake_cache.py: what it did not
@@ -143,7 +144,12 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     extra_meta: JSON-serialisable entries added to the HLOD's meta (the Blender side records the
     UV map and colour attribute names, "uv_map" and "color_attribute"); they may not replace the
     bake's own entries. The HLOD carries uvs / colors / tri_material and mesh.materials exactly
-    when the mesh has them."""
+    when the mesh has them.
+    scheduler: a Dask scheduler's address ("tcp://host:8786") or a distributed.Client: the simplify
+    phase's tasks run on its workers instead of `settings.jobs` local processes (dask_workers.py),
+    for the same file; scratch_dir: a folder every worker reads (shared storage on a cluster;
+    default the temporary folder), where the bake writes its shared arrays into a subfolder of its
+    own, removed at the end. Neither is a setting: they change where the work runs, not the file."""
     started = time.perf_counter()
     progress = progress or (lambda done, total, phase: None)
     cancel = cancel or (lambda: False)
@@ -172,11 +178,13 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     # Worker processes start now and import pymeshlab while this process prepares; an input of
     # one leaf has no inner node to simplify.
     jobs = settings.jobs if mesh.tri_count > settings.target_tris else 1
-    with _workers(jobs) as workers:
+    cluster = scheduler if mesh.tri_count > settings.target_tris else None
+    with _workers(jobs, scheduler=cluster, scratch_dir=scratch_dir) as workers:
         prepared = _prepare(mesh)
         phases.lap("prepare")
         layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
                               counted=prepared.counted, root=prepared.root_cell)
+        prepared = replace(prepared, centroids=None)  # only the octree reads them: 24 bytes a triangle
         phases.lap("octree")
         n = layout.node_count
         progress(0, n, "octree")
@@ -343,7 +351,7 @@ class _Prepared:
     normals: np.ndarray | None
     rows: np.ndarray | None
     row_layout: appearance.AttributeLayout
-    centroids: np.ndarray
+    centroids: np.ndarray | None  # None once the octree is built
     counted: np.ndarray
 
 
@@ -438,8 +446,14 @@ class _PhaseClock:
 # --- simplify phase: in this process, or in worker processes sharing the input through files ----
 
 #: The shared arrays of the exact error measure, per scratch folder ("" inline: the parent's own
-#: arrays), as a worker has loaded them (memory-mapped): positions, and Clusters' arrays.
+#: arrays), as a worker has loaded them (memory-mapped): positions, and Clusters' arrays. A Dask
+#: worker outlives bakes and may run several tasks at once in threads: _SHARED_LOCK guards both
+#: dicts, _SHARED_STAMP holds each folder's file identity when loaded (a folder removed and made
+#: again under the same name is loaded anew), and at most _SHARED_FOLDERS bakes' maps are kept.
 _SHARED: dict[str, dict[str, np.ndarray]] = {}
+_SHARED_STAMP: dict[str, tuple] = {}
+_SHARED_LOCK = threading.Lock()
+_SHARED_FOLDERS = 4
 #: Task kinds of the simplify phase; the values order the heap (decimations before measurements).
 _TASK_DECIMATE, _TASK_MEASURE = 0, 1
 #: How often (seconds) the scheduler wakes while tasks run, to check cancel().
@@ -463,30 +477,52 @@ def _warm_up() -> None:
 
 
 def _shared(folder: str) -> dict[str, np.ndarray]:
-    """The shared arrays of `folder` ("" inline), loaded memory-mapped on a worker's first use."""
-    arrays = _SHARED.get(folder)
-    if arrays is None:
-        arrays = {name: np.load(os.path.join(folder, name + ".npy"), mmap_mode="r") for name in _SHARED_ARRAYS}
-        _SHARED.clear()  # one bake's arrays at a time
-        _SHARED[folder] = arrays
+    """The shared arrays of `folder` ("" inline), loaded memory-mapped on a worker's first use
+    (thread-safe; reloaded when the folder's files are not the ones loaded)."""
+    if not folder:
+        with _SHARED_LOCK:
+            return _SHARED[""]
+    first = os.stat(os.path.join(folder, _SHARED_ARRAYS[0] + ".npy"))
+    stamp = (first.st_dev, first.st_ino, first.st_size, first.st_mtime_ns)
+    with _SHARED_LOCK:
+        arrays = _SHARED.get(folder)
+        if arrays is None or _SHARED_STAMP.get(folder) != stamp:
+            arrays = {name: np.load(os.path.join(folder, name + ".npy"), mmap_mode="r") for name in _SHARED_ARRAYS}
+            _SHARED.pop(folder, None)
+            _SHARED[folder], _SHARED_STAMP[folder] = arrays, stamp
+            while len(_SHARED) > _SHARED_FOLDERS:  # the oldest bake's maps go
+                _release_shared(next(iter(_SHARED)), locked=True)
     return arrays
+
+
+def _release_shared(folder: str, *, locked: bool = False) -> None:
+    """Drop `folder`'s arrays (its memory maps close once no task holds them). Runs on every Dask
+    worker when a bake ends (dask_workers.on_cluster)."""
+    with contextlib.nullcontext() if locked else _SHARED_LOCK:
+        _SHARED.pop(folder, None)
+        _SHARED_STAMP.pop(folder, None)
 
 
 def _measure_task(folder: str, lod_positions, lod_faces, ranges: tuple[int, ...]) -> float:
     """Runs in a worker (or inline): the node's original triangles are the leaves' below it, one
     range of the shared arrays (`_LeafArrays`): ranges = (vertex_begin, vertex_end, cluster_begin,
     cluster_end). Nodes with at least hausdorff.PRUNE_FROM_VERTICES original vertices are measured
-    pruned, over their clusters; the others whole. Both give hausdorff.measure's float."""
+    pruned, over their clusters (or whole where the clusters show pruning cannot pay); the others
+    whole. Every way gives hausdorff.measure's float."""
     shared = _shared(folder)
     vertex_begin, vertex_end, cluster_begin, cluster_end = ranges
     clusters = hausdorff_measure.Clusters(**{name: shared[name] for name in hausdorff_measure.Clusters.ARRAYS})
     lod = (lod_positions, lod_faces)
-    if vertex_end - vertex_begin >= hausdorff_measure.PRUNE_FROM_VERTICES:
-        return hausdorff_measure.measure_clustered(lod, shared["positions"], clusters, cluster_begin, cluster_end)
     tri_begin, tri_end = int(clusters.start[cluster_begin]), int(clusters.start[cluster_end])
-    original = (np.asarray(shared["positions"][vertex_begin:vertex_end]),
+
+    def original():
+        return (np.asarray(shared["positions"][vertex_begin:vertex_end]),
                 (np.asarray(clusters.faces[tri_begin:tri_end]) - vertex_begin).astype(np.int32))
-    return hausdorff_measure.measure(lod, original)
+
+    if vertex_end - vertex_begin >= hausdorff_measure.PRUNE_FROM_VERTICES:
+        return hausdorff_measure.measure_clustered(lod, shared["positions"], clusters, cluster_begin, cluster_end,
+                                                   whole=original)
+    return hausdorff_measure.measure(lod, original())
 
 
 @dataclass(frozen=True, eq=False)
@@ -591,32 +627,51 @@ class _InlineExecutor:
 class _Workers:
     """Where the simplify phase's tasks run: executor (submit(fn, *args) -> Future), at most
     `limit` in flight, and `scratch`, a folder every worker reads the shared arrays from ("" inline:
-    this process's own arrays, `share` puts them in _SHARED)."""
+    this process's own arrays, `share` puts them in _SHARED). prioritised: the executor takes
+    submit(..., priority=int) (a Dask cluster, whose scheduler orders the tasks it queues)."""
 
     executor: object
     limit: int
     scratch: str
+    prioritised: bool = False
+
+    def submit(self, order: tuple[int, int], fn, *args) -> cf.Future:
+        """fn(*args) as a task; order: the scheduling loop's heap key (kind, size), smallest first,
+        given to a prioritised executor as its priority (largest first): decimations before
+        measurements, then -size (sizes are negative depths and triangle counts, below 2**40)."""
+        if not self.prioritised:
+            return self.executor.submit(fn, *args)
+        kind, size = order
+        return self.executor.submit(fn, *args, priority=-(kind << 40) - size)
 
     def share(self, arrays: dict[str, np.ndarray]) -> None:
         """Make `arrays` (the _SHARED_ARRAYS) readable by every worker, before any task reads them."""
         if not self.scratch:
-            _SHARED.clear()
-            _SHARED[""] = arrays
+            with _SHARED_LOCK:
+                _SHARED[""] = arrays
             return
         for name, array in arrays.items():
             np.save(os.path.join(self.scratch, name + ".npy"), array)
 
 
 @contextlib.contextmanager
-def _workers(jobs: int):
+def _workers(jobs: int, *, scheduler=None, scratch_dir: str | os.PathLike | None = None):
     """_Workers for `jobs`: inline for 1; else a pool of `jobs` spawned worker processes, started at
     once (each imports pymeshlab while the bake prepares: `_warm_up`), and a scratch folder
-    (`$TMPDIR/hlod-bake-*`). Both are gone when the block exits, however it exits."""
+    (`$TMPDIR/hlod-bake-*`). With a scheduler (an address or a distributed.Client), the Dask
+    cluster's workers instead, and a scratch folder inside `scratch_dir` (dask_workers.on_cluster).
+    All are gone when the block exits, however it exits."""
+    if scheduler is not None:
+        from . import dask_workers  # only here: Dask is a command-line-only dependency
+
+        with dask_workers.on_cluster(scheduler, scratch_dir=scratch_dir, release=_release_shared) as cluster:
+            yield _Workers(cluster.executor, cluster.limit, cluster.scratch, prioritised=True)
+        return
     if jobs == 1:
         try:
             yield _Workers(_InlineExecutor(), 1, "")
         finally:
-            _SHARED.clear()
+            _release_shared("")
         return
     with contextlib.ExitStack() as stack:
         scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="hlod-bake-"))
@@ -642,7 +697,9 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
     top nodes' measurements are the big tasks; keeping them off the decimation chain lets them run
     beside other work. Priority: decimations first (deepest first, they unlock the rest), then
     measurements, largest first. At most `workers.limit` tasks are in flight, so the priority holds.
-    The exact measure reads the leaves' triangles (_LeafArrays) from `workers.share`.
+    The exact measure reads the leaves' triangles (_LeafArrays) from `workers.share`, made on a
+    thread of this process while the workers run the first decimations (the leaves' LODs are final
+    before the phase starts; this process only waits for results meanwhile); inline, first.
     With settings.error "bound" a MEASURE task is h(node) against its children's LODs (a few
     thousand triangles, sent with the task like a decimation's; no leaf arrays are made or shared);
     the caller composes the bounds (`_compose_bounds`). It stays a task of the pool, not inline in
@@ -659,52 +716,71 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
     heap: list[tuple] = []
     decimated: dict[int, simplify.NodeLod] = {}  # LODs made, until their measurement is done
     bound = settings.error == "bound"
-    executor = workers.executor
-    if not bound:
-        leaf_arrays = _leaf_arrays(layout, lods)
-        workers.share(leaf_arrays.arrays())
+    leaf_arrays = None  # the exact measure's tasks wait for it (made beside the first decimations)
 
     def push(kind: int, node: int) -> None:
         size = -int(layout.depth[node]) if kind == _TASK_DECIMATE else -int(layout.tri_end[node] - layout.tri_begin[node])
         heapq.heappush(heap, (kind, size, node))
 
-    def submit(kind: int, node: int) -> cf.Future:
+    def submit(kind: int, size: int, node: int) -> cf.Future:
         kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
+        order = (kind, size)
         if kind == _TASK_DECIMATE:
-            return executor.submit(simplify.decimate_node, [(lods[k][0], lods[k][1], lods[k][3]) for k in kids], dec,
-                                   with_normals, row_layout)
+            return workers.submit(order, simplify.decimate_node, [(lods[k][0], lods[k][1], lods[k][3]) for k in kids],
+                                  dec, with_normals, row_layout)
         if bound:
-            return executor.submit(hausdorff_measure.measure_to_children, (lods[node][0], lods[node][1]),
-                                   [(lods[k][0], lods[k][1]) for k in kids])
-        return executor.submit(_measure_task, workers.scratch, lods[node][0], lods[node][1], leaf_arrays.ranges(node))
+            return workers.submit(order, hausdorff_measure.measure_to_children, (lods[node][0], lods[node][1]),
+                                  [(lods[k][0], lods[k][1]) for k in kids])
+        return workers.submit(order, _measure_task, workers.scratch, lods[node][0], lods[node][1],
+                              leaf_arrays.ranges(node))
 
     for node in nodes[waiting[nodes] == 0]:
         push(_TASK_DECIMATE, int(node))
 
     running: dict[cf.Future, tuple[int, int]] = {}
-    while heap or running:
-        while heap and len(running) < workers.limit:
-            kind, _, node = heapq.heappop(heap)
-            with _signals_deferred():  # a submit may start a worker process
-                running[submit(kind, node)] = (kind, node)
-        finished, _ = cf.wait(running, timeout=_POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
-        if cancel():
-            raise BakeCancelled("bake cancelled")
-        for fut in finished:
-            kind, node = running.pop(fut)
-            if kind == _TASK_MEASURE:
-                hausdorff[node] = fut.result()
-                node_done(node, decimated.pop(node))
-                continue
-            lod = fut.result()
-            lods[node] = (lod.positions, lod.faces, lod.normals, lod.attributes)
-            decimated[node] = lod
-            push(_TASK_MEASURE, node)
-            parent = int(layout.parent[node])
-            if parent >= 0 and todo[parent]:
-                waiting[parent] -= 1
-                if waiting[parent] == 0:
-                    push(_TASK_DECIMATE, parent)
+    with contextlib.ExitStack() as stack:
+        building = None  # the leaf arrays, made on a thread of this process while workers decimate
+        if not bound and workers.scratch:
+            builder = stack.enter_context(cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hlod-leaf-arrays"))
+            building = builder.submit(_shared_leaf_arrays, workers, layout, lods)
+        elif not bound:  # inline: this thread is the worker
+            leaf_arrays = _shared_leaf_arrays(workers, layout, lods)
+        while heap or running:
+            while heap and len(running) < workers.limit:
+                if heap[0][0] == _TASK_MEASURE and leaf_arrays is None and not bound:
+                    break  # every decimation that can run is in flight: wait for the leaf arrays
+                kind, size, node = heapq.heappop(heap)
+                with _signals_deferred():  # a submit may start a worker process
+                    running[submit(kind, size, node)] = (kind, node)
+            finished, _ = cf.wait([*running, *([building] if leaf_arrays is None and building else [])],
+                                  timeout=_POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
+            if cancel():
+                raise BakeCancelled("bake cancelled")
+            for fut in finished:
+                if fut is building:
+                    leaf_arrays = building.result()
+                    continue
+                kind, node = running.pop(fut)
+                if kind == _TASK_MEASURE:
+                    hausdorff[node] = fut.result()
+                    node_done(node, decimated.pop(node))
+                    continue
+                lod = fut.result()
+                lods[node] = (lod.positions, lod.faces, lod.normals, lod.attributes)
+                decimated[node] = lod
+                push(_TASK_MEASURE, node)
+                parent = int(layout.parent[node])
+                if parent >= 0 and todo[parent]:
+                    waiting[parent] -= 1
+                    if waiting[parent] == 0:
+                        push(_TASK_DECIMATE, parent)
+
+
+def _shared_leaf_arrays(workers: "_Workers", layout: OctreeLayout, lods: list) -> "_LeafArrays":
+    """_leaf_arrays of the bake, shared with the workers (leaves' entries of lods only: final)."""
+    arrays = _leaf_arrays(layout, lods)
+    workers.share(arrays.arrays())
+    return arrays
 
 
 def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, error: float, target_tris: int) -> None:
@@ -765,8 +841,14 @@ def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool,
         np.maximum.at(box_max, layout.parent[nodes], box_max[nodes])
 
     center = 0.5 * (box_min + box_max)
-    owner = np.repeat(np.arange(n), vertex_count)
-    radius = np.maximum.reduceat(np.linalg.norm(world - center[owner], axis=1), vertex_offset)
+    # |world - centre of its node| per vertex, max per node: sqrt((dx^2 + dy^2) + dz^2) as
+    # np.linalg.norm sums it, and the max taken before the root (sqrt is monotone: the same float)
+    world -= np.repeat(center, vertex_count, axis=0)
+    world *= world
+    squared = world[:, 0] + world[:, 1]
+    squared += world[:, 2]
+    radius = np.sqrt(np.maximum.reduceat(squared, vertex_offset))
+    del world, squared
     diag = np.linalg.norm(box_max - box_min, axis=1)
     error = np.where(np.isfinite(hausdorff), hausdorff, diag)
     error[layout.is_leaf] = 0.0

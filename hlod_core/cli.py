@@ -8,10 +8,11 @@ after removing scratch files and partial outputs. `-o` of a file refuses a name 
 path separator (it names a folder).
 
     bake INPUT [INPUT ...] -o OUT.hlod [--target-tris 2000] [--max-depth 12] [--jobs N]
-              [--cache DIR | --no-cache]
+              [--cache DIR | --no-cache] [--scheduler ADDRESS [--scratch DIR] [--scheduler-timeout S]]
         (images embedded in glTF inputs are written to OUT.textures/ beside OUT.hlod; the bake
         cache, which lets a re-bake redo only what changed, is OUT.hlod.cache/ unless --cache
-        names another folder; safe to delete)
+        names another folder; safe to delete; --scheduler: the decimations and measurements run
+        on a Dask cluster's workers, dask_workers.py, for the same file)
     info FILE.hlod
     scene low|middle|high|default -o OUT.hlod [--seed N] [--scale S] [--jobs N] [--cache DIR | --no-cache]
     run FILE.hlod --method M [...]
@@ -22,6 +23,7 @@ path separator (it names a folder).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import logging
@@ -130,6 +132,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="OBJ/PLY/STL/GLB file or JSON scene spec")
     p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
     _bake_options(p)
+    _cluster_options(p)
     p.set_defaults(run=_cmd_bake)
 
     p = sub.add_parser("info", help="counts and invariant checks of a .hlod file")
@@ -225,6 +228,59 @@ def _bake_options(p: argparse.ArgumentParser) -> None:
     where.add_argument("--no-cache", action="store_true", help="bake from scratch and keep no cache")
 
 
+def _cluster_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a Dask scheduler (tcp://HOST:8786): the decimations and measurements run on its workers "
+                        "instead of --jobs local processes, for the same file (needs dask[distributed]; see README)")
+    p.add_argument("--scratch", metavar="DIR",
+                   help="with --scheduler: an existing folder every worker can read (shared storage on a cluster), "
+                        "for the bake's shared arrays (default: the temporary folder, enough for workers on this "
+                        "machine); the bake's subfolder there is removed at the end")
+    p.add_argument("--scheduler-timeout", type=_seconds, metavar="S",
+                   help="with --scheduler: seconds to wait for the scheduler and its first worker (default 10)")
+
+
+def _seconds(text: str) -> float:
+    """argparse type: a finite number of seconds > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number of seconds > 0, got {text}")
+    return value
+
+
+@contextlib.contextmanager
+def _cluster(args):
+    """The distributed.Client of --scheduler (None without it), connected and checked (its workers
+    run this code and read --scratch) before any input is read or output written; each fault is
+    one line naming the option. Closed when the block exits."""
+    if args.scheduler is None:
+        for name, value in (("--scratch", args.scratch), ("--scheduler-timeout", args.scheduler_timeout)):
+            if value is not None:
+                raise InputError(f"{name}: only with --scheduler (a local bake's workers use $TMPDIR)")
+        yield None
+        return
+    from . import dask_workers
+
+    # distributed's own INFO lines (one per connection) stay off stderr; its warnings show, not under -q
+    logging.getLogger("distributed").setLevel(max(logging.WARNING, logging.getLogger().level))
+    try:
+        if args.scratch is not None:
+            dask_workers.check_scratch(args.scratch)
+        client = dask_workers.connect(args.scheduler, timeout_s=args.scheduler_timeout or dask_workers.CONNECT_TIMEOUT_S)
+    except dask_workers.ClusterError as exc:
+        raise InputError(f"--{exc}") from None
+    with contextlib.closing(client):
+        try:
+            with dask_workers.on_cluster(client, scratch_dir=args.scratch):  # the checks, in a folder of their own
+                pass
+        except dask_workers.ClusterError as exc:
+            raise InputError(f"--{exc}") from None
+        yield client
+
+
 def _settings(args) -> BakeSettings:
     jobs = args.jobs if args.jobs > 0 else (os.cpu_count() or 1)
     return BakeSettings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=jobs,
@@ -239,11 +295,13 @@ def _cache_dir(args) -> Path | None:
     return Path(args.cache) if args.cache else bake_cache.default_folder(args.output)
 
 
-def _bake_and_save(mesh, args, sources) -> dict:
+def _bake_and_save(mesh, args, sources, *, scheduler=None) -> dict:
+    """scheduler: the distributed.Client of `_cluster` (None: local workers)."""
     settings = _settings(args)
     cache_dir = _cache_dir(args)
     started = time.perf_counter()
-    hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir)
+    hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
+                scratch_dir=getattr(args, "scratch", None))
     fileformat.save(hlod, args.output)
     seconds = time.perf_counter() - started
     for line in hlod.meta["log"]:
@@ -253,18 +311,21 @@ def _bake_and_save(mesh, args, sources) -> dict:
                    phase_seconds=hlod.meta["phase_seconds"],
                    tris_per_second=summary["input_tris"] / seconds if seconds > 0 else None,
                    cache=None if cache_dir is None else {"folder": str(cache_dir), **hlod.meta["cache"]})
+    if scheduler is not None:
+        summary["scheduler"] = {"address": args.scheduler, "worker_threads": sum(scheduler.nthreads().values())}
     return summary
 
 
 def _cmd_bake(args) -> dict:
     check_output_file(args.output)
     bake_cache.check_folder(_cache_dir(args))
-    started = time.perf_counter()
-    with _EmbeddedTextures(Path(args.output)) as textures:
-        mesh = textures.relocate(meshio.load_inputs(args.inputs, texture_dir=textures.scratch))
-        load_seconds = time.perf_counter() - started
-        summary = _bake_and_save(mesh, args, [str(p) for p in args.inputs])
-        summary["texture_folder"] = textures.publish()
+    with _cluster(args) as client:
+        started = time.perf_counter()
+        with _EmbeddedTextures(Path(args.output)) as textures:
+            mesh = textures.relocate(meshio.load_inputs(args.inputs, texture_dir=textures.scratch))
+            load_seconds = time.perf_counter() - started
+            summary = _bake_and_save(mesh, args, [str(p) for p in args.inputs], scheduler=client)
+            summary["texture_folder"] = textures.publish()
     summary["load_seconds"] = load_seconds
     return summary
 

@@ -32,15 +32,15 @@ def _modules() -> dict[str, Path]:
     return out
 
 
-def _imports(name: str, path: Path, known: set[str]) -> tuple[set[str], set[str]]:
+def _imports(name: str, path: Path, known: set[str], walk=ast.walk) -> tuple[set[str], set[str]]:
     """(project modules, external top-level modules) that `name` imports anywhere in its body
-    (module level and deferred imports inside functions alike)."""
+    (module level and deferred imports inside functions alike; walk=_module_level: only the former)."""
     is_package = path.name == "__init__.py"
     package = name if is_package else name.rpartition(".")[0]
     if name == "<root>":
         package = ""
     project, external = set(), set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    for node in walk(ast.parse(path.read_text(encoding="utf-8"))):
         targets = []
         if isinstance(node, ast.Import):
             targets = [alias.name for alias in node.names]
@@ -110,11 +110,11 @@ def test_no_import_cycles(graph):
 
 #: Libraries of the command line only (requirements.txt): Blender ships none of them, nor does the
 #: extension's manifest, so no module the extension can reach may import them.
-COMMAND_LINE_ONLY = {"trimesh", "PIL", "matplotlib"}
+COMMAND_LINE_ONLY = {"trimesh", "PIL", "matplotlib", "dask", "distributed"}
 #: Modules the extension reaches that may touch a command-line-only library, each behind a guard
 #: that works without it (and the test suite runs that path with the library blocked).
 GUARDED = {"hlod_core.report_figures": {"matplotlib"}, "hlod_core.textures": {"PIL"},
-           "hlod_core.scenefiles": {"trimesh"}}
+           "hlod_core.scenefiles": {"trimesh"}, "hlod_core.dask_workers": {"distributed"}}
 
 
 def test_the_extension_reaches_no_command_line_only_library(graph):
@@ -132,6 +132,58 @@ def test_the_extension_reaches_no_command_line_only_library(graph):
                  for name in reached}
     assert "hlod_core.bake" in reached and "addon.preview" in reached  # the walk sees the extension
     assert not any(offending.values()), {k: v for k, v in offending.items() if v}
+
+
+def _module_level(tree: ast.AST):
+    """ast.walk without the bodies of functions: the nodes that run when the module is imported."""
+    todo = [tree]
+    while todo:
+        node = todo.pop()
+        yield node
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            todo.extend(ast.iter_child_nodes(node))
+
+
+def test_dask_is_imported_only_by_a_bake_given_a_scheduler(graph):
+    """Dask is a command-line-only dependency (issue 16). Everything the extension imports
+    (transitively from `<root>`, deferred imports included), less hlod_core.bake's one deferred
+    import of hlod_core.dask_workers, imports neither dask nor distributed; that import sits in
+    `_workers` under `if scheduler is not None`; dask_workers itself imports distributed only when
+    it is used, not at module level. And in a fresh interpreter a bake without a scheduler (jobs 1
+    and 2) leaves both out of sys.modules."""
+    dask = {"dask", "distributed"}
+    importers = sorted(name for name, (project, external) in graph.items()
+                       if external & dask or "hlod_core.dask_workers" in project)
+    assert importers == ["hlod_core.bake", "hlod_core.cli", "hlod_core.dask_workers"], importers
+    reached, todo = set(), ["<root>"]
+    while todo:
+        name = todo.pop()
+        if name in reached or name not in graph:
+            continue
+        reached.add(name)
+        todo.extend(graph[name][0] - ({"hlod_core.dask_workers"} if name == "hlod_core.bake" else set()))
+    assert "hlod_core.bake" in reached and "addon.preview" in reached
+    assert "hlod_core.dask_workers" not in reached
+    assert not {name for name in reached if graph[name][1] & dask}
+    modules = _modules()
+    for name in ("hlod_core.bake", "hlod_core.dask_workers"):
+        project, external = _imports(name, modules[name], set(modules), walk=_module_level)
+        assert not external & dask and "hlod_core.dask_workers" not in project, name
+    tree = ast.parse((ROOT / "hlod_core" / "bake.py").read_text(encoding="utf-8"))
+    guarded = [node for node in ast.walk(tree) if isinstance(node, ast.If)
+               and ast.unparse(node.test) == "scheduler is not None"
+               and any(isinstance(n, ast.ImportFrom) and [a.name for a in n.names] == ["dask_workers"]
+                       for n in ast.walk(node))]
+    every = [node for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
+             and "dask_workers" in [a.name for a in node.names]]
+    assert len(guarded) == 1 and len(every) == 1
+    script = ("import sys\nsys.path.insert(0, 'tests')\nfrom helpers import load_model\n"
+              "from hlod_core.bake import BakeSettings, bake\n"
+              "for jobs in (1, 2):\n    bake(load_model('cow.obj'), BakeSettings(target_tris=1000, jobs=jobs))\n"
+              "loaded = sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed'))\n"
+              "assert not loaded and 'hlod_core.dask_workers' not in sys.modules, loaded\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
 
 
 def test_the_graph_sees_known_edges(graph):
