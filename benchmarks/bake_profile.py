@@ -1,0 +1,156 @@
+"""Where a bake's time goes (issue 16): decimation, welding, Hausdorff sampling, process start and
+data movement, on one input.
+
+    PYTHONPATH=. .venv/bin/python -m benchmarks.bake_profile INPUT [INPUT ...] [--target-tris 2000]
+
+Per input, two bakes in this process, reading excluded:
+  jobs 1 under cProfile: every task runs here, so the profile splits the whole bake into the
+    phases (bake.py's phase clock) and, inside the simplify phase, decimation (pymeshlab's quadric
+    collapse; the weld; the unit frame's mapping back; building pymeshlab meshes) and the error
+    measure (nodes measured whole; nodes measured pruned, and in those the exact LOD -> original
+    evaluation; pymeshlab's Hausdorff calls in all; the samples; the clusters, built once);
+  jobs 2 with the real worker processes: the wall time, the worker start (spawn and pymeshlab's
+    import, timed by starting a pool of 2 alone), and the data moved: the bytes pickled for every
+    task's arguments and results (the LODs travel with their tasks) and the shared arrays written
+    once to the scratch folder.
+Prints one JSON line per input and a Markdown table. cProfile's own overhead inflates the many
+small calls a little (the shares are what to read); the jobs 2 time is unprofiled.
+"""
+from __future__ import annotations
+
+import argparse
+import cProfile
+import concurrent.futures as cf
+import json
+import multiprocessing
+import pickle
+import pstats
+import time
+from pathlib import Path
+
+from hlod_core import bake as bake_module
+from hlod_core import meshio
+from hlod_core.bake import BakeSettings, bake
+
+#: (label, function name, file the function is in): cumulative seconds of each in the jobs 1 profile.
+PARTS = (
+    ("decimation", "decimate_node", "simplify.py"),
+    ("  quadric collapse (pymeshlab)", "_decimated", "simplify.py"),
+    ("  weld", "weld", "simplify.py"),
+    ("  unit frame back to model (to_model)", "to_model", "simplify.py"),
+    ("  pymeshlab meshes made", "_mesh_set", "simplify.py"),
+    ("error measure", "_measure_task", "bake.py"),
+    ("  measured whole (small nodes; big ones pruning cannot help)", "measure", "hausdorff.py"),
+    ("  big nodes (pruned, or whole inside)", "measure_clustered", "hausdorff.py"),
+    ("    of which LOD -> original against clusters", "_max_to_faces", "hausdorff.py"),
+    ("  pymeshlab Hausdorff calls (all)", "hausdorff_max", "hausdorff.py"),
+    ("  samples (vertices + 7 per face)", "surface_samples", "hausdorff.py"),
+    ("clusters of the leaves (once)", "build", "hausdorff.py"),
+)
+
+
+def _cumulative(stats: pstats.Stats, name: str, file: str) -> tuple[float, int]:
+    seconds, calls = 0.0, 0
+    for (path, _, function), (_, ncalls, _, cumtime, _) in stats.stats.items():
+        if function == name and path.endswith(file):
+            seconds += cumtime
+            calls += ncalls
+    return seconds, calls
+
+
+def _worker_start_seconds(jobs: int = 2) -> float:
+    started = time.perf_counter()
+    pool = cf.ProcessPoolExecutor(max_workers=jobs, initializer=bake_module._init_worker,
+                                  mp_context=multiprocessing.get_context("spawn"))
+    try:
+        cf.wait([pool.submit(bake_module._warm_up) for _ in range(jobs)])
+        return time.perf_counter() - started
+    finally:
+        pool.shutdown()
+
+
+class _Moved:
+    """Counts the pickled bytes of every task's arguments and result, wrapping _Workers.submit."""
+
+    def __init__(self):
+        self.task_bytes = 0
+        self.tasks = 0
+        self.shared_bytes = 0
+
+    def __enter__(self):
+        self._submit, self._share = bake_module._Workers.submit, bake_module._Workers.share
+        moved = self
+
+        def submit(workers, order, fn, *args):
+            moved.tasks += 1
+            moved.task_bytes += len(pickle.dumps(args, protocol=pickle.HIGHEST_PROTOCOL))
+            future = moved._submit(workers, order, fn, *args)
+            future.add_done_callback(lambda f: moved._count_result(f))
+            return future
+
+        def share(workers, arrays):
+            moved.shared_bytes += sum(a.nbytes for a in arrays.values())
+            return moved._share(workers, arrays)
+
+        bake_module._Workers.submit, bake_module._Workers.share = submit, share
+        return self
+
+    def _count_result(self, future):
+        if future.exception() is None:
+            self.task_bytes += len(pickle.dumps(future.result(), protocol=pickle.HIGHEST_PROTOCOL))
+
+    def __exit__(self, *exc):
+        bake_module._Workers.submit, bake_module._Workers.share = self._submit, self._share
+
+
+def profile(path: Path, target_tris: int) -> dict:
+    mesh = meshio.load_inputs([path])
+    profiler = cProfile.Profile()
+    started = time.perf_counter()
+    profiler.enable()
+    one = bake(mesh, BakeSettings(jobs=1, target_tris=target_tris))
+    profiler.disable()
+    jobs1 = time.perf_counter() - started
+    stats = pstats.Stats(profiler)
+    parts = {label: _cumulative(stats, name, file) for label, name, file in PARTS}
+    with _Moved() as moved:
+        started = time.perf_counter()
+        bake(mesh, BakeSettings(jobs=2, target_tris=target_tris))
+        jobs2 = time.perf_counter() - started
+    return {"input": str(path), "triangles": mesh.tri_count, "nodes": one.node_count,
+            "jobs1_profiled_seconds": jobs1, "phase_seconds": one.meta["phase_seconds"],
+            "parts": {label: {"seconds": s, "calls": c} for label, (s, c) in parts.items()},
+            "jobs2_seconds": jobs2, "worker_start_seconds": _worker_start_seconds(),
+            "tasks": moved.tasks, "task_bytes": moved.task_bytes, "shared_bytes": moved.shared_bytes}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("inputs", type=Path, nargs="+")
+    parser.add_argument("--target-tris", type=int, default=2000)
+    args = parser.parse_args()
+    results = [profile(p, args.target_tris) for p in args.inputs]
+    for r in results:
+        print(json.dumps(r), flush=True)
+    names = [Path(r["input"]).name for r in results]
+    print("| part | " + " | ".join(names) + " |")
+    print("|---|" + "---:|" * len(results))
+
+    def row(label, values):
+        print(f"| {label} | " + " | ".join(values) + " |")
+
+    row("jobs 1 (profiled), s", [f"{r['jobs1_profiled_seconds']:.1f}" for r in results])
+    for phase in ("prepare", "octree", "leaves", "simplify", "assemble"):
+        row(f"phase {phase}", [f"{r['phase_seconds'].get(phase, 0.0):.2f} s" for r in results])
+    for label, _, _ in PARTS:
+        row(label.replace("  ", "&nbsp;&nbsp;"), [
+            f"{r['parts'][label]['seconds']:.2f} s ({100 * r['parts'][label]['seconds'] / r['jobs1_profiled_seconds']:.0f}%), "
+            f"{r['parts'][label]['calls']} calls" for r in results])
+    row("jobs 2 (unprofiled), s", [f"{r['jobs2_seconds']:.1f}" for r in results])
+    row("worker start (2 spawned, pymeshlab imported), s", [f"{r['worker_start_seconds']:.2f}" for r in results])
+    row("data sent with tasks and back (pickled)", [f"{r['task_bytes'] / 2**20:.0f} MB in {r['tasks']} tasks" for r in results])
+    row("shared arrays written once", [f"{r['shared_bytes'] / 2**20:.0f} MB" for r in results])
+
+
+if __name__ == "__main__":
+    main()
