@@ -117,17 +117,24 @@ GUARDED = {"hlod_core.report_figures": {"matplotlib"}, "hlod_core.textures": {"P
            "hlod_core.scenefiles": {"trimesh"}, "hlod_core.dask_workers": {"distributed"}}
 
 
-def test_the_extension_reaches_no_command_line_only_library(graph):
-    """Everything the extension imports, transitively (deferred imports included), from the
-    registration module `<root>`: none of it imports trimesh, PIL or matplotlib except the
-    guarded modules above."""
+def _reached(graph, cut: tuple[str, str] | None = None) -> set[str]:
+    """The modules the extension imports, transitively from `<root>` (deferred imports included);
+    cut (importer, imported): that one import left out."""
     reached, todo = set(), ["<root>"]
     while todo:
         name = todo.pop()
         if name in reached or name not in graph:
             continue
         reached.add(name)
-        todo.extend(graph[name][0])
+        todo.extend(graph[name][0] - ({cut[1]} if cut is not None and name == cut[0] else set()))
+    return reached
+
+
+def test_the_extension_reaches_no_command_line_only_library(graph):
+    """Everything the extension imports, transitively (deferred imports included), from the
+    registration module `<root>`: none of it imports trimesh, PIL or matplotlib except the
+    guarded modules above."""
+    reached = _reached(graph)
     offending = {name: sorted((graph[name][1] & COMMAND_LINE_ONLY) - GUARDED.get(name, set()))
                  for name in reached}
     assert "hlod_core.bake" in reached and "addon.preview" in reached  # the walk sees the extension
@@ -155,13 +162,7 @@ def test_dask_is_imported_only_by_a_bake_given_a_scheduler(graph):
     importers = sorted(name for name, (project, external) in graph.items()
                        if external & dask or "hlod_core.dask_workers" in project)
     assert importers == ["hlod_core.bake", "hlod_core.cli", "hlod_core.dask_workers"], importers
-    reached, todo = set(), ["<root>"]
-    while todo:
-        name = todo.pop()
-        if name in reached or name not in graph:
-            continue
-        reached.add(name)
-        todo.extend(graph[name][0] - ({"hlod_core.dask_workers"} if name == "hlod_core.bake" else set()))
+    reached = _reached(graph, cut=("hlod_core.bake", "hlod_core.dask_workers"))
     assert "hlod_core.bake" in reached and "addon.preview" in reached
     assert "hlod_core.dask_workers" not in reached
     assert not {name for name in reached if graph[name][1] & dask}
