@@ -4,9 +4,14 @@ spent inside the renderer (GL calls, waits for query results, the frame's start 
 frame; what is left is the traversal's Python (the per-frame vectorised `_prepare` and the walk).
 
     .venv/bin/python -m benchmarks.traversal_cpu FILE.hlod --path PATH.json [--size 640x480] [--repeat 2]
-        [--methods coh sw ...] [--alpha query|projected|cube]
+        [--methods coh sw ...] [--alpha query|projected|cube] [--clock wall|thread] [--renderer gl|null]
 
-Methods alternate order across repeats (timings compare as ratios within the run). Prints one JSON line
+`--renderer null` runs the traversals against a renderer without GL (NullRenderer: nothing drawn,
+every query back at once with a seeded visibility per node), which leaves the Python alone on warm
+caches. `--clock thread` times with this thread's CPU time instead of wall time (the default): on a shared
+machine it leaves out the time other processes held the core, not the slower caches and the busy
+sibling core they leave behind. Methods alternate order across repeats (timings compare as ratios
+within the run). Prints one JSON line
 per method and a Markdown table: visited nodes a frame, prepare us a frame, walk us a visited node,
 all us a visited node (prepare + walk over visited), renderer ms a frame (excluded).
 
@@ -20,9 +25,12 @@ import json
 import statistics
 import time
 
+import numpy as np
+
 from hlod_core import fileformat
 from hlod_core.camera import CameraPath, load_path
-from hlod_core.hierarchy import Hlod
+from hlod_core.hierarchy import Hlod, query_box_pad
+from hlod_core.queries import Query
 from hlod_core.renderer import Renderer
 from hlod_core.textures import load_images
 from hlod_core.traversal import METHODS, RuntimeSettings, make
@@ -31,64 +39,105 @@ US_PER_S = 1e6
 MS_PER_S = 1e3
 #: The renderer calls a traversal makes; time inside them is the renderer's, not the traversal's.
 RENDERER_CALLS = ("begin_frame", "end_frame", "draw_node", "issue_query", "available", "result")
+#: --clock: seconds of wall time, or of this thread's CPU time.
+CLOCKS = {"wall": time.perf_counter, "thread": time.thread_time}
 
 
 class TimedRenderer:
-    """Forwards to a real renderer and sums the seconds spent inside RENDERER_CALLS."""
+    """Forwards to a real renderer and sums the seconds (of `clock`) spent inside RENDERER_CALLS."""
 
-    def __init__(self, renderer: Renderer):
+    def __init__(self, renderer: Renderer, clock=time.perf_counter):
         self._renderer = renderer
+        self._clock = clock
         self.inside_s = 0.0
         self.calls = 0
         for name in RENDERER_CALLS:
             setattr(self, name, self._timed(getattr(renderer, name)))
 
     def _timed(self, call):
+        clock = self._clock
+
         def timed(*args, **kwargs):
             self.calls += 1
-            started = time.perf_counter()
+            started = clock()
             try:
                 return call(*args, **kwargs)
             finally:
-                self.inside_s += time.perf_counter() - started
+                self.inside_s += clock() - started
         return timed
 
     def __getattr__(self, name):  # attributes such as query_box_pad
         return getattr(self._renderer, name)
 
 
-def _proxy_overhead_s(calls: int = 20000) -> float:
+class NullRenderer:
+    """A renderer without GL for the traversal's Python alone: draws nothing; every query is back at
+    once with q = NULL_ALPHA_PX * v(node), v a seeded visibility in [0, 1) per node, 0 for a fifth of
+    the nodes (hidden), alpha = NULL_ALPHA_PX."""
+
+    NULL_ALPHA_PX = 1000
+
+    def __init__(self, hlod: Hlod, seed: int = 0):
+        visibility = np.random.default_rng(seed).random(hlod.node_count)
+        visibility[visibility < 0.2] = 0.0
+        self._q = (self.NULL_ALPHA_PX * visibility).astype(np.int64).tolist()
+        self.query_box_pad = query_box_pad(hlod.box_min, hlod.box_max)
+
+    def begin_frame(self, view) -> None:
+        pass
+
+    def end_frame(self) -> float:
+        return 0.0
+
+    def draw_node(self, node: int, ratio_p: float = 1.0) -> None:
+        pass
+
+    def issue_query(self, node: int, *, with_alpha: bool) -> Query:
+        return Query(node=node, samples_query_id=0, alpha_query_id=None)
+
+    def available(self, query: Query) -> bool:
+        return True
+
+    def result(self, query: Query) -> tuple[int, int, float]:
+        return self._q[query.node], self.NULL_ALPHA_PX, 0.0
+
+    def release(self) -> None:
+        pass
+
+
+def _proxy_overhead_s(calls: int = 20000, clock=time.perf_counter) -> float:
     """Seconds the proxy adds per call outside its own clock reads (the closure, the counter), measured
     here and taken out of the traversal's time."""
     proxy = TimedRenderer.__new__(TimedRenderer)
-    proxy.inside_s, proxy.calls = 0.0, 0
+    proxy.inside_s, proxy.calls, proxy._clock = 0.0, 0, clock
     timed = TimedRenderer._timed(proxy, lambda: None)
-    started = time.perf_counter()
+    started = clock()
     for _ in range(calls):
         timed()
-    return max(0.0, (time.perf_counter() - started - proxy.inside_s) / calls)
+    return max(0.0, (clock() - started - proxy.inside_s) / calls)
 
 
 def measure(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,
-            renderer: Renderer, call_overhead_s: float) -> dict:
-    """One pass of `method` over `path`: per-frame means of the traversal's Python time."""
-    proxy = TimedRenderer(renderer)
+            renderer: Renderer, call_overhead_s: float, clock=time.perf_counter) -> dict:
+    """One pass of `method` over `path`: per-frame means of the traversal's Python time (`clock`
+    seconds; call_overhead_s measured with the same clock)."""
+    proxy = TimedRenderer(renderer, clock)
     traversal = make(method, hlod, proxy, settings)
     prepare = traversal._prepare
     prepare_s = {"s": 0.0}
 
     def timed_prepare(view):
-        started = time.perf_counter()
+        started = clock()
         prepare(view)
-        prepare_s["s"] += time.perf_counter() - started
+        prepare_s["s"] += clock() - started
     traversal._prepare = timed_prepare
     visited = 0
     total_s = 0.0
     for i in range(len(path)):
         view = path.view(i, size)
-        started = time.perf_counter()
+        started = clock()
         stats = traversal.frame(view)
-        total_s += time.perf_counter() - started
+        total_s += clock() - started
         visited += stats.traversed
     frames = len(path)
     python_s = total_s - proxy.inside_s - proxy.calls * call_overhead_s
@@ -100,15 +149,18 @@ def measure(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath
 
 
 def run(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: list[str], repeat: int,
-        settings: RuntimeSettings) -> dict:
-    overhead_s = _proxy_overhead_s()
+        settings: RuntimeSettings, clock: str = "wall", null_renderer: bool = False) -> dict:
+    overhead_s = _proxy_overhead_s(clock=CLOCKS[clock])
     runs: dict[str, list[dict]] = {m: [] for m in methods}
-    renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod))
+    if null_renderer:
+        renderer = NullRenderer(hlod)
+    else:
+        renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod))
     try:
         for rep in range(repeat):
             for method in (methods if rep % 2 == 0 else methods[::-1]):
                 runs[method].append(measure(hlod, method, settings, path, size, renderer=renderer,
-                                            call_overhead_s=overhead_s))
+                                            call_overhead_s=overhead_s, clock=CLOCKS[clock]))
     finally:
         renderer.release()
     return {m: {k: statistics.median(r[k] for r in runs[m]) for k in runs[m][0]} for m in methods}
@@ -122,10 +174,13 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     parser.add_argument("--alpha", default="query", choices=["query", "projected", "cube"])
+    parser.add_argument("--clock", default="wall", choices=list(CLOCKS))
+    parser.add_argument("--renderer", default="gl", choices=["gl", "null"])
     args = parser.parse_args()
     size = tuple(int(x) for x in args.size.split("x"))
     table = run(fileformat.load(args.file), load_path(args.path), size, methods=args.methods,
-                repeat=args.repeat, settings=RuntimeSettings(alpha=args.alpha))
+                repeat=args.repeat, settings=RuntimeSettings(alpha=args.alpha), clock=args.clock,
+                null_renderer=args.renderer == "null")
     for method, row in table.items():
         print(json.dumps({"method": method, **row}))
     print("| method | visited / frame | prepare us / frame | walk us / visited node | Python us / visited node "

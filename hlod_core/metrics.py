@@ -8,11 +8,12 @@ Papers: the VMSSE `SSE * P(q/alpha)` and the cube estimate of alpha come from Ch
 occlusion queries" (ISVC 2007, `...2007-optimized-hlod-refinement.txt` §3).
 
 Data form: a `view.View` and per-node arrays of the `hierarchy.Hlod` table; every function returns
-(n,) arrays (`bias_scalar`: one float, for the traversal's per-node path).
+(n,) arrays (`bias_function`, `bias_scalar`: one float, for the traversal's per-node path).
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -22,8 +23,15 @@ from .view import View
 # --- SSE (DESIGN §5.1) --------------------------------------------------------------------------
 
 def sphere_distance(view: View, center: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """d = |e - c| - r (n,), model units; <= 0 when the eye is inside the sphere."""
-    return np.linalg.norm(center - view.eye, axis=1) - radius
+    """d = |e - c| - r (n,), model units; <= 0 when the eye is inside the sphere. The norm sums
+    the axes' squares in order, as `np.linalg.norm(axis=1)` does, by columns: a column-major
+    (Fortran-ordered) `center` (the traversal's) reads each column contiguously."""
+    eye = view.eye
+    dx, dy, dz = (center[:, axis] - eye[axis] for axis in range(3))
+    squared = dx * dx
+    squared += dy * dy
+    squared += dz * dz
+    return np.sqrt(squared, out=squared) - radius
 
 
 def sse(view: View, error: np.ndarray, center: np.ndarray, radius: np.ndarray, is_leaf: np.ndarray) -> np.ndarray:
@@ -34,12 +42,11 @@ def sse(view: View, error: np.ndarray, center: np.ndarray, radius: np.ndarray, i
         out = error * view.pixels_per_unit_y
     else:
         d = sphere_distance(view, center, radius)
-        out = np.full(error.shape, np.inf)
-        ahead = d > 0
-        with np.errstate(over="ignore"):  # d tiny but positive: a huge finite or inf SSE, both refine
-            out[ahead] = error[ahead] * view.pixels_per_unit_y / d[ahead]
-    out[is_leaf] = 0.0
-    return out
+        # d tiny but positive: a huge finite or inf SSE, both refine; d <= 0 is replaced by inf
+        # (whatever its quotient overflowed, divided by 0 or underflowed to)
+        with np.errstate(all="ignore"):
+            out = np.where(d > 0, error * view.pixels_per_unit_y / d, np.inf)
+    return np.where(is_leaf, 0.0, out)
 
 
 # --- the bias P_{s,t} (DESIGN §5.2) -------------------------------------------------------------
@@ -87,22 +94,40 @@ def bias(mu, s: float, t: float, k: float = np.inf) -> np.ndarray:
 
 
 def bias_scalar(mu: float, s: float, t: float, k: float = math.inf) -> float:
-    """`bias` for one float, in plain Python (the traversal calls it per node; a numpy call per
-    scalar costs more than the arithmetic). Same values as `bias` (tests compare them on a grid);
-    s, t, k are not validated here (RuntimeSettings does it once); NaN mu counts as 0."""
-    if not mu > 0.0:
-        return 0.0
-    if mu >= 1.0:
-        return 1.0
+    """`bias` for one float, in plain Python: `bias_function(s, t, k)(mu)`."""
+    return bias_function(s, t, k)(mu)
+
+
+def bias_function(s: float, t: float, k: float = math.inf) -> Callable[[float], float]:
+    """P_{s,t} of one float in plain Python with s, t, k bound (the traversal calls it per node; a
+    numpy call per scalar costs more than the arithmetic). Same values as `bias` (tests compare
+    them on a grid); s, t, k are not validated here (RuntimeSettings does it once); NaN mu counts
+    as 0."""
     if math.isinf(k):
-        step = 1.0 if mu >= t else 0.0
-    elif k < _K_LINEAR:
-        step = mu
+        def p(mu: float) -> float:  # the step S_t: s S_t(mu) is s or 0
+            if not mu > 0.0:
+                return 0.0
+            if mu >= 1.0:
+                return 1.0
+            return min(1.0, max(0.0, (1.0 - s) * mu + (s if mu >= t else 0.0)))
+        return p
+    if k < _K_LINEAR:
+        def step(mu: float) -> float:
+            return mu
     else:
         lo = 0.5 * (1.0 + math.tanh(-0.5 * k * t))
         den = 0.5 * (1.0 + math.tanh(0.5 * k * (1.0 - t))) - lo
-        step = min(1.0, max(0.0, (0.5 * (1.0 + math.tanh(0.5 * k * (mu - t))) - lo) / den))
-    return min(1.0, max(0.0, (1.0 - s) * mu + s * step))
+
+        def step(mu: float) -> float:
+            return min(1.0, max(0.0, (0.5 * (1.0 + math.tanh(0.5 * k * (mu - t))) - lo) / den))
+
+    def p(mu: float) -> float:
+        if not mu > 0.0:
+            return 0.0
+        if mu >= 1.0:
+            return 1.0
+        return min(1.0, max(0.0, (1.0 - s) * mu + s * step(mu)))
+    return p
 
 
 def band_half_width(k: float) -> float:

@@ -18,7 +18,11 @@ Beyond the papers: Coh also measures the ratio of the nodes it refines, so the f
 where Algorithm 4's children's average cannot see it should (`Coh`, `shift_up`).
 
 Per-frame work over the whole node table (frustum test, distances, SSE, cube alpha) is numpy; the
-Python loop is the traversal itself, over the nodes it visits.
+Python loop is the traversal itself, over the nodes it visits. Data form: the walk reads the frame's
+(n,) results through memoryviews (a Python scalar per index, at about a list's speed, without a
+per-frame `tolist`) and keeps the per-node state it reads and writes one node at a time in Python
+lists (a list index costs a fifth of a numpy scalar's); `visible`, `ratio` etc. give that state as
+(n,) arrays for vectorised readers.
 """
 from __future__ import annotations
 
@@ -141,14 +145,17 @@ class NodeRenderer(Protocol):
         """(q, alpha or None, stall seconds), blocking if needed."""
 
 
-@dataclass
-class _Pending:
-    """A query in flight; query None when the box cannot be queried (eye inside it, or it reaches
-    in front of the near plane): visible with mu = 1."""
+#: A query in flight, as the tuple (node, mode, query) (a tuple: one is made per query); query is
+#: None when the box cannot be queried (eye inside it, or it reaches in front of the near plane):
+#: visible with mu = 1.
+Pending = tuple[int, str, "Query | None"]
 
-    node: int
-    mode: str
-    query: Query | None
+
+def _array(values: list, dtype) -> np.ndarray:
+    """A per-node state list as a new (n,) array (read-only: writing to it would change nothing)."""
+    out = np.array(values, dtype)
+    out.flags.writeable = False
+    return out
 
 
 class Traversal(abc.ABC):
@@ -162,40 +169,59 @@ class Traversal(abc.ABC):
         self.renderer = renderer
         self.settings = settings
         n = hlod.node_count
-        self.visible = np.zeros(n, bool)
-        self.last_visited = np.full(n, NEVER_FRAME, np.int64)
-        self.stop_refinement = np.zeros(n, bool)
-        self.ratio = np.zeros(n, np.float64)
-        self.rendered = np.full(n, NEVER_FRAME, np.int64)  # frame the node was last drawn in
+        # per-node state, one entry a node (lists: module docstring; the properties below give arrays)
+        self._visible = [False] * n
+        self._last_visited = [NEVER_FRAME] * n
+        self._stop_refinement = [False] * n
+        self._ratio = [0.0] * n
+        self._rendered = [NEVER_FRAME] * n  # frame the node was last drawn in
         self.frame_id = 0
         self._is_leaf = hlod.is_leaf
-        self._child_offset = hlod.child_offset.tolist()
-        self._child_count = hlod.child_count.tolist()
+        self._children = [range(first, first + count) if first >= 0 else range(0)
+                          for first, count in zip(hlod.child_offset.tolist(), hlod.child_count.tolist())]
         self._parent = hlod.parent.tolist()
         self._tri_count = hlod.tri_count.tolist()
         self._leaf = self._is_leaf.tolist()
+        # the inner nodes' SSE inputs (a leaf's SSE is 0, and most nodes are leaves), the centres'
+        # columns contiguous (metrics.sphere_distance)
+        self._inner = np.flatnonzero(~self._is_leaf)
+        self._inner_sphere = (hlod.error[self._inner], np.asfortranarray(hlod.sphere_center[self._inner]),
+                              hlod.sphere_radius[self._inner], np.zeros(self._inner.shape[0], bool))
+        self._box_rows: boxes.BoxRows | None = None  # made on the first frame, from the renderer's pad
+        self._query_alpha = settings.alpha == "query"
+        self._tau = settings.tau
+        self._p = metrics.bias_function(0.0 if settings.bias == "mu" else settings.s, settings.t, settings.k)
+
+    # (n,) arrays of the per-node state, new on each read (the walk's lists stay the state)
+    visible = property(lambda self: _array(self._visible, bool), doc="(n,) bool: visible in the last query result")
+    last_visited = property(lambda self: _array(self._last_visited, np.int64), doc="(n,) int64 frame id")
+    stop_refinement = property(lambda self: _array(self._stop_refinement, bool), doc="(n,) bool")
+    ratio = property(lambda self: _array(self._ratio, np.float64), doc="(n,) float64 P of the last result")
+    rendered = property(lambda self: _array(self._rendered, np.int64), doc="(n,) int64 frame last drawn")
 
     # --- per frame, vectorised ------------------------------------------------------------------
 
     def _prepare(self, view: View) -> None:
+        """The frame's node-table results, (n,) each, as memoryviews: in_frustum bool, key float64
+        (eye-to-box distance, the priority), unqueryable bool (boxes.view_tests), sse float64 pixels;
+        alpha_estimate (n,) float64 pixels or None (the `query` estimator)."""
         h = self.hlod
         self.view = view
-        self.in_frustum = boxes.boxes_in_frustum(view, h.box_min, h.box_max).tolist()
-        self.sse = metrics.sse(view, h.error, h.sphere_center, h.sphere_radius, self._is_leaf).tolist()
-        self.key = boxes.box_distance(view.eye, h.box_min, h.box_max).tolist()
         pad = self.renderer.query_box_pad
-        lo, hi = h.box_min - pad, h.box_max + pad
-        # DESIGN §5.4 skips the query when the eye is inside the box; a box reaching in front of
-        # the near plane has the same problem (its front faces are clipped), so it is skipped too.
-        self.unqueryable = (boxes.eye_in_boxes(view.eye, lo, hi)
-                            | boxes.boxes_cross_near_plane(view, lo, hi)).tolist()
+        if self._box_rows is None or self._box_rows.query_pad != pad:
+            self._box_rows = boxes.BoxRows.of(h.box_min, h.box_max, pad)
+        in_frustum, key, unqueryable = boxes.view_tests(view, self._box_rows)
+        sse = np.zeros(h.node_count)
+        sse[self._inner] = metrics.sse(view, *self._inner_sphere)
+        self.in_frustum, self.key, self.unqueryable, self.sse = map(memoryview, (in_frustum, key, unqueryable, sse))
         self.alpha_estimate = None  # (n,) pixels, for the estimators other than `query`
         if self.settings.alpha == "cube":
             self.alpha_estimate = alpha_estimators.alpha_cube(view, h.cube_side, h.box_min, h.box_max)
         elif self.settings.alpha == "projected":  # only boxes that can be queried this frame
-            candidates = np.flatnonzero(np.asarray(self.in_frustum) & ~np.asarray(self.unqueryable))
+            candidates = np.flatnonzero(in_frustum & ~unqueryable)
             self.alpha_estimate = np.zeros(h.node_count)
-            self.alpha_estimate[candidates] = alpha_estimators.alpha_projected(view, lo[candidates], hi[candidates])
+            self.alpha_estimate[candidates] = alpha_estimators.alpha_projected(
+                view, h.box_min[candidates] - pad, h.box_max[candidates] + pad)
 
     def frame(self, view: View) -> FrameStats:
         self.frame_id += 1
@@ -219,69 +245,61 @@ class Traversal(abc.ABC):
 
     def modulation(self, nodes) -> np.ndarray:
         """m = 1 - P of `nodes` after the frame (0 for methods VMSSE does not steer)."""
-        p = self.ratio[np.asarray(nodes, np.int64)] if self.modulates else np.ones(len(nodes))
+        ratio = self._ratio
+        p = [ratio[node] for node in np.asarray(nodes, np.int64).tolist()] if self.modulates else np.ones(len(nodes))
         return metrics.modulation(p)
-
-    def _children(self, node: int) -> range:
-        first = self._child_offset[node]
-        return range(first, first + self._child_count[node]) if first >= 0 else range(0)
 
     def _render(self, node: int, stats: FrameStats) -> bool:
         """Draw once per frame; False if the node was already drawn."""
-        if self.rendered[node] == self.frame_id:
+        if self._rendered[node] == self.frame_id:
             return False
-        self.rendered[node] = self.frame_id
+        self._rendered[node] = self.frame_id
         stats.dn += 1
         stats.tris += self._tri_count[node]
         stats.drawn.append(node)
-        self.renderer.draw_node(node, self.ratio[node] if self.modulates else 1.0)
+        self.renderer.draw_node(node, self._ratio[node] if self.modulates else 1.0)
         return True
 
     def _sse_stop(self, node: int) -> bool:
-        return self._leaf[node] or self.sse[node] <= self.settings.tau
+        """Leaves stop; else SSE <= tau (a leaf's SSE is 0)."""
+        return self.sse[node] <= self._tau
 
     def _vmsse_stop(self, node: int, ratio: float) -> bool:
-        """Leaves stop; d <= 0 (SSE = inf) refines whatever the ratio; else ratio * SSE <= tau."""
-        if self._leaf[node]:
-            return True
-        sse = self.sse[node]
-        return math.isfinite(sse) and ratio * sse <= self.settings.tau
+        """Leaves stop; d <= 0 (SSE = inf) refines whatever the ratio; else ratio * SSE <= tau. One
+        comparison does all three for a ratio in [0, 1]: a leaf's SSE is 0, and ratio * inf is inf
+        or, for ratio 0, NaN, which compares False."""
+        return ratio * self.sse[node] <= self._tau
 
-    def _issue(self, node: int, mode: str, stats: FrameStats) -> _Pending:
+    def _issue(self, node: int, stats: FrameStats) -> Query | None:
+        """The node's query, or None where its box cannot be queried (`unqueryable`)."""
         if self.unqueryable[node]:
-            return _Pending(node, mode, None)
+            return None
         stats.queries += 1
-        return _Pending(node, mode, self.renderer.issue_query(node, with_alpha=self.settings.alpha == "query"))
+        return self.renderer.issue_query(node, with_alpha=self._query_alpha)
 
-    def _available(self, pending: _Pending) -> bool:
-        return pending.query is None or self.renderer.available(pending.query)
-
-    def _mu(self, pending: _Pending, stats: FrameStats) -> tuple[int, float]:
-        """(q, mu) of a finished query; an unqueryable box gives (1, 1.0)."""
-        if pending.query is None:
+    def _mu(self, node: int, query: Query | None, stats: FrameStats) -> tuple[int, float]:
+        """(q, mu) of a finished query; an unqueryable box (query None) gives (1, 1.0)."""
+        if query is None:
             return 1, 1.0
-        q, alpha_q, stall = self.renderer.result(pending.query)
+        q, alpha_q, stall = self.renderer.result(query)
         stats.stall_ms += stall * MS_PER_S
-        alpha = float(alpha_q) if self.settings.alpha == "query" else float(self.alpha_estimate[pending.node])
-        mu = 0.0 if not alpha > 0 else min(1.0, max(0.0, q / alpha))  # alpha 0 or NaN -> 0; q > alpha -> 1
+        alpha = float(alpha_q) if self._query_alpha else float(self.alpha_estimate[node])
+        mu = 0.0 if not alpha > 0 else min(1.0, q / alpha)  # alpha 0 or NaN -> 0; q > alpha -> 1 (q >= 0)
         return q, mu
 
-    def _walk(self, stats: FrameStats, visit) -> None:
-        """Front to back from the root over nodes in the frustum; visit(node) -> True descends."""
-        heap = [(self.key[0], 0)]
-        while heap:
-            _, node = heapq.heappop(heap)
-            if not self.in_frustum[node]:
-                continue
-            stats.traversed += 1
-            if visit(node):
-                for child in self._children(node):
-                    heapq.heappush(heap, (self.key[child], child))
+    def _schedule(self, heap: list, nodes) -> None:
+        """Push those of `nodes` that lie in the frustum on the front-to-back heap (a node outside
+        would only be popped and dropped)."""
+        key, in_frustum = self.key, self.in_frustum
+        for node in nodes:
+            if in_frustum[node]:
+                heapq.heappush(heap, (key[node], node))
 
     def _pull_up(self, node: int) -> None:
-        while node >= 0 and not self.visible[node]:
-            self.visible[node] = True
-            node = self._parent[node]
+        visible, parent = self._visible, self._parent
+        while node >= 0 and not visible[node]:
+            visible[node] = True
+            node = parent[node]
 
 
 class Full(Traversal):
@@ -305,13 +323,18 @@ class VFC(Traversal):
     modulates = False
 
     def _traverse(self, stats):
-        def visit(node):
+        heap: list = []
+        self._schedule(heap, (0,))
+        children, heappop = self._children, heapq.heappop
+        traversed = 0
+        while heap:
+            node = heappop(heap)[1]
+            traversed += 1
             if self._sse_stop(node):
                 self._render(node, stats)
-                return False
-            return True
-
-        self._walk(stats, visit)
+            else:
+                self._schedule(heap, children[node])
+        stats.traversed += traversed
 
 
 class StopAndWait(Traversal):
@@ -320,23 +343,31 @@ class StopAndWait(Traversal):
     name = "sw"
 
     def _traverse(self, stats):
-        def visit(node):
-            self.last_visited[node] = self.frame_id
-            q, mu = self._mu(self._issue(node, DELAY, stats), stats)
+        heap: list = []
+        self._schedule(heap, (0,))
+        frame_id, children, heappop = self.frame_id, self._children, heapq.heappop
+        visible, last_visited, stop_refinement, ratio = (self._visible, self._last_visited, self._stop_refinement,
+                                                         self._ratio)
+        traversed = 0
+        while heap:
+            node = heappop(heap)[1]
+            traversed += 1
+            last_visited[node] = frame_id
+            q, mu = self._mu(node, self._issue(node, stats), stats)
             if q == 0:
-                self.visible[node] = False
-                self.ratio[node] = 0.0
-                return False
-            self.visible[node] = True
-            self.ratio[node] = self.settings.p(float(mu))
-            stop = self._vmsse_stop(node, self.ratio[node])
-            self.stop_refinement[node] = stop
-            if stop and self._render(node, stats):
+                visible[node] = False
+                ratio[node] = 0.0
+                continue
+            visible[node] = True
+            ratio[node] = p = self._p(mu)
+            stop = self._vmsse_stop(node, p)
+            stop_refinement[node] = stop
+            if not stop:
+                self._schedule(heap, children[node])
+            elif self._render(node, stats):
                 stats.d += 1
                 stats.delayed.append(node)
-            return not stop
-
-        self._walk(stats, visit)
+        stats.traversed += traversed
 
 
 class Ideal(Traversal):
@@ -351,7 +382,7 @@ class Ideal(Traversal):
 
     def frame(self, view):
         chosen = self._sw.frame(view).drawn
-        self.ratio = self._sw.ratio
+        self._ratio = self._sw._ratio
         self._chosen = chosen
         return super().frame(view)
 
@@ -393,12 +424,14 @@ class CoherentLoop(Traversal):
     def __init__(self, hlod, renderer, settings=RuntimeSettings(), *, recheck_seed: int = 0):
         super().__init__(hlod, renderer, settings)
         self._skip_mode = settings.skip_queries if self.skips_queries else "off"
-        self.recheck_due = np.zeros(hlod.node_count, np.int64)  # frame from which a skip needs a query again
+        self._recheck_due = [0] * hlod.node_count  # frame from which a skip needs a query again
         rng = np.random.default_rng(recheck_seed)
         self._recheck_phase = rng.integers(0, self.recheck_frames, hlod.node_count).tolist()
         self.change_rate = 1.0  # nothing measured yet: every query may change something
-        self.skippable: list | None = None
+        self.skippable: memoryview | None = None  # (n,) bool, per frame
         self._tris = np.asarray(hlod.tri_count, np.float64)
+
+    recheck_due = property(lambda self: _array(self._recheck_due, np.int64), doc="(n,) int64 frame id")
 
     def _prepare(self, view):
         super()._prepare(view)
@@ -417,18 +450,18 @@ class CoherentLoop(Traversal):
             draw_s = draw_s * self.change_rate
         skippable = np.zeros(h.node_count, bool)
         skippable[candidates] = draw_s < model.query_seconds(pixels)
-        self.skippable = skippable.tolist()
+        self.skippable = memoryview(skippable)
 
     def _skips(self, node: int) -> bool:
         """Draw this STOP-predicted node without its query?"""
-        return self.skippable is not None and self.skippable[node] and self.frame_id < self.recheck_due[node]
+        return self.skippable is not None and self.skippable[node] and self.frame_id < self._recheck_due[node]
 
     def _queried(self, node: int, mode: str, changed: bool) -> None:
         """Bookkeeping of a finished STOP / DELAY query: the next re-check (the node's next frame f
         with (f + its seeded phase) % recheck_frames == 0: 1 to recheck_frames frames on), the
         change rate."""
         n = self.recheck_frames
-        self.recheck_due[node] = self.frame_id + 1 + (-(self.frame_id + 1) - self._recheck_phase[node]) % n
+        self._recheck_due[node] = self.frame_id + 1 + (-(self.frame_id + 1) - self._recheck_phase[node]) % n
         if mode == STOP:
             self.change_rate += (float(changed) - self.change_rate) * self.change_rate_weight
 
@@ -440,79 +473,100 @@ class CoherentLoop(Traversal):
     def _stop_on_result(self, node: int, mu: float) -> bool:
         """Stop refinement at a node whose query came back visible with visibility mu?"""
 
-    def _push(self, heap, node):
-        heapq.heappush(heap, (self.key[node], node))
-
     def _traverse(self, stats):
-        heap: list = [(self.key[0], 0)]
-        self._on_push(0)
-        queue: deque[_Pending] = deque()
+        """Algorithm 2's loop. The per-node helpers (`_issue`, `_mu`, `_render`, `_pull_up`) are
+        written out here, with the state bound to locals: this loop is the traversal's Python cost
+        per node (issue 15)."""
+        heap: list = []
+        self._schedule(heap, (0,))
+        queue: deque[Pending] = deque()
         skipping = self.skippable is not None
-
-        def descend(node, stop):
-            if stop:
-                self._render(node, stats)
-            else:
-                for child in self._children(node):
-                    self._on_push(child)
-                    self._push(heap, child)
-
+        frame_id, children, parent, tri_count = self.frame_id, self._children, self._parent, self._tri_count
+        visible, last_visited, stop_refinement = self._visible, self._last_visited, self._stop_refinement
+        rendered, ratio, unqueryable = self._rendered, self._ratio, self.unqueryable
+        predict, stop_on_result, schedule = self._predict, self._stop_on_result, self._schedule
+        renderer = self.renderer
+        available, issue_query, result, draw_node = (renderer.available, renderer.issue_query, renderer.result,
+                                                     renderer.draw_node)
+        query_alpha, alpha_estimate, modulates = self._query_alpha, self.alpha_estimate, self.modulates
+        drawn, heappop = stats.drawn, heapq.heappop
+        traversed = queries = dn = tris = 0
+        stall_s = 0.0
         while heap or queue:
-            while queue and (not heap or self._available(queue[0])):
-                pending = queue.popleft()
-                node = pending.node
-                q, mu = self._mu(pending, stats)
-                if pending.mode == MEASURE_RATIO:
-                    self._measured(node, q, mu)
+            # results in the order issued, as long as they are back (all of them once the heap is empty)
+            while queue and (not heap or queue[0][2] is None or available(queue[0][2])):
+                node, mode, query = queue.popleft()
+                if query is None:  # a box that cannot be queried counts as visible, mu = 1
+                    q, mu = 1, 1.0
+                else:
+                    queries += 1
+                    q, alpha_q, stall = result(query)
+                    stall_s += stall
+                    alpha = float(alpha_q) if query_alpha else float(alpha_estimate[node])
+                    mu = 0.0 if not alpha > 0 else min(1.0, q / alpha)  # as in _mu
+                if mode == MEASURE_RATIO:
+                    self._measured_ratio(node, q, mu)
                 elif q > 0:
-                    self._pull_up(node)
-                    stop = self._stop_on_result(node, mu)
-                    self.stop_refinement[node] = stop
+                    up = node  # pull visibility up
+                    while up >= 0 and not visible[up]:
+                        visible[up] = True
+                        up = parent[up]
+                    stop = stop_on_result(node, mu)
+                    stop_refinement[node] = stop
                     if skipping:
-                        self._queried(node, pending.mode, not stop)
-                    if stop:
-                        if self._render(node, stats) and pending.mode == DELAY:
-                            stats.d += 1
-                            stats.delayed.append(node)
-                    else:
-                        if self.rendered[node] == self.frame_id:
+                        self._queried(node, mode, not stop)
+                    if not stop:
+                        if rendered[node] == frame_id:
                             stats.rarn += 1
                             stats.refined_after_draw.append(node)
-                        descend(node, False)
+                        schedule(heap, children[node])
+                    elif rendered[node] != frame_id:  # drawn once a frame
+                        rendered[node] = frame_id
+                        dn += 1
+                        tris += tri_count[node]
+                        drawn.append(node)
+                        draw_node(node, ratio[node] if modulates else 1.0)
+                        if mode == DELAY:
+                            stats.d += 1
+                            stats.delayed.append(node)
                 else:
-                    self.ratio[node] = 0.0  # P(0) = 0; the node stays invisible
+                    ratio[node] = 0.0  # P(0) = 0; the node stays invisible
                     if skipping:
-                        self._queried(node, pending.mode, True)
+                        self._queried(node, mode, True)
             if heap:
-                _, node = heapq.heappop(heap)
-                if not self.in_frustum[node]:
-                    continue
-                stats.traversed += 1
-                mode = self._predict(node)
+                node = heappop(heap)[1]
+                traversed += 1
+                mode = predict(node)
                 stop = mode != REFINE
-                self.stop_refinement[node] = stop
-                self.visible[node] = False
-                self.last_visited[node] = self.frame_id
-                if stop:
-                    if mode == STOP and skipping and self._skips(node):
-                        self._pull_up(node)  # assumed visible: stays so, keeps its ratio
-                        stats.skipped.append(node)
-                    else:
-                        queue.append(self._issue(node, mode, stats))
-                elif self._measures_refined(node):
-                    queue.append(self._issue(node, MEASURE_RATIO, stats))
-                if mode != DELAY:
-                    descend(node, stop)
+                stop_refinement[node] = stop
+                visible[node] = False
+                last_visited[node] = frame_id
+                if stop and mode == STOP and skipping and self._skips(node):
+                    self._pull_up(node)  # assumed visible: stays so, keeps its ratio
+                    stats.skipped.append(node)
+                elif stop or self._measures_refined(node):
+                    query = None if unqueryable[node] else issue_query(node, with_alpha=query_alpha)
+                    queue.append((node, mode if stop else MEASURE_RATIO, query))
+                if mode == REFINE:
+                    schedule(heap, children[node])
+                elif mode == STOP and rendered[node] != frame_id:
+                    rendered[node] = frame_id
+                    dn += 1
+                    tris += tri_count[node]
+                    drawn.append(node)
+                    draw_node(node, ratio[node] if modulates else 1.0)
+        stats.traversed += traversed
+        stats.queries += queries
+        stats.dn += dn
+        stats.tris += tris
+        stats.stall_ms += stall_s * MS_PER_S
 
     def _measures_refined(self, node: int) -> bool:
         """Hook: query this node although it refines (Coh's measured shift-up)?"""
         return False
 
-    def _measured(self, node: int, q: int, mu: float) -> None:
+    def _measured_ratio(self, node: int, q: int, mu: float) -> None:
         """Hook: the result of a MEASURE_RATIO query; it draws and refines nothing."""
-
-    def _on_push(self, node: int) -> None:
-        """Hook: Simp records the insertion position."""
 
 
 class Bool(CoherentLoop):
@@ -524,16 +578,16 @@ class Bool(CoherentLoop):
 
     def __init__(self, hlod, renderer, settings=RuntimeSettings(), **kwargs):
         super().__init__(hlod, renderer, settings, **kwargs)
-        self.ratio[:] = 1.0  # queries are booleans: VMSSE never lowers its LOD
+        self._ratio = [1.0] * hlod.node_count  # queries are booleans: VMSSE never lowers its LOD
 
     def _predict(self, node):
-        was_visible = self.visible[node] and self.last_visited[node] == self.frame_id - 1
+        was_visible = self._visible[node] and self._last_visited[node] == self.frame_id - 1
         if not was_visible:
             return DELAY
         return STOP if self._sse_stop(node) else REFINE
 
     def _stop_on_result(self, node, mu):
-        self.ratio[node] = 1.0
+        self._ratio[node] = 1.0
         return self._sse_stop(node)
 
 
@@ -545,7 +599,7 @@ class Simp(CoherentLoop):
 
     def __init__(self, hlod, renderer, settings=RuntimeSettings()):
         super().__init__(hlod, renderer, settings)
-        self._position = np.zeros(hlod.node_count, np.int64)
+        self._position = [0] * hlod.node_count  # insertion position this frame
         self._previous_position = self._position.copy()
         self._scheduled = 0
         self._previous_scheduled = 0
@@ -555,20 +609,24 @@ class Simp(CoherentLoop):
         self._previous_scheduled, self._scheduled = self._scheduled, 0
         return super().frame(view)
 
-    def _on_push(self, node):
-        self._position[node] = self._scheduled
-        self._scheduled += 1
+    def _schedule(self, heap, nodes):
+        """Every node inserted counts in the positions, the ones outside the frustum too."""
+        position = self._position
+        for node in nodes:
+            position[node] = self._scheduled
+            self._scheduled += 1
+        super()._schedule(heap, nodes)
 
     def _predict(self, node):
-        if self.last_visited[node] != self.frame_id - 1 or not self.visible[node]:
+        if self._last_visited[node] != self.frame_id - 1 or not self._visible[node]:
             return DELAY
         total = max(self._previous_scheduled, 1)
-        mu_hat = 1.0 - float(self._previous_position[node]) / total
-        return STOP if self._vmsse_stop(node, self.settings.p(mu_hat)) else REFINE
+        mu_hat = 1.0 - self._previous_position[node] / total
+        return STOP if self._vmsse_stop(node, self._p(mu_hat)) else REFINE
 
     def _stop_on_result(self, node, mu):
-        self.ratio[node] = self.settings.p(float(mu))
-        return self._vmsse_stop(node, self.ratio[node])
+        self._ratio[node] = ratio = self._p(mu)
+        return self._vmsse_stop(node, ratio)
 
 
 class Coh(CoherentLoop):
@@ -595,44 +653,51 @@ class Coh(CoherentLoop):
 
     def __init__(self, hlod, renderer, settings=RuntimeSettings(), **kwargs):
         super().__init__(hlod, renderer, settings, **kwargs)
-        self.measured = np.full(hlod.node_count, NEVER_FRAME, np.int64)  # frame of the node's last query result
+        self._measured = [NEVER_FRAME] * hlod.node_count  # frame of the node's last query result
         self._measure = settings.shift_up == "measured"
 
+    measured = property(lambda self: _array(self._measured, np.int64), doc="(n,) int64 frame id")
+
     def _predict(self, node):
-        if self.last_visited[node] != self.frame_id - 1 or not self.visible[node]:
+        previous = self.frame_id - 1
+        last_visited, stop_refinement, ratio = self._last_visited, self._stop_refinement, self._ratio
+        if last_visited[node] != previous or not self._visible[node]:
             return DELAY
         if self._leaf[node]:
-            return STOP if self.stop_refinement[node] else DELAY
-        if not self.stop_refinement[node]:
-            if self._measure and self.frame_id - self.measured[node] <= self.measure_every_frames:
-                return DELAY if self._vmsse_stop(node, self.ratio[node]) else REFINE
+            return STOP if stop_refinement[node] else DELAY
+        if not stop_refinement[node]:
+            if self._measure and self.frame_id - self._measured[node] <= self.measure_every_frames:
+                return DELAY if self._vmsse_stop(node, ratio[node]) else REFINE
+            # Algorithm 4's shift-up: all children stopped last frame (one not visited counts as
+            # stopped with ratio 0), and the node stops at their average ratio
             candidate = True
-            ratios = []
-            for child in self._children(node):
-                visited = self.last_visited[child] == self.frame_id - 1
-                stopped = self.stop_refinement[child] if visited else True
-                ratio = self.ratio[child] if visited else 0.0
-                ratios.append(ratio)
-                if not stopped or not self._vmsse_stop(child, ratio):
+            total, count = 0.0, 0
+            for child in self._children[node]:
+                visited = last_visited[child] == previous
+                stopped = stop_refinement[child] if visited else True
+                child_ratio = ratio[child] if visited else 0.0
+                total += child_ratio  # summed in order, as the published average
+                count += 1
+                if not stopped or not self._vmsse_stop(child, child_ratio):
                     candidate = False
-            if candidate and self._vmsse_stop(node, sum(ratios) / len(ratios)):
+            if candidate and self._vmsse_stop(node, total / count):
                 return DELAY
-        elif self._vmsse_stop(node, self.ratio[node]):
+        elif self._vmsse_stop(node, ratio[node]):
             return STOP
         return REFINE
 
     def _stop_on_result(self, node, mu):
-        self.ratio[node] = self.settings.p(float(mu))
-        self.measured[node] = self.frame_id
-        return self._vmsse_stop(node, self.ratio[node])
+        self._ratio[node] = ratio = self._p(mu)
+        self._measured[node] = self.frame_id
+        return ratio * self.sse[node] <= self._tau  # _vmsse_stop
 
     def _measures_refined(self, node):
         return self._measure and (node + self.frame_id) % self.measure_every_frames == 0 \
             and not self.unqueryable[node] and math.isfinite(self.sse[node])
 
-    def _measured(self, node, q, mu):
-        self.ratio[node] = self.settings.p(float(mu)) if q > 0 else 0.0
-        self.measured[node] = self.frame_id
+    def _measured_ratio(self, node, q, mu):
+        self._ratio[node] = self._p(mu) if q > 0 else 0.0
+        self._measured[node] = self.frame_id
 
 
 METHODS = {"full": Full, "vfc": VFC, "bool": Bool, "sw": StopAndWait, "simp": Simp, "coh": Coh, "ideal": Ideal}

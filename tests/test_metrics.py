@@ -168,6 +168,52 @@ def test_box_distance_is_zero_inside_and_on_faces():
     assert boxes.box_distance(np.array([4.0, 5.0, 0.5]), lo, hi)[0] == pytest.approx(5.0)
 
 
+def test_view_tests_equal_the_textbook_box_tests():
+    """The traversal's one pass over the node table (boxes.view_tests on BoxRows) gives what the
+    textbook tests give box by box: in the frustum unless all 8 corners lie outside one plane
+    (exact for these boxes: none is near a plane's edge), the distance from the eye to the box's
+    nearest point, and unqueryable where the padded box holds the eye or a corner lies behind the
+    near plane. Random boxes around and across the eye, perspective (three near planes) and
+    orthographic views; the distance bit for bit (same operations), the booleans exactly."""
+    rng = np.random.default_rng(7)
+    checked = {"in": 0, "out": 0, "unqueryable": 0, "eye inside": 0}
+    for trial in range(40):
+        eye = rng.normal(size=3) * 5
+        ortho = 8.0 if trial % 5 == 0 else None
+        v = _view(eye=eye, target=rng.normal(size=3), size=(320, 240), fovy=rng.uniform(20, 100), ortho=ortho,
+                  near=float(rng.choice([0.01, 0.5, 2.0])), far=60.0)
+        centre, half = rng.normal(size=(200, 3)) * 6, rng.uniform(0.01, 3, size=(200, 3))
+        centre[:10] = eye + rng.normal(size=(10, 3)) * 0.2  # boxes around or beside the eye
+        lo, hi, pad = centre - half, centre + half, 0.05
+        in_frustum, distance, unqueryable = boxes.view_tests(v, boxes.BoxRows.of(lo, hi, pad))
+        planes = boxes.frustum_planes(v)
+        corners = boxes.box_corners(lo[:, None, :], hi[:, None, :])  # (n,8,3)
+        outside_one_plane = np.any(np.all(corners @ planes[:, :3].T + planes[:, 3] < 0, axis=1), axis=1)
+        assert np.array_equal(in_frustum, ~outside_one_plane)
+        nearest = np.clip(v.eye, lo, hi)
+        assert np.array_equal(distance, np.linalg.norm(nearest - v.eye, axis=1))
+        padded = boxes.box_corners((lo - pad)[:, None, :], (hi + pad)[:, None, :])
+        eye_inside = np.all((lo - pad <= v.eye) & (v.eye <= hi + pad), axis=1)
+        behind_near = np.any(padded @ planes[4, :3] + planes[4, 3] < 0, axis=1)
+        assert np.array_equal(unqueryable, eye_inside | behind_near)
+        checked["in"] += int(in_frustum.sum())
+        checked["out"] += int((~in_frustum).sum())
+        checked["unqueryable"] += int(unqueryable.sum())
+        checked["eye inside"] += int(eye_inside.sum())
+    assert min(checked.values()) > 20, checked  # every outcome occurs
+
+
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_sphere_distance_is_the_norm_bit_for_bit(order):
+    """sphere_distance sums the axes' squares by columns, in np.linalg.norm's order: the same bits
+    for a row-major or a column-major (the traversal's) centre array."""
+    rng = np.random.default_rng(2)
+    centre, radius = rng.normal(size=(500, 3)) * 10 ** rng.uniform(-3, 6, size=(500, 1)), rng.uniform(0, 5, 500)
+    v = _view(eye=(3.0, -2.0, 7.0))
+    got = metrics.sphere_distance(v, np.asarray(centre, order=order), radius)
+    assert np.array_equal(got, np.linalg.norm(centre - v.eye, axis=1) - radius)
+
+
 # --- alpha estimators (geometry only; compared with the query estimator in test_traversal) ------
 
 def test_projected_alpha_of_a_face_on_square():

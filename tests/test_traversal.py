@@ -1,9 +1,12 @@
 """Traversal methods with real OpenGL occlusion queries (Mesa llvmpipe through EGL without a GPU)."""
 import ctypes
 import dataclasses
+import heapq
+import math
 import subprocess
 import sys
 import time
+from collections import deque
 
 import moderngl
 import numpy as np
@@ -17,7 +20,8 @@ from hlod_core.gl_functions import GL, GLFunctions
 from hlod_core.gl_state import GLState
 from hlod_core.overlay import OVERLAY_RAMP_STEPS, overlay_ramp
 from hlod_core.renderer import DEFAULT_COLOUR, Renderer
-from hlod_core.traversal import COUNTERS, METHODS, FrameStats, RuntimeSettings, make
+from hlod_core.traversal import (COUNTERS, DELAY, MEASURE_RATIO, METHODS, REFINE, STOP, FrameStats, RuntimeSettings,
+                                 make)
 
 from helpers import baked_city, load_model, standalone_gl, street_path
 
@@ -164,26 +168,39 @@ def test_alpha_estimators_against_the_query_on_boxes_fully_on_screen(city_render
     assert 1.0 < np.median(cube_factor) < 4.0, np.median(cube_factor)
 
 
+class _RecordingResults:
+    """Test double around the real renderer: records each query result's q by node."""
+
+    def __init__(self, renderer):
+        self._renderer = renderer
+        self.q = {}
+
+    def __getattr__(self, name):
+        return getattr(self._renderer, name)
+
+    def result(self, query):
+        out = self._renderer.result(query)
+        self.q[query.node] = out[0]
+        return out
+
+
 def test_mu_stays_in_0_1_when_alpha_is_underestimated(city_renderer):
-    """q > alpha happens with the cube estimate (it underestimates flat, wide boxes): mu clamps to 1."""
+    """q > alpha happens with the cube estimate (it underestimates flat, wide boxes): mu clamps to 1,
+    so the node's ratio is P(1) = 1 (each node is queried at most once a frame)."""
     path = street_path(10)
     for alpha in ("cube", "projected"):
-        traversal = make("coh", city_renderer.hlod, city_renderer, RuntimeSettings(alpha=alpha))
+        recording = _RecordingResults(city_renderer)
+        traversal = make("coh", city_renderer.hlod, recording, RuntimeSettings(alpha=alpha))
         seen_over = 0
-        original = traversal._mu
-
-        def spy(pending, stats):
-            q, mu = original(pending, stats)
-            nonlocal seen_over
-            if pending.query is not None and alpha == "cube":
-                seen_over += int(q > traversal.alpha_estimate[pending.node])
-            assert 0.0 <= mu <= 1.0
-            return q, mu
-
-        traversal._mu = spy
         for i in range(len(path)):
+            recording.q.clear()
             traversal.frame(path.view(i, SIZE))
-        assert np.all((traversal.ratio >= 0) & (traversal.ratio <= 1))
+            ratio = traversal.ratio
+            assert np.all((ratio >= 0) & (ratio <= 1))
+            for node, q in recording.q.items():
+                if 0 < traversal.alpha_estimate[node] < q:
+                    seen_over += 1
+                    assert ratio[node] == 1.0, (alpha, node, q, traversal.alpha_estimate[node])
         if alpha == "cube":
             assert seen_over > 0, "the path never produced q > alpha; the clamp went untested"
 
@@ -524,10 +541,13 @@ def test_gl_state_is_restored_after_a_frame(gl_ctx):
 def test_traversal_cpu_benchmark_leaves_the_renderer_out(city_renderer):
     """benchmarks/traversal_cpu: the traversal's Python time per visited node excludes the time inside
     the renderer. A renderer made 2 ms slower per draw (real GL plus a sleep) leaves the per-node
-    Python time below those 2 ms and shows up in the renderer's share instead."""
+    Python time below those 2 ms and shows up in the renderer's share instead. Results are fetched
+    only when the traversal runs out of other work (_ScriptedLatency), so both runs visit the same
+    nodes whatever the sleeps do to llvmpipe's timing."""
     from benchmarks import traversal_cpu
     path = street_path(6)
-    plain = traversal_cpu.measure(city_renderer.hlod, "coh", RuntimeSettings(), path, SIZE, renderer=city_renderer,
+    late = _ScriptedLatency(city_renderer)
+    plain = traversal_cpu.measure(city_renderer.hlod, "coh", RuntimeSettings(), path, SIZE, renderer=late,
                                   call_overhead_s=traversal_cpu._proxy_overhead_s())
     delay_s = 0.002
 
@@ -543,9 +563,317 @@ def test_traversal_cpu_benchmark_leaves_the_renderer_out(city_renderer):
             return getattr(self._renderer, name)
 
     slow = traversal_cpu.measure(city_renderer.hlod, "coh", RuntimeSettings(), path, SIZE,
-                                 renderer=SlowDraws(city_renderer), call_overhead_s=0.0)
+                                 renderer=SlowDraws(late), call_overhead_s=0.0)
     assert plain["visited"] > 10 and slow["visited"] == plain["visited"]
     drawn_per_frame = slow["renderer_ms"] - plain["renderer_ms"]
     assert drawn_per_frame > 5 * delay_s * 1e3  # several draws a frame, each 2 ms slower
     extra_us_per_node = 1e3 * drawn_per_frame / slow["visited"]  # what the sleeps would add if counted
     assert 0 < slow["python_us_per_node"] < 0.25 * extra_us_per_node, (slow, extra_us_per_node)
+
+
+def test_traversal_cpu_null_renderer_leaves_the_python_alone():
+    """benchmarks/traversal_cpu --renderer null: the traversals run without GL (every query back at
+    once, a seeded visibility per node), so what they visit does not depend on timing, and the time
+    inside the renderer is a small part of theirs."""
+    from benchmarks import traversal_cpu
+    runs = [traversal_cpu.run(baked_city(), street_path(8), SIZE, methods=["coh", "bool"], repeat=1,
+                              settings=RuntimeSettings(), null_renderer=True) for _ in range(2)]
+    for method in ("coh", "bool"):
+        first, second = (run[method] for run in runs)
+        assert first["visited"] == second["visited"] > 10
+        frame_python_ms = first["python_us_per_node"] * first["visited"] / 1e3
+        assert 0 < first["renderer_ms"] < frame_python_ms, first
+
+class _ScriptedAvailability:
+    """Test double for when query results come back: a result is available once `lag` more draws
+    or queries were issued after its query (the latency of a GPU behind the CPU), whatever the
+    machine's load and however often the traversal asks. Records the renderer calls in order."""
+
+    def __init__(self, renderer, lag):
+        self._renderer = renderer
+        self._lag = lag
+        self._issued = 0
+        self._issued_at = {}
+        self.calls = []
+        self.not_yet = 0  # answers "not available yet"
+
+    def __getattr__(self, name):
+        return getattr(self._renderer, name)
+
+    def draw_node(self, node, ratio_p=1.0):
+        self._issued += 1
+        self.calls.append(("draw", node, float(ratio_p)))
+        self._renderer.draw_node(node, ratio_p)
+
+    def issue_query(self, node, *, with_alpha):
+        query = self._renderer.issue_query(node, with_alpha=with_alpha)
+        self._issued += 1
+        self._issued_at[id(query)] = (self._issued, query)
+        self.calls.append(("query", node))
+        return query
+
+    def available(self, query):
+        back = self._issued - self._issued_at[id(query)][0] >= self._lag
+        self.not_yet += not back
+        return back
+
+    def result(self, query):
+        del self._issued_at[id(query)]
+        out = self._renderer.result(query)
+        self.calls.append(("result", query.node, out[0], out[1]))
+        return out
+
+
+class _ReferenceTraversal:
+    """The traversals of DESIGN §6 written plainly, as they were before issue 15's speed-up: per-node
+    state in numpy arrays read one scalar at a time, the frame's box tests and SSE by the textbook
+    (n,3) formulas, one helper call per step, every child pushed and the ones outside the frustum
+    dropped when popped. Methods vfc, sw, bool, simp, coh (both shift-ups); skip_queries off,
+    alpha "query". The library must do exactly what this does."""
+
+    def __init__(self, method, hlod, renderer, settings):
+        self.method, self.hlod, self.renderer, self.settings = method, hlod, renderer, settings
+        n = hlod.node_count
+        self.visible = np.zeros(n, bool)
+        self.last_visited = np.full(n, -10, np.int64)
+        self.stop_refinement = np.zeros(n, bool)
+        self.ratio = np.full(n, 1.0 if method == "bool" else 0.0)
+        self.rendered = np.full(n, -10, np.int64)
+        self.measured = np.full(n, -10, np.int64)
+        self.position, self.previous_position = np.zeros(n, np.int64), np.zeros(n, np.int64)
+        self.scheduled = self.previous_scheduled = 0
+        self.frame_id = 0
+
+    def prepare(self, view):
+        h, pad, eye = self.hlod, self.renderer.query_box_pad, view.eye
+        planes = boxes.frustum_planes(view)
+        normals = planes[:, :3]
+        reach = np.maximum(normals, 0.0) @ h.box_max.T + np.minimum(normals, 0.0) @ h.box_min.T
+        self.in_frustum = np.all(reach + planes[:, 3:] >= 0, axis=0)
+        self.key = np.linalg.norm(np.maximum(np.maximum(h.box_min - eye, eye - h.box_max), 0.0), axis=1)
+        d = np.linalg.norm(h.sphere_center - eye, axis=1) - h.sphere_radius
+        self.sse = np.full(h.node_count, np.inf)
+        self.sse[d > 0] = h.error[d > 0] * view.pixels_per_unit_y / d[d > 0]
+        self.sse[h.is_leaf] = 0.0
+        lo, hi = h.box_min - pad, h.box_max + pad
+        near = planes[4]
+        behind = np.where(near[:3] >= 0, lo, hi) @ near[:3] + near[3] < 0
+        self.unqueryable = np.all((eye >= lo) & (eye <= hi), axis=1) | behind
+
+    def frame(self, view):
+        self.frame_id += 1
+        self.previous_position = self.position.copy()
+        self.previous_scheduled, self.scheduled = self.scheduled, 0
+        self.stats = FrameStats()
+        self.prepare(view)
+        self.renderer.begin_frame(view)
+        {"vfc": self.vfc, "sw": self.sw}.get(self.method, self.coherent)()
+        self.renderer.end_frame()
+        return self.stats
+
+    def children(self, node):
+        first = self.hlod.child_offset[node]
+        return range(first, first + self.hlod.child_count[node]) if first >= 0 else range(0)
+
+    def push(self, heap, node):
+        self.position[node] = self.scheduled
+        self.scheduled += 1
+        heapq.heappush(heap, (float(self.key[node]), node))
+
+    def render(self, node):
+        if self.rendered[node] == self.frame_id:
+            return False
+        self.rendered[node] = self.frame_id
+        self.stats.dn += 1
+        self.stats.tris += int(self.hlod.tri_count[node])
+        self.stats.drawn.append(node)
+        self.renderer.draw_node(node, float(self.ratio[node]) if self.method not in ("vfc", "bool") else 1.0)
+        return True
+
+    def vmsse_stop(self, node, ratio):
+        sse = float(self.sse[node])
+        return bool(self.hlod.is_leaf[node]) or (math.isfinite(sse) and ratio * sse <= self.settings.tau)
+
+    def sse_stop(self, node):
+        return bool(self.hlod.is_leaf[node]) or self.sse[node] <= self.settings.tau
+
+    def p(self, mu):
+        """P_{s,t}(mu) as the traversal first computed it, scalar by scalar (metrics.bias, the
+        vectorised one, may differ in the last bit for finite k)."""
+        s, t, k = 0.0 if self.settings.bias == "mu" else self.settings.s, self.settings.t, self.settings.k
+        if not mu > 0.0:
+            return 0.0
+        if mu >= 1.0:
+            return 1.0
+        if math.isinf(k):
+            step = 1.0 if mu >= t else 0.0
+        else:
+            lo = 0.5 * (1.0 + math.tanh(-0.5 * k * t))
+            den = 0.5 * (1.0 + math.tanh(0.5 * k * (1.0 - t))) - lo
+            step = min(1.0, max(0.0, (0.5 * (1.0 + math.tanh(0.5 * k * (mu - t))) - lo) / den))
+        return min(1.0, max(0.0, (1.0 - s) * mu + s * step))
+
+    def issue(self, node):
+        if self.unqueryable[node]:
+            return None
+        self.stats.queries += 1
+        return self.renderer.issue_query(node, with_alpha=True)
+
+    def mu(self, query):
+        if query is None:
+            return 1, 1.0
+        q, alpha, _ = self.renderer.result(query)
+        return q, 0.0 if not alpha > 0 else min(1.0, max(0.0, q / alpha))
+
+    def pull_up(self, node):
+        while node >= 0 and not self.visible[node]:
+            self.visible[node] = True
+            node = self.hlod.parent[node]
+
+    def vfc(self):
+        heap = [(float(self.key[0]), 0)]
+        while heap:
+            node = heapq.heappop(heap)[1]
+            if self.in_frustum[node]:
+                self.stats.traversed += 1
+                if self.sse_stop(node):
+                    self.render(node)
+                else:
+                    for child in self.children(node):
+                        self.push(heap, child)
+
+    def sw(self):
+        heap = [(float(self.key[0]), 0)]
+        while heap:
+            node = heapq.heappop(heap)[1]
+            if not self.in_frustum[node]:
+                continue
+            self.stats.traversed += 1
+            self.last_visited[node] = self.frame_id
+            q, mu = self.mu(self.issue(node))
+            self.visible[node] = q > 0
+            self.ratio[node] = self.p(mu) if q > 0 else 0.0
+            stop = q == 0 or self.vmsse_stop(node, self.ratio[node])
+            self.stop_refinement[node] = stop if q > 0 else self.stop_refinement[node]
+            if q > 0 and stop and self.render(node):
+                self.stats.d += 1
+                self.stats.delayed.append(node)
+            if not stop:
+                for child in self.children(node):
+                    self.push(heap, child)
+
+    def predict(self, node):
+        seen = self.last_visited[node] == self.frame_id - 1 and self.visible[node]
+        leaf = bool(self.hlod.is_leaf[node])
+        if not seen:
+            return DELAY
+        if self.method == "bool":
+            return STOP if self.sse_stop(node) else REFINE
+        if self.method == "simp":
+            mu_hat = 1.0 - float(self.previous_position[node]) / max(self.previous_scheduled, 1)
+            return STOP if self.vmsse_stop(node, self.p(mu_hat)) else REFINE
+        if leaf:
+            return STOP if self.stop_refinement[node] else DELAY
+        if self.stop_refinement[node]:
+            return STOP if self.vmsse_stop(node, self.ratio[node]) else REFINE
+        if self.settings.shift_up == "measured" and self.frame_id - self.measured[node] <= 4:
+            return DELAY if self.vmsse_stop(node, self.ratio[node]) else REFINE
+        kids = list(self.children(node))
+        visited = [self.last_visited[c] == self.frame_id - 1 for c in kids]
+        ratios = [self.ratio[c] if v else 0.0 for c, v in zip(kids, visited)]
+        stopped = [bool(self.stop_refinement[c]) if v else True for c, v in zip(kids, visited)]
+        if all(s and self.vmsse_stop(c, r) for c, s, r in zip(kids, stopped, ratios)) \
+                and self.vmsse_stop(node, sum(ratios) / len(ratios)):
+            return DELAY
+        return REFINE
+
+    def coherent(self):
+        heap, queue = [], deque()
+        self.push(heap, 0)
+        while heap or queue:
+            while queue and (not heap or queue[0][2] is None or self.renderer.available(queue[0][2])):
+                node, mode, query = queue.popleft()
+                q, mu = self.mu(query)
+                if mode == MEASURE_RATIO:
+                    self.ratio[node] = self.p(mu) if q > 0 else 0.0
+                    self.measured[node] = self.frame_id
+                elif q > 0:
+                    self.pull_up(node)
+                    self.ratio[node] = 1.0 if self.method == "bool" else self.p(mu)
+                    self.measured[node] = self.frame_id
+                    stop = self.sse_stop(node) if self.method == "bool" else self.vmsse_stop(node, self.ratio[node])
+                    self.stop_refinement[node] = stop
+                    if stop and self.render(node) and mode == DELAY:
+                        self.stats.d += 1
+                        self.stats.delayed.append(node)
+                    elif not stop:
+                        if self.rendered[node] == self.frame_id:
+                            self.stats.rarn += 1
+                            self.stats.refined_after_draw.append(node)
+                        for child in self.children(node):
+                            self.push(heap, child)
+                else:
+                    self.ratio[node] = 0.0
+            if heap:
+                node = heapq.heappop(heap)[1]
+                if not self.in_frustum[node]:
+                    continue
+                self.stats.traversed += 1
+                mode = self.predict(node)
+                self.stop_refinement[node] = mode != REFINE
+                self.visible[node] = False
+                self.last_visited[node] = self.frame_id
+                if mode != REFINE:
+                    queue.append((node, mode, self.issue(node)))
+                elif self.method == "coh" and self.settings.shift_up == "measured" \
+                        and (node + self.frame_id) % 4 == 0 and not self.unqueryable[node] \
+                        and math.isfinite(self.sse[node]):
+                    queue.append((node, MEASURE_RATIO, self.issue(node)))
+                if mode == STOP:
+                    self.render(node)
+                elif mode == REFINE:
+                    for child in self.children(node):
+                        self.push(heap, child)
+
+
+@pytest.mark.parametrize("lag", [0, 3])
+def test_every_method_does_exactly_what_the_plain_reference_does(city_renderer, lag):
+    """Issue 15 made the traversal's Python several times cheaper (state in lists, the frame's box
+    tests in one pass, the helpers written out in the loop); it must not change what it does: the
+    same renderer calls in the same order (queries, draws and the ratio each node is drawn with,
+    results), the same counters and drawn nodes every frame, the same state after the path, as the
+    plain reference above. Results come back after a scripted lag (none, or 3 issued commands), so
+    both see the same availability; the street walk and an inspection path (orbit, fly-through,
+    close-up) both."""
+    hlod = city_renderer.hlod
+    paths = (street_path(20), inspection_path(hlod, seed=11, frames=28))
+    variants = [(m, RuntimeSettings()) for m in ("vfc", "sw", "bool", "simp", "coh")] + [
+        ("coh", RuntimeSettings(shift_up="children")), ("coh", RuntimeSettings(bias="mu")),
+        ("simp", RuntimeSettings(bias="mu")), ("sw", RuntimeSettings(s=0.6, t=0.2, k=30.0)),
+        ("coh", RuntimeSettings(s=0.6, t=0.2, k=30.0))]
+    compared = {"rarn": 0, "d": 0, "queries": 0, "not_yet": 0}
+    for method, settings in variants:
+        runs = []
+        for make_traversal in (lambda r: make(method, hlod, r, settings),
+                               lambda r: _ReferenceTraversal(method, hlod, r, settings)):
+            scripted = _ScriptedAvailability(city_renderer, lag)
+            traversal = make_traversal(scripted)
+            frames = []
+            for path in paths:
+                for i in range(len(path)):
+                    s = traversal.frame(path.view(i, SIZE))
+                    frames.append((s.dn, s.rarn, s.d, s.tris, s.queries, s.traversed, s.drawn, s.delayed,
+                                   s.refined_after_draw))
+            state = [np.asarray(getattr(traversal, a)).tolist() for a in ("visible", "stop_refinement", "ratio",
+                                                                          "last_visited", "rendered")]
+            runs.append((scripted.calls, frames, state))
+            compared["not_yet"] += scripted.not_yet
+        (calls, frames, state), (ref_calls, ref_frames, ref_state) = runs
+        for i, (got, want) in enumerate(zip(frames, ref_frames)):
+            assert got == want, (method, settings, lag, "frame", i, got[:6], want[:6])
+        assert calls == ref_calls, (method, settings, lag)
+        assert state == ref_state, (method, settings, lag)
+        for c in ("rarn", "d", "queries"):
+            compared[c] += sum(f[COUNTERS.index(c)] for f in frames)
+    # the paths drew nodes that then refined, waited for results, queried; with a lag, results were late
+    assert all(compared[c] for c in ("rarn", "d", "queries")) and (compared["not_yet"] > 0) == (lag > 0), compared
