@@ -154,3 +154,43 @@ def standalone_gl():
         yield ctx
     finally:
         ctx.release()
+
+
+class ScriptedAvailability:
+    """Test double for when query results come back: a result is available once `lag` more draws
+    or queries were issued after its query (the latency of a GPU behind the CPU), whatever the
+    machine's load and however often the traversal asks. Records the renderer calls in order."""
+
+    def __init__(self, renderer, lag):
+        self._renderer = renderer
+        self._lag = lag
+        self._issued = 0
+        self._issued_at = {}
+        self.calls = []
+        self.not_yet = 0  # answers "not available yet"
+
+    def __getattr__(self, name):
+        return getattr(self._renderer, name)
+
+    def draw_node(self, node, ratio_p=1.0):
+        self._issued += 1
+        self.calls.append(("draw", node, float(ratio_p)))
+        self._renderer.draw_node(node, ratio_p)
+
+    def issue_query(self, node, *, with_alpha):
+        query = self._renderer.issue_query(node, with_alpha=with_alpha)
+        self._issued += 1
+        self._issued_at[id(query)] = (self._issued, query)
+        self.calls.append(("query", node))
+        return query
+
+    def available(self, query):
+        back = self._issued - self._issued_at[id(query)][0] >= self._lag
+        self.not_yet += not back
+        return back
+
+    def result(self, query):
+        del self._issued_at[id(query)]
+        out = self._renderer.result(query)
+        self.calls.append(("result", query.node, out[0], out[1]))
+        return out

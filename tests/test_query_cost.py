@@ -16,7 +16,7 @@ from hlod_core.renderer import DEFAULT_COLOUR, Renderer
 from hlod_core.traversal import Coh, RuntimeSettings, make
 from hlod_core.view import View, look_at, perspective
 
-from helpers import baked_city, standalone_gl, street_path
+from helpers import ScriptedAvailability, baked_city, standalone_gl, street_path
 
 SIZE = (320, 240)
 #: A held-out batch's measured time is within this factor of the fit's prediction (a shared,
@@ -214,16 +214,21 @@ def test_a_scripted_cost_model_pins_both_branches(city_renderer):
     r = city_renderer
     free = LinearCost(fixed_s=query_cost.MIN_COST_S, per_unit_s=query_cost.MIN_COST_S, residual=0.0)
     second = LinearCost(fixed_s=1.0, per_unit_s=0.0, residual=0.0)
-    off = _run(make("coh", r.hlod, r, RuntimeSettings(skip_queries="off")), path)
+
+    def run(skip_queries):
+        # results come back after a scripted lag (3 issued commands), not when llvmpipe's threads
+        # finish them, so runs that should do the same work do exactly the same (it compared means
+        # within 2% before, and failed about a third of its runs on a loaded machine)
+        lagged = ScriptedAvailability(r, 3)
+        return _run(make("coh", r.hlod, lagged, RuntimeSettings(skip_queries=skip_queries)), path)
+
+    off = run("off")
     r._cost_model = CostModel(query=free, draw=second, clock="wall")
-    never = _run(make("coh", r.hlod, r, RuntimeSettings(skip_queries="cheap")), path)
+    never = run("cheap")
     r._cost_model = CostModel(query=second, draw=free, clock="wall")
-    always_traversal = make("coh", r.hlod, r, RuntimeSettings(skip_queries="cheap"))
-    always = _run(always_traversal, path)
+    always = run("cheap")
     assert all(not s.skipped for s in never)
-    # (which result is available when depends on llvmpipe's threads, so runs compare by means)
-    assert np.mean([s.dn for s in never]) == pytest.approx(np.mean([s.dn for s in off]), rel=0.02)
-    assert np.mean([s.queries for s in never]) == pytest.approx(np.mean([s.queries for s in off]), rel=0.02)
+    assert [s.drawn for s in never] == [s.drawn for s in off] and [s.queries for s in never] == [s.queries for s in off]
     assert sum(len(s.skipped) for s in always) > 0
     assert sum(s.queries for s in always) < sum(s.queries for s in off)
 

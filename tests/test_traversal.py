@@ -23,7 +23,7 @@ from hlod_core.renderer import DEFAULT_COLOUR, Renderer
 from hlod_core.traversal import (COUNTERS, DELAY, MEASURE_RATIO, METHODS, REFINE, STOP, FrameStats, RuntimeSettings,
                                  make)
 
-from helpers import baked_city, load_model, standalone_gl, street_path
+from helpers import ScriptedAvailability, baked_city, load_model, standalone_gl, street_path
 
 pytestmark = pytest.mark.gl  # every test here draws with a real OpenGL context
 
@@ -584,46 +584,6 @@ def test_traversal_cpu_null_renderer_leaves_the_python_alone():
         frame_python_ms = first["python_us_per_node"] * first["visited"] / 1e3
         assert 0 < first["renderer_ms"] < frame_python_ms, first
 
-class _ScriptedAvailability:
-    """Test double for when query results come back: a result is available once `lag` more draws
-    or queries were issued after its query (the latency of a GPU behind the CPU), whatever the
-    machine's load and however often the traversal asks. Records the renderer calls in order."""
-
-    def __init__(self, renderer, lag):
-        self._renderer = renderer
-        self._lag = lag
-        self._issued = 0
-        self._issued_at = {}
-        self.calls = []
-        self.not_yet = 0  # answers "not available yet"
-
-    def __getattr__(self, name):
-        return getattr(self._renderer, name)
-
-    def draw_node(self, node, ratio_p=1.0):
-        self._issued += 1
-        self.calls.append(("draw", node, float(ratio_p)))
-        self._renderer.draw_node(node, ratio_p)
-
-    def issue_query(self, node, *, with_alpha):
-        query = self._renderer.issue_query(node, with_alpha=with_alpha)
-        self._issued += 1
-        self._issued_at[id(query)] = (self._issued, query)
-        self.calls.append(("query", node))
-        return query
-
-    def available(self, query):
-        back = self._issued - self._issued_at[id(query)][0] >= self._lag
-        self.not_yet += not back
-        return back
-
-    def result(self, query):
-        del self._issued_at[id(query)]
-        out = self._renderer.result(query)
-        self.calls.append(("result", query.node, out[0], out[1]))
-        return out
-
-
 class _ReferenceTraversal:
     """The traversals of DESIGN §6 written plainly, as they were before issue 15's speed-up: per-node
     state in numpy arrays read one scalar at a time, the frame's box tests and SSE by the textbook
@@ -856,7 +816,7 @@ def test_every_method_does_exactly_what_the_plain_reference_does(city_renderer, 
         runs = []
         for make_traversal in (lambda r: make(method, hlod, r, settings),
                                lambda r: _ReferenceTraversal(method, hlod, r, settings)):
-            scripted = _ScriptedAvailability(city_renderer, lag)
+            scripted = ScriptedAvailability(city_renderer, lag)
             traversal = make_traversal(scripted)
             frames = []
             for path in paths:
