@@ -318,7 +318,10 @@ def check_kill(repo, work) -> dict:
     killed: dict = {}
 
     def kill(child, worker_pids):
-        time.sleep(0.3)
+        # the workers start with the bake and import pymeshlab while it prepares; the leaves' arrays
+        # for the exact measure are written into the child's scratch once the first decimations run
+        _wait_until(lambda: any(tmp.glob("hlod-blender-*/hlod-bake-*/surface_vertex.npy")), 60.0)
+        time.sleep(0.1)
         killed.update(child=child, group=group(child), workers=worker_pids)
         os.kill(child, signal.SIGKILL)
 
