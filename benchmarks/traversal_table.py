@@ -2,12 +2,13 @@
 repeats (timings compare as ratios within the run; node counts are what the method decides).
 
     .venv/bin/python -m benchmarks.traversal_table FILE.hlod (--path PATH.json | --inspection SEED:FRAMES)
-        [--size 640x480] [--repeat 2] [--methods vfc,bool,coh,coh:skip_queries=off]
+        [--frames START:STOP] [--size 640x480] [--repeat 2] [--methods vfc,bool,coh,coh:skip_queries=off]
         [--psnr-frames 5] [--psnr-reference bool]
 
 A method is a traversal name, optionally with RuntimeSettings fields after a colon
-(`coh:skip_queries=off,alpha=projected`): each such entry is a row. Prints one JSON line per row
-(median over repeats of each per-frame mean), the renderer's cost model, a Markdown table with
+(`coh:skip_queries=off,alpha=projected`, `coh:multiquery=on,batch_queries=on`): each such entry is
+a row. Prints one JSON line per row (median over repeats of each per-frame mean of
+traversal.COUNTERS and QUERY_COUNTERS), the renderer's cost model, a Markdown table with
 each row's frame time relative to the faster of VFC and Bool when both run, and, with
 --psnr-frames N, the mean PSNR-Y of each row's image against --psnr-reference's on N frames spread
 over the path (each row and the reference run frame by frame side by side, own state each).
@@ -24,8 +25,10 @@ import numpy as np
 from hlod_core import fileformat, imagemetrics
 from hlod_core.camera import inspection_path, load_path
 from hlod_core.renderer import Renderer
-from hlod_core.runner import run_path
-from hlod_core.traversal import COUNTERS, RuntimeSettings, make
+from hlod_core.traversal import COUNTERS, QUERY_COUNTERS, RuntimeSettings, make
+
+#: The per-frame means each row reports.
+ROW_COUNTERS = COUNTERS + QUERY_COUNTERS
 
 
 def parse_entry(entry: str) -> tuple[str, RuntimeSettings]:
@@ -60,6 +63,14 @@ def psnr_y(hlod, renderer, path, size, entries: list[str], reference: str, frame
     return {e: float(np.mean(v)) for e, v in scores.items()}
 
 
+def run_entry(entry: str, hlod, renderer, path, size) -> dict:
+    """Per-frame means of ROW_COUNTERS of one entry over the path (runner.run_path's, with the
+    query-stream counters), a new traversal with its own state."""
+    traversal = _make(entry, hlod, renderer)
+    stats = [traversal.frame(path.view(i, size)) for i in range(len(path))]
+    return {name: float(np.mean([getattr(s, name) for s in stats])) for name in ROW_COUNTERS}
+
+
 def _make(entry, hlod, renderer):
     method, settings = parse_entry(entry)
     return make(method, hlod, renderer, settings)
@@ -71,6 +82,7 @@ def main() -> None:
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--path")
     where.add_argument("--inspection", help="SEED:FRAMES of camera.inspection_path")
+    parser.add_argument("--frames", help="START:STOP, the path's frames START .. STOP - 1 only (in order)")
     parser.add_argument("--size", default="640x480")
     parser.add_argument("--repeat", type=int, default=2)
     parser.add_argument("--methods", default="full,vfc,bool,sw,simp,coh,ideal")
@@ -84,6 +96,9 @@ def main() -> None:
     else:
         seed, frames = (int(x) for x in args.inspection.split(":"))
         path = inspection_path(hlod, seed=seed, frames=frames)
+    if args.frames:
+        start, stop = (int(x) for x in args.frames.split(":"))
+        path = dataclasses.replace(path, frames=path.frames[start:stop], parts=())
     entries = _split_entries(args.methods)
     runs: dict[str, list[dict]] = {e: [] for e in entries}
     renderer = Renderer.create_standalone(hlod, size)
@@ -91,24 +106,25 @@ def main() -> None:
         print("cost model:", renderer.cost_model.describe())
         for rep in range(args.repeat):
             for entry in (entries if rep % 2 == 0 else entries[::-1]):
-                method, settings = parse_entry(entry)
-                runs[entry].append(run_path(hlod, method, settings, path, size, renderer=renderer))
+                runs[entry].append(run_entry(entry, hlod, renderer, path, size))
         psnr = psnr_y(hlod, renderer, path, size, entries, args.psnr_reference, args.psnr_frames) \
             if args.psnr_frames else {}
     finally:
         renderer.release()
-    table = {e: {c: statistics.median(r[c] for r in runs[e]) for c in COUNTERS} for e in entries}
+    table = {e: {c: statistics.median(r[c] for r in runs[e]) for c in ROW_COUNTERS} for e in entries}
     best = min((table[e]["frame_ms"] for e in ("vfc", "bool") if e in table), default=None)
     for e in entries:
         print(json.dumps({"method": e, **table[e], **({"psnr_y": psnr[e]} if e in psnr else {})}))
-    print("| method | DN | RARN | D | triangles | queries | stall ms | cpu ms | frame ms | / min(VFC, Bool) | PSNR-Y |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("| method | DN | RARN | D | triangles | queries | multiqueries | state changes | stall ms | cpu ms | frame ms "
+          "| / min(VFC, Bool) | PSNR-Y |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for e in entries:
         t = table[e]
         ratio = f"{t['frame_ms'] / best:.2f}" if best else "-"
         score = f"{psnr[e]:.1f}" if e in psnr else "-"
         print(f"| {e} | {t['dn']:.2f} | {t['rarn']:.2f} | {t['d']:.2f} | {t['tris']:,.0f} | {t['queries']:.1f} | "
-              f"{t['stall_ms']:.2f} | {t['cpu_ms']:.1f} | {t['frame_ms']:.1f} | {ratio} | {score} |")
+              f"{t['multiqueries']:.1f} | {t['state_changes']:.1f} | {t['stall_ms']:.2f} | {t['cpu_ms']:.1f} | "
+              f"{t['frame_ms']:.1f} | {ratio} | {score} |")
 
 
 def _split_entries(text: str) -> list[str]:

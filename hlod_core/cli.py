@@ -40,7 +40,7 @@ from .bake import ERROR_MEASURES, BakeSettings, bake
 from .errors import HlodError, InputError
 from .export import check_output_file, export_hlod
 from .signals import Terminated, signals_as_exceptions
-from .traversal import SKIP_QUERY_MODES
+from .traversal import BATCH_QUERY_MODES, MULTIQUERY_MODES, SKIP_QUERY_MODES
 
 log = logging.getLogger("hlod_core")
 
@@ -210,6 +210,12 @@ def _runtime_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--shift-up", choices=["measured", "children"], default="measured",
                    help="Coh's shift-up: measured (default; refined nodes are queried too) or children "
                         "(the dissertation's Algorithm 4 alone)")
+    p.add_argument("--multiquery", choices=list(MULTIQUERY_MODES), default="off",
+                   help="CHC++ multiqueries: on tests nodes hidden last frame together, one query over their boxes "
+                        "(each is queried on its own when it shows); off (default)")
+    p.add_argument("--batch-queries", choices=list(BATCH_QUERY_MODES), default="off",
+                   help="CHC++ query batching: on issues the queries of drawn nodes together, all occlusion "
+                        "queries then all alpha queries, one state change each; off (default)")
 
 
 def _bake_options(p: argparse.ArgumentParser) -> None:
@@ -441,7 +447,8 @@ def _runtime_setup(args, bias: str = "P"):
 
     size = _parse_size(args.size)
     settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha,
-                               shift_up=args.shift_up, skip_queries=args.skip_queries)  # raises InputError
+                               shift_up=args.shift_up, skip_queries=args.skip_queries, multiquery=args.multiquery,
+                               batch_queries=args.batch_queries)  # raises InputError
     hlod = fileformat.load(args.file)
     path = load_path(args.path) if args.path else inspection_path(hlod, seed=args.seed, frames=args.frames)
     return hlod, settings, path, size

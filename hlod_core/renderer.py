@@ -13,6 +13,12 @@ Query boxes (DESIGN §5.4): the node's subtree box enlarged by `hierarchy.query_
 colour and depth writes off and back faces culled; `q` with the depth test on, `alpha` (the
 `query` estimator) with it off, so both count the same rasterised pixels, clipping included.
 
+Query batches (issue 15, CHC++): `issue_queries` issues several nodes' queries with one switch to
+the query state for all q queries and one to the alpha state for all alpha queries (issue_query
+switches twice per node); `issue_multiquery` is one q query around the boxes of several nodes.
+`state_changes` counts the switches between the draw, query and alpha states (`_set_mode`: masks,
+culling, depth test; the program changes with them), since the renderer was made.
+
 Cost model (issue 15): `cost_model` times synthetic query boxes and real node draws in this
 renderer's framebuffer once, on first use, and fits query_cost's linear costs (per query and box
 pixel, per draw call and triangle); Bool and Coh use it to leave out queries that do not pay.
@@ -392,6 +398,7 @@ class Renderer:
         self._ramp = overlay_ramp()
         self._colour = None
         self._mode = None
+        self.state_changes = 0  # _set_mode switches so far (module docstring)
         self._timer = None
         self._cost_model: CostModel | None = None
 
@@ -464,6 +471,7 @@ class Renderer:
         state must hold for the very next draw, whatever moderngl has cached."""
         if mode == self._mode:
             return
+        self.state_changes += 1
         gl = self.gl
         if mode == "draw" or mode is None:
             gl.color_mask(1, 1, 1, 1)
@@ -529,6 +537,39 @@ class Renderer:
             self._box(node)
             self.gl.end_query(GL.SAMPLES_PASSED)
         return Query(node=node, samples_query_id=samples_query_id, alpha_query_id=alpha_query_id)
+
+    def issue_queries(self, nodes, *, with_alpha: bool) -> list[Query]:
+        """`issue_query` of each of `nodes`, batched: every q query in the query state, then every
+        alpha query in the alpha state (two state changes for the batch instead of two a node).
+        The alpha query has the depth test off, so it counts the same pixels wherever it is issued."""
+        acquire, begin_query, end_query, box = self.queries.acquire, self.gl.begin_query, self.gl.end_query, self._box
+        samples_ids = [acquire() for _ in nodes]
+        self._set_mode("query")
+        for node, query_id in zip(nodes, samples_ids):
+            begin_query(GL.SAMPLES_PASSED, query_id)
+            box(node)
+            end_query(GL.SAMPLES_PASSED)
+        if not with_alpha:
+            return [Query(node=node, samples_query_id=q, alpha_query_id=None) for node, q in zip(nodes, samples_ids)]
+        alpha_ids = [acquire() for _ in nodes]
+        self._set_mode("alpha")
+        for node, query_id in zip(nodes, alpha_ids):
+            begin_query(GL.SAMPLES_PASSED, query_id)
+            box(node)
+            end_query(GL.SAMPLES_PASSED)
+        return [Query(node=node, samples_query_id=q, alpha_query_id=a) for node, q, a in zip(nodes, samples_ids, alpha_ids)]
+
+    def issue_multiquery(self, nodes) -> Query:
+        """One occlusion query around the boxes of all `nodes` (CHC++'s multiquery): its q is the sum
+        of the q each box's own query would give now, so 0 exactly when each would be 0. No alpha."""
+        query_id = self.queries.acquire()
+        self._set_mode("query")
+        self.gl.begin_query(GL.SAMPLES_PASSED, query_id)
+        for node in nodes:
+            self._box(node)
+        self.gl.end_query(GL.SAMPLES_PASSED)
+        members = tuple(nodes)
+        return Query(node=members[0], samples_query_id=query_id, alpha_query_id=None, members=members)
 
     def available(self, query: Query) -> bool:
         """Non-blocking: is the query's result back (see QueryPool.available)?"""

@@ -55,6 +55,13 @@ SHIFT_UP_MODES = ("measured", "children")
 #: "expected" where the measured chance that such a query changes anything, times the draw cost,
 #: is below the query cost ("cheap" is its case of chance 1).
 SKIP_QUERY_MODES = ("off", "cheap", "expected")
+#: CHC++'s multiqueries (CoherentLoop): "on" tests nodes found hidden last frame together.
+MULTIQUERY_MODES = ("off", "on", "lazy")
+#: CHC++'s query batching (CoherentLoop): "on" issues the queries that gate nothing together.
+BATCH_QUERY_MODES = ("off", "on")
+#: The mode of one query over the boxes of several nodes hidden last frame (CHC++'s multiquery):
+#: q = 0 keeps them all hidden, q > 0 issues each one's own query.
+MULTIQUERY = "multiquery"
 #: Frame id of "never": far enough below frame 1 that no "visited last frame" and no "measured
 #: within Coh.measure_every_frames" test holds for it.
 NEVER_FRAME = -10
@@ -67,7 +74,9 @@ class RuntimeSettings:
     alpha: "query" | "projected" | "cube";
     shift_up (Coh only): "measured" queries refined nodes too and moves the front up where their own
     ratio says stop, "children" is Algorithm 4 as published (the children's average ratio);
-    skip_queries (Bool, Coh): one of SKIP_QUERY_MODES (CoherentLoop)."""
+    skip_queries (Bool, Coh): one of SKIP_QUERY_MODES (CoherentLoop);
+    multiquery, batch_queries (Bool, Simp, Coh): "off" | "on", CHC++'s multiqueries and query
+    batching (CoherentLoop)."""
 
     tau: float = 1.0
     s: float = 0.9
@@ -77,6 +86,8 @@ class RuntimeSettings:
     alpha: str = "query"
     shift_up: str = "measured"
     skip_queries: str = "off"  # "expected" measured faster (benchmarks.traversal_table); see CoherentLoop
+    multiquery: str = "off"
+    batch_queries: str = "off"
 
     def __post_init__(self):
         if not self.tau > 0:
@@ -89,6 +100,10 @@ class RuntimeSettings:
             raise InputError(f"shift_up must be one of {SHIFT_UP_MODES}, got {self.shift_up!r}")
         if self.skip_queries not in SKIP_QUERY_MODES:
             raise InputError(f"skip_queries must be one of {SKIP_QUERY_MODES}, got {self.skip_queries!r}")
+        if self.multiquery not in MULTIQUERY_MODES:
+            raise InputError(f"multiquery must be one of {MULTIQUERY_MODES}, got {self.multiquery!r}")
+        if self.batch_queries not in BATCH_QUERY_MODES:
+            raise InputError(f"batch_queries must be one of {BATCH_QUERY_MODES}, got {self.batch_queries!r}")
         try:
             metrics.bias(0.5, self.s, self.t, self.k)  # validates s, t, k (the messages are metrics')
         except ValueError as exc:
@@ -101,6 +116,9 @@ class RuntimeSettings:
 
 #: FrameStats' counters, in the order of its fields (the columns of per-frame tables).
 COUNTERS = ("dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms")
+#: FrameStats' counters of the query stream (issue 15, CHC++), after COUNTERS: not columns of the
+#: evaluation's per-frame files, which keep the counters they were saved with.
+QUERY_COUNTERS = ("multiqueries", "state_changes")
 
 
 @dataclass
@@ -117,6 +135,8 @@ class FrameStats:
     cpu_ms: float = 0.0
     gpu_ms: float = 0.0
     frame_ms: float = 0.0
+    multiqueries: int = 0   # of `queries`, those over several nodes' boxes (CHC++)
+    state_changes: int = 0  # the renderer's switches between drawing and querying (its `state_changes`)
     drawn: list = field(default_factory=list)       # node ids in draw order (not counters)
     delayed: list = field(default_factory=list)     # the nodes counted in d
     refined_after_draw: list = field(default_factory=list)  # the nodes counted in rarn
@@ -138,6 +158,10 @@ class NodeRenderer(Protocol):
 
     def issue_query(self, node: int, *, with_alpha: bool) -> Query: ...
 
+    # Only with the settings batch_queries / multiquery on (CHC++, CoherentLoop):
+    # issue_queries(nodes, *, with_alpha) -> list[Query], issue_query of each, batched;
+    # issue_multiquery(nodes) -> Query, one q query (no alpha) over all their boxes.
+
     def available(self, query: Query) -> bool:
         """Non-blocking: is the result back?"""
 
@@ -149,6 +173,37 @@ class NodeRenderer(Protocol):
 #: None when the box cannot be queried (eye inside it, or it reaches in front of the near plane):
 #: visible with mu = 1.
 Pending = tuple[int, str, "Query | None"]
+
+
+#: CHC++'s estimate (§4.1, fitted there on several scenes) that a node hidden in each of the last i
+#: frames is hidden in this one: p_keep(i) = KEEP_LIMIT - KEEP_SPREAD exp(-i).
+KEEP_LIMIT, KEEP_SPREAD = 0.99, 0.7
+
+
+def keep_hidden(frames: int) -> float:
+    """p_keep(i) of a node hidden in each of the last `frames` (>= 1) frames (CHC++ §4.1)."""
+    return KEEP_LIMIT - KEEP_SPREAD * math.exp(-frames)
+
+
+def multiquery_groups(nodes: list[int], hidden_frames: list[int]) -> list[list[int]]:
+    """CHC++'s multiquery groups (§4.2) of `nodes`, each hidden in the last hidden_frames[node]
+    frames: nodes hidden longer first (ties in the given order), each group grown while its value
+    V(M) = |M| / C(M) rises, C(M) = 1 + (1 - prod p_keep) |M| the queries it is expected to cost
+    (itself and, with probability 1 - prod p_keep that some member shows, each member's own query).
+    A group of one is the node's own query, V = 1: a group of two or more must beat it."""
+    order = sorted(nodes, key=hidden_frames.__getitem__, reverse=True)
+    groups, start = [], 0
+    while start < len(order):
+        size, best, keep = 1, 1.0, keep_hidden(hidden_frames[order[start]])
+        for m in range(2, len(order) - start + 1):
+            keep *= keep_hidden(hidden_frames[order[start + m - 1]])
+            value = m / (1.0 + (1.0 - keep) * m)
+            if value <= best:
+                break
+            size, best = m, value
+        groups.append(order[start:start + size])
+        start += size
+    return groups
 
 
 def _array(values: list, dtype) -> np.ndarray:
@@ -228,11 +283,13 @@ class Traversal(abc.ABC):
         stats = FrameStats()
         started = time.perf_counter()
         self._prepare(view)
+        state_changes = getattr(self.renderer, "state_changes", 0)
         self.renderer.begin_frame(view)
         self._traverse(stats)
         traversed_at = time.perf_counter()
         stats.gpu_ms = self.renderer.end_frame()
         ended = time.perf_counter()
+        stats.state_changes = getattr(self.renderer, "state_changes", 0) - state_changes
         stats.frame_ms = (ended - started) * MS_PER_S
         stats.cpu_ms = (traversed_at - started) * MS_PER_S - stats.stall_ms
         return stats
@@ -412,6 +469,27 @@ class CoherentLoop(Traversal):
     that become skippable together (the change rate falls for all at once) spread over frames too.
     A node hidden meanwhile is found within recheck_frames frames. A renderer without a cost_model
     (tests' wrappers) skips nothing.
+
+    Multiqueries (settings multiquery "on"; CHC++ §4): a node whose own query found it hidden
+    (q = 0) last frame and that is predicted DELAY waits in the i-queue instead of being queried at
+    once. The i-queue is issued when it holds `multiquery_batch` nodes, when nothing is in flight
+    (the results would otherwise run dry: a node popped then is queried alone, at once, as without
+    the option) and before the traversal would wait for a result (the heap is empty), so the loop
+    never blocks while a query it could issue waits. Issued, it is split into groups by CHC++'s
+    rule (`multiquery_groups`): nodes hidden longer first, a group grown while its value, the
+    queries it saves per query it is expected to cost, rises. A group of one is the node's own
+    query; a larger one is one q query over all its boxes, no alpha (MULTIQUERY). q = 0 says what
+    each node's own query would have said (a sum of counts is 0 only when each count is), and each
+    stays hidden with P(0) = 0; q > 0 issues each member's own query (q and alpha: VMSSE needs the
+    node's own ratio), whose result is then used as a DELAY result in the same frame.
+
+    Query batching (settings batch_queries "on"; CHC++ §3): the queries whose results gate no
+    traversal, those of nodes predicted STOP (drawn at once) and Coh's MEASURE_RATIO queries, wait
+    in a batch (CHC++'s v-queue) and are issued together through the renderer's `issue_queries`,
+    every q query, then every alpha query, one state change each; a DELAY query is issued at once
+    with the waiting batch. The batch is issued when it holds `query_batch` queries, with the
+    i-queue, with a DELAY query, and before the traversal would wait. A batched query is issued
+    after draws that followed its node's own draw: its q counts what those draws leave visible.
     """
 
     skips_queries = False
@@ -420,6 +498,10 @@ class CoherentLoop(Traversal):
     recheck_frames = 5
     #: Weight of one query result in the running change_rate (about the last 64 results count).
     change_rate_weight = 1.0 / 64
+    #: CHC++'s i-queue batch size b: hidden nodes waiting for a multiquery, at most.
+    multiquery_batch = 50
+    #: Queries gating nothing that wait in the batch, at most (batch_queries).
+    query_batch = 50
 
     def __init__(self, hlod, renderer, settings=RuntimeSettings(), *, recheck_seed: int = 0):
         super().__init__(hlod, renderer, settings)
@@ -430,6 +512,18 @@ class CoherentLoop(Traversal):
         self.change_rate = 1.0  # nothing measured yet: every query may change something
         self.skippable: memoryview | None = None  # (n,) bool, per frame
         self._tris = np.asarray(hlod.tri_count, np.float64)
+        self._grouping = settings.multiquery != "off"
+        self._eager_groups = settings.multiquery == "on"  # issued too when nothing is in flight
+        self._batching = settings.batch_queries == "on"
+        n = hlod.node_count
+        self._hidden_frames = [0] * n  # frames in a row, up to _hidden_in, the node's own query found it hidden
+        self._hidden_in = [NEVER_FRAME] * n  # frame of the last of them
+        self._waiting_hidden: list[int] = []  # CHC++'s i-queue (multiquery): not yet queried
+        self._waiting_batch: list[tuple[int, str]] = []  # (node, mode) of the batch (batch_queries): not yet issued
+
+    hidden_frames = property(lambda self: _array(self._hidden_frames, np.int64),
+                             doc="(n,) int64 frames in a row the node was found hidden, up to hidden_in")
+    hidden_in = property(lambda self: _array(self._hidden_in, np.int64), doc="(n,) int64 frame id")
 
     recheck_due = property(lambda self: _array(self._recheck_due, np.int64), doc="(n,) int64 frame id")
 
@@ -476,7 +570,8 @@ class CoherentLoop(Traversal):
     def _traverse(self, stats):
         """Algorithm 2's loop. The per-node helpers (`_issue`, `_mu`, `_render`, `_pull_up`) are
         written out here, with the state bound to locals: this loop is the traversal's Python cost
-        per node (issue 15)."""
+        per node (issue 15). With multiquery or batch_queries on, queries may wait in the i-queue or
+        the batch before they are issued (class docstring)."""
         heap: list = []
         self._schedule(heap, (0,))
         queue: deque[Pending] = deque()
@@ -490,9 +585,14 @@ class CoherentLoop(Traversal):
                                                      renderer.draw_node)
         query_alpha, alpha_estimate, modulates = self._query_alpha, self.alpha_estimate, self.modulates
         drawn, heappop = stats.drawn, heapq.heappop
+        grouping, batching = self._grouping, self._batching
+        waiting_hidden, waiting_batch = self._waiting_hidden, self._waiting_batch
+        hidden_frames, hidden_in, previous = self._hidden_frames, self._hidden_in, frame_id - 1
+        multiquery_batch, query_batch = self.multiquery_batch, self.query_batch
+        eager_groups = self._eager_groups
         traversed = queries = dn = tris = 0
         stall_s = 0.0
-        while heap or queue:
+        while heap or queue or waiting_hidden or waiting_batch:
             # results in the order issued, as long as they are back (all of them once the heap is empty)
             while queue and (not heap or queue[0][2] is None or available(queue[0][2])):
                 node, mode, query = queue.popleft()
@@ -502,6 +602,10 @@ class CoherentLoop(Traversal):
                     queries += 1
                     q, alpha_q, stall = result(query)
                     stall_s += stall
+                    if mode == MULTIQUERY:
+                        stats.multiqueries += 1
+                        self._multiquery_result(query.members, q, queue)
+                        continue
                     alpha = float(alpha_q) if query_alpha else float(alpha_estimate[node])
                     mu = 0.0 if not alpha > 0 else min(1.0, q / alpha)  # as in _mu
                 if mode == MEASURE_RATIO:
@@ -533,6 +637,9 @@ class CoherentLoop(Traversal):
                     ratio[node] = 0.0  # P(0) = 0; the node stays invisible
                     if skipping:
                         self._queried(node, mode, True)
+                    if grouping:
+                        hidden_frames[node] = hidden_frames[node] + 1 if hidden_in[node] == previous else 1
+                        hidden_in[node] = frame_id
             if heap:
                 node = heappop(heap)[1]
                 traversed += 1
@@ -545,8 +652,16 @@ class CoherentLoop(Traversal):
                     self._pull_up(node)  # assumed visible: stays so, keeps its ratio
                     stats.skipped.append(node)
                 elif stop or self._measures_refined(node):
-                    query = None if unqueryable[node] else issue_query(node, with_alpha=query_alpha)
-                    queue.append((node, mode if stop else MEASURE_RATIO, query))
+                    if unqueryable[node]:
+                        queue.append((node, mode if stop else MEASURE_RATIO, None))
+                    elif grouping and mode == DELAY and hidden_in[node] == previous:
+                        waiting_hidden.append(node)  # hidden last frame: CHC++'s i-queue
+                    elif batching:
+                        waiting_batch.append((node, mode if stop else MEASURE_RATIO))
+                        if mode == DELAY:  # it gates its subtree: issued now, with the batch
+                            self._issue_batch(queue)
+                    else:
+                        queue.append((node, mode if stop else MEASURE_RATIO, issue_query(node, with_alpha=query_alpha)))
                 if mode == REFINE:
                     schedule(heap, children[node])
                 elif mode == STOP and rendered[node] != frame_id:
@@ -555,11 +670,60 @@ class CoherentLoop(Traversal):
                     tris += tri_count[node]
                     drawn.append(node)
                     draw_node(node, ratio[node] if modulates else 1.0)
+            if waiting_hidden and (not heap or (eager_groups and not queue) or len(waiting_hidden) >= multiquery_batch):
+                self._issue_hidden(queue)
+            elif waiting_batch and (not heap or len(waiting_batch) >= query_batch):
+                self._issue_batch(queue)
         stats.traversed += traversed
         stats.queries += queries
         stats.dn += dn
         stats.tris += tris
         stats.stall_ms += stall_s * MS_PER_S
+
+    def _issue_batch(self, queue: deque) -> None:
+        """Issue the waiting batch (batch_queries) through the renderer's issue_queries."""
+        batch = self._waiting_batch
+        issued = self.renderer.issue_queries([node for node, _ in batch], with_alpha=self._query_alpha)
+        queue.extend((node, mode, query) for (node, mode), query in zip(batch, issued))
+        batch.clear()
+
+    def _issue_hidden(self, queue: deque) -> None:
+        """Issue the i-queue (multiquery): its groups of several as multiqueries, then its groups of
+        one as their own DELAY queries (with the waiting batch, when batching)."""
+        hidden = self._waiting_hidden
+        groups = multiquery_groups(hidden, self._hidden_frames)
+        hidden.clear()
+        for group in groups:
+            if len(group) > 1:
+                queue.append((group[0], MULTIQUERY, self.renderer.issue_multiquery(group)))
+        self._issue_own([group[0] for group in groups if len(group) == 1], queue)
+
+    def _issue_own(self, nodes: list[int], queue: deque) -> None:
+        """Each of `nodes` (queryable, predicted DELAY) gets its own query: through the batch when
+        batching, else one issue_query each."""
+        if self._batching:
+            self._waiting_batch.extend((node, DELAY) for node in nodes)
+            if self._waiting_batch:
+                self._issue_batch(queue)
+            return
+        for node in nodes:
+            queue.append((node, DELAY, self.renderer.issue_query(node, with_alpha=self._query_alpha)))
+
+    def _multiquery_result(self, members: tuple[int, ...], q: int, queue: deque) -> None:
+        """A multiquery's result: q = 0, every member stays hidden (its own query's q = 0 result);
+        else each member gets its own query now, front to back."""
+        if q > 0:
+            key = self.key
+            self._issue_own(sorted(members, key=key.__getitem__), queue)
+            return
+        ratio, hidden_frames, hidden_in, frame_id = self._ratio, self._hidden_frames, self._hidden_in, self.frame_id
+        skipping = self.skippable is not None
+        for node in members:
+            ratio[node] = 0.0
+            if skipping:
+                self._queried(node, DELAY, True)
+            hidden_frames[node] = hidden_frames[node] + 1 if hidden_in[node] == frame_id - 1 else 1
+            hidden_in[node] = frame_id
 
     def _measures_refined(self, node: int) -> bool:
         """Hook: query this node although it refines (Coh's measured shift-up)?"""
