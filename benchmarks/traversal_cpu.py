@@ -38,7 +38,8 @@ from hlod_core.traversal import METHODS, RuntimeSettings, make
 US_PER_S = 1e6
 MS_PER_S = 1e3
 #: The renderer calls a traversal makes; time inside them is the renderer's, not the traversal's.
-RENDERER_CALLS = ("begin_frame", "end_frame", "draw_node", "issue_query", "available", "result")
+RENDERER_CALLS = ("begin_frame", "end_frame", "draw_node", "issue_query", "issue_queries", "issue_multiquery",
+                  "available", "result")
 #: --clock: seconds of wall time, or of this thread's CPU time.
 CLOCKS = {"wall": time.perf_counter, "thread": time.thread_time}
 
@@ -52,7 +53,8 @@ class TimedRenderer:
         self.inside_s = 0.0
         self.calls = 0
         for name in RENDERER_CALLS:
-            setattr(self, name, self._timed(getattr(renderer, name)))
+            if hasattr(renderer, name):  # the batched calls are optional (traversal.NodeRenderer)
+                setattr(self, name, self._timed(getattr(renderer, name)))
 
     def _timed(self, call):
         clock = self._clock
@@ -95,10 +97,18 @@ class NullRenderer:
     def issue_query(self, node: int, *, with_alpha: bool) -> Query:
         return Query(node=node, samples_query_id=0, alpha_query_id=None)
 
+    def issue_queries(self, nodes, *, with_alpha: bool) -> list[Query]:
+        return [Query(node=node, samples_query_id=0, alpha_query_id=None) for node in nodes]
+
+    def issue_multiquery(self, nodes) -> Query:
+        return Query(node=nodes[0], samples_query_id=0, alpha_query_id=None, members=tuple(nodes))
+
     def available(self, query: Query) -> bool:
         return True
 
-    def result(self, query: Query) -> tuple[int, int, float]:
+    def result(self, query: Query) -> tuple[int, int | None, float]:
+        if query.members:  # a multiquery: the sum of its members' counts, no alpha
+            return sum(self._q[node] for node in query.members), None, 0.0
         return self._q[query.node], self.NULL_ALPHA_PX, 0.0
 
     def release(self) -> None:

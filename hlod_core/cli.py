@@ -9,10 +9,12 @@ path separator (it names a folder).
 
     bake INPUT [INPUT ...] -o OUT.hlod [--target-tris 2000] [--max-depth 12] [--jobs N]
               [--cache DIR | --no-cache] [--scheduler ADDRESS [--scratch DIR] [--scheduler-timeout S]]
+              [--out-of-core [--scratch DIR] [--chunk-tris N]]
         (images embedded in glTF inputs are written to OUT.textures/ beside OUT.hlod; the bake
         cache, which lets a re-bake redo only what changed, is OUT.hlod.cache/ unless --cache
         names another folder; safe to delete; --scheduler: the decimations and measurements run
-        on a Dask cluster's workers, dask_workers.py, for the same file)
+        on a Dask cluster's workers, dask_workers.py, for the same file; --out-of-core: inputs bigger
+        than memory, streamed through per-cell scratch files, stream_partition.py, for the same file)
     info FILE.hlod
     scene low|middle|high|default -o OUT.hlod [--seed N] [--scale S] [--jobs N] [--cache DIR | --no-cache]
     run FILE.hlod --method M [...]
@@ -35,7 +37,7 @@ import time
 import warnings
 from pathlib import Path
 
-from . import bake_cache, checks, fileformat, meshio, scenes
+from . import bake_cache, checks, fileformat, meshio, scenes, stream_partition
 from .bake import ERROR_MEASURES, BakeSettings, bake
 from .errors import HlodError, InputError
 from .export import check_output_file, export_hlod
@@ -132,6 +134,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="OBJ/PLY/STL/GLB file or JSON scene spec")
     p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
     _bake_options(p)
+    _out_of_core_options(p)
     _cluster_options(p)
     p.set_defaults(run=_cmd_bake)
 
@@ -210,12 +213,13 @@ def _runtime_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--shift-up", choices=["measured", "children"], default="measured",
                    help="Coh's shift-up: measured (default; refined nodes are queried too) or children "
                         "(the dissertation's Algorithm 4 alone)")
-    p.add_argument("--multiquery", choices=list(MULTIQUERY_MODES), default="off",
+    p.add_argument("--multiquery", choices=list(MULTIQUERY_MODES), default="on",
                    help="CHC++ multiqueries: on tests nodes hidden last frame together, one query over their boxes "
-                        "(each is queried on its own when it shows); off (default)")
-    p.add_argument("--batch-queries", choices=list(BATCH_QUERY_MODES), default="off",
+                        "(each is queried on its own when it shows), at once when nothing is in flight; lazy: only when "
+                        "a group is full or the traversal would wait; off: each node its own query. Default on")
+    p.add_argument("--batch-queries", choices=list(BATCH_QUERY_MODES), default="on",
                    help="CHC++ query batching: on issues the queries of drawn nodes together, all occlusion "
-                        "queries then all alpha queries, one state change each; off (default)")
+                        "queries then all alpha queries, one state change each (default); off: one by one")
 
 
 def _bake_options(p: argparse.ArgumentParser) -> None:
@@ -234,6 +238,16 @@ def _bake_options(p: argparse.ArgumentParser) -> None:
     where.add_argument("--no-cache", action="store_true", help="bake from scratch and keep no cache")
 
 
+def _out_of_core_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out-of-core", action="store_true",
+                   help="for inputs bigger than memory: stream the inputs (a scene spec one instance at a time) "
+                        "through per-cell scratch files in --scratch (default: the temporary folder) instead of "
+                        "loading them whole; the same file as an in-memory bake; geometry only, no bake cache")
+    p.add_argument("--chunk-tris", type=_whole_number(1), default=None, metavar="N",
+                   help="with --out-of-core: triangles a pass works on at a time, and buffered before the cell "
+                        f"files are written (default {stream_partition.CHUNK_TRIS})")
+
+
 def _cluster_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="a Dask scheduler (tcp://HOST:8786): the decimations and measurements run on its workers "
@@ -241,7 +255,8 @@ def _cluster_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scratch", metavar="DIR",
                    help="with --scheduler: an existing folder every worker can read (shared storage on a cluster), "
                         "for the bake's shared arrays (default: the temporary folder, enough for workers on this "
-                        "machine); the bake's subfolder there is removed at the end")
+                        "machine); with --out-of-core: where the per-cell files go (room for about 100 bytes an "
+                        "input triangle); the bake's subfolders there are removed at the end")
     p.add_argument("--scheduler-timeout", type=_seconds, metavar="S",
                    help="with --scheduler: seconds to wait for the scheduler and its first worker (default 10)")
 
@@ -263,7 +278,8 @@ def _cluster(args):
     run this code and read --scratch) before any input is read or output written; each fault is
     one line naming the option. Closed when the block exits."""
     if args.scheduler is None:
-        for name, value in (("--scratch", args.scratch), ("--scheduler-timeout", args.scheduler_timeout)):
+        for name, value in (("--scratch", None if args.out_of_core else args.scratch),
+                            ("--scheduler-timeout", args.scheduler_timeout)):
             if value is not None:
                 raise InputError(f"{name}: only with --scheduler (a local bake's workers use $TMPDIR)")
         yield None
@@ -302,12 +318,19 @@ def _cache_dir(args) -> Path | None:
 
 
 def _bake_and_save(mesh, args, sources, *, scheduler=None) -> dict:
-    """scheduler: the distributed.Client of `_cluster` (None: local workers)."""
+    """mesh: a TriangleMesh, or a stream_partition.TriangleSource (--out-of-core: bake_stream,
+    no cache); scheduler: the distributed.Client of `_cluster` (None: local workers)."""
     settings = _settings(args)
-    cache_dir = _cache_dir(args)
+    streamed = not isinstance(mesh, meshio.TriangleMesh)
+    cache_dir = None if streamed else _cache_dir(args)
     started = time.perf_counter()
-    hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
-                scratch_dir=getattr(args, "scratch", None))
+    if streamed:
+        hlod = stream_partition.bake_stream(mesh, settings, progress=_Progress(), sources=sources, scheduler=scheduler,
+                                            scratch_dir=args.scratch,
+                                            chunk_tris=args.chunk_tris or stream_partition.CHUNK_TRIS)
+    else:
+        hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
+                    scratch_dir=getattr(args, "scratch", None))
     fileformat.save(hlod, args.output)
     seconds = time.perf_counter() - started
     for line in hlod.meta["log"]:
@@ -324,6 +347,10 @@ def _bake_and_save(mesh, args, sources, *, scheduler=None) -> dict:
 
 def _cmd_bake(args) -> dict:
     check_output_file(args.output)
+    if args.out_of_core:
+        return _cmd_bake_out_of_core(args)
+    if args.chunk_tris is not None:
+        raise InputError("--chunk-tris: only with --out-of-core")
     bake_cache.check_folder(_cache_dir(args))
     with _cluster(args) as client:
         started = time.perf_counter()
@@ -333,6 +360,21 @@ def _cmd_bake(args) -> dict:
             summary = _bake_and_save(mesh, args, [str(p) for p in args.inputs], scheduler=client)
             summary["texture_folder"] = textures.publish()
     summary["load_seconds"] = load_seconds
+    return summary
+
+
+def _cmd_bake_out_of_core(args) -> dict:
+    """bake --out-of-core: the inputs streamed (stream_partition.SceneSource), never loaded whole."""
+    if args.cache is not None:
+        raise InputError("--cache: out-of-core bakes keep no bake cache (leave out --cache, or bake in memory)")
+    if args.scratch is not None and not Path(args.scratch).is_dir():
+        raise InputError(f"--scratch {args.scratch}: no such folder")
+    with _cluster(args) as client:
+        started = time.perf_counter()
+        source = stream_partition.SceneSource(args.inputs)
+        load_seconds = time.perf_counter() - started
+        summary = _bake_and_save(source, args, [str(p) for p in args.inputs], scheduler=client)
+    summary.update(load_seconds=load_seconds, texture_folder=None, out_of_core=True)
     return summary
 
 

@@ -169,7 +169,13 @@ class ScriptedAvailability:
         self.calls = []
         self.not_yet = 0  # answers "not available yet"
 
+    #: The renderer's batched calls, which would pass the script by: behind this double a
+    #: traversal queries one node at a time, as with multiquery and batch_queries off.
+    _UNSCRIPTED = frozenset({"issue_queries", "issue_multiquery"})
+
     def __getattr__(self, name):
+        if name in self._UNSCRIPTED:
+            raise AttributeError(name)
         return getattr(self._renderer, name)
 
     def draw_node(self, node, ratio_p=1.0):
