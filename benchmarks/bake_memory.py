@@ -1,6 +1,12 @@
 """Peak memory of a bake against its input size (issue 16: at most 300 bytes per input triangle).
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.bake_memory [--sizes 1 5 10] [--jobs 2] [--out DIR]
+        [--modes memory out-of-core] [--chunk-tris N] [--error exact|bound]
+
+--modes: the in-memory bake (`memory`, the default) and/or the streamed one (`out-of-core`:
+`bake --out-of-core`, the spec read one instance at a time through per-cell scratch files in a
+folder of this benchmark's temporary folder, `--chunk-tris` triangles at a time). With both, the
+two files of each size are compared without their volatile meta (bake.stable_meta): "same_file".
 
 For each size (millions of triangles) an instanced scene spec is written from the shared models
 (tests/scenes/generate_specs.py's crowd: its 144 statues, then copies of the whole crowd side by
@@ -12,8 +18,9 @@ runs (a worker's peak is its own; the machine's peak is at most the sum). Report
 input triangles, seconds, parent peak MB, largest worker peak MB, and bytes per input triangle of
 the parent alone and of parent + workers.
 
-Data form: out/bake_memory.json, {"runs": [{"triangles", "seconds", "parent_peak_bytes",
-"worker_peak_bytes": [...], "bytes_per_triangle", "bytes_per_triangle_with_workers"}]}.
+Data form: out/bake_memory.json, {"jobs", "chunk_tris", "error", "runs": [{"mode", "triangles", "seconds",
+"parent_peak_bytes", "worker_peak_bytes": [...], "bytes_per_triangle",
+"bytes_per_triangle_with_workers", "same_file" (out-of-core runs, when both modes ran)}]}.
 """
 from __future__ import annotations
 
@@ -77,10 +84,22 @@ def _children(pid: int) -> list[int]:
         return []
 
 
-def bake_measured(spec: Path, out: Path, jobs: int) -> dict:
+MODES = ("memory", "out-of-core")
+
+
+def bake_measured(spec: Path, out: Path, jobs: int, *, mode: str = "memory", chunk_tris: int | None = None,
+                  error: str = "exact") -> dict:
+    """One bake in a fresh process, its peaks sampled (module docstring); mode: one of MODES."""
     started = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "-q", "bake", str(spec), "-o", str(out),
-                             "--jobs", str(jobs), "--no-cache"], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    command = [sys.executable, "-m", "hlod_core", "-q", "bake", str(spec), "-o", str(out), "--jobs", str(jobs),
+               "--error", error]
+    if mode == "out-of-core":
+        command += ["--out-of-core", "--scratch", str(out.parent)]
+        if chunk_tris is not None:
+            command += ["--chunk-tris", str(chunk_tris)]
+    else:
+        command += ["--no-cache"]
+    proc = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, text=True)
     parent_peak, workers = 0, {}
     done = threading.Event()
 
@@ -100,14 +119,33 @@ def bake_measured(spec: Path, out: Path, jobs: int) -> dict:
     if proc.returncode != 0:
         raise SystemExit(f"bake of {spec} failed with status {proc.returncode}")
     summary = json.loads(stdout.strip().splitlines()[-1])
-    return {"triangles": summary["input_tris"], "seconds": time.perf_counter() - started,
+    return {"mode": mode, "triangles": summary["input_tris"], "seconds": time.perf_counter() - started,
             "parent_peak_bytes": parent_peak, "worker_peak_bytes": sorted(workers.values(), reverse=True)}
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """Whether two .hlod files hold the same bytes once their volatile meta is left out."""
+    from hlod_core import fileformat
+    from hlod_core.bake import stable_meta
+
+    def stable_bytes(path: Path) -> bytes:
+        hlod = fileformat.load(path)
+        out = path.with_name(path.stem + ".stable.hlod")
+        fileformat.save(hlod.replace(meta=stable_meta(hlod.meta)), out)
+        data = out.read_bytes()
+        os.remove(out)
+        return data
+
+    return stable_bytes(a) == stable_bytes(b)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=float, nargs="+", default=[1, 5, 10], help="millions of triangles")
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--modes", nargs="+", choices=MODES, default=["memory"])
+    parser.add_argument("--chunk-tris", type=int, default=None, help="--out-of-core's --chunk-tris (default its own)")
+    parser.add_argument("--error", choices=["exact", "bound"], default="exact", help="the bakes' --error")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -115,20 +153,29 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="bake-memory-") as scratch:
         for size in args.sizes:
             spec = spec_of(int(size * 1_000_000), Path(scratch))
-            run = bake_measured(spec, Path(scratch) / "out.hlod", args.jobs)
-            run["bytes_per_triangle"] = run["parent_peak_bytes"] / run["triangles"]
-            run["bytes_per_triangle_with_workers"] = (run["parent_peak_bytes"] + sum(run["worker_peak_bytes"])) / run["triangles"]
-            runs.append(run)
-            print(json.dumps(run), flush=True)
-            os.remove(Path(scratch) / "out.hlod")
-    (args.out / "bake_memory.json").write_text(json.dumps({"jobs": args.jobs, "runs": runs}, indent=2))
-    print("| input triangles | bake s | parent peak MB | largest worker peak MB | bytes / triangle (parent) | "
+            outputs = {}
+            for mode in args.modes:
+                outputs[mode] = Path(scratch) / f"out-{mode}.hlod"
+                run = bake_measured(spec, outputs[mode], args.jobs, mode=mode, chunk_tris=args.chunk_tris,
+                                    error=args.error)
+                run["bytes_per_triangle"] = run["parent_peak_bytes"] / run["triangles"]
+                with_workers = run["parent_peak_bytes"] + sum(run["worker_peak_bytes"])
+                run["bytes_per_triangle_with_workers"] = with_workers / run["triangles"]
+                if mode == "out-of-core" and "memory" in outputs:
+                    run["same_file"] = same_file(outputs["memory"], outputs[mode])
+                runs.append(run)
+                print(json.dumps(run), flush=True)
+            for path in outputs.values():
+                os.remove(path)
+    (args.out / "bake_memory.json").write_text(json.dumps({"jobs": args.jobs, "chunk_tris": args.chunk_tris,
+                                                           "error": args.error, "runs": runs}, indent=2))
+    print("| mode | input triangles | bake s | parent peak MB | largest worker peak MB | bytes / triangle (parent) | "
           "bytes / triangle (parent + workers) |")
-    print("|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|")
     for r in runs:
         worst = r["worker_peak_bytes"][0] / 2**20 if r["worker_peak_bytes"] else 0.0
-        print(f"| {r['triangles']:,} | {r['seconds']:.1f} | {r['parent_peak_bytes'] / 2**20:.0f} | {worst:.0f} | "
-              f"{r['bytes_per_triangle']:.0f} | {r['bytes_per_triangle_with_workers']:.0f} |")
+        print(f"| {r['mode']} | {r['triangles']:,} | {r['seconds']:.1f} | {r['parent_peak_bytes'] / 2**20:.0f} | "
+              f"{worst:.0f} | {r['bytes_per_triangle']:.0f} | {r['bytes_per_triangle_with_workers']:.0f} |")
 
 
 if __name__ == "__main__":

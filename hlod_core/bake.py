@@ -37,6 +37,19 @@ UV island keep exact UVs, faces spanning two are stretched; the log names such n
 meta["uv_seams_crossed_nodes"] counts them. A mesh without any takes the path it always took,
 with no attribute arrays. The node error stays the geometric Hausdorff MSE.
 
+Out-of-core bakes (issue 16, `bake_partitioned`, stream_partition.bake_stream): an input bigger
+than memory is never loaded whole. A stream of triangle chunks (stream_partition.py: a scene spec
+one instance at a time) is read in passes: the origin, the root cell and the counted triangles
+(the scan, _prepare's floats), one counting pass per octree depth (octree.build_octree_counted:
+build_octree's layout from counts), then a routing pass into per-cell scratch files. Each leaf
+reads only its cell's file (its vertices compacted in ascending input order, as _leaf_lods does)
+and stays memory-mapped; the exact measure's leaf arrays are concatenated into memory-mapped
+files. From there the phases are the ones above, so the file is `bake`'s of the merged input,
+byte for byte except VOLATILE_META. What the bake's process still holds in its own memory grows
+with the input: the inner nodes' LODs, hausdorff.Clusters.build's sort of the leaves' faces
+(exact measure; about 60 bytes a triangle while it runs) and the assembled file (about 40).
+Geometry only; no cache.
+
 Error measures (issue 16, `BakeSettings.error`): "exact" measures each inner node's LOD against
 every original triangle below it (hausdorff.measure, pruned: hausdorff.measure_clustered over the
 leaves' triangles cut into clusters once per bake); "bound" measures it against its children's
@@ -208,22 +221,10 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         from_cache = set(made)
         if cache is not None:
             phases.lap("cache")
-        done = n - inner.size + len(from_cache)
-        progress(done, n, "simplify")
-
-        def node_done(node: int, lod: simplify.NodeLod) -> None:
-            nonlocal done
-            made[node] = lod
-            done += 1
-            progress(done, n, "simplify")
-
-        rows = None if prepared.rows is None else prepared.row_layout
-        _simplify_inner_nodes(layout, lods, hausdorff, settings, workers=workers,
-                              with_normals=prepared.normals is not None, row_layout=rows, cancel=cancel, node_done=node_done)
-        if cancel():
-            raise BakeCancelled("bake cancelled")
-        if settings.error == "bound":
-            _compose_bounds(layout, hausdorff, rebuilt=np.setdiff1d(inner, np.fromiter(from_cache, np.int64)))
+        _simplify_phase(layout, lods, hausdorff, made, settings, workers=workers,
+                        with_normals=prepared.normals is not None,
+                        row_layout=None if prepared.rows is None else prepared.row_layout, cancel=cancel,
+                        progress=progress)
         phases.lap("simplify")
 
     hlod = _assemble(layout, lods, prepared.origin, hausdorff, normals=prepared.normals is not None,
@@ -231,7 +232,8 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     if mesh.has_appearance:
         hlod = hlod.replace(materials=tuple(mesh.materials))
     phases.lap("assemble")
-    derived = _derived_meta(layout, made, hausdorff, prepared, settings, with_rows=mesh.has_appearance)
+    derived = _derived_meta(layout, made, hausdorff, _counted_per_node(layout, prepared.counted), settings,
+                            collapsed_tris=int((~prepared.counted).sum()), with_rows=mesh.has_appearance)
     stats = None
     if cache is not None:
         cache.store({keys[node]: (made[int(node)], float(hausdorff[node])) for node in inner if node not in from_cache})
@@ -244,24 +246,107 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
                                    seconds=time.perf_counter() - started, phases=phases))
 
 
+def bake_partitioned(partition, settings: BakeSettings = BakeSettings(), *, progress: ProgressFn | None = None,
+                     cancel: CancelFn | None = None, sources: list[str] | None = None, extra_meta: dict | None = None,
+                     scheduler=None, scratch_dir: str | os.PathLike | None = None) -> Hlod:
+    """Bake an input bigger than memory (module docstring, "Out-of-core bakes") through
+    `partition`, a stream_partition.Partition whose block the caller holds open until this returns
+    (stream_partition.bake_stream): its scratch folder holds the cell files and the memory-mapped
+    leaves. The result is the file `bake` makes of the merged input, byte for byte except
+    VOLATILE_META. Geometry only (normals kept); no cache. progress, cancel, sources, extra_meta,
+    scheduler, scratch_dir: as for `bake`."""
+    started = time.perf_counter()
+    progress = progress or (lambda done, total, phase: None)
+    cancel = cancel or (lambda: False)
+    clash = sorted(set(extra_meta or {}) & _OWN_META)
+    if clash:
+        raise InputError(f"extra_meta may not replace the bake's own meta entries ({', '.join(clash)})")
+    phases = _PhaseClock()
+    scan = partition.scan()
+    phases.lap("scan")
+    several = scan.tri_count > settings.target_tris
+    with _workers(settings.jobs if several else 1, scheduler=scheduler if several else None,
+                  scratch_dir=scratch_dir) as workers:
+        tree = partition.build_octree(target_tris=settings.target_tris, max_depth=settings.max_depth)
+        layout = tree.layout
+        phases.lap("octree")
+        n = layout.node_count
+        progress(0, n, "octree")
+        log.info("octree: %d nodes, %d leaves (out of core)", n, int(layout.is_leaf.sum()))
+        partition.route()
+        phases.lap("route")
+        lods: list[tuple] = [None] * n
+        for leaf in np.flatnonzero(layout.is_leaf):  # memory-mapped from the scratch folder
+            positions, faces, normals = partition.mapped_leaf_lod(int(leaf))
+            lods[leaf] = (positions, faces, normals, None)
+        phases.lap("leaves")
+        hausdorff = np.zeros(n, np.float64)
+        made: dict[int, simplify.NodeLod] = {}
+        _simplify_phase(layout, lods, hausdorff, made, settings, workers=workers, with_normals=scan.with_normals,
+                        row_layout=None, cancel=cancel, progress=progress, mapped_in=partition.folder)
+        phases.lap("simplify")
+    hlod = _assemble(layout, lods, scan.origin, hausdorff, normals=scan.with_normals,
+                     row_layout=appearance.AttributeLayout(False, False, False))
+    del lods
+    phases.lap("assemble")
+    derived = _derived_meta(layout, made, hausdorff, tree.counted, settings,
+                            collapsed_tris=scan.tri_count - scan.counted_count, with_rows=False)
+    progress(n, n, "done")
+    size = _InputSize(tris=scan.tri_count, vertices=scan.vertex_count, name=partition.source.name)
+    return hlod.replace(meta=_meta(size, settings, derived, None, sources=sources, extra_meta=extra_meta,
+                                   seconds=time.perf_counter() - started, phases=phases))
+
+
+def _simplify_phase(layout: OctreeLayout, lods: list, hausdorff: np.ndarray, made: dict, settings: BakeSettings, *,
+                    workers: "_Workers", with_normals: bool, row_layout: appearance.AttributeLayout | None,
+                    cancel: CancelFn, progress: ProgressFn, mapped_in: str | os.PathLike | None = None) -> None:
+    """The simplify phase: the inner nodes not in `made` (the cache's are, with their LODs in
+    lods and errors in hausdorff) decimated and measured (_simplify_inner_nodes), made[node] set
+    as each completes; with the "bound" measure the bounds composed (_compose_bounds). mapped_in:
+    a folder for the exact measure's leaf arrays, memory-mapped (an out-of-core bake)."""
+    n = layout.node_count
+    inner = np.flatnonzero(~layout.is_leaf)
+    from_cache = np.fromiter(made, np.int64, count=len(made))
+    done = n - inner.size + len(made)
+    progress(done, n, "simplify")
+
+    def node_done(node: int, lod: simplify.NodeLod) -> None:
+        nonlocal done
+        made[node] = lod
+        done += 1
+        progress(done, n, "simplify")
+
+    _simplify_inner_nodes(layout, lods, hausdorff, settings, workers=workers, with_normals=with_normals,
+                          row_layout=row_layout, cancel=cancel, node_done=node_done, mapped_in=mapped_in)
+    if cancel():
+        raise BakeCancelled("bake cancelled")
+    if settings.error == "bound":
+        _compose_bounds(layout, hausdorff, rebuilt=np.setdiff1d(inner, from_cache))
+
+
 #: The meta entries a bake writes itself (extra_meta may not replace them).
 _OWN_META = frozenset({"generator", "input_tris", "input_vertices", "settings", "target_tris", "max_depth", "sources",
                        "bake_seconds", "phase_seconds", "cache", *bake_cache.RESULT_META})
 
 
-def _derived_meta(layout: OctreeLayout, made: dict, hausdorff: np.ndarray, prepared: "_Prepared",
-                  settings: BakeSettings, *, with_rows: bool) -> dict:
+def _counted_per_node(layout: OctreeLayout, counted: np.ndarray) -> np.ndarray:
+    """(n,) int64: each node's counted triangles (counted (f,) bool, by input triangle)."""
+    counted_below = np.concatenate([[0], np.cumsum(counted[layout.tri_order])])
+    return counted_below[layout.tri_end] - counted_below[layout.tri_begin]
+
+
+def _derived_meta(layout: OctreeLayout, made: dict, hausdorff: np.ndarray, counted_per_node: np.ndarray,
+                  settings: BakeSettings, *, collapsed_tris: int, with_rows: bool) -> dict:
     """The meta entries the bake derives (bake_cache.RESULT_META): the log lists inner nodes in id
-    order, however their LODs came."""
+    order, however their LODs came. counted_per_node (n,) int64; collapsed_tris: the input's
+    triangles that are not counted."""
     bake_log: list[str] = []
     inner = np.flatnonzero(~layout.is_leaf)
     for node in inner:
         _note_lod(bake_log, int(node), made[int(node)], hausdorff[node], settings.target_tris)
-    counted_below = np.concatenate([[0], np.cumsum(prepared.counted[layout.tri_order])])
-    counted_per_node = counted_below[layout.tri_end] - counted_below[layout.tri_begin]
     derived = {
         "leaves_over_budget": int((layout.is_leaf & (counted_per_node > settings.target_tris)).sum()),
-        "collapsed_input_tris": int((~prepared.counted).sum()),
+        "collapsed_input_tris": int(collapsed_tris),
         "log": bake_log[:_MAX_LOG_LINES],
         "log_lines_dropped": max(0, len(bake_log) - _MAX_LOG_LINES),
     }
@@ -282,17 +367,19 @@ def _cache_stats(cache: bake_cache.BakeCache, *, nodes: int, reused: int, whole:
             "rejected_entries": len(cache.rejected), "reused_result": whole}
 
 
-def _meta(mesh: TriangleMesh, settings: BakeSettings, derived: dict, cache_stats: dict | None, *,
+def _meta(mesh: "TriangleMesh | _InputSize", settings: BakeSettings, derived: dict, cache_stats: dict | None, *,
           sources, extra_meta, seconds: float, phases: "_PhaseClock") -> dict:
-    """The HLOD's meta, in one order whichever way the bake went (the file's bytes depend on it)."""
+    """The HLOD's meta, in one order whichever way the bake went (the file's bytes depend on it).
+    mesh: the input (a TriangleMesh, or the _InputSize of a streamed one)."""
+    size = _InputSize.of(mesh) if isinstance(mesh, TriangleMesh) else mesh
     meta = {
         "generator": "hlod_core",
-        "input_tris": mesh.tri_count,
-        "input_vertices": int(mesh.positions.shape[0]),
+        "input_tris": size.tris,
+        "input_vertices": size.vertices,
         "settings": _settings_meta(settings),
         "target_tris": settings.target_tris,
         "max_depth": settings.max_depth,
-        "sources": list(sources or [mesh.name]),
+        "sources": list(sources or [size.name]),
         "leaves_over_budget": derived["leaves_over_budget"],
         "collapsed_input_tris": derived["collapsed_input_tris"],
         "bake_seconds": seconds,
@@ -306,6 +393,19 @@ def _meta(mesh: TriangleMesh, settings: BakeSettings, derived: dict, cache_stats
         meta["cache"] = cache_stats
     meta.update(extra_meta or {})
     return meta
+
+
+@dataclass(frozen=True)
+class _InputSize:
+    """What the meta says of the input: tris, vertices (used or not), name."""
+
+    tris: int
+    vertices: int
+    name: str
+
+    @staticmethod
+    def of(mesh: TriangleMesh) -> "_InputSize":
+        return _InputSize(tris=mesh.tri_count, vertices=int(mesh.positions.shape[0]), name=mesh.name)
 
 
 def _settings_meta(settings: BakeSettings) -> dict:
@@ -548,11 +648,16 @@ class _LeafArrays:
                 int(self.cluster_end[node]))
 
 
-def _leaf_arrays(layout: OctreeLayout, lods: list) -> _LeafArrays:
-    """_LeafArrays of the bake's leaves (lods[leaf] = (positions, local faces, ...))."""
+def _leaf_arrays(layout: OctreeLayout, lods: list, *, folder: str | os.PathLike | None = None) -> _LeafArrays:
+    """_LeafArrays of the bake's leaves (lods[leaf] = (positions, local faces, ...)). folder: the
+    leaves' positions and faces are concatenated into memory-mapped files there (an out-of-core
+    bake: _concat_mapped) instead of this process's memory; the same arrays either way."""
     leaves = np.flatnonzero(layout.is_leaf)
     leaves = leaves[np.argsort(layout.tri_begin[leaves], kind="stable")]  # depth-first
-    positions, faces = concat_indexed((lods[leaf][0], lods[leaf][1]) for leaf in leaves)
+    if folder is None:
+        positions, faces = concat_indexed((lods[leaf][0], lods[leaf][1]) for leaf in leaves)
+    else:
+        positions, faces = _concat_mapped([lods[leaf] for leaf in leaves], folder)
     counts = np.array([lods[leaf][0].shape[0] for leaf in leaves], np.int64)
     segments = np.concatenate([[0], np.cumsum([lods[leaf][1].shape[0] for leaf in leaves])]).astype(np.int64)
     clusters = hausdorff_measure.Clusters.build(positions, faces, segments)
@@ -568,6 +673,26 @@ def _leaf_arrays(layout: OctreeLayout, lods: list) -> _LeafArrays:
         ranges[1, nodes], ranges[3, nodes] = ranges[1, last], ranges[3, last]
     return _LeafArrays(positions=positions, clusters=clusters, vertex_begin=ranges[0], vertex_end=ranges[1],
                        cluster_begin=ranges[2], cluster_end=ranges[3])
+
+
+def _concat_mapped(parts: list[tuple], folder: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """concat_indexed of (positions (k,3) f32, faces (m,3)) parts, written part by part into
+    memory-mapped .npy files in `folder`: positions (V,3) float32, faces (F,3) int32 (int64 from
+    2**31 vertices), the values concat_indexed gives (Clusters.build stores them as this dtype)."""
+    vertex_count = sum(part[0].shape[0] for part in parts)
+    face_count = sum(part[1].shape[0] for part in parts)
+    index_type = np.int32 if vertex_count < 2**31 else np.int64
+    positions = np.lib.format.open_memmap(os.path.join(folder, "leaf-positions.npy"), mode="w+", dtype=np.float32,
+                                          shape=(vertex_count, 3))
+    faces = np.lib.format.open_memmap(os.path.join(folder, "leaf-faces.npy"), mode="w+", dtype=index_type,
+                                      shape=(face_count, 3))
+    v = f = 0
+    for part in parts:
+        k, m = part[0].shape[0], part[1].shape[0]
+        positions[v:v + k] = part[0]
+        faces[f:f + m] = np.asarray(part[1], index_type) + index_type(v)
+        v, f = v + k, f + m
+    return positions, faces
 
 
 #: Signals whose Python handlers may raise (Ctrl-C's KeyboardInterrupt, the command line's SIGTERM
@@ -687,7 +812,7 @@ def _workers(jobs: int, *, scheduler=None, scratch_dir: str | os.PathLike | None
 
 def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarray, settings: BakeSettings, *,
                           workers: _Workers, with_normals: bool, row_layout: appearance.AttributeLayout | None,
-                          cancel: CancelFn, node_done) -> None:
+                          cancel: CancelFn, node_done, mapped_in: str | os.PathLike | None = None) -> None:
     """Fill lods[node] and hausdorff[node] for every inner node whose LOD is not there yet (the
     cache's are); node_done(node, lod) as each completes. Attribute rows (the 4th entry of each
     LOD, None without) travel with the child LODs; row_layout: their columns (None without).
@@ -742,9 +867,9 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
         building = None  # the leaf arrays, made on a thread of this process while workers decimate
         if not bound and workers.scratch:
             builder = stack.enter_context(cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="hlod-leaf-arrays"))
-            building = builder.submit(_shared_leaf_arrays, workers, layout, lods)
+            building = builder.submit(_shared_leaf_arrays, workers, layout, lods, mapped_in)
         elif not bound:  # inline: this thread is the worker
-            leaf_arrays = _shared_leaf_arrays(workers, layout, lods)
+            leaf_arrays = _shared_leaf_arrays(workers, layout, lods, mapped_in)
         while heap or running:
             while heap and len(running) < workers.limit:
                 if heap[0][0] == _TASK_MEASURE and leaf_arrays is None and not bound:
@@ -776,9 +901,11 @@ def _simplify_inner_nodes(layout: OctreeLayout, lods: list, hausdorff: np.ndarra
                         push(_TASK_DECIMATE, parent)
 
 
-def _shared_leaf_arrays(workers: "_Workers", layout: OctreeLayout, lods: list) -> "_LeafArrays":
-    """_leaf_arrays of the bake, shared with the workers (leaves' entries of lods only: final)."""
-    arrays = _leaf_arrays(layout, lods)
+def _shared_leaf_arrays(workers: "_Workers", layout: OctreeLayout, lods: list,
+                        mapped_in: str | os.PathLike | None = None) -> "_LeafArrays":
+    """_leaf_arrays of the bake, shared with the workers (leaves' entries of lods only: final);
+    mapped_in: _leaf_arrays' folder (an out-of-core bake)."""
+    arrays = _leaf_arrays(layout, lods, folder=mapped_in)
     workers.share(arrays.arrays())
     return arrays
 
@@ -807,6 +934,47 @@ def _note_lod(bake_log: list[str], node: int, lod: simplify.NodeLod, error: floa
 
 # --- assemble and bounds ------------------------------------------------------------------------
 
+#: Vertices _assemble turns into float64 world coordinates at a time (whole nodes; a node of more
+#: vertices is one block): its working memory, 24 bytes a vertex and a few copies.
+_ASSEMBLE_BLOCK_VERTICES = 1 << 20
+
+
+def _concat_nodes(lods, vertex_offset: np.ndarray, tri_offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """concat_indexed of the nodes' (positions, faces), written straight into the file's arrays:
+    positions (V,3) float32 and indices (F,3) uint32 (V < 2**32, checked by the caller)."""
+    vertices = int(vertex_offset[-1]) + lods[-1][0].shape[0]
+    tris = int(tri_offset[-1]) + lods[-1][1].shape[0]
+    positions = np.empty((vertices, 3), np.float32)
+    indices = np.empty((tris, 3), np.uint32)
+    for lod, v, t in zip(lods, vertex_offset, tri_offset):
+        positions[v:v + lod[0].shape[0]] = lod[0]
+        indices[t:t + lod[1].shape[0]] = lod[1]
+        indices[t:t + lod[1].shape[0]] += np.uint32(v)
+    return positions, indices
+
+
+def _vertex_blocks(vertex_offset: np.ndarray, vertex_count: np.ndarray) -> list[tuple[int, int]]:
+    """Runs of consecutive nodes [first, last) of about _ASSEMBLE_BLOCK_VERTICES vertices each."""
+    ends = vertex_offset + vertex_count
+    out, first = [], 0
+    n = vertex_count.shape[0]
+    while first < n:
+        last = int(np.searchsorted(ends, vertex_offset[first] + _ASSEMBLE_BLOCK_VERTICES, side="right"))
+        last = max(last, first + 1)
+        out.append((first, last))
+        first = last
+    return out
+
+
+def _block_world(positions, origin, vertex_offset, vertex_count, first: int, last: int):
+    """The vertices of nodes first..last-1 as float64 world coordinates (positions + origin), and
+    each node's start in them (for reduceat)."""
+    begin, end = int(vertex_offset[first]), int(vertex_offset[last - 1] + vertex_count[last - 1])
+    world = positions[begin:end].astype(np.float64)
+    world += origin
+    return world, vertex_offset[first:last] - begin
+
+
 def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool,
               row_layout: appearance.AttributeLayout) -> Hlod:
     """lods: per node (positions, faces, normals, attribute rows); row_layout: the rows' columns
@@ -821,8 +989,7 @@ def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool,
     tri_offset = np.concatenate([[0], np.cumsum(tri_count)[:-1]])
     if vertex_count.sum() >= 2**32:
         raise InputError(f"the HLOD would need {int(vertex_count.sum())} vertices, more than 32-bit indices address")
-    positions, indices = concat_indexed((l[0], l[1]) for l in lods)
-    positions, indices = positions.astype(np.float32), indices.astype(np.uint32)
+    positions, indices = _concat_nodes(lods, vertex_offset, tri_offset)
     node_normals = np.concatenate([l[2] for l in lods]).astype(np.float32) if normals else None
     uvs = colors = tri_material = None
     if not row_layout.empty:
@@ -831,9 +998,13 @@ def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool,
             order = np.lexsort((face_material, np.repeat(np.arange(n), tri_count)))  # node, then material
             indices, tri_material = indices[order], face_material[order].astype(np.uint16)
 
-    world = positions.astype(np.float64) + origin
-    lod_box_min = np.minimum.reduceat(world, vertex_offset, axis=0)
-    lod_box_max = np.maximum.reduceat(world, vertex_offset, axis=0)
+    blocks = _vertex_blocks(vertex_offset, vertex_count)
+    lod_box_min = np.empty((n, 3), np.float64)
+    lod_box_max = np.empty((n, 3), np.float64)
+    for first, last in blocks:
+        world, starts = _block_world(positions, origin, vertex_offset, vertex_count, first, last)
+        lod_box_min[first:last] = np.minimum.reduceat(world, starts, axis=0)
+        lod_box_max[first:last] = np.maximum.reduceat(world, starts, axis=0)
     box_min, box_max = lod_box_min.copy(), lod_box_max.copy()
     levels = [np.flatnonzero(layout.depth == d) for d in range(int(layout.depth.max()), 0, -1)]
     for nodes in levels:  # deepest first: a child's subtree box is final before its parent's
@@ -843,11 +1014,14 @@ def _assemble(layout: OctreeLayout, lods, origin, hausdorff, *, normals: bool,
     center = 0.5 * (box_min + box_max)
     # |world - centre of its node| per vertex, max per node: sqrt((dx^2 + dy^2) + dz^2) as
     # np.linalg.norm sums it, and the max taken before the root (sqrt is monotone: the same float)
-    world -= np.repeat(center, vertex_count, axis=0)
-    world *= world
-    squared = world[:, 0] + world[:, 1]
-    squared += world[:, 2]
-    radius = np.sqrt(np.maximum.reduceat(squared, vertex_offset))
+    radius = np.empty(n, np.float64)
+    for first, last in blocks:
+        world, starts = _block_world(positions, origin, vertex_offset, vertex_count, first, last)
+        world -= np.repeat(center[first:last], vertex_count[first:last], axis=0)
+        world *= world
+        squared = world[:, 0] + world[:, 1]
+        squared += world[:, 2]
+        radius[first:last] = np.sqrt(np.maximum.reduceat(squared, starts))
     del world, squared
     diag = np.linalg.norm(box_max - box_min, axis=1)
     error = np.where(np.isfinite(hausdorff), hausdorff, diag)

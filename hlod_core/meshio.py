@@ -261,11 +261,25 @@ def load_scene_spec(path: str | os.PathLike, *, texture_dir: str | os.PathLike |
     """Read a JSON scene spec; one TriangleMesh per placed instance. Each model file is read once
     (texture_dir: see load_mesh)."""
     path = Path(path)
+    cache: dict[Path, TriangleMesh] = {}
+    out = []
+    for i, (model_path, transforms) in enumerate(scene_spec_models(path)):
+        if model_path not in cache:
+            cache[model_path] = load_mesh(model_path, texture_dir=texture_dir)
+        for j, matrix in enumerate(transforms):
+            out.append(place(cache[model_path], matrix, name=f"{model_path}#{j}",
+                             where=f"{path}: models[{i}].transforms[{j}]", what=model_path))
+    return out
+
+
+def scene_spec_models(path: str | os.PathLike) -> list[tuple[Path, list[np.ndarray]]]:
+    """(model file, its checked (4,4) transforms) per model of a JSON scene spec, in order, the
+    models not read (load_scene_spec reads them; an out-of-core bake streams them)."""
+    path = Path(path)
     spec = jsonutil.read(path, what="scene spec")
     models = spec.get("models") if isinstance(spec, dict) else None
     if not isinstance(models, list) or not models:
         raise InputError(f"{path}: scene spec needs a non-empty list \"models\"")
-    cache: dict[Path, TriangleMesh] = {}
     out = []
     for i, model in enumerate(models):
         if not isinstance(model, dict) or not isinstance(model.get("path"), str):
@@ -275,19 +289,21 @@ def load_scene_spec(path: str | os.PathLike, *, texture_dir: str | os.PathLike |
             model_path = (path.parent / model_path).resolve()
         if model_path.suffix.lower() == ".json":
             raise InputError(f"{path}: models[{i}] refers to another scene spec ({model_path}); nesting is not supported")
-        if model_path not in cache:
-            cache[model_path] = load_mesh(model_path, texture_dir=texture_dir)
         transforms = model.get("transforms", [np.eye(4).ravel().tolist()])
         if not isinstance(transforms, list) or not transforms:
             raise InputError(f"{path}: models[{i}].transforms must be a non-empty list of 16-number lists")
-        for j, t in enumerate(transforms):
-            with np.errstate(over="ignore", invalid="ignore"):  # overflow is refused just below
-                placed = transform_mesh(cache[model_path], _parse_transform(path, i, j, t), name=f"{model_path}#{j}")
-            if np.any(~np.isfinite(placed.positions) & np.isfinite(cache[model_path].positions)):
-                raise InputError(f"{path}: models[{i}].transforms[{j}] moves {model_path} out of the floating-point "
-                                 "range (infinite coordinates)")
-            out.append(placed)
+        out.append((model_path, [_parse_transform(path, i, j, t) for j, t in enumerate(transforms)]))
     return out
+
+
+def place(mesh: TriangleMesh, matrix: np.ndarray, *, name: str, where: str, what) -> TriangleMesh:
+    """transform_mesh(mesh, matrix), refused (InputError "{where} moves {what} out of the
+    floating-point range") where it turns a finite coordinate infinite."""
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is refused just below
+        placed = transform_mesh(mesh, matrix, name=name)
+    if np.any(~np.isfinite(placed.positions) & np.isfinite(mesh.positions)):
+        raise InputError(f"{where} moves {what} out of the floating-point range (infinite coordinates)")
+    return placed
 
 
 def _parse_transform(spec: Path, i: int, j: int, t) -> np.ndarray:

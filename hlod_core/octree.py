@@ -23,6 +23,15 @@ octant after _MAX_SHRINKS shrinks) cannot be split and becomes a leaf over the b
 
 Vectorised by depth: each depth costs a few passes over the triangles still in splitting nodes
 (their octant codes, counts per (node, octant)), and one stable sort by leaf at the end.
+
+From counts (`build_octree_counted`, issue 16's out-of-core bakes, stream_partition.py): the same
+layout without an (f,3) array of centroids. Each depth is one pass over a stream of triangles
+(`OctantQuery.count` per chunk, summed): every centroid descends the tree built so far
+(`OctantRouter`) to its node, and for the splitting nodes it is counted per octant at
+COUNT_LEVELS successive levels (each level the octant holding it, halved as `_split_cells` shrinks
+a cell: half *= 0.5, centre += sign * half, the same floats); a cell splits at the first level
+where two octants hold triangles. The layout's tri_order is None: the stream routes each
+triangle to its leaf (`OctantRouter.route`) in input order, as tri_order lists them.
 """
 from __future__ import annotations
 
@@ -63,7 +72,8 @@ def tight_cube(lo: np.ndarray, hi: np.ndarray) -> RootCube:
 @dataclass(frozen=True, eq=False)
 class OctreeLayout:
     """parent/child_offset/child_count/depth (n,) int32 as in hierarchy.Hlod;
-    tri_order (f,) int64: input triangle ids, subtree-contiguous;
+    tri_order (f,) int64: input triangle ids, subtree-contiguous (None when built from counts:
+    build_octree_counted);
     tri_begin/tri_end (n,) int64: each node's range in tri_order (its original triangles);
     cell_center (n,3) float64 and cell_half (n,) float64: each node's cell (in the centroids'
     frame), cell_level (n,) int32: its grid level (root 0; one more per
@@ -73,7 +83,7 @@ class OctreeLayout:
     child_offset: np.ndarray
     child_count: np.ndarray
     depth: np.ndarray
-    tri_order: np.ndarray
+    tri_order: np.ndarray | None
     tri_begin: np.ndarray
     tri_end: np.ndarray
     cell_center: np.ndarray
@@ -219,6 +229,16 @@ def _split_cells(axes: list[np.ndarray], w: np.ndarray, center: np.ndarray, half
 def _depth_first_ranges(child_offset, child_count, depth, node_of):
     """tri_order (f,) int64 and tri_begin/tri_end (n,) int64: triangles sorted (stably) by their
     leaf's rank in depth-first order, so every subtree is one range."""
+    leaf_rank, rank = _leaf_ranks(child_offset, child_count)
+    key = leaf_rank[node_of]
+    tri_order = np.argsort(key.astype(np.uint16) if rank <= _RADIX_KEYS else key, kind="stable").astype(np.int64)
+    begin, end = _ranges(child_offset, child_count, depth, leaf_rank, np.bincount(key, minlength=rank))
+    return tri_order, begin, end
+
+
+def _leaf_ranks(child_offset, child_count) -> tuple[np.ndarray, int]:
+    """(n,) int64 each leaf's rank in depth-first order (children in id order), -1 for inner
+    nodes; and the number of leaves."""
     n = child_offset.shape[0]
     leaf_rank = np.full(n, -1, np.int64)
     rank = 0
@@ -230,9 +250,13 @@ def _depth_first_ranges(child_offset, child_count, depth, node_of):
             rank += 1
         else:  # push children in reverse so they are visited in id order
             stack.extend(range(child_offset[node] + child_count[node] - 1, child_offset[node] - 1, -1))
-    key = leaf_rank[node_of]
-    tri_order = np.argsort(key.astype(np.uint16) if rank <= _RADIX_KEYS else key, kind="stable").astype(np.int64)
-    per_rank = np.bincount(key, minlength=rank)
+    return leaf_rank, rank
+
+
+def _ranges(child_offset, child_count, depth, leaf_rank, per_rank):
+    """tri_begin/tri_end (n,) int64 of the leaves (ranked), per_rank (leaves,) their triangle
+    counts in rank order; an inner node spans its first to its last child's range."""
+    n = child_offset.shape[0]
     ends = np.cumsum(per_rank)
     leaves = np.flatnonzero(leaf_rank >= 0)
     begin = np.zeros(n, np.int64)
@@ -243,4 +267,187 @@ def _depth_first_ranges(child_offset, child_count, depth, node_of):
         inner = np.flatnonzero((depth == d) & (child_count > 0))
         begin[inner] = begin[child_offset[inner]]
         end[inner] = end[child_offset[inner] + child_count[inner] - 1]
-    return tri_order, begin, end
+    return begin, end
+
+
+# --- the same octree from counts (issue 16: inputs bigger than memory) --------------------------
+
+#: Octant levels a counting pass evaluates per splitting cell: a cell whose centroids share one
+#: octant at the first k < COUNT_LEVELS levels shrinks k times and splits within the same pass.
+COUNT_LEVELS = 8
+
+
+@dataclass(frozen=True, eq=False)
+class OctantRouter:
+    """The tree built so far, as a stream descends it: per node, split_center (n,3) float64 (the
+    centre of the cell it split at, after its shrinks; NaN where it did not split) and child (n,8)
+    int64 (the child in each octant of that cell, -1 where none)."""
+
+    split_center: np.ndarray
+    child: np.ndarray
+
+    def route(self, centroids: np.ndarray) -> np.ndarray:
+        """(t,) int64: the node each centroid ((t,3) float64) lies in, as deep as the tree goes
+        (build_octree's rule: the octant of the split cell, + side on a plane)."""
+        node = np.zeros(centroids.shape[0], np.int64)
+        active = np.arange(centroids.shape[0])
+        while active.size:
+            inner = ~np.isnan(self.split_center[node[active], 0])
+            active = active[inner]
+            if active.size == 0:
+                break
+            centre = self.split_center[node[active]]
+            octant = np.zeros(active.size, np.int64)
+            for a in range(3):
+                octant |= (centroids[active, a] >= centre[:, a]).astype(np.int64) << a
+            node[active] = self.child[node[active], octant]
+        return node
+
+
+@dataclass(frozen=True, eq=False)
+class OctantQuery:
+    """One counting pass: the splitting cells `nodes` (k,) int64 at their current cell, center
+    (k,3) float64 and half (k,) float64, each evaluated at `levels` successive octant levels (a
+    level's cell is the previous level's octant holding the centroid, as `_split_cells` shrinks)."""
+
+    router: OctantRouter
+    nodes: np.ndarray
+    center: np.ndarray
+    half: np.ndarray
+    levels: int
+
+    def count(self, centroids: np.ndarray, counted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Counts of one chunk of triangles (centroids (t,3) float64, counted (t,) bool): all and
+        counted, each (k, levels, 8) int64 per cell, level and octant. Sum them over the chunks."""
+        k, levels = self.nodes.shape[0], self.levels
+        local_of = np.full(self.router.child.shape[0], -1, np.int64)
+        local_of[self.nodes] = np.arange(k)
+        local = local_of[self.router.route(centroids)]
+        rows = np.flatnonzero(local >= 0)
+        local = local[rows]
+        xyz = centroids[rows]
+        center, half = self.center[local], self.half[local]
+        key = np.empty((levels, rows.size), np.int64)
+        for level in range(levels):
+            octant = np.zeros(rows.size, np.int64)
+            for a in range(3):  # bit a: on the + side of axis a
+                octant |= (xyz[:, a] >= center[:, a]).astype(np.int64) << a
+            key[level] = (local * levels + level) * 8 + octant
+            half = half * 0.5  # the octant as _split_cells shrinks into it: half *= 0.5; center += sign * half
+            center = center + _OCTANT_SIGNS[octant] * half[:, None]
+        size = k * levels * 8
+        every = np.bincount(key.ravel(), minlength=size).reshape(k, levels, 8)
+        mine = np.bincount(key[:, counted[rows]].ravel(), minlength=size).reshape(k, levels, 8)
+        return every, mine
+
+
+@dataclass(frozen=True, eq=False)
+class CountedOctree:
+    """build_octree_counted's result: layout (tri_order None: the stream routes the triangles),
+    router (OctantRouter of the whole tree: route a centroid to its leaf), tri_count and
+    counted (n,) int64, each node's triangles and counted triangles."""
+
+    layout: OctreeLayout
+    router: OctantRouter
+    tri_count: np.ndarray
+    counted: np.ndarray
+
+
+def build_octree_counted(count_pass, *, root: RootCube, tri_count: int, counted_count: int, target_tris: int,
+                         max_depth: int, levels: int = COUNT_LEVELS) -> CountedOctree:
+    """build_octree's layout (the same nodes, cells and ranges, float for float) from counts instead
+    of an (f,3) array of centroids: count_pass(OctantQuery) -> (all, counted) (k, levels, 8) int64
+    sums of OctantQuery.count over every triangle (one pass over the input). A depth costs one
+    pass, plus one per COUNT_LEVELS shrinks its cells take in a row (rare)."""
+    if target_tris < 1 or max_depth < 0:
+        raise ValueError("target_tris must be >= 1 and max_depth >= 0")
+    parent, depth = [np.array([-1], np.int32)], [np.array([0], np.int32)]
+    center, half = [root.center[None, :].astype(np.float64)], [np.array([0.5 * root.side])]
+    level = [np.array([0], np.int32)]
+    child_offset, child_count = [np.array([-1], np.int32)], [np.array([0], np.int32)]
+    n_all, n_counted = [np.array([tri_count], np.int64)], [np.array([counted_count], np.int64)]
+    split_center, child = np.full((1, 3), np.nan), np.full((1, 8), -1, np.int64)
+    first, n, d = 0, 1, 0
+    while d < max_depth:
+        splitting = np.flatnonzero(n_counted[-1] > target_tris)
+        if splitting.size == 0:
+            break
+        ids = first + splitting
+        router = OctantRouter(split_center, child)
+        counts, counts_counted, cell_center, cell_half, shrinks = _resolve_splits(
+            count_pass, router, ids, center[-1][splitting], half[-1][splitting], levels)
+        split = np.flatnonzero(counts.any(axis=1))
+        occupied = counts[split] > 0
+        kids = occupied.sum(axis=1)
+        offsets = n + np.concatenate([[0], np.cumsum(kids)[:-1]]).astype(np.int64)
+        child_offset[-1][ids[split] - first] = offsets
+        child_count[-1][ids[split] - first] = kids
+        kid_parent, kid_octant = np.nonzero(occupied)  # row-major: parents in id order, octants ascending
+        m = kid_parent.shape[0]
+        kid_half = 0.5 * cell_half[split][kid_parent]
+        parent.append(ids[split][kid_parent].astype(np.int32))
+        depth.append(np.full(m, d + 1, np.int32))
+        center.append(cell_center[split][kid_parent] + _OCTANT_SIGNS[kid_octant] * kid_half[:, None])
+        half.append(kid_half)
+        level.append((level[-1][splitting[split]] + shrinks[split] + 1)[kid_parent].astype(np.int32))
+        child_offset.append(np.full(m, -1, np.int32))
+        child_count.append(np.zeros(m, np.int32))
+        n_all.append(counts[split][occupied])
+        n_counted.append(counts_counted[split][occupied])
+        split_center = np.concatenate([split_center, np.full((m, 3), np.nan)])
+        split_center[ids[split]] = cell_center[split]
+        child = np.concatenate([child, np.full((m, 8), -1, np.int64)])
+        child[ids[split][kid_parent], kid_octant] = n + np.arange(m)
+        first, n = n, n + m
+        d += 1
+
+    parent_a, child_offset_a, child_count_a, depth_a = (np.concatenate(a) for a in (parent, child_offset,
+                                                                                   child_count, depth))
+    all_a = np.concatenate(n_all)
+    leaf_rank, rank = _leaf_ranks(child_offset_a, child_count_a)
+    per_rank = np.zeros(rank, np.int64)
+    leaves = np.flatnonzero(leaf_rank >= 0)
+    per_rank[leaf_rank[leaves]] = all_a[leaves]
+    tri_begin, tri_end = _ranges(child_offset_a, child_count_a, depth_a, leaf_rank, per_rank)
+    layout = OctreeLayout(parent=parent_a, child_offset=child_offset_a, child_count=child_count_a, depth=depth_a,
+                          tri_order=None, tri_begin=tri_begin, tri_end=tri_end,
+                          cell_center=np.concatenate(center), cell_half=np.concatenate(half),
+                          cell_level=np.concatenate(level))
+    return CountedOctree(layout=layout, router=OctantRouter(split_center, child), tri_count=all_a,
+                         counted=np.concatenate(n_counted))
+
+
+def _resolve_splits(count_pass, router: OctantRouter, ids: np.ndarray, center: np.ndarray, half: np.ndarray,
+                    levels: int):
+    """_split_cells from counts: for the k cells `ids` (center (k,3), half (k,)), passes of
+    `levels` octant levels until each splits or has shrunk _MAX_SHRINKS times. Returns counts and
+    counted counts (k,8) int64 of the octants of the cell each split at (all zero: it could not),
+    that cell's center (k,3) and half (k,), and shrinks (k,) int32."""
+    k = ids.shape[0]
+    center, half = center.copy(), half.copy()
+    counts = np.zeros((k, 8), np.int64)
+    counts_counted = np.zeros((k, 8), np.int64)
+    shrinks = np.zeros(k, np.int32)
+    pending = np.arange(k)
+    evaluated = 0  # octant levels evaluated so far (the same for every pending cell)
+    while pending.size and evaluated < _MAX_SHRINKS:
+        step = min(levels, _MAX_SHRINKS - evaluated)
+        every, mine = count_pass(OctantQuery(router=router, nodes=ids[pending], center=center[pending],
+                                             half=half[pending], levels=step))
+        splits_at = np.count_nonzero(every, axis=2) > 1  # (p, step)
+        splits = splits_at.any(axis=1)
+        first = np.where(splits, np.argmax(splits_at, axis=1), step)  # shrinks in this pass
+        for lv in range(step):  # shrink into the one occupied octant, as _split_cells does
+            going = pending[first > lv]
+            if going.size == 0:
+                break
+            octant = np.argmax(every[first > lv, lv] > 0, axis=1)
+            half[going] *= 0.5
+            center[going] += _OCTANT_SIGNS[octant] * half[going, None]
+        done = pending[splits]
+        counts[done] = every[splits, first[splits]]
+        counts_counted[done] = mine[splits, first[splits]]
+        shrinks[pending] += first.astype(np.int32)
+        pending = pending[~splits]
+        evaluated += step
+    return counts, counts_counted, center, half, shrinks
