@@ -164,12 +164,7 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     default the temporary folder), where the bake writes its shared arrays into a subfolder of its
     own, removed at the end. Neither is a setting: they change where the work runs, not the file."""
     started = time.perf_counter()
-    progress = progress or (lambda done, total, phase: None)
-    cancel = cancel or (lambda: False)
-    clash = sorted(set(extra_meta or {}) & _OWN_META)
-    if clash:
-        raise InputError(f"extra_meta may not replace the bake's own meta entries ({', '.join(clash)})")
-    phases = _PhaseClock()
+    progress, cancel, phases = _begin(progress, cancel, extra_meta)
     cache = result_key = None
     if cache_dir is not None:
         row_layout = appearance.AttributeLayout(material=mesh.material_ids is not None, uv=mesh.uvs is not None,
@@ -256,12 +251,7 @@ def bake_partitioned(partition, settings: BakeSettings = BakeSettings(), *, prog
     VOLATILE_META. Geometry only (normals kept); no cache. progress, cancel, sources, extra_meta,
     scheduler, scratch_dir: as for `bake`."""
     started = time.perf_counter()
-    progress = progress or (lambda done, total, phase: None)
-    cancel = cancel or (lambda: False)
-    clash = sorted(set(extra_meta or {}) & _OWN_META)
-    if clash:
-        raise InputError(f"extra_meta may not replace the bake's own meta entries ({', '.join(clash)})")
-    phases = _PhaseClock()
+    progress, cancel, phases = _begin(progress, cancel, extra_meta)
     scan = partition.scan()
     phases.lap("scan")
     several = scan.tri_count > settings.target_tris
@@ -322,6 +312,15 @@ def _simplify_phase(layout: OctreeLayout, lods: list, hausdorff: np.ndarray, mad
         raise BakeCancelled("bake cancelled")
     if settings.error == "bound":
         _compose_bounds(layout, hausdorff, rebuilt=np.setdiff1d(inner, from_cache))
+
+
+def _begin(progress: ProgressFn | None, cancel: CancelFn | None, extra_meta: dict | None):
+    """A bake's start: (progress, cancel, a _PhaseClock), the callbacks defaulted; InputError where
+    extra_meta would replace the bake's own meta entries."""
+    clash = sorted(set(extra_meta or {}) & _OWN_META)
+    if clash:
+        raise InputError(f"extra_meta may not replace the bake's own meta entries ({', '.join(clash)})")
+    return progress or (lambda done, total, phase: None), cancel or (lambda: False), _PhaseClock()
 
 
 #: The meta entries a bake writes itself (extra_meta may not replace them).

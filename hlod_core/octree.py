@@ -114,13 +114,7 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
         root = tight_cube(centroids.min(axis=0), centroids.max(axis=0))
     counted_ids = np.ones(f, bool) if counted is None else np.asarray(counted, bool)
 
-    parent = [np.array([-1], np.int32)]
-    depth = [np.array([0], np.int32)]
-    center = [root.center[None, :].astype(np.float64)]
-    half = [np.array([0.5 * root.side])]
-    level = [np.array([0], np.int32)]
-    child_offset = [np.array([-1], np.int32)]
-    child_count = [np.array([0], np.int32)]
+    rows = _LevelRows.of(root)
     node_of = np.zeros(f, np.int64)  # each triangle's node; its leaf at the end
     # the triangles in splitting nodes of the current depth, ascending, with their centroids by axis
     tris = np.arange(f, dtype=np.int64)
@@ -139,15 +133,13 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
         if splitting.size < n - first:
             keep = w >= 0
             tris, w, axes = tris[keep], w[keep], [a[keep] for a in axes]
-        counts, split_center, split_half, shrinks, code = _split_cells(axes, w, center[-1][splitting],
-                                                                        half[-1][splitting])
+        counts, split_center, split_half, shrinks, code = _split_cells(axes, w, rows.center[-1][splitting],
+                                                                        rows.half[-1][splitting])
         split = np.flatnonzero(counts.any(axis=1))  # (k,) split nodes; the others stay leaves
         occupied = counts[split] > 0
-        kids = occupied.sum(axis=1)
-        offsets = n + np.concatenate([[0], np.cumsum(kids)[:-1]]).astype(np.int64)
         ids = first + splitting[split]
-        child_offset[-1][ids - first] = offsets
-        child_count[-1][ids - first] = kids
+        offsets, m = rows.add_children(d, first, n, ids, occupied, split_center[split], split_half[split],
+                                       rows.level[-1][splitting[split]] + shrinks[split] + 1)
         child_local = np.full((splitting.size, 8), -1, np.int64)  # child id - n
         child_local[split] = np.where(occupied, offsets[:, None] - n + np.cumsum(occupied, axis=1) - 1, -1)
         where = child_local[w, code]
@@ -155,28 +147,61 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
             keep = where >= 0
             tris, where, axes = tris[keep], where[keep], [a[keep] for a in axes]
         node_of[tris] = where + n
-        kid_parent, kid_octant = np.nonzero(occupied)  # row-major: parents in id order, octants ascending
-        m = kid_parent.shape[0]
-        kid_half = 0.5 * split_half[split][kid_parent]
-        parent.append(ids[kid_parent].astype(np.int32))
-        depth.append(np.full(m, d + 1, np.int32))
-        center.append(split_center[split][kid_parent] + _OCTANT_SIGNS[kid_octant] * kid_half[:, None])
-        half.append(kid_half)
-        level.append((level[-1][splitting[split]] + shrinks[split] + 1)[kid_parent].astype(np.int32))
-        child_offset.append(np.full(m, -1, np.int32))
-        child_count.append(np.zeros(m, np.int32))
         first, n = n, n + m
         n_counted = np.bincount(where, weights=counted_ids[tris], minlength=m) if counted is not None \
             else np.bincount(where, minlength=m)
         d += 1
 
-    parent_a, child_offset_a, child_count_a, depth_a = (np.concatenate(a) for a in (parent, child_offset,
-                                                                                   child_count, depth))
+    _, child_offset_a, child_count_a, depth_a = rows.tree()
     tri_order, tri_begin, tri_end = _depth_first_ranges(child_offset_a, child_count_a, depth_a, node_of)
-    return OctreeLayout(parent=parent_a, child_offset=child_offset_a, child_count=child_count_a, depth=depth_a,
-                        tri_order=tri_order, tri_begin=tri_begin, tri_end=tri_end,
-                        cell_center=np.concatenate(center), cell_half=np.concatenate(half),
-                        cell_level=np.concatenate(level))
+    return rows.layout(tri_order, tri_begin, tri_end)
+
+
+class _LevelRows:
+    """The top-down builds' per-node rows, one array per depth: parent, depth, child_offset,
+    child_count (int32), cell center (m,3), half (m,) float64 and level (int32)."""
+
+    @staticmethod
+    def of(root: RootCube) -> "_LevelRows":
+        rows = _LevelRows()
+        rows.parent, rows.depth = [np.array([-1], np.int32)], [np.array([0], np.int32)]
+        rows.center, rows.half = [root.center[None, :].astype(np.float64)], [np.array([0.5 * root.side])]
+        rows.level = [np.array([0], np.int32)]
+        rows.child_offset, rows.child_count = [np.array([-1], np.int32)], [np.array([0], np.int32)]
+        return rows
+
+    def add_children(self, d: int, first: int, n: int, ids: np.ndarray, occupied: np.ndarray, cell_center: np.ndarray,
+                     cell_half: np.ndarray, child_level: np.ndarray) -> tuple[np.ndarray, int]:
+        """The children of the nodes `ids` (k,) of depth d (ids first..n-1, n nodes so far): one
+        per occupied (k,8) octant of the node's cell (cell_center (k,3), cell_half (k,), shrunk as
+        it split), level child_level (k,), in row-major order (parents in id order, octants
+        ascending). Returns (k,) the first child id of each, and m, the children added."""
+        kids = occupied.sum(axis=1)
+        offsets = n + np.concatenate([[0], np.cumsum(kids)[:-1]]).astype(np.int64)
+        self.child_offset[-1][ids - first] = offsets
+        self.child_count[-1][ids - first] = kids
+        kid_parent, kid_octant = np.nonzero(occupied)
+        m = kid_parent.shape[0]
+        kid_half = 0.5 * cell_half[kid_parent]
+        self.parent.append(ids[kid_parent].astype(np.int32))
+        self.depth.append(np.full(m, d + 1, np.int32))
+        self.center.append(cell_center[kid_parent] + _OCTANT_SIGNS[kid_octant] * kid_half[:, None])
+        self.half.append(kid_half)
+        self.level.append(child_level[kid_parent].astype(np.int32))
+        self.child_offset.append(np.full(m, -1, np.int32))
+        self.child_count.append(np.zeros(m, np.int32))
+        return offsets, m
+
+    def tree(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(n,) parent, child_offset, child_count, depth."""
+        return tuple(np.concatenate(a) for a in (self.parent, self.child_offset, self.child_count, self.depth))
+
+    def layout(self, tri_order, tri_begin: np.ndarray, tri_end: np.ndarray) -> OctreeLayout:
+        parent, child_offset, child_count, depth = self.tree()
+        return OctreeLayout(parent=parent, child_offset=child_offset, child_count=child_count, depth=depth,
+                            tri_order=tri_order, tri_begin=tri_begin, tri_end=tri_end,
+                            cell_center=np.concatenate(self.center), cell_half=np.concatenate(self.half),
+                            cell_level=np.concatenate(self.level))
 
 
 def _split_cells(axes: list[np.ndarray], w: np.ndarray, center: np.ndarray, half: np.ndarray):
@@ -361,10 +386,7 @@ def build_octree_counted(count_pass, *, root: RootCube, tri_count: int, counted_
     pass, plus one per COUNT_LEVELS shrinks its cells take in a row (rare)."""
     if target_tris < 1 or max_depth < 0:
         raise ValueError("target_tris must be >= 1 and max_depth >= 0")
-    parent, depth = [np.array([-1], np.int32)], [np.array([0], np.int32)]
-    center, half = [root.center[None, :].astype(np.float64)], [np.array([0.5 * root.side])]
-    level = [np.array([0], np.int32)]
-    child_offset, child_count = [np.array([-1], np.int32)], [np.array([0], np.int32)]
+    rows = _LevelRows.of(root)
     n_all, n_counted = [np.array([tri_count], np.int64)], [np.array([counted_count], np.int64)]
     split_center, child = np.full((1, 3), np.nan), np.full((1, 8), -1, np.int64)
     first, n, d = 0, 1, 0
@@ -375,23 +397,12 @@ def build_octree_counted(count_pass, *, root: RootCube, tri_count: int, counted_
         ids = first + splitting
         router = OctantRouter(split_center, child)
         counts, counts_counted, cell_center, cell_half, shrinks = _resolve_splits(
-            count_pass, router, ids, center[-1][splitting], half[-1][splitting], levels)
+            count_pass, router, ids, rows.center[-1][splitting], rows.half[-1][splitting], levels)
         split = np.flatnonzero(counts.any(axis=1))
         occupied = counts[split] > 0
-        kids = occupied.sum(axis=1)
-        offsets = n + np.concatenate([[0], np.cumsum(kids)[:-1]]).astype(np.int64)
-        child_offset[-1][ids[split] - first] = offsets
-        child_count[-1][ids[split] - first] = kids
-        kid_parent, kid_octant = np.nonzero(occupied)  # row-major: parents in id order, octants ascending
-        m = kid_parent.shape[0]
-        kid_half = 0.5 * cell_half[split][kid_parent]
-        parent.append(ids[split][kid_parent].astype(np.int32))
-        depth.append(np.full(m, d + 1, np.int32))
-        center.append(cell_center[split][kid_parent] + _OCTANT_SIGNS[kid_octant] * kid_half[:, None])
-        half.append(kid_half)
-        level.append((level[-1][splitting[split]] + shrinks[split] + 1)[kid_parent].astype(np.int32))
-        child_offset.append(np.full(m, -1, np.int32))
-        child_count.append(np.zeros(m, np.int32))
+        _, m = rows.add_children(d, first, n, ids[split], occupied, cell_center[split], cell_half[split],
+                                 rows.level[-1][splitting[split]] + shrinks[split] + 1)
+        kid_parent, kid_octant = np.nonzero(occupied)  # row-major, as add_children numbers them
         n_all.append(counts[split][occupied])
         n_counted.append(counts_counted[split][occupied])
         split_center = np.concatenate([split_center, np.full((m, 3), np.nan)])
@@ -401,18 +412,14 @@ def build_octree_counted(count_pass, *, root: RootCube, tri_count: int, counted_
         first, n = n, n + m
         d += 1
 
-    parent_a, child_offset_a, child_count_a, depth_a = (np.concatenate(a) for a in (parent, child_offset,
-                                                                                   child_count, depth))
+    _, child_offset_a, child_count_a, depth_a = rows.tree()
     all_a = np.concatenate(n_all)
     leaf_rank, rank = _leaf_ranks(child_offset_a, child_count_a)
     per_rank = np.zeros(rank, np.int64)
     leaves = np.flatnonzero(leaf_rank >= 0)
     per_rank[leaf_rank[leaves]] = all_a[leaves]
     tri_begin, tri_end = _ranges(child_offset_a, child_count_a, depth_a, leaf_rank, per_rank)
-    layout = OctreeLayout(parent=parent_a, child_offset=child_offset_a, child_count=child_count_a, depth=depth_a,
-                          tri_order=None, tri_begin=tri_begin, tri_end=tri_end,
-                          cell_center=np.concatenate(center), cell_half=np.concatenate(half),
-                          cell_level=np.concatenate(level))
+    layout = rows.layout(None, tri_begin, tri_end)
     return CountedOctree(layout=layout, router=OctantRouter(split_center, child), tri_count=all_a,
                          counted=np.concatenate(n_counted))
 

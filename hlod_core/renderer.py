@@ -542,22 +542,23 @@ class Renderer:
         """`issue_query` of each of `nodes`, batched: every q query in the query state, then every
         alpha query in the alpha state (two state changes for the batch instead of two a node).
         The alpha query has the depth test off, so it counts the same pixels wherever it is issued."""
-        acquire, begin_query, end_query, box = self.queries.acquire, self.gl.begin_query, self.gl.end_query, self._box
-        samples_ids = [acquire() for _ in nodes]
-        self._set_mode("query")
-        for node, query_id in zip(nodes, samples_ids):
-            begin_query(GL.SAMPLES_PASSED, query_id)
-            box(node)
-            end_query(GL.SAMPLES_PASSED)
+        samples_ids = self._query_each(nodes, "query")
         if not with_alpha:
             return [Query(node=node, samples_query_id=q, alpha_query_id=None) for node, q in zip(nodes, samples_ids)]
-        alpha_ids = [acquire() for _ in nodes]
-        self._set_mode("alpha")
-        for node, query_id in zip(nodes, alpha_ids):
+        alpha_ids = self._query_each(nodes, "alpha")
+        return [Query(node=node, samples_query_id=q, alpha_query_id=a) for node, q, a in zip(nodes, samples_ids, alpha_ids)]
+
+    def _query_each(self, nodes, mode: str) -> list[int]:
+        """One GL_SAMPLES_PASSED query around each node's box, all in `mode` ("query": depth test
+        on, "alpha": off); the query ids in node order."""
+        acquire, begin_query, end_query, box = self.queries.acquire, self.gl.begin_query, self.gl.end_query, self._box
+        ids = [acquire() for _ in nodes]
+        self._set_mode(mode)
+        for node, query_id in zip(nodes, ids):
             begin_query(GL.SAMPLES_PASSED, query_id)
             box(node)
             end_query(GL.SAMPLES_PASSED)
-        return [Query(node=node, samples_query_id=q, alpha_query_id=a) for node, q, a in zip(nodes, samples_ids, alpha_ids)]
+        return ids
 
     def issue_multiquery(self, nodes) -> Query:
         """One occlusion query around the boxes of all `nodes` (CHC++'s multiquery): its q is the sum
