@@ -350,7 +350,6 @@ class Partition:
         normals = rows["normal"].reshape(-1, 3)[first] if self.scan_result.with_normals else None
         return positions, local.reshape(-1, 3).astype(np.int32), normals
 
-
     def mapped_leaf_lod(self, node: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """leaf_lod, written to .npy files in the scratch folder and returned memory-mapped
         (read-only): the bake's process holds no leaf's triangles in its own memory."""
