@@ -266,9 +266,8 @@ def bake_partitioned(partition, settings: BakeSettings = BakeSettings(), *, prog
         partition.route()
         phases.lap("route")
         lods: list[tuple] = [None] * n
-        for leaf in np.flatnonzero(layout.is_leaf):  # memory-mapped from the scratch folder
-            positions, faces, normals = partition.mapped_leaf_lod(int(leaf))
-            lods[leaf] = (positions, faces, normals, None)
+        for leaf, (positions, faces, normals) in partition.mapped_leaf_lods(np.flatnonzero(layout.is_leaf)).items():
+            lods[leaf] = (positions, faces, normals, None)  # memory-mapped from the scratch folder
         phases.lap("leaves")
         hausdorff = np.zeros(n, np.float64)
         made: dict[int, simplify.NodeLod] = {}

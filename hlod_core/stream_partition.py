@@ -7,8 +7,8 @@ instance made from it and its transform, meshio.transform_mesh, when the stream 
 never the whole input concatenated. Data form out: one scratch file per leaf cell holding its
 triangles as `record_dtype` rows (3 global vertex ids int64, 3 corners float32 relative to the
 origin, 3 corner normals float32 when the input has them), in input order, and `leaf_lod`, a
-leaf's compacted vertices and faces read from its file alone (`mapped_leaf_lod`: written back as
-.npy files and memory-mapped).
+leaf's compacted vertices and faces read from its file alone (`mapped_leaf_lods`: all leaves
+written back into one file per array, each memory-mapped once).
 
 `bake_stream` is the entry point: a Partition of the source, baked by bake.bake_partitioned.
 The phases (passes over the stream, each a chunk of at most `chunk_tris` triangles at a time):
@@ -350,18 +350,35 @@ class Partition:
         normals = rows["normal"].reshape(-1, 3)[first] if self.scan_result.with_normals else None
         return positions, local.reshape(-1, 3).astype(np.int32), normals
 
-    def mapped_leaf_lod(self, node: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """leaf_lod, written to .npy files in the scratch folder and returned memory-mapped
-        (read-only): the bake's process holds no leaf's triangles in its own memory."""
-        arrays = []
-        for k, array in enumerate(self.leaf_lod(node)):
-            if array is None:
-                arrays.append(None)
-                continue
-            path = self.folder / f"leaf-{node}-{k}.npy"
-            np.save(path, array)
-            arrays.append(np.asarray(np.load(path, mmap_mode="r")))
-        return tuple(arrays)
+    def mapped_leaf_lods(self, leaves) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray | None]]:
+        """leaf_lod of each of `leaves`, appended to one file per array (positions, faces, normals)
+        in the scratch folder, each file memory-mapped once, and every leaf's arrays read-only
+        views of those maps: the bake's process holds no leaf's triangles in its own memory, and
+        three maps hold three file descriptors however many leaves there are (one map per leaf
+        ran out of descriptors at 10M triangles)."""
+        names = ("positions", "faces", "normals")
+        dtypes = (np.float32, np.int32, np.float32)
+        extents: dict[int, list[tuple[int, int] | None]] = {}
+        offsets = [0, 0, 0]  # rows written to each file
+        files = [open(self.folder / f"leaves-{name}.bin", "wb") for name in names]
+        try:
+            for node in leaves:
+                node = int(node)
+                extents[node] = []
+                for k, array in enumerate(self.leaf_lod(node)):
+                    if array is None:
+                        extents[node].append(None)
+                        continue
+                    files[k].write(memoryview(np.ascontiguousarray(array, dtypes[k])).cast("B"))
+                    extents[node].append((offsets[k], offsets[k] + array.shape[0]))
+                    offsets[k] += array.shape[0]
+        finally:
+            for f in files:
+                f.close()
+        maps = [np.memmap(self.folder / f"leaves-{name}.bin", dtype=dtypes[k], mode="r", shape=(offsets[k], 3))
+                if offsets[k] else None for k, name in enumerate(names)]
+        return {node: tuple(None if extent is None else np.asarray(maps[k][extent[0]:extent[1]])
+                            for k, extent in enumerate(spans)) for node, spans in extents.items()}
 
 
 def _centroids(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
