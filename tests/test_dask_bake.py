@@ -22,6 +22,7 @@ from hlod_core import bake as bake_module
 from hlod_core import dask_workers, fileformat
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.errors import BakeCancelled
+from hlod_core.stream_partition import MeshSource, bake_stream
 
 from helpers import ROOT, model
 from test_bake_cache import HERD_SPACING, _file_bytes, _herd
@@ -278,3 +279,14 @@ def test_the_workers_shared_arrays_follow_the_folder_and_are_thread_safe(tmp_pat
         assert len(got) == 8 and all(g is got[0] for g in got)
     finally:
         bake_module._release_shared(str(tmp_path))
+
+
+def test_an_out_of_core_bake_on_a_cluster_writes_the_local_file(cluster, herd, tmp_path):
+    """--out-of-core with --scheduler: the partition's cell files and memory-mapped leaves in the
+    scratch folder, the simplify phase on the cluster's workers; the file of a local bake."""
+    settings = BakeSettings(target_tris=HERD_TRIS)
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    remote = bake_stream(MeshSource(herd), settings, scheduler=cluster, scratch_dir=scratch, chunk_tris=5000)
+    assert _file_bytes(remote, tmp_path / "remote.hlod") == _file_bytes(bake(herd, settings), tmp_path / "local.hlod")
+    assert list(scratch.iterdir()) == []
