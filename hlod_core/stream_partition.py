@@ -101,25 +101,27 @@ class SceneSource:
 
     def __init__(self, paths: list[str | os.PathLike]):
         self.name = ", ".join(str(p) for p in paths)
-        self._inputs: list[tuple[Path, list[np.ndarray] | None]] = []  # (file, transforms or None: as it is)
+        # (file, transforms or None: as it is, the message prefix of its entry: "SPEC: models[i]")
+        self._inputs: list[tuple[Path, list[np.ndarray] | None, str]] = []
         for p in paths:
             if Path(p).suffix.lower() == ".json":
-                self._inputs.extend(meshio.scene_spec_models(Path(p)))
+                self._inputs.extend((model, transforms, f"{p}: models[{i}]")
+                                    for i, (model, transforms) in enumerate(meshio.scene_spec_models(Path(p))))
             else:
-                self._inputs.append((Path(p), None))
+                self._inputs.append((Path(p), None, str(p)))
         self._meshes: dict[Path, meshio.TriangleMesh] = {}
         self._placed: dict[Path, int] = {}  # placements per file
-        for path, transforms in self._inputs:
+        for path, transforms, _ in self._inputs:
             self._placed[path] = self._placed.get(path, 0) + (1 if transforms is None else len(transforms))
 
     def chunks(self) -> Iterator[TriangleChunk]:
-        for path, transforms in self._inputs:
+        for path, transforms, entry in self._inputs:
             mesh = self._mesh(path)
             if transforms is None:
                 yield TriangleChunk(mesh.positions, mesh.faces, mesh.normals, str(path))
                 continue
-            for j, matrix in enumerate(transforms):
-                placed = meshio.place(mesh, matrix, name=f"{path}#{j}", where=f"{path}#{j}: the transform", what=path)
+            for j, matrix in enumerate(transforms):  # the in-memory reader's names and messages
+                placed = meshio.place(mesh, matrix, name=f"{path}#{j}", where=f"{entry}.transforms[{j}]", what=path)
                 yield TriangleChunk(placed.positions, placed.faces, placed.normals, placed.name)
 
     def _mesh(self, path: Path) -> meshio.TriangleMesh:

@@ -579,6 +579,10 @@ class CoherentLoop(Traversal):
         heap: list = []
         self._schedule(heap, (0,))
         queue: deque[Pending] = deque()
+        # empty after every frame that ended; a frame that raised (the preview keeps its traversal)
+        # must not hand its waiting nodes to this one
+        self._waiting_hidden.clear()
+        self._waiting_batch.clear()
         skipping = self.skippable is not None
         frame_id, children, parent, tri_count = self.frame_id, self._children, self._parent, self._tri_count
         visible, last_visited, stop_refinement = self._visible, self._last_visited, self._stop_refinement

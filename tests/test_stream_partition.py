@@ -269,3 +269,18 @@ def test_open_files_stay_few_however_many_leaves(spec, tmp_path):
     assert run.returncode == 0, run.stderr[-2000:]
     hlod = fileformat.load(tmp_path / "a.hlod")
     assert int(hlod.is_leaf.sum()) > 300 and list(scratch.iterdir()) == []
+
+
+def test_a_bad_transform_is_named_as_the_in_memory_reader_names_it(tmp_path):
+    """A transform that moves a model out of the float range: the same one-line error both ways,
+    naming the spec, the model entry and the transform."""
+    spec = tmp_path / "far.json"
+    spec.write_text(json.dumps({"models": [
+        {"path": str(MODELS / "cow.obj"), "transforms": [_transform(1, 0, 0), _transform(1e308, 0, 0)]}]}))
+    with pytest.raises(InputError) as in_memory:
+        meshio.load_inputs([spec])
+    with pytest.raises(InputError) as streamed:
+        bake_stream(stream_partition.SceneSource([spec]), BakeSettings(target_tris=500), scratch_dir=tmp_path)
+    assert str(streamed.value) == str(in_memory.value)
+    assert f"{spec}: models[0].transforms[1] moves" in str(streamed.value)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["far.json"]

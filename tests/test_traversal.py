@@ -1060,3 +1060,55 @@ def test_coh_batches_and_groups_its_queries_by_default(city_renderer):
     changes, queries = ({m: sum(getattr(s, c) for s in stats[m]) for m in stats} for c in ("state_changes", "queries"))
     assert changes["on"] < queries["on"] and changes["off"] >= 2 * queries["off"] > 0, (changes, queries)
     assert sum(s.multiqueries for s in stats["off"]) == 0
+
+
+class _FailingDraw:
+    """The real renderer, but draw_node raises while `fail_when()` holds (a driver error
+    mid-frame); records the nodes given their own query (issue_query, issue_queries)."""
+
+    def __init__(self, renderer):
+        self._renderer = renderer
+        self.fail_when = lambda: False
+        self.queried: list[int] = []
+
+    def __getattr__(self, name):
+        return getattr(self._renderer, name)
+
+    def draw_node(self, node, ratio_p=1.0):
+        if self.fail_when():
+            raise RuntimeError("draw failed")
+        self._renderer.draw_node(node, ratio_p)
+
+    def issue_query(self, node, *, with_alpha):
+        self.queried.append(node)
+        return self._renderer.issue_query(node, with_alpha=with_alpha)
+
+    def issue_queries(self, nodes, *, with_alpha):
+        self.queried.extend(nodes)
+        return self._renderer.issue_queries(nodes, with_alpha=with_alpha)
+
+    def issue_multiquery(self, nodes):
+        return self._renderer.issue_multiquery(nodes)
+
+
+def test_a_frame_that_raised_hands_nothing_to_the_next(city_renderer):
+    """The preview keeps its traversal after a failed redraw: a frame that raised with queries
+    waiting in the batch must not issue them in the next frame. Every node queried on its own in
+    the next frame was visited in it, and once."""
+    hlod = city_renderer.hlod
+    path = street_path(30)
+    failing = _FailingDraw(city_renderer)
+    traversal = make("coh", hlod, failing)
+    for i in range(10):
+        traversal.frame(path.view(i, SIZE))
+    failing.fail_when = lambda: bool(traversal._waiting_batch)  # a draw while queries wait in the batch
+    with pytest.raises(RuntimeError, match="draw failed"):
+        traversal.frame(path.view(10, SIZE))
+    city_renderer.end_frame()
+    assert traversal._waiting_batch  # the failed frame left queries waiting
+    failing.fail_when = lambda: False
+    failing.queried.clear()
+    traversal.frame(inspection_path(hlod, seed=11, frames=28).view(20, SIZE))  # somewhere else
+    visited = set(np.flatnonzero(np.asarray(traversal.last_visited) == traversal.frame_id).tolist())
+    assert failing.queried and set(failing.queried) <= visited
+    assert len(failing.queried) == len(set(failing.queried))
