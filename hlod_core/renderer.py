@@ -423,7 +423,14 @@ class Renderer:
 
     def begin_frame(self, view: View, *, time_gpu: bool | None = None) -> None:
         """Set matrices (float64 -> float32 with the file origin folded in), bind (and clear an own
-        framebuffer), start the GPU timer (`time_gpu` overrides the renderer's setting)."""
+        framebuffer), start the GPU timer (`time_gpu` overrides the renderer's setting). A frame
+        that raised before its end_frame left its timer running: it is ended and given back first
+        (a second glBeginQuery on an active target is GL_INVALID_OPERATION)."""
+        if self._timer is not None:
+            self.gl.end_query(GL.TIME_ELAPSED)
+            self.queries.elapsed_ms(self._timer)  # read: the pool hands out only ids whose result was read
+            self.queries.give_back(self._timer, GL.TIME_ELAPSED)
+            self._timer = None
         to_origin = np.eye(4)
         to_origin[:3, 3] = self.hlod.origin
         mv = view.view @ to_origin

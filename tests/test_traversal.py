@@ -1112,3 +1112,17 @@ def test_a_frame_that_raised_hands_nothing_to_the_next(city_renderer):
     visited = set(np.flatnonzero(np.asarray(traversal.last_visited) == traversal.frame_id).tolist())
     assert failing.queried and set(failing.queried) <= visited
     assert len(failing.queried) == len(set(failing.queried))
+
+
+def test_a_frame_begun_after_one_that_raised_times_cleanly(city_renderer):
+    """A frame that raised never reached end_frame, so its GPU timer query is still active: the
+    next begin_frame ends it first instead of beginning the same target again (a GL error)."""
+    r = city_renderer
+    view = street_path(5).view(0, SIZE)
+    assert r.ctx.error == "GL_NO_ERROR"
+    r.begin_frame(view, time_gpu=True)
+    r.draw_node(0)  # ... and the frame raised here
+    r.begin_frame(view, time_gpu=True)
+    r.draw_node(0)
+    assert r.end_frame() > 0.0
+    assert r.ctx.error == "GL_NO_ERROR"
