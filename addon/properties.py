@@ -99,6 +99,14 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
         ("expected", "Expected", "Draw a visible node without a query when its draw, times the share of queries "
                                  "that changed anything, costs less than the query")], default="off",
         description="Queries that cannot pay (the renderer's measured costs); a skipped node is re-checked every 5 frames")
+    multiquery: EnumProperty(name="Multiqueries", items=[
+        ("on", "On", "Test nodes hidden last frame together, one query over their boxes (CHC++)"),
+        ("lazy", "Lazy", "As On, but only once a group is full or the traversal would wait"),
+        ("off", "Off", "Every node its own query")], default="on",
+        description="CHC++ multiqueries: fewer queries where nodes stay hidden")
+    batch_queries: BoolProperty(name="Batch Queries", default=True,
+                                description="CHC++ query batching: the queries that gate nothing go out together, "
+                                            "one state change for each kind")
     psnr_target: FloatProperty(name="Target PSNR (dB)", default=40.0, min=0.0, max=100.0, precision=1,
                                description="Tune to PSNR: the lowest luminance PSNR against Bool's image, over the "
                                            "camera animation's sampled frames, that the tuned s and t must keep "

@@ -31,4 +31,5 @@ def runtime_settings(props) -> RuntimeSettings:
     """scene.hlod -> the traversal's settings (step on means k = inf). The overlay is not one of
     them: the preview sets it on its renderer (`Renderer.overlay`), the drawing side."""
     return RuntimeSettings(tau=props.tau, s=props.s, t=props.t, k=float("inf") if props.step else props.k,
-                           bias=props.bias, alpha=props.alpha, skip_queries=props.skip_queries)
+                           bias=props.bias, alpha=props.alpha, skip_queries=props.skip_queries,
+                           multiquery=props.multiquery, batch_queries="on" if props.batch_queries else "off")

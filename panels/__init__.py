@@ -83,6 +83,8 @@ class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
             sub.prop(props, "k")
         col.prop(props, "alpha")
         col.prop(props, "skip_queries")
+        col.prop(props, "multiquery")
+        col.prop(props, "batch_queries")
         layout.prop(props, "private_context")
         layout.operator("hlod.materialize", icon="OUTLINER_OB_MESH")
         row = layout.row(align=True)

@@ -220,6 +220,8 @@ def test_preview_draw_path_in_an_offscreen(versioned_repo, tmp_path):
              and out["front_objects"] == out["stats"]["drawn"],
              statistics=out["stats"]["drawn"] > 0 and out["stats"]["queries"] > 0 and out["stats"]["tris"] > 0,
              box_outlines=out["with_boxes"] > 200,  # drawn with Blender's gpu module
+             query_stream_switches=out["query_stream"] == ["on", "on", "off", "off"]
+             and out["query_stream_frame"] > 1000,  # and it still draws with both off
              benchmark=out["benchmark"] == ["FINISHED"] and out["benchmark_frames"] == 4
              and out["benchmark_methods"] == sorted(METHOD_SPECS),
              # no Blender ships matplotlib: the report is written without figures
