@@ -7,8 +7,8 @@ repeats (timings compare as ratios within the run; node counts are what the meth
 
 A method is a traversal name, optionally with RuntimeSettings fields after a colon
 (`coh:skip_queries=off,alpha=projected`, `coh:multiquery=on,batch_queries=on`): each such entry is
-a row. Prints one JSON line per row (median over repeats of each per-frame mean of
-traversal.COUNTERS and QUERY_COUNTERS), the renderer's cost model, a Markdown table with
+a row. Prints one JSON line per row (median over repeats of each per-frame mean,
+runner.run_path's), the renderer's cost model, a Markdown table with
 each row's frame time relative to the faster of VFC and Bool when both run, and, with
 --psnr-frames N, the mean PSNR-Y of each row's image against --psnr-reference's on N frames spread
 over the path (each row and the reference run frame by frame side by side, own state each).
@@ -25,6 +25,7 @@ import numpy as np
 from hlod_core import fileformat, imagemetrics
 from hlod_core.camera import inspection_path, load_path
 from hlod_core.renderer import Renderer
+from hlod_core.runner import run_path
 from hlod_core.traversal import COUNTERS, QUERY_COUNTERS, RuntimeSettings, make
 
 #: The per-frame means each row reports.
@@ -63,14 +64,6 @@ def psnr_y(hlod, renderer, path, size, entries: list[str], reference: str, frame
     return {e: float(np.mean(v)) for e, v in scores.items()}
 
 
-def run_entry(entry: str, hlod, renderer, path, size) -> dict:
-    """Per-frame means of ROW_COUNTERS of one entry over the path (runner.run_path's, with the
-    query-stream counters), a new traversal with its own state."""
-    traversal = _make(entry, hlod, renderer)
-    stats = [traversal.frame(path.view(i, size)) for i in range(len(path))]
-    return {name: float(np.mean([getattr(s, name) for s in stats])) for name in ROW_COUNTERS}
-
-
 def _make(entry, hlod, renderer):
     method, settings = parse_entry(entry)
     return make(method, hlod, renderer, settings)
@@ -106,7 +99,8 @@ def main() -> None:
         print("cost model:", renderer.cost_model.describe())
         for rep in range(args.repeat):
             for entry in (entries if rep % 2 == 0 else entries[::-1]):
-                runs[entry].append(run_entry(entry, hlod, renderer, path, size))
+                method, settings = parse_entry(entry)
+                runs[entry].append(run_path(hlod, method, settings, path, size, renderer=renderer))
         psnr = psnr_y(hlod, renderer, path, size, entries, args.psnr_reference, args.psnr_frames) \
             if args.psnr_frames else {}
     finally:

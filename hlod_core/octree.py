@@ -321,12 +321,18 @@ class OctantRouter:
             active = active[inner]
             if active.size == 0:
                 break
-            centre = self.split_center[node[active]]
-            octant = np.zeros(active.size, np.int64)
-            for a in range(3):
-                octant |= (centroids[active, a] >= centre[:, a]).astype(np.int64) << a
+            octant = _octants(centroids[active], self.split_center[node[active]])
             node[active] = self.child[node[active], octant]
         return node
+
+
+def _octants(xyz: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """(t,) int64 octant of each point (t,3) in the cell of centre (t,3): bit a set on the + side
+    of axis a, a point on a plane on its + side (build_octree's rule)."""
+    octant = np.zeros(xyz.shape[0], np.int64)
+    for a in range(3):
+        octant |= (xyz[:, a] >= center[:, a]).astype(np.int64) << a
+    return octant
 
 
 @dataclass(frozen=True, eq=False)
@@ -354,9 +360,7 @@ class OctantQuery:
         center, half = self.center[local], self.half[local]
         key = np.empty((levels, rows.size), np.int64)
         for level in range(levels):
-            octant = np.zeros(rows.size, np.int64)
-            for a in range(3):  # bit a: on the + side of axis a
-                octant |= (xyz[:, a] >= center[:, a]).astype(np.int64) << a
+            octant = _octants(xyz, center)
             key[level] = (local * levels + level) * 8 + octant
             half = half * 0.5  # the octant as _split_cells shrinks into it: half *= 0.5; center += sign * half
             center = center + _OCTANT_SIGNS[octant] * half[:, None]

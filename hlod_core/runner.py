@@ -1,7 +1,7 @@
 """Run one traversal method over a camera path and average its counters (the `run` command).
 
 Data form: in, a camera path and a method name; out, a dict of per-frame means, one float per
-name in traversal.COUNTERS, plus "frames".
+name in traversal.COUNTERS and QUERY_COUNTERS, plus "frames".
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from .hierarchy import Hlod
 from .png import write_png
 from .renderer import Renderer
 from .textures import load_images
-from .traversal import COUNTERS, FrameStats, RuntimeSettings, make
+from .traversal import COUNTERS, QUERY_COUNTERS, FrameStats, RuntimeSettings, make
 
 
 def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,
@@ -34,6 +34,6 @@ def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPat
     finally:
         if own:
             renderer.release()
-    out = {name: float(np.mean([getattr(s, name) for s in stats])) for name in COUNTERS}
+    out = {name: float(np.mean([getattr(s, name) for s in stats])) for name in COUNTERS + QUERY_COUNTERS}
     out["frames"] = len(stats)
     return out
