@@ -10,6 +10,7 @@ import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
                        PointerProperty, StringProperty)
 
+from ..hlod_core.traversal import RuntimeSettings
 from . import preview, source_record
 
 # Path properties that may hold a path relative to the .blend ("//..."). Blender 5.0 and later (not
@@ -107,6 +108,9 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     batch_queries: BoolProperty(name="Batch Queries", default=True,
                                 description="CHC++ query batching: the queries that gate nothing go out together, "
                                             "one state change for each kind")
+    predict_new: BoolProperty(name="Predict New Nodes", default=RuntimeSettings.predict_new == "on",
+                              description="Coh: draw a node that comes into view at once, assumed visible and "
+                                          "checked by its query, while most such nodes turn out visible")
     psnr_target: FloatProperty(name="Target PSNR (dB)", default=40.0, min=0.0, max=100.0, precision=1,
                                description="Tune to PSNR: the lowest luminance PSNR against Bool's image, over the "
                                            "camera animation's sampled frames, that the tuned s and t must keep "

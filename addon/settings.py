@@ -32,4 +32,5 @@ def runtime_settings(props) -> RuntimeSettings:
     them: the preview sets it on its renderer (`Renderer.overlay`), the drawing side."""
     return RuntimeSettings(tau=props.tau, s=props.s, t=props.t, k=float("inf") if props.step else props.k,
                            bias=props.bias, alpha=props.alpha, skip_queries=props.skip_queries,
-                           multiquery=props.multiquery, batch_queries="on" if props.batch_queries else "off")
+                           multiquery=props.multiquery, batch_queries="on" if props.batch_queries else "off",
+                           predict_new="on" if props.predict_new else "off")

@@ -42,7 +42,7 @@ from .bake import ERROR_MEASURES, BakeSettings, bake
 from .errors import HlodError, InputError
 from .export import check_output_file, export_hlod
 from .signals import Terminated, signals_as_exceptions
-from .traversal import BATCH_QUERY_MODES, MULTIQUERY_MODES, SKIP_QUERY_MODES
+from .traversal import BATCH_QUERY_MODES, MULTIQUERY_MODES, PREDICT_NEW_MODES, SKIP_QUERY_MODES, RuntimeSettings
 
 log = logging.getLogger("hlod_core")
 
@@ -220,6 +220,10 @@ def _runtime_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch-queries", choices=list(BATCH_QUERY_MODES), default="on",
                    help="CHC++ query batching: on issues the queries of drawn nodes together, all occlusion "
                         "queries then all alpha queries, one state change each (default); off: one by one")
+    p.add_argument("--predict-new", choices=list(PREDICT_NEW_MODES), default=RuntimeSettings.predict_new,
+                   help="Coh: on draws a node not visited last frame at once, assumed visible and verified by its "
+                        "query, where it would stop even fully visible and most such nodes turned out visible; off "
+                        f"waits for its query. Default {RuntimeSettings.predict_new}")
 
 
 def _bake_options(p: argparse.ArgumentParser) -> None:
@@ -490,7 +494,7 @@ def _runtime_setup(args, bias: str = "P"):
     size = _parse_size(args.size)
     settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha,
                                shift_up=args.shift_up, skip_queries=args.skip_queries, multiquery=args.multiquery,
-                               batch_queries=args.batch_queries)  # raises InputError
+                               batch_queries=args.batch_queries, predict_new=args.predict_new)  # raises InputError
     hlod = fileformat.load(args.file)
     path = load_path(args.path) if args.path else inspection_path(hlod, seed=args.seed, frames=args.frames)
     return hlod, settings, path, size

@@ -64,6 +64,12 @@ BATCH_QUERY_MODES = ("off", "on")
 #: The mode of one query over the boxes of several nodes hidden last frame (CHC++'s multiquery):
 #: q = 0 keeps them all hidden, q > 0 issues each one's own query.
 MULTIQUERY = "multiquery"
+#: The prediction and query mode of a node not visited last frame that Coh draws at once, assumed
+#: visible (settings predict_new "on", CoherentLoop): verified by its own query, as a STOP node is.
+PREDICTED = "predicted"
+#: predict_new (Coh): "off" waits for the query of every node not visited last frame, "on" draws
+#: those that would stop even fully visible at once while most such nodes turn out visible.
+PREDICT_NEW_MODES = ("off", "on")
 #: Frame id of "never": far enough below frame 1 that no "visited last frame" and no "measured
 #: within Coh.measure_every_frames" test holds for it.
 NEVER_FRAME = -10
@@ -78,7 +84,8 @@ class RuntimeSettings:
     ratio says stop, "children" is Algorithm 4 as published (the children's average ratio);
     skip_queries (Bool, Coh): one of SKIP_QUERY_MODES (CoherentLoop);
     multiquery (Bool, Simp, Coh): one of MULTIQUERY_MODES, batch_queries: one of BATCH_QUERY_MODES,
-    CHC++'s multiqueries and query batching (CoherentLoop)."""
+    CHC++'s multiqueries and query batching (CoherentLoop);
+    predict_new (Coh): one of PREDICT_NEW_MODES (CoherentLoop)."""
 
     tau: float = 1.0
     s: float = 0.9
@@ -90,6 +97,7 @@ class RuntimeSettings:
     skip_queries: str = "off"  # "expected" measured faster (benchmarks.traversal_table); see CoherentLoop
     multiquery: str = "on"  # on and batch_queries on: measured faster on every scene (README, CHC++)
     batch_queries: str = "on"
+    predict_new: str = "on"  # measured faster or equal on every scene, node counts within 0.5% (README)
 
     def __post_init__(self):
         if not self.tau > 0:
@@ -106,6 +114,8 @@ class RuntimeSettings:
             raise InputError(f"multiquery must be one of {MULTIQUERY_MODES}, got {self.multiquery!r}")
         if self.batch_queries not in BATCH_QUERY_MODES:
             raise InputError(f"batch_queries must be one of {BATCH_QUERY_MODES}, got {self.batch_queries!r}")
+        if self.predict_new not in PREDICT_NEW_MODES:
+            raise InputError(f"predict_new must be one of {PREDICT_NEW_MODES}, got {self.predict_new!r}")
         try:
             metrics.bias(0.5, self.s, self.t, self.k)  # validates s, t, k (the messages are metrics')
         except ValueError as exc:
@@ -120,7 +130,7 @@ class RuntimeSettings:
 COUNTERS = ("dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms")
 #: FrameStats' counters of the query stream (issue 15, CHC++), after COUNTERS: not columns of the
 #: evaluation's per-frame files, which keep the counters they were saved with.
-QUERY_COUNTERS = ("multiqueries", "state_changes")
+QUERY_COUNTERS = ("multiqueries", "state_changes", "predicted")
 
 
 @dataclass
@@ -139,6 +149,7 @@ class FrameStats:
     frame_ms: float = 0.0
     multiqueries: int = 0   # of `queries`, those over several nodes' boxes (CHC++)
     state_changes: int = 0  # the renderer's switches between drawing and querying (its `state_changes`)
+    predicted: int = 0      # nodes not visited last frame drawn at once, assumed visible (predict_new)
     drawn: list = field(default_factory=list)       # node ids in draw order (not counters)
     delayed: list = field(default_factory=list)     # the nodes counted in d
     refined_after_draw: list = field(default_factory=list)  # the nodes counted in rarn
@@ -492,9 +503,28 @@ class CoherentLoop(Traversal):
     with the waiting batch. The batch is issued when it holds `query_batch` queries, with the
     i-queue, with a DELAY query, and before the traversal would wait. A batched query is issued
     after draws that followed its node's own draw: its q counts what those draws leave visible.
+
+    Newly visited nodes predicted visible (settings predict_new "on"; for the classes with
+    `predicts_new`, Coh): Algorithms 1-4 predict DELAY for a node not visited last frame (the front
+    moved down, the node came into the frustum, its parent reappeared), and its query result gates
+    its subtree, so the walk waits for it once the heap runs dry. Such a node that would stop even
+    fully visible (ratio * SSE <= tau for every ratio: leaves, and nodes with SSE <= tau), a
+    "candidate", is instead predicted PREDICTED while `new_visible_share`, the running share of
+    candidates whose query found them visible, is at least `predict_new_share`: it is drawn at once
+    with P(1) = 1 and queried (batched, gating nothing) as a STOP node is, so its result sets its
+    ratio and visibility for the next frame; one found hidden was drawn for nothing this frame only.
+    A candidate that refines at full visibility would need its ratio to choose between stopping and
+    refining, and keeps waiting. Every candidate's result, waited for or not, updates the share, so
+    where occlusion appears the prediction stops within a few dozen results.
     """
 
     skips_queries = False
+    predicts_new = False
+    #: Weight of one candidate's result in the running new_visible_share (about the last 32 count).
+    new_share_weight = 1.0 / 32
+    #: new_visible_share from which candidates are predicted visible (a candidate found hidden costs
+    #: its draw, one waited for costs a stall).
+    predict_new_share = 0.9
     #: CHC++'s n_av, the frames a visible node is assumed visible between queries (MinSG's
     #: CHC++ renderer defaults to 5 skipped frames).
     recheck_frames = 5
@@ -524,12 +554,16 @@ class CoherentLoop(Traversal):
         self._hidden_in = [NEVER_FRAME] * n  # frame of the last of them
         self._waiting_hidden: list[int] = []  # CHC++'s i-queue (multiquery): not yet queried
         self._waiting_batch: list[tuple[int, str]] = []  # (node, mode) of the batch (batch_queries): not yet issued
+        self._predicting_new = self.predicts_new and settings.predict_new == "on"
+        self._candidate_in = [NEVER_FRAME] * n  # frame the node was a candidate of predict_new
+        self.new_visible_share = 1.0  # nothing measured yet: candidates are predicted visible
 
     hidden_frames = property(lambda self: _array(self._hidden_frames, np.int64),
                              doc="(n,) int64 frames in a row the node was found hidden, up to hidden_in")
     hidden_in = property(lambda self: _array(self._hidden_in, np.int64), doc="(n,) int64 frame id")
 
     recheck_due = property(lambda self: _array(self._recheck_due, np.int64), doc="(n,) int64 frame id")
+    candidate_in = property(lambda self: _array(self._candidate_in, np.int64), doc="(n,) int64 frame id")
 
     def _prepare(self, view):
         super()._prepare(view)
@@ -565,7 +599,17 @@ class CoherentLoop(Traversal):
 
     @abc.abstractmethod
     def _predict(self, node: int) -> str:
-        """REFINE, STOP or DELAY for a node popped from the priority queue."""
+        """REFINE, STOP, DELAY or PREDICTED for a node popped from the priority queue."""
+
+    def _predict_unvisited(self, node: int) -> str:
+        """DELAY or PREDICTED for a node not visited last frame (predict_new on; class docstring)."""
+        if not self.sse[node] <= self._tau:  # refines at full visibility (SSE inf or NaN too): wait
+            return DELAY
+        self._candidate_in[node] = self.frame_id
+        if self.new_visible_share < self.predict_new_share:
+            return DELAY
+        self._ratio[node] = 1.0  # P(1), until its result
+        return PREDICTED
 
     @abc.abstractmethod
     def _stop_on_result(self, node: int, mu: float) -> bool:
@@ -598,7 +642,8 @@ class CoherentLoop(Traversal):
         hidden_frames, hidden_in, previous = self._hidden_frames, self._hidden_in, frame_id - 1
         multiquery_batch, query_batch = self.multiquery_batch, self.query_batch
         eager_groups = self._eager_groups
-        traversed = queries = dn = tris = 0
+        predicting_new, candidate_in = self._predicting_new, self._candidate_in
+        traversed = queries = dn = tris = predicted = 0
         stall_s = 0.0
         while heap or queue or waiting_hidden or waiting_batch:
             # results in the order issued, as long as they are back (all of them once the heap is empty)
@@ -616,6 +661,8 @@ class CoherentLoop(Traversal):
                         continue
                     alpha = float(alpha_q) if query_alpha else float(alpha_estimate[node])
                     mu = 0.0 if not alpha > 0 else min(1.0, q / alpha)  # as in _mu
+                    if predicting_new and candidate_in[node] == frame_id:
+                        self.new_visible_share += (float(q > 0) - self.new_visible_share) * self.new_share_weight
                 if mode == MEASURE_RATIO:
                     self._measured_ratio(node, q, mu)
                 elif q > 0:
@@ -672,12 +719,14 @@ class CoherentLoop(Traversal):
                         queue.append((node, mode if stop else MEASURE_RATIO, issue_query(node, with_alpha=query_alpha)))
                 if mode == REFINE:
                     schedule(heap, children[node])
-                elif mode == STOP and rendered[node] != frame_id:
+                elif mode != DELAY and rendered[node] != frame_id:  # STOP or PREDICTED
                     rendered[node] = frame_id
                     dn += 1
                     tris += tri_count[node]
                     drawn.append(node)
                     draw_node(node, ratio[node] if modulates else 1.0)
+                    if mode == PREDICTED:
+                        predicted += 1
             if waiting_hidden and (not heap or (eager_groups and not queue) or len(waiting_hidden) >= multiquery_batch):
                 self._issue_hidden(queue)
             elif waiting_batch and (not heap or len(waiting_batch) >= query_batch):
@@ -686,6 +735,7 @@ class CoherentLoop(Traversal):
         stats.queries += queries
         stats.dn += dn
         stats.tris += tris
+        stats.predicted += predicted
         stats.stall_ms += stall_s * MS_PER_S
 
     def _issue_batch(self, queue: deque) -> None:
@@ -822,6 +872,7 @@ class Coh(CoherentLoop):
 
     name = "coh"
     skips_queries = True
+    predicts_new = True
 
     def __init__(self, hlod, renderer, settings=RuntimeSettings(), **kwargs):
         super().__init__(hlod, renderer, settings, **kwargs)
@@ -833,7 +884,9 @@ class Coh(CoherentLoop):
     def _predict(self, node):
         previous = self.frame_id - 1
         last_visited, stop_refinement, ratio = self._last_visited, self._stop_refinement, self._ratio
-        if last_visited[node] != previous or not self._visible[node]:
+        if last_visited[node] != previous:
+            return self._predict_unvisited(node) if self._predicting_new else DELAY
+        if not self._visible[node]:
             return DELAY
         if self._leaf[node]:
             return STOP if stop_refinement[node] else DELAY

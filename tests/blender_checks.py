@@ -322,14 +322,17 @@ def check_preview(repo, work) -> dict:
         preview.safe_draw(scene, view, projection, *size, xray=True)
     offscreen.free()
     out["status_xray"] = props.status
-    # the panel's CHC++ switches reach the traversal's settings (defaults: both on)
+    # the panel's CHC++ switches and Predict New Nodes reach the traversal's settings (defaults: both on)
     settings_module = importlib.import_module(NAME + ".addon.settings")
     default = settings_module.runtime_settings(props)
     props.multiquery, props.batch_queries = "off", False
+    props.predict_new = not props.predict_new
     changed = settings_module.runtime_settings(props)
     out["query_stream_frame"] = _draw_checks(package, scene, size, occlude=True)["ramp_pixels"]
     props.multiquery, props.batch_queries = "on", True
-    out["query_stream"] = [default.multiquery, default.batch_queries, changed.multiquery, changed.batch_queries]
+    props.predict_new = not props.predict_new
+    out["query_stream"] = [default.multiquery, default.batch_queries, changed.multiquery, changed.batch_queries,
+                           default.predict_new, changed.predict_new]
     # an exception inside the draw path turns the preview off and is not raised
     traversal = importlib.import_module(NAME + ".hlod_core.traversal")
 

@@ -21,11 +21,15 @@ from pathlib import Path
 import pytest
 
 from hlod_core.evaluate import METHOD_SPECS
+from hlod_core.traversal import RuntimeSettings
 
 from helpers import BLENDERS, ROOT, blender_python
 
 sys.path.insert(0, str(ROOT / "scripts"))
 import build_extension  # noqa: E402
+
+PREDICT_NEW = RuntimeSettings().predict_new  # the panel's default is the core's
+TOGGLED = {"on": "off", "off": "on"}
 
 pytestmark = pytest.mark.blender  # the extension in the real bpy module (or Blender's own extension tool)
 
@@ -220,8 +224,8 @@ def test_preview_draw_path_in_an_offscreen(versioned_repo, tmp_path):
              and out["front_objects"] == out["stats"]["drawn"],
              statistics=out["stats"]["drawn"] > 0 and out["stats"]["queries"] > 0 and out["stats"]["tris"] > 0,
              box_outlines=out["with_boxes"] > 200,  # drawn with Blender's gpu module
-             query_stream_switches=out["query_stream"] == ["on", "on", "off", "off"]
-             and out["query_stream_frame"] > 1000,  # and it still draws with both off
+             query_stream_switches=out["query_stream"] == ["on", "on", "off", "off", PREDICT_NEW, TOGGLED[PREDICT_NEW]]
+             and out["query_stream_frame"] > 1000,  # and it still draws with both off, Predict New Nodes toggled
              benchmark=out["benchmark"] == ["FINISHED"] and out["benchmark_frames"] == 4
              and out["benchmark_methods"] == sorted(METHOD_SPECS),
              # no Blender ships matplotlib: the report is written without figures

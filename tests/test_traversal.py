@@ -20,7 +20,7 @@ from hlod_core.gl_functions import GL, GLFunctions
 from hlod_core.gl_state import GLState
 from hlod_core.overlay import OVERLAY_RAMP_STEPS, overlay_ramp
 from hlod_core.renderer import DEFAULT_COLOUR, Renderer
-from hlod_core.traversal import (COUNTERS, DELAY, MEASURE_RATIO, METHODS, MULTIQUERY, QUERY_COUNTERS, REFINE, STOP,
+from hlod_core.traversal import (COUNTERS, DELAY, MEASURE_RATIO, METHODS, MULTIQUERY, PREDICTED, QUERY_COUNTERS, REFINE, STOP,
                                  FrameStats, RuntimeSettings, keep_hidden, make, multiquery_groups)
 
 from helpers import ScriptedAvailability, baked_city, load_model, standalone_gl, street_path
@@ -396,7 +396,8 @@ def test_measured_shift_up_reaches_the_sw_front_where_algorithm_4_stays_deep(gl_
     ("shift_up", "parents", "shift_up must be one of"), ("tau", 0.0, "tau must be > 0 pixels"),
     ("bias", "Q", "bias must be 'P' or 'mu'"), ("alpha", "exact", "alpha must be one of"),
     ("s", 1.5, "s and t must lie in"), ("t", -0.1, "s and t must lie in"), ("k", 0.0, "steepness k must be > 0"),
-    ("multiquery", "yes", "multiquery must be one of"), ("batch_queries", "True", "batch_queries must be one of")])
+    ("multiquery", "yes", "multiquery must be one of"), ("batch_queries", "True", "batch_queries must be one of"),
+    ("predict_new", "auto", "predict_new must be one of")])
 def test_bad_runtime_settings_raise_input_error(field, value, message):
     """The core's typed error, as BakeSettings raises (the CLI and the add-on turn it into one line)."""
     with pytest.raises(InputError, match=message):
@@ -589,8 +590,8 @@ class _ReferenceTraversal:
     """The traversals of DESIGN §6 written plainly, as they were before issue 15's speed-up: per-node
     state in numpy arrays read one scalar at a time, the frame's box tests and SSE by the textbook
     (n,3) formulas, one helper call per step, every child pushed and the ones outside the frustum
-    dropped when popped. Methods vfc, sw, bool, simp, coh (both shift-ups); skip_queries off,
-    alpha "query". The library must do exactly what this does."""
+    dropped when popped. Methods vfc, sw, bool, simp, coh (both shift-ups, predict_new on and off);
+    skip_queries off, alpha "query". The library must do exactly what this does."""
 
     def __init__(self, method, hlod, renderer, settings):
         self.method, self.hlod, self.renderer, self.settings = method, hlod, renderer, settings
@@ -604,6 +605,8 @@ class _ReferenceTraversal:
         self.position, self.previous_position = np.zeros(n, np.int64), np.zeros(n, np.int64)
         self.scheduled = self.previous_scheduled = 0
         self.frame_id = 0
+        self.candidate_in = np.full(n, -10, np.int64)
+        self.share = 1.0  # of candidates found visible, weight 1/32; predicted from 0.9
 
     def prepare(self, view):
         h, pad, eye = self.hlod, self.renderer.query_box_pad, view.eye
@@ -726,6 +729,12 @@ class _ReferenceTraversal:
     def predict(self, node):
         seen = self.last_visited[node] == self.frame_id - 1 and self.visible[node]
         leaf = bool(self.hlod.is_leaf[node])
+        if self.method == "coh" and self.settings.predict_new == "on" and self.last_visited[node] != self.frame_id - 1 \
+                and self.vmsse_stop(node, 1.0):
+            self.candidate_in[node] = self.frame_id
+            if self.share >= 0.9:
+                self.ratio[node] = 1.0
+                return PREDICTED
         if not seen:
             return DELAY
         if self.method == "bool":
@@ -755,6 +764,8 @@ class _ReferenceTraversal:
             while queue and (not heap or queue[0][2] is None or self.renderer.available(queue[0][2])):
                 node, mode, query = queue.popleft()
                 q, mu = self.mu(query)
+                if query is not None and self.candidate_in[node] == self.frame_id:
+                    self.share += ((1.0 if q > 0 else 0.0) - self.share) / 32
                 if mode == MEASURE_RATIO:
                     self.ratio[node] = self.p(mu) if q > 0 else 0.0
                     self.measured[node] = self.frame_id
@@ -790,8 +801,9 @@ class _ReferenceTraversal:
                         and (node + self.frame_id) % 4 == 0 and not self.unqueryable[node] \
                         and math.isfinite(self.sse[node]):
                     queue.append((node, MEASURE_RATIO, self.issue(node)))
-                if mode == STOP:
+                if mode in (STOP, PREDICTED):
                     self.render(node)
+                    self.stats.predicted += mode == PREDICTED
                 elif mode == REFINE:
                     for child in self.children(node):
                         self.push(heap, child)
@@ -811,8 +823,8 @@ def test_every_method_does_exactly_what_the_plain_reference_does(city_renderer, 
     variants = [(m, RuntimeSettings()) for m in ("vfc", "sw", "bool", "simp", "coh")] + [
         ("coh", RuntimeSettings(shift_up="children")), ("coh", RuntimeSettings(bias="mu")),
         ("simp", RuntimeSettings(bias="mu")), ("sw", RuntimeSettings(s=0.6, t=0.2, k=30.0)),
-        ("coh", RuntimeSettings(s=0.6, t=0.2, k=30.0))]
-    compared = {"rarn": 0, "d": 0, "queries": 0, "not_yet": 0}
+        ("coh", RuntimeSettings(s=0.6, t=0.2, k=30.0)), ("coh", RuntimeSettings(predict_new="off"))]
+    compared = {"rarn": 0, "d": 0, "queries": 0, "not_yet": 0, "predicted": 0}
     for method, settings in variants:
         runs = []
         for make_traversal in (lambda r: make(method, hlod, r, settings),
@@ -824,7 +836,7 @@ def test_every_method_does_exactly_what_the_plain_reference_does(city_renderer, 
                 for i in range(len(path)):
                     s = traversal.frame(path.view(i, SIZE))
                     frames.append((s.dn, s.rarn, s.d, s.tris, s.queries, s.traversed, s.drawn, s.delayed,
-                                   s.refined_after_draw))
+                                   s.refined_after_draw, s.predicted))
             state = [np.asarray(getattr(traversal, a)).tolist() for a in ("visible", "stop_refinement", "ratio",
                                                                           "last_visited", "rendered")]
             runs.append((scripted.calls, frames, state))
@@ -836,8 +848,10 @@ def test_every_method_does_exactly_what_the_plain_reference_does(city_renderer, 
         assert state == ref_state, (method, settings, lag)
         for c in ("rarn", "d", "queries"):
             compared[c] += sum(f[COUNTERS.index(c)] for f in frames)
-    # the paths drew nodes that then refined, waited for results, queried; with a lag, results were late
-    assert all(compared[c] for c in ("rarn", "d", "queries")) and (compared["not_yet"] > 0) == (lag > 0), compared
+        compared["predicted"] += sum(f[-1] for f in frames)
+    # the paths drew nodes that then refined, waited for results, queried, predicted new nodes
+    # visible; with a lag, results were late
+    assert all(compared[c] for c in ("rarn", "d", "queries", "predicted")) and (compared["not_yet"] > 0) == (lag > 0), compared
 
 
 # --- CHC++'s query stream: multiqueries and query batching (issue 15) ----------------------------
@@ -1060,6 +1074,109 @@ def test_coh_batches_and_groups_its_queries_by_default(city_renderer):
     changes, queries = ({m: sum(getattr(s, c) for s in stats[m]) for m in stats} for c in ("state_changes", "queries"))
     assert changes["on"] < queries["on"] and changes["off"] >= 2 * queries["off"] > 0, (changes, queries)
     assert sum(s.multiqueries for s in stats["off"]) == 0
+
+
+# --- newly visited nodes predicted visible (predict_new, issue 15) --------------------------------
+
+def _predicted_run(renderer, settings, paths, lag, scripted_cls=None, share=None, images=None):
+    """(scripted renderer, per-frame stats, per-frame (predicted nodes, sse, candidates, unqueryable)) of a new Coh over
+    `paths`. A frame's predicted nodes, found from outside: drawn, not visited the frame before and
+    not drawn after waiting for their query (a node drawn at once otherwise was visited last frame:
+    a STOP prediction). `share`: the traversal's predict_new_share instead of the class's; `images`:
+    a list the frames' pixels are appended to."""
+    scripted = (scripted_cls or _ScriptedBatches)(renderer, lag)
+    traversal = make("coh", renderer.hlod, scripted, settings)
+    if share is not None:
+        traversal.predict_new_share = share
+    scripted.traversal = traversal
+    stats, frames = [], []
+    for path in paths:
+        for i in range(len(path)):
+            before = traversal.last_visited
+            s = traversal.frame(path.view(i, SIZE))
+            if images is not None:
+                images.append(renderer.read_pixels())
+            delayed = set(s.delayed)
+            predicted = [n for n in s.drawn if before[n] != traversal.frame_id - 1 and n not in delayed]
+            stats.append(s)
+            frames.append((predicted, np.asarray(traversal.sse).copy(),
+                           int(np.sum(traversal.candidate_in == traversal.frame_id)),
+                           np.asarray(traversal.unqueryable).copy()))
+    return scripted, stats, frames
+
+
+@pytest.mark.parametrize("batch", ["on", "off"])
+def test_predicted_new_nodes_would_stop_fully_visible_and_each_gets_its_own_query(city_renderer, batch):
+    """predict_new on, every candidate predicted (the share's gate open: about a quarter of the
+    city's candidates are hidden, which shuts it at 0.9; the next tests cover the gate), results
+    three commands late: the nodes Coh draws at once without having
+    visited them last frame are as many as it counts, each one's SSE is within tau (it stops at any
+    ratio), and each is queried on its own in that frame (its result sets the next frame's state)
+    unless its box cannot be queried (it counts as visible, as it would after waiting)."""
+    hlod = city_renderer.hlod
+    paths = (street_path(20), inspection_path(hlod, seed=11, frames=28))
+    scripted, stats, frames = _predicted_run(city_renderer, RuntimeSettings(predict_new="on", batch_queries=batch),
+                                             paths, 3, share=0.0)
+    assert sum(s.predicted for s in stats) > 20
+    for f, (s, (predicted, sse, _, unqueryable), queried) in enumerate(zip(stats, frames, scripted.queried())):
+        assert len(predicted) == s.predicted, f
+        assert all(sse[n] <= 1.0 for n in predicted), f  # tau = 1 pixel
+        assert {n for n in predicted if not unqueryable[n]} <= set(queried), f
+    assert sum(not unqueryable[n] for predicted, _, _, unqueryable in frames for n in predicted) > 20
+
+
+def test_predicting_new_nodes_waits_for_fewer_queries_and_shows_what_waiting_shows(city_renderer):
+    """The same paths with and without predict_new (the share's gate open, as above), results
+    three commands late: far fewer nodes drawn only after their own query (D), the same image in
+    every frame (measured: the node choices differ a little, since nodes drawn earlier fill the
+    depth buffer before later queries, but not a pixel), and about the same number of nodes drawn
+    (a node predicted visible that its query finds hidden was drawn for nothing, that frame only:
+    the city hides a quarter of its candidates, which is what the share's gate is for)."""
+    hlod = city_renderer.hlod
+    paths = (street_path(30), inspection_path(hlod, seed=11, frames=28))
+    images = {"off": [], "on": []}
+    runs = {m: _predicted_run(city_renderer, RuntimeSettings(predict_new=m), paths, 3, share=0.0, images=images[m])[1]
+            for m in ("off", "on")}
+    d_off, d_on = (sum(s.d for s in runs[m]) for m in ("off", "on"))
+    assert sum(s.predicted for s in runs["off"]) == 0
+    assert d_on < 0.5 * d_off, (d_on, d_off)
+    differ = [int((a != b).any(axis=2).sum()) for a, b in zip(images["off"], images["on"])]
+    assert differ == [0] * len(differ), differ
+    dn_off, dn_on = (np.mean([s.dn for s in runs[m]]) for m in ("off", "on"))
+    assert 0.95 * dn_off <= dn_on <= 1.1 * dn_off, (dn_on, dn_off)  # measured: 5% more, the gate open
+
+
+class _CandidatesScripted(_ScriptedBatches):
+    """Every query of a predict_new candidate (a node not visited last frame that would stop fully
+    visible) comes back hidden (`shown` False: the scene where new nodes turn out occluded, made on
+    demand) or wholly visible (q = alpha)."""
+
+    shown = False
+
+    def result(self, query):
+        q, alpha, stall = super().result(query)
+        t = self.traversal
+        if not query.members and t._candidate_in[query.node] == t.frame_id:
+            return (alpha if self.shown else 0), alpha, stall
+        return q, alpha, stall
+
+
+def test_candidates_found_hidden_stop_the_prediction_and_it_resumes_once_they_show(city_renderer):
+    """The running share of candidates found visible decides: with every candidate hidden it drops
+    below predict_new_share within the first frames and nothing more is predicted, although
+    candidates keep coming; once they show again it rises back and the prediction resumes."""
+    hlod = city_renderer.hlod
+    paths = (inspection_path(hlod, seed=11, frames=28),)
+    scripted, stats, frames = _predicted_run(city_renderer, RuntimeSettings(predict_new="on"), paths, 0,
+                                             scripted_cls=_CandidatesScripted)
+    t = scripted.traversal
+    assert t.new_visible_share < t.predict_new_share
+    assert sum(s.predicted for s in stats[:2]) > 0 and sum(s.predicted for s in stats[4:]) == 0
+    assert sum(candidates for _, _, candidates, _ in frames[4:]) > 10  # waited for instead
+    scripted.shown = True  # the same traversal, its candidates now visible
+    later = [t.frame(path.view(i, SIZE)) for path in (street_path(30), *paths) for i in range(len(path))]
+    assert t.new_visible_share >= t.predict_new_share and sum(s.predicted for s in later) > 0
+    assert sum(s.predicted for s in later[:1]) == 0  # it takes a few results
 
 
 class _FailingDraw:
