@@ -98,7 +98,8 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
         ("off", "Off", "Query every node the method queries"),
         ("cheap", "Cheap", "Draw a visible node without a query when drawing it costs less than the query"),
         ("expected", "Expected", "Draw a visible node without a query when its draw, times the share of queries "
-                                 "that changed anything, costs less than the query")], default="off",
+                                 "that changed anything, costs less than the query")],
+        default=RuntimeSettings.skip_queries,
         description="Queries that cannot pay (the renderer's measured costs); a skipped node is re-checked every 5 frames")
     multiquery: EnumProperty(name="Multiqueries", items=[
         ("on", "On", "Test nodes hidden last frame together, one query over their boxes (CHC++)"),

@@ -206,10 +206,11 @@ def _runtime_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--k", type=float, default=float("inf"), help="sigmoid steepness; inf = step (default)")
     p.add_argument("--tau", type=float, default=1.0, help="screen-space error threshold, pixels")
     p.add_argument("--alpha", choices=["query", "projected", "cube"], default="query", help="alpha estimator")
-    p.add_argument("--skip-queries", choices=list(SKIP_QUERY_MODES), default="off",
+    p.add_argument("--skip-queries", choices=list(SKIP_QUERY_MODES), default=RuntimeSettings.skip_queries,
                    help="draw a visible node without a query where the query does not pay (the renderer's measured "
-                        "costs): off (default), cheap (its draw costs less than the query), expected (the draw "
-                        "times the share of queries that changed something costs less); re-checked every 5 frames")
+                        "costs): off, cheap (its draw costs less than the query), expected (the draw times the share "
+                        "of queries that changed something costs less); re-checked every 5 frames. "
+                        f"Default {RuntimeSettings.skip_queries}")
     p.add_argument("--shift-up", choices=["measured", "children"], default="measured",
                    help="Coh's shift-up: measured (default; refined nodes are queried too) or children "
                         "(the dissertation's Algorithm 4 alone)")

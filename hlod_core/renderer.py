@@ -608,6 +608,11 @@ class Renderer:
         if clock not in ("gpu", "wall"):
             raise InputError(f"clock must be 'gpu' or 'wall', got {clock!r}")
         saved_viewport = self.ctx.viewport
+        # the caller's binding now, restored after (not the one bound when the renderer was made), and
+        # made moderngl's record of the bound framebuffer: making a framebuffer rebinds that record,
+        # which in a host such as Blender may name a framebuffer since deleted (GL_INVALID_OPERATION)
+        self._refresh_host_framebuffer()
+        self._host_fbo.use()
         fbo = self.fbo
         if fbo is None:
             colour = self.ctx.renderbuffer(CALIBRATION_SIZE, components=4)

@@ -94,7 +94,7 @@ class RuntimeSettings:
     bias: str = "P"
     alpha: str = "query"
     shift_up: str = "measured"
-    skip_queries: str = "off"  # "expected" measured faster (benchmarks.traversal_table); see CoherentLoop
+    skip_queries: str = "expected"  # measured faster on every scene (README "Queries that cannot pay"); see CoherentLoop
     multiquery: str = "on"  # on and batch_queries on: measured faster on every scene (README, CHC++)
     batch_queries: str = "on"
     predict_new: str = "on"  # measured faster or equal on every scene, node counts within 0.5% (README)

@@ -260,7 +260,7 @@ def test_preview_long_session_is_flat(repo, tmp_path):
     assert out["redraws"] == 10_000 and out["bakes"] == [["FINISHED"]] * 50
     assert out["methods_drawn"] == sorted(out["methods"]) and len(out["methods"]) == 6
     assert 2000 < out["private_redraws"] < 8000  # both modes, flipped in every session
-    assert out["gl_errors"] == [] and out["turned_off"] == []
+    assert out["gl_errors"] == [] and out["turned_off"] == [], (out["gl_errors"], out["turned_off"])
     assert not any(out["running_after_load"])
     assert len(out["other_context_current"]) == 17 and all(out["other_context_current"])
     stopped, running = out["census_stopped"], out["census_running"]

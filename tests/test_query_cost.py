@@ -147,7 +147,9 @@ def test_calibration_gives_positive_costs_that_predict_held_out_work(city_render
 def test_queries_all_but_vanish_where_nothing_hides(city_renderer):
     """Overview orbit: Coh with skip_queries "expected" issues a fraction of the queries of Coh
     without, drawing the same nodes except where a skipped node's stale ratio holds back a change
-    of LOD, which its re-check catches within recheck_frames frames. Bool likewise."""
+    of LOD, which its re-check catches within recheck_frames frames. Bool likewise. `expected` is
+    the default."""
+    assert RuntimeSettings().skip_queries == "expected"
     path = _overview(45)
     off = _run(make("coh", city_renderer.hlod, city_renderer, RuntimeSettings(skip_queries="off")), path)
     on_traversal = make("coh", city_renderer.hlod, city_renderer, RuntimeSettings(skip_queries="expected"))
