@@ -8,7 +8,8 @@ Data form: a sample is (count, size, seconds): `count` queries (or draw calls) o
 fitted by least squares over the samples (`fit_linear`), one for queries (per query, per box
 pixel) and one for draws (per draw call, per triangle); `CostModel` holds both, with each fit's
 relative residual. `box_pixels` estimates the pixels a box covers on screen, vectorised over boxes
-(the projected areas of its three face directions; cheap enough for every node of every frame).
+(the projected areas of its three face directions); `BoxAreas` keeps its view-independent terms
+for a node table, so a frame computes only the rest, for the boxes it asks about.
 No GL here: the renderer times the samples (renderer.Renderer.cost_model).
 """
 from __future__ import annotations
@@ -90,17 +91,40 @@ def box_pixels(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarr
     distance)^2, at most the viewport. Within a factor of about 2 of the exact silhouette
     (alpha_estimators.alpha_projected) for boxes in front of the eye and unlike the equal-volume
     cube, it keeps flat boxes' areas. A box holding the eye gets the whole viewport."""
-    lo, hi = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
-    ext = hi - lo
-    faces = np.c_[ext[:, 1] * ext[:, 2], ext[:, 0] * ext[:, 2], ext[:, 0] * ext[:, 1]]
-    screen = float(view.width * view.height)
-    unit_px = view.pixels_per_unit_x * view.pixels_per_unit_y
-    if view.orthographic:
-        forward = -view.view[2, :3]
-        return np.minimum(np.abs(faces @ forward) * unit_px, screen)
-    to_box = 0.5 * (lo + hi) - view.eye
-    d2 = np.einsum("ij,ij->i", to_box, to_box)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        area = np.einsum("ij,ij->i", faces, np.abs(to_box)) / (d2 * np.sqrt(d2)) * unit_px
-    inside = np.all((view.eye >= lo) & (view.eye <= hi), axis=1)
-    return np.where(inside | ~np.isfinite(area), screen, np.minimum(area, screen))
+    return BoxAreas.of(box_min, box_max).pixels(view)
+
+
+@dataclass(frozen=True, eq=False)
+class BoxAreas:
+    """`box_pixels` with the per-box terms that do not depend on the view (the three face areas, the
+    centres) found once: (n,3) float64 each, model units, for a node table's query boxes; a
+    traversal asks for a few of them a frame (`pixels(view, nodes)`)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    faces: np.ndarray
+    centre: np.ndarray
+
+    @classmethod
+    def of(cls, box_min: np.ndarray, box_max: np.ndarray) -> "BoxAreas":
+        lo, hi = np.array(box_min, np.float64), np.array(box_max, np.float64)
+        ext = hi - lo
+        faces = np.stack([ext[:, 1] * ext[:, 2], ext[:, 0] * ext[:, 2], ext[:, 0] * ext[:, 1]], axis=1)
+        return cls(lo=lo, hi=hi, faces=faces, centre=0.5 * (lo + hi))
+
+    def pixels(self, view: View, nodes: np.ndarray | None = None) -> np.ndarray:
+        """box_pixels of the boxes `nodes` (all when None)."""
+        pick = (lambda a: a) if nodes is None else (lambda a: a[nodes])
+        faces = pick(self.faces)
+        screen = float(view.width * view.height)
+        unit_px = view.pixels_per_unit_x * view.pixels_per_unit_y
+        if view.orthographic:
+            forward = -view.view[2, :3]
+            return np.minimum(np.abs(faces @ forward) * unit_px, screen)
+        lo, hi = pick(self.lo), pick(self.hi)
+        to_box = pick(self.centre) - view.eye
+        d2 = np.einsum("ij,ij->i", to_box, to_box)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            area = np.einsum("ij,ij->i", faces, np.abs(to_box)) / (d2 * np.sqrt(d2)) * unit_px
+        inside = np.all((view.eye >= lo) & (view.eye <= hi), axis=1)
+        return np.where(inside | ~np.isfinite(area), screen, np.minimum(area, screen))

@@ -544,6 +544,8 @@ class CoherentLoop(Traversal):
         self.change_rate = 1.0  # nothing measured yet: every query may change something
         self.skippable: memoryview | None = None  # (n,) bool, per frame
         self._tris = np.asarray(hlod.tri_count, np.float64)
+        self._box_areas: query_cost.BoxAreas | None = None  # the query boxes' areas' fixed terms (skip test)
+        self._box_areas_pad = None
         # a renderer without issue_multiquery / issue_queries (tests' wrappers, benchmarks' proxies)
         # gets each query on its own, as with the settings off
         self._grouping = settings.multiquery != "off" and hasattr(renderer, "issue_multiquery")
@@ -572,17 +574,28 @@ class CoherentLoop(Traversal):
         if model is None:
             return
         h, pad = self.hlod, self.renderer.query_box_pad
-        candidates = np.flatnonzero(np.asarray(self.in_frustum) & ~np.asarray(self.unqueryable))
+        candidates = self._skip_candidates()
         if self.settings.alpha == "projected":
             pixels = self.alpha_estimate[candidates]
         else:
-            pixels = query_cost.box_pixels(view, h.box_min[candidates] - pad, h.box_max[candidates] + pad)
+            if self._box_areas is None or self._box_areas_pad != pad:
+                self._box_areas = query_cost.BoxAreas.of(np.asarray(h.box_min) - pad, np.asarray(h.box_max) + pad)
+                self._box_areas_pad = pad
+            pixels = self._box_areas.pixels(view, candidates)
         draw_s = model.draw_seconds(self._tris[candidates])
         if self._skip_mode == "expected":
             draw_s = draw_s * self.change_rate
         skippable = np.zeros(h.node_count, bool)
         skippable[candidates] = draw_s < model.query_seconds(pixels)
         self.skippable = memoryview(skippable)
+
+    def _skip_candidates(self) -> np.ndarray:
+        """The nodes `_prepare` tests for skipping: in the frustum, queryable and visible at the end
+        of the last frame. Only a node predicted STOP is ever skipped, and every class predicts STOP
+        only for a node visible in the last frame (about the nodes drawn then: 85 of the crowd's
+        1,674 queryable boxes in the frustum a frame), so the others' box areas are not computed."""
+        visible = np.frombuffer(bytes(self._visible), bool)  # half fromiter's time
+        return np.flatnonzero(visible & np.asarray(self.in_frustum) & ~np.asarray(self.unqueryable))
 
     def _skips(self, node: int) -> bool:
         """Draw this STOP-predicted node without its query?"""

@@ -235,6 +235,33 @@ def test_a_scripted_cost_model_pins_both_branches(city_renderer):
     assert sum(s.queries for s in always) < sum(s.queries for s in off)
 
 
+@pytest.mark.parametrize("method", ["bool", "coh"])
+@pytest.mark.parametrize("mode", ["cheap", "expected"])
+def test_skipping_tests_only_the_nodes_visible_last_frame_and_changes_nothing(city_renderer, method, mode):
+    """`_prepare` computes box areas and the skip test only for the nodes visible at the end of the
+    last frame (the only ones predicted STOP): the same draws, skips and queries every frame as the
+    test over every queryable box in the frustum, under a fixed cost model of llvmpipe's size where
+    some nodes skip and some do not (results after a scripted lag, so both see the same timing)."""
+    r = city_renderer
+    r._cost_model = CostModel(query=LinearCost(fixed_s=20e-6, per_unit_s=2e-9, residual=0.0),
+                              draw=LinearCost(fixed_s=4e-6, per_unit_s=5e-9, residual=0.0), clock="wall")
+    cls = type(make(method, r.hlod, r))
+
+    class EveryCandidate(cls):
+        def _skip_candidates(self):
+            return np.flatnonzero(np.asarray(self.in_frustum) & ~np.asarray(self.unqueryable))
+
+    runs = []
+    for traversal_class in (cls, EveryCandidate):
+        traversal = traversal_class(r.hlod, ScriptedAvailability(r, 3), RuntimeSettings(skip_queries=mode))
+        stats = _run(traversal, street_path(30)) + _run(traversal, _overview(30))
+        runs.append([(s.drawn, s.skipped, s.queries) for s in stats])
+    assert runs[0] == runs[1]
+    skipped = sum(len(skips) for _, skips, _ in runs[0])
+    queried = sum(q for _, _, q in runs[0])
+    assert skipped > 20 and queried > 20, (skipped, queried)  # both branches taken
+
+
 def test_recheck_frames_follow_the_seed(city_renderer):
     """Same seed, same phases and the same frames' work; another seed, other phases. The cost
     model is calibrated once and shared, so only the seed differs."""
