@@ -514,7 +514,8 @@ class CoherentLoop(Traversal):
     with P(1) = 1 and queried (batched, gating nothing) as a STOP node is, so its result sets its
     ratio and visibility for the next frame; one found hidden was drawn for nothing this frame only.
     A candidate that refines at full visibility would need its ratio to choose between stopping and
-    refining, and keeps waiting. Every candidate's result, waited for or not, updates the share, so
+    refining, and keeps waiting. Every queried candidate's result, waited for or not, updates the
+    share (one whose box cannot be queried counts as visible without a result, and not in it), so
     where occlusion appears the prediction stops within a few dozen results.
     """
 
@@ -602,7 +603,8 @@ class CoherentLoop(Traversal):
         return self.skippable is not None and self.skippable[node] and self.frame_id < self._recheck_due[node]
 
     def _queried(self, node: int, mode: str, changed: bool) -> None:
-        """Bookkeeping of a finished STOP / DELAY query: the next re-check (the node's next frame f
+        """Bookkeeping of a finished STOP / DELAY / PREDICTED query (the change rate counts STOP
+        results only): the next re-check (the node's next frame f
         with (f + its seeded phase) % recheck_frames == 0: 1 to recheck_frames frames on), the
         change rate."""
         n = self.recheck_frames

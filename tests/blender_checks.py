@@ -322,7 +322,7 @@ def check_preview(repo, work) -> dict:
         preview.safe_draw(scene, view, projection, *size, xray=True)
     offscreen.free()
     out["status_xray"] = props.status
-    # the panel's CHC++ switches and Predict New Nodes reach the traversal's settings (defaults: both on)
+    # the panel's CHC++ switches (defaults: both on) and Predict New Nodes reach the traversal's settings
     settings_module = importlib.import_module(NAME + ".addon.settings")
     default = settings_module.runtime_settings(props)
     props.multiquery, props.batch_queries = "off", False
