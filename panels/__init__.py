@@ -85,7 +85,9 @@ class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
         col.prop(props, "skip_queries")
         col.prop(props, "multiquery")
         col.prop(props, "batch_queries")
-        col.prop(props, "predict_new")
+        row = col.row()
+        row.active = props.method == "coh"  # the prediction is Coh's
+        row.prop(props, "predict_new")
         layout.prop(props, "private_context")
         layout.operator("hlod.materialize", icon="OUTLINER_OB_MESH")
         row = layout.row(align=True)
