@@ -38,15 +38,27 @@ def sse(view: View, error: np.ndarray, center: np.ndarray, radius: np.ndarray, i
     """Screen-space error in pixels (n,): a sphere of diameter MSE at the point of the node's
     sphere nearest the eye. Perspective: MSE * (H/2) P11 / d; orthographic: MSE * (H/2) P11.
     d <= 0 (eye inside the sphere): +inf, the node must refine. Leaves: 0 (never 0 * inf)."""
+    error, inside = sse_inputs(error, is_leaf)
+    d = None if view.orthographic else sphere_distance(view, center, radius)
+    return sse_at(view, error, d, inside)
+
+
+def sse_inputs(error: np.ndarray, is_leaf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`sse_at`'s per-node inputs, view-independent: (error with the leaves' set to 0, the SSE
+    where the eye is inside the sphere: inf, 0 for leaves)."""
+    is_leaf = np.asarray(is_leaf, bool)
+    return np.where(is_leaf, 0.0, error), np.where(is_leaf, 0.0, np.inf)
+
+
+def sse_at(view: View, error: np.ndarray, d: np.ndarray | None, inside: np.ndarray) -> np.ndarray:
+    """`sse` from the nodes' sphere distances d (n,) model units (unused for an orthographic view)
+    and `sse_inputs`: error * (H/2) P11 / d where d > 0, else `inside`."""
     if view.orthographic:
-        out = error * view.pixels_per_unit_y
-    else:
-        d = sphere_distance(view, center, radius)
-        # d tiny but positive: a huge finite or inf SSE, both refine; d <= 0 is replaced by inf
-        # (whatever its quotient overflowed, divided by 0 or underflowed to)
-        with np.errstate(all="ignore"):
-            out = np.where(d > 0, error * view.pixels_per_unit_y / d, np.inf)
-    return np.where(is_leaf, 0.0, out)
+        return error * view.pixels_per_unit_y
+    # d tiny but positive: a huge finite or inf SSE, both refine; d <= 0 is replaced by inside
+    # (whatever its quotient overflowed, divided by 0 or underflowed to)
+    with np.errstate(all="ignore"):
+        return np.where(d > 0, error * view.pixels_per_unit_y / d, inside)
 
 
 # --- the bias P_{s,t} (DESIGN §5.2) -------------------------------------------------------------

@@ -114,6 +114,16 @@ class BoxAreas:
 
     def pixels(self, view: View, nodes: np.ndarray | None = None) -> np.ndarray:
         """box_pixels of the boxes `nodes` (all when None)."""
+        area = self.pixels_outside(view, nodes)
+        if view.orthographic:
+            return area
+        lo, hi = (self.lo, self.hi) if nodes is None else (self.lo[nodes], self.hi[nodes])
+        inside = np.all((view.eye >= lo) & (view.eye <= hi), axis=1)
+        return np.where(inside, float(view.width * view.height), area)
+
+    def pixels_outside(self, view: View, nodes: np.ndarray | None = None) -> np.ndarray:
+        """`pixels` of boxes known not to hold the eye (the traversal's queryable boxes): the same
+        values without the test (a box holding the eye would get its area, not the viewport)."""
         pick = (lambda a: a) if nodes is None else (lambda a: a[nodes])
         faces = pick(self.faces)
         screen = float(view.width * view.height)
@@ -121,10 +131,8 @@ class BoxAreas:
         if view.orthographic:
             forward = -view.view[2, :3]
             return np.minimum(np.abs(faces @ forward) * unit_px, screen)
-        lo, hi = pick(self.lo), pick(self.hi)
         to_box = pick(self.centre) - view.eye
         d2 = np.einsum("ij,ij->i", to_box, to_box)
         with np.errstate(divide="ignore", invalid="ignore"):
             area = np.einsum("ij,ij->i", faces, np.abs(to_box)) / (d2 * np.sqrt(d2)) * unit_px
-        inside = np.all((view.eye >= lo) & (view.eye <= hi), axis=1)
-        return np.where(inside | ~np.isfinite(area), screen, np.minimum(area, screen))
+        return np.fmin(area, screen)  # inf and NaN (the eye at the centre) -> the viewport

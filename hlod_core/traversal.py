@@ -250,11 +250,7 @@ class Traversal(abc.ABC):
         self._parent = hlod.parent.tolist()
         self._tri_count = hlod.tri_count.tolist()
         self._leaf = self._is_leaf.tolist()
-        # the inner nodes' SSE inputs (a leaf's SSE is 0, and most nodes are leaves), the centres'
-        # columns contiguous (metrics.sphere_distance)
-        self._inner = np.flatnonzero(~self._is_leaf)
-        self._inner_sphere = (hlod.error[self._inner], np.asfortranarray(hlod.sphere_center[self._inner]),
-                              hlod.sphere_radius[self._inner], np.zeros(self._inner.shape[0], bool))
+        self._sse_inputs = metrics.sse_inputs(hlod.error, self._is_leaf)
         self._box_rows: boxes.BoxRows | None = None  # made on the first frame, from the renderer's pad
         self._query_alpha = settings.alpha == "query"
         self._tau = settings.tau
@@ -277,11 +273,15 @@ class Traversal(abc.ABC):
         self.view = view
         pad = self.renderer.query_box_pad
         if self._box_rows is None or self._box_rows.query_pad != pad:
-            self._box_rows = boxes.BoxRows.of(h.box_min, h.box_max, pad)
-        in_frustum, key, unqueryable = boxes.view_tests(view, self._box_rows)
-        sse = np.zeros(h.node_count)
-        sse[self._inner] = metrics.sse(view, *self._inner_sphere)
-        self.in_frustum, self.key, self.unqueryable, self.sse = map(memoryview, (in_frustum, key, unqueryable, sse))
+            self._box_rows = boxes.BoxRows.of(h.box_min, h.box_max, pad, h.sphere_center)
+        tests = boxes.view_tests(view, self._box_rows)
+        in_frustum, unqueryable = tests.in_frustum, tests.unqueryable
+        d = None if view.orthographic else np.subtract(tests.centre_distance, h.sphere_radius)
+        error, inside = self._sse_inputs
+        sse = metrics.sse_at(view, error, d, inside)
+        self._tests = tests  # the arrays behind the memoryviews, for vectorised readers (CoherentLoop)
+        self.in_frustum, self.key, self.unqueryable, self.sse = map(memoryview, (in_frustum, tests.distance,
+                                                                                 unqueryable, sse))
         self.alpha_estimate = None  # (n,) pixels, for the estimators other than `query`
         if self.settings.alpha == "cube":
             self.alpha_estimate = alpha_estimators.alpha_cube(view, h.cube_side, h.box_min, h.box_max)
@@ -558,6 +558,7 @@ class CoherentLoop(Traversal):
         self._waiting_hidden: list[int] = []  # CHC++'s i-queue (multiquery): not yet queried
         self._waiting_batch: list[tuple[int, str]] = []  # (node, mode) of the batch (batch_queries): not yet issued
         self._predicting_new = self.predicts_new and settings.predict_new == "on"
+        self._visited: list[int] = []  # the nodes the last (or current) walk visited, in order
         self._candidate_in = [NEVER_FRAME] * n  # frame the node was a candidate of predict_new
         self.new_visible_share = 1.0  # nothing measured yet: candidates are predicted visible
 
@@ -582,25 +583,30 @@ class CoherentLoop(Traversal):
             if self._box_areas is None or self._box_areas_pad != pad:
                 self._box_areas = query_cost.BoxAreas.of(np.asarray(h.box_min) - pad, np.asarray(h.box_max) + pad)
                 self._box_areas_pad = pad
-            pixels = self._box_areas.pixels(view, candidates)
-        draw_s = model.draw_seconds(self._tris[candidates])
+            pixels = self._box_areas.pixels_outside(view, candidates)  # candidates' boxes do not hold the eye
+        # draw seconds (times the change rate for "expected") < query seconds, the cost model's
+        # linear costs written out with Python scalars (the same operations, fewer numpy calls)
+        draw, query = model.draw, model.query
+        draw_s = self._tris[candidates] * draw.per_unit_s
+        draw_s += draw.fixed_s
         if self._skip_mode == "expected":
-            draw_s = draw_s * self.change_rate
+            draw_s *= self.change_rate
+        query_s = pixels * query.per_unit_s
+        query_s += query.fixed_s
         skippable = np.zeros(h.node_count, bool)
-        skippable[candidates] = draw_s < model.query_seconds(pixels)
+        skippable[candidates] = draw_s < query_s
         self.skippable = memoryview(skippable)
 
     def _skip_candidates(self) -> np.ndarray:
-        """The nodes `_prepare` tests for skipping: in the frustum, queryable and visible at the end
-        of the last frame. Only a node predicted STOP is ever skipped, and every class predicts STOP
-        only for a node visible in the last frame (about the nodes drawn then: 85 of the crowd's
-        1,674 queryable boxes in the frustum a frame), so the others' box areas are not computed."""
-        visible = np.frombuffer(bytes(self._visible), bool)  # half fromiter's time
-        return np.flatnonzero(visible & np.asarray(self.in_frustum) & ~np.asarray(self.unqueryable))
-
-    def _skips(self, node: int) -> bool:
-        """Draw this STOP-predicted node without its query?"""
-        return self.skippable is not None and self.skippable[node] and self.frame_id < self._recheck_due[node]
+        """The nodes `_prepare` tests for skipping: visited in the last frame and visible at its end,
+        in the frustum and queryable. Only a node predicted STOP is ever skipped, and every class
+        predicts STOP only for such a node (about the nodes drawn then: 85 of the crowd's 1,674
+        queryable boxes in the frustum a frame), so the others' box areas are not computed, and
+        the node table is not read: the walk keeps the list of the nodes it visits."""
+        visible = self._visible
+        nodes = np.array([node for node in self._visited if visible[node]], np.int64)
+        tests = self._tests
+        return nodes[tests.in_frustum[nodes] & ~tests.unqueryable[nodes]]
 
     def _queried(self, node: int, mode: str, changed: bool) -> None:
         """Bookkeeping of a finished STOP / DELAY / PREDICTED query (the change rate counts STOP
@@ -631,8 +637,8 @@ class CoherentLoop(Traversal):
         """Stop refinement at a node whose query came back visible with visibility mu?"""
 
     def _traverse(self, stats):
-        """Algorithm 2's loop. The per-node helpers (`_issue`, `_mu`, `_render`, `_pull_up`) are
-        written out here, with the state bound to locals: this loop is the traversal's Python cost
+        """Algorithm 2's loop. The per-node helpers (`_issue`, `_mu`, `_render`, `_pull_up`, the skip
+        test and `_queried`) are written out here, with the state bound to locals: this loop is the traversal's Python cost
         per node (issue 15). With multiquery or batch_queries on, queries may wait in the i-queue or
         the batch before they are issued (class docstring)."""
         heap: list = []
@@ -658,8 +664,14 @@ class CoherentLoop(Traversal):
         multiquery_batch, query_batch = self.multiquery_batch, self.query_batch
         eager_groups = self._eager_groups
         predicting_new, candidate_in = self._predicting_new, self._candidate_in
-        traversed = queries = dn = tris = predicted = 0
+        # the skip test and the re-check bookkeeping (`_queried`) written out
+        skippable, recheck_due, recheck_phase = self.skippable, self._recheck_due, self._recheck_phase
+        recheck_frames, change_rate, change_weight = self.recheck_frames, self.change_rate, self.change_rate_weight
+        next_recheck = frame_id + 1
+        queries = dn = tris = predicted = 0
         stall_s = 0.0
+        self._visited = visited = []
+        visit = visited.append
         while heap or queue or waiting_hidden or waiting_batch:
             # results in the order issued, as long as they are back (all of them once the heap is empty)
             while queue and (not heap or queue[0][2] is None or available(queue[0][2])):
@@ -687,8 +699,10 @@ class CoherentLoop(Traversal):
                         up = parent[up]
                     stop = stop_on_result(node, mu)
                     stop_refinement[node] = stop
-                    if skipping:
-                        self._queried(node, mode, not stop)
+                    if skipping:  # _queried(node, mode, not stop)
+                        recheck_due[node] = next_recheck + (-next_recheck - recheck_phase[node]) % recheck_frames
+                        if mode == STOP:
+                            change_rate += (float(not stop) - change_rate) * change_weight
                     if not stop:
                         if rendered[node] == frame_id:
                             stats.rarn += 1
@@ -705,21 +719,26 @@ class CoherentLoop(Traversal):
                             stats.delayed.append(node)
                 else:
                     ratio[node] = 0.0  # P(0) = 0; the node stays invisible
-                    if skipping:
-                        self._queried(node, mode, True)
+                    if skipping:  # _queried(node, mode, True)
+                        recheck_due[node] = next_recheck + (-next_recheck - recheck_phase[node]) % recheck_frames
+                        if mode == STOP:
+                            change_rate += (1.0 - change_rate) * change_weight
                     if grouping:
                         hidden_frames[node] = hidden_frames[node] + 1 if hidden_in[node] == previous else 1
                         hidden_in[node] = frame_id
             if heap:
                 node = heappop(heap)[1]
-                traversed += 1
+                visit(node)
                 mode = predict(node)
                 stop = mode != REFINE
                 stop_refinement[node] = stop
                 visible[node] = False
                 last_visited[node] = frame_id
-                if stop and mode == STOP and skipping and self._skips(node):
-                    self._pull_up(node)  # assumed visible: stays so, keeps its ratio
+                if mode == STOP and skipping and skippable[node] and frame_id < recheck_due[node]:
+                    up = node  # assumed visible: pulled up, stays so, keeps its ratio
+                    while up >= 0 and not visible[up]:
+                        visible[up] = True
+                        up = parent[up]
                     stats.skipped.append(node)
                 elif stop or self._measures_refined(node):
                     if unqueryable[node]:
@@ -746,7 +765,8 @@ class CoherentLoop(Traversal):
                 self._issue_hidden(queue)
             elif waiting_batch and (not heap or len(waiting_batch) >= query_batch):
                 self._issue_batch(queue)
-        stats.traversed += traversed
+        self.change_rate = change_rate
+        stats.traversed += len(visited)
         stats.queries += queries
         stats.dn += dn
         stats.tris += tris
@@ -905,9 +925,10 @@ class Coh(CoherentLoop):
             return DELAY
         if self._leaf[node]:
             return STOP if stop_refinement[node] else DELAY
+        sse, tau = self.sse, self._tau  # ratio * sse <= tau below is _vmsse_stop, written out
         if not stop_refinement[node]:
             if self._measure and self.frame_id - self._measured[node] <= self.measure_every_frames:
-                return DELAY if self._vmsse_stop(node, ratio[node]) else REFINE
+                return DELAY if ratio[node] * sse[node] <= tau else REFINE
             # Algorithm 4's shift-up: all children stopped last frame (one not visited counts as
             # stopped with ratio 0), and the node stops at their average ratio
             candidate = True
@@ -918,11 +939,11 @@ class Coh(CoherentLoop):
                 child_ratio = ratio[child] if visited else 0.0
                 total += child_ratio  # summed in order, as the published average
                 count += 1
-                if not stopped or not self._vmsse_stop(child, child_ratio):
+                if not stopped or not child_ratio * sse[child] <= tau:
                     candidate = False
-            if candidate and self._vmsse_stop(node, total / count):
+            if candidate and total / count * sse[node] <= tau:
                 return DELAY
-        elif self._vmsse_stop(node, ratio[node]):
+        elif ratio[node] * sse[node] <= tau:
             return STOP
         return REFINE
 

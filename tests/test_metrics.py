@@ -173,8 +173,9 @@ def test_view_tests_equal_the_textbook_box_tests():
     textbook tests give box by box: in the frustum unless all 8 corners lie outside one plane
     (exact for these boxes: none is near a plane's edge), the distance from the eye to the box's
     nearest point, and unqueryable where the padded box holds the eye or a corner lies behind the
-    near plane. Random boxes around and across the eye, perspective (three near planes) and
-    orthographic views; the distance bit for bit (same operations), the booleans exactly."""
+    near plane; and the distance from the eye to each given centre (the SSE's spheres). Random
+    boxes around and across the eye, perspective (three near planes) and orthographic views; the
+    distances bit for bit (same operations), the booleans exactly."""
     rng = np.random.default_rng(7)
     checked = {"in": 0, "out": 0, "unqueryable": 0, "eye inside": 0}
     for trial in range(40):
@@ -185,7 +186,10 @@ def test_view_tests_equal_the_textbook_box_tests():
         centre, half = rng.normal(size=(200, 3)) * 6, rng.uniform(0.01, 3, size=(200, 3))
         centre[:10] = eye + rng.normal(size=(10, 3)) * 0.2  # boxes around or beside the eye
         lo, hi, pad = centre - half, centre + half, 0.05
-        in_frustum, distance, unqueryable = boxes.view_tests(v, boxes.BoxRows.of(lo, hi, pad))
+        spheres = centre + rng.normal(size=centre.shape) * 10.0 ** rng.uniform(-3, 3, size=(200, 1))
+        tests = boxes.view_tests(v, boxes.BoxRows.of(lo, hi, pad, spheres))
+        in_frustum, distance, unqueryable = tests.in_frustum, tests.distance, tests.unqueryable
+        assert np.array_equal(tests.centre_distance, np.linalg.norm(spheres - v.eye, axis=1))
         planes = boxes.frustum_planes(v)
         corners = boxes.box_corners(lo[:, None, :], hi[:, None, :])  # (n,8,3)
         outside_one_plane = np.any(np.all(corners @ planes[:, :3].T + planes[:, 3] < 0, axis=1), axis=1)
@@ -196,6 +200,7 @@ def test_view_tests_equal_the_textbook_box_tests():
         eye_inside = np.all((lo - pad <= v.eye) & (v.eye <= hi + pad), axis=1)
         behind_near = np.any(padded @ planes[4, :3] + planes[4, 3] < 0, axis=1)
         assert np.array_equal(unqueryable, eye_inside | behind_near)
+        assert np.array_equal(tests.behind_near, behind_near)
         checked["in"] += int(in_frustum.sum())
         checked["out"] += int((~in_frustum).sum())
         checked["unqueryable"] += int(unqueryable.sum())

@@ -246,6 +246,60 @@ def test_eye_inside_boxes_and_on_a_box_face(city_renderer):
             assert stats.dn > 0  # the eye inside the root box: queries skipped (mu = 1), geometry drawn
 
 
+def test_frame_table_equals_the_public_box_and_sse_functions():
+    """`_prepare`'s per-frame table (one boxes.view_tests pass with the sphere centres in its rows)
+    is what the separate public functions give, node for node: SSE bit for bit with metrics.sse
+    (inf inside an inner node's sphere, 0 for every leaf), the key with boxes.box_distance, the
+    frustum test, and unqueryable where the padded box holds the eye or crosses the near plane.
+    Views from the city's inspection path, one with the eye inside a leaf's and its ancestors'
+    spheres, and an orthographic one."""
+    hlod = baked_city()
+    pad = 0.05
+    host = type("Host", (), {"query_box_pad": pad})()
+    views = [inspection_path(hlod, seed=3, frames=6).view(i, SIZE) for i in range(6)]
+    leaf = int(np.flatnonzero(hlod.child_count == 0)[0])
+    centre = hlod.sphere_center[leaf]
+    views.append(CameraPath(frames=np.array([[centre, centre + [0, 10, 0], [0, 0, 1]]]), near=0.01,
+                            far=500.0).view(0, SIZE))
+    views.append(CameraPath(frames=np.array([[[70.0, -120.0, 90.0], [70.0, 70.0, 0.0], [0, 0, 1]]]), near=1.0,
+                            far=600.0, fovy_deg=None, ortho_height=160.0).view(0, SIZE))
+    traversal = make("coh", hlod, host)
+    seen_inf = 0
+    for view in views:
+        traversal._prepare(view)
+        sse = np.asarray(traversal.sse)
+        expected = metrics.sse(view, hlod.error, hlod.sphere_center, hlod.sphere_radius, hlod.is_leaf)
+        assert np.array_equal(sse, expected)
+        assert np.all(sse[hlod.is_leaf] == 0.0)
+        seen_inf += int(np.isinf(sse).sum())
+        assert np.array_equal(np.asarray(traversal.key), boxes.box_distance(view.eye, hlod.box_min, hlod.box_max))
+        assert np.array_equal(np.asarray(traversal.in_frustum), boxes.boxes_in_frustum(view, hlod.box_min, hlod.box_max))
+        lo, hi = hlod.box_min - pad, hlod.box_max + pad
+        unqueryable = boxes.eye_in_boxes(view.eye, lo, hi) | boxes.boxes_cross_near_plane(view, lo, hi)
+        assert np.array_equal(np.asarray(traversal.unqueryable), unqueryable)
+    assert seen_inf > 0  # the eye inside spheres was tested
+
+
+def test_skip_candidates_are_the_nodes_visited_and_visible_last_frame(city_renderer):
+    """The skip test's candidates are exactly the nodes visited in the last frame and visible at
+    its end, in the frustum and queryable this frame (read from the walk's visited list, not the
+    node table); a node visible from an earlier frame but not visited last frame is not one."""
+    traversal = make("coh", city_renderer.hlod, city_renderer, RuntimeSettings(skip_queries="expected"))
+    path = street_path(12)
+    stale = 0
+    for i in range(len(path)):
+        view = path.view(i, SIZE)
+        if i:
+            traversal._prepare(view)
+            visible, last = traversal.visible, traversal.last_visited
+            expected = np.flatnonzero(visible & (last == traversal.frame_id) & np.asarray(traversal.in_frustum)
+                                      & ~np.asarray(traversal.unqueryable))
+            assert np.array_equal(np.sort(traversal._skip_candidates()), expected)
+            stale += int(np.count_nonzero(visible & (last < traversal.frame_id)))
+        traversal.frame(view)
+    assert stale > 0  # visible nodes not visited last frame occurred, and were left out
+
+
 def test_orthographic_path(city_renderer):
     eye = np.array([70.0, -120.0, 90.0])
     path = CameraPath(frames=np.array([[eye, [70.0, 70.0, 0.0], [0, 0, 1]]] * 4), near=1.0, far=600.0,
