@@ -5,6 +5,7 @@ frame; what is left is the traversal's Python (the per-frame vectorised `_prepar
 
     .venv/bin/python -m benchmarks.traversal_cpu FILE.hlod --path PATH.json [--size 640x480] [--repeat 2]
         [--methods coh sw ...] [--alpha query|projected|cube] [--clock wall|thread] [--renderer gl|null]
+        [--baseline DIR]
 
 `--renderer null` runs the traversals against a renderer without GL (NullRenderer: nothing drawn,
 every query back at once with a seeded visibility per node), which leaves the Python alone on warm
@@ -15,15 +16,23 @@ within the run). Prints one JSON line
 per method and a Markdown table: visited nodes a frame, prepare us a frame, walk us a visited node,
 all us a visited node (prepare + walk over visited), renderer ms a frame (excluded).
 
+`--baseline DIR` also runs the traversal of another version (DIR holds its `hlod_core` package, e.g.
+`git archive COMMIT hlod_core | tar -x -C DIR`) on the same renderer, its pass of each method next to
+this version's (the two alternate first), as rows "METHOD (baseline)": a paired comparison, since
+the figures move by tens of percent between runs on a shared machine.
+
 Data form: out, {method: {"visited", "prepare_us", "walk_us_per_node", "python_us_per_node",
 "renderer_ms", "frames"}} (medians over repeats of per-path means).
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -127,12 +136,32 @@ def _proxy_overhead_s(calls: int = 20000, clock=time.perf_counter) -> float:
     return max(0.0, (clock() - started - proxy.inside_s) / calls)
 
 
+def baseline_traversal(folder: str):
+    """The `traversal` module of the hlod_core package in `folder`, imported as package
+    hlod_core_baseline (its relative imports resolve inside it)."""
+    package = Path(folder) / "hlod_core"
+    if not (package / "traversal.py").is_file():
+        raise SystemExit(f"--baseline {folder}: no hlod_core/traversal.py there")
+    spec = importlib.util.spec_from_file_location("hlod_core_baseline", package / "__init__.py",
+                                                  submodule_search_locations=[str(package)])
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["hlod_core_baseline"] = module
+    spec.loader.exec_module(module)
+    return importlib.import_module("hlod_core_baseline.traversal")
+
+
 def measure(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,
-            renderer: Renderer, call_overhead_s: float, clock=time.perf_counter) -> dict:
+            renderer: Renderer, call_overhead_s: float, clock=time.perf_counter, traversal_module=None) -> dict:
     """One pass of `method` over `path`: per-frame means of the traversal's Python time (`clock`
-    seconds; call_overhead_s measured with the same clock)."""
+    seconds; call_overhead_s measured with the same clock). traversal_module: another version's
+    traversal module (`baseline_traversal`), its RuntimeSettings made from `settings`' fields."""
     proxy = TimedRenderer(renderer, clock)
-    traversal = make(method, hlod, proxy, settings)
+    if traversal_module is None:
+        traversal = make(method, hlod, proxy, settings)
+    else:
+        fields = traversal_module.RuntimeSettings.__dataclass_fields__
+        theirs = traversal_module.RuntimeSettings(**{k: v for k, v in vars(settings).items() if k in fields})
+        traversal = traversal_module.make(method, hlod, proxy, theirs)
     prepare = traversal._prepare
     prepare_s = {"s": 0.0}
 
@@ -159,21 +188,25 @@ def measure(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath
 
 
 def run(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: list[str], repeat: int,
-        settings: RuntimeSettings, clock: str = "wall", null_renderer: bool = False) -> dict:
+        settings: RuntimeSettings, clock: str = "wall", null_renderer: bool = False, baseline=None) -> dict:
+    """{row: medians}, a row per method, and per "METHOD (baseline)" with a baseline module."""
     overhead_s = _proxy_overhead_s(clock=CLOCKS[clock])
-    runs: dict[str, list[dict]] = {m: [] for m in methods}
+    versions = [(m, m, None) for m in methods]
+    if baseline is not None:  # each method's two versions side by side, alternating which goes first
+        versions = [v for m in methods for v in ((m, m, None), (f"{m} (baseline)", m, baseline))]
+    runs: dict[str, list[dict]] = {row: [] for row, _, _ in versions}
     if null_renderer:
         renderer = NullRenderer(hlod)
     else:
         renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod))
     try:
         for rep in range(repeat):
-            for method in (methods if rep % 2 == 0 else methods[::-1]):
-                runs[method].append(measure(hlod, method, settings, path, size, renderer=renderer,
-                                            call_overhead_s=overhead_s, clock=CLOCKS[clock]))
+            for row, method, module in (versions if rep % 2 == 0 else versions[::-1]):
+                runs[row].append(measure(hlod, method, settings, path, size, renderer=renderer,
+                                         call_overhead_s=overhead_s, clock=CLOCKS[clock], traversal_module=module))
     finally:
         renderer.release()
-    return {m: {k: statistics.median(r[k] for r in runs[m]) for k in runs[m][0]} for m in methods}
+    return {row: {k: statistics.median(r[k] for r in runs[row]) for k in runs[row][0]} for row in runs}
 
 
 def main() -> None:
@@ -186,11 +219,13 @@ def main() -> None:
     parser.add_argument("--alpha", default="query", choices=["query", "projected", "cube"])
     parser.add_argument("--clock", default="wall", choices=list(CLOCKS))
     parser.add_argument("--renderer", default="gl", choices=["gl", "null"])
+    parser.add_argument("--baseline", help="a folder holding another version's hlod_core, run next to this one")
     args = parser.parse_args()
+    baseline = baseline_traversal(args.baseline) if args.baseline else None
     size = tuple(int(x) for x in args.size.split("x"))
     table = run(fileformat.load(args.file), load_path(args.path), size, methods=args.methods,
                 repeat=args.repeat, settings=RuntimeSettings(alpha=args.alpha), clock=args.clock,
-                null_renderer=args.renderer == "null")
+                null_renderer=args.renderer == "null", baseline=baseline)
     for method, row in table.items():
         print(json.dumps({"method": method, **row}))
     print("| method | visited / frame | prepare us / frame | walk us / visited node | Python us / visited node "

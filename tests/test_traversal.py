@@ -300,6 +300,25 @@ def test_skip_candidates_are_the_nodes_visited_and_visible_last_frame(city_rende
     assert stale > 0  # visible nodes not visited last frame occurred, and were left out
 
 
+def test_dn_excess_classifies_each_extra_node_once():
+    """benchmarks.dn_excess puts each node Coh draws and SW does not in one class: finer (SW drew an
+    ancestor), hidden (SW found it hidden), under hidden (SW found an ancestor hidden), coarser
+    (SW refined it), other; and counts what SW drew that Coh did not."""
+    from benchmarks import dn_excess
+
+    #        0
+    #   1         2        8
+    # 3   4     5   6
+    #                 7
+    parent = np.array([-1, 0, 0, 1, 1, 2, 2, 6, 0])
+    visited = np.zeros(9, bool)
+    visited[[0, 1, 2, 5, 6]] = True
+    visible = visited.copy()
+    visible[6] = False
+    got = dn_excess.classify(parent, coh_drawn=[3, 6, 2, 7, 8], sw_drawn=[1, 5], sw_visited=visited, sw_visible=visible)
+    assert got == {"finer": 1, "hidden": 1, "coarser": 1, "under hidden": 1, "other": 1, "missing": 2}
+
+
 def test_orthographic_path(city_renderer):
     eye = np.array([70.0, -120.0, 90.0])
     path = CameraPath(frames=np.array([[eye, [70.0, 70.0, 0.0], [0, 0, 1]]] * 4), near=1.0, far=600.0,
@@ -646,6 +665,22 @@ def test_traversal_cpu_null_renderer_leaves_the_python_alone():
         assert first["visited"] == second["visited"] > 10
         frame_python_ms = first["python_us_per_node"] * first["visited"] / 1e3
         assert 0 < first["renderer_ms"] < frame_python_ms, first
+
+def test_traversal_cpu_baseline_runs_another_version_side_by_side():
+    """benchmarks/traversal_cpu --baseline DIR imports DIR's hlod_core as a package of its own and
+    runs its traversal next to this one's on the same renderer: with this checkout as the
+    baseline, both rows visit the same nodes (null renderer: no timing in what is visited)."""
+    from pathlib import Path
+
+    from benchmarks import traversal_cpu
+    from hlod_core import traversal
+    module = traversal_cpu.baseline_traversal(str(Path(__file__).resolve().parents[1]))
+    assert module.__name__ == "hlod_core_baseline.traversal" and module is not traversal
+    table = traversal_cpu.run(baked_city(), street_path(6), SIZE, methods=["coh"], repeat=2, settings=RuntimeSettings(),
+                              null_renderer=True, baseline=module)
+    assert set(table) == {"coh", "coh (baseline)"}
+    assert table["coh"]["visited"] == table["coh (baseline)"]["visited"] > 10
+
 
 class _ReferenceTraversal:
     """The traversals of DESIGN §6 written plainly, as they were before issue 15's speed-up: per-node

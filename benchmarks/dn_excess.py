@@ -1,0 +1,128 @@
+"""Where Coh draws more nodes than SW (issue 15's DN targets): both traversals run on every frame of
+a path, one after the other on the same view and renderer, and each node Coh draws that SW does
+not is put in the first class that fits:
+
+    finer          SW drew one of its ancestors (Coh's front is deeper there);
+    hidden         SW queried the node this frame and found it hidden (Coh drew it on last
+                   frame's visibility: CHC's one frame of lag, longer for a skipped query);
+    under hidden   SW found one of its ancestors hidden (so never reached it);
+    coarser        SW refined the node (its front is deeper there);
+    other          none of these.
+
+`missing` counts the nodes SW draws and Coh does not. Coh's extra nodes also count as `skipped`
+(drawn without their query this frame) and `predicted` (newly visited, drawn before their query).
+
+    PYTHONPATH=. .venv/bin/python -m benchmarks.dn_excess FILE.hlod --path PATH.json [--size 640x480]
+        [--variants default skip_off predict_off both_off] [--out DIR]
+
+Prints one JSON line per variant and a Markdown table; --out writes dn_excess.json. SW's count is
+the one of the same pass (SW asks every query and waits for it, so its set does not depend on
+timing; Coh's does, through which results are back when it looks).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from hlod_core import fileformat
+from hlod_core.camera import load_path
+from hlod_core.renderer import Renderer
+from hlod_core.textures import load_images
+from hlod_core.traversal import RuntimeSettings, make
+
+#: Variants of Coh's settings by name (the rest are the defaults).
+VARIANTS = {"default": {}, "skip_off": {"skip_queries": "off"}, "predict_off": {"predict_new": "off"},
+            "both_off": {"skip_queries": "off", "predict_new": "off"}}
+CLASSES = ("finer", "hidden", "under hidden", "coarser", "other")
+
+
+def _ancestors(parent: np.ndarray, node: int) -> list[int]:
+    out, node = [], int(parent[node])
+    while node >= 0:
+        out.append(node)
+        node = int(parent[node])
+    return out
+
+
+def classify(parent: np.ndarray, coh_drawn, sw_drawn, sw_visited: np.ndarray, sw_visible: np.ndarray) -> Counter:
+    """The classes (module docstring) of the nodes in coh_drawn but not sw_drawn; `missing` too.
+    sw_visited, sw_visible: (n,) bool, SW's visits this frame and their visibility."""
+    sw_set, coh_set = set(sw_drawn), set(coh_drawn)
+    refined_by_sw = {int(parent[node]) for node in sw_set if parent[node] >= 0}
+    out = Counter()
+    for node in coh_set - sw_set:
+        ancestors = _ancestors(parent, node)
+        if any(a in sw_set for a in ancestors):
+            out["finer"] += 1
+        elif sw_visited[node] and not sw_visible[node]:
+            out["hidden"] += 1
+        elif any(sw_visited[a] and not sw_visible[a] for a in ancestors):
+            out["under hidden"] += 1
+        elif node in refined_by_sw or (sw_visited[node] and sw_visible[node]):
+            out["coarser"] += 1
+        else:
+            out["other"] += 1
+    out["missing"] = len(sw_set - coh_set)
+    return out
+
+
+def run(hlod, path, size, variant: dict) -> dict:
+    """One pass of SW and Coh (with `variant`'s settings) over `path`, frame by frame."""
+    renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod))
+    try:
+        sw = make("sw", hlod, renderer, RuntimeSettings())
+        coh = make("coh", hlod, renderer, RuntimeSettings(**variant))
+        classes, totals = Counter(), Counter()
+        for i in range(len(path)):
+            view = path.view(i, size)
+            s = sw.frame(view)
+            c = coh.frame(view)
+            visited = sw.last_visited == sw.frame_id
+            extra = set(c.drawn) - set(s.drawn)
+            classes += classify(hlod.parent, c.drawn, s.drawn, visited, sw.visible)
+            totals["sw"] += s.dn
+            totals["coh"] += c.dn
+            totals["skipped"] += len(extra & set(c.skipped))
+            totals["predicted"] += c.predicted  # all predicted nodes (not only the extra ones)
+            totals["frames_above_sw"] += c.dn > s.dn
+    finally:
+        renderer.release()
+    return {"dn_sw": totals["sw"], "dn_coh": totals["coh"], "ratio": totals["coh"] / max(totals["sw"], 1),
+            "extra": {k: classes[k] for k in CLASSES}, "missing": classes["missing"],
+            "extra_skipped": totals["skipped"], "predicted": totals["predicted"],
+            "frames_above_sw": totals["frames_above_sw"], "frames": len(path)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("file")
+    parser.add_argument("--path", required=True)
+    parser.add_argument("--size", default="640x480")
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument("--out")
+    args = parser.parse_args()
+    size = tuple(int(x) for x in args.size.split("x"))
+    hlod, path = fileformat.load(args.file), load_path(args.path)
+    table = {}
+    for name in args.variants:
+        table[name] = run(hlod, path, size, VARIANTS[name])
+        print(json.dumps({"variant": name, **table[name]}), flush=True)
+    print("| Coh variant | DN Coh / SW | " + " | ".join(f"extra: {c}" for c in CLASSES)
+          + " | missing | extra skipped |")
+    print("|---|---:|" + "---:|" * (len(CLASSES) + 2))
+    for name, row in table.items():
+        print(f"| {name} | {row['dn_coh']} / {row['dn_sw']} = {row['ratio']:.4f} | "
+              + " | ".join(str(row["extra"][c]) for c in CLASSES) + f" | {row['missing']} | {row['extra_skipped']} |")
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "dn_excess.json").write_text(json.dumps({"file": args.file, "path": args.path, "size": list(size),
+                                                         "variants": table}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
