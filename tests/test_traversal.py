@@ -131,12 +131,16 @@ def test_modulated_methods_draw_fewer_nodes_than_bool_on_the_street(city_rendere
     """(s, t) = (0.6, 0.2), a paper setting, every query asked (skip_queries off): SW's count, each
     node decided on its own fresh query, is the lower bound Coh's stays above. With the default
     `expected` skips Coh still draws fewer than Bool; it may draw fewer than SW, since a skipped
-    node keeps its ratio for up to 5 frames (measured: Bool 1097, SW 925, Coh 903)."""
+    node keeps its ratio for up to 5 frames (measured: Bool 1094, SW 925, Coh 935 with every query,
+    905 with the skips). Results come back 3 commands late (ScriptedAvailability): with llvmpipe's
+    own timing Coh's count depends on which results are back when it looks (1% above SW's here),
+    and the test failed once in a session's run."""
     path, settings = street_path(60), RuntimeSettings(s=0.6, t=0.2, skip_queries="off")
-    dn = {m: sum(s.dn for s, _ in _frames(city_renderer, m, path, settings)) for m in ("bool", "sw", "coh")}
+    late = ScriptedAvailability(city_renderer, 3)
+    dn = {m: sum(s.dn for s, _ in _frames(late, m, path, settings)) for m in ("bool", "sw", "coh")}
     assert dn["sw"] <= dn["coh"] < dn["bool"], dn
     skipping = RuntimeSettings(s=0.6, t=0.2, skip_queries="expected")
-    assert sum(s.dn for s, _ in _frames(city_renderer, "coh", path, skipping)) < dn["bool"]
+    assert sum(s.dn for s, _ in _frames(late, "coh", path, skipping)) < dn["bool"]
 
 
 def test_alpha_estimators_against_the_query_on_boxes_fully_on_screen(city_renderer):
