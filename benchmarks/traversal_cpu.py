@@ -142,6 +142,8 @@ def baseline_traversal(folder: str):
     package = Path(folder) / "hlod_core"
     if not (package / "traversal.py").is_file():
         raise SystemExit(f"--baseline {folder}: no hlod_core/traversal.py there")
+    for name in [name for name in sys.modules if name.split(".")[0] == "hlod_core_baseline"]:
+        del sys.modules[name]  # a baseline imported before, maybe from another folder
     spec = importlib.util.spec_from_file_location("hlod_core_baseline", package / "__init__.py",
                                                   submodule_search_locations=[str(package)])
     module = importlib.util.module_from_spec(spec)

@@ -63,14 +63,14 @@ NEAR = 4
 
 def boxes_in_frustum(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
     """(n,) bool: the box is not entirely outside any frustum plane (conservative)."""
-    return view_tests(view, BoxRows.of(box_min, box_max, 0.0)).in_frustum
+    return view_tests(view, BoxRows.of(box_min, box_max, 0.0, centre=box_min)).in_frustum  # centres unused
 
 
 def boxes_cross_near_plane(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
     """(n,) bool: part of the box lies on the eye's side of the near plane. The near plane clips
     such a box's front faces, so its occlusion query could see only (culled) back faces and read
     0 while the geometry inside is visible: these boxes must not be queried."""
-    return view_tests(view, BoxRows.of(box_min, box_max, 0.0)).behind_near
+    return view_tests(view, BoxRows.of(box_min, box_max, 0.0, centre=box_min)).behind_near  # centres unused
 
 
 def box_distance(eye: np.ndarray, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
@@ -151,8 +151,8 @@ def view_tests(view: View, rows: BoxRows) -> ViewTests:
       same problem: the near plane clips the box's front faces).
 
     The query-box tests compare with the pad moved to the other side (box_min - e <= pad, not
-    box_min - pad <= e), which can round differently only for a corner within an ulp of the plane
-    or the eye."""
+    box_min - pad <= e), which can round differently only where a corner lies within a few ulps of
+    the coordinates' magnitude from the plane or the eye."""
     planes = _frustum_plane_rows(view)
     pad = rows.query_pad
     product = [[min(a, 0.0), min(b, 0.0), min(c, 0.0), max(a, 0.0), max(b, 0.0), max(c, 0.0)] for a, b, c, _ in planes]

@@ -365,12 +365,6 @@ class Traversal(abc.ABC):
             if in_frustum[node]:
                 heapq.heappush(heap, (key[node], node))
 
-    def _pull_up(self, node: int) -> None:
-        visible, parent = self._visible, self._parent
-        while node >= 0 and not visible[node]:
-            visible[node] = True
-            node = parent[node]
-
 
 class Full(Traversal):
     """Every leaf in the frustum, front to back: the ground-truth image."""
@@ -637,8 +631,8 @@ class CoherentLoop(Traversal):
         """Stop refinement at a node whose query came back visible with visibility mu?"""
 
     def _traverse(self, stats):
-        """Algorithm 2's loop. The per-node helpers (`_issue`, `_mu`, `_render`, `_pull_up`, the skip
-        test and `_queried`) are written out here, with the state bound to locals: this loop is the traversal's Python cost
+        """Algorithm 2's loop. The per-node helpers (`_issue`, `_mu`, `_render`, the pull-up of
+        visibility, the skip test and `_queried`) are written out here, with the state bound to locals: this loop is the traversal's Python cost
         per node (issue 15). With multiquery or batch_queries on, queries may wait in the i-queue or
         the batch before they are issued (class docstring)."""
         heap: list = []
@@ -664,7 +658,8 @@ class CoherentLoop(Traversal):
         multiquery_batch, query_batch = self.multiquery_batch, self.query_batch
         eager_groups = self._eager_groups
         predicting_new, candidate_in = self._predicting_new, self._candidate_in
-        # the skip test and the re-check bookkeeping (`_queried`) written out
+        # the skip test and the re-check bookkeeping (`_queried`) written out; the change rate is
+        # stored at the end of the walk (a frame that raises loses its updates, not its re-checks)
         skippable, recheck_due, recheck_phase = self.skippable, self._recheck_due, self._recheck_phase
         recheck_frames, change_rate, change_weight = self.recheck_frames, self.change_rate, self.change_rate_weight
         next_recheck = frame_id + 1

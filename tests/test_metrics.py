@@ -168,14 +168,18 @@ def test_box_distance_is_zero_inside_and_on_faces():
     assert boxes.box_distance(np.array([4.0, 5.0, 0.5]), lo, hi)[0] == pytest.approx(5.0)
 
 
-def test_view_tests_equal_the_textbook_box_tests():
+@pytest.mark.parametrize("product_boxes", [None, 64])
+def test_view_tests_equal_the_textbook_box_tests(product_boxes, monkeypatch):
     """The traversal's one pass over the node table (boxes.view_tests on BoxRows) gives what the
     textbook tests give box by box: in the frustum unless all 8 corners lie outside one plane
     (exact for these boxes: none is near a plane's edge), the distance from the eye to the box's
     nearest point, and unqueryable where the padded box holds the eye or a corner lies behind the
     near plane; and the distance from the eye to each given centre (the SSE's spheres). Random
     boxes around and across the eye, perspective (three near planes) and orthographic views; the
-    distances bit for bit (same operations), the booleans exactly."""
+    distances bit for bit (same operations), the booleans exactly. product_boxes 64: the frustum
+    test's matrix product in chunks of 64 boxes (as above 4,096 boxes)."""
+    if product_boxes is not None:
+        monkeypatch.setattr(boxes, "_PRODUCT_BOXES", product_boxes)
     rng = np.random.default_rng(7)
     checked = {"in": 0, "out": 0, "unqueryable": 0, "eye inside": 0}
     for trial in range(40):
