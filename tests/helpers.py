@@ -200,3 +200,11 @@ class ScriptedAvailability:
         out = self._renderer.result(query)
         self.calls.append(("result", query.node, out[0], out[1]))
         return out
+
+
+def numeric_library_env() -> dict[str, str]:
+    """The variables that choose the BLAS and OpenMP kernels (OPENBLAS_CORETYPE and the like): the
+    old bake in its own process must compute with the kernels this process uses, or the floats
+    differ by the kernel, not by the code (a machine that sets OPENBLAS_CORETYPE=Haswell on an AMD
+    EPYC gave a different cow without it)."""
+    return {k: v for k, v in os.environ.items() if k.startswith(("OPENBLAS_", "OMP_", "MKL_", "GOTO", "BLIS_"))}

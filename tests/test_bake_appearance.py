@@ -28,6 +28,8 @@ from hlod_core.bake import BakeSettings, bake
 from hlod_core.errors import InputError
 from hlod_core.hierarchy import node_geometry
 
+from helpers import numeric_library_env
+
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The commit before the bake carried appearance (the contract and requirements on top of the
@@ -333,7 +335,7 @@ def test_mesh_without_appearance_bakes_the_file_it_baked_before(tmp_path):
             "h = h.replace(meta={**h.meta, 'bake_seconds': 0.0, 'phase_seconds': zero})\n"
             "fileformat.save(h, sys.argv[2])\n")
         subprocess.run([sys.executable, "-c", script, str(tmp_path / "mesh.npz"), str(tmp_path / "old.hlod")],
-                       cwd=old, env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(old)}, check=True)
+                       cwd=old, env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(old), **numeric_library_env()}, check=True)
         resaved = fileformat.save(fileformat.load(tmp_path / "old.hlod"), tmp_path / "old-resaved.hlod")
 
 
