@@ -2,7 +2,7 @@
 a re-bake after changing nothing, in one run.
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.rebake [--spec tests/scenes/crowd_1m.json]
-        [--move 77] [--by 1.5 0 0] [--jobs 2] [--error exact|bound] [--verify] [--out DIR]
+        [--move 77] [--by 1.5 0 0] [--jobs 2] [--error exact|bound] [--verify] [--work] [--out DIR]
 
 The spec's instances are numbered in file order (models, then transforms); --move picks one and
 --by translates it (model units), written as a modified spec in a temporary folder (model paths
@@ -15,6 +15,13 @@ node against its children's LODs, not every original below it); the figures go t
 (exact) or rebake-bound.json.
 --verify also bakes the modified spec from scratch (no cache) and checks that the re-bake gave the
 same arrays and the same meta but bake.VOLATILE_META (the issue's byte-identity).
+--work also measures what the moved re-bake cannot do without (`rebuilt_work`): the cache is put
+back to the spec's state (a bake of the spec), then the moved spec is re-baked with jobs 1, where
+every task runs in this process, each decimation and measurement timed: their CPU seconds, and the
+phases before the first task (prepare, octree, leaves, cache keys and loads: the bake cannot know
+what changed before them). A lower bound of the moved re-bake at --jobs N is those phases plus the
+tasks' seconds / N (perfect packing, no assemble, no cache write, no wait on the decimation chain);
+full / bound is the most the moved re-bake could gain over the full bake with this work.
 The machine's load average is recorded before and after: other processes on a 2-core VM slow the
 full bake (many seconds of decimation) and the re-bakes alike, but not in the same proportion.
 """
@@ -25,6 +32,7 @@ import json
 import os
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -60,6 +68,37 @@ def identical(a, b) -> bool:
     return arrays and geometry and stable_meta(a.meta) == stable_meta(b.meta)
 
 
+def rebuilt_work(mesh, settings: BakeSettings, cache_dir) -> dict:
+    """The re-bake of `mesh` with `cache_dir` at jobs 1, its decimations and measurements timed
+    (module docstring, --work): {"seconds", "rebuilt_nodes", "decimations", "decimate_s",
+    "measurements", "measure_s", "before_tasks_s"}. The bake's own functions are wrapped in
+    place for the call (jobs 1 runs every task in this process) and restored after."""
+    from hlod_core import bake as bake_module, simplify
+
+    spent = {"decimate": [], "measure": []}
+    decimate, measure = simplify.decimate_node, bake_module._measure_task
+
+    def timed(kind, fn):
+        def run(*args):
+            started = time.perf_counter()
+            try:
+                return fn(*args)
+            finally:
+                spent[kind].append(time.perf_counter() - started)
+        return run
+
+    simplify.decimate_node, bake_module._measure_task = timed("decimate", decimate), timed("measure", measure)
+    try:
+        seconds, hlod = timed_bake(mesh, replace(settings, jobs=1), cache_dir)
+    finally:
+        simplify.decimate_node, bake_module._measure_task = decimate, measure
+    phases = hlod.meta["phase_seconds"]
+    return {"seconds": seconds, "rebuilt_nodes": hlod.meta["cache"]["rebuilt_nodes"],
+            "decimations": len(spent["decimate"]), "decimate_s": sum(spent["decimate"]),
+            "measurements": len(spent["measure"]), "measure_s": sum(spent["measure"]),
+            "before_tasks_s": sum(phases.get(name, 0.0) for name in ("prepare", "octree", "leaves", "cache"))}
+
+
 def timed_bake(mesh, settings, cache_dir) -> tuple[float, object]:
     started = time.perf_counter()
     hlod = bake(mesh, settings, cache_dir=cache_dir)
@@ -74,6 +113,8 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--error", choices=["exact", "bound"], default="exact", help="error measure (BakeSettings.error)")
     parser.add_argument("--verify", action="store_true", help="also bake the moved spec from scratch and compare")
+    parser.add_argument("--work", action="store_true",
+                        help="also time the moved re-bake's decimations and measurements (jobs 1) and its lower bound")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -100,6 +141,12 @@ def main() -> None:
             seconds, scratch_hlod = timed_bake(moved_mesh, settings, None)
             result["moved_from_scratch_seconds"] = seconds
             result["moved_rebake_identical_to_scratch"] = identical(moved_hlod, scratch_hlod)
+        if args.work:
+            timed_bake(mesh, settings, cache)  # the cache back to the spec's state
+            work = rebuilt_work(moved_mesh, settings, cache)
+            bound = work["before_tasks_s"] + (work["decimate_s"] + work["measure_s"]) / args.jobs
+            result["moved_work"] = {**work, "lower_bound_s": bound,
+                                    "max_speedup_moved": runs["full"]["seconds"] / bound}
     result["load_after"] = os.getloadavg()
     (args.out / ("rebake.json" if args.error == "exact" else f"rebake-{args.error}.json")).write_text(json.dumps(result, indent=2))
     print(json.dumps({k: v for k, v in result.items() if k != "runs"}))

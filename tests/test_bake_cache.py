@@ -420,3 +420,25 @@ def test_every_module_that_computes_lods_or_errors_keys_the_cache():
                     assert module in bake_cache.RESULT_MODULES or module in _NOT_RESULT_MODULES, (name, module)
                     todo.extend([module] if module in bake_cache.RESULT_MODULES else [])
     assert "hausdorff" in seen
+
+
+def test_rebake_benchmark_times_every_rebuilt_task_and_restores_the_bake(tmp_path):
+    """benchmarks.rebake --work (the moved re-bake's lower bound): on the herd with a moved cow,
+    every rebuilt node is decimated and measured once and timed, the phases before the tasks are
+    counted, the result is still the scratch bake's file, and the bake's functions are restored."""
+    from benchmarks import rebake
+
+    herd, _ = _herd()
+    moved, _ = _herd(moved_by=(1.5, 0.0, 0.0))
+    folder = tmp_path / "cache"
+    bake(herd, HERD, cache_dir=folder)
+    decimate, measure = simplify.decimate_node, bake_module._measure_task
+    work = rebake.rebuilt_work(moved, BakeSettings(**{**HERD.__dict__, "jobs": 2}), folder)
+    assert simplify.decimate_node is decimate and bake_module._measure_task is measure
+    assert 0 < work["rebuilt_nodes"] == work["decimations"] == work["measurements"]
+    assert work["decimate_s"] > 0 and work["measure_s"] > 0
+    assert 0 < work["before_tasks_s"] < work["seconds"]
+    assert work["decimate_s"] + work["measure_s"] + work["before_tasks_s"] <= work["seconds"]
+    again = bake(moved, HERD, cache_dir=folder)  # the whole result, as the timed re-bake left it
+    assert again.meta["cache"]["reused_result"]
+    _assert_same_file(bake(moved, HERD), again, tmp_path)
