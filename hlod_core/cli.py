@@ -225,6 +225,9 @@ def _runtime_options(p: argparse.ArgumentParser) -> None:
                    help="Coh: on draws a node not visited last frame at once, assumed visible and verified by its "
                         "query, where it would stop even fully visible and most such nodes turned out visible; off "
                         f"waits for its query. Default {RuntimeSettings.predict_new}")
+    p.add_argument("--measure-every", type=_whole_number(1), default=RuntimeSettings.measure_every,
+                   help="Coh's measured shift-up: query each refined node every N frames (staggered); 1 keeps the "
+                        f"ratios fresh at the cost of more box queries. Default {RuntimeSettings.measure_every}")
 
 
 def _bake_options(p: argparse.ArgumentParser) -> None:
@@ -495,7 +498,8 @@ def _runtime_setup(args, bias: str = "P"):
     size = _parse_size(args.size)
     settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha,
                                shift_up=args.shift_up, skip_queries=args.skip_queries, multiquery=args.multiquery,
-                               batch_queries=args.batch_queries, predict_new=args.predict_new)  # raises InputError
+                               batch_queries=args.batch_queries, predict_new=args.predict_new,
+                               measure_every=args.measure_every)  # raises InputError
     hlod = fileformat.load(args.file)
     path = load_path(args.path) if args.path else inspection_path(hlod, seed=args.seed, frames=args.frames)
     return hlod, settings, path, size

@@ -71,7 +71,7 @@ PREDICTED = "predicted"
 #: those that would stop even fully visible at once while most such nodes turn out visible.
 PREDICT_NEW_MODES = ("off", "on")
 #: Frame id of "never": far enough below frame 1 that no "visited last frame" and no "measured
-#: within Coh.measure_every_frames" test holds for it.
+#: within Coh.measure_every_frames" (RuntimeSettings.measure_every) test holds for it.
 NEVER_FRAME = -10
 MS_PER_S = 1e3
 
@@ -85,7 +85,8 @@ class RuntimeSettings:
     skip_queries (Bool, Coh): one of SKIP_QUERY_MODES (CoherentLoop);
     multiquery (Bool, Simp, Coh): one of MULTIQUERY_MODES, batch_queries: one of BATCH_QUERY_MODES,
     CHC++'s multiqueries and query batching (CoherentLoop);
-    predict_new (Coh): one of PREDICT_NEW_MODES (CoherentLoop)."""
+    predict_new (Coh): one of PREDICT_NEW_MODES (CoherentLoop);
+    measure_every (Coh, shift_up "measured"): frames between two queries of a refined node."""
 
     tau: float = 1.0
     s: float = 0.9
@@ -98,6 +99,7 @@ class RuntimeSettings:
     multiquery: str = "on"  # on and batch_queries on: measured faster on every scene (README, CHC++)
     batch_queries: str = "on"
     predict_new: str = "on"  # measured faster or equal on every scene, node counts within 0.5% (README)
+    measure_every: int = 4  # Coh's measured shift-up: each refined node queried every this many frames
 
     def __post_init__(self):
         if not self.tau > 0:
@@ -116,6 +118,8 @@ class RuntimeSettings:
             raise InputError(f"batch_queries must be one of {BATCH_QUERY_MODES}, got {self.batch_queries!r}")
         if self.predict_new not in PREDICT_NEW_MODES:
             raise InputError(f"predict_new must be one of {PREDICT_NEW_MODES}, got {self.predict_new!r}")
+        if isinstance(self.measure_every, bool) or not isinstance(self.measure_every, int) or self.measure_every < 1:
+            raise InputError(f"measure_every must be a whole number of frames >= 1, got {self.measure_every!r}")
         try:
             metrics.bias(0.5, self.s, self.t, self.k)  # validates s, t, k (the messages are metrics')
         except ValueError as exc:
@@ -890,15 +894,13 @@ class Coh(CoherentLoop):
     t (P ~ 1), so the children keep refining where stop-and-wait, which queries the node itself,
     stops, and the front stays too deep for as long as the view lasts. So refined nodes in the
     frustum are queried too, without waiting (MEASURE_RATIO: the result only stores the node's
-    ratio), each every `measure_every_frames`-th frame, staggered by node index; a refined node with
+    ratio), each every `measure_every`-th frame (RuntimeSettings), staggered by node index; a refined node with
     a ratio measured that recently predicts Delay (verified by its own query, as Algorithm 4's
     shift-up is) when the ratio stops it, Refine otherwise; without one, Algorithm 4 decides as
     published. Refined nodes are the large boxes, which a CPU rasteriser pays for by area, so they
     are measured every few frames rather than every frame (the README gives the measured trade-off).
     "children" is Algorithm 4 alone (the report's Coh(P) Alg. 4 row).
     """
-
-    measure_every_frames = 4
 
     name = "coh"
     skips_queries = True
@@ -908,6 +910,7 @@ class Coh(CoherentLoop):
         super().__init__(hlod, renderer, settings, **kwargs)
         self._measured = [NEVER_FRAME] * hlod.node_count  # frame of the node's last query result
         self._measure = settings.shift_up == "measured"
+        self.measure_every_frames = settings.measure_every
 
     measured = property(lambda self: _array(self._measured, np.int64), doc="(n,) int64 frame id")
 

@@ -481,12 +481,39 @@ def test_measured_shift_up_reaches_the_sw_front_where_algorithm_4_stays_deep(gl_
         renderer.release()
 
 
+def test_measure_every_queries_each_refined_node_that_often(gl_ctx, sphere_row):
+    """RuntimeSettings.measure_every: with 1 every refined node in the frustum that can be queried
+    (and whose SSE is finite: one the eye is inside refines whatever its ratio) is queried every
+    frame (its ratio measured that frame); with 4, on one frame in four, staggered by node index,
+    so about a quarter of them a frame."""
+    renderer = Renderer(gl_ctx, sphere_row, size=SIZE)
+    try:
+        side = ([24.0, -30.0, 3.0], [24.0, 0.0, 0.0], [0.0, 0.0, 1.0])
+        path = CameraPath(frames=np.array([side] * 8, float), near=0.05, far=400.0)
+        for every in (1, 4):
+            coh = make("coh", sphere_row, renderer, RuntimeSettings(measure_every=every, skip_queries="off"))
+            measured_share = []
+            for i in range(len(path)):
+                coh.frame(path.view(i, SIZE))
+                refined = [n for n in coh._visited if not coh._stop_refinement[n] and coh.in_frustum[n]
+                           and not coh.unqueryable[n] and np.isfinite(coh.sse[n])]  # inf: refines whatever
+                assert refined, "the side view refines the row"
+                measured_share.append(np.mean([coh._measured[n] == coh.frame_id for n in refined]))
+            if every == 1:
+                assert all(share == 1.0 for share in measured_share[1:]), measured_share
+            else:
+                assert 0.1 < np.mean(measured_share[1:]) < 0.45, measured_share
+    finally:
+        renderer.release()
+
+
 @pytest.mark.parametrize("field, value, message", [
     ("shift_up", "parents", "shift_up must be one of"), ("tau", 0.0, "tau must be > 0 pixels"),
     ("bias", "Q", "bias must be 'P' or 'mu'"), ("alpha", "exact", "alpha must be one of"),
     ("s", 1.5, "s and t must lie in"), ("t", -0.1, "s and t must lie in"), ("k", 0.0, "steepness k must be > 0"),
     ("multiquery", "yes", "multiquery must be one of"), ("batch_queries", "True", "batch_queries must be one of"),
-    ("predict_new", "auto", "predict_new must be one of")])
+    ("predict_new", "auto", "predict_new must be one of"), ("measure_every", 0, "measure_every must be a whole"),
+    ("measure_every", 2.0, "measure_every must be a whole"), ("measure_every", True, "measure_every must be a whole")])
 def test_bad_runtime_settings_raise_input_error(field, value, message):
     """The core's typed error, as BakeSettings raises (the CLI and the add-on turn it into one line)."""
     with pytest.raises(InputError, match=message):
