@@ -17,11 +17,13 @@ node against its children's LODs, not every original below it); the figures go t
 same arrays and the same meta but bake.VOLATILE_META (the issue's byte-identity).
 --work also measures what the moved re-bake cannot do without (`rebuilt_work`): the cache is put
 back to the spec's state (a bake of the spec), then the moved spec is re-baked with jobs 1, where
-every task runs in this process, each decimation and measurement timed: their CPU seconds, and the
-phases before the first task (prepare, octree, leaves, cache keys and loads: the bake cannot know
-what changed before them). A lower bound of the moved re-bake at --jobs N is those phases plus the
-tasks' seconds / N (perfect packing, no assemble, no cache write, no wait on the decimation chain);
-full / bound is the most the moved re-bake could gain over the full bake with this work.
+every task runs in this process, each decimation and measurement timed (wall seconds of each call,
+perf_counter, on an otherwise idle process: what the task costs a worker), and the phases before
+the first task (prepare, octree, leaves, cache keys and loads: the bake cannot know what changed
+before them). A lower bound of the moved re-bake at --jobs N is those phases plus the tasks'
+seconds / N (perfect packing, no assemble, no cache write, no wait on the decimation chain, and
+the exact measure's leaf arrays left out too: at jobs 1 they are made inline, about 0.5 s on the
+crowd); full / bound is the most the moved re-bake could gain over the full bake with this work.
 The machine's load average is recorded before and after: other processes on a 2-core VM slow the
 full bake (many seconds of decimation) and the re-bakes alike, but not in the same proportion.
 """
@@ -73,10 +75,11 @@ def rebuilt_work(mesh, settings: BakeSettings, cache_dir) -> dict:
     (module docstring, --work): {"seconds", "rebuilt_nodes", "decimations", "decimate_s",
     "measurements", "measure_s", "before_tasks_s"}. The bake's own functions are wrapped in
     place for the call (jobs 1 runs every task in this process) and restored after."""
-    from hlod_core import bake as bake_module, simplify
+    from hlod_core import bake as bake_module, hausdorff, simplify
 
     spent = {"decimate": [], "measure": []}
     decimate, measure = simplify.decimate_node, bake_module._measure_task
+    to_children = hausdorff.measure_to_children  # the measure's task with --error bound
 
     def timed(kind, fn):
         def run(*args):
@@ -88,10 +91,12 @@ def rebuilt_work(mesh, settings: BakeSettings, cache_dir) -> dict:
         return run
 
     simplify.decimate_node, bake_module._measure_task = timed("decimate", decimate), timed("measure", measure)
+    hausdorff.measure_to_children = timed("measure", to_children)
     try:
         seconds, hlod = timed_bake(mesh, replace(settings, jobs=1), cache_dir)
     finally:
         simplify.decimate_node, bake_module._measure_task = decimate, measure
+        hausdorff.measure_to_children = to_children
     phases = hlod.meta["phase_seconds"]
     return {"seconds": seconds, "rebuilt_nodes": hlod.meta["cache"]["rebuilt_nodes"],
             "decimations": len(spent["decimate"]), "decimate_s": sum(spent["decimate"]),

@@ -71,8 +71,9 @@ PREDICTED = "predicted"
 #: those that would stop even fully visible at once while most such nodes turn out visible.
 PREDICT_NEW_MODES = ("off", "on")
 #: Frame id of "never": far enough below frame 1 that no "visited last frame" and no "measured
-#: within Coh.measure_every_frames" (RuntimeSettings.measure_every) test holds for it.
-NEVER_FRAME = -10
+#: within Coh.measure_every_frames" (RuntimeSettings.measure_every, any int64-sized period) test
+#: holds for it.
+NEVER_FRAME = -(1 << 40)
 MS_PER_S = 1e3
 
 

@@ -21,7 +21,7 @@ from hlod_core.gl_state import GLState
 from hlod_core.overlay import OVERLAY_RAMP_STEPS, overlay_ramp
 from hlod_core.renderer import DEFAULT_COLOUR, Renderer
 from hlod_core.traversal import (COUNTERS, DELAY, MEASURE_RATIO, METHODS, MULTIQUERY, PREDICTED, QUERY_COUNTERS, REFINE, STOP,
-                                 FrameStats, RuntimeSettings, keep_hidden, make, multiquery_groups)
+                                 NEVER_FRAME, FrameStats, RuntimeSettings, keep_hidden, make, multiquery_groups)
 
 from helpers import ScriptedAvailability, baked_city, load_model, standalone_gl, street_path
 
@@ -730,15 +730,15 @@ class _ReferenceTraversal:
         self.gate = gate  # the share of candidates found visible from which they are predicted
         n = hlod.node_count
         self.visible = np.zeros(n, bool)
-        self.last_visited = np.full(n, -10, np.int64)
+        self.last_visited = np.full(n, NEVER_FRAME, np.int64)
         self.stop_refinement = np.zeros(n, bool)
         self.ratio = np.full(n, 1.0 if method == "bool" else 0.0)
-        self.rendered = np.full(n, -10, np.int64)
-        self.measured = np.full(n, -10, np.int64)
+        self.rendered = np.full(n, NEVER_FRAME, np.int64)
+        self.measured = np.full(n, NEVER_FRAME, np.int64)
         self.position, self.previous_position = np.zeros(n, np.int64), np.zeros(n, np.int64)
         self.scheduled = self.previous_scheduled = 0
         self.frame_id = 0
-        self.candidate_in = np.full(n, -10, np.int64)
+        self.candidate_in = np.full(n, NEVER_FRAME, np.int64)
         self.share = 1.0  # of candidates found visible, weight 1/32; predicted from 0.9
 
     def prepare(self, view):
