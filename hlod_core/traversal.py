@@ -546,7 +546,6 @@ class CoherentLoop(Traversal):
         self._tris = np.asarray(hlod.tri_count, np.float64)
         self._box_areas: query_cost.BoxAreas | None = None  # the query boxes' areas' fixed terms (skip test)
         self._box_areas_pad = None
-        self._draw_s, self._draw_s_model = None, None  # (n,) draw seconds of the cost model it was made for
         # a renderer without issue_multiquery / issue_queries (tests' wrappers, benchmarks' proxies)
         # gets each query on its own, as with the settings off
         self._grouping = settings.multiquery != "off" and hasattr(renderer, "issue_multiquery")
@@ -587,11 +586,8 @@ class CoherentLoop(Traversal):
         # draw seconds (times the change rate for "expected") < query seconds, the cost model's
         # linear costs written out with Python scalars (the same operations, fewer numpy calls)
         draw, query = model.draw, model.query
-        if self._draw_s_model is not model:  # each node's draw seconds, once per cost model
-            self._draw_s = self._tris * draw.per_unit_s
-            self._draw_s += draw.fixed_s
-            self._draw_s_model = model
-        draw_s = self._draw_s[candidates]
+        draw_s = self._tris[candidates] * draw.per_unit_s
+        draw_s += draw.fixed_s
         if self._skip_mode == "expected":
             draw_s *= self.change_rate
         query_s = pixels * query.per_unit_s
@@ -605,11 +601,11 @@ class CoherentLoop(Traversal):
         in the frustum and queryable. Only a node predicted STOP is ever skipped, and every class
         predicts STOP only for such a node (about the nodes drawn then: 85 of the crowd's 1,674
         queryable boxes in the frustum a frame), so the others' box areas are not computed, and
-        the node table is not read: the walk keeps the list of the nodes it visits (a hundred or
-        so, tested in Python through the frame's memoryviews: fewer calls than numpy's five)."""
-        visible, in_frustum, unqueryable = self._visible, self.in_frustum, self.unqueryable
-        return np.array([node for node in self._visited if visible[node] and in_frustum[node] and not unqueryable[node]],
-                        np.int64)
+        the node table is not read: the walk keeps the list of the nodes it visits."""
+        visible = self._visible
+        nodes = np.array([node for node in self._visited if visible[node]], np.int64)
+        tests = self._tests
+        return nodes[tests.in_frustum[nodes] & ~tests.unqueryable[nodes]]
 
     def _queried(self, node: int, mode: str, changed: bool) -> None:
         """Bookkeeping of a finished STOP / DELAY / PREDICTED query (the change rate counts STOP
