@@ -269,12 +269,20 @@ def _summarise(hlod: Hlod, *, frames: int, size: tuple[int, int], runs: list[Var
         else:
             sweeps[v.key] = row | {"value": v.sweep_value}
     report = {"methods": methods, "frames": frames, "size": list(size), "repeat": repeat,
-              "settings": {"tau": settings.tau, "s": settings.s, "t": settings.t,
-                           "k": None if np.isinf(settings.k) else settings.k, "alpha": settings.alpha},
+              "settings": settings_json(settings),
               "psnr_frames": picked, "sweep": {"name": sweep, "points": sweeps} if sweep else None,
               "scene": hlod.summary()}
     report["relative"] = relative_tables(methods)
     return report
+
+
+def settings_json(settings: RuntimeSettings) -> dict:
+    """report.json's "settings": every runtime setting of the run (k None for inf), so two reports
+    made with different query options tell themselves apart."""
+    return {"tau": settings.tau, "s": settings.s, "t": settings.t, "k": None if np.isinf(settings.k) else settings.k,
+            "alpha": settings.alpha, "shift_up": settings.shift_up, "skip_queries": settings.skip_queries,
+            "multiquery": settings.multiquery, "batch_queries": settings.batch_queries,
+            "predict_new": settings.predict_new, "measure_every": settings.measure_every}
 
 
 def variant_row(counters: np.ndarray, images: dict, key: str, picked: list[int]) -> dict:

@@ -32,6 +32,12 @@ def _f(x, digits=2) -> str:
     return "–" if x is None else f"{x:,.{digits}f}"
 
 
+def _query_options(st: dict) -> str:
+    """", skip_queries = ..., ..." of the query options a report records (older reports have none)."""
+    names = ("shift_up", "skip_queries", "multiquery", "batch_queries", "predict_new", "measure_every")
+    return "".join(f", {name} = {st[name]}" for name in names if name in st)
+
+
 def markdown(report: dict, *, labels: dict[str, str]) -> str:
     """report.md of a report (evaluate.evaluate's JSON); `labels`: report key -> method name shown."""
     m = report["methods"]
@@ -41,7 +47,7 @@ def markdown(report: dict, *, labels: dict[str, str]) -> str:
              "",
              f"Scene: {report['scene']['input_tris']:,} input triangles, {report['scene']['nodes']:,} nodes, "
              f"depth {report['scene']['depth']}. tau = {st['tau']:g} px, (s, t) = ({st['s']:g}, {st['t']:g}), "
-             f"k = {'inf' if st['k'] is None else st['k']}, alpha = {st['alpha']}. {report['repeat']} repeats, methods "
+             f"k = {'inf' if st['k'] is None else st['k']}, alpha = {st['alpha']}{_query_options(st)}. {report['repeat']} repeats, methods "
              f"interleaved frame by frame in a rotating order; per frame the median over repeats, then the mean over frames. Timings compare as "
              f"ratios within this run (on llvmpipe, absolute times are the CPU rasteriser's).",
              ""]

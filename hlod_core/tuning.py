@@ -248,8 +248,7 @@ def tune(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, target_db: floa
     chosen = replace(settings, s=found.chosen.s, t=found.chosen.t, bias="P")
     methods = {"bool": found.bool_rows[found.chosen.round], "coh_p": found.rows[found.chosen.key]}
     report = {"methods": methods, "frames": len(path), "size": list(size), "repeat": repeat,
-              "settings": {"tau": chosen.tau, "s": chosen.s, "t": chosen.t,
-                           "k": None if math.isinf(chosen.k) else chosen.k, "alpha": chosen.alpha},
+              "settings": evaluate.settings_json(chosen),
               "psnr_frames": picked, "sweep": None, "scene": hlod.summary(),
               "relative": evaluate.relative_tables(methods), "psnr_target": section(found),
               "parts": [{"name": name, "start": start} for name, start in path.parts],

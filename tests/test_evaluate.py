@@ -15,7 +15,7 @@ from hlod_core import evaluate, imagemetrics, scenes
 from hlod_core.camera import inspection_path
 from hlod_core.bake import BakeSettings, bake
 from hlod_core.errors import InputError
-from hlod_core.traversal import COUNTERS
+from hlod_core.traversal import COUNTERS, RuntimeSettings
 from hlod_core.view import look_at, perspective
 
 from helpers import ROOT
@@ -123,6 +123,12 @@ def test_evaluate_writes_the_report_and_its_last_line(short_run):
     assert set(line["sweep"]) == {"coh_p s,t=0.6,0.2", "coh_p s,t=0.7,0.15", "coh_p s,t=0.9,0.05"}
     report = json.loads((out_dir / "report.json").read_text())
     assert len(report["psnr_frames"]) == 5 and report["repeat"] == 2
+    # every runtime setting is recorded, so reports made with other query options tell themselves apart
+    defaults = RuntimeSettings()
+    assert report["settings"] == {"tau": 1.0, "s": 0.9, "t": 0.05, "k": None, "alpha": "query",
+                                  **{name: getattr(defaults, name) for name in ("shift_up", "skip_queries", "multiquery",
+                                                                               "batch_queries", "predict_new", "measure_every")}}
+    assert f"measure_every = {defaults.measure_every}" in (out_dir / "report.md").read_text()
     rel = report["relative"]["coh_p"]["bool"]
     assert rel["node_savings_pct"] == pytest.approx(100 * (1 - m["coh_p"]["dn"] / m["bool"]["dn"]))
     # the report holds measured figures; the targets are the benchmark script's
