@@ -39,7 +39,7 @@ import os
 import sys
 import time
 import zipfile
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -277,12 +277,12 @@ def _summarise(hlod: Hlod, *, frames: int, size: tuple[int, int], runs: list[Var
 
 
 def settings_json(settings: RuntimeSettings) -> dict:
-    """report.json's "settings": every runtime setting of the run (k None for inf), so two reports
-    made with different query options tell themselves apart."""
-    return {"tau": settings.tau, "s": settings.s, "t": settings.t, "k": None if np.isinf(settings.k) else settings.k,
-            "alpha": settings.alpha, "shift_up": settings.shift_up, "skip_queries": settings.skip_queries,
-            "multiquery": settings.multiquery, "batch_queries": settings.batch_queries,
-            "predict_new": settings.predict_new, "measure_every": settings.measure_every}
+    """report.json's "settings": every field of the run's RuntimeSettings but the bias (each method
+    has its own), k None for inf, so two reports made with different query options tell themselves
+    apart."""
+    out = {name: value for name, value in asdict(settings).items() if name != "bias"}
+    out["k"] = None if np.isinf(settings.k) else settings.k
+    return out
 
 
 def variant_row(counters: np.ndarray, images: dict, key: str, picked: list[int]) -> dict:

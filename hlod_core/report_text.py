@@ -33,9 +33,9 @@ def _f(x, digits=2) -> str:
 
 
 def _query_options(st: dict) -> str:
-    """", skip_queries = ..., ..." of the query options a report records (older reports have none)."""
-    names = ("shift_up", "skip_queries", "multiquery", "batch_queries", "predict_new", "measure_every")
-    return "".join(f", {name} = {st[name]}" for name in names if name in st)
+    """", shift_up = ..., ..." of the settings a report records beyond tau, s, t, k and alpha (the
+    query options; older reports have none)."""
+    return "".join(f", {name} = {value}" for name, value in st.items() if name not in ("tau", "s", "t", "k", "alpha"))
 
 
 def markdown(report: dict, *, labels: dict[str, str]) -> str:

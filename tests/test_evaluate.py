@@ -125,9 +125,10 @@ def test_evaluate_writes_the_report_and_its_last_line(short_run):
     assert len(report["psnr_frames"]) == 5 and report["repeat"] == 2
     # every runtime setting is recorded, so reports made with other query options tell themselves apart
     defaults = RuntimeSettings()
-    assert report["settings"] == {"tau": 1.0, "s": 0.9, "t": 0.05, "k": None, "alpha": "query",
-                                  **{name: getattr(defaults, name) for name in ("shift_up", "skip_queries", "multiquery",
-                                                                               "batch_queries", "predict_new", "measure_every")}}
+    assert report["settings"] == {"tau": 1.0, "s": 0.9, "t": 0.05, "k": None, "alpha": "query", "shift_up": "measured",
+                                  "skip_queries": defaults.skip_queries, "multiquery": defaults.multiquery,
+                                  "batch_queries": defaults.batch_queries, "predict_new": defaults.predict_new,
+                                  "measure_every": defaults.measure_every}
     assert f"measure_every = {defaults.measure_every}" in (out_dir / "report.md").read_text()
     rel = report["relative"]["coh_p"]["bool"]
     assert rel["node_savings_pct"] == pytest.approx(100 * (1 - m["coh_p"]["dn"] / m["bool"]["dn"]))
