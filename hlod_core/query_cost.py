@@ -9,11 +9,15 @@ fitted by least squares over the samples (`fit_linear`), one for queries (per qu
 pixel) and one for draws (per draw call, per triangle); `CostModel` holds both, with each fit's
 relative residual. `box_pixels` estimates the pixels a box covers on screen, vectorised over boxes
 (the projected areas of its three face directions); `BoxAreas` keeps its view-independent terms
-for a node table, so a frame computes only the rest, for the boxes it asks about.
+for a node table, so a frame computes only the rest, for the boxes it asks about;
+`draw_is_cheaper` is the same test for one node at a time in plain Python, for a frame that asks it
+of a few nodes only (a numpy call costs more than the arithmetic of a few dozen boxes).
 No GL here: the renderer times the samples (renderer.Renderer.cost_model).
 """
 from __future__ import annotations
 
+import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -136,3 +140,39 @@ class BoxAreas:
         with np.errstate(divide="ignore", invalid="ignore"):
             area = np.einsum("ij,ij->i", faces, np.abs(to_box)) / (d2 * np.sqrt(d2)) * unit_px
         return np.fmin(area, screen)  # inf and NaN (the eye at the centre) -> the viewport
+
+
+def draw_is_cheaper(view: View, model: CostModel, tri_count: Sequence[int], faces: Sequence | None = None,
+                    centres: Sequence | None = None, pixels: Sequence[float] | None = None) -> Callable[[int, float], bool]:
+    """cheaper(node, rate): is drawing the node's triangles, times `rate` (the traversal's change
+    rate, or 1), cheaper than rasterising its query box? The traversal's skip test for one node at a
+    time in plain Python: `BoxAreas.pixels_outside`'s terms (faces, centres: a node's (3,) face
+    areas and centre, BoxAreas.faces / centre as lists), or the box's pixels read from `pixels`
+    (a per-node estimate such as the projected alpha) where given; boxes known not to hold the eye."""
+    screen = float(view.width * view.height)
+    unit_px = view.pixels_per_unit_x * view.pixels_per_unit_y
+    draw_unit, draw_fixed = model.draw.per_unit_s, model.draw.fixed_s
+    query_unit, query_fixed = model.query.per_unit_s, model.query.fixed_s
+    if pixels is not None:
+        box_pixels = pixels.__getitem__
+    elif view.orthographic:
+        fx, fy, fz = (-view.view[2, :3]).tolist()
+
+        def box_pixels(node: int) -> float:
+            a, b, c = faces[node]
+            return min(abs(a * fx + b * fy + c * fz) * unit_px, screen)
+    else:
+        ex, ey, ez = view.eye.tolist()
+
+        def box_pixels(node: int) -> float:
+            a, b, c = faces[node]
+            x, y, z = centres[node]
+            dx, dy, dz = x - ex, y - ey, z - ez
+            d2 = dx * dx + dy * dy + dz * dz
+            if not d2 > 0:  # the eye at the centre: numpy's inf or NaN, clipped to the viewport
+                return screen
+            return min((a * abs(dx) + b * abs(dy) + c * abs(dz)) / (d2 * math.sqrt(d2)) * unit_px, screen)
+
+    def cheaper(node: int, rate: float) -> bool:
+        return (tri_count[node] * draw_unit + draw_fixed) * rate < box_pixels(node) * query_unit + query_fixed
+    return cheaper

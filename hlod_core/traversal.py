@@ -534,6 +534,9 @@ class CoherentLoop(Traversal):
     multiquery_batch = 50
     #: Queries gating nothing that wait in the batch, at most (batch_queries).
     query_batch = 50
+    #: Skip-test candidates up to which `_prepare` tests them in Python, node by node (above, with
+    #: numpy): the crossover measured on this project's scenes (README "The skip test in Python").
+    python_skip_test_nodes = 64
 
     def __init__(self, hlod, renderer, settings=RuntimeSettings(), *, recheck_seed: int = 0):
         super().__init__(hlod, renderer, settings)
@@ -542,10 +545,11 @@ class CoherentLoop(Traversal):
         rng = np.random.default_rng(recheck_seed)
         self._recheck_phase = rng.integers(0, self.recheck_frames, hlod.node_count).tolist()
         self.change_rate = 1.0  # nothing measured yet: every query may change something
-        self.skippable: memoryview | None = None  # (n,) bool, per frame
+        self.skippable: memoryview | None = None  # (n,) bool or 0/1 bytes, per frame
         self._tris = np.asarray(hlod.tri_count, np.float64)
         self._box_areas: query_cost.BoxAreas | None = None  # the query boxes' areas' fixed terms (skip test)
         self._box_areas_pad = None
+        self._box_lists: tuple[list, list] | None = None  # _box_areas' faces and centres as lists
         # a renderer without issue_multiquery / issue_queries (tests' wrappers, benchmarks' proxies)
         # gets each query on its own, as with the settings off
         self._grouping = settings.multiquery != "off" and hasattr(renderer, "issue_multiquery")
@@ -576,36 +580,46 @@ class CoherentLoop(Traversal):
             return
         h, pad = self.hlod, self.renderer.query_box_pad
         candidates = self._skip_candidates()
-        if self.settings.alpha == "projected":
-            pixels = self.alpha_estimate[candidates]
+        rate = self.change_rate if self._skip_mode == "expected" else 1.0
+        projected = self.alpha_estimate if self.settings.alpha == "projected" else None
+        if projected is None and (self._box_areas is None or self._box_areas_pad != pad):
+            self._box_areas = query_cost.BoxAreas.of(np.asarray(h.box_min) - pad, np.asarray(h.box_max) + pad)
+            self._box_areas_pad = pad
+            self._box_lists = (self._box_areas.faces.tolist(), self._box_areas.centre.tolist())
+        if len(candidates) <= self.python_skip_test_nodes:  # in Python, node by node
+            faces, centres = self._box_lists if projected is None else (None, None)
+            cheaper = query_cost.draw_is_cheaper(view, model, self._tri_count, faces, centres, projected)
+            skippable = bytearray(h.node_count)
+            for node in candidates:
+                if cheaper(node, rate):
+                    skippable[node] = 1
+            self.skippable = memoryview(skippable)
+            return
+        candidates = np.array(candidates, np.int64)
+        if projected is not None:
+            pixels = projected[candidates]
         else:
-            if self._box_areas is None or self._box_areas_pad != pad:
-                self._box_areas = query_cost.BoxAreas.of(np.asarray(h.box_min) - pad, np.asarray(h.box_max) + pad)
-                self._box_areas_pad = pad
             pixels = self._box_areas.pixels_outside(view, candidates)  # candidates' boxes do not hold the eye
         # draw seconds (times the change rate for "expected") < query seconds, the cost model's
         # linear costs written out with Python scalars (the same operations, fewer numpy calls)
         draw, query = model.draw, model.query
         draw_s = self._tris[candidates] * draw.per_unit_s
         draw_s += draw.fixed_s
-        if self._skip_mode == "expected":
-            draw_s *= self.change_rate
+        draw_s *= rate
         query_s = pixels * query.per_unit_s
         query_s += query.fixed_s
         skippable = np.zeros(h.node_count, bool)
         skippable[candidates] = draw_s < query_s
         self.skippable = memoryview(skippable)
 
-    def _skip_candidates(self) -> np.ndarray:
+    def _skip_candidates(self) -> list[int]:
         """The nodes `_prepare` tests for skipping: visited in the last frame and visible at its end,
         in the frustum and queryable. Only a node predicted STOP is ever skipped, and every class
         predicts STOP only for such a node (about the nodes drawn then: 85 of the crowd's 1,674
         queryable boxes in the frustum a frame), so the others' box areas are not computed, and
         the node table is not read: the walk keeps the list of the nodes it visits."""
-        visible = self._visible
-        nodes = np.array([node for node in self._visited if visible[node]], np.int64)
-        tests = self._tests
-        return nodes[tests.in_frustum[nodes] & ~tests.unqueryable[nodes]]
+        visible, in_frustum, unqueryable = self._visible, self.in_frustum, self.unqueryable
+        return [node for node in self._visited if visible[node] and in_frustum[node] and not unqueryable[node]]
 
     def _queried(self, node: int, mode: str, changed: bool) -> None:
         """Bookkeeping of a finished STOP / DELAY / PREDICTED query (the change rate counts STOP

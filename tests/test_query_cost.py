@@ -14,7 +14,7 @@ from hlod_core.gl_functions import GL
 from hlod_core.query_cost import CostModel, LinearCost, fit_linear
 from hlod_core.renderer import DEFAULT_COLOUR, Renderer
 from hlod_core.traversal import Coh, RuntimeSettings, make
-from hlod_core.view import View, look_at, perspective
+from hlod_core.view import View, look_at, orthographic, perspective
 
 from helpers import ScriptedAvailability, baked_city, standalone_gl, street_path
 
@@ -260,6 +260,56 @@ def test_skipping_tests_only_the_nodes_visible_last_frame_and_changes_nothing(ci
     skipped = sum(len(skips) for _, skips, _ in runs[0])
     queried = sum(q for _, _, q in runs[0])
     assert skipped > 20 and queried > 20, (skipped, queried)  # both branches taken
+
+
+@pytest.mark.parametrize("projection", ["perspective", "orthographic"])
+def test_the_python_skip_test_decides_as_the_vectorised_one(projection):
+    """query_cost.draw_is_cheaper (one node at a time, in Python) against the vectorised terms
+    (BoxAreas.pixels_outside, CostModel.cheaper_to_draw) on 400 random boxes, some flat, with the
+    change rate applied, and boxes read from given pixels; the eye at a box's centre gets the
+    viewport, as numpy's inf clipped to it."""
+    rng = np.random.default_rng(5)
+    centres = np.c_[rng.uniform(-3, 3, (400, 2)), rng.uniform(-40, -2, 400)]
+    half = rng.uniform(0.05, 2.0, (400, 3)) * rng.choice([1.0, 0.1], (400, 3))
+    centres[7] = 0.0  # the eye at this box's centre
+    lo, hi = centres - half, centres + half
+    tris = rng.integers(2, 4000, 400)
+    projection_matrix = perspective(60.0, 4 / 3, 0.1, 1000.0) if projection == "perspective" \
+        else orthographic(8.0, 4 / 3, 0.1, 1000.0)
+    view = View(eye=np.zeros(3), view=look_at([0, 0, 0], [0.2, -0.1, -1], [0, 1, 0]), projection=projection_matrix,
+                width=640, height=480)
+    model = CostModel(query=LinearCost(fixed_s=20e-6, per_unit_s=2e-9, residual=0.0),
+                      draw=LinearCost(fixed_s=4e-6, per_unit_s=20e-9, residual=0.0), clock="wall")
+    areas = query_cost.BoxAreas.of(lo, hi)
+    pixels = areas.pixels_outside(view)
+    given = rng.uniform(0, 20000, 400)
+    for rate in (1.0, 0.3, 0.01):
+        for box_pixels, kwargs in ((pixels, dict(faces=areas.faces.tolist(), centres=areas.centre.tolist())),
+                                   (given, dict(pixels=given.tolist()))):
+            expected = model.draw_seconds(tris) * rate < model.query_seconds(box_pixels)
+            cheaper = query_cost.draw_is_cheaper(view, model, tris.tolist(), **kwargs)
+            assert [cheaper(node, rate) for node in range(400)] == expected.tolist()
+            if rate == 1.0:
+                assert 40 < expected.sum() < 360, expected.sum()  # both answers occur
+    if projection == "perspective":
+        assert pixels[7] == 640 * 480
+
+
+@pytest.mark.parametrize("method", ["bool", "coh"])
+def test_skip_tests_in_python_and_numpy_give_the_same_frames(city_renderer, method):
+    """`_prepare` tests up to python_skip_test_nodes candidates in Python, more with numpy: forced
+    to either, the same draws, skips and queries every frame (fixed cost model, scripted lag)."""
+    r = city_renderer
+    r._cost_model = CostModel(query=LinearCost(fixed_s=20e-6, per_unit_s=2e-9, residual=0.0),
+                              draw=LinearCost(fixed_s=4e-6, per_unit_s=5e-9, residual=0.0), clock="wall")
+    runs = []
+    for limit in (0, 10**9):
+        traversal = make(method, r.hlod, ScriptedAvailability(r, 3), RuntimeSettings(skip_queries="expected"))
+        traversal.python_skip_test_nodes = limit
+        stats = _run(traversal, street_path(30)) + _run(traversal, _overview(30))
+        runs.append([(s.drawn, s.skipped, s.queries) for s in stats])
+    assert runs[0] == runs[1]
+    assert sum(len(skips) for _, skips, _ in runs[0]) > 20 and sum(q for _, _, q in runs[0]) > 20
 
 
 def test_recheck_frames_follow_the_seed(city_renderer):
