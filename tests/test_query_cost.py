@@ -13,7 +13,7 @@ from hlod_core.queries import Query
 from hlod_core.gl_functions import GL
 from hlod_core.query_cost import CostModel, LinearCost, fit_linear
 from hlod_core.renderer import DEFAULT_COLOUR, Renderer
-from hlod_core.traversal import Coh, RuntimeSettings, make
+from hlod_core.traversal import STOP, Coh, RuntimeSettings, make
 from hlod_core.view import View, look_at, orthographic, perspective
 
 from helpers import ScriptedAvailability, baked_city, standalone_gl, street_path
@@ -310,6 +310,29 @@ def test_skip_tests_in_python_and_numpy_give_the_same_frames(city_renderer, meth
         runs.append([(s.drawn, s.skipped, s.queries) for s in stats])
     assert runs[0] == runs[1]
     assert sum(len(skips) for _, skips, _ in runs[0]) > 20 and sum(q for _, _, q in runs[0]) > 20
+
+
+def test_the_change_rate_is_the_mean_of_its_results_until_its_weight_takes_over(city_renderer):
+    """The running change rate (STOP results that changed something) starts at 1 and is the plain
+    mean of the results seen while there are fewer than 1 / change_rate_weight, then an exponential
+    mean of that weight: its start counts only until the first result. Through `_queried` and,
+    written out, the walk: on a static view nothing changes, so after the first frames with STOP
+    results it is 0, where a start of 1 decaying by 1/64 a result would still hold it above 0.1."""
+    traversal = make("coh", city_renderer.hlod, city_renderer, RuntimeSettings(skip_queries="expected"))
+    assert traversal.change_rate == 1.0
+    results = [True, False, False, True, False] + [False] * 100
+    for k, changed in enumerate(results, start=1):
+        before = traversal.change_rate
+        traversal._queried(0, STOP, changed)
+        if k <= 64:
+            assert traversal.change_rate == pytest.approx(np.mean(results[:k]), abs=1e-12)
+        else:
+            assert traversal.change_rate == pytest.approx(before + (float(changed) - before) / 64, abs=1e-15)
+    still = make("coh", city_renderer.hlod, city_renderer, RuntimeSettings(skip_queries="expected"))
+    stats = _run(still, _overview(4, static=True))
+    assert stats[1].dn > 5 and still._change_results > 5  # STOP results were counted
+    assert still.change_rate == 0.0
+    assert (1 - traversal.change_rate_weight) ** still._change_results > 0.1  # the old start would still count
 
 
 def test_recheck_frames_follow_the_seed(city_renderer):
