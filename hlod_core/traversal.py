@@ -284,7 +284,6 @@ class Traversal(abc.ABC):
         d = None if view.orthographic else np.subtract(tests.centre_distance, h.sphere_radius)
         error, inside = self._sse_inputs
         sse = metrics.sse_at(view, error, d, inside)
-        self._tests = tests  # the arrays behind the memoryviews, for vectorised readers (CoherentLoop)
         self.in_frustum, self.key, self.unqueryable, self.sse = map(memoryview, (in_frustum, tests.distance,
                                                                                  unqueryable, sse))
         self.alpha_estimate = None  # (n,) pixels, for the estimators other than `query`
@@ -471,21 +470,20 @@ class CoherentLoop(Traversal):
     visibility testing") and CHC++ (Mattausch, Bittner, Wimmer 2008) assume visible nodes stay
     visible for a few frames. The test, per node and frame, in `_prepare` (in Python for up to
     `python_skip_test_nodes` candidates, vectorised above that) from the renderer's `cost_model`
-    (query_cost): "cheap" skips where drawing the node's triangles costs
-    less than rasterising its query box (query_cost.box_pixels, or the projected alpha where that
-    estimator runs); "expected" where that draw cost times `change_rate` (the running share of
-    queried stopped nodes whose result changed something: hidden, or refined) is below the query
-    cost. The change rate is an exponentially weighted mean whose weights are normalised over the
-    results seen so far (weight max(change_rate_weight, 1 / results)), so its start value, 1, stops
-    counting at the first result instead of holding the rate up over the first hundred or so (on
-    an 80-frame path over the `low` scene that start held its mean at 0.14 against a settled
-    0.01). A skipped node is queried again on its next re-check frame: every
-    `recheck_frames`-th frame, at a phase drawn per node from a generator seeded with `recheck_seed`. This is CHC++'s
-    randomised first re-check (after a query finds a node visible, the next one comes 1 to
-    recheck_frames frames later, at random) made a fixed per-node phase, so the re-checks of nodes
-    that become skippable together (the change rate falls for all at once) spread over frames too.
-    A node hidden meanwhile is found within recheck_frames frames. A renderer without a cost_model
-    (tests' wrappers) skips nothing.
+    (query_cost): "cheap" skips where drawing the node's triangles costs less than rasterising its
+    query box (query_cost.box_pixels, or the projected alpha where that estimator runs); "expected"
+    where that draw cost times `change_rate` (the running share of queried stopped nodes whose
+    result changed something: hidden, or refined) is below the query cost. The change rate is an
+    exponentially weighted mean whose weights are normalised over the results seen so far (weight
+    max(change_rate_weight, 1 / results)), so its start value, 1, stops counting at the first result
+    instead of holding the rate up over the first hundred or so (on an 80-frame path over the `low`
+    scene that start held its mean at 0.14 against a settled 0.01). A skipped node is queried again
+    on its next re-check frame: every `recheck_frames`-th frame, at a phase drawn per node from a
+    generator seeded with `recheck_seed`. This is CHC++'s randomised first re-check (after a query
+    finds a node visible, the next one comes 1 to recheck_frames frames later, at random) made a
+    fixed per-node phase, so the re-checks of nodes that become skippable together (the change rate
+    falls for all at once) spread over frames too. A node hidden meanwhile is found within
+    recheck_frames frames. A renderer without a cost_model (tests' wrappers) skips nothing.
 
     Multiqueries (settings multiquery "on"; CHC++ §4): a node whose own query found it hidden
     (q = 0) last frame and that is predicted DELAY waits in the i-queue instead of being queried at
@@ -541,7 +539,7 @@ class CoherentLoop(Traversal):
     #: Queries gating nothing that wait in the batch, at most (batch_queries).
     query_batch = 50
     #: Skip-test candidates up to which `_prepare` tests them in Python, node by node (above, with
-    #: numpy): the crossover measured on this project's scenes (README "The skip test in Python").
+    #: numpy): the crossover measured on this project's scenes (README "The skip test's start and its small fronts").
     python_skip_test_nodes = 64
 
     def __init__(self, hlod, renderer, settings=RuntimeSettings(), *, recheck_seed: int = 0):

@@ -265,9 +265,9 @@ def test_skipping_tests_only_the_nodes_visible_last_frame_and_changes_nothing(ci
 @pytest.mark.parametrize("projection", ["perspective", "orthographic"])
 def test_the_python_skip_test_decides_as_the_vectorised_one(projection):
     """query_cost.draw_is_cheaper (one node at a time, in Python) against the vectorised terms
-    (BoxAreas.pixels_outside, CostModel.cheaper_to_draw) on 400 random boxes, some flat, with the
-    change rate applied, and boxes read from given pixels; the eye at a box's centre gets the
-    viewport, as numpy's inf clipped to it."""
+    (BoxAreas.pixels_outside, CostModel.draw_seconds and query_seconds) on 400 random boxes, some
+    flat, with the change rate applied, and boxes read from given pixels; the eye at a box's centre
+    gets the viewport, as numpy's inf clipped to it."""
     rng = np.random.default_rng(5)
     centres = np.c_[rng.uniform(-3, 3, (400, 2)), rng.uniform(-40, -2, 400)]
     half = rng.uniform(0.05, 2.0, (400, 3)) * rng.choice([1.0, 0.1], (400, 3))
