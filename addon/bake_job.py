@@ -2,7 +2,7 @@
 command. No bpy here: the caller gathers the mesh on Blender's main thread first.
 
 `BakeJob` writes the mesh into a private scratch folder (`hlod-blender-*` in the temp folder;
-hlod_core/bake_child.py says what is in it), then runs `python -m hlod_core.bake_child` with
+hlod_core/child.py says what is in it), then runs `python -m hlod_core.bake.child` with
 Blender's own Python (`sys.executable`: Blender's bundled interpreter, or the bpy module's) and only
 this extension's folder and the folders of its dependencies' wheels on PYTHONPATH, so `hlod_core`
 imports as from the command line and the bake runs `settings.jobs` worker processes. The child is
@@ -40,10 +40,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..hlod_core import bake_child
-from ..hlod_core.bake import BakeSettings
-from ..hlod_core.errors import BakeCancelled, HlodError
-from ..hlod_core.meshio import TriangleMesh
+from ..hlod_core.bake import child
+from ..hlod_core.bake.pipeline import BakeSettings
+from ..hlod_core.core.errors import BakeCancelled, HlodError
+from ..hlod_core.io.meshes import TriangleMesh
 
 log = logging.getLogger(__name__)
 
@@ -129,10 +129,10 @@ class BakeJob:
         self._temp_before = self._output_temps()
         self._scratch = tempfile.mkdtemp(prefix=SCRATCH_PREFIX)
         try:
-            job_file = bake_child.write_job(self._scratch, mesh, settings, self.output, extra_meta=extra_meta,
+            job_file = child.write_job(self._scratch, mesh, settings, self.output, extra_meta=extra_meta,
                                             cache_dir=cache_dir)
             self._proc = subprocess.Popen(
-                [sys.executable, "-m", bake_child.MODULE, str(job_file), bake_child.PARENT_STDIN],
+                [sys.executable, "-m", child.MODULE, str(job_file), child.PARENT_STDIN],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=self._scratch,
                 env=child_environment(self._scratch), start_new_session=_POSIX,
                 creationflags=0 if _POSIX else subprocess.CREATE_NEW_PROCESS_GROUP | subprocess.CREATE_NO_WINDOW)
@@ -278,7 +278,7 @@ class BakeJob:
                                      jobs=int(done["jobs"]), cache=done.get("cache"))
             self.progress = (self.progress[1], self.progress[1], "done")
         elif failed is not None:
-            kind = bake_child.ERROR_TYPES.get(failed["type"], HlodError)
+            kind = child.ERROR_TYPES.get(failed["type"], HlodError)
             self.error = kind(failed["message"]) if failed["type"] != "OSError" else HlodError(
                 f"HLOD bake: cannot write {failed['message']}")
         elif self._stop_at is not None:
@@ -313,7 +313,7 @@ class BakeJob:
                 pass
 
     def _output_temps(self) -> set[str]:
-        """Temporary files of an atomic write to the output (hlod_core.atomic names them .NAME.*.tmp)."""
+        """Temporary files of an atomic write to the output (hlod_core.core.atomic names them .NAME.*.tmp)."""
         folder, name = os.path.split(self.output)
         try:
             return {os.path.join(folder, entry) for entry in os.listdir(folder or ".")

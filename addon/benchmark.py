@@ -1,6 +1,6 @@
 """The Benchmark and Tune to PSNR operators' work: the scene camera's animation as a camera path,
-evaluated with every method (hlod_core.evaluate, DESIGN §9), or searched for the (s, t) with the
-fewest drawn nodes that keeps PSNR-Y against Bool at the scene's target (hlod_core.tuning, issue 15),
+evaluated with every method (hlod_core.report.evaluate, DESIGN §9), or searched for the (s, t) with the
+fewest drawn nodes that keeps PSNR-Y against Bool at the scene's target (hlod_core.report.tuning, issue 15),
 in a private headless EGL context; Blender's own context is made current again afterwards (DESIGN §7).
 
 The report's figures need matplotlib, which no Blender ships (4.2 to 5.2) and the extension does not
@@ -15,9 +15,10 @@ import os
 import bpy
 import numpy as np
 
-from ..hlod_core import evaluate, fileformat, tuning
-from ..hlod_core.camera import CameraPath
-from ..hlod_core.errors import InputError
+from ..hlod_core.report import evaluate, tuning
+from ..hlod_core.io import hlod_file
+from ..hlod_core.model.camera_path import CameraPath
+from ..hlod_core.core.errors import InputError
 from . import glcontext, preview
 from .settings import runtime_settings
 
@@ -61,7 +62,7 @@ def _setup(context, what: str):
     props = scene.hlod
     if not props.file:
         raise InputError(f"{what}: no baked file; run Bake first")
-    hlod = preview.current_hlod() or fileformat.load(bpy.path.abspath(props.file))
+    hlod = preview.current_hlod() or hlod_file.load(bpy.path.abspath(props.file))
     r = scene.render
     size = (max(1, r.resolution_x * r.resolution_percentage // 100), max(1, r.resolution_y * r.resolution_percentage // 100))
     return hlod, size, camera_path(scene, context.evaluated_depsgraph_get(), size, what=what)
@@ -79,7 +80,7 @@ def run(context, folder: str, repeat: int) -> tuple[dict, str]:
 
 
 def tune(context, folder: str, repeat: int) -> tuple[dict, str]:
-    """Tune to PSNR: the (s, t) search (hlod_core.tuning.tune) at scene.hlod.psnr_target on the
+    """Tune to PSNR: the (s, t) search (hlod_core.report.tuning.tune) at scene.hlod.psnr_target on the
     camera's animation, with the scene's other runtime settings (tau, k, alpha, skip queries); the
     report (with its "psnr_target" section) and its folder. Changes no property: the operator does."""
     props = context.scene.hlod

@@ -10,7 +10,7 @@ with `bpy.utils.register_cli_command`, and the same code through the bpy module
 `bake` gathers each file's meshes in Blender and bakes them in a child process of Blender's Python
 with N worker processes (addon/bake_job.py, as the Bake operator; default 0 = all cores but one);
 Ctrl-C stops the child and its workers and writes nothing for that file. The bake keeps its cache
-(hlod_core/bake_cache.py) in OUT.hlod.cache beside each .hlod, so a re-bake redoes only what
+(hlod_core/cache.py) in OUT.hlod.cache beside each .hlod, so a re-bake redoes only what
 changed; --no-cache bakes from scratch and keeps none.
 `bake` without .blend files bakes the open file into OUT (a .hlod path); with files, OUT is a
 folder and each file FILE.blend gives OUT/FILE.hlod and, with `--format 3dtiles`, OUT/FILE_3dtiles/.
@@ -18,7 +18,7 @@ A file that fails is reported and the others go on. The last stdout line is a JS
 ({"files": [{"blend", "ok", "outputs" | "error"}], "failed": N}); the exit status is 1 if any
 failed, 2 for bad arguments.
 `view` (issue 17) serves a 3D Tiles export (DIR holds tileset.json) and the CesiumJS viewer page on
-127.0.0.1 (hlod_core/viewer.py, imported only by this command) until Ctrl-C or SIGTERM, then exits
+127.0.0.1 (hlod_core/export/viewer.py, imported only by this command) until Ctrl-C or SIGTERM, then exits
 0; the first line it prints is the page's URL (http://localhost:N/), for scripts. It opens the page
 with `webbrowser` unless --no-browser; --port 0 (the default) takes a free port. A folder without
 tileset.json, CesiumJS not found or a port in use is one line on stderr and exit status 2.
@@ -33,10 +33,11 @@ from pathlib import Path
 
 import bpy
 
-from ..hlod_core import bake_cache, fileformat
-from ..hlod_core.bake import BakeSettings
-from ..hlod_core.export import export_hlod
-from ..hlod_core.errors import HlodError, InputError
+from ..hlod_core.bake import cache
+from ..hlod_core.io import hlod_file
+from ..hlod_core.bake.pipeline import BakeSettings
+from ..hlod_core.export.formats import export_hlod
+from ..hlod_core.core.errors import HlodError, InputError
 from . import scene_mesh
 from .bake_job import BakeJob
 from .settings import bake_settings
@@ -108,7 +109,7 @@ def execute(argv: list[str]) -> int:
         return _view(args)
     if args.command == "export":
         try:
-            summary = export_hlod(fileformat.load(args.file), args.format, Path(args.output), Path(args.file).stem)
+            summary = export_hlod(hlod_file.load(args.file), args.format, Path(args.output), Path(args.file).stem)
         except (HlodError, OSError) as exc:
             print(f"hlod: error: {exc}", file=sys.stderr)
             return 1
@@ -130,8 +131,8 @@ def _view(args) -> int:
     script that stops it once it has read the URL always gets exit status 0)."""
     import webbrowser
 
-    from ..hlod_core import viewer  # here: the add-on imports no viewer code until it is used
-    from ..hlod_core.signals import Terminated, signals_as_exceptions
+    from ..hlod_core.export import viewer  # here: the add-on imports no viewer code until it is used
+    from ..hlod_core.core.signals import Terminated, signals_as_exceptions
 
     with signals_as_exceptions():
         try:
@@ -176,8 +177,8 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         mesh = scene_mesh.evaluated_mesh(bpy.context, objects)
         settings = bake_settings(args)
         target.parent.mkdir(parents=True, exist_ok=True)
-        cache_dir = None if args.no_cache else bake_cache.default_folder(target)
-        bake_cache.check_folder(cache_dir)
+        cache_dir = None if args.no_cache else cache.default_folder(target)
+        cache.check_folder(cache_dir)
         job = BakeJob(mesh, settings, str(target), cache_dir=cache_dir)
         job.join()
         if job.error is not None:
@@ -185,7 +186,7 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         outputs = {"hlod": str(target)}
         if "3dtiles" in args.format:
             tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
-            outputs["3dtiles"] = export_hlod(fileformat.load(target), "3dtiles", tiles_dir, target.stem)["output"]
+            outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir, target.stem)["output"]
     except (HlodError, OSError) as exc:
         print(f"hlod: {blend}: {exc}", file=sys.stderr)
         return {"blend": blend, "ok": False, "error": str(exc)}

@@ -49,11 +49,15 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from ..hlod_core import boxes, fileformat, overlay
-from ..hlod_core.errors import HlodError
-from ..hlod_core.hierarchy import node_geometry, node_mesh
-from ..hlod_core.view import View
-from ..hlod_core.traversal import FrameStats
+from ..hlod_core.traversal import boxes
+from ..hlod_core.io import hlod_file
+from ..hlod_core.core import colour as overlay
+from ..hlod_core.core.colour import srgb_from_linear
+from ..hlod_core.core.errors import HlodError
+from ..hlod_core.render.glsl import FLAT_LIGHT, SRGB_FROM_LINEAR
+from ..hlod_core.model.hierarchy import node_geometry, node_mesh
+from ..hlod_core.model.view import View
+from ..hlod_core.traversal.methods import FrameStats
 from . import glcontext, source_hiding, source_record, viewport_text
 from .settings import runtime_settings
 
@@ -136,7 +140,7 @@ def start(scene) -> None:
     path = bpy.path.abspath(scene.hlod.file)
     if not scene.hlod.file:
         raise HlodError("no baked file: run Bake first or set Baked File")
-    hlod = fileformat.load(path)
+    hlod = hlod_file.load(path)
     rows = source_record.stored(scene.hlod, path)
     view_layer, depsgraph = _view_layer_and_depsgraph(scene)
     _state = _State(file=path, hlod=hlod, source_tris=int(hlod.meta.get("input_tris", 0)), recorded=len(rows),
@@ -340,10 +344,6 @@ def image_rgba8(image) -> np.ndarray | None:
     return np.ascontiguousarray(np.round(np.clip(rgba[::-1], 0.0, 1.0) * 255.0).astype(np.uint8))
 
 
-def srgb_from_linear(linear: np.ndarray) -> np.ndarray:
-    """IEC 61966-2-1 encoding of linear values in [0, 1] (clipped)."""
-    c = np.clip(linear, 0.0, 1.0)
-    return np.where(c <= 0.0031308, 12.92 * c, 1.055 * np.power(c, 1.0 / 2.4) - 0.055).astype(np.float32)
 
 
 # --- drawing ---------------------------------------------------------------------------------------
@@ -424,9 +424,9 @@ def draw_view(scene, view_matrix, window_matrix, width, height, *, xray: bool = 
         return None
     import gpu
 
-    from ..hlod_core.gl_state import GLState
-    from ..hlod_core.renderer import Renderer
-    from ..hlod_core.traversal import make
+    from ..hlod_core.render.gl_state import GLState
+    from ..hlod_core.render.renderer import Renderer
+    from ..hlod_core.traversal.methods import make
 
     props = scene.hlod
     current = glcontext.current()
@@ -472,8 +472,8 @@ def _draw_private(scene, state, view_matrix, window_matrix, width: int, height: 
     global _status
     import gpu
 
-    from ..hlod_core.renderer import Renderer
-    from ..hlod_core.traversal import make
+    from ..hlod_core.render.renderer import Renderer
+    from ..hlod_core.traversal.methods import make
 
     props = scene.hlod
     if state.private is not None and state.private.fbo.size != (width, height):
@@ -532,14 +532,9 @@ void main() {
     gl_Position = ModelViewProjectionMatrix * vec4(pos, 1.0);
 }
 """
-_LOOK_FS = """
-vec3 srgb_from_linear(vec3 c) {  // IEC 61966-2-1
-    c = clamp(c, 0.0, 1.0);
-    return mix(12.92 * c, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, c));
-}
+_LOOK_FS = SRGB_FROM_LINEAR + FLAT_LIGHT + """
 void main() {
-    vec3 n = normalize(cross(dFdx(v_pos), dFdy(v_pos)));
-    vec3 lit = (v_color * texture(u_image, v_uv)).rgb * (0.25 + 0.75 * abs(dot(n, u_view_z)));
+    vec3 lit = (v_color * texture(u_image, v_uv)).rgb * flat_light(v_pos, u_view_z);
     FragColor = vec4(srgbTarget ? lit : srgb_from_linear(lit), 1.0);
 }
 """
@@ -597,7 +592,7 @@ def _look_batches(shader, hlod, node: int) -> list:
     base colour x vertex colour (linear), with its UVs (0 without)."""
     from gpu_extras.batch import batch_for_shader
 
-    from ..hlod_core.renderer import NO_MATERIAL_BASE_COLOR
+    from ..hlod_core.render.renderer import NO_MATERIAL_BASE_COLOR
 
     g = node_geometry(hlod, node)
     face_material = g.face_material if g.face_material is not None else np.full(g.faces.shape[0], -1, np.int32)

@@ -3,7 +3,7 @@
 In: the evaluated geometry of the chosen objects (modifiers applied, instances from collection
 instances, particles and geometry nodes realised, world transforms), read through the depsgraph
 without touching the source objects, as one `meshio.TriangleMesh` in world units, with its
-appearance (issue 13, hlod_core/appearance.py):
+appearance (issue 13, hlod_core/model/appearance.py):
 - per triangle, the material: loop_triangles' material_index resolved through the evaluated
   object's material slots to the material datablock; one `Material` row per datablock (keyed by
   name_full, shared by every object and instance using it), the default row for an empty slot;
@@ -25,10 +25,10 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from ..hlod_core import meshio
-from ..hlod_core.appearance import DEFAULT_BASE_COLOR, Material
-from ..hlod_core.errors import InputError
-from ..hlod_core.hierarchy import node_geometry
+from ..hlod_core.io import meshes as meshio
+from ..hlod_core.model.appearance import DEFAULT_BASE_COLOR, Material
+from ..hlod_core.core.errors import InputError
+from ..hlod_core.model.hierarchy import node_geometry
 
 log = logging.getLogger(__name__)
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import os
 
-from ..hlod_core.bake import BakeSettings
-from ..hlod_core.traversal import RuntimeSettings
+from ..hlod_core.bake.pipeline import BakeSettings
+from ..hlod_core.traversal.methods import RuntimeSettings
 
 
 def default_jobs() -> int:

@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core import fileformat, meshio
-from hlod_core.appearance import Material
-from hlod_core.bake import BakeSettings, bake
+from hlod_core.io import hlod_file, meshes
+from hlod_core.model.appearance import Material
+from hlod_core.bake.pipeline import BakeSettings, bake
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The commit before the appearance contract (b4edc98^): the bake as it was before issue 13.
@@ -72,7 +72,7 @@ def time_overhead(scene: Path, repeat: int) -> dict:
             for which in (("old", "new") if rep % 2 == 0 else ("new", "old")):
                 out = scratch / f"{which}.hlod"
                 runs[which].append(timed_bake(codes[which], scene, out))
-                hlod = fileformat.load(out)
+                hlod = hlod_file.load(out)
                 bake_seconds[which].append(float(hlod.meta["bake_seconds"]))
                 if which == "new":
                     assert not hlod.has_appearance, "an untextured bake stored appearance arrays"
@@ -86,23 +86,23 @@ def time_overhead(scene: Path, repeat: int) -> dict:
             "runs": runs, "bake_seconds": bake_seconds}
 
 
-def with_appearance(mesh: meshio.TriangleMesh, kind: str) -> meshio.TriangleMesh:
+def with_appearance(mesh: meshes.TriangleMesh, kind: str) -> meshes.TriangleMesh:
     """`mesh` with colours (and, for "textured", planar UVs and two materials) as described above."""
     lo, hi = mesh.positions.min(axis=0), mesh.positions.max(axis=0)
     unit = (mesh.positions - lo) / np.where(hi > lo, hi - lo, 1.0)
     colors = np.concatenate([unit, np.ones((unit.shape[0], 1))], axis=1)
     if kind == "colours":
-        return meshio.from_arrays(mesh.positions, mesh.faces, mesh.normals, name=mesh.name, colors=colors)
+        return meshes.from_arrays(mesh.positions, mesh.faces, mesh.normals, name=mesh.name, colors=colors)
     centroid = unit[mesh.faces].mean(axis=1)
     material = ((centroid[:, 0] > 0.5) ^ (centroid[:, 2] > 0.5)).astype(np.int32)
-    return meshio.from_arrays(mesh.positions, mesh.faces, mesh.normals, name=mesh.name, colors=colors,
+    return meshes.from_arrays(mesh.positions, mesh.faces, mesh.normals, name=mesh.name, colors=colors,
                               uvs=unit[:, :2], material_ids=material, materials=(Material("a"), Material("b")))
 
 
 def error_ratios(names: list[str], target_tris: int) -> dict:
     out = {}
     for name in names:
-        mesh = meshio.load_mesh(MODELS / name)
+        mesh = meshes.load_mesh(MODELS / name)
         plain = bake(mesh, BakeSettings(target_tris=target_tris))
         inner = np.flatnonzero(~plain.is_leaf)
         out[name] = {"input_tris": mesh.tri_count, "inner_nodes": int(inner.size), "root_error": float(plain.error[0])}

@@ -45,11 +45,11 @@ def spec_of(triangles: int, folder: Path) -> Path:
     """A spec of at least `triangles` triangles: the crowd's statues (generate_specs.crowd) in
     order, repeated in copies of the whole crowd side by side (each shifted by the crowd's width,
     four copies a row), until the count is reached."""
-    from hlod_core import meshio
+    from hlod_core.io import meshes
 
     base = ROOT / "tests" / "scenes"
     placed = [((base / m["path"]).resolve(), t) for m in generate_specs.crowd()["models"] for t in m["transforms"]]
-    model_tris = {path: meshio.load_mesh(path).tri_count for path in {p for p, _ in placed}}
+    model_tris = {path: meshes.load_mesh(path).tri_count for path in {p for p, _ in placed}}
     width = generate_specs.CROWD_SIDE * generate_specs.CROWD_SPACING
     models: dict[Path, list] = {}
     total, k = 0, 0
@@ -125,13 +125,13 @@ def bake_measured(spec: Path, out: Path, jobs: int, *, mode: str = "memory", chu
 
 def same_file(a: Path, b: Path) -> bool:
     """Whether two .hlod files hold the same bytes once their volatile meta is left out."""
-    from hlod_core import fileformat
-    from hlod_core.bake import stable_meta
+    from hlod_core.io import hlod_file
+    from hlod_core.bake.pipeline import stable_meta
 
     def stable_bytes(path: Path) -> bytes:
-        hlod = fileformat.load(path)
+        hlod = hlod_file.load(path)
         out = path.with_name(path.stem + ".stable.hlod")
-        fileformat.save(hlod.replace(meta=stable_meta(hlod.meta)), out)
+        hlod_file.save(hlod.replace(meta=stable_meta(hlod.meta)), out)
         data = out.read_bytes()
         os.remove(out)
         return data

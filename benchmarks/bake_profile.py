@@ -28,9 +28,9 @@ import pstats
 import time
 from pathlib import Path
 
-from hlod_core import bake as bake_module
-from hlod_core import meshio
-from hlod_core.bake import BakeSettings, bake
+from hlod_core.bake import pipeline as bake_module
+from hlod_core.io import meshes
+from hlod_core.bake.pipeline import BakeSettings, bake
 
 #: (label, function name, file the function is in): cumulative seconds of each in the jobs 1 profile.
 PARTS = (
@@ -104,7 +104,7 @@ class _Moved:
 
 
 def profile(path: Path, target_tris: int) -> dict:
-    mesh = meshio.load_inputs([path])
+    mesh = meshes.load_inputs([path])
     profiler = cProfile.Profile()
     started = time.perf_counter()
     profiler.enable()

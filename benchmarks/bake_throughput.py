@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core import fileformat, meshio
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.hierarchy import Hlod, cube_sides
+from hlod_core.io import hlod_file, meshes
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.model.hierarchy import Hlod, cube_sides
 
 ROOT = Path(__file__).resolve().parents[1]
 INPUTS = {"igea": ROOT.parent / "shared" / "models" / "igea.ply",
@@ -89,7 +89,7 @@ def main() -> None:
 
     results: dict = {"ceiling_2_processes": cpu_ceiling(), "bakes": {}}
     for name, path in INPUTS.items():
-        mesh = meshio.load_inputs([path])
+        mesh = meshes.load_inputs([path])
         runs: dict[int, list[float]] = {1: [], 2: []}
         for rep in range(args.repeat):
             for jobs in ((1, 2) if rep % 2 == 0 else (2, 1)):
@@ -104,11 +104,11 @@ def main() -> None:
         print(json.dumps({name: results["bakes"][name]}), flush=True)
 
     with tempfile.TemporaryDirectory() as scratch:
-        path = fileformat.save(synthetic_hlod(10_000_000), Path(scratch) / "ten_million.hlod")
+        path = hlod_file.save(synthetic_hlod(10_000_000), Path(scratch) / "ten_million.hlod")
         opens = []
         for _ in range(3):
             started = time.perf_counter()
-            fileformat.load(path)
+            hlod_file.load(path)
             opens.append(time.perf_counter() - started)
         results["open_10m"] = {"file_bytes": path.stat().st_size, "seconds": min(opens), "runs": opens}
 

@@ -4,8 +4,8 @@ camera and the same screen-space-error threshold (issue 17).
     PYTHONPATH=. .venv/bin/python -m benchmarks.cesium_compare [--scale 0.25] [--target-tris 1000]
         [--size 800x600] [--tau 16 4] [--json OUT.json]
 
-bakes the default city (scenes.default_scene at `--scale`), exports it as 3D Tiles, serves it with
-hlod_core.viewer, opens the viewer page in Chromium (Playwright, /usr/bin/chromium, WebGL through
+bakes the default city (procedural.default_scene at `--scale`), exports it as 3D Tiles, serves it with
+hlod_core.export.viewer, opens the viewer page in Chromium (Playwright, /usr/bin/chromium, WebGL through
 SwiftShader), and for each camera of `CAMERAS` and each threshold prints |ours|, |Cesium's|, the
 intersection, the Jaccard index, Cesium's choice as predicted by `cesium_select` (a re-implementation
 of Cesium's rule, must equal what Cesium chose) and, for every tile in one set only, the term that
@@ -51,10 +51,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core import boxes, metrics, tiles3d
-from hlod_core.hierarchy import Hlod
-from hlod_core.traversal import RuntimeSettings, make
-from hlod_core.view import View, look_at, perspective
+from hlod_core.traversal import boxes, metrics
+from hlod_core.export import tiles3d
+from hlod_core.model.hierarchy import Hlod
+from hlod_core.traversal.methods import RuntimeSettings, make
+from hlod_core.model.view import View, look_at, perspective
 
 #: Cesium's CesiumMath.EPSILON7: the smallest eye-to-box distance its SSE divides by.
 CESIUM_MIN_DISTANCE_M = 1e-7
@@ -346,7 +347,7 @@ class SelectionOnly:
     gives VFC the same nodes."""
 
     def __init__(self, hlod: Hlod):
-        from hlod_core.hierarchy import query_box_pad
+        from hlod_core.model.hierarchy import query_box_pad
 
         self.query_box_pad = query_box_pad(hlod.box_min, hlod.box_max)
 
@@ -506,7 +507,7 @@ def _depths(ts: Tileset, uris: set) -> str:
     return " ".join(f"{d}:{c}" for d, c in enumerate(depths.tolist()) if c)
 
 
-# --- Cesium in the browser (window.hlodViewer of hlod_core/viewer_page) -------------------------
+# --- Cesium in the browser (window.hlodViewer of hlod_core/export/viewer_page) -------------------------
 
 #: Frames a selection must stay the same, with all tiles loaded, before it is read as Cesium's choice.
 STABLE_FRAMES = 3
@@ -547,21 +548,21 @@ def cesium_choose(page, camera: Camera, tau_px: float, *, timeout_s: float = 120
 
 def scene_setups() -> dict:
     """name -> (mesh factory, target_tris, {camera name: Camera factory(buffer_px)}): the terrain
-    (scenes.low_scene at scale 0.1, 200 m across, hills to 16 m: flat wide tiles whose spheres
+    (procedural.low_scene at scale 0.1, 200 m across, hills to 16 m: flat wide tiles whose spheres
     reach far closer to the eye than their boxes) and the default city at scale 0.25 (2 x 2
     towers on a 40 m ground). Cameras: beyond (so far that the tileset's geometricError is under
     16 px), far, middle, close-up and inside the root box."""
-    from hlod_core import scenes
+    from hlod_core.io import procedural
 
     def cams(spec):
         return {name: (lambda size, e=eye, t=target: Camera.looking_at(e, t, buffer_px=size)) for name, (eye, target) in spec.items()}
 
     return {
-        "terrain": (lambda: scenes.low_scene(seed=1, scale=0.1), 500, cams({
+        "terrain": (lambda: procedural.low_scene(seed=1, scale=0.1), 500, cams({
             "beyond": ([0.0, -9500.0, 3500.0], [0.0, 0.0, 0.0]), "far": ([0.0, -300.0, 120.0], [0.0, 0.0, 0.0]),
             "middle": ([60.0, -120.0, 40.0], [0.0, 0.0, 0.0]), "close": ([10.0, -30.0, 20.0], [15.0, 0.0, 5.0]),
             "inside": ([-60.0, -60.0, 14.0], [40.0, 40.0, 4.0])})),
-        "city": (lambda: scenes.default_scene(seed=1, scale=0.25), 500, cams({
+        "city": (lambda: procedural.default_scene(seed=1, scale=0.25), 500, cams({
             "beyond": ([10.0, -2800.0, 1000.0], [10.0, 10.0, 15.0]), "far": ([10.0, -160.0, 70.0], [10.0, 10.0, 15.0]),
             "middle": ([45.0, -45.0, 35.0], [10.0, 10.0, 12.0]), "close": ([-1.0, -12.0, 4.0], [0.0, 0.0, 6.0]),
             "inside": ([10.0, -5.0, 1.7], [10.0, 25.0, 4.0])})),
@@ -569,7 +570,7 @@ def scene_setups() -> dict:
 
 
 def bake_and_export(scene: str, out_dir: Path) -> tuple[Hlod, Tileset]:
-    from hlod_core.bake import BakeSettings, bake
+    from hlod_core.bake.pipeline import BakeSettings, bake
 
     factory, target_tris, _ = scene_setups()[scene]
     hlod = bake(factory(), BakeSettings(jobs=1, target_tris=target_tris))
@@ -612,7 +613,7 @@ class Browser:
 
 def run(scene: str, taus: list[float], *, size: tuple[int, int] = (800, 600), folder: Path) -> list[dict]:
     """Bake and export `scene`, serve it, and compare every camera at every threshold."""
-    from hlod_core.viewer import serve
+    from hlod_core.export.viewer import serve
 
     hlod, ts = bake_and_export(scene, folder / "tiles")
     rows = []

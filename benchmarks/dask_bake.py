@@ -19,7 +19,7 @@ In one run, on this machine:
    bake's own process) per input triangle.
 3. The cluster's own cost per task (per_task_overhead), on a scheduler and workers started with
    the `dask scheduler` / `dask worker` commands: tasks that do nothing through
-   dask_workers.DaskExecutor, empty and carrying a typical decimation's arrays; wall time per task
+   dask_cluster.DaskExecutor, empty and carrying a typical decimation's arrays; wall time per task
    and the CPU time per task of the client (this process) and of the scheduler.
 4. The prediction for N = 100M triangles on M machines x 16 cores (P = 16 M worker threads), from
    those measured costs (the model is written out in `predict` and in the README):
@@ -59,9 +59,10 @@ from pathlib import Path
 import numpy as np
 import psutil  # a dependency of distributed
 
-from hlod_core import bake as bake_module
-from hlod_core import dask_workers, hausdorff, meshio, simplify
-from hlod_core.bake import BakeSettings, bake, stable_meta
+from hlod_core.bake import pipeline as bake_module
+from hlod_core.bake import dask_cluster, hausdorff, simplify
+from hlod_core.io import meshes
+from hlod_core.bake.pipeline import BakeSettings, bake, stable_meta
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The prediction's scene size, machines and cores per machine (the issue's).
@@ -99,8 +100,8 @@ class _Stats(logging.Handler):
 def compare(mesh, settings: BakeSettings, client, repeat: int) -> dict:
     """Part 1: alternated bakes, jobs 1 / jobs 2 / the cluster."""
     stats = _Stats()
-    logging.getLogger("hlod_core.dask_workers").addHandler(stats)
-    logging.getLogger("hlod_core.dask_workers").setLevel(logging.INFO)
+    logging.getLogger("hlod_core.bake.dask_cluster").addHandler(stats)
+    logging.getLogger("hlod_core.bake.dask_cluster").setLevel(logging.INFO)
     kinds = ("jobs1", "jobs2", "dask2")
     runs: dict[str, list[float]] = {k: [] for k in kinds}
     cpu: dict[str, list[float]] = {k: [] for k in kinds}
@@ -157,7 +158,7 @@ def task_costs(mesh, settings: BakeSettings) -> dict:
         lod = decimate(children, *rest)
         records.append({"kind": "decimate", "seconds": time.perf_counter() - started,
                         "tris": int(sum(c[1].shape[0] for c in children)),
-                        "sent": dask_workers._array_bytes(children), "returned": dask_workers._array_bytes(lod)})
+                        "sent": dask_cluster._array_bytes(children), "returned": dask_cluster._array_bytes(lod)})
         return lod
 
     def timed_measure(folder, positions, faces, ranges):
@@ -174,7 +175,7 @@ def task_costs(mesh, settings: BakeSettings) -> dict:
         value = measure_children(lod, children)
         records.append({"kind": "measure", "seconds": time.perf_counter() - started,
                         "tris": int(sum(c[1].shape[0] for c in children)),
-                        "sent": dask_workers._array_bytes((lod, children)), "returned": 8})
+                        "sent": dask_cluster._array_bytes((lod, children)), "returned": 8})
         return value
 
     leaf_arrays = bake_module._leaf_arrays
@@ -276,7 +277,7 @@ def per_task_overhead(sample_args, tasks: int = 400) -> dict:
         scheduler = psutil.Process(scheduler_pid)
         with distributed.Client(address, set_as_default=False, timeout=60) as client:
             client.wait_for_workers(2, timeout=120)
-            executor = dask_workers.DaskExecutor(client)
+            executor = dask_cluster.DaskExecutor(client)
             for name, payload in (("empty", None), ("decimation_args", sample_args)):
                 for in_flight in (2, 32):
                     running: set = set()
@@ -290,7 +291,7 @@ def per_task_overhead(sample_args, tasks: int = 400) -> dict:
                     out[key] = {"wall_ms": 1e3 * (time.perf_counter() - started) / tasks,
                                 "client_cpu_ms": 1e3 * (time.process_time() - cpu) / tasks,
                                 "scheduler_cpu_ms": 1e3 * (sum(scheduler.cpu_times()[:2]) - other) / tasks}
-    out["decimation_args_kb"] = dask_workers._array_bytes(sample_args) / 1e3
+    out["decimation_args_kb"] = dask_cluster._array_bytes(sample_args) / 1e3
     return out
 
 
@@ -343,7 +344,7 @@ def main() -> None:
     dask.config.set({WORKER_PROFILE: False})
     settings = BakeSettings(error=args.error)
     result: dict = {"spec": str(args.spec), "error": args.error, "load_before": os.getloadavg()}
-    mesh = meshio.load_inputs([args.spec])
+    mesh = meshes.load_inputs([args.spec])
     started = time.perf_counter()
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                   dashboard_address="127.0.0.1:0") as cluster, \

@@ -28,11 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core import fileformat
-from hlod_core.camera import load_path
-from hlod_core.renderer import Renderer
-from hlod_core.textures import load_images
-from hlod_core.traversal import RuntimeSettings, make
+from hlod_core.io import hlod_file
+from hlod_core.model.camera_path import load_path
+from hlod_core.render.renderer import Renderer
+from hlod_core.io.textures import load_images
+from hlod_core.traversal.methods import RuntimeSettings, make
 
 #: Variants of Coh's settings by name (the rest are the defaults).
 VARIANTS = {"default": {}, "skip_off": {"skip_queries": "off"}, "predict_off": {"predict_new": "off"},
@@ -106,7 +106,7 @@ def main() -> None:
     parser.add_argument("--out")
     args = parser.parse_args()
     size = tuple(int(x) for x in args.size.split("x"))
-    hlod, path = fileformat.load(args.file), load_path(args.path)
+    hlod, path = hlod_file.load(args.file), load_path(args.path)
     table = {}
     for name in args.variants:
         table[name] = run(hlod, path, size, VARIANTS[name])

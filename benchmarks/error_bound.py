@@ -27,8 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core import boxes, camera, meshio, metrics
-from hlod_core.bake import BakeSettings, bake
+from hlod_core.traversal import boxes, metrics
+from hlod_core.model import camera_path
+from hlod_core.io import meshes
+from hlod_core.bake.pipeline import BakeSettings, bake
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT.parent / "shared" / "models"
@@ -100,9 +102,9 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     report = {"load_before": os.getloadavg(), "inputs": []}
     inputs = [(m, MODELS / m, args.jobs, None) for m in args.models]
-    inputs += [(s, SCENES[s][0], args.scene_jobs, camera.load_path(SCENES[s][1])) for s in args.scenes]
+    inputs += [(s, SCENES[s][0], args.scene_jobs, camera_path.load_path(SCENES[s][1])) for s in args.scenes]
     for name, source, jobs, path in inputs:
-        mesh = meshio.load_inputs([source])
+        mesh = meshes.load_inputs([source])
         row = compare(name, mesh, jobs=jobs, target_tris=args.target_tris, path=path)
         report["inputs"].append(row)
         print(json.dumps(row), flush=True)

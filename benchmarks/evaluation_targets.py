@@ -18,8 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from hlod_core import jsonutil
-from hlod_core.errors import InputError
+from hlod_core.core import jsonutil
+from hlod_core.core.errors import InputError
 
 NEEDED_METHODS = ("coh_p", "sw_p", "bool")
 

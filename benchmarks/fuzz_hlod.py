@@ -23,7 +23,7 @@ int32 child/depth wrap); `geometry` (NaN/inf/huge positions and normals, in-rang
 reader accepts them, the renderer must cope); `bounds` (finite extremes, 1e-300 to 1.8e308, in
 boxes, spheres, errors, cube sides, origin: mostly accepted, the traversal's arithmetic meets them).
 
-A worker runs each case: `fileformat.load` (memory-mapped and read, alternating), `Hlod.summary`
+A worker runs each case: `hlod_file.load` (memory-mapped and read, alternating), `Hlod.summary`
 and `checks.check` (what `info` prints), then, if it opened, the methods `full`, `vfc` and `coh` over
 a generated inspection path of RENDER_FRAMES frames at RENDER_SIZE on one shared standalone EGL
 context. A typed error (HlodError) with a one-line message naming the file is a clean refusal;
@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core import fileformat
+from hlod_core.io import hlod_file
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -91,13 +91,13 @@ def uv_sphere(rings: int = 24, segments: int = 40):
 
 def base_file(folder: Path) -> bytes:
     """Bake the sphere, save it, and return the file with HEADER_SLACK spaces after the header."""
-    from hlod_core import meshio
-    from hlod_core.bake import BakeSettings, bake
+    from hlod_core.io import meshes
+    from hlod_core.bake.pipeline import BakeSettings, bake
 
     positions, faces = uv_sphere()
-    mesh = meshio.from_arrays(positions, faces, positions.astype(np.float32), name="fuzz_sphere")  # unit normals
+    mesh = meshes.from_arrays(positions, faces, positions.astype(np.float32), name="fuzz_sphere")  # unit normals
     hlod = bake(mesh, BakeSettings(target_tris=64, max_depth=6))
-    data = fileformat.save(hlod, folder / "base.hlod").read_bytes()
+    data = hlod_file.save(hlod, folder / "base.hlod").read_bytes()
     header, table_start = _header(data)
     shift = -(-HEADER_SLACK // 64) * 64  # keeps every array on its 64-byte boundary
     for entry in header["arrays"].values():
@@ -120,7 +120,7 @@ def _with_header(data: bytes, header: dict, *, old_data_start: int, new_data_sta
         text = text.replace(json.dumps(_RAW.format(k)), r)
     blob = text.encode("utf-8")
     blob += b" " * max(0, new_data_start - _PREAMBLE.size - len(blob))
-    out = _PREAMBLE.pack(fileformat.MAGIC, fileformat.FORMAT_VERSION, 0, len(blob)) + blob
+    out = _PREAMBLE.pack(hlod_file.MAGIC, hlod_file.FORMAT_VERSION, 0, len(blob)) + blob
     return out + data[old_data_start + len(out) - new_data_start:] if len(out) > new_data_start \
         else out + data[old_data_start:]
 
@@ -390,16 +390,16 @@ def worker() -> int:
 
 def run_case(ctx, path: Path, index: int) -> dict:
     """Open, summarise, check and render one file; {"outcome": "loaded" | "refused" | "failed", ...}."""
-    from hlod_core import checks
-    from hlod_core.camera import inspection_path
-    from hlod_core.errors import HlodError
-    from hlod_core.renderer import Renderer
-    from hlod_core.traversal import RuntimeSettings, make
+    from hlod_core.bake import checks
+    from hlod_core.model.camera_path import inspection_path
+    from hlod_core.core.errors import HlodError
+    from hlod_core.render.renderer import Renderer
+    from hlod_core.traversal.methods import RuntimeSettings, make
 
     stage = "load"
     renderer = None
     try:
-        hlod = fileformat.load(path, mmap=index % 2 == 0)
+        hlod = hlod_file.load(path, mmap=index % 2 == 0)
         stage = "info"
         json.dumps({**hlod.summary(), **checks.check(hlod), "target_tris": hlod.meta.get("target_tris"),
                     "max_depth": hlod.meta.get("max_depth"), "sources": hlod.meta.get("sources")})

@@ -1,6 +1,6 @@
-"""When do occlusion queries pay? The low, middle and high depth-complexity scenes (hlod_core.scenes,
+"""When do occlusion queries pay? The low, middle and high depth-complexity scenes (hlod_core.io.procedural,
 `python -m hlod_core scene low|middle|high`) side by side: each is baked, then evaluated
-(hlod_core.evaluate: methods interleaved frame by frame in one process, so timings compare as ratios
+(hlod_core.report.evaluate: methods interleaved frame by frame in one process, so timings compare as ratios
 within a scene's run) along a seeded inspection path (orbit, fly-through, dolly, rotate), and each
 method's frame time and drawn nodes are reported relative to VFC's, which issues no queries.
 
@@ -9,7 +9,7 @@ method's frame time and drawn nodes are reported relative to VFC's, which issues
 
 Writes OUT/queries_pay.json ({"frames", "size", "repeat", "seed", "methods", "seconds", "scenes":
 {name: {"summary": the bake's summary, "methods": {key: the evaluation's row}, "relative_to_vfc":
-{key: {"frame_ms", "dn"}}, "seconds"}}}) and OUT/queries_pay.png (report_figures.queries_pay_figure),
+{key: {"frame_ms", "dn"}}, "seconds"}}}) and OUT/queries_pay.png (figures.queries_pay_figure),
 and prints one JSON line per scene with the ratios. The evaluation folders (reports of their own)
 go to --work (a temporary folder by default). Needs matplotlib.
 """
@@ -23,11 +23,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from hlod_core import evaluate, report_figures, scenes
-from hlod_core.atomic import write_text_atomic
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.camera import inspection_path
-from hlod_core.errors import HlodError, InputError
+from hlod_core.report import evaluate, figures
+from hlod_core.io import procedural
+from hlod_core.core.atomic import write_text_atomic
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.model.camera_path import inspection_path
+from hlod_core.core.errors import HlodError, InputError
 
 SCENES = ("low", "middle", "high")
 DEFAULT_METHODS = ("vfc", "bool", "sw_p", "coh_p", "coh_mu", "ideal")
@@ -47,7 +48,7 @@ def measure(*, work: Path, frames: int, size: tuple[int, int], methods: list[str
     for name in SCENES:
         scene_started = time.perf_counter()
         logging.info("%s: baking", name)
-        hlod = bake(scenes.SCENES[name](seed=seed), BakeSettings(jobs=jobs))
+        hlod = bake(procedural.SCENES[name](seed=seed), BakeSettings(jobs=jobs))
         path = inspection_path(hlod, seed=seed, frames=frames)
         logging.info("%s: evaluating %s over %d frames", name, " ".join(methods), frames)
         report = evaluate.evaluate(hlod, path, size, methods=methods, repeat=repeat, out_dir=work / name,
@@ -92,7 +93,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"queries_pay: {exc}", file=sys.stderr)
         return 2
     write_text_atomic(out / "queries_pay.json", json.dumps(results, indent=1))
-    report_figures.save(report_figures.queries_pay_figure(results, labels=evaluate.LABELS), out / "queries_pay.png")
+    figures.save(figures.queries_pay_figure(results, labels=evaluate.LABELS), out / "queries_pay.png")
     for name, scene in results["scenes"].items():
         print(json.dumps({"scene": name, "relative_to_vfc": scene["relative_to_vfc"]}))
     print(json.dumps({"seconds": results["seconds"], "json": str(out / "queries_pay.json"),

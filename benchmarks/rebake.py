@@ -39,8 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core import meshio
-from hlod_core.bake import BakeSettings, bake, stable_meta
+from hlod_core.io import meshes
+from hlod_core.bake.pipeline import BakeSettings, bake, stable_meta
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -75,7 +75,7 @@ def rebuilt_work(mesh, settings: BakeSettings, cache_dir) -> dict:
     (module docstring, --work): {"seconds", "rebuilt_nodes", "decimations", "decimate_s",
     "measurements", "measure_s", "before_tasks_s"}. The bake's own functions are wrapped in
     place for the call (jobs 1 runs every task in this process) and restored after."""
-    from hlod_core import bake as bake_module, hausdorff, simplify
+    from hlod_core.bake import pipeline as bake_module, hausdorff, simplify
 
     spent = {"decimate": [], "measure": []}
     decimate, measure = simplify.decimate_node, bake_module._measure_task
@@ -128,8 +128,8 @@ def main() -> None:
                     "load_before": os.getloadavg()}
     with tempfile.TemporaryDirectory(prefix="rebake-") as scratch:
         cache = Path(scratch) / "crowd.hlod.cache"
-        mesh = meshio.load_inputs([args.spec])
-        moved_mesh = meshio.load_inputs([moved_spec(args.spec, args.move, np.asarray(args.by), Path(scratch))])
+        mesh = meshes.load_inputs([args.spec])
+        moved_mesh = meshes.load_inputs([moved_spec(args.spec, args.move, np.asarray(args.by), Path(scratch))])
         runs = {}
         for name, m in (("full", mesh), ("unchanged", mesh), ("moved", moved_mesh)):
             seconds, hlod = timed_bake(m, settings, cache)

@@ -36,13 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core import fileformat
-from hlod_core.camera import CameraPath, load_path
-from hlod_core.hierarchy import Hlod, query_box_pad
-from hlod_core.queries import Query
-from hlod_core.renderer import Renderer
-from hlod_core.textures import load_images
-from hlod_core.traversal import METHODS, RuntimeSettings, make
+from hlod_core.io import hlod_file
+from hlod_core.model.camera_path import CameraPath, load_path
+from hlod_core.model.hierarchy import Hlod, query_box_pad
+from hlod_core.render.queries import Query
+from hlod_core.render.renderer import Renderer
+from hlod_core.io.textures import load_images
+from hlod_core.traversal.methods import METHODS, RuntimeSettings, make
 
 US_PER_S = 1e6
 MS_PER_S = 1e3
@@ -140,8 +140,9 @@ def baseline_traversal(folder: str):
     """The `traversal` module of the hlod_core package in `folder`, imported as package
     hlod_core_baseline (its relative imports resolve inside it)."""
     package = Path(folder) / "hlod_core"
-    if not (package / "traversal.py").is_file():
-        raise SystemExit(f"--baseline {folder}: no hlod_core/traversal.py there")
+    flat = (package / "traversal.py").is_file()  # a version from before the subpackages
+    if not flat and not (package / "traversal" / "methods.py").is_file():
+        raise SystemExit(f"--baseline {folder}: no hlod_core/traversal/methods.py there")
     for name in [name for name in sys.modules if name.split(".")[0] == "hlod_core_baseline"]:
         del sys.modules[name]  # a baseline imported before, maybe from another folder
     spec = importlib.util.spec_from_file_location("hlod_core_baseline", package / "__init__.py",
@@ -149,7 +150,7 @@ def baseline_traversal(folder: str):
     module = importlib.util.module_from_spec(spec)
     sys.modules["hlod_core_baseline"] = module
     spec.loader.exec_module(module)
-    return importlib.import_module("hlod_core_baseline.traversal")
+    return importlib.import_module("hlod_core_baseline.traversal" + ("" if flat else ".methods"))
 
 
 def measure(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,
@@ -225,7 +226,7 @@ def main() -> None:
     args = parser.parse_args()
     baseline = baseline_traversal(args.baseline) if args.baseline else None
     size = tuple(int(x) for x in args.size.split("x"))
-    table = run(fileformat.load(args.file), load_path(args.path), size, methods=args.methods,
+    table = run(hlod_file.load(args.file), load_path(args.path), size, methods=args.methods,
                 repeat=args.repeat, settings=RuntimeSettings(alpha=args.alpha), clock=args.clock,
                 null_renderer=args.renderer == "null", baseline=baseline)
     for method, row in table.items():

@@ -22,11 +22,12 @@ import statistics
 
 import numpy as np
 
-from hlod_core import fileformat, imagemetrics
-from hlod_core.camera import inspection_path, load_path
-from hlod_core.renderer import Renderer
-from hlod_core.runner import run_path
-from hlod_core.traversal import COUNTERS, QUERY_COUNTERS, RuntimeSettings, make
+from hlod_core.io import hlod_file
+from hlod_core.report import image_error
+from hlod_core.model.camera_path import inspection_path, load_path
+from hlod_core.render.renderer import Renderer
+from hlod_core.report.runner import run_path
+from hlod_core.traversal.methods import COUNTERS, QUERY_COUNTERS, RuntimeSettings, make
 
 #: The per-frame means each row reports.
 ROW_COUNTERS = COUNTERS + QUERY_COUNTERS
@@ -60,7 +61,7 @@ def psnr_y(hlod, renderer, path, size, entries: list[str], reference: str, frame
         for e, traversal in runs.items():
             traversal.frame(view)
             if ref_image is not None:
-                scores[e].append(float(imagemetrics.psnr(ref_image, renderer.read_pixels())[0]))
+                scores[e].append(float(image_error.psnr(ref_image, renderer.read_pixels())[0]))
     return {e: float(np.mean(v)) for e, v in scores.items()}
 
 
@@ -83,7 +84,7 @@ def main() -> None:
     parser.add_argument("--psnr-reference", default="bool")
     args = parser.parse_args()
     size = tuple(int(x) for x in args.size.split("x"))
-    hlod = fileformat.load(args.file)
+    hlod = hlod_file.load(args.file)
     if args.path:
         path = load_path(args.path)
     else:

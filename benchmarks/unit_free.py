@@ -13,8 +13,8 @@ import json
 
 import numpy as np
 
-from hlod_core import meshio
-from hlod_core.bake import BakeSettings, bake
+from hlod_core.io import meshes
+from hlod_core.bake.pipeline import BakeSettings, bake
 
 from .bake_throughput import ROOT
 
@@ -24,19 +24,19 @@ SCALES = (1e-3, 1.0, 1e3)
 JITTERED = ("spot.obj", "fandisk.obj")
 
 
-def _scaled(mesh: meshio.TriangleMesh, scale: float) -> meshio.TriangleMesh:
+def _scaled(mesh: meshes.TriangleMesh, scale: float) -> meshes.TriangleMesh:
     m = np.eye(4) * scale
     m[3, 3] = 1.0
-    return meshio.transform_mesh(mesh, m, name=f"{mesh.name} x{scale:g}")
+    return meshes.transform_mesh(mesh, m, name=f"{mesh.name} x{scale:g}")
 
 
-def _jittered(mesh: meshio.TriangleMesh, seed: int) -> meshio.TriangleMesh:
+def _jittered(mesh: meshes.TriangleMesh, seed: int) -> meshes.TriangleMesh:
     """Each float32 coordinate moved one step down, kept, or moved one step up, at random."""
     rng = np.random.default_rng(seed)
     p32 = mesh.positions.astype(np.float32)
     step = rng.integers(-1, 2, size=p32.shape)
     moved = np.nextafter(p32, np.where(step > 0, np.float32(np.inf), np.float32(-np.inf)))
-    return meshio.from_arrays(np.where(step == 0, p32, moved).astype(np.float64), mesh.faces, name=mesh.name)
+    return meshes.from_arrays(np.where(step == 0, p32, moved).astype(np.float64), mesh.faces, name=mesh.name)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -45,7 +45,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     models = {name: target for name, target in MODELS}
     for name, target in MODELS:
-        mesh = meshio.load_mesh(ROOT.parent / "shared" / "models" / name)
+        mesh = meshes.load_mesh(ROOT.parent / "shared" / "models" / name)
         row = {"model": name, "target_tris": target}
         for scale in SCALES:
             hlod = bake(_scaled(mesh, scale), BakeSettings(target_tris=target))
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> None:
         row["spread"] = max(errors) / min(errors) - 1.0
         print(json.dumps(row), flush=True)
     for name in JITTERED:
-        mesh = meshio.load_mesh(ROOT.parent / "shared" / "models" / name)
+        mesh = meshes.load_mesh(ROOT.parent / "shared" / "models" / name)
         errors = [float(bake(_jittered(mesh, seed), BakeSettings(target_tris=models[name])).error[0])
                   for seed in range(args.jitter_seeds)]
         print(json.dumps({"model": name, "jitter_one_step_root_errors": errors}), flush=True)

@@ -13,13 +13,13 @@ path separator (it names a folder).
         (images embedded in glTF inputs are written to OUT.textures/ beside OUT.hlod; the bake
         cache, which lets a re-bake redo only what changed, is OUT.hlod.cache/ unless --cache
         names another folder; safe to delete; --scheduler: the decimations and measurements run
-        on a Dask cluster's workers, dask_workers.py, for the same file; --out-of-core: inputs bigger
-        than memory, streamed through per-cell scratch files, stream_partition.py, for the same file)
+        on a Dask cluster's workers, dask_cluster.py, for the same file; --out-of-core: inputs bigger
+        than memory, streamed through per-cell scratch files, partition.py, for the same file)
     info FILE.hlod
     scene low|middle|high|default -o OUT.hlod [--seed N] [--scale S] [--jobs N] [--cache DIR | --no-cache]
     run FILE.hlod --method M [...]
     evaluate FILE.hlod --out DIR [...] [--psnr-target DB]
-        (--psnr-target: the (s, t) search of hlod_core/tuning.py instead of the methods)
+        (--psnr-target: the (s, t) search of hlod_core/report/tuning.py instead of the methods)
     export IN.hlod --format 3dtiles|hlod -o DIR
 """
 from __future__ import annotations
@@ -37,12 +37,13 @@ import time
 import warnings
 from pathlib import Path
 
-from . import bake_cache, checks, fileformat, meshio, scenes, stream_partition
-from .bake import ERROR_MEASURES, BakeSettings, bake
-from .errors import HlodError, InputError
-from .export import check_output_file, export_hlod
-from .signals import Terminated, signals_as_exceptions
-from .traversal import BATCH_QUERY_MODES, MULTIQUERY_MODES, PREDICT_NEW_MODES, SKIP_QUERY_MODES, RuntimeSettings
+from .bake import cache, checks, partition
+from .io import hlod_file, meshes, procedural
+from .bake.pipeline import ERROR_MEASURES, BakeSettings, bake
+from .core.errors import HlodError, InputError
+from .export.formats import check_output_file, export_hlod
+from .core.signals import Terminated, signals_as_exceptions
+from .traversal.methods import BATCH_QUERY_MODES, MULTIQUERY_MODES, PREDICT_NEW_MODES, SKIP_QUERY_MODES, RuntimeSettings
 
 log = logging.getLogger("hlod_core")
 
@@ -117,7 +118,7 @@ def _whole_number(minimum: int):
 
 def _psnr_db(text: str) -> float:
     """argparse type of --psnr-target: dB in the range tuning.check_target accepts."""
-    from .tuning import check_target
+    from .report.tuning import check_target
 
     try:
         return check_target(text)
@@ -189,7 +190,7 @@ def _parser() -> argparse.ArgumentParser:
     p.set_defaults(run=_cmd_view)
 
     p = sub.add_parser("scene", help="bake a procedural scene made by the project (no input files)")
-    p.add_argument("name", choices=list(scenes.SCENES),
+    p.add_argument("name", choices=list(procedural.SCENES),
                    help="low / middle / high depth complexity (terrain / sparse town / dense downtown), "
                         "or default (the city block of the main job)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
@@ -253,7 +254,7 @@ def _out_of_core_options(p: argparse.ArgumentParser) -> None:
                         "loading them whole; the same file as an in-memory bake; geometry only, no bake cache")
     p.add_argument("--chunk-tris", type=_whole_number(1), default=None, metavar="N",
                    help="with --out-of-core: triangles a pass works on at a time, and buffered before the cell "
-                        f"files are written (default {stream_partition.CHUNK_TRIS})")
+                        f"files are written (default {partition.CHUNK_TRIS})")
 
 
 def _cluster_options(p: argparse.ArgumentParser) -> None:
@@ -292,21 +293,21 @@ def _cluster(args):
                 raise InputError(f"{name}: only with --scheduler (a local bake's workers use $TMPDIR)")
         yield None
         return
-    from . import dask_workers
+    from .bake import dask_cluster
 
     # distributed's own INFO lines (one per connection) stay off stderr; its warnings show, not under -q
     logging.getLogger("distributed").setLevel(max(logging.WARNING, logging.getLogger().level))
     try:
         if args.scratch is not None:
-            dask_workers.check_scratch(args.scratch)
-        client = dask_workers.connect(args.scheduler, timeout_s=args.scheduler_timeout or dask_workers.CONNECT_TIMEOUT_S)
-    except dask_workers.ClusterError as exc:
+            dask_cluster.check_scratch(args.scratch)
+        client = dask_cluster.connect(args.scheduler, timeout_s=args.scheduler_timeout or dask_cluster.CONNECT_TIMEOUT_S)
+    except dask_cluster.ClusterError as exc:
         raise InputError(f"--{exc}") from None
     with contextlib.closing(client):
         try:
-            with dask_workers.on_cluster(client, scratch_dir=args.scratch):  # the checks, in a folder of their own
+            with dask_cluster.on_cluster(client, scratch_dir=args.scratch):  # the checks, in a folder of their own
                 pass
-        except dask_workers.ClusterError as exc:
+        except dask_cluster.ClusterError as exc:
             raise InputError(f"--{exc}") from None
         yield client
 
@@ -322,24 +323,24 @@ def _cache_dir(args) -> Path | None:
     """The bake's cache folder: --cache, else OUT.hlod.cache beside the output; None with --no-cache."""
     if args.no_cache:
         return None
-    return Path(args.cache) if args.cache else bake_cache.default_folder(args.output)
+    return Path(args.cache) if args.cache else cache.default_folder(args.output)
 
 
 def _bake_and_save(mesh, args, sources, *, scheduler=None) -> dict:
-    """mesh: a TriangleMesh, or a stream_partition.TriangleSource (--out-of-core: bake_stream,
+    """mesh: a TriangleMesh, or a partition.TriangleSource (--out-of-core: bake_stream,
     no cache); scheduler: the distributed.Client of `_cluster` (None: local workers)."""
     settings = _settings(args)
-    streamed = not isinstance(mesh, meshio.TriangleMesh)
+    streamed = not isinstance(mesh, meshes.TriangleMesh)
     cache_dir = None if streamed else _cache_dir(args)
     started = time.perf_counter()
     if streamed:
-        hlod = stream_partition.bake_stream(mesh, settings, progress=_Progress(), sources=sources, scheduler=scheduler,
+        hlod = partition.bake_stream(mesh, settings, progress=_Progress(), sources=sources, scheduler=scheduler,
                                             scratch_dir=args.scratch,
-                                            chunk_tris=args.chunk_tris or stream_partition.CHUNK_TRIS)
+                                            chunk_tris=args.chunk_tris or partition.CHUNK_TRIS)
     else:
         hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
                     scratch_dir=getattr(args, "scratch", None))
-    fileformat.save(hlod, args.output)
+    hlod_file.save(hlod, args.output)
     seconds = time.perf_counter() - started
     for line in hlod.meta["log"]:
         log.info(line)
@@ -359,11 +360,11 @@ def _cmd_bake(args) -> dict:
         return _cmd_bake_out_of_core(args)
     if args.chunk_tris is not None:
         raise InputError("--chunk-tris: only with --out-of-core")
-    bake_cache.check_folder(_cache_dir(args))
+    cache.check_folder(_cache_dir(args))
     with _cluster(args) as client:
         started = time.perf_counter()
         with _EmbeddedTextures(Path(args.output)) as textures:
-            mesh = textures.relocate(meshio.load_inputs(args.inputs, texture_dir=textures.scratch))
+            mesh = textures.relocate(meshes.load_inputs(args.inputs, texture_dir=textures.scratch))
             load_seconds = time.perf_counter() - started
             summary = _bake_and_save(mesh, args, [str(p) for p in args.inputs], scheduler=client)
             summary["texture_folder"] = textures.publish()
@@ -372,14 +373,14 @@ def _cmd_bake(args) -> dict:
 
 
 def _cmd_bake_out_of_core(args) -> dict:
-    """bake --out-of-core: the inputs streamed (stream_partition.SceneSource), never loaded whole."""
+    """bake --out-of-core: the inputs streamed (partition.SceneSource), never loaded whole."""
     if args.cache is not None:
         raise InputError("--cache: out-of-core bakes keep no bake cache (leave out --cache, or bake in memory)")
     if args.scratch is not None and not Path(args.scratch).is_dir():
         raise InputError(f"--scratch {args.scratch}: no such folder")
     with _cluster(args) as client:
         started = time.perf_counter()
-        source = stream_partition.SceneSource(args.inputs)
+        source = partition.SceneSource(args.inputs)
         load_seconds = time.perf_counter() - started
         summary = _bake_and_save(source, args, [str(p) for p in args.inputs], scheduler=client)
     summary.update(load_seconds=load_seconds, texture_folder=None, out_of_core=True)
@@ -434,10 +435,10 @@ class _EmbeddedTextures:
 
 def _cmd_scene(args) -> dict:
     check_output_file(args.output)
-    bake_cache.check_folder(_cache_dir(args))
+    cache.check_folder(_cache_dir(args))
     if not 0 < args.scale <= 64:
         raise InputError(f"--scale {args.scale}: expected a factor in (0, 64]")
-    mesh = scenes.SCENES[args.name](seed=args.seed, scale=args.scale)
+    mesh = procedural.SCENES[args.name](seed=args.seed, scale=args.scale)
     summary = _bake_and_save(mesh, args, [mesh.name])
     summary["scene"] = args.name
     return summary
@@ -447,7 +448,7 @@ def _cmd_export(args) -> dict:
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise InputError(f"-o {out}: is a file, expected a folder")
-    hlod = fileformat.load(args.file)
+    hlod = hlod_file.load(args.file)
     return export_hlod(hlod, args.format, out, Path(args.file).stem)
 
 
@@ -455,7 +456,7 @@ def _cmd_view(args) -> dict:
     """Serve until Ctrl-C or SIGTERM (a normal end: exit 0). The URL is the first stdout line."""
     import webbrowser
 
-    from . import viewer
+    from .export import viewer
 
     with viewer.serve(args.dir, port=args.port, cesium_dir=args.cesium) as server:
         print(server.url, flush=True)
@@ -470,7 +471,7 @@ def _cmd_view(args) -> dict:
 
 def _cmd_info(args) -> dict:
     started = time.perf_counter()
-    hlod = fileformat.load(args.file)
+    hlod = hlod_file.load(args.file)
     open_seconds = time.perf_counter() - started
     out = hlod.summary()
     out.update(checks.check(hlod))
@@ -492,21 +493,21 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 def _runtime_setup(args, bias: str = "P"):
     """(hlod, settings, path, size) of the run and evaluate commands, validated before any GL work."""
-    from .camera import inspection_path, load_path
-    from .traversal import RuntimeSettings
+    from .model.camera_path import inspection_path, load_path
+    from .traversal.methods import RuntimeSettings
 
     size = _parse_size(args.size)
     settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha,
                                shift_up=args.shift_up, skip_queries=args.skip_queries, multiquery=args.multiquery,
                                batch_queries=args.batch_queries, predict_new=args.predict_new,
                                measure_every=args.measure_every)  # raises InputError
-    hlod = fileformat.load(args.file)
+    hlod = hlod_file.load(args.file)
     path = load_path(args.path) if args.path else inspection_path(hlod, seed=args.seed, frames=args.frames)
     return hlod, settings, path, size
 
 
 def _cmd_evaluate(args) -> dict:
-    from . import evaluate
+    from .report import evaluate
 
     methods = args.methods or list(evaluate.METHOD_SPECS)
     unknown = [m for m in methods if m not in evaluate.METHOD_SPECS]
@@ -525,8 +526,8 @@ def _cmd_evaluate(args) -> dict:
 
 
 def _cmd_tune(args, out_dir: Path) -> dict:
-    """evaluate --psnr-target: the (s, t) search (hlod_core/tuning.py) instead of the methods."""
-    from . import evaluate, tuning
+    """evaluate --psnr-target: the (s, t) search (hlod_core/report/tuning.py) instead of the methods."""
+    from .report import evaluate, tuning
 
     given = [name for name, value in (("--methods", args.methods), ("--sweep", args.sweep)) if value]
     if given:
@@ -540,7 +541,7 @@ def _cmd_tune(args, out_dir: Path) -> dict:
 
 
 def _cmd_run(args) -> dict:
-    from .runner import run_path
+    from .report.runner import run_path
 
     if args.save_path:
         check_output_file(args.save_path, "--save-path", "path.json")

@@ -3,7 +3,7 @@ hlod.export, hlod.benchmark, hlod.tune_psnr, hlod.view_tiles). Thin: they gather
 hlod_core / addon modules, and map typed errors (HlodError) to reports. Nothing here changes the
 source objects.
 
-Tune to PSNR (issue 15) runs hlod_core.tuning on the scene camera's animation (addon/benchmark.py)
+Tune to PSNR (issue 15) runs hlod_core.report.tuning on the scene camera's animation (addon/benchmark.py)
 and sets scene.hlod.s, t and bias to what it chose; an undo step like the other property edits.
 
 Bake gathers the evaluated meshes on Blender's main thread and bakes them in a child process of
@@ -18,7 +18,7 @@ no instances to read), then starts it again on the new file, or on the old one i
 
 View in Browser (`hlod.view_tiles`, issue 17) serves a 3D Tiles export (the last one Export wrote,
 `scene.hlod.tiles_dir`, or a folder picked) and a CesiumJS viewer page on 127.0.0.1 from a thread of
-Blender's process (hlod_core/viewer.py, imported only when the button is used), and opens the page
+Blender's process (hlod_core/export/viewer.py, imported only when the button is used), and opens the page
 with `webbrowser`; pressed again it opens the page again; `stop=True` closes the server. One server
 at a time, held here (`viewer_url`, `viewer_stop`); it is closed when the operator's class is
 unregistered (the add-on disabled) and on file load (the add-on's load_pre handler), so no thread or
@@ -35,8 +35,9 @@ from ..addon import benchmark, preview, scene_mesh, source_record
 from ..addon.bake_job import BakeJob
 from ..addon.properties import BLEND_RELATIVE_PATH
 from ..addon.settings import bake_settings
-from ..hlod_core import bake_cache, fileformat
-from ..hlod_core.errors import BakeCancelled, HlodError, InputError
+from ..hlod_core.bake import cache as bake_cache
+from ..hlod_core.io import hlod_file
+from ..hlod_core.core.errors import BakeCancelled, HlodError, InputError
 
 
 def output_path(props) -> str:
@@ -253,7 +254,7 @@ class HLOD_OT_materialize(bpy.types.Operator):
     def execute(self, context):
         props = context.scene.hlod
         try:
-            hlod = preview.current_hlod() or (fileformat.load(bpy.path.abspath(props.file)) if props.file else None)
+            hlod = preview.current_hlod() or (hlod_file.load(bpy.path.abspath(props.file)) if props.file else None)
             if hlod is None:
                 raise InputError("Materialize: no baked file; run Bake first")
             if self.depth < 0:
@@ -298,15 +299,15 @@ class HLOD_OT_export(bpy.types.Operator):
             if not self.filepath:
                 raise InputError("Export: give a file path")
             target = bpy.path.abspath(self.filepath)
-            hlod = fileformat.load(bpy.path.abspath(props.file))
+            hlod = hlod_file.load(bpy.path.abspath(props.file))
             if self.format == "3DTILES":
-                from ..hlod_core import tiles3d
+                from ..hlod_core.export import tiles3d
 
                 target = target[:-5] + "_3dtiles" if target.lower().endswith(".hlod") else target
                 tiles3d.export(hlod, target)
                 props.tiles_dir = _stored_path(target)  # what View in Browser serves
             else:
-                fileformat.save(hlod, target)
+                hlod_file.save(hlod, target)
         except (HlodError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -372,7 +373,7 @@ class HLOD_OT_tune_psnr(bpy.types.Operator):
         return {"FINISHED"}
 
 
-_viewer = None  # the running hlod_core.viewer.ViewerServer, or None
+_viewer = None  # the running hlod_core.export.viewer.ViewerServer, or None
 _viewer_folder = ""  # the absolute folder it serves
 
 
@@ -405,7 +406,7 @@ def _serve(folder: str) -> str:
     global _viewer, _viewer_folder
     if _viewer is not None and _viewer_folder == folder:
         return _viewer.url
-    from ..hlod_core import viewer  # here, not above: enabling the add-on imports no viewer code
+    from ..hlod_core.export import viewer  # here, not above: enabling the add-on imports no viewer code
 
     server = viewer.serve(folder)  # InputError: no tileset.json there, CesiumJS not found
     server.start()

@@ -143,14 +143,14 @@ def main() -> None:
     import bpy
 
     sys.path.insert(0, str(ROOT))
-    from hlod_core import fileformat
-    from hlod_core.png import write_png
+    from hlod_core.io import hlod_file
+    from hlod_core.core.png import write_png
 
     package = enable_from_source()
     preview = importlib.import_module(package.__name__ + ".addon.preview")
     init_gpu()
     scene = bpy.context.scene
-    hlod = fileformat.load(args.file)
+    hlod = hlod_file.load(args.file)
     lo, hi = hlod.box_min[0], hlod.box_max[0]
     centre = 0.5 * (lo + hi)
     eye = [lo[0] - 0.15 * (hi[0] - lo[0]), lo[1] - 0.1 * (hi[1] - lo[1]), lo[2] + 0.2 * (hi[2] - lo[2])]

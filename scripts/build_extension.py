@@ -13,7 +13,7 @@ Prints one line per zip: its path.
 
 The 3D Tiles viewer (issue 17): CesiumJS's built files (npm `cesium/Build/Cesium`, installed into
 tools/viewer by scripts/bootstrap.sh, or --cesium) go into the zip as viewer/cesium/, where
-hlod_core.viewer.find_cesium looks in an installed extension, with Cesium's licence, less its
+hlod_core.export.viewer.find_cesium looks in an installed extension, with Cesium's licence, less its
 JavaScript-module entry points (index.js, index.cjs: the page loads Cesium.js). About 6 MB zipped;
 nothing of it is read unless View in Browser or `--command hlod view` is used. --viewer auto (the
 default) bundles it when found and otherwise builds without it, saying so on stderr; --viewer
@@ -36,7 +36,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from hlod_core.atomic import atomic_file  # noqa: E402 - the project's one atomic write
+from hlod_core.core.atomic import atomic_file  # noqa: E402 - the project's one atomic write
 
 WHEELS = ROOT / "wheels"
 FLAT_WHEELS = WHEELS / "flat"  # wheels rewritten for Blender 4.2's installer (see blender_ready)
@@ -50,7 +50,7 @@ PIP_PLATFORMS = {
 WHEEL_PLATFORM = {"linux-x64": "linux", "windows-x64": "win_amd64", "macos-arm64": "macosx_11_0_arm64"}
 # The Pythons of the Blenders we support, as wheel tags: 3.11 (Blender 4.2 LTS to 5.0), 3.13 (5.1 on).
 PYTHON_TAGS = {"cp311": "3.11", "cp313": "3.13"}
-VIEWER_CESIUM = "viewer/cesium"  # in the zip: where hlod_core.viewer.find_cesium looks (<hlod_core>/../viewer/cesium)
+VIEWER_CESIUM = "viewer/cesium"  # in the zip: where hlod_core.export.viewer.find_cesium looks (<hlod_core>/../viewer/cesium)
 CESIUM_LEFT_OUT = ("index.js", "index.cjs")  # Build/Cesium's module entry points (9 MB); the page loads Cesium.js
 # The extension tool inside a bpy wheel: bpy/<major.minor>/scripts/addons_core/bl_pkg/cli/blender_ext.py
 BLENDER_EXT_GLOB = "bpy/[0-9]*.[0-9]*/scripts/addons_core/bl_pkg/cli/blender_ext.py"
@@ -160,7 +160,7 @@ def check_zip(zip_path: Path, wheels: list[str]) -> None:
 
 def cesium_build(mode: str, explicit: str | None) -> Path | None:
     """The CesiumJS folder to bundle (mode "auto", "bundle", "none"), found as the extension finds
-    it at run time (hlod_core.viewer.find_cesium: --cesium, $HLOD_CESIUM_DIR, tools/viewer's npm
+    it at run time (hlod_core.export.viewer.find_cesium: --cesium, $HLOD_CESIUM_DIR, tools/viewer's npm
     install); None to build without it. Exits naming where it looked when "bundle" finds none."""
     if mode == "none":
         return None
@@ -168,8 +168,8 @@ def cesium_build(mode: str, explicit: str | None) -> Path | None:
         if not (Path(explicit) / "Cesium.js").is_file():
             sys.exit(f"build_extension: --cesium {explicit}: no Cesium.js there (give npm's cesium/Build/Cesium)")
         return Path(explicit).resolve()
-    from hlod_core import viewer
-    from hlod_core.errors import InputError
+    from hlod_core.export import viewer
+    from hlod_core.core.errors import InputError
 
     try:
         return viewer.find_cesium()

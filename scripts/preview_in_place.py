@@ -55,8 +55,8 @@ def build_scene(spec_path: Path, *, unique_meshes: bool = False) -> list:
     import bpy
     from mathutils import Matrix
 
-    from hlod_core import meshio
-    from hlod_core.errors import InputError
+    from hlod_core.io import meshes
+    from hlod_core.core.errors import InputError
 
     spec = json.loads(spec_path.read_text())
     models = spec.get("models") if isinstance(spec, dict) else None
@@ -67,7 +67,7 @@ def build_scene(spec_path: Path, *, unique_meshes: bool = False) -> list:
     statues = []
     for i, model in enumerate(models):
         path = (spec_path.parent / model["path"]).resolve()
-        mesh = _blender_mesh(meshio.load_mesh(path), path.stem)
+        mesh = _blender_mesh(meshes.load_mesh(path), path.stem)
         for j, transform in enumerate(model.get("transforms", [np.eye(4).ravel().tolist()])):
             obj = bpy.data.objects.new(f"{path.stem} {j:02d}", mesh.copy() if unique_meshes else mesh)
             obj.matrix_world = Matrix(np.asarray(transform, np.float64).reshape(4, 4).tolist())  # row-major, as Matrix
@@ -232,7 +232,7 @@ def picture(preview, scene, *, size, path: Path) -> None:
     import bpy
     import gpu
 
-    from hlod_core.png import write_png
+    from hlod_core.core.png import write_png
 
     place_camera(scene.camera, yaw_deg=0.0)
     halves = []

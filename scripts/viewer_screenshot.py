@@ -1,5 +1,5 @@
 """The README's picture of the 3D Tiles viewer: the default scene baked, exported as 3D Tiles, served
-with hlod_core.viewer and shot in Chromium (Playwright, /usr/bin/chromium, WebGL through SwiftShader)
+with hlod_core.export.viewer and shot in Chromium (Playwright, /usr/bin/chromium, WebGL through SwiftShader)
 once all tiles are loaded, at the page's own first view, plain and coloured by depth.
 
     PYTHONPATH=. .venv/bin/python scripts/viewer_screenshot.py [--out docs] [--size 960x600] [--sse 1]
@@ -13,8 +13,9 @@ import json
 import tempfile
 from pathlib import Path
 
-from hlod_core import scenes, tiles3d, viewer
-from hlod_core.bake import BakeSettings, bake
+from hlod_core.io import procedural
+from hlod_core.export import tiles3d, viewer
+from hlod_core.bake.pipeline import BakeSettings, bake
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
@@ -34,7 +35,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:
         tiles = Path(tmp) / "tiles"
-        tiles3d.export(bake(scenes.default_scene(seed=1), BakeSettings(jobs=2)), tiles)
+        tiles3d.export(bake(procedural.default_scene(seed=1), BakeSettings(jobs=2)), tiles)
         with viewer.serve(tiles) as server, sync_playwright() as pw:
             server.start()
             browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)

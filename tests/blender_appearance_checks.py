@@ -28,9 +28,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import blender_preview  # noqa: E402
 
 import bpy  # noqa: E402
-from hlod_core import fileformat, imagemetrics  # noqa: E402
-from hlod_core.metrics import sse  # noqa: E402
-from hlod_core.view import View  # noqa: E402
+from hlod_core.io import hlod_file
+from hlod_core.report import image_error  # noqa: E402
+from hlod_core.traversal.metrics import sse  # noqa: E402
+from hlod_core.model.view import View  # noqa: E402
 
 NAME = "bl_ext.r.hlod"
 CHECKER_PX = 64  # the generated texture's side; 8 x 8 squares of red and blue
@@ -162,7 +163,7 @@ def source_corners(objects) -> dict[str, np.ndarray]:
 
 def hlod_leaf_corners(hlod) -> dict[str, np.ndarray]:
     """The same rows of the baked file's leaves (every source triangle is in exactly one leaf)."""
-    from hlod_core.hierarchy import node_geometry
+    from hlod_core.model.hierarchy import node_geometry
 
     rows: dict[str, list] = {}
     for node in np.flatnonzero(hlod.child_count == 0):
@@ -339,7 +340,7 @@ def check_appearance(repo, work) -> dict:
     props = scene.hlod
     props.output_path, props.target_tris = str(work / "textured.hlod"), 300
     out = {"bake": sorted(bpy.ops.hlod.bake())}
-    hlod = fileformat.load(bpy.path.abspath(props.file))
+    hlod = hlod_file.load(bpy.path.abspath(props.file))
     out["file"] = {"nodes": hlod.node_count, "depth": int(hlod.depth.max()), "input_tris": int(hlod.meta["input_tris"]),
                    "uv_map": hlod.meta.get("uv_map"), "color_attribute": hlod.meta.get("color_attribute"),
                    "materials": [[m.name, m.texture, m.image] for m in hlod.materials],
@@ -436,7 +437,7 @@ def check_render(repo, work) -> dict:
     """A far view of the textured scene rendered with Cycles from the source objects and from the
     objects Materialize makes of the root node (the source hidden), then again with those objects'
     material slots emptied (what Materialize made before issue 13: grey objects); PSNR of Y, Cb, Cr
-    (hlod_core.imagemetrics, the evaluation's measure) of each against the source's render."""
+    (hlod_core.report.image_error, the evaluation's measure) of each against the source's render."""
     blender_preview.enable_from_repo(repo)
     work = Path(work)
     names = textured_scene(work)
@@ -454,7 +455,7 @@ def check_render(repo, work) -> dict:
     props = scene.hlod
     props.output_path, props.target_tris = str(work / "textured.hlod"), RENDER_TARGET_TRIS
     out = {"bake": sorted(bpy.ops.hlod.bake())}
-    hlod = fileformat.load(bpy.path.abspath(props.file))
+    hlod = hlod_file.load(bpy.path.abspath(props.file))
     out["root_tris"], out["input_tris"] = int(hlod.tri_count[0]), int(hlod.meta["input_tris"])
     out["materialize"] = sorted(bpy.ops.hlod.materialize(depth=0))
     materialized = list(bpy.data.collections["HLOD depth 0"].objects)
@@ -472,8 +473,8 @@ def check_render(repo, work) -> dict:
     for obj in materialized:
         obj.data.materials.clear()
     grey = _render(scene, work / "grey.png")
-    out["psnr"] = imagemetrics.psnr(source, hlod_render).round(2).tolist()
-    out["psnr_grey"] = imagemetrics.psnr(source, grey).round(2).tolist()
+    out["psnr"] = image_error.psnr(source, hlod_render).round(2).tolist()
+    out["psnr_grey"] = image_error.psnr(source, grey).round(2).tolist()
     out["root_error"] = float(hlod.error[0])
     view, projection = (np.array(m, np.float64) for m in blender_preview.camera_matrices(scene, RENDER_SIZE))
     camera = View(eye=np.array(FAR_EYE, np.float64), view=view, projection=projection, width=RENDER_SIZE[0],
@@ -485,8 +486,8 @@ def check_render(repo, work) -> dict:
     crop = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # the scene's rectangle
     out["scene_pixels"] = int(scene_pixels.sum())
     out["crop"] = [int(rows[-1] - rows[0] + 1), int(cols[-1] - cols[0] + 1)]
-    out["psnr_crop"] = imagemetrics.psnr(source[crop], hlod_render[crop]).round(2).tolist()
-    out["psnr_grey_crop"] = imagemetrics.psnr(source[crop], grey[crop]).round(2).tolist()
+    out["psnr_crop"] = image_error.psnr(source[crop], hlod_render[crop]).round(2).tolist()
+    out["psnr_grey_crop"] = image_error.psnr(source[crop], grey[crop]).round(2).tolist()
     return out
 
 
@@ -507,7 +508,7 @@ def check_shared_scene(repo, work, blend) -> dict:
     props.output_path = str(Path(work) / "shared.hlod")
     started = time.perf_counter()
     out = {"bake": sorted(bpy.ops.hlod.bake()), "bake_seconds": round(time.perf_counter() - started, 2)}
-    hlod = fileformat.load(bpy.path.abspath(props.file))  # stored relative to the .blend where it can be
+    hlod = hlod_file.load(bpy.path.abspath(props.file))  # stored relative to the .blend where it can be
     leaves = hlod.child_count == 0
     per_material = {}
     for node in np.flatnonzero(leaves):

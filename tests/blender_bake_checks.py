@@ -7,7 +7,7 @@ REPO_DIR is an extension repository made by `blender_ext.py install-files` from 
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
 
 What the add-on does is watched from outside it, through /proc (Linux): the bake's child is a
-process whose parent is this one and whose command line runs hlod_core.bake_child; its workers are
+process whose parent is this one and whose command line runs hlod_core.bake.child; its workers are
 the processes of its process group. A process counts as gone when /proc has no entry for it or it
 is a zombie (it has ended; only its exit status waits for its parent). Every check points Python's
 temp folder (tempfile.tempdir, which the add-on's scratch folder and, through it, the child's
@@ -40,7 +40,7 @@ import blender_checks  # noqa: E402 - the box row scene
 import bpy  # noqa: E402
 
 NAME = "bl_ext.r.hlod"
-CHILD_MODULE = "hlod_core.bake_child"
+CHILD_MODULE = "hlod_core.bake.child"
 GONE_WITHIN_SECONDS = 1.0  # issue 14: the child and its workers are gone within 1 s of Esc
 SPY_SECONDS = 0.02  # how often the spy reads /proc (every process's stat: not too often)
 TIMING_KEYS = ("bake_seconds", "phase_seconds")  # meta entries that differ between any two bakes
@@ -186,7 +186,7 @@ def _monkeys(count: int, levels: int, collection_name: str | None = None) -> int
 
 def _modules():
     return {name: importlib.import_module(f"{NAME}.{name}") for name in
-            ("addon.bake_job", "addon.scene_mesh", "hlod_core.bake", "hlod_core.fileformat", "hlod_core.errors")}
+            ("addon.bake_job", "addon.scene_mesh", "hlod_core.bake.pipeline", "hlod_core.io.hlod_file", "hlod_core.core.errors")}
 
 
 def _leftovers(folder: Path) -> list[str]:
@@ -218,10 +218,10 @@ def check_child_bake(repo, work) -> dict:
     attributes: dict = {}
     objects = m["addon.scene_mesh"].source_objects(bpy.context, props)
     mesh = m["addon.scene_mesh"].evaluated_mesh(bpy.context, objects, attributes=attributes)
-    bake = m["hlod_core.bake"]
+    bake = m["hlod_core.bake.pipeline"]
     settings = importlib.import_module(NAME + ".addon.settings").bake_settings(props)  # the panel's float32s
     here = bake.bake(mesh, dataclasses.replace(settings, jobs=1), extra_meta=attributes or None)
-    child = m["hlod_core.fileformat"].load(out_path)
+    child = m["hlod_core.io.hlod_file"].load(out_path)
     arrays_equal = {}
     for name in ("parent", "child_offset", "child_count", "depth", "lod_box_min", "lod_box_max", "box_min", "box_max",
                  "sphere_center", "sphere_radius", "error", "cube_side", "tri_offset", "tri_count", "vertex_offset",
@@ -237,7 +237,7 @@ def check_child_bake(repo, work) -> dict:
     first_cache, first_line, first_bytes = child.meta.get(CACHE_KEY), props.last_bake, out_path.read_bytes()
     # a re-bake of the unchanged scene: every inner node from the cache beside the output
     again = sorted(bpy.ops.hlod.bake())
-    rebaked = m["hlod_core.fileformat"].load(out_path)
+    rebaked = m["hlod_core.io.hlod_file"].load(out_path)
     same_again = all(np.array_equal(getattr(rebaked, k), getattr(child, k)) for k in ("positions", "indices", "error"))
     children = {pid: {**seen, "group": sorted(seen["group"])} for pid, seen in spy.children.items()}
     # errors inside the child come back typed: the core's InputError, a failed write
@@ -279,10 +279,10 @@ def check_cancel(repo, work) -> dict:
     _monkeys(16, 2)
     mesh = m["addon.scene_mesh"].evaluated_mesh(bpy.context, list(bpy.context.selected_objects))
     out_path = Path(work) / "monkeys.hlod"
-    small = m["hlod_core.bake"].bake(mesh, m["hlod_core.bake"].BakeSettings(target_tris=1_000_000, max_depth=0))
-    m["hlod_core.fileformat"].save(small, out_path)  # the earlier file: the mesh as one node
+    small = m["hlod_core.bake.pipeline"].bake(mesh, m["hlod_core.bake.pipeline"].BakeSettings(target_tris=1_000_000, max_depth=0))
+    m["hlod_core.io.hlod_file"].save(small, out_path)  # the earlier file: the mesh as one node
     earlier = out_path.read_bytes()
-    job = m["addon.bake_job"].BakeJob(mesh, m["hlod_core.bake"].BakeSettings(jobs=2), str(out_path))
+    job = m["addon.bake_job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(out_path))
     started = _wait_until(lambda: len(workers(job.pid)) >= 2 and job.progress[2] == "simplify", 120.0)
     time.sleep(0.3)  # the workers are decimating
     processes = group(job.pid)
@@ -350,7 +350,7 @@ def check_parent_dies(repo, work) -> dict:
     m = _modules()
     _monkeys(16, 2)
     mesh = m["addon.scene_mesh"].evaluated_mesh(bpy.context, list(bpy.context.selected_objects))
-    job = m["addon.bake_job"].BakeJob(mesh, m["hlod_core.bake"].BakeSettings(jobs=2), str(Path(work) / "x.hlod"))
+    job = m["addon.bake_job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(Path(work) / "x.hlod"))
     started = _wait_until(lambda: len(workers(job.pid)) >= 2 and job.progress[2] == "simplify", 120.0)
     out = {"child": job.pid, "group": group(job.pid), "workers_started_s": started, "tmp": str(tmp),
            "scratch": _leftovers(tmp)}
@@ -365,7 +365,7 @@ def check_cli_jobs(repo, work) -> dict:
     blender_preview.enable_from_repo(repo)
     tmp = _private_tmp(work)
     cli = importlib.import_module(NAME + ".addon.cli")
-    fileformat = importlib.import_module(NAME + ".hlod_core.fileformat")
+    fileformat = importlib.import_module(NAME + ".hlod_core.io.hlod_file")
     blender_checks._box_row_scene()
     out_path = Path(work) / "cli.hlod"
     stdout = io.StringIO()
@@ -461,12 +461,12 @@ def check_bake_speed(repo, work, repeats: str = "1") -> dict:
             started = time.perf_counter()
             assert sorted(bpy.ops.hlod.bake()) == ["FINISHED"]
             seconds[jobs].append(time.perf_counter() - started)
-    baked_tris = int(m["hlod_core.fileformat"].load(props.output_path).meta["input_tris"])
+    baked_tris = int(m["hlod_core.io.hlod_file"].load(props.output_path).meta["input_tris"])
     # the overhead of the child on a small scene
     blender_checks._box_row_scene()
     props.source, props.jobs, props.output_path, props.target_tris = "SELECTED", 1, str(Path(work) / "row.hlod"), 400
     objects = m["addon.scene_mesh"].source_objects(bpy.context, props)
-    bake = m["hlod_core.bake"]
+    bake = m["hlod_core.bake.pipeline"]
     child_s, here_s = [], []
     for _ in range(5):
         started = time.perf_counter()
@@ -474,13 +474,13 @@ def check_bake_speed(repo, work, repeats: str = "1") -> dict:
         child_s.append(time.perf_counter() - started)
         started = time.perf_counter()
         mesh = m["addon.scene_mesh"].evaluated_mesh(bpy.context, objects)
-        m["hlod_core.fileformat"].save(bake.bake(mesh, bake.BakeSettings(target_tris=400, jobs=1)),
+        m["hlod_core.io.hlod_file"].save(bake.bake(mesh, bake.BakeSettings(target_tris=400, jobs=1)),
                                        Path(work) / "row_here.hlod")
         here_s.append(time.perf_counter() - started)
     one, two = statistics.median(seconds[1]), statistics.median(seconds[2])
     return {"tris": tris, "baked_tris": baked_tris, "jobs1_s": seconds[1], "jobs2_s": seconds[2],
             "speedup": one / two, "load_1min": os.getloadavg()[0], "cores": os.cpu_count(),
-            "small_tris": int(m["hlod_core.fileformat"].load(Path(work) / "row.hlod").meta["input_tris"]),
+            "small_tris": int(m["hlod_core.io.hlod_file"].load(Path(work) / "row.hlod").meta["input_tris"]),
             "small_child_s": statistics.median(child_s), "small_in_process_s": statistics.median(here_s),
             "small_overhead_s": statistics.median(child_s) - statistics.median(here_s)}
 

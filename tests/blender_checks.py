@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 import blender_preview  # noqa: E402
 
 import bpy  # noqa: E402
-from hlod_core.view import look_at, perspective  # noqa: E402
+from hlod_core.model.view import look_at, perspective  # noqa: E402
 
 NAME = "bl_ext.r.hlod"
 OPERATORS = ["bake", "clear", "preview_toggle", "materialize", "export", "benchmark"]
@@ -121,7 +121,7 @@ def _box_row_mesh():
 
 
 def check_bake(repo, work) -> dict:
-    from hlod_core import fileformat
+    from hlod_core.io import hlod_file
 
     blender_preview.enable_from_repo(repo)
     made, expected = _box_row_scene()
@@ -135,7 +135,7 @@ def check_bake(repo, work) -> dict:
     props.output_path = str(Path(work) / "scene.hlod")
     props.target_tris = 400
     out["result"] = sorted(bpy.ops.hlod.bake())
-    hlod = fileformat.load(bpy.path.abspath(props.file))
+    hlod = hlod_file.load(bpy.path.abspath(props.file))
     out.update(file=props.file, nodes=hlod.node_count, input_tris=int(hlod.meta["input_tris"]),
                box_min=hlod.box_min[0].tolist(), box_max=hlod.box_max[0].tolist())
     out["sources_untouched"] = before == {o.name: (len(o.data.vertices) if o.type == "MESH" else None, len(o.modifiers))
@@ -155,7 +155,7 @@ def check_bake(repo, work) -> dict:
     exported = Path(work) / "export" / "copy.hlod"
     exported.parent.mkdir()
     out["export"] = sorted(bpy.ops.hlod.export(filepath=str(exported)))
-    out["exported_nodes"] = fileformat.load(exported).node_count
+    out["exported_nodes"] = hlod_file.load(exported).node_count
     out["export_3dtiles"] = sorted(bpy.ops.hlod.export(filepath=str(Path(work) / "export" / "tiles"), format="3DTILES"))
     tileset = Path(work) / "export" / "tiles" / "tileset.json"
     out["tileset_tiles"] = len(list((tileset.parent / "tiles").glob("*.glb"))) if tileset.is_file() else 0
@@ -164,8 +164,8 @@ def check_bake(repo, work) -> dict:
     # the modal bake's worker (UI events cannot be made here, the job they drive can): Esc cancels
     # between tasks and writes nothing; a finished job has written its file
     job_mod = importlib.import_module(NAME + ".addon.bake_job")
-    scenes = importlib.import_module(NAME + ".hlod_core.scenes")
-    settings_cls = importlib.import_module(NAME + ".hlod_core.bake").BakeSettings
+    scenes = importlib.import_module(NAME + ".hlod_core.io.procedural")
+    settings_cls = importlib.import_module(NAME + ".hlod_core.bake.pipeline").BakeSettings
     city = scenes.default_scene(scale=0.5)
     target = Path(work) / "job" / "city.hlod"
     target.parent.mkdir()
@@ -190,7 +190,7 @@ def check_bake(repo, work) -> dict:
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     out["collection_result"] = sorted(bpy.ops.hlod.bake())
     out["collection_file"] = bpy.path.abspath(props.file)
-    out["collection_tris"] = int(fileformat.load(bpy.path.abspath(props.file)).meta["input_tris"])
+    out["collection_tris"] = int(hlod_file.load(bpy.path.abspath(props.file)).meta["input_tris"])
     return out
 
 
@@ -334,7 +334,7 @@ def check_preview(repo, work) -> dict:
     out["query_stream"] = [default.multiquery, default.batch_queries, changed.multiquery, changed.batch_queries,
                            default.predict_new, changed.predict_new]
     # an exception inside the draw path turns the preview off and is not raised
-    traversal = importlib.import_module(NAME + ".hlod_core.traversal")
+    traversal = importlib.import_module(NAME + ".hlod_core.traversal.methods")
 
     def boom(self, view):
         raise RuntimeError("injected failure")

@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import blender_preview  # noqa: E402
 
 import bpy  # noqa: E402
-from hlod_core.png import write_png  # noqa: E402
+from hlod_core.core.png import write_png  # noqa: E402
 
 NAME = "bl_ext.r.hlod"
 SIZE = (240, 180)  # offscreen pixels

@@ -16,8 +16,8 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from hlod_core import meshio
-from hlod_core.bake import BakeSettings, bake
+from hlod_core.io import meshes
+from hlod_core.bake.pipeline import BakeSettings, bake
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT.parent / "shared" / "models"
@@ -57,8 +57,8 @@ def model(name: str) -> Path:
 
 
 @functools.lru_cache(maxsize=None)
-def load_model(name: str) -> meshio.TriangleMesh:
-    return meshio.load_mesh(model(name))
+def load_model(name: str) -> meshes.TriangleMesh:
+    return meshes.load_mesh(model(name))
 
 
 @functools.lru_cache(maxsize=None)
@@ -66,7 +66,7 @@ def baked(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = 2
     """Bake a shared model once per session (optionally translated by `offset` on every axis)."""
     mesh = load_model(name)
     if offset:
-        mesh = meshio.transform_mesh(mesh, _translation(offset), name=f"{name}+{offset:g}")
+        mesh = meshes.transform_mesh(mesh, _translation(offset), name=f"{name}+{offset:g}")
     return mesh, bake(mesh, BakeSettings(jobs=jobs, target_tris=target_tris))
 
 
@@ -79,15 +79,15 @@ def _translation(offset: float) -> np.ndarray:
 @functools.lru_cache(maxsize=None)
 def baked_city():
     """The default procedural city (about 217k triangles), baked once per session."""
-    from hlod_core import scenes
+    from hlod_core.io import procedural
 
-    return bake(scenes.default_scene(seed=1), BakeSettings(jobs=2))
+    return bake(procedural.default_scene(seed=1), BakeSettings(jobs=2))
 
 
 def street_path(frames: int = 30, *, static: bool = False):
     """Walk down the street between the first two columns of buildings of the default city, eye at
     1.7 m, looking along the street: most of the city hides behind the first buildings."""
-    from hlod_core.camera import CameraPath
+    from hlod_core.model.camera_path import CameraPath
 
     out = []
     for i in range(frames):

@@ -1,4 +1,4 @@
-"""An independent reference for the vectorised `projected` alpha estimator (hlod_core.alpha_estimators):
+"""An independent reference for the vectorised `projected` alpha estimator (hlod_core.traversal.alpha_estimators):
 one box at a time, its corners in front of the near plane and its edges' crossings of that plane
 projected, their convex hull clipped to the viewport, the hull's area. (This was the product's own
 estimator before it was vectorised; tests compare the two.) Polygons are (k,2) float64 pixels.
@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hlod_core.boxes import BOX_EDGES, box_corners
-from hlod_core.view import View
+from hlod_core.traversal.boxes import BOX_EDGES, box_corners
+from hlod_core.model.view import View
 
 _MIN_CLIP_W = 1e-300
 

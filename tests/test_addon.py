@@ -20,8 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from hlod_core.evaluate import METHOD_SPECS
-from hlod_core.traversal import RuntimeSettings
+from hlod_core.report.evaluate import METHOD_SPECS
+from hlod_core.traversal.methods import RuntimeSettings
 
 from helpers import BLENDERS, ROOT, blender_python
 
@@ -131,7 +131,7 @@ def test_manifest_validates_with_blenders_tool():
 def test_zip_holds_the_package_and_cp311_and_cp313_wheels_of_each_dependency(tmp_path_factory):
     """One zip for every Blender: Blender 4.2 to 5.0 install the cp311 wheels, 5.1 and later cp313."""
     names = zipfile.ZipFile(extension_zip(tmp_path_factory)).namelist()
-    assert "blender_manifest.toml" in names and "hlod_core/traversal.py" in names
+    assert "blender_manifest.toml" in names and "hlod_core/traversal/methods.py" in names
     assert not any(n.startswith("tests/") for n in names)
     wheels = [n for n in names if n.startswith("wheels/") and n.endswith(".whl")]
     assert sorted(build_extension.wheel_tags(w) for w in wheels) == sorted(

@@ -215,8 +215,9 @@ def tiles(tmp_path_factory) -> Path:
     """A small 3D Tiles export (a 2,048-triangle terrain-like sheet, baked with 256 triangles per node)."""
     import numpy as np
 
-    from hlod_core import meshio, tiles3d
-    from hlod_core.bake import BakeSettings, bake
+    from hlod_core.io import meshes
+    from hlod_core.export import tiles3d
+    from hlod_core.bake.pipeline import BakeSettings, bake
 
     side = 33
     x, y = np.meshgrid(np.linspace(0.0, 8.0, side), np.linspace(0.0, 8.0, side))
@@ -224,7 +225,7 @@ def tiles(tmp_path_factory) -> Path:
     quads = (np.arange(side - 1)[:, None] * side + np.arange(side - 1)[None, :]).ravel()
     faces = np.concatenate([np.stack([quads, quads + 1, quads + side + 1], axis=1),
                             np.stack([quads, quads + side + 1, quads + side], axis=1)])
-    mesh = meshio.from_arrays(positions, faces, name="sheet")
+    mesh = meshes.from_arrays(positions, faces, name="sheet")
     out = tmp_path_factory.mktemp("viewer") / "sheet_3dtiles"
     tiles3d.export(bake(mesh, BakeSettings(target_tris=256, jobs=1)), out)
     return out

@@ -4,9 +4,10 @@ import os
 import numpy as np
 import pytest
 
-from hlod_core import checks, hausdorff, meshio, simplify
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.errors import BakeCancelled, InputError
+from hlod_core.bake import checks, hausdorff, simplify
+from hlod_core.io import meshes
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import BakeCancelled, InputError
 
 from helpers import baked, load_model
 
@@ -82,7 +83,7 @@ def test_normals_are_carried_only_when_given():
     mesh = load_model("cow.obj")
     n = np.zeros_like(mesh.positions)
     n[:, 2] = 1.0
-    with_normals = bake(meshio.from_arrays(mesh.positions, mesh.faces, n, name="cow"), BakeSettings(target_tris=500))
+    with_normals = bake(meshes.from_arrays(mesh.positions, mesh.faces, n, name="cow"), BakeSettings(target_tris=500))
     assert with_normals.normals is not None and with_normals.normals.shape == with_normals.positions.shape
     leaves = np.flatnonzero(with_normals.is_leaf)
     leaf_rows = np.concatenate([np.arange(with_normals.vertex_offset[i], with_normals.vertex_offset[i]
@@ -95,11 +96,11 @@ def test_normals_are_carried_only_when_given():
 
 def test_empty_mesh_is_a_clear_error():
     with pytest.raises(InputError, match="empty-thing: the mesh has no triangles"):
-        meshio.from_arrays(np.zeros((0, 3)), np.zeros((0, 3), int), name="empty-thing")
+        meshes.from_arrays(np.zeros((0, 3)), np.zeros((0, 3), int), name="empty-thing")
 
 
 def test_one_triangle_is_one_leaf():
-    hlod = bake(meshio.from_arrays([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], name="one"))
+    hlod = bake(meshes.from_arrays([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], name="one"))
     assert hlod.node_count == 1 and hlod.error[0] == 0.0 and hlod.tri_count[0] == 1
     assert checks.check(hlod)["checks"] == ALL_TRUE
     np.testing.assert_allclose(hlod.sphere_radius[0], np.sqrt(0.5))
@@ -107,7 +108,7 @@ def test_one_triangle_is_one_leaf():
 
 def test_all_vertices_at_one_point_give_one_finite_unsplittable_leaf():
     faces = np.random.default_rng(0).integers(0, 10, size=(5000, 3))
-    hlod = bake(meshio.from_arrays(np.full((10, 3), 7.5), faces, name="point"), BakeSettings(target_tris=100))
+    hlod = bake(meshes.from_arrays(np.full((10, 3), 7.5), faces, name="point"), BakeSettings(target_tris=100))
     assert hlod.node_count == 1 and hlod.sphere_radius[0] == 0.0 and hlod.error[0] == 0.0
     assert np.all(np.isfinite(hlod.cube_side)) and hlod.cube_side[0] > 0
     report = checks.check(hlod)
@@ -121,7 +122,7 @@ def test_unsplittable_leaf_over_budget_is_counted():
     a = np.stack([i.ravel(), j.ravel(), np.ones(i.size)], 1)
     b = np.stack([j.ravel(), -i.ravel(), np.full(i.size, 2.0)], 1)
     p = np.stack([a, b, -(a + b)], 1).reshape(-1, 3)
-    hlod = bake(meshio.from_arrays(p, np.arange(p.shape[0]).reshape(-1, 3), name="fan"), BakeSettings(target_tris=100))
+    hlod = bake(meshes.from_arrays(p, np.arange(p.shape[0]).reshape(-1, 3), name="fan"), BakeSettings(target_tris=100))
     assert hlod.node_count == 1
     report = checks.check(hlod)
     assert report["checks"] == ALL_TRUE
@@ -132,18 +133,18 @@ def test_unsplittable_leaf_over_budget_is_counted():
 def test_non_finite_coordinates_are_a_clear_error(bad):
     p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [bad, 0, 0]], float)
     with pytest.raises(InputError, match=r"scan\.obj: 1 vertices used by faces have NaN or infinite"):
-        meshio.from_arrays(p, [[0, 1, 2], [1, 2, 3]], name="scan.obj")
+        meshes.from_arrays(p, [[0, 1, 2], [1, 2, 3]], name="scan.obj")
 
 
 def test_non_finite_unused_vertex_is_ignored():
     p = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [np.nan, 0, 0]], float)
-    hlod = bake(meshio.from_arrays(p, [[0, 1, 2]], name="ok"))
+    hlod = bake(meshes.from_arrays(p, [[0, 1, 2]], name="ok"))
     assert np.all(np.isfinite(hlod.positions))
 
 
 def test_face_index_out_of_range_is_a_clear_error():
     with pytest.raises(InputError, match="broken: a face refers to a vertex outside 0..2"):
-        meshio.from_arrays(np.eye(3), [[0, 1, 3]], name="broken")
+        meshes.from_arrays(np.eye(3), [[0, 1, 3]], name="broken")
 
 
 def test_zero_area_duplicate_and_non_manifold_faces_bake_to_finite_results():
@@ -159,7 +160,7 @@ def test_zero_area_duplicate_and_non_manifold_faces_bake_to_finite_results():
     fin_p = np.array([[0, 0, 0], [0, 0, 0.01], [0.01, 0, 0], [-0.01, 0, 0], [0, 0.01, 0]])
     fin_f = np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4]]) + 2 * v
     p = np.concatenate([mesh.positions, mesh.positions, fin_p])
-    hlod = bake(meshio.from_arrays(p, np.concatenate([f, slivers, fin_f]), name="messy"))
+    hlod = bake(meshes.from_arrays(p, np.concatenate([f, slivers, fin_f]), name="messy"))
     report = checks.check(hlod)
     assert report["checks"] == ALL_TRUE
     assert np.all(np.isfinite(hlod.error)) and np.all(np.isfinite(hlod.sphere_radius))
@@ -207,7 +208,7 @@ def test_progress_reaches_every_node():
 # --- units (issue 11): pymeshlab's quadric collapse has absolute thresholds -----------------------
 
 def _scaled(mesh, factor: float):
-    return meshio.transform_mesh(mesh, np.diag([factor, factor, factor, 1.0]), name=f"{mesh.name}x{factor:g}")
+    return meshes.transform_mesh(mesh, np.diag([factor, factor, factor, 1.0]), name=f"{mesh.name}x{factor:g}")
 
 
 def test_power_of_two_units_bake_to_bit_identical_hierarchies():

@@ -22,11 +22,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlod_core import fileformat, meshio, simplify
-from hlod_core.appearance import Material
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.errors import InputError
-from hlod_core.hierarchy import node_geometry
+from hlod_core.io import hlod_file, meshes
+from hlod_core.bake import simplify
+from hlod_core.model.appearance import Material
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import InputError
+from hlod_core.model.hierarchy import node_geometry
 
 from helpers import numeric_library_env
 
@@ -93,7 +94,7 @@ def expected_rgb(positions: np.ndarray) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=None)
-def textured_sphere(*, uvs: bool = True, colors: bool = True, materials: bool = True) -> meshio.TriangleMesh:
+def textured_sphere(*, uvs: bool = True, colors: bool = True, materials: bool = True) -> meshes.TriangleMesh:
     positions, faces = _sphere()
     centroid = positions[faces].mean(axis=1)
     source, faces, back = _split(faces, centroid[:, 2] < CENTER[2], positions.shape[0])  # the UV seam
@@ -104,7 +105,7 @@ def textured_sphere(*, uvs: bool = True, colors: bool = True, materials: bool = 
     rgb = expected_rgb(positions)
     rgb[top] = 1.0 - rgb[top]
     material = (centroid[:, 0] > CENTER[0] + 0.2).astype(np.int32)
-    return meshio.from_arrays(positions, faces, name="textured sphere", uvs=uv if uvs else None,
+    return meshes.from_arrays(positions, faces, name="textured sphere", uvs=uv if uvs else None,
                               colors=np.concatenate([rgb, np.ones((rgb.shape[0], 1))], 1) if colors else None,
                               material_ids=material if materials else None, materials=MATERIALS if materials else ())
 
@@ -281,8 +282,8 @@ def test_each_node_draws_one_part_per_material():
 
 def test_appearance_survives_save_and_load(tmp_path):
     hlod = baked()
-    path = fileformat.save(hlod, tmp_path / "sphere.hlod")
-    back = fileformat.load(path)
+    path = hlod_file.save(hlod, tmp_path / "sphere.hlod")
+    back = hlod_file.load(path)
     for name in ("positions", "indices", "uvs", "colors", "tri_material", "error", "tri_offset", "vertex_offset"):
         assert np.array_equal(np.asarray(getattr(back, name)), getattr(hlod, name)), name
     assert back.materials == hlod.materials and back.meta == json.loads(json.dumps(hlod.meta))
@@ -336,15 +337,15 @@ def test_mesh_without_appearance_bakes_the_file_it_baked_before(tmp_path):
             "fileformat.save(h, sys.argv[2])\n")
         subprocess.run([sys.executable, "-c", script, str(tmp_path / "mesh.npz"), str(tmp_path / "old.hlod")],
                        cwd=old, env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(old), **numeric_library_env()}, check=True)
-        resaved = fileformat.save(fileformat.load(tmp_path / "old.hlod"), tmp_path / "old-resaved.hlod")
+        resaved = hlod_file.save(hlod_file.load(tmp_path / "old.hlod"), tmp_path / "old-resaved.hlod")
 
 
-    hlod = bake(meshio.from_arrays(positions, faces, name="sphere"), BakeSettings(target_tris=TARGET_TRIS))
+    hlod = bake(meshes.from_arrays(positions, faces, name="sphere"), BakeSettings(target_tris=TARGET_TRIS))
     assert hlod.uvs is None and hlod.colors is None and hlod.tri_material is None and hlod.materials == ()
     hlod = hlod.replace(meta={**hlod.meta, "bake_seconds": 0.0,
                               "phase_seconds": {k: 0.0 for k in hlod.meta["phase_seconds"]}})
-    new = fileformat.save(hlod, tmp_path / "new.hlod")
-    loaded = fileformat.load(new)
+    new = hlod_file.save(hlod, tmp_path / "new.hlod")
+    loaded = hlod_file.load(new)
     assert loaded.uvs is None and loaded.colors is None and loaded.tri_material is None and loaded.materials == ()
     if resaved is not None:
         assert new.read_bytes() == resaved.read_bytes()
@@ -360,9 +361,9 @@ def test_colour_jumps_do_not_stop_decimation():
     corners = positions[faces.ravel()]  # every triangle its own three vertices
     shade = np.repeat(np.linspace(0.0, 1.0, faces.shape[0]), 3)
     colours = np.stack([shade, 1 - shade, np.full_like(shade, 0.5), np.ones_like(shade)], 1)
-    mesh = meshio.from_arrays(corners, np.arange(corners.shape[0]).reshape(-1, 3), name="faceted", colors=colours)
+    mesh = meshes.from_arrays(corners, np.arange(corners.shape[0]).reshape(-1, 3), name="faceted", colors=colours)
     hlod = bake(mesh, BakeSettings(target_tris=TARGET_TRIS))
-    bare = bake(meshio.from_arrays(positions, faces, name="bare"), BakeSettings(target_tris=TARGET_TRIS))
+    bare = bake(meshes.from_arrays(positions, faces, name="bare"), BakeSettings(target_tris=TARGET_TRIS))
     assert hlod.tri_count[0] <= 1.1 * TARGET_TRIS and bare.tri_count[0] <= 1.1 * TARGET_TRIS
     _assert_colours_blend_the_inputs(mesh, hlod, hlod.positions, hlod.colors, "faceted sphere")
 
@@ -427,7 +428,7 @@ ISLAND_STRIDE = 2.0
 
 
 @functools.lru_cache(maxsize=None)
-def island_sphere(rings: int = 24, segments: int = 48) -> meshio.TriangleMesh:
+def island_sphere(rings: int = 24, segments: int = 48) -> meshes.TriangleMesh:
     """The sphere cut into UV islands of ISLAND_BLOCK x ISLAND_BLOCK cells (as Blender's smart
     project cuts a house into many): island i's UV is the planar projection expected_uv shifted by
     ISLAND_STRIDE * i on u, so every vertex on an island's edge is split, once per island. The two
@@ -442,7 +443,7 @@ def island_sphere(rings: int = 24, segments: int = 48) -> meshio.TriangleMesh:
     vertex, vertex_island = corner // (int(island.max()) + 1), corner % (int(island.max()) + 1)
     uv = expected_uv(positions[vertex]) + np.stack([ISLAND_STRIDE * vertex_island, np.zeros(vertex.shape[0])], 1)
     material = (positions[sphere_faces].mean(axis=1)[:, 0] > CENTER[0] + 0.2).astype(np.int32)
-    return meshio.from_arrays(positions[vertex], faces.reshape(-1, 3), name="island sphere", uvs=uv,
+    return meshes.from_arrays(positions[vertex], faces.reshape(-1, 3), name="island sphere", uvs=uv,
                               material_ids=material, materials=MATERIALS)
 
 
@@ -466,7 +467,7 @@ def test_many_uv_islands_are_crossed_so_the_root_reaches_its_target():
         assert np.array_equal(getattr(parallel, name), getattr(hlod, name)), name
     assert parallel.meta["uv_seams_crossed_nodes"] == hlod.meta["uv_seams_crossed_nodes"]
     assert baked().meta["uv_seams_crossed_nodes"] == 0  # one seam: nothing to cross
-    assert "uv_seams_crossed_nodes" not in bake(meshio.from_arrays(*_sphere(), name="bare"),
+    assert "uv_seams_crossed_nodes" not in bake(meshes.from_arrays(*_sphere(), name="bare"),
                                                 BakeSettings(target_tris=TARGET_TRIS)).meta
 
 

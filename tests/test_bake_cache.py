@@ -4,23 +4,28 @@ the key. Real pymeshlab bakes of small meshes; decimations and measurements are 
 the real functions (jobs = 1 runs them in this process)."""
 from __future__ import annotations
 
+import ast
 import hashlib
 import logging
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from hlod_core import bake as bake_module
-from hlod_core import bake_cache, checks, fileformat, hausdorff, meshio, simplify
-from hlod_core.appearance import AttributeLayout
-from hlod_core.bake import VOLATILE_META, BakeSettings, bake, stable_meta
-from hlod_core.errors import BakeCancelled, InputError
-from hlod_core.octree import build_octree
+from hlod_core.bake import pipeline as bake_module
+from hlod_core.bake import cache as bake_cache, checks, hausdorff, simplify
+from hlod_core.io import hlod_file, meshes
+from hlod_core.model.appearance import AttributeLayout
+from hlod_core.bake.pipeline import VOLATILE_META, BakeSettings, bake, stable_meta
+from hlod_core.core.errors import BakeCancelled, InputError
+from hlod_core.bake.octree import build_octree
 
 from helpers import load_model, model
 from test_bake_appearance import TARGET_TRIS as SPHERE_TARGET_TRIS, textured_sphere
 from test_cli import hlod, last_json, one_line_error
+
+CORE = Path(bake_module.__file__).resolve().parent.parent
 
 COW = BakeSettings(target_tris=300)
 #: The 3 x 3 herd: cows (about 10 units long) 12 units apart; the one in the middle moves.
@@ -31,10 +36,10 @@ HERD = BakeSettings(target_tris=600)
 def _translated(mesh, offset, name):
     m = np.eye(4)
     m[:3, 3] = offset
-    return meshio.transform_mesh(mesh, m, name=name)
+    return meshes.transform_mesh(mesh, m, name=name)
 
 
-def _herd(moved_by=(0.0, 0.0, 0.0)) -> tuple[meshio.TriangleMesh, np.ndarray]:
+def _herd(moved_by=(0.0, 0.0, 0.0)) -> tuple[meshes.TriangleMesh, np.ndarray]:
     """Nine cows on a grid, the middle one moved by `moved_by`; and the (f,) bool mask of its triangles."""
     cow = load_model("cow.obj")
     parts = []
@@ -44,7 +49,7 @@ def _herd(moved_by=(0.0, 0.0, 0.0)) -> tuple[meshio.TriangleMesh, np.ndarray]:
             offset = offset + np.asarray(moved_by)
         parts.append(_translated(cow, offset, f"cow{k}"))
     mover = np.repeat(np.arange(9) == HERD_MOVER, cow.tri_count)
-    return meshio.merge(parts, name="herd"), mover
+    return meshes.merge(parts, name="herd"), mover
 
 
 class _Counted:
@@ -71,7 +76,7 @@ class _Counted:
 
 def _file_bytes(hlod, path) -> bytes:
     """The .hlod file of `hlod` with the volatile meta removed: what must be byte-identical."""
-    return fileformat.save(hlod.replace(meta=stable_meta(hlod.meta)), path).read_bytes()
+    return hlod_file.save(hlod.replace(meta=stable_meta(hlod.meta)), path).read_bytes()
 
 
 def _assert_same_file(a, b, tmp_path):
@@ -221,7 +226,7 @@ def test_changed_settings_or_versions_miss(change, tmp_path, monkeypatch):
     bake(cow, COW, cache_dir=folder)
     settings = COW
     if change == "format version":
-        monkeypatch.setattr(fileformat, "FORMAT_VERSION", fileformat.FORMAT_VERSION + 1)
+        monkeypatch.setattr(hlod_file, "FORMAT_VERSION", hlod_file.FORMAT_VERSION + 1)
     elif change == "cache version":
         monkeypatch.setattr(bake_cache, "CACHE_VERSION", bake_cache.CACHE_VERSION + 1)
     else:
@@ -291,11 +296,11 @@ def test_corrupt_entries_are_ignored_logged_once_and_rebuilt(jobs, tmp_path, cap
     folder = tmp_path / "cache"
     bake(cow, settings, cache_dir=folder)
     spoiled = _corrupt(folder)
-    with caplog.at_level(logging.WARNING, logger="hlod_core.bake_cache"):
+    with caplog.at_level(logging.WARNING, logger="hlod_core.bake.cache"):
         warm = bake(cow, settings, cache_dir=folder)
     assert warm.meta["cache"]["rejected_entries"] == len(spoiled) == warm.meta["cache"]["rebuilt_nodes"] + 1
     assert not warm.meta["cache"]["reused_result"]
-    warnings = [r for r in caplog.records if r.name == "hlod_core.bake_cache"]
+    warnings = [r for r in caplog.records if r.name == "hlod_core.bake.cache"]
     assert len(warnings) == 1 and f"{len(spoiled)} entries ignored and rebuilt" in warnings[0].getMessage()
     _assert_same_file(scratch, warm, tmp_path)
     _remove_results(folder)
@@ -395,31 +400,38 @@ def test_command_line_keeps_the_cache_beside_the_output(tmp_path):
 
 
 #: hlod_core modules the bake's code imports that compute nothing a LOD or an error depends on.
-_NOT_RESULT_MODULES = {"errors", "hierarchy", "meshio", "fileformat", "dask_workers"}  # dask_workers: where tasks run
+_NOT_RESULT_MODULES = {"core.errors", "model.hierarchy", "io.meshes", "io.hlod_file",
+                       "bake.dask_cluster"}  # dask_cluster: where tasks run
+
+
+def _core_imports(name: str, tree) -> set[str]:
+    """The hlod_core modules (dotted, relative to hlod_core) that module `name` imports relatively."""
+    package = name.split(".")[:-1]
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = package[:len(package) - (node.level - 1)]
+            stem = base + (node.module.split(".") if node.module else [])
+            for alias in node.names:
+                full = ".".join(stem + [alias.name])
+                out.add(full if (CORE / f"{full.replace('.', '/')}.py").is_file() else ".".join(stem))
+    return out
 
 
 def test_every_module_that_computes_lods_or_errors_keys_the_cache():
     """The cache key holds the source of RESULT_MODULES, so a change to any module that computes
     LODs or errors invalidates every entry (a stale subtree is never served). Every hlod_core module
     those modules import is one of them or names nothing a result depends on."""
-    import ast
-    from pathlib import Path
-
-    here = Path(bake_module.__file__).parent
     seen, todo = set(), list(bake_cache.RESULT_MODULES)
     while todo:
         name = todo.pop()
         if name in seen:
             continue
         seen.add(name)
-        tree = ast.parse((here / f"{name}.py").read_text())
-        for node in ast.walk(tree):
-            if isinstance(node, ast.ImportFrom) and node.level == 1:
-                imported = [node.module] if node.module else [alias.name for alias in node.names]
-                for module in imported:
-                    assert module in bake_cache.RESULT_MODULES or module in _NOT_RESULT_MODULES, (name, module)
-                    todo.extend([module] if module in bake_cache.RESULT_MODULES else [])
-    assert "hausdorff" in seen
+        for module in _core_imports(name, ast.parse((CORE / f"{name.replace('.', '/')}.py").read_text())):
+            assert module in bake_cache.RESULT_MODULES or module in _NOT_RESULT_MODULES, (name, module)
+            todo.extend([module] if module in bake_cache.RESULT_MODULES else [])
+    assert "bake.hausdorff" in seen
 
 
 def test_rebake_benchmark_times_every_rebuilt_task_and_restores_the_bake(tmp_path):

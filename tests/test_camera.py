@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from helpers import baked, standalone_gl
-from hlod_core import jsonutil, meshio
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.camera import MAX_MAGNITUDE, inspection_path, load_path
-from hlod_core.errors import InputError
-from hlod_core.renderer import Renderer
-from hlod_core.traversal import RuntimeSettings, make
+from hlod_core.core import jsonutil
+from hlod_core.io import meshes
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.model.camera_path import MAX_MAGNITUDE, inspection_path, load_path
+from hlod_core.core.errors import InputError
+from hlod_core.render.renderer import Renderer
+from hlod_core.traversal.methods import RuntimeSettings, make
 
 GOOD_FRAME = {"eye": [0.2, -3.0, 0.5], "target": [0.2, 0.0, 0.3], "up": [0, 0, 1]}
 
@@ -124,7 +125,7 @@ def test_inspection_path_of_a_model_without_extent(where):
     """Every triangle on one point: the path keeps eye and target apart (a radius relative to the
     point's distance from the origin, or 1 unit at the origin) and gives a valid frustum."""
     positions = np.full((3, 3), where)
-    hlod = bake(meshio.from_arrays(positions, np.array([[0, 1, 2]]), name="point"), BakeSettings())
+    hlod = bake(meshes.from_arrays(positions, np.array([[0, 1, 2]]), name="point"), BakeSettings())
     path = inspection_path(hlod, seed=1, frames=8)
     assert np.all(np.isfinite(path.frames)) and np.all(np.any(path.frames[:, 0] != path.frames[:, 1], axis=1))
     assert 0 < path.near < path.far

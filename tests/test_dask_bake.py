@@ -1,4 +1,4 @@
-"""Bakes on a Dask cluster (issue 16, hlod_core/dask_workers.py): a real distributed.LocalCluster of
+"""Bakes on a Dask cluster (issue 16, hlod_core/dask_cluster.py): a real distributed.LocalCluster of
 two worker processes on this machine (localhost only, no dashboard) bakes the file a local bake
 writes, byte for byte, with the exact and the bound error; a worker killed in the middle of a bake
 has its tasks retried and the file is still the same; the command line's --scheduler and --scratch,
@@ -18,11 +18,12 @@ import distributed  # requirements.txt installs it (command line only): its abse
 import numpy as np
 import pytest
 
-from hlod_core import bake as bake_module
-from hlod_core import dask_workers, fileformat
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.errors import BakeCancelled
-from hlod_core.stream_partition import MeshSource, bake_stream
+from hlod_core.bake import pipeline as bake_module
+from hlod_core.bake import dask_cluster
+from hlod_core.io import hlod_file
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import BakeCancelled
+from hlod_core.bake.partition import MeshSource, bake_stream
 
 from helpers import ROOT, model
 from test_bake_cache import HERD_SPACING, _file_bytes, _herd
@@ -120,7 +121,7 @@ def test_the_command_line_bakes_on_a_cluster(cluster, tmp_path):
     summary = last_json(proc)
     assert summary["scheduler"] == {"address": cluster.scheduler.address, "worker_threads": 2}
     assert proc.stderr == ""  # -q: distributed's own log lines are kept off stderr too
-    files = [fileformat.load(tmp_path / f"{name}.hlod") for name in ("local", "remote")]
+    files = [hlod_file.load(tmp_path / f"{name}.hlod") for name in ("local", "remote")]
     assert _file_bytes(files[1], tmp_path / "b.hlod") == _file_bytes(files[0], tmp_path / "a.hlod")
     assert list(scratch.iterdir()) == []
 
@@ -228,22 +229,22 @@ class _FakeClient:
 
 
 def test_check_cluster_refuses_other_code_and_an_unshared_scratch_folder(tmp_path):
-    ours = dask_workers.fingerprint()
+    ours = dask_cluster.fingerprint()
 
     def reads(path):
-        return {"tcp://w1:1": dask_workers._read_probe(path), "tcp://w2:1": dask_workers._read_probe(path)}
+        return {"tcp://w1:1": dask_cluster._read_probe(path), "tcp://w2:1": dask_cluster._read_probe(path)}
 
     good = {"fingerprint": {"tcp://w1:1": ours, "tcp://w2:1": ours}, "_read_probe": reads}
-    assert dask_workers.check_cluster(_FakeClient(good), str(tmp_path)) == 4  # the threads: the task limit
+    assert dask_cluster.check_cluster(_FakeClient(good), str(tmp_path)) == 4  # the threads: the task limit
     assert list(tmp_path.iterdir()) == []  # the probe is removed
     other = {**good, "fingerprint": {"tcp://w1:1": ours, "tcp://w2:1": "python 3.11 0123"}}
-    with pytest.raises(dask_workers.ClusterError, match="worker tcp://w2:1 runs other code or versions") as info:
-        dask_workers.check_cluster(_FakeClient(other), str(tmp_path))
+    with pytest.raises(dask_cluster.ClusterError, match="worker tcp://w2:1 runs other code or versions") as info:
+        dask_cluster.check_cluster(_FakeClient(other), str(tmp_path))
     assert info.value.about == "scheduler"
     elsewhere = {**good, "_read_probe": {"tcp://w1:1": "cannot read /x/probe: No such file or directory"}}
     (tmp_path / "bake").mkdir()
-    with pytest.raises(dask_workers.ClusterError, match="Dask worker tcp://w1:1 does not see it") as info:
-        dask_workers.check_cluster(_FakeClient(elsewhere), str(tmp_path / "bake"))
+    with pytest.raises(dask_cluster.ClusterError, match="Dask worker tcp://w1:1 does not see it") as info:
+        dask_cluster.check_cluster(_FakeClient(elsewhere), str(tmp_path / "bake"))
     assert info.value.about == "scratch" and info.value.value == str(tmp_path)
 
 

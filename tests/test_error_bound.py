@@ -24,9 +24,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlod_core import fileformat, hausdorff, meshio
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.errors import InputError
+from hlod_core.io import hlod_file, meshes
+from hlod_core.bake import hausdorff
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import InputError
 
 from helpers import load_model, numeric_library_env
 
@@ -141,8 +142,8 @@ def _herd(scale_middle: float = 1.0):
             centre = 0.5 * (cow.positions.min(axis=0) + cow.positions.max(axis=0))
             m[:3, :3] *= scale_middle
             m[:3, 3] += (1.0 - scale_middle) * centre
-        parts.append(meshio.transform_mesh(cow, m, name=f"cow{k}"))
-    return meshio.merge(parts, name="herd")
+        parts.append(meshes.transform_mesh(cow, m, name=f"cow{k}"))
+    return meshes.merge(parts, name="herd")
 
 
 def _same(a, b) -> bool:
@@ -174,14 +175,14 @@ def _exact_file(hlod, path: Path) -> bytes:
     of the shared models depends on where the checkout is)."""
     hlod = hlod.replace(meta={**hlod.meta, "bake_seconds": 0.0, "sources": [Path(s).name for s in hlod.meta["sources"]],
                               "phase_seconds": {k: 0.0 for k in hlod.meta["phase_seconds"]}})
-    return fileformat.save(hlod, path).read_bytes()
+    return hlod_file.save(hlod, path).read_bytes()
 
 
 def test_exact_bake_writes_the_bytes_it_wrote_before_the_bound(tmp_path):
     """cow.obj baked exactly: the same .hlod bytes as the bake at BEFORE_BOUND (taken from git into a
     temporary folder, run in its own process, its file re-saved by today's writer)."""
     source = ROOT.parent / "shared" / "models" / "cow.obj"
-    new = _exact_file(bake(meshio.load_mesh(source), BakeSettings(target_tris=300)), tmp_path / "new.hlod")
+    new = _exact_file(bake(meshes.load_mesh(source), BakeSettings(target_tris=300)), tmp_path / "new.hlod")
     archive = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", BEFORE_BOUND, "hlod_core"],
                              capture_output=True)
     if archive.returncode == 0:  # else a checkout without that commit: the digest below
@@ -198,6 +199,6 @@ def test_exact_bake_writes_the_bytes_it_wrote_before_the_bound(tmp_path):
             "fileformat.save(h.replace(meta={**h.meta, 'bake_seconds': 0.0, 'phase_seconds': zero}), sys.argv[2])\n")
         subprocess.run([sys.executable, "-c", script, str(source), str(tmp_path / "old.hlod")], cwd=old,
                        env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(old), **numeric_library_env()}, check=True)
-        assert new == _exact_file(fileformat.load(tmp_path / "old.hlod"), tmp_path / "resaved.hlod")
+        assert new == _exact_file(hlod_file.load(tmp_path / "old.hlod"), tmp_path / "resaved.hlod")
     else:  # the digest was taken on one CPU; pymeshlab's floats differ on another (AMD EPYC vs Intel Xeon)
         assert hashlib.sha256(new).hexdigest() == FILE_BEFORE_BOUND

@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 from benchmarks import evaluation_targets
-from hlod_core import evaluate, imagemetrics, scenes
-from hlod_core.camera import inspection_path
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.errors import InputError
-from hlod_core.traversal import COUNTERS, RuntimeSettings
-from hlod_core.view import look_at, perspective
+from hlod_core.report import evaluate, image_error
+from hlod_core.io import procedural
+from hlod_core.model.camera_path import inspection_path
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import InputError
+from hlod_core.traversal.methods import COUNTERS, RuntimeSettings
+from hlod_core.model.view import look_at, perspective
 
 from helpers import ROOT
 from test_cli import hlod, last_json, one_line_error
@@ -29,18 +30,18 @@ ISSUE_KEYS = {"fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms
 def test_psnr_of_known_differences():
     rng = np.random.default_rng(0)
     a = rng.integers(0, 246, (48, 64, 3), dtype=np.uint8)
-    assert np.allclose(imagemetrics.psnr(a, a), 100.0)
+    assert np.allclose(image_error.psnr(a, a), 100.0)
     # +10 on R, G and B: luminance moves by exactly 10, chrominance not at all (its rows sum to 0)
-    y, cb, cr = imagemetrics.psnr(a, a + np.uint8(10))
+    y, cb, cr = image_error.psnr(a, a + np.uint8(10))
     assert y == pytest.approx(20 * np.log10(255 / 10)) and cb == pytest.approx(100.0) and cr == pytest.approx(100.0)
     # pure blue shift: chrominance Cb moves most
     b = a.copy()
     b[..., 2] += 9
-    y, cb, cr = imagemetrics.psnr(a, b)
+    y, cb, cr = image_error.psnr(a, b)
     assert cb < y < cr
-    assert imagemetrics.rmse_y(a, a + np.uint8(10)) == pytest.approx(10.0)
+    assert image_error.rmse_y(a, a + np.uint8(10)) == pytest.approx(10.0)
     with pytest.raises(ValueError, match="differ in size"):
-        imagemetrics.psnr(a, a[:10])
+        image_error.psnr(a, a[:10])
 
 
 def _depth_complexity(mesh, views) -> float:
@@ -76,7 +77,7 @@ def test_procedural_scenes_rank_by_depth_complexity():
     (30 degrees down, at 1.2 bounding radii), fragments per covered pixel rise low < middle < high."""
     measured = {}
     for name in ("low", "middle", "high"):
-        mesh = scenes.SCENES[name](seed=1)
+        mesh = procedural.SCENES[name](seed=1)
         assert 150_000 <= mesh.faces.shape[0] <= 260_000, name
         lo, hi = mesh.positions.min(0), mesh.positions.max(0)
         centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
@@ -156,7 +157,7 @@ def test_short_run_figures_legible_and_per_frame_saved(short_run):
     """per_frame.npz holds each variant's per-frame medians over the repeats (their means are the
     report's figures), the generated path's parts reach the report, and the figures drawn from
     the saved files have no two texts overlapping."""
-    from hlod_core import report_figures
+    from hlod_core.report import figures
 
     _, out_dir = short_run
     report = json.loads((out_dir / "report.json").read_text())
@@ -167,9 +168,9 @@ def test_short_run_figures_legible_and_per_frame_saved(short_run):
         assert np.mean(medians[key][:, COUNTERS.index("dn")]) == pytest.approx(row["dn"], rel=1e-6), key
         assert np.mean(medians[key][:, COUNTERS.index("frame_ms")]) == pytest.approx(row["frame_ms"], rel=1e-5), key
     assert [p["name"] for p in report["parts"]] == ["orbit", "fly-through", "dolly", "rotate"]
-    for fig in (report_figures.error_vs_time_figure(report, labels=evaluate.LABELS),
-                report_figures.per_frame_figure(report, medians, labels=evaluate.LABELS),
-                report_figures.alpha_figure(report)):
+    for fig in (figures.error_vs_time_figure(report, labels=evaluate.LABELS),
+                figures.per_frame_figure(report, medians, labels=evaluate.LABELS),
+                figures.alpha_figure(report)):
         assert legible(fig) == []
         fig.clf()
 
@@ -191,7 +192,7 @@ def test_report_html_is_self_contained(short_run):
 
 
 def test_redraw_from_the_saved_files(short_run, tmp_path):
-    """`python -m hlod_core.evaluate --redraw DIR` draws the figures, report.md and report.html again
+    """`python -m hlod_core.report.evaluate --redraw DIR` draws the figures, report.md and report.html again
     from report.json and per_frame.npz alone; a folder that is not an evaluation's, or a per-frame
     file that is not one, is one line naming the file."""
     import shutil
@@ -201,7 +202,7 @@ def test_redraw_from_the_saved_files(short_run, tmp_path):
     shutil.copytree(out_dir, folder)
     for name in ("error_vs_time.png", "per_frame.png", "alpha_estimators.png", "report.html", "report.md"):
         (folder / name).unlink()
-    proc = subprocess.run([sys.executable, "-m", "hlod_core.evaluate", "--redraw", folder], capture_output=True,
+    proc = subprocess.run([sys.executable, "-m", "hlod_core.report.evaluate", "--redraw", folder], capture_output=True,
                           text=True, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr
     for name in ("error_vs_time.png", "per_frame.png", "alpha_estimators.png", "modulation.png"):
@@ -214,7 +215,7 @@ def test_redraw_from_the_saved_files(short_run, tmp_path):
     for target, message in ((tmp_path / "none", "report.json: cannot read the evaluation report"),
                             (folder, "per_frame.npz: not an evaluation's per-frame file"),
                             (tmp_path / "bad", "report.json: not an evaluation report (KeyError")):
-        proc = subprocess.run([sys.executable, "-m", "hlod_core.evaluate", "--redraw", target], capture_output=True,
+        proc = subprocess.run([sys.executable, "-m", "hlod_core.report.evaluate", "--redraw", target], capture_output=True,
                               text=True, cwd=ROOT)
         assert proc.returncode == 2 and message in one_line_error(proc), proc.stderr
 
@@ -225,7 +226,7 @@ def test_modulation_frames_use_only_the_colour_ramp(small_high, tmp_path):
     red a tenth of blue); the bird's-eye view shows the drawn front; the shaded image is grey."""
     from matplotlib.image import imread
 
-    from hlod_core import fileformat
+    from hlod_core.io import hlod_file as fileformat
 
     def read_png(path):
         return np.round(imread(path)[..., :3] * 255).astype(np.uint8)
@@ -248,7 +249,7 @@ def test_modulation_frames_use_only_the_colour_ramp(small_high, tmp_path):
         assert np.all(np.abs(grey[:, 0] - grey[:, 1]) <= 0.05 * grey[:, 0] + 2)
     # without figures (Blender has no matplotlib) the report is complete and says why they are missing
     page = (tmp_path / "report.html").read_text()
-    assert "<img" not in page and "No figures" in page and "python -m hlod_core.evaluate --redraw" in page
+    assert "<img" not in page and "No figures" in page and "python -m hlod_core.report.evaluate --redraw" in page
     assert "<td>Coh(mu)</td>" in page and (tmp_path / "per_frame.npz").stat().st_size > 0
 
 
@@ -289,7 +290,7 @@ def test_evaluation_targets_bad_report_is_one_line(tmp_path):
 
 def test_evaluate_bad_arguments_raise_input_error(tmp_path):
     """Checked before any GL work, as the core's typed error."""
-    tiny = bake(scenes.low_scene(seed=3, scale=0.05), BakeSettings(target_tris=2000))
+    tiny = bake(procedural.low_scene(seed=3, scale=0.05), BakeSettings(target_tris=2000))
     path = inspection_path(tiny, seed=1, frames=2)
     for kwargs, message in (({"methods": ["nope"]}, "unknown method.s. nope"), ({"repeat": 0}, "repeat must be"),
                             ({"sweep": "colour"}, "sweep must be one of")):
@@ -303,9 +304,9 @@ def test_scene_bad_scale_is_one_line(tmp_path):
 
 
 def test_low_scene_bakes_into_a_valid_hierarchy():
-    from hlod_core import checks
+    from hlod_core.bake import checks
 
-    mesh = scenes.low_scene(seed=3, scale=0.2)
+    mesh = procedural.low_scene(seed=3, scale=0.2)
     hlod_low = bake(mesh, BakeSettings(target_tris=2000))
     assert hlod_low.summary()["input_tris"] == mesh.faces.shape[0] and hlod_low.node_count > 1
     assert all(checks.check(hlod_low)["checks"].values())

@@ -14,10 +14,11 @@ import pytest
 from PIL import Image
 
 from helpers import ROOT, baked, textured_scene
-from hlod_core import fileformat, meshio, tiles3d
-from hlod_core.appearance import Material
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.hierarchy import Hlod, node_geometry
+from hlod_core.io import hlod_file as fileformat, meshes
+from hlod_core.export import tiles3d
+from hlod_core.model.appearance import Material
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.model.hierarchy import Hlod, node_geometry
 from test_addon import versioned_repo  # noqa: F401 - the extension installed in each Blender
 from test_addon import blender, repo  # noqa: F401 - the extension installed for this bpy module
 from test_cli import hlod, last_json, one_line_error
@@ -119,12 +120,12 @@ def test_export_command_on_shared_model_passes_the_validators(tmp_path):
 
 
 def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_precision(tmp_path):
-    mesh = meshio.load_mesh(ROOT.parent / "shared/models/spot.obj")
+    mesh = meshes.load_mesh(ROOT.parent / "shared/models/spot.obj")
     p, f = mesh.positions + 1e6, mesh.faces  # a scene placed a million metres away
     e1, e2 = p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]
     normals = np.zeros_like(p)
     np.add.at(normals, f.ravel(), np.repeat(np.cross(e1, e2), 3, axis=0))
-    h = bake(meshio.from_arrays(p, f, normals, name="spot far"), BakeSettings(target_tris=800))
+    h = bake(meshes.from_arrays(p, f, normals, name="spot far"), BakeSettings(target_tris=800))
     src = fileformat.save(h, tmp_path / "spot.hlod")
     tiles3d.export(h, tmp_path / "tiles")
     doc = json.loads((tmp_path / "tiles/tileset.json").read_text())
@@ -280,7 +281,7 @@ def folder_digest(folder) -> tuple[list[str], str]:
 
 
 # SHA-256 of the export of literal_hlod (file names and bytes, see folder_digest) by the code before
-# issue 13: recorded with hlod_core/tiles3d.py at commit 6d77cb6 (unchanged since 844ae1f), running
+# issue 13: recorded with hlod_core/export/tiles3d.py at commit 6d77cb6 (unchanged since 844ae1f), running
 # `tiles3d.export(literal_hlod(normals=...), DIR)` then `folder_digest(DIR)`.
 BEFORE_APPEARANCE_DIGESTS = {False: "93e9e14dca7b80309e75213edcbea1d67289dcef4ac23a4c31036573010ea475",
                              True: "369da809dca32415f02196c25d4f9fa7b3e3c67b6559f746f4caf1afbcd4eb60"}
@@ -402,7 +403,7 @@ def test_a_texture_that_cannot_be_used_is_named_with_its_materials_and_left_out(
     not_an_image.write_text("not a picture")
     h = with_appearance(literal_hlod(normals=False), png, str(tmp_path / "gone.jpeg"))
     h = h.replace(materials=(*h.materials[:3], Material("paint", texture=str(not_an_image))))
-    with caplog.at_level(logging.WARNING, logger="hlod_core.tiles3d"):
+    with caplog.at_level(logging.WARNING, logger="hlod_core.export.tiles3d"):
         summary = tiles3d.export(h, tmp_path / "tiles")
     assert summary["warnings"] == [line.getMessage() for line in caplog.records]
     assert len(summary["warnings"]) == 2
@@ -450,7 +451,7 @@ def test_textured_bake_exported_by_the_command_passes_the_validators(tmp_path):
     positions = np.stack([xs.ravel(), ys.ravel(), 0.3 * np.sin(xs.ravel()) * np.cos(ys.ravel())], axis=1)
     cell = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
     faces = np.concatenate([np.stack([cell, cell + 1, cell + n + 1], 1), np.stack([cell, cell + n + 1, cell + n], 1)])
-    h = bake(meshio.from_arrays(positions, faces, name="grid"), BakeSettings(target_tris=1000))
+    h = bake(meshes.from_arrays(positions, faces, name="grid"), BakeSettings(target_tris=1000))
     assert h.node_count > 1 and not h.has_appearance
     png, jpeg = write_textures(tmp_path)
     src = fileformat.save(with_appearance(h, png, jpeg), tmp_path / "grid.hlod")

@@ -13,8 +13,9 @@ import time
 import numpy as np
 import pytest
 
-from hlod_core import fileformat, jsonutil
-from hlod_core.errors import FormatError
+from hlod_core.io import hlod_file
+from hlod_core.core import jsonutil
+from hlod_core.core.errors import FormatError
 
 from helpers import ROOT, baked
 
@@ -26,14 +27,14 @@ def bunny():
 
 @pytest.fixture
 def saved(bunny, tmp_path):
-    return fileformat.save(bunny, tmp_path / "bunny.hlod")
+    return hlod_file.save(bunny, tmp_path / "bunny.hlod")
 
 
 def test_round_trip_is_exact(bunny, saved):
-    loaded = fileformat.load(saved)
+    loaded = hlod_file.load(saved)
     for name, arr in bunny.node_arrays().items():
         got = getattr(loaded, name)
-        assert got.dtype == np.dtype(fileformat.NODE_ARRAYS[name][0]) and np.array_equal(got, arr), name
+        assert got.dtype == np.dtype(hlod_file.NODE_ARRAYS[name][0]) and np.array_equal(got, arr), name
     for name in ("origin", "positions", "indices"):
         assert np.array_equal(getattr(loaded, name), getattr(bunny, name)), name
     assert loaded.normals is None
@@ -42,12 +43,12 @@ def test_round_trip_is_exact(bunny, saved):
 
 def test_round_trip_with_normals(tmp_path, bunny):
     with_normals = bunny.replace(normals=np.tile(np.float32([0, 0, 1]), (bunny.positions.shape[0], 1)))
-    loaded = fileformat.load(fileformat.save(with_normals, tmp_path / "n.hlod"))
+    loaded = hlod_file.load(hlod_file.save(with_normals, tmp_path / "n.hlod"))
     assert np.array_equal(loaded.normals, with_normals.normals)
 
 
 def test_geometry_is_memory_mapped(saved):
-    loaded = fileformat.load(saved)
+    loaded = hlod_file.load(saved)
     assert isinstance(loaded.positions, np.memmap) and isinstance(loaded.indices, np.memmap)
     assert not loaded.positions.flags.writeable
 
@@ -58,7 +59,7 @@ def test_truncated_file_is_rejected_clearly(saved, keep):
     n = {"half": len(data) // 2, "minus1": len(data) - 1}.get(keep, keep)
     saved.write_bytes(data[:n])
     with pytest.raises(FormatError, match=rf"{saved.name}: (truncated|not a \.hlod)"):
-        fileformat.load(saved)
+        hlod_file.load(saved)
 
 
 @pytest.mark.parametrize("content", [b"", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", b"PK\x03\x04" + bytes(200),
@@ -67,12 +68,12 @@ def test_foreign_file_is_rejected_clearly(tmp_path, content):
     path = tmp_path / "foreign.hlod"
     path.write_bytes(content)
     with pytest.raises(FormatError, match=r"foreign\.hlod: not a \.hlod file"):
-        fileformat.load(path)
+        hlod_file.load(path)
 
 
 def test_missing_file_is_a_format_error(tmp_path):
     with pytest.raises(FormatError, match="nothing.hlod: cannot read"):
-        fileformat.load(tmp_path / "nothing.hlod")
+        hlod_file.load(tmp_path / "nothing.hlod")
 
 
 def test_future_version_is_rejected(saved):
@@ -80,17 +81,17 @@ def test_future_version_is_rejected(saved):
     data[8:12] = struct.pack("<I", 99)
     saved.write_bytes(bytes(data))
     with pytest.raises(FormatError, match="version 99 is not supported"):
-        fileformat.load(saved)
+        hlod_file.load(saved)
 
 
 def test_version_1_files_load_without_appearance(bunny, saved):
     """Version 2 only added optional parts: a version 1 file (positions only, as the previous
     release wrote them: the same layout and header) loads as an HLOD without appearance."""
     data = bytearray(saved.read_bytes())
-    assert struct.unpack("<I", data[8:12])[0] == fileformat.FORMAT_VERSION == 2
+    assert struct.unpack("<I", data[8:12])[0] == hlod_file.FORMAT_VERSION == 2
     data[8:12] = struct.pack("<I", 1)
     saved.write_bytes(bytes(data))
-    loaded = fileformat.load(saved)
+    loaded = hlod_file.load(saved)
     assert not loaded.has_appearance and loaded.materials == ()
     assert np.array_equal(loaded.indices, bunny.indices) and np.array_equal(loaded.error, bunny.error)
 
@@ -99,17 +100,17 @@ def test_appearance_round_trip_and_its_checks(bunny, tmp_path):
     """uvs, colors, tri_material and the material table come back as written, the texture path
     relative to the file in it and absolute in memory; bad ids, NaN UVs and colours outside [0, 1]
     are refused with one line."""
-    from hlod_core.appearance import Material
+    from hlod_core.model.appearance import Material
 
     v, t = bunny.positions.shape[0], bunny.indices.shape[0]
     texture = tmp_path / "textures" / "a.png"
     textured = bunny.replace(uvs=np.asarray(bunny.positions[:, :2], np.float32), colors=np.full((v, 4), 0.5, np.float32),
                              tri_material=(np.arange(t) % 2).astype(np.uint16),
                              materials=(Material("A", (1, 0, 0, 1), texture=str(texture)), Material("B")))
-    path = fileformat.save(textured, tmp_path / "t.hlod")
+    path = hlod_file.save(textured, tmp_path / "t.hlod")
     header = json.loads(path.read_bytes()[24:24 + struct.unpack("<Q", path.read_bytes()[16:24])[0]])
     assert header["materials"][0]["texture"] == "textures/a.png"
-    loaded = fileformat.load(path)
+    loaded = hlod_file.load(path)
     assert loaded.materials == textured.materials and loaded.materials[0].texture == str(texture)
     for name in ("uvs", "colors", "tri_material"):
         assert np.array_equal(getattr(loaded, name), getattr(textured, name)), name
@@ -118,12 +119,12 @@ def test_appearance_round_trip_and_its_checks(bunny, tmp_path):
                        (dict(colors=np.full((v, 4), 1.5, np.float32)), "outside \\[0, 1\\]"),
                        (dict(tri_material=None), "no per-triangle material ids")):
         with pytest.raises(FormatError, match=match):
-            fileformat.validate(textured.replace(**bad))
+            hlod_file.validate(textured.replace(**bad))
 
 
 def _rewrite_array(path, name, mutate):
     """Change one stored array in place (same size), as a corrupt file would have it."""
-    loaded = fileformat.load(path, mmap=False)
+    loaded = hlod_file.load(path, mmap=False)
     arr = np.array(getattr(loaded, name))
     mutate(arr)
     with open(path, "rb") as f:
@@ -147,7 +148,7 @@ def _rewrite_array(path, name, mutate):
 def test_corrupt_arrays_are_rejected(saved, name, mutate, message):
     _rewrite_array(saved, name, mutate)
     with pytest.raises(FormatError, match=message):
-        fileformat.load(saved)
+        hlod_file.load(saved)
 
 
 def test_wrong_dtype_in_header_is_rejected(saved):
@@ -156,7 +157,7 @@ def test_wrong_dtype_in_header_is_rejected(saved):
     header = data[24:24 + header_len].replace(b'"dtype": "<f8", "nbytes": ', b'"dtype": "<f4", "nbytes": ', 1)
     saved.write_bytes(data[:24] + header + data[24 + header_len:])
     with pytest.raises(FormatError, match="inconsistent dtype/shape/size|expected"):
-        fileformat.load(saved)
+        hlod_file.load(saved)
 
 
 def test_failed_write_keeps_the_old_file_and_leaves_no_temp(bunny, saved, monkeypatch):
@@ -167,14 +168,14 @@ def test_failed_write_keeps_the_old_file_and_leaves_no_temp(bunny, saved, monkey
 
     monkeypatch.setattr(os, "fsync", disk_full)
     with pytest.raises(OSError):
-        fileformat.save(bunny.replace(meta={**bunny.meta, "note": "new"}), saved)
+        hlod_file.save(bunny.replace(meta={**bunny.meta, "note": "new"}), saved)
     assert saved.read_bytes() == before
     assert sorted(p.name for p in saved.parent.iterdir()) == [saved.name]
 
 
 def test_save_creates_missing_folders(bunny, tmp_path):
-    path = fileformat.save(bunny, tmp_path / "a" / "b" / "x.hlod")
-    assert fileformat.load(path).node_count == bunny.node_count
+    path = hlod_file.save(bunny, tmp_path / "a" / "b" / "x.hlod")
+    assert hlod_file.load(path).node_count == bunny.node_count
 
 
 # --- hostile input (issue 11): what load accepts, the renderer can draw -------------------------
@@ -187,7 +188,7 @@ def _refused(path, match):
     """load raises one FormatError line that starts with the file and says `match` after it (the
     test's folder name is not searched: it could contain the words)."""
     with pytest.raises(FormatError) as info:
-        fileformat.load(path)
+        hlod_file.load(path)
     message = str(info.value)
     assert message.startswith(f"{path}: ") and "\n" not in message, message
     assert re.search(match, message[len(str(path)) + 2:]), message
@@ -302,7 +303,7 @@ def test_overlapping_arrays_are_refused(saved):
 def test_header_padding_and_extra_meta_still_load(saved, bunny):
     """The checks above refuse what is wrong, not what is merely unusual."""
     _rewrite_header(saved, _set("meta", "note", value={"free": ["form", 1.5, None]}))
-    assert fileformat.load(saved).node_count == bunny.node_count
+    assert hlod_file.load(saved).node_count == bunny.node_count
 
 
 def test_json_string_scan_is_linear():
@@ -320,7 +321,7 @@ def test_saved_file_mode_follows_the_umask(bunny, tmp_path):
     for umask, mode in ((0o022, 0o644), (0o002, 0o664)):
         old = os.umask(umask)
         try:
-            path = fileformat.save(bunny, tmp_path / f"u{umask:o}.hlod")
+            path = hlod_file.save(bunny, tmp_path / f"u{umask:o}.hlod")
         finally:
             os.umask(old)
         assert stat.S_IMODE(path.stat().st_mode) == mode
@@ -356,5 +357,5 @@ def test_save_refuses_meta_that_would_not_load(bunny, tmp_path):
     """NaN is not JSON: before, save wrote it (json.dumps allows it) into a file load refuses."""
     path = tmp_path / "nan.hlod"
     with pytest.raises(FormatError, match=r"nan\.hlod: cannot write the HLOD's meta as JSON"):
-        fileformat.save(bunny.replace(meta={**bunny.meta, "note": float("nan")}), path)
+        hlod_file.save(bunny.replace(meta={**bunny.meta, "note": float("nan")}), path)
     assert list(tmp_path.iterdir()) == []

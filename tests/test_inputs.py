@@ -11,9 +11,10 @@ import numpy as np
 import pymeshlab
 import pytest
 
-from hlod_core import checks, meshfiles, meshio
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.errors import InputError
+from hlod_core.bake import checks
+from hlod_core.io import obj_stl, meshes
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import InputError
 
 from helpers import MODELS, ROOT, load_model
 
@@ -60,9 +61,9 @@ def test_zero_filled_and_lying_stl_files_are_refused_at_once(tmp_path):
     cow = load_model("cow.obj")
     whole = _binary_stl(cow.positions[cow.faces].astype(np.float32), header=b"solid cow (binary)")
     files.append(_write(tmp_path / "truncated.stl", whole[:-7]))
-    script = ("import sys\nfrom hlod_core import meshio\nfrom hlod_core.errors import InputError\n"
+    script = ("import sys\nfrom hlod_core.io import meshes\nfrom hlod_core.core.errors import InputError\n"
               "for p in sys.argv[1:]:\n"
-              "    try:\n        meshio.load_mesh(p)\n        print('read', p)\n"
+              "    try:\n        meshes.load_mesh(p)\n        print('read', p)\n"
               "    except InputError as e:\n        print(e)\n")
     proc = subprocess.run([sys.executable, "-c", script, *map(str, files)], cwd=ROOT, capture_output=True, text=True,
                           timeout=STL_REFUSAL_TIMEOUT_S, env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -75,7 +76,7 @@ def test_zero_filled_and_lying_stl_files_are_refused_at_once(tmp_path):
 
 def test_stl_whose_size_matches_its_header_is_read_even_if_all_zero(tmp_path):
     """84 + 50 * 2 bytes of zeros is a valid binary STL: two triangles collapsed at the origin."""
-    mesh = meshio.load_mesh(_write(tmp_path / "two.stl", bytes(80) + np.uint32(2).tobytes() + bytes(100)))
+    mesh = meshes.load_mesh(_write(tmp_path / "two.stl", bytes(80) + np.uint32(2).tobytes() + bytes(100)))
     assert mesh.tri_count == 2 and mesh.positions.shape == (1, 3)
     hlod = bake(mesh)
     assert hlod.node_count == 1 and checks.check(hlod)["checks"] == ALL_TRUE
@@ -86,7 +87,7 @@ def test_valid_stl_reads_the_triangles_pymeshlab_reads(tmp_path, form):
     cow = load_model("cow.obj")
     tris = cow.positions[cow.faces].astype(np.float32)
     path = _write(tmp_path / f"cow_{form}.stl", _binary_stl(tris) if form == "binary" else _ascii_stl(tris))
-    mesh = meshio.load_mesh(path)
+    mesh = meshes.load_mesh(path)
     ms = pymeshlab.MeshSet()
     ms.load_new_mesh(str(path))
     theirs = ms.current_mesh()
@@ -109,7 +110,7 @@ def test_valid_stl_reads_the_triangles_pymeshlab_reads(tmp_path, form):
 ])
 def test_broken_ascii_stl_names_the_line(tmp_path, text, expect):
     with pytest.raises(InputError, match=r"bad\.stl: " + expect):
-        meshio.load_mesh(_write(tmp_path / "bad.stl", text))
+        meshes.load_mesh(_write(tmp_path / "bad.stl", text))
 
 
 # --- OBJ ------------------------------------------------------------------------------------------
@@ -142,13 +143,13 @@ TRIANGLE = "v 0 0 0\nv 1 0 0\nv 0 1 0\n"
 ])
 def test_obj_lines_pymeshlab_misreads_are_refused_with_their_line(tmp_path, text, expect):
     with pytest.raises(InputError, match=r"bad\.obj: " + expect):
-        meshio.load_mesh(_write(tmp_path / "bad.obj", text))
+        meshes.load_mesh(_write(tmp_path / "bad.obj", text))
 
 
 def test_relative_indices_slashes_polygons_and_comments_read_as_pymeshlab_reads_them(tmp_path):
-    plain = meshio.load_mesh(_write(tmp_path / "plain.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 2 2 0\n"
+    plain = meshes.load_mesh(_write(tmp_path / "plain.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 2 2 0\n"
                                                            "f 1 2 3\nf 2 4 3\nf 1 2 4 5 3\n"))
-    fancy = meshio.load_mesh(_write(tmp_path / "fancy.obj", "# a comment\nv 0 0 0 # origin\r\nv 1 0 0\r\nvt 0 0\n"
+    fancy = meshes.load_mesh(_write(tmp_path / "fancy.obj", "# a comment\nv 0 0 0 # origin\r\nv 1 0 0\r\nvt 0 0\n"
                                                            "vn 0 0 1\nv 0 1 0\nf -3/1/1 -2//1 -1/1\nv 1 1 0\n"
                                                            "v 2 2 0 1.0\nf 2/1 -2/-1 3/1\n  f 1 2 -2 -1 3\n"))
     assert plain.tri_count == fancy.tri_count == 5
@@ -158,7 +159,7 @@ def test_relative_indices_slashes_polygons_and_comments_read_as_pymeshlab_reads_
 @pytest.mark.parametrize("name", sorted(p.name for p in MODELS.glob("*.obj")))
 def test_every_shared_obj_passes_the_check_and_declares_what_pymeshlab_reads(name):
     path = MODELS / name
-    vertices, tris = meshfiles.check_obj(path, path.read_bytes())
+    vertices, tris = obj_stl.check_obj(path, path.read_bytes())
     mesh = load_model(name)
     assert (vertices, tris) == (mesh.positions.shape[0], mesh.tri_count)
 
@@ -176,13 +177,13 @@ def _spec(tmp_path, transforms, name="spec.json"):
 def test_deeply_nested_scene_spec_is_one_clear_error(tmp_path):
     deep = _write(tmp_path / "deep.json", '{"models": ' + "[" * 100_000 + "]" * 100_000 + "}")
     with pytest.raises(InputError, match=r"deep\.json: scene spec is not valid JSON \(nested 100001 levels deep"):
-        meshio.load_inputs([deep])
+        meshes.load_inputs([deep])
 
 
 def test_nan_literal_in_a_scene_spec_is_refused(tmp_path):
     spec = _write(tmp_path / "nan.json", '{"models": [{"path": "cow.obj", "transforms": [[NaN]]}]}')
     with pytest.raises(InputError, match=r"nan\.json: scene spec is not valid JSON \(NaN is not a JSON number"):
-        meshio.load_inputs([spec])
+        meshes.load_inputs([spec])
 
 
 @pytest.mark.parametrize("linear", [
@@ -195,12 +196,12 @@ def test_singular_transform_names_the_spec_and_transform(tmp_path, linear):
     bad[:3, :3] = linear
     bad[:3, 3] = 5.0
     with pytest.raises(InputError, match=r"spec\.json: models\[0\]\.transforms\[1\] is singular"):
-        meshio.load_inputs([_spec(tmp_path, [IDENTITY, bad.ravel().tolist()])])
+        meshes.load_inputs([_spec(tmp_path, [IDENTITY, bad.ravel().tolist()])])
 
 
 def test_millimetre_and_huge_but_invertible_transforms_are_accepted(tmp_path):
     mm, huge = np.diag([1e-3, 1e-3, 1e-3, 1.0]), np.diag([1e300, 1.0, 1.0, 1.0])
-    scene = meshio.load_inputs([_spec(tmp_path, [IDENTITY, mm.ravel().tolist(), huge.ravel().tolist()])])
+    scene = meshes.load_inputs([_spec(tmp_path, [IDENTITY, mm.ravel().tolist(), huge.ravel().tolist()])])
     assert scene.tri_count == 3 * 5804
 
 
@@ -208,12 +209,12 @@ def test_transform_overflowing_the_coordinates_names_the_transform(tmp_path):
     huge = np.diag([1e308, 1e308, 1e308, 1.0])  # cow's coordinates reach 6: 6e308 overflows
     huge[:3, 3] = 1e308
     with pytest.raises(InputError, match=r"spec\.json: models\[0\]\.transforms\[0\] moves .*cow\.obj out of the"):
-        meshio.load_inputs([_spec(tmp_path, [huge.ravel().tolist()])])
+        meshes.load_inputs([_spec(tmp_path, [huge.ravel().tolist()])])
 
 
 # --- geometry and settings that crashed inside pymeshlab ------------------------------------------
 
-def _uv_sphere(rings: int = 6, segments: int = 8) -> meshio.TriangleMesh:
+def _uv_sphere(rings: int = 6, segments: int = 8) -> meshes.TriangleMesh:
     """A closed sphere: two poles and (rings - 1) rings of `segments` vertices."""
     theta = np.pi * np.arange(1, rings) / rings
     phi = 2 * np.pi * np.arange(segments) / segments
@@ -227,7 +228,7 @@ def _uv_sphere(rings: int = 6, segments: int = 8) -> meshio.TriangleMesh:
         faces += [np.stack([a, a + segments, b], 1), np.stack([b, a + segments, b + segments], 1)]
     last = 1 + (rings - 2) * segments
     faces.append(np.stack([last + (s + 1) % segments, last + s, np.full(segments, p.shape[0] - 1)], 1))
-    return meshio.from_arrays(p, np.concatenate(faces), name="sphere")
+    return meshes.from_arrays(p, np.concatenate(faces), name="sphere")
 
 
 def test_target_of_one_triangle_bakes():
@@ -244,7 +245,7 @@ def test_node_of_zero_area_triangles_bakes():
     """Triangles on one line (distinct corners, zero area): pymeshlab's clean-up removed them all
     and the bake crashed on an empty mesh. The node keeps target_tris of them and says so."""
     x = np.arange(3 * 3000, dtype=float)
-    mesh = meshio.from_arrays(np.stack([x, 0 * x, 0 * x], 1), np.arange(x.size).reshape(-1, 3), name="line")
+    mesh = meshes.from_arrays(np.stack([x, 0 * x, 0 * x], 1), np.arange(x.size).reshape(-1, 3), name="line")
     hlod = bake(mesh, BakeSettings(target_tris=100))
     assert checks.check(hlod)["checks"] == ALL_TRUE
     assert np.all(hlod.tri_count[~hlod.is_leaf] == 100)

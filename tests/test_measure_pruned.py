@@ -9,9 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hlod_core import bake as bake_module
-from hlod_core import hausdorff, meshio
-from hlod_core.bake import BakeSettings, bake
+from hlod_core.bake import pipeline as bake_module
+from hlod_core.bake import hausdorff
+from hlod_core.io import meshes
+from hlod_core.bake.pipeline import BakeSettings, bake
 
 from helpers import load_model
 
@@ -29,8 +30,8 @@ def _scene(name: str):
     for k in range(HERD_COWS):
         m = np.eye(4)
         m[:3, 3] = [HERD_SPACING * (k % 4), HERD_SPACING * (k // 4), 0.0]
-        parts.append(meshio.transform_mesh(cow, m, name=f"cow{k}"))
-    return meshio.merge(parts, name="herd")
+        parts.append(meshes.transform_mesh(cow, m, name=f"cow{k}"))
+    return meshes.merge(parts, name="herd")
 
 
 _PAIRS: dict = {}

@@ -4,8 +4,9 @@ import warnings
 import numpy as np
 import pytest
 
-from hlod_core import alpha_estimators, boxes, metrics, overlay
-from hlod_core.view import View, look_at, orthographic, perspective
+from hlod_core.traversal import alpha_estimators, boxes, metrics
+from hlod_core.core import colour
+from hlod_core.model.view import View, look_at, orthographic, perspective
 
 from silhouette_reference import silhouette_pixels
 
@@ -89,7 +90,7 @@ def test_bad_bias_parameters_are_rejected():
 
 
 def test_modulation_colours_blue_magenta_red():
-    c = overlay.modulation_colour(np.array([0.0, 0.5, 1.0]))
+    c = colour.modulation_colour(np.array([0.0, 0.5, 1.0]))
     assert c[0].argmax() == 2 and c[2].argmax() == 0  # blue, red
     assert c[1][0] > 0.5 and c[1][2] > 0.5 and c[1][1] < 0.3  # magenta
 

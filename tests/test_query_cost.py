@@ -5,16 +5,16 @@ import time
 import numpy as np
 import pytest
 
-from hlod_core import alpha_estimators, query_cost
-from hlod_core.camera import CameraPath
-from hlod_core.errors import InputError
-from hlod_core.gl_functions import GLFunctions
-from hlod_core.queries import Query
-from hlod_core.gl_functions import GL
-from hlod_core.query_cost import CostModel, LinearCost, fit_linear
-from hlod_core.renderer import DEFAULT_COLOUR, Renderer
-from hlod_core.traversal import STOP, Coh, RuntimeSettings, make
-from hlod_core.view import View, look_at, orthographic, perspective
+from hlod_core.traversal import alpha_estimators, query_cost
+from hlod_core.model.camera_path import CameraPath
+from hlod_core.core.errors import InputError
+from hlod_core.render.gl_functions import GLFunctions
+from hlod_core.render.queries import Query
+from hlod_core.render.gl_functions import GL
+from hlod_core.traversal.query_cost import CostModel, LinearCost, fit_linear
+from hlod_core.render.renderer import DEFAULT_COLOUR, Renderer
+from hlod_core.traversal.methods import STOP, Coh, RuntimeSettings, make
+from hlod_core.model.view import View, look_at, orthographic, perspective
 
 from helpers import ScriptedAvailability, baked_city, standalone_gl, street_path
 

@@ -14,17 +14,17 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from hlod_core import fileformat, meshio, textures
-from hlod_core import view as viewmod
-from hlod_core.appearance import Material
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.errors import InputError
-from hlod_core.gl_functions import GL, GLFunctions
-from hlod_core.imagemetrics import psnr
-from hlod_core.overlay import OVERLAY_RAMP_STEPS, overlay_ramp
-from hlod_core.renderer import TEXTURE_UNIT, Renderer
-from hlod_core.traversal import RuntimeSettings, make
-from hlod_core.view import View
+from hlod_core.io import hlod_file, meshes, textures
+from hlod_core.model import view as viewmod
+from hlod_core.model.appearance import Material
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import InputError
+from hlod_core.render.gl_functions import GL, GLFunctions
+from hlod_core.report.image_error import psnr
+from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp
+from hlod_core.render.renderer import TEXTURE_UNIT, Renderer
+from hlod_core.traversal.methods import RuntimeSettings, make
+from hlod_core.model.view import View
 
 from helpers import ROOT, baked, standalone_gl
 from test_addon import repo  # noqa: F401 - fixture: the extension installed in the main .venv's bpy
@@ -37,6 +37,9 @@ SIZE = (320, 240)
 LEVELS = 2
 #: The renderer before issue 13's appearance (the contract commit): the reference of the unchanged paths.
 BEFORE_COMMIT = "b4edc98"
+#: Where the modules that renderer imports live now (hlod_core's subpackages came after it).
+MOVED_SINCE = {"gl_functions": "render.gl_functions", "hierarchy": "model.hierarchy", "overlay": "core.colour",
+               "view": "model.view", "queries": "render.queries"}
 # the checker's quadrants as seen in the image file (top row first): sRGB bytes, four distinct colours
 TOP_LEFT, TOP_RIGHT, BOTTOM_LEFT, BOTTOM_RIGHT = (200, 30, 40), (20, 180, 60), (40, 60, 220), (230, 210, 20)
 #: SHA-256 of the frames the renderer at BEFORE_COMMIT drew in the two tests below (llvmpipe, this
@@ -105,7 +108,7 @@ def _plane(columns: int = 1):
     for c in range(columns):
         a, b, d, e = 2 * c, 2 * c + 2, 2 * c + 3, 2 * c + 1  # (x0,-1) (x1,-1) (x1,1) (x0,1)
         faces += [[a, b, d], [a, d, e]]
-    hlod = bake(meshio.from_arrays(positions, np.array(faces), name="plane"), BakeSettings(target_tris=64))
+    hlod = bake(meshes.from_arrays(positions, np.array(faces), name="plane"), BakeSettings(target_tris=64))
     assert hlod.node_count == 1
     return hlod
 
@@ -123,7 +126,7 @@ def _with_appearance(hlod, *, materials, tri_material=None, uv=False, colors=Non
     out = hlod.replace(indices=indices, materials=tuple(materials), tri_material=tri_material,
                        uvs=((world[:, :2] + 1.0) / 2.0).astype(np.float32) if uv else None,
                        colors=None if colors is None else np.ascontiguousarray(colors(world), np.float32))
-    fileformat.validate(out, source="test HLOD")
+    hlod_file.validate(out, source="test HLOD")
     return out
 
 
@@ -150,7 +153,7 @@ def _draw(renderer: Renderer, view: View, nodes=(0,), ratio_p: float = 1.0) -> n
 
 
 def _renderer_before():
-    """hlod_core/renderer.py as it was before this change, loaded as a module of the package; None
+    """hlod_core/render/renderer.py as it was before this change, loaded as a module of the package; None
     in a checkout without that commit (a shallow clone): the tests then compare with the digests
     of the frames that renderer drew, recorded here with it (FRAMES_BEFORE)."""
     shown = subprocess.run(["git", "show", f"{BEFORE_COMMIT}:hlod_core/renderer.py"], cwd=ROOT,
@@ -159,6 +162,8 @@ def _renderer_before():
         return None
     source = shown.stdout
     assert "images" not in source  # the old renderer, not this one
+    for flat, moved in MOVED_SINCE.items():  # its imports, as the modules are laid out now
+        source = source.replace(f"from .{flat} import", f"from .{moved} import")
     spec = importlib.util.spec_from_loader("hlod_core._renderer_before", loader=None)
     module = importlib.util.module_from_spec(spec)
     module.__package__ = "hlod_core"
@@ -328,7 +333,7 @@ def test_the_framebuffer_that_encodes_srgb_itself_is_not_encoded_twice(gl_ctx, c
 
 
 def _front_path(frames: int = 2):
-    from hlod_core.camera import CameraPath
+    from hlod_core.model.camera_path import CameraPath
 
     return CameraPath(frames=np.array([([0.0, 0.0, 3.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0])] * frames), near=0.1,
                       far=10.0, fovy_deg=45.0)
@@ -336,7 +341,7 @@ def _front_path(frames: int = 2):
 
 def test_run_draws_the_textures_of_the_hlods_materials(checker, tmp_path):
     """`run` (runner.run_path with its own renderer) loads the material's image file."""
-    from hlod_core.runner import run_path
+    from hlod_core.report.runner import run_path
 
     hlod, _, _ = checker
     run_path(hlod, "vfc", RuntimeSettings(), _front_path(1), SIZE, save_frames=tmp_path)
@@ -348,7 +353,7 @@ def test_run_draws_the_textures_of_the_hlods_materials(checker, tmp_path):
 def test_evaluate_compares_textured_images(checker, tmp_path):
     """`evaluate` draws with the textures: Coh(P)'s shaded showcase picture shows the checker, and
     its chroma PSNR against Full is that of identical coloured images."""
-    from hlod_core import evaluate
+    from hlod_core.report import evaluate
 
     hlod, _, _ = checker
     report = evaluate.evaluate(hlod, _front_path(2), SIZE, methods=["full", "coh_p"], repeat=1, out_dir=tmp_path,
@@ -442,7 +447,7 @@ def test_load_images_reads_each_file_once_and_warns_once_per_missing_file(tmp_pa
     hlod = _with_appearance(_plane(), uv=True, tri_material=lambda c: np.zeros(len(c), int),
                             materials=[Material(f"m{i}", texture=str(tmp_path / n)) for i, n in enumerate(names)]
                             + [Material("plain")])
-    with caplog.at_level(logging.WARNING, logger="hlod_core.textures"):
+    with caplog.at_level(logging.WARNING, logger="hlod_core.io.textures"):
         images = textures.load_images(hlod)
     assert sorted(images) == [0, 1, 2]
     assert images[0] is images[2]  # one read, one array: one texture in the renderer
@@ -458,7 +463,7 @@ def test_load_images_reads_each_file_once_and_warns_once_per_missing_file(tmp_pa
 def test_load_images_without_pillow_draws_base_colours(checker, monkeypatch, caplog):
     hlod, _, _ = checker
     monkeypatch.setitem(sys.modules, "PIL", None)  # `from PIL import ...` raises ImportError
-    with caplog.at_level(logging.WARNING, logger="hlod_core.textures"):
+    with caplog.at_level(logging.WARNING, logger="hlod_core.io.textures"):
         assert textures.load_images(hlod) == {}
     assert len(caplog.records) == 1 and "Pillow" in caplog.records[0].getMessage()
 
@@ -526,7 +531,7 @@ def _baked_in_blender(blend, repo, tmp_path):
                          capture_output=True, text=True, timeout=600, cwd=ROOT,
                          env={**os.environ, "BLENDER_USER_RESOURCES": str(repo / "user")})
     assert run.returncode == 0, run.stderr[-3000:]
-    return fileformat.load(tmp_path / "out" / f"{blend.stem}.hlod")
+    return hlod_file.load(tmp_path / "out" / f"{blend.stem}.hlod")
 
 
 @pytest.mark.slow
@@ -542,7 +547,7 @@ def test_textured_scene_preview_matches_full_at_one_pixel(source, tmp_path, requ
     if source == "blend":
         hlod = _baked_in_blender(scene["blend"], request.getfixturevalue("repo"), tmp_path)
     else:
-        hlod = bake(meshio.load_inputs([scene[source]], texture_dir=tmp_path), BakeSettings(jobs=2))
+        hlod = bake(meshes.load_inputs([scene[source]], texture_dir=tmp_path), BakeSettings(jobs=2))
     textured = [i for i, m in enumerate(hlod.materials) if m.texture is not None]
     assert hlod.uvs is not None and hlod.tri_material is not None and textured, "the bake lost the appearance"
     images = textures.load_images(hlod)

@@ -13,10 +13,10 @@ import pytest
 from matplotlib.text import Text
 
 from helpers import ROOT, SCENES
-from hlod_core import evaluate, report_figures, report_html
-from hlod_core.camera import load_path, path_from_json
-from hlod_core.errors import InputError
-from hlod_core.traversal import COUNTERS
+from hlod_core.report import evaluate, figures, html_page
+from hlod_core.model.camera_path import load_path, path_from_json
+from hlod_core.core.errors import InputError
+from hlod_core.traversal.methods import COUNTERS
 
 COMMITTED = ROOT / "docs" / "evaluation"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -80,11 +80,11 @@ def test_error_vs_time_labels_do_not_overlap_on_the_committed_report():
     no two drawn texts overlap, every label lies inside the axes, and Full (the reference, RMSE 0)
     does not set the scale: the frame-time axis ends near the slowest other point."""
     report = json.loads((COMMITTED / "report.json").read_text())
-    fig = report_figures.error_vs_time_figure(report, labels=evaluate.LABELS)
+    fig = figures.error_vs_time_figure(report, labels=evaluate.LABELS)
     texts = drawn_texts(fig)
     shown = [t for t, _ in texts]
     others = {k: r for k, r in report["methods"].items() if k != "full"} | (report["sweep"] or {}).get("points", {})
-    names = {report_figures.display_name(key, evaluate.LABELS) + (" (bound)" if key == "ideal" else "")
+    names = {figures.display_name(key, evaluate.LABELS) + (" (bound)" if key == "ideal" else "")
              for key in others}
     assert names <= set(shown), names - set(shown)
     assert legible(fig) == []
@@ -109,7 +109,7 @@ def test_error_vs_time_labels_do_not_overlap_when_points_coincide():
     methods["coh_p_alg4"] = methods["coh_p"]
     sweep = {f"coh_p tau={t:g}": _row(20.0, 3.0) | {"value": t} for t in evaluate.SWEEPS["tau"]}
     report = {"methods": methods, "sweep": {"name": "tau", "points": sweep}}
-    fig = report_figures.error_vs_time_figure(report, labels=evaluate.LABELS)
+    fig = figures.error_vs_time_figure(report, labels=evaluate.LABELS)
     texts = drawn_texts(fig)
     assert legible(fig) == []
     assert {"Coh(P) tau=0.5", "Coh(P) tau=4", "Bool", "Ideal (bound)"} <= {t for t, _ in texts}
@@ -120,8 +120,8 @@ def test_pareto_front_on_literal_points():
     """(time, error): b beats c on error at the same time, d ties b's error but is slower, so
     neither is on the front; a (fastest) and e (exact) are."""
     points = {"a": (1.0, 5.0), "b": (2.0, 3.0), "c": (2.0, 4.0), "d": (3.0, 3.0), "e": (4.0, 0.0)}
-    assert report_figures.pareto_front(points) == ["a", "b", "e"]
-    assert report_figures.pareto_front({"only": (1.0, 1.0)}) == ["only"]
+    assert figures.pareto_front(points) == ["a", "b", "e"]
+    assert figures.pareto_front({"only": (1.0, 1.0)}) == ["only"]
 
 
 # --- per frame ------------------------------------------------------------------------------------
@@ -151,11 +151,11 @@ def test_per_frame_ratios_styles_and_parts():
               "sweep": {"name": "st", "points": {"coh_p s,t=0.6,0.2": {}, "coh_p s,t=0.7,0.15": {}}},
               "parts": [{"name": "orbit", "start": 0}, {"name": "walk", "start": 10}, {"name": "turn", "start": 25},
                         {"name": "dolly", "start": 31}]}
-    fig = report_figures.per_frame_figure(report, medians, labels=evaluate.LABELS)
+    fig = figures.per_frame_figure(report, medians, labels=evaluate.LABELS)
     nodes_ax, time_ax, full_nodes_ax, full_time_ax = fig.axes[:4]
 
     def curve(ax, key):
-        colour = report_figures.style(key, list(report["sweep"]["points"]))["color"]
+        colour = figures.style(key, list(report["sweep"]["points"]))["color"]
         found = [line.get_ydata() for line in ax.get_lines()
                  if line.get_color() == colour and len(line.get_ydata()) == frames]
         return found[0] if found else None
@@ -172,9 +172,9 @@ def test_per_frame_ratios_styles_and_parts():
                                    + ["Coh(P) s,t=0.6,0.2", "Coh(P) s,t=0.7,0.15"])
     # each curve drawn in its method's style (whose colours and dashes all differ: the next test)
     sweep = list(report["sweep"]["points"])
-    by_name = {report_figures.display_name(k, evaluate.LABELS): k for k in medians}
+    by_name = {figures.display_name(k, evaluate.LABELS): k for k in medians}
     for handle, name in zip(legend.legend_handles, names):
-        assert handle.get_color() == report_figures.style(by_name[name], sweep)["color"], name
+        assert handle.get_color() == figures.style(by_name[name], sweep)["color"], name
     texts = drawn_texts(fig)
     assert {"orbit", "walk", "turn", "dolly"} <= {t for t, _ in texts}
     assert legible(fig) == []
@@ -184,7 +184,7 @@ def test_per_frame_ratios_styles_and_parts():
 def test_every_method_and_sweep_point_has_its_own_style():
     """Colours, dash patterns and markers all differ across the 11 methods and up to 4 sweep values."""
     sweep = [f"coh_p tau={t:g}" for t in evaluate.SWEEPS["tau"]]
-    styles = [report_figures.style(k, sweep) for k in list(evaluate.METHOD_SPECS) + sweep]
+    styles = [figures.style(k, sweep) for k in list(evaluate.METHOD_SPECS) + sweep]
     for field in ("color", "linestyle", "marker"):
         values = [str(s[field]) for s in styles]
         assert len(set(values)) == len(values), field
@@ -193,12 +193,12 @@ def test_every_method_and_sweep_point_has_its_own_style():
 def test_running_median_on_literal_values():
     """Window 3: a one-frame spike goes, a step stays; all-NaN windows stay NaN; window 1 is the identity."""
     values = np.array([0.0, 0.0, 9.0, 0.0, 0.0, 5.0, 5.0, 5.0])
-    assert report_figures.running_median(values, 3).tolist() == [0, 0, 0, 0, 0, 5, 5, 5]
+    assert figures.running_median(values, 3).tolist() == [0, 0, 0, 0, 0, 5, 5, 5]
     gap = np.array([1.0, np.nan, np.nan, np.nan, 3.0])
-    smoothed = report_figures.running_median(gap, 3)
+    smoothed = figures.running_median(gap, 3)
     assert smoothed[0] == 1.0 and np.isnan(smoothed[2]) and smoothed[4] == 3.0
-    assert report_figures.running_median(values, 1) is values
-    assert report_figures.smoothing_window(1020) == 13 and report_figures.smoothing_window(60) == 1
+    assert figures.running_median(values, 1) is values
+    assert figures.smoothing_window(1020) == 13 and figures.smoothing_window(60) == 1
 
 
 # --- when do queries pay --------------------------------------------------------------------------
@@ -209,7 +209,7 @@ def test_queries_pay_figure_on_the_committed_results():
     no two texts overlapping."""
     results = json.loads((COMMITTED / "queries_pay.json").read_text())
     assert list(results["scenes"]) == ["low", "middle", "high"]
-    fig = report_figures.queries_pay_figure(results, labels=evaluate.LABELS)
+    fig = figures.queries_pay_figure(results, labels=evaluate.LABELS)
     keys = [k for k in results["methods"] if k != "vfc"]
     for ax, counter in zip(fig.axes[:2], ("frame_ms", "dn")):
         heights = [p.get_height() for p in ax.patches]
@@ -230,7 +230,7 @@ def test_report_html_renders_the_markdown_subset(tmp_path):
     (tmp_path / "a.png").write_bytes(png)
     text = ("# Title <1>\n\nSome `code` and **bold**, a < b.\n\n## Table\n\n| method | ms |\n|---|---:|\n"
             "| Coh(P) | 1.5 |\n\n![first](a.png)\n\n*What to see in it.*\n\n![second](missing.png)\n")
-    page = report_html.render(text, folder=tmp_path)
+    page = html_page.render(text, folder=tmp_path)
     assert "<title>Title &lt;1&gt;</title>" in page and "<h2>Table</h2>" in page
     assert "<code>code</code>" in page and "<strong>bold</strong>" in page and "a &lt; b" in page
     assert '<td>Coh(P)</td><td class="num">1.5</td>' in page

@@ -22,9 +22,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from hlod_core import cli, fileformat, meshio
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.errors import InputError
+from hlod_core import cli
+from hlod_core.io import hlod_file, meshes
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import InputError
 
 from helpers import MODELS, ROOT, textured_scene
 
@@ -112,11 +113,11 @@ def blender_import(scene):
 @pytest.fixture(scope="module")
 def ours(scene, tmp_path_factory):
     textures = tmp_path_factory.mktemp("embedded")
-    return {"glb": meshio.load_mesh(scene["glb"], texture_dir=textures),
-            "obj": meshio.load_mesh(scene["obj"]), "textures": textures}
+    return {"glb": meshes.load_mesh(scene["glb"], texture_dir=textures),
+            "obj": meshes.load_mesh(scene["obj"]), "textures": textures}
 
 
-def _per_material(mesh: meshio.TriangleMesh, *, y_up: bool) -> dict:
+def _per_material(mesh: meshes.TriangleMesh, *, y_up: bool) -> dict:
     out = {}
     corners = mesh.positions[mesh.faces]
     for i, material in enumerate(mesh.materials):
@@ -205,7 +206,7 @@ def test_glb_appearance(scene, ours):
 def test_separate_gltf_refers_to_its_image_files(scene, ours):
     """The same export as .gltf with an external .bin and PNG files: the same triangles and
     materials as the GLB, the textures the exporter's files themselves (nothing written)."""
-    mesh = meshio.load_mesh(scene["gltf"])
+    mesh = meshes.load_mesh(scene["gltf"])
     glb = ours["glb"]
     assert mesh.tri_count == glb.tri_count == scene["facts"]["triangles"]
     np.testing.assert_array_equal(mesh.positions, glb.positions)
@@ -220,7 +221,7 @@ def test_the_issues_glb_is_read_whole(scene, ours):
     subdivided monkeys, from Blender's glTF exporter): pymeshlab read one monkey of it (3,936 of
     49,856 triangles here; 15,744 of 283,880 at full scale), silently. Every triangle now."""
     assert ours["glb"].tri_count == scene["facts"]["triangles"]
-    assert meshio.load_inputs([scene["glb"]]).tri_count == scene["facts"]["triangles"]
+    assert meshes.load_inputs([scene["glb"]]).tri_count == scene["facts"]["triangles"]
 
 
 # --- a glTF written by hand ----------------------------------------------------------------------
@@ -307,7 +308,7 @@ def test_hand_written_scene_places_the_shared_mesh_per_node(tmp_path, container)
         path.write_bytes(_glb(gltf))
     else:
         _write_gltf(path, gltf)
-    mesh = meshio.load_mesh(path, texture_dir=tmp_path / "textures")
+    mesh = meshes.load_mesh(path, texture_dir=tmp_path / "textures")
     assert mesh.tri_count == 2
     corners = mesh.positions[mesh.faces]
     plain = _to_blender_axes(np.array([[10, 0, 0], [11, 0, 0], [10, 1, 0]], float))
@@ -337,14 +338,14 @@ def test_image_sources_and_missing_images(tmp_path, caplog):
     """An image by data URI is written like one in a buffer view; one by URI is the file itself
     (URI-decoded, relative to the .gltf); a missing file or no texture folder: a warning naming
     it, and the material without its texture."""
-    data = meshio.load_mesh(_write_gltf(tmp_path / "data.gltf", _hand_gltf(image="data")), texture_dir=tmp_path / "t")
+    data = meshes.load_mesh(_write_gltf(tmp_path / "data.gltf", _hand_gltf(image="data")), texture_dir=tmp_path / "t")
     assert open(data.materials[0].texture, "rb").read() == _png()
     (tmp_path / "red tex.png").write_bytes(_png((0, 9, 0)))
-    by_file = meshio.load_mesh(_write_gltf(tmp_path / "file.gltf", _hand_gltf(image="file")))
+    by_file = meshes.load_mesh(_write_gltf(tmp_path / "file.gltf", _hand_gltf(image="file")))
     assert by_file.materials[0].texture == str((tmp_path / "red tex.png").resolve())
     with caplog.at_level(logging.WARNING):
-        missing = meshio.load_mesh(_write_gltf(tmp_path / "missing.gltf", _hand_gltf(image="missing")))
-        no_folder = meshio.load_mesh(_write_gltf(tmp_path / "embedded.gltf", _hand_gltf(image="buffer")))
+        missing = meshes.load_mesh(_write_gltf(tmp_path / "missing.gltf", _hand_gltf(image="missing")))
+        no_folder = meshes.load_mesh(_write_gltf(tmp_path / "embedded.gltf", _hand_gltf(image="buffer")))
     assert missing.materials[0].texture is None and no_folder.materials[0].texture is None
     assert missing.tri_count == no_folder.tri_count == 2
     assert "nowhere.png is missing" in caplog.text and "no texture folder was given" in caplog.text
@@ -359,7 +360,7 @@ def test_malformed_glb_is_one_clear_error(tmp_path, damage, message):
     path = tmp_path / "bad.glb"
     path.write_bytes(damage(_glb(_hand_gltf())))
     with pytest.raises(InputError, match=message) as err:
-        meshio.load_mesh(path)
+        meshes.load_mesh(path)
     assert str(path) in str(err.value) and "\n" not in str(err.value)
 
 
@@ -367,19 +368,19 @@ def test_malformed_gltf_parts_are_named(tmp_path):
     gltf = _hand_gltf()
     gltf["nodes"][0]["rotation"] = [0, 0, 0]
     with pytest.raises(InputError, match=r"nodes\[0\]\.rotation must be 4 finite numbers"):
-        meshio.load_mesh(_write_gltf(tmp_path / "rot.gltf", gltf))
+        meshes.load_mesh(_write_gltf(tmp_path / "rot.gltf", gltf))
     gltf = _hand_gltf()
     gltf["nodes"][1]["children"] = [2]  # a cycle: 2 -> 1 -> 2
     with pytest.raises(InputError, match="deeper than"):
-        meshio.load_mesh(_write_gltf(tmp_path / "cycle.gltf", gltf))
+        meshes.load_mesh(_write_gltf(tmp_path / "cycle.gltf", gltf))
     gltf = _hand_gltf()
     gltf["meshes"][0]["primitives"][2]["mode"] = 6
     with pytest.raises(InputError, match="triangle fan"):
-        meshio.load_mesh(_write_gltf(tmp_path / "fan.gltf", gltf))
+        meshes.load_mesh(_write_gltf(tmp_path / "fan.gltf", gltf))
     gltf = _hand_gltf()
     gltf["bufferViews"][0]["extensions"] = {"EXT_meshopt_compression": {}}
     with pytest.raises(InputError, match="meshopt-compressed buffers"):
-        meshio.load_mesh(_write_gltf(tmp_path / "meshopt.gltf", gltf))
+        meshes.load_mesh(_write_gltf(tmp_path / "meshopt.gltf", gltf))
 
 
 def test_gltf_without_trimesh_is_one_clear_error_and_obj_still_reads(tmp_path):
@@ -388,9 +389,9 @@ def test_gltf_without_trimesh_is_one_clear_error_and_obj_still_reads(tmp_path):
     path = _write_gltf(tmp_path / "hand.gltf", _hand_gltf())
     obj = _textured_obj(tmp_path)
     code = ("import sys; sys.modules['trimesh'] = None\n"
-            "from hlod_core import meshio\nfrom hlod_core.errors import InputError\n"
-            f"print(meshio.load_mesh({str(obj)!r}).tri_count)\n"
-            f"try:\n    meshio.load_mesh({str(path)!r})\nexcept InputError as e:\n    print('refused:', e)\n")
+            "from hlod_core.io import meshes\nfrom hlod_core.core.errors import InputError\n"
+            f"print(meshes.load_mesh({str(obj)!r}).tri_count)\n"
+            f"try:\n    meshes.load_mesh({str(path)!r})\nexcept InputError as e:\n    print('refused:', e)\n")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=120)
     assert run.returncode == 0, run.stderr
     assert run.stdout.splitlines() == ["2", f"refused: {path}: reading glTF needs trimesh, a dependency of the "
@@ -415,7 +416,7 @@ def _textured_obj(folder, *, mtl: str | None = None, texture: bool = True):
 def test_obj_with_mtl(tmp_path):
     """Kd, d, Ns (roughness = 1 - sqrt(Ns / 1000), Blender's exporter's rule), map_Kd after its
     options, relative to the MTL; vt per corner (vertex 1 has two UVs: split); usemtl groups."""
-    mesh = meshio.load_mesh(_textured_obj(tmp_path))
+    mesh = meshes.load_mesh(_textured_obj(tmp_path))
     assert mesh.tri_count == 2 and mesh.positions.shape[0] == 5  # vertex 1 split by its two UVs
     brick, paint = mesh.materials
     assert brick.texture == str((tmp_path / "tex" / "brick.png").resolve()) and brick.base_color == (1, 1, 1, 1)
@@ -428,12 +429,12 @@ def test_obj_with_mtl(tmp_path):
 
 def test_obj_missing_texture_or_mtl_warns_and_reads(tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
-        mesh = meshio.load_mesh(_textured_obj(tmp_path, texture=False))
+        mesh = meshes.load_mesh(_textured_obj(tmp_path, texture=False))
     assert mesh.materials[0].texture is None and "brick.png of material Brick is missing" in caplog.text
     (tmp_path / "scene.mtl").unlink()
     caplog.clear()
     with caplog.at_level(logging.WARNING):
-        mesh = meshio.load_mesh(tmp_path / "scene.obj")
+        mesh = meshes.load_mesh(tmp_path / "scene.obj")
     assert "scene.mtl: material library missing" in caplog.text
     assert [m.name for m in mesh.materials] == ["Brick", "Paint"] and mesh.tri_count == 2
 
@@ -446,7 +447,7 @@ def test_obj_with_mtllib_reads_the_geometry_pymeshlab_reads(tmp_path, name):
     original = MODELS / name
     path = tmp_path / name
     path.write_bytes(b"mtllib none.mtl\n" + original.read_bytes())
-    ours_mesh, theirs = meshio.load_mesh(path), meshio.load_mesh(original)
+    ours_mesh, theirs = meshes.load_mesh(path), meshes.load_mesh(original)
     assert ours_mesh.tri_count == theirs.tri_count
     assert np.unique(ours_mesh.positions, axis=0).shape == np.unique(theirs.positions, axis=0).shape
 
@@ -466,7 +467,7 @@ def test_obj_polygons_relative_indices_and_bad_numbers(tmp_path):
     path = tmp_path / "poly.obj"
     path.write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv -1 0.5 0\nvt 0 0\nvt 1 1\nvn 0 0 1\n"
                     "usemtl A\nf 1/1/1 2/2/1 3/1/1 4/2/1 5/1/1\nf -5/-2 -3/-1 -1/-2\n")
-    mesh = meshio.load_mesh(path)
+    mesh = meshes.load_mesh(path)
     assert mesh.tri_count == 4 and mesh.normals is None  # the last face has no normals: none kept
     area = 0.5 * np.linalg.norm(np.cross(*(mesh.positions[mesh.faces][:, 1:] - mesh.positions[mesh.faces][:, :1])
                                          .transpose(1, 0, 2)), axis=1)
@@ -475,13 +476,13 @@ def test_obj_polygons_relative_indices_and_bad_numbers(tmp_path):
     assert area.sum() == pytest.approx(1.5 + 0.75)
     path.write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 zero\nf 1/1 2/1 3/1\n")
     with pytest.raises(InputError, match=r"poly.obj: line 5 \('vt 0 zero'\): 'zero' is not a finite number"):
-        meshio.load_mesh(path)
+        meshes.load_mesh(path)
 
 
 def test_malformed_mtl_is_one_clear_error(tmp_path):
     path = _textured_obj(tmp_path, mtl="newmtl A\nKd 1 zero 0\n")
     with pytest.raises(InputError, match=r"scene.mtl: line 2 \('Kd 1 zero 0'\): Kd needs numbers"):
-        meshio.load_mesh(path)
+        meshes.load_mesh(path)
 
 
 def test_obj_without_mtllib_reads_as_before(tmp_path):
@@ -489,7 +490,7 @@ def test_obj_without_mtllib_reads_as_before(tmp_path):
     coordinates (like the shared spot.obj: no texture for them to map)."""
     path = tmp_path / "plain.obj"
     path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 1\nf 1/1 2/2 3/1 4/2\n")
-    mesh = meshio.load_mesh(path)
+    mesh = meshes.load_mesh(path)
     assert mesh.tri_count == 2 and mesh.positions.shape[0] == 4
     assert not mesh.has_appearance and mesh.materials == ()
 
@@ -502,13 +503,13 @@ def test_ply_vertex_colours_are_srgb_decoded(tmp_path):
     colours = "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n"
     path = tmp_path / "c.ply"
     path.write_text(header.format(colours) + "0 0 0 255 128 0 128\n1 0 0 0 0 0 255\n0 1 0 10 20 30 255\n3 0 1 2\n")
-    mesh = meshio.load_mesh(path)
+    mesh = meshes.load_mesh(path)
     np.testing.assert_allclose(mesh.colors[0], [1.0, ((128 / 255 + 0.055) / 1.055) ** 2.4, 0.0, 128 / 255], atol=1e-6)
     np.testing.assert_allclose(mesh.colors[2, :3], [10 / 255 / 12.92, ((20 / 255 + 0.055) / 1.055) ** 2.4,
                                                     ((30 / 255 + 0.055) / 1.055) ** 2.4], atol=1e-6)  # 10: linear part
     plain = tmp_path / "p.ply"
     plain.write_text(header.format("") + "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n")
-    assert meshio.load_mesh(plain).colors is None
+    assert meshes.load_mesh(plain).colors is None
 
 
 # --- through the bake and the command line --------------------------------------------------------
@@ -538,7 +539,7 @@ def test_cli_bake_writes_embedded_images_beside_the_output(tmp_path, scene, caps
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     folder = tmp_path / "scene.textures"
     assert summary["texture_folder"] == str(folder) and len(list(folder.iterdir())) == 3
-    header_textures = sorted(m.texture for m in fileformat.load(out).materials if m.texture)
+    header_textures = sorted(m.texture for m in hlod_file.load(out).materials if m.texture)
     assert header_textures == sorted(str(p.resolve()) for p in folder.iterdir())
     raw = out.read_bytes()
     assert b'"scene.textures/' in raw and str(folder).encode() not in raw  # stored relative

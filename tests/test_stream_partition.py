@@ -15,11 +15,13 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from hlod_core import cli, fileformat, meshio, octree, stream_partition
-from hlod_core.bake import BakeSettings, bake, stable_meta
-from hlod_core.errors import BakeCancelled, InputError
+from hlod_core import cli
+from hlod_core.io import hlod_file, meshes as meshio
+from hlod_core.bake import octree, partition as stream_partition
+from hlod_core.bake.pipeline import BakeSettings, bake, stable_meta
+from hlod_core.core.errors import BakeCancelled, InputError
 
-from hlod_core.stream_partition import bake_stream
+from hlod_core.bake.partition import bake_stream
 
 from helpers import MODELS, ROOT
 
@@ -47,7 +49,7 @@ def spec(tmp_path_factory):
 
 
 def _stable_bytes(hlod, path) -> bytes:
-    return fileformat.save(hlod.replace(meta=stable_meta(hlod.meta)), path).read_bytes()
+    return hlod_file.save(hlod.replace(meta=stable_meta(hlod.meta)), path).read_bytes()
 
 
 # --- the octree from counts ------------------------------------------------------------------
@@ -236,7 +238,7 @@ def test_command_line_out_of_core_writes_the_same_file(spec, tmp_path, capsys):
                      "--chunk-tris", "5000"]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["out_of_core"] is True and summary["cache"] is None
-    a, b = (fileformat.load(tmp_path / name) for name in ("a.hlod", "b.hlod"))
+    a, b = (hlod_file.load(tmp_path / name) for name in ("a.hlod", "b.hlod"))
     assert _stable_bytes(b, tmp_path / "b2.hlod") == _stable_bytes(a, tmp_path / "a2.hlod")
     assert list(scratch.iterdir()) == [] and not (tmp_path / "b.hlod.cache").exists()
     assert cli.main([*common, "-o", str(tmp_path / "c.hlod"), "--out-of-core", "--cache", str(tmp_path / "c")]) == 2
@@ -267,7 +269,7 @@ def test_open_files_stay_few_however_many_leaves(spec, tmp_path):
                           "--target-tris", "60", "--jobs", "1", "--out-of-core", "--scratch", str(scratch)],
                          cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr[-2000:]
-    hlod = fileformat.load(tmp_path / "a.hlod")
+    hlod = hlod_file.load(tmp_path / "a.hlod")
     assert int(hlod.is_leaf.sum()) > 300 and list(scratch.iterdir()) == []
 
 

@@ -113,8 +113,8 @@ def test_no_import_cycles(graph):
 COMMAND_LINE_ONLY = {"trimesh", "PIL", "matplotlib", "dask", "distributed"}
 #: Modules the extension reaches that may touch a command-line-only library, each behind a guard
 #: that works without it (and the test suite runs that path with the library blocked).
-GUARDED = {"hlod_core.report_figures": {"matplotlib"}, "hlod_core.textures": {"PIL"},
-           "hlod_core.scenefiles": {"trimesh"}, "hlod_core.dask_workers": {"distributed"}}
+GUARDED = {"hlod_core.report.figures": {"matplotlib"}, "hlod_core.io.textures": {"PIL"},
+           "hlod_core.io.scene_files": {"trimesh"}, "hlod_core.bake.dask_cluster": {"distributed"}}
 
 
 def _reached(graph, cut: tuple[str, str] | None = None) -> set[str]:
@@ -137,7 +137,7 @@ def test_the_extension_reaches_no_command_line_only_library(graph):
     reached = _reached(graph)
     offending = {name: sorted((graph[name][1] & COMMAND_LINE_ONLY) - GUARDED.get(name, set()))
                  for name in reached}
-    assert "hlod_core.bake" in reached and "addon.preview" in reached  # the walk sees the extension
+    assert "hlod_core.bake.pipeline" in reached and "addon.preview" in reached  # the walk sees the extension
     assert not any(offending.values()), {k: v for k, v in offending.items() if v}
 
 
@@ -153,46 +153,46 @@ def _module_level(tree: ast.AST):
 
 def test_dask_is_imported_only_by_a_bake_given_a_scheduler(graph):
     """Dask is a command-line-only dependency (issue 16). Everything the extension imports
-    (transitively from `<root>`, deferred imports included), less hlod_core.bake's one deferred
-    import of hlod_core.dask_workers, imports neither dask nor distributed; that import sits in
+    (transitively from `<root>`, deferred imports included), less hlod_core.bake.pipeline's one deferred
+    import of hlod_core.bake.dask_cluster, imports neither dask nor distributed; that import sits in
     `_workers` under `if scheduler is not None`; dask_workers itself imports distributed only when
     it is used, not at module level. And in a fresh interpreter a bake without a scheduler (jobs 1
     and 2) leaves both out of sys.modules."""
     dask = {"dask", "distributed"}
     importers = sorted(name for name, (project, external) in graph.items()
-                       if external & dask or "hlod_core.dask_workers" in project)
-    assert importers == ["hlod_core.bake", "hlod_core.cli", "hlod_core.dask_workers"], importers
-    reached = _reached(graph, cut=("hlod_core.bake", "hlod_core.dask_workers"))
-    assert "hlod_core.bake" in reached and "addon.preview" in reached
-    assert "hlod_core.dask_workers" not in reached
+                       if external & dask or "hlod_core.bake.dask_cluster" in project)
+    assert importers == ["hlod_core.bake.dask_cluster", "hlod_core.bake.pipeline", "hlod_core.cli"], importers
+    reached = _reached(graph, cut=("hlod_core.bake.pipeline", "hlod_core.bake.dask_cluster"))
+    assert "hlod_core.bake.pipeline" in reached and "addon.preview" in reached
+    assert "hlod_core.bake.dask_cluster" not in reached
     assert not {name for name in reached if graph[name][1] & dask}
     modules = _modules()
-    for name in ("hlod_core.bake", "hlod_core.dask_workers"):
+    for name in ("hlod_core.bake.pipeline", "hlod_core.bake.dask_cluster"):
         project, external = _imports(name, modules[name], set(modules), walk=_module_level)
-        assert not external & dask and "hlod_core.dask_workers" not in project, name
-    tree = ast.parse((ROOT / "hlod_core" / "bake.py").read_text(encoding="utf-8"))
+        assert not external & dask and "hlod_core.bake.dask_cluster" not in project, name
+    tree = ast.parse((ROOT / "hlod_core" / "bake" / "pipeline.py").read_text(encoding="utf-8"))
     guarded = [node for node in ast.walk(tree) if isinstance(node, ast.If)
                and ast.unparse(node.test) == "scheduler is not None"
-               and any(isinstance(n, ast.ImportFrom) and [a.name for a in n.names] == ["dask_workers"]
+               and any(isinstance(n, ast.ImportFrom) and [a.name for a in n.names] == ["dask_cluster"]
                        for n in ast.walk(node))]
     every = [node for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
-             and "dask_workers" in [a.name for a in node.names]]
+             and "dask_cluster" in [a.name for a in node.names]]
     assert len(guarded) == 1 and len(every) == 1
     script = ("import sys\nsys.path.insert(0, 'tests')\nfrom helpers import load_model\n"
-              "from hlod_core.bake import BakeSettings, bake\n"
+              "from hlod_core.bake.pipeline import BakeSettings, bake\n"
               "for jobs in (1, 2):\n    bake(load_model('cow.obj'), BakeSettings(target_tris=1000, jobs=jobs))\n"
               "loaded = sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed'))\n"
-              "assert not loaded and 'hlod_core.dask_workers' not in sys.modules, loaded\n")
+              "assert not loaded and 'hlod_core.bake.dask_cluster' not in sys.modules, loaded\n")
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
 
 
 def test_the_graph_sees_known_edges(graph):
     """The checks above would pass on an empty graph: pin a few edges that must be found."""
-    assert "hlod_core.fileformat" in graph["hlod_core.cli"][0]
-    assert "hlod_core.bake" in graph["addon.bake_job"][0]
+    assert "hlod_core.io.hlod_file" in graph["hlod_core.cli"][0]
+    assert "hlod_core.bake.pipeline" in graph["addon.bake_job"][0]
     assert "addon.preview" in graph["panels"][0]
-    assert "bpy" in graph["addon.preview"][1] and "numpy" in graph["hlod_core.bake"][1]
+    assert "bpy" in graph["addon.preview"][1] and "numpy" in graph["hlod_core.bake.pipeline"][1]
 
 
 @pytest.mark.slow

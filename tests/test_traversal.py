@@ -12,16 +12,17 @@ import moderngl
 import numpy as np
 import pytest
 
-from hlod_core import alpha_estimators, boxes, meshio, metrics, overlay, scenes
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.camera import CameraPath, inspection_path
-from hlod_core.errors import InputError
-from hlod_core.gl_functions import GL, GLFunctions
-from hlod_core.gl_state import GLState
-from hlod_core.overlay import OVERLAY_RAMP_STEPS, overlay_ramp
-from hlod_core.renderer import DEFAULT_COLOUR, Renderer
-from hlod_core.traversal import (COUNTERS, DELAY, MEASURE_RATIO, METHODS, MULTIQUERY, PREDICTED, QUERY_COUNTERS, REFINE, STOP,
-                                 NEVER_FRAME, FrameStats, RuntimeSettings, keep_hidden, make, multiquery_groups)
+from hlod_core.traversal import alpha_estimators, boxes, metrics
+from hlod_core.io import meshes, procedural
+from hlod_core.core import colour as overlay
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.model.camera_path import CameraPath, inspection_path
+from hlod_core.core.errors import InputError
+from hlod_core.render.gl_functions import GL, GLFunctions
+from hlod_core.render.gl_state import GLState
+from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp
+from hlod_core.render.renderer import DEFAULT_COLOUR, Renderer
+from hlod_core.traversal.methods import COUNTERS, DELAY, MEASURE_RATIO, METHODS, MULTIQUERY, PREDICTED, QUERY_COUNTERS, REFINE, STOP, NEVER_FRAME, FrameStats, RuntimeSettings, keep_hidden, make, multiquery_groups
 
 from helpers import ScriptedAvailability, baked_city, load_model, standalone_gl, street_path
 
@@ -52,10 +53,10 @@ def city_renderer(gl_ctx):
 
 
 def _frames(renderer, method, path, settings=RuntimeSettings(), size=SIZE, images=False):
-    traversal = make(method, renderer.hlod, renderer, settings)
+    methods = make(method, renderer.hlod, renderer, settings)
     out = []
     for i in range(len(path)):
-        stats = traversal.frame(path.view(i, size))
+        stats = methods.frame(path.view(i, size))
         out.append((stats, renderer.read_pixels() if images else None))
     return out
 
@@ -198,17 +199,17 @@ def test_mu_stays_in_0_1_when_alpha_is_underestimated(city_renderer):
     path = street_path(10)
     for alpha in ("cube", "projected"):
         recording = _RecordingResults(city_renderer)
-        traversal = make("coh", city_renderer.hlod, recording, RuntimeSettings(alpha=alpha))
+        methods = make("coh", city_renderer.hlod, recording, RuntimeSettings(alpha=alpha))
         seen_over = 0
         for i in range(len(path)):
             recording.q.clear()
-            traversal.frame(path.view(i, SIZE))
-            ratio = traversal.ratio
+            methods.frame(path.view(i, SIZE))
+            ratio = methods.ratio
             assert np.all((ratio >= 0) & (ratio <= 1))
             for node, q in recording.q.items():
-                if 0 < traversal.alpha_estimate[node] < q:
+                if 0 < methods.alpha_estimate[node] < q:
                     seen_over += 1
-                    assert ratio[node] == 1.0, (alpha, node, q, traversal.alpha_estimate[node])
+                    assert ratio[node] == 1.0, (alpha, node, q, methods.alpha_estimate[node])
         if alpha == "cube":
             assert seen_over > 0, "the path never produced q > alpha; the clamp went untested"
 
@@ -267,25 +268,25 @@ def test_frame_table_equals_the_public_box_and_sse_functions():
                             far=500.0).view(0, SIZE))
     views.append(CameraPath(frames=np.array([[[70.0, -120.0, 90.0], [70.0, 70.0, 0.0], [0, 0, 1]]]), near=1.0,
                             far=600.0, fovy_deg=None, ortho_height=160.0).view(0, SIZE))
-    traversal = make("coh", hlod, host)
+    methods = make("coh", hlod, host)
     seen_inf = 0
     for view in views:
-        traversal._prepare(view)
-        sse = np.asarray(traversal.sse)
+        methods._prepare(view)
+        sse = np.asarray(methods.sse)
         expected = metrics.sse(view, hlod.error, hlod.sphere_center, hlod.sphere_radius, hlod.is_leaf)
         assert np.array_equal(sse, expected)
         assert np.all(sse[hlod.is_leaf] == 0.0)
         seen_inf += int(np.isinf(sse).sum())
-        assert np.array_equal(np.asarray(traversal.key), boxes.box_distance(view.eye, hlod.box_min, hlod.box_max))
+        assert np.array_equal(np.asarray(methods.key), boxes.box_distance(view.eye, hlod.box_min, hlod.box_max))
         planes = boxes.frustum_planes(view)
         corners = boxes.box_corners(hlod.box_min[:, None, :], hlod.box_max[:, None, :])  # (n,8,3)
         outside_one_plane = np.any(np.all(corners @ planes[:, :3].T + planes[:, 3] < 0, axis=1), axis=1)
-        assert np.array_equal(np.asarray(traversal.in_frustum), ~outside_one_plane)
+        assert np.array_equal(np.asarray(methods.in_frustum), ~outside_one_plane)
         lo, hi = hlod.box_min - pad, hlod.box_max + pad
         padded = boxes.box_corners(lo[:, None, :], hi[:, None, :])  # a corner of the query box behind the near plane
         behind_near = np.any(padded @ planes[4, :3] + planes[4, 3] < 0, axis=1)
         unqueryable = boxes.eye_in_boxes(view.eye, lo, hi) | behind_near
-        assert np.array_equal(np.asarray(traversal.unqueryable), unqueryable)
+        assert np.array_equal(np.asarray(methods.unqueryable), unqueryable)
     assert seen_inf > 0  # the eye inside spheres was tested
 
 
@@ -293,19 +294,19 @@ def test_skip_candidates_are_the_nodes_visited_and_visible_last_frame(city_rende
     """The skip test's candidates are exactly the nodes visited in the last frame and visible at
     its end, in the frustum and queryable this frame (read from the walk's visited list, not the
     node table); a node visible from an earlier frame but not visited last frame is not one."""
-    traversal = make("coh", city_renderer.hlod, city_renderer, RuntimeSettings(skip_queries="expected"))
+    methods = make("coh", city_renderer.hlod, city_renderer, RuntimeSettings(skip_queries="expected"))
     path = street_path(12)
     stale = 0
     for i in range(len(path)):
         view = path.view(i, SIZE)
         if i:
-            traversal._prepare(view)
-            visible, last = traversal.visible, traversal.last_visited
-            expected = np.flatnonzero(visible & (last == traversal.frame_id) & np.asarray(traversal.in_frustum)
-                                      & ~np.asarray(traversal.unqueryable))
-            assert np.array_equal(np.sort(traversal._skip_candidates()), expected)
-            stale += int(np.count_nonzero(visible & (last < traversal.frame_id)))
-        traversal.frame(view)
+            methods._prepare(view)
+            visible, last = methods.visible, methods.last_visited
+            expected = np.flatnonzero(visible & (last == methods.frame_id) & np.asarray(methods.in_frustum)
+                                      & ~np.asarray(methods.unqueryable))
+            assert np.array_equal(np.sort(methods._skip_candidates()), expected)
+            stale += int(np.count_nonzero(visible & (last < methods.frame_id)))
+        methods.frame(view)
     assert stale > 0  # visible nodes not visited last frame occurred, and were left out
 
 
@@ -344,7 +345,7 @@ def test_scene_far_from_origin(gl_ctx):
     m = np.eye(4)
     m[:3, :3] *= 10.0
     m[:3, 3] = 1e6
-    hlod = bake(meshio.transform_mesh(mesh, m, name="cow+1e6"), BakeSettings(target_tris=500))
+    hlod = bake(meshes.transform_mesh(mesh, m, name="cow+1e6"), BakeSettings(target_tris=500))
     renderer = Renderer(gl_ctx, hlod, size=SIZE)
     try:
         centre = 0.5 * (hlod.box_min[0] + hlod.box_max[0])
@@ -421,9 +422,9 @@ def test_scripted_query_latency_keeps_culling_conservative(city_renderer):
     path = street_path(12)
     vfc = _frames(city_renderer, "vfc", path, images=True)
     for method in ("bool", "coh"):
-        traversal = make(method, city_renderer.hlod, slow)
+        methods = make(method, city_renderer.hlod, slow)
         for i in range(len(path)):
-            stats = traversal.frame(path.view(i, SIZE))
+            stats = methods.frame(path.view(i, SIZE))
             assert len(stats.drawn) == len(set(stats.drawn))
             if method == "bool":
                 assert np.array_equal(city_renderer.read_pixels(), vfc[i][1]), f"frame {i}"
@@ -434,10 +435,10 @@ def test_overlay_of_methods_without_vmsse_is_all_blue(city_renderer, method):
     """Only VMSSE lowers a node's LOD; Full, VFC and Bool show no modulation (blue), even for a
     node Bool drew from last frame's visibility and then found hidden."""
     path = street_path(12)
-    traversal = make(method, city_renderer.hlod, city_renderer)
+    methods = make(method, city_renderer.hlod, city_renderer)
     city_renderer.overlay = True  # the drawing side's setting
     for i in range(len(path)):
-        traversal.frame(path.view(i, SIZE))
+        methods.frame(path.view(i, SIZE))
         image = city_renderer.read_pixels()
         drawn = image[np.any(image != 255, axis=2)].astype(np.int64)
         assert drawn.shape[0] > 1000
@@ -448,9 +449,9 @@ def test_overlay_of_methods_without_vmsse_is_all_blue(city_renderer, method):
 def sphere_row():
     """Five tessellated spheres in a row (15k triangles, about 400 per node): looking down the row,
     each sphere hides most of the next, whose nodes show as thin crescents."""
-    spheres = [meshio.TriangleMesh(*scenes.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, 48, 32), name=f"sphere {i}")
+    spheres = [meshes.TriangleMesh(*procedural.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, 48, 32), name=f"sphere {i}")
                for i in range(5)]
-    return bake(meshio.merge(spheres, name="sphere row"), BakeSettings(target_tris=400))
+    return bake(meshes.merge(spheres, name="sphere row"), BakeSettings(target_tris=400))
 
 
 def test_measured_shift_up_reaches_the_sw_front_where_algorithm_4_stays_deep(gl_ctx, sphere_row):
@@ -542,8 +543,8 @@ def test_counters_are_the_numeric_fields_of_frame_stats_in_order():
 def test_the_traversal_does_not_import_the_gl_renderer():
     """The traversal is typed against the NodeRenderer protocol: importing it loads neither the
     moderngl renderer nor moderngl."""
-    code = ("import sys, hlod_core.traversal\n"
-            "print(sorted(m for m in ('hlod_core.renderer', 'moderngl') if m in sys.modules))")
+    code = ("import sys, hlod_core.traversal.methods\n"
+            "print(sorted(m for m in ('hlod_core.render.renderer', 'moderngl') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
 
@@ -568,17 +569,17 @@ def test_the_traversal_passes_each_drawn_node_and_its_ratio(city_renderer, metho
     """The traversal says which node it draws and with which P (1 where VMSSE does not steer the
     LOD); it picks no colour."""
     recording = _Recording(city_renderer)
-    traversal = make(method, city_renderer.hlod, recording)
+    methods = make(method, city_renderer.hlod, recording)
     path = street_path(6)
     for i in range(len(path)):
         recording.draws.clear()
-        stats = traversal.frame(path.view(i, SIZE))
+        stats = methods.frame(path.view(i, SIZE))
         assert [node for node, _ in recording.draws] == stats.drawn
         ratios = np.array([p for _, p in recording.draws])
         if method == "bool":
             assert np.all(ratios == 1.0)
         elif method == "sw":  # SW draws after its query: the ratio it drew with is the final one
-            assert np.array_equal(ratios, traversal.ratio[stats.drawn])
+            assert np.array_equal(ratios, methods.ratio[stats.drawn])
         assert np.all((ratios >= 0) & (ratios <= 1))
     assert method == "bool" or np.any(ratios < 1.0), "no modulated node drawn: the check saw nothing"
 
@@ -602,13 +603,13 @@ def test_overlay_draws_the_modulation_colour_of_each_node(city_renderer):
     default colour."""
     path = street_path(8)
     recording = _Recording(city_renderer)
-    traversal = make("coh", city_renderer.hlod, recording, RuntimeSettings(s=0.6, t=0.2))
+    methods = make("coh", city_renderer.hlod, recording, RuntimeSettings(s=0.6, t=0.2))
     city_renderer.overlay = True
     modulated = 0
     for i in range(len(path)):
         view = path.view(i, SIZE)
         recording.draws.clear()
-        traversal.frame(view)
+        methods.frame(view)
         overlaid = city_renderer.read_pixels().astype(np.int64)
         modulation = metrics.modulation([p for _, p in recording.draws])
         modulated += int(np.sum(modulation > 0))
@@ -619,7 +620,7 @@ def test_overlay_draws_the_modulation_colour_of_each_node(city_renderer):
         assert np.max(np.abs(overlaid - city_renderer.read_pixels())) <= 1, f"frame {i}"
     assert modulated > 0, "no node was modulated: the colours went untested"
     city_renderer.overlay = False
-    stats = traversal.frame(path.view(0, SIZE))
+    stats = methods.frame(path.view(0, SIZE))
     plain = city_renderer.read_pixels()
     city_renderer.begin_frame(path.view(0, SIZE))
     for node in stats.drawn:
@@ -709,9 +710,9 @@ def test_traversal_cpu_baseline_runs_another_version_side_by_side():
     from pathlib import Path
 
     from benchmarks import traversal_cpu
-    from hlod_core import traversal
+    from hlod_core.traversal import methods
     module = traversal_cpu.baseline_traversal(str(Path(__file__).resolve().parents[1]))
-    assert module.__name__ == "hlod_core_baseline.traversal" and module is not traversal
+    assert module.__name__ == "hlod_core_baseline.traversal.methods" and module is not methods
     table = traversal_cpu.run(baked_city(), street_path(6), SIZE, methods=["coh"], repeat=2, settings=RuntimeSettings(),
                               null_renderer=True, baseline=module)
     assert set(table) == {"coh", "coh (baseline)"}
@@ -962,23 +963,23 @@ def test_every_method_does_exactly_what_the_plain_reference_does(city_renderer, 
     compared = {"rarn": 0, "d": 0, "queries": 0, "not_yet": 0, "predicted": 0}
 
     def library(r, method, settings, gate):
-        traversal = make(method, hlod, r, settings)
-        traversal.predict_new_share = gate
-        return traversal
+        methods = make(method, hlod, r, settings)
+        methods.predict_new_share = gate
+        return methods
 
     for method, settings, gate in variants:
         runs = []
         for make_traversal in (lambda r: library(r, method, settings, gate),
                                lambda r: _ReferenceTraversal(method, hlod, r, settings, gate)):
             scripted = ScriptedAvailability(city_renderer, lag)
-            traversal = make_traversal(scripted)
+            methods = make_traversal(scripted)
             frames = []
             for path in paths:
                 for i in range(len(path)):
-                    s = traversal.frame(path.view(i, SIZE))
+                    s = methods.frame(path.view(i, SIZE))
                     frames.append((s.dn, s.rarn, s.d, s.tris, s.queries, s.traversed, s.drawn, s.delayed,
                                    s.refined_after_draw, s.predicted))
-            state = [np.asarray(getattr(traversal, a)).tolist() for a in ("visible", "stop_refinement", "ratio",
+            state = [np.asarray(getattr(methods, a)).tolist() for a in ("visible", "stop_refinement", "ratio",
                                                                           "last_visited", "rendered")]
             runs.append((scripted.calls, frames, state))
             compared["not_yet"] += scripted.not_yet
@@ -1019,9 +1020,9 @@ def _street_depth(renderer, frame=10):
     path = street_path(30)
     view = path.view(frame, SIZE)
     drawn = make("vfc", renderer.hlod, renderer).frame(view).drawn
-    traversal = make("coh", renderer.hlod, renderer)
-    traversal._prepare(view)
-    candidates = np.flatnonzero(np.asarray(traversal.in_frustum) & ~np.asarray(traversal.unqueryable)).tolist()
+    methods = make("coh", renderer.hlod, renderer)
+    methods._prepare(view)
+    candidates = np.flatnonzero(np.asarray(methods.in_frustum) & ~np.asarray(methods.unqueryable)).tolist()
     renderer.begin_frame(view)
     for node in drawn:
         renderer.draw_node(node)
@@ -1117,9 +1118,9 @@ class _ScriptedBatches(ScriptedAvailability):
 def _scripted_run(renderer, method, settings, paths, lag):
     """(calls, per-frame FrameStats) of a new traversal over `paths` behind _ScriptedBatches."""
     scripted = _ScriptedBatches(renderer, lag)
-    traversal = make(method, renderer.hlod, scripted, settings)
-    scripted.traversal = traversal
-    stats = [traversal.frame(path.view(i, SIZE)) for path in paths for i in range(len(path))]
+    methods = make(method, renderer.hlod, scripted, settings)
+    scripted.traversal = methods
+    stats = [methods.frame(path.view(i, SIZE)) for path in paths for i in range(len(path))]
     return scripted, stats
 
 
@@ -1210,8 +1211,8 @@ def test_coh_batches_and_groups_its_queries_by_default(city_renderer):
     path = street_path(30)
     stats = {}
     for m in ("off", "on"):
-        traversal = make("coh", hlod, city_renderer, RuntimeSettings(multiquery=m, batch_queries=m, skip_queries="off"))
-        stats[m] = [traversal.frame(path.view(i, SIZE)) for i in range(len(path))]
+        methods = make("coh", hlod, city_renderer, RuntimeSettings(multiquery=m, batch_queries=m, skip_queries="off"))
+        stats[m] = [methods.frame(path.view(i, SIZE)) for i in range(len(path))]
     changes, queries = ({m: sum(getattr(s, c) for s in stats[m]) for m in stats} for c in ("state_changes", "queries"))
     assert changes["on"] < queries["on"] and changes["off"] >= 2 * queries["off"] > 0, (changes, queries)
     assert sum(s.multiqueries for s in stats["off"]) == 0
@@ -1226,23 +1227,23 @@ def _predicted_run(renderer, settings, paths, lag, scripted_cls=None, share=None
     a STOP prediction). `share`: the traversal's predict_new_share instead of the class's; `images`:
     a list the frames' pixels are appended to."""
     scripted = (scripted_cls or _ScriptedBatches)(renderer, lag)
-    traversal = make("coh", renderer.hlod, scripted, settings)
+    methods = make("coh", renderer.hlod, scripted, settings)
     if share is not None:
-        traversal.predict_new_share = share
-    scripted.traversal = traversal
+        methods.predict_new_share = share
+    scripted.traversal = methods
     stats, frames = [], []
     for path in paths:
         for i in range(len(path)):
-            before = traversal.last_visited
-            s = traversal.frame(path.view(i, SIZE))
+            before = methods.last_visited
+            s = methods.frame(path.view(i, SIZE))
             if images is not None:
                 images.append(renderer.read_pixels())
             delayed = set(s.delayed)
-            predicted = [n for n in s.drawn if before[n] != traversal.frame_id - 1 and n not in delayed]
+            predicted = [n for n in s.drawn if before[n] != methods.frame_id - 1 and n not in delayed]
             stats.append(s)
-            frames.append((predicted, np.asarray(traversal.sse).copy(),
-                           int(np.sum(traversal.candidate_in == traversal.frame_id)),
-                           np.asarray(traversal.unqueryable).copy()))
+            frames.append((predicted, np.asarray(methods.sse).copy(),
+                           int(np.sum(methods.candidate_in == methods.frame_id)),
+                           np.asarray(methods.unqueryable).copy()))
     return scripted, stats, frames
 
 
@@ -1355,18 +1356,18 @@ def test_a_frame_that_raised_hands_nothing_to_the_next(city_renderer):
     hlod = city_renderer.hlod
     path = street_path(30)
     failing = _FailingDraw(city_renderer)
-    traversal = make("coh", hlod, failing)
+    methods = make("coh", hlod, failing)
     for i in range(10):
-        traversal.frame(path.view(i, SIZE))
-    failing.fail_when = lambda: bool(traversal._waiting_batch)  # a draw while queries wait in the batch
+        methods.frame(path.view(i, SIZE))
+    failing.fail_when = lambda: bool(methods._waiting_batch)  # a draw while queries wait in the batch
     with pytest.raises(RuntimeError, match="draw failed"):
-        traversal.frame(path.view(10, SIZE))
+        methods.frame(path.view(10, SIZE))
     city_renderer.end_frame()
-    assert traversal._waiting_batch  # the failed frame left queries waiting
+    assert methods._waiting_batch  # the failed frame left queries waiting
     failing.fail_when = lambda: False
     failing.queried.clear()
-    traversal.frame(inspection_path(hlod, seed=11, frames=28).view(20, SIZE))  # somewhere else
-    visited = set(np.flatnonzero(np.asarray(traversal.last_visited) == traversal.frame_id).tolist())
+    methods.frame(inspection_path(hlod, seed=11, frames=28).view(20, SIZE))  # somewhere else
+    visited = set(np.flatnonzero(np.asarray(methods.last_visited) == methods.frame_id).tolist())
     assert failing.queried and set(failing.queried) <= visited
     assert len(failing.queried) == len(set(failing.queried))
 

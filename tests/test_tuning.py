@@ -1,4 +1,4 @@
-"""Issue 15, tuning to an image-quality target (hlod_core/tuning.py, `evaluate --psnr-target DB`): the
+"""Issue 15, tuning to an image-quality target (hlod_core/report/tuning.py, `evaluate --psnr-target DB`): the
 (s, t) with the fewest drawn nodes whose lowest PSNR-Y against Bool over the PSNR frames reaches the
 target, the curve of the candidates tried in report.json / report.md / psnr_target.png, the fallback
 when nothing reaches it, and the option's bad values.
@@ -10,11 +10,13 @@ import math
 
 import pytest
 
-from hlod_core import cli, fileformat, scenes, tuning
-from hlod_core.bake import BakeSettings, bake
-from hlod_core.camera import inspection_path
-from hlod_core.errors import InputError
-from hlod_core.traversal import RuntimeSettings
+from hlod_core import cli
+from hlod_core.io import hlod_file as fileformat, procedural
+from hlod_core.report import tuning
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.model.camera_path import inspection_path
+from hlod_core.core.errors import InputError
+from hlod_core.traversal.methods import RuntimeSettings
 
 from test_cli import hlod, last_json, one_line_error
 from test_report_figures import PNG_SIGNATURE
@@ -27,7 +29,7 @@ CANDIDATE_KEYS = {"s", "t", "dn", "psnr_y", "psnr_y_mean", "frame_ms", "frame_ms
 def downtown(tmp_path_factory):
     """(the baked file, its Hlod, the seeded 10-frame inspection path the command generates)."""
     hlod_file = tmp_path_factory.mktemp("tuning") / "downtown.hlod"
-    fileformat.save(bake(scenes.high_scene(seed=1, scale=0.5), BakeSettings(target_tris=200)), hlod_file)
+    fileformat.save(bake(procedural.high_scene(seed=1, scale=0.5), BakeSettings(target_tris=200)), hlod_file)
     baked = fileformat.load(hlod_file)
     return hlod_file, baked, inspection_path(baked, seed=1, frames=FRAMES)
 

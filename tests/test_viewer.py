@@ -1,4 +1,4 @@
-"""Issue 17: the 3D Tiles viewer. The server (hlod_core/viewer.py: localhost only, its folders only),
+"""Issue 17: the 3D Tiles viewer. The server (hlod_core/export/viewer.py: localhost only, its folders only),
 the `view` command, and the page itself in a real browser: Debian's Chromium driven by Playwright,
 WebGL through SwiftShader, CesiumJS from tools/viewer's npm install, loading an export of the
 default city."""
@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from hlod_core import tiles3d, viewer
-from hlod_core.errors import InputError
+from hlod_core.export import tiles3d, viewer
+from hlod_core.core.errors import InputError
 
 from helpers import ROOT, baked_city, textured_scene
 
@@ -248,8 +248,8 @@ def test_colour_by_depth_and_boxes_change_the_picture(page, tmp_path):
 def test_page_shows_the_exports_textures_and_colours(browser, tmp_path):
     """The textured test scene (tests/scenes/textured_scene.py, read from its GLB) exported with its
     materials, textures and vertex colours: the page draws them (the city above is one grey)."""
-    from hlod_core.bake import BakeSettings, bake
-    from hlod_core.meshio import load_mesh
+    from hlod_core.bake.pipeline import BakeSettings, bake
+    from hlod_core.io.meshes import load_mesh
 
     mesh = load_mesh(textured_scene("small")["glb"], texture_dir=tmp_path / "images")
     folder = tmp_path / "tiles"

@@ -1,7 +1,7 @@
 """Issue 17: the tiles CesiumJS chooses against the nodes our VFC traversal draws for the same camera
 and threshold (benchmarks/cesium_compare.py holds the comparison and the explanation of each term).
 
-Cesium runs for real: the viewer page (hlod_core/viewer_page) served by hlod_core.viewer, in
+Cesium runs for real: the viewer page (hlod_core/export/viewer_page) served by hlod_core.export.viewer, in
 Chromium from the system packages driven by Playwright, WebGL through SwiftShader."""
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ def terrain(tmp_path_factory):
 @pytest.fixture(scope="module")
 def rows(terrain):
     """Every terrain camera at every threshold, Cesium's choice read from the page at rest."""
-    from hlod_core.viewer import serve
+    from hlod_core.export.viewer import serve
 
     hlod, ts, tiles = terrain
     out = []
@@ -82,7 +82,7 @@ def test_ours_and_cesiums_sets_overlap_as_measured(rows):
 @pytest.mark.gl
 def test_the_vfc_nodes_compared_are_those_the_gl_renderer_draws(terrain):
     """cesium_compare runs VFC with a renderer that draws nothing; the GL renderer gives the same nodes."""
-    from hlod_core.renderer import Renderer
+    from hlod_core.render.renderer import Renderer
 
     hlod, _, _ = terrain
     renderer = Renderer.create_standalone(hlod, (800, 600))
