@@ -225,7 +225,7 @@ def _all_subclasses(cls) -> list:
     return out
 
 
-def draw_panel(title: str, rows: list, path: Path, *, header_rows: list | None = None) -> Path:  # noqa: C901
+def draw_panel(title: str, rows: list, path: Path, *, header_rows: list | None = None) -> Path:
     """A mock-up of one panel section (its header, then its rows), captioned as a diagram."""
     import matplotlib
 
