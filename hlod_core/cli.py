@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     errors exit 2 through argparse with one line."""
     args = None
     try:
-        args = _parser().parse_args(argv)
+        args = build_parser().parse_args(argv)
         logging.basicConfig(level=logging.ERROR if args.quiet else logging.INFO, stream=sys.stderr,
                             format="hlod_core: %(message)s")
         with warnings.catch_warnings(), signals_as_exceptions():
@@ -126,7 +126,8 @@ def _psnr_db(text: str) -> float:
         raise argparse.ArgumentTypeError(str(exc).removeprefix("PSNR target: ")) from None
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of `python -m hlod_core`: every command and option (docs/command-line.md lists them)."""
     parser = _Parser(prog="python -m hlod_core", description="Bake and inspect octree HLODs.")
     parser.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")
     sub = parser.add_subparsers(dest="command", required=True)
