@@ -1,4 +1,4 @@
-"""The renderer's appearance (issue 13): materials' base colours, vertex colours and base-colour
+"""The renderer's appearance: materials' base colours, vertex colours and base-colour
 textures drawn per (node, material) part, colour spaces, the untouched untextured and overlay
 paths, and the textures' GL lifetime; real OpenGL (Mesa llvmpipe through EGL without a GPU)."""
 import ctypes
@@ -21,8 +21,9 @@ from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.core.errors import InputError
 from hlod_core.render.gl_functions import GL, GLFunctions
 from hlod_core.report.image_error import psnr
-from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp
-from hlod_core.render.renderer import TEXTURE_UNIT, Renderer
+from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp, srgb_from_linear, srgb_to_linear
+from hlod_core.render.materials import TEXTURE_UNIT
+from hlod_core.render.renderer import Renderer
 from hlod_core.traversal.methods import RuntimeSettings, make
 from hlod_core.model.view import View
 
@@ -35,7 +36,7 @@ SIZE = (320, 240)
 #: 8-bit levels a drawn colour may differ from the expected one (float rounding in the shader and
 #: the sRGB texture decode; an orientation or colour-space error moves them by tens of levels).
 LEVELS = 2
-#: The renderer before issue 13's appearance (the contract commit): the reference of the unchanged paths.
+#: The renderer before the appearance path existed: the reference of the paths it must leave unchanged.
 BEFORE_COMMIT = "b4edc98"
 #: Where the modules that renderer imports live now (hlod_core's subpackages came after it).
 MOVED_SINCE = {"gl_functions": "render.gl_functions", "hierarchy": "model.hierarchy", "overlay": "core.colour",
@@ -80,15 +81,13 @@ def _integer(gl: GLFunctions, pname: int) -> int:
 
 
 def srgb_bytes(linear) -> np.ndarray:
-    """IEC 61966-2-1 encoding of linear [0, 1] values, as 8-bit levels (float, unrounded)."""
-    c = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
-    return 255.0 * np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
+    """IEC 61966-2-1 encoding of linear [0, 1] RGB values, as 8-bit levels (float, unrounded)."""
+    return 255.0 * srgb_from_linear(np.asarray(linear, np.float64))
 
 
 def linear_from_srgb(levels) -> np.ndarray:
-    """IEC 61966-2-1 decoding of 8-bit levels to linear [0, 1]."""
-    c = np.asarray(levels, np.float64) / 255.0
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    """IEC 61966-2-1 decoding of 8-bit RGB levels (3,) to linear [0, 1] (3,)."""
+    return srgb_to_linear(np.append(np.asarray(levels, np.float64) / 255.0, 1.0)[None])[0, :3]
 
 
 def _checker_png(path, *, side: int = 64) -> np.ndarray:
@@ -246,8 +245,8 @@ def test_two_materials_in_one_node_are_two_parts_each_in_its_own_colour(gl_ctx, 
 
 
 def test_overlay_draws_the_ramp_as_before_and_no_texture(gl_ctx, checker):
-    """overlay=True replaces the appearance: the same pixels as the renderer before issue 13 (which
-    knew no appearance) drew with the overlay, the ramp colour of P, nowhere the checker."""
+    """overlay=True replaces the appearance: the same pixels as the renderer before the appearance
+    path (which knew none) drew with the overlay, the ramp colour of P, nowhere the checker."""
     hlod, _, image = checker
     before_class = _renderer_before()
     new = Renderer(gl_ctx, hlod, size=SIZE, overlay=True, images={0: image})
@@ -269,7 +268,7 @@ def test_overlay_draws_the_ramp_as_before_and_no_texture(gl_ctx, checker):
 
 
 def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
-    """No appearance: the renderer before issue 13 and this one draw identical frames (Coh with
+    """No appearance: the renderer before the appearance path and this one draw identical frames (Coh with
     its queries, a cow baked into several levels, from three views)."""
     _, hlod = baked("cow.obj", target_tris=400)
     assert not hlod.has_appearance and hlod.node_count > 1
@@ -280,7 +279,7 @@ def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
     new = Renderer(gl_ctx, hlod, size=SIZE)
     frames = []
     try:
-        assert new._parts is None
+        assert new.appearance is None
         settings = RuntimeSettings()
         old_coh = make("coh", hlod, old, settings) if old is not None else None
         new_coh = make("coh", hlod, new, settings)
@@ -371,9 +370,9 @@ def test_textures_are_shared_per_image_and_released(gl_ctx, checker):
     hlod, png, image = checker
     twice = hlod.replace(materials=hlod.materials + (Material("Again", texture=str(png)),))
     renderer = Renderer(gl_ctx, twice, size=SIZE, images={0: image, 1: image})
-    made = [r for r in renderer._resources if isinstance(r, moderngl.Texture)]
+    made = [r for r in renderer.gl_objects if isinstance(r, moderngl.Texture)]
     names = [t.glo for t in made]
-    assert len(made) == 1 and renderer._parts.texture[0] is renderer._parts.texture[1] is made[0]
+    assert len(made) == 1 and renderer.appearance.texture[0] is renderer.appearance.texture[1] is made[0]
     is_texture = _gl_function(gl_ctx, "glIsTexture", ctypes.c_uint8, ctypes.c_uint32)
     _draw(renderer, _front_view())
     assert all(is_texture(n) for n in names)
@@ -474,12 +473,12 @@ def test_load_images_of_an_untextured_hlod_is_empty_and_imports_nothing(monkeypa
     assert textures.load_images(hlod) == {}
 
 
-# --- the issue's acceptance check on the textured scene ---------------------------------------------
+# --- the acceptance check on the textured scene ---------------------------------------------
 
 ACCEPTANCE_SIZE = (640, 480)
 ACCEPTANCE_SCALE = "small"  # tests/scenes/textured_scene.py --scale; "full" is the README's figure
 ACCEPTANCE_FRAMES = 6  # frames at the view before the measured one: Coh's prediction settles
-#: Issue 13's thresholds, dB: Y, Cb, Cr of the textured preview against Full's picture.
+#: The acceptance thresholds, dB: Y, Cb, Cr of the textured preview against Full's picture.
 MIN_PSNR_DB = (30.0, 35.0, 35.0)
 
 
@@ -537,7 +536,7 @@ def _baked_in_blender(blend, repo, tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("source", ["glb", "obj", pytest.param("blend", marks=pytest.mark.blender)])
 def test_textured_scene_preview_matches_full_at_one_pixel(source, tmp_path, request):
-    """Issue 13, done when: the textured scene baked from Blender (the extension's background
+    """Acceptance: the textured scene baked from Blender (the extension's background
     command), from Blender's glTF and from its OBJ export keeps its materials and UVs, and at a view
     where the drawn cut's SSE is at most 1 px (Coh, tau = 1), its textured picture against Full's at
     640x480 has PSNR-Y >= 30 dB, PSNR-Cb/Cr >= 35 dB."""
@@ -560,4 +559,4 @@ def test_textured_scene_preview_matches_full_at_one_pixel(source, tmp_path, requ
     # and the pictures compared are textured: the same cut in base colours alone is far from them
     base_only = acceptance_figures(hlod, {})["picture"]
     assert psnr(figures["picture"], base_only)[0] < MIN_PSNR_DB[0], shown
-    print(f"issue 13 acceptance, {source}: {shown}")
+    print(f"textured acceptance, {source}: {shown}")

@@ -362,7 +362,7 @@ def test_release_frees_everything_and_is_idempotent(gl_ctx):
     renderer = Renderer(gl_ctx, baked_city(), size=SIZE)
     _frames(renderer, "coh", street_path(3))
     ids = renderer.queries.ids
-    resources = list(renderer._resources)
+    resources = list(renderer.gl_objects)
     assert ids and resources
     renderer.release()
     renderer.release()

@@ -1,4 +1,4 @@
-"""Appearance carried through the bake: materials, UVs, vertex colours (issue 13).
+"""Appearance carried through the bake: materials, UVs, vertex colours.
 
 Data form:
 - `Material`: one row of the material table (glTF's pbrMetallicRoughness subset): name, linear
@@ -31,6 +31,10 @@ MAX_MATERIALS = 65535
 
 #: Base colour of a triangle whose source has no material (Blender's default material).
 DEFAULT_BASE_COLOR = (0.8, 0.8, 0.8, 1.0)
+
+#: Base colour drawn for an HLOD without a material table (glTF's default material), so vertex
+#: colours show as they are.
+NO_MATERIAL_BASE_COLOR = (1.0, 1.0, 1.0, 1.0)
 
 
 @dataclass(frozen=True)
