@@ -1,16 +1,11 @@
-"""The renderer's cost calibration: time query boxes and node draws, fit query_cost's linear costs.
+"""The renderer's cost calibration: time query boxes and node draws, fit query_cost's linear costs
+(Bool and Coh leave out the queries that do not pay, CHC++'s skipped queries).
 
 Data form: samples as three equal-length lists (count, units, seconds): for queries (queries,
 pixels rasterised, seconds), for draws (draw calls, triangles, seconds); query_cost.fit_linear
-turns each into a LinearCost and the two into a CostModel. Bool and Coh use the model to leave out
-queries that do not pay (CHC++'s skipped queries, see DESIGN.md's papers).
-
-What is timed, as the traversal does it: query boxes as centred squares in clip space of the
-CALIBRATION_BOX_HALF_SIDES (pixel counts from a dot to the whole framebuffer), each size as a batch
-of CALIBRATION_QUERIES queries whose results are read back; real nodes of spread triangle counts,
-each drawn often enough to reach about CALIBRATION_DRAW_TRIANGLES triangles, seen from outside the
-root box. Every sample is timed CALIBRATION_ROUNDS times and the median kept. The renderer sets up
-the framebuffer (`Renderer.calibrate_costs`); this module only draws, queries and times.
+turns each into a LinearCost, the two into a CostModel. The renderer sets up the framebuffer
+(`Renderer.calibrate_costs`); this module draws, queries and times, as the traversal does.
+Why and what: docs/how-it-works.md#the-renderers-cost-calibration
 """
 from __future__ import annotations
 

@@ -7,10 +7,8 @@ vertex buffers beside the positions: UVs (only when some material has an image) 
 the HLOD has them); no material table counts as glTF's default material (NO_MATERIAL_BASE_COLOR).
 
 Images (`images`: material row -> (h, w, 4) uint8 RGBA, top row first, sRGB-encoded) become
-sRGB8_ALPHA8 textures, so samples are linear: one texture per distinct array object, rows uploaded
-bottom row first (UV origin bottom-left), mipmapped, repeat wrap, trilinear. The result is written
-sRGB-encoded by the shader, unless the target framebuffer encodes itself
-(gl_state.draw_framebuffer_encodes_srgb, as Blender's viewport does).
+sRGB8_ALPHA8 textures: one per distinct array object, rows uploaded bottom row first (UV origin
+bottom-left), mipmapped, repeat wrap, trilinear. Colour spaces: docs/how-it-works.md#colours-in-the-renderer-linear-in-srgb-out
 """
 from __future__ import annotations
 

@@ -7,10 +7,6 @@ origin) and one index buffer (uint32); node i is the ranged draw of indices
 (`create_standalone`, headless: Mesa llvmpipe on machines without a GPU) or on a context handed in
 by the caller (Blender's, in the add-on), drawing into the caller's framebuffer.
 
-Rooms of this package: GLSL programs in `shaders`, query boxes in `query_boxes`, materials and
-textures in `materials`, cost calibration in `calibration`, query ids in `queries`, raw GL in
-`gl_functions`, the host's state in `gl_state`, GL object ownership in `resources`.
-
 States (`set_mode`): "draw" (colour and depth writes, depth test), "query" and "alpha" (no writes,
 back faces culled, depth test on / off: both count the same rasterised pixels, clipping included).
 `state_changes` counts the switches since the renderer was made. Batched queries (CHC++):
