@@ -592,7 +592,7 @@ def _look_batches(shader, hlod, node: int) -> list:
     base colour x vertex colour (linear), with its UVs (0 without)."""
     from gpu_extras.batch import batch_for_shader
 
-    from ..hlod_core.render.renderer import NO_MATERIAL_BASE_COLOR
+    from ..hlod_core.model.appearance import NO_MATERIAL_BASE_COLOR
 
     g = node_geometry(hlod, node)
     face_material = g.face_material if g.face_material is not None else np.full(g.faces.shape[0], -1, np.int32)

@@ -1,4 +1,4 @@
-"""Hostile bake inputs (issue 11): STL files that used to hang pymeshlab's reader, OBJ lines it
+"""Hostile bake inputs: STL files that used to hang pymeshlab's reader, OBJ lines it
 read wrongly without a word, scene specs nested too deep or placing a model with a singular
 transform, and settings or geometry that made a bake crash inside pymeshlab. Each is refused in
 one line naming the file (and line or transform), or bakes."""
@@ -12,7 +12,7 @@ import pymeshlab
 import pytest
 
 from hlod_core.bake import checks
-from hlod_core.io import obj_stl, meshes
+from hlod_core.io import meshes, obj
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.core.errors import InputError
 
@@ -159,7 +159,7 @@ def test_relative_indices_slashes_polygons_and_comments_read_as_pymeshlab_reads_
 @pytest.mark.parametrize("name", sorted(p.name for p in MODELS.glob("*.obj")))
 def test_every_shared_obj_passes_the_check_and_declares_what_pymeshlab_reads(name):
     path = MODELS / name
-    vertices, tris = obj_stl.check_obj(path, path.read_bytes())
+    vertices, tris = obj.check_obj(path, path.read_bytes())
     mesh = load_model(name)
     assert (vertices, tris) == (mesh.positions.shape[0], mesh.tri_count)
 

@@ -1,4 +1,4 @@
-"""The renderer's appearance (issue 13): materials' base colours, vertex colours and base-colour
+"""The renderer's appearance: materials' base colours, vertex colours and base-colour
 textures drawn per (node, material) part, colour spaces, the untouched untextured and overlay
 paths, and the textures' GL lifetime; real OpenGL (Mesa llvmpipe through EGL without a GPU)."""
 import ctypes
@@ -21,21 +21,20 @@ from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.core.errors import InputError
 from hlod_core.render.gl_functions import GL, GLFunctions
 from hlod_core.report.image_error import psnr
-from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp
-from hlod_core.render.renderer import TEXTURE_UNIT, Renderer
+from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp, srgb_from_linear, srgb_to_linear
+from hlod_core.render.materials import TEXTURE_UNIT
+from hlod_core.render.renderer import Renderer
 from hlod_core.traversal.methods import RuntimeSettings, make
 from hlod_core.model.view import View
 
 from helpers import ROOT, baked, standalone_gl
 from test_addon import repo  # noqa: F401 - fixture: the extension installed in the main .venv's bpy
 
-pytestmark = pytest.mark.gl
-
 SIZE = (320, 240)
 #: 8-bit levels a drawn colour may differ from the expected one (float rounding in the shader and
 #: the sRGB texture decode; an orientation or colour-space error moves them by tens of levels).
 LEVELS = 2
-#: The renderer before issue 13's appearance (the contract commit): the reference of the unchanged paths.
+#: The renderer before the appearance path existed: the reference of the paths it must leave unchanged.
 BEFORE_COMMIT = "b4edc98"
 #: Where the modules that renderer imports live now (hlod_core's subpackages came after it).
 MOVED_SINCE = {"gl_functions": "render.gl_functions", "hierarchy": "model.hierarchy", "overlay": "core.colour",
@@ -80,15 +79,13 @@ def _integer(gl: GLFunctions, pname: int) -> int:
 
 
 def srgb_bytes(linear) -> np.ndarray:
-    """IEC 61966-2-1 encoding of linear [0, 1] values, as 8-bit levels (float, unrounded)."""
-    c = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
-    return 255.0 * np.where(c <= 0.0031308, 12.92 * c, 1.055 * c ** (1 / 2.4) - 0.055)
+    """IEC 61966-2-1 encoding of linear [0, 1] RGB values, as 8-bit levels (float, unrounded)."""
+    return 255.0 * srgb_from_linear(np.asarray(linear, np.float64))
 
 
 def linear_from_srgb(levels) -> np.ndarray:
-    """IEC 61966-2-1 decoding of 8-bit levels to linear [0, 1]."""
-    c = np.asarray(levels, np.float64) / 255.0
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    """IEC 61966-2-1 decoding of 8-bit RGB levels (3,) to linear [0, 1] (3,)."""
+    return srgb_to_linear(np.append(np.asarray(levels, np.float64) / 255.0, 1.0)[None])[0, :3]
 
 
 def _checker_png(path, *, side: int = 64) -> np.ndarray:
@@ -136,15 +133,16 @@ def _front_view(size=SIZE) -> View:
                 projection=viewmod.perspective(45.0, size[0] / size[1], 0.1, 10.0), width=size[0], height=size[1])
 
 
-def _pixel(image: np.ndarray, view: View, x: float, y: float, *, radius: int = 3) -> np.ndarray:
+def _pixel(image: np.ndarray, view: View, point: tuple[float, float], *, radius: int = 3) -> np.ndarray:
     """(2r+1)^2 pixels around the world point (x, y, 0), as (k, 3) int."""
+    x, y = point
     clip = view.projection @ view.view @ np.array([x, y, 0.0, 1.0])
     ndc = clip[:2] / clip[3]
     col, row = int((ndc[0] + 1) / 2 * view.width), int((1 - ndc[1]) / 2 * view.height)
     return image[row - radius:row + radius + 1, col - radius:col + radius + 1].reshape(-1, 3).astype(int)
 
 
-def _draw(renderer: Renderer, view: View, nodes=(0,), ratio_p: float = 1.0) -> np.ndarray:
+def _draw(renderer: Renderer, view: View, *, nodes=(0,), ratio_p: float = 1.0) -> np.ndarray:
     renderer.begin_frame(view, time_gpu=False)
     for node in nodes:
         renderer.draw_node(node, ratio_p)
@@ -153,9 +151,9 @@ def _draw(renderer: Renderer, view: View, nodes=(0,), ratio_p: float = 1.0) -> n
 
 
 def _renderer_before():
-    """hlod_core/render/renderer.py as it was before this change, loaded as a module of the package; None
-    in a checkout without that commit (a shallow clone): the tests then compare with the digests
-    of the frames that renderer drew, recorded here with it (FRAMES_BEFORE)."""
+    """The renderer as it was at BEFORE_COMMIT (then hlod_core/renderer.py), loaded as a module of the
+    package; None in a checkout without that commit (a shallow clone): the tests then compare with
+    the digests of the frames that renderer drew, recorded here with it (FRAMES_BEFORE)."""
     shown = subprocess.run(["git", "show", f"{BEFORE_COMMIT}:hlod_core/renderer.py"], cwd=ROOT,
                            capture_output=True, text=True)
     if shown.returncode != 0:
@@ -183,6 +181,7 @@ def checker(tmp_path_factory):
 
 # --- what the textured and coloured paths draw -----------------------------------------------------
 
+@pytest.mark.gl
 def test_texture_quadrants_are_where_the_image_has_them_in_its_own_colours(gl_ctx, checker):
     """UV origin bottom-left and sRGB in = sRGB out: each quadrant of the plane, facing the camera
     (lighting factor 1), shows the image's quadrant colour to within LEVELS."""
@@ -197,9 +196,10 @@ def test_texture_quadrants_are_where_the_image_has_them_in_its_own_colours(gl_ct
     view = _front_view()
     for (x, y), colour in (((-0.5, 0.5), TOP_LEFT), ((0.5, 0.5), TOP_RIGHT),
                            ((-0.5, -0.5), BOTTOM_LEFT), ((0.5, -0.5), BOTTOM_RIGHT)):
-        assert np.abs(_pixel(picture, view, x, y) - colour).max() <= LEVELS, (x, y, colour)
+        assert np.abs(_pixel(picture, view, (x, y)) - colour).max() <= LEVELS, (x, y, colour)
 
 
+@pytest.mark.gl
 def test_base_colour_times_vertex_colour_without_a_texture(gl_ctx):
     """A red material on green-ish vertices: the product of the two linear colours, sRGB-encoded."""
     base, vertex = (0.8, 0.1, 0.1, 1.0), (0.5, 1.0, 0.25, 1.0)
@@ -211,9 +211,10 @@ def test_base_colour_times_vertex_colour_without_a_texture(gl_ctx):
     finally:
         renderer.release()
     expected = srgb_bytes(np.multiply(base, vertex)[:3])
-    assert np.abs(_pixel(picture, _front_view(), 0.0, 0.0) - expected).max() <= LEVELS
+    assert np.abs(_pixel(picture, _front_view(), (0.0, 0.0)) - expected).max() <= LEVELS
 
 
+@pytest.mark.gl
 def test_vertex_colours_without_a_material_table_show_as_they_are(gl_ctx):
     """No material table (a PLY with colours): glTF's default material, base colour 1."""
     hlod = _with_appearance(_plane(), materials=[], colors=lambda w: np.tile((0.2, 0.6, 0.9, 1.0), (len(w), 1)))
@@ -222,9 +223,10 @@ def test_vertex_colours_without_a_material_table_show_as_they_are(gl_ctx):
         picture = _draw(renderer, _front_view())
     finally:
         renderer.release()
-    assert np.abs(_pixel(picture, _front_view(), 0.0, 0.0) - srgb_bytes((0.2, 0.6, 0.9))).max() <= LEVELS
+    assert np.abs(_pixel(picture, _front_view(), (0.0, 0.0)) - srgb_bytes((0.2, 0.6, 0.9))).max() <= LEVELS
 
 
+@pytest.mark.gl
 def test_two_materials_in_one_node_are_two_parts_each_in_its_own_colour(gl_ctx, tmp_path):
     """Left half: a textured material (a flat-colour image, base colour 0.5 grey); right half: a
     material whose image file names a texture that was not given: its base colour only."""
@@ -241,13 +243,14 @@ def test_two_materials_in_one_node_are_two_parts_each_in_its_own_colour(gl_ctx, 
     finally:
         renderer.release()
     left = srgb_bytes(0.5 * linear_from_srgb(flat[0, 0, :3]))
-    assert np.abs(_pixel(picture, _front_view(), -0.5, 0.0) - left).max() <= LEVELS
-    assert np.abs(_pixel(picture, _front_view(), 0.5, 0.0) - srgb_bytes((0.05, 0.1, 0.7))).max() <= LEVELS
+    assert np.abs(_pixel(picture, _front_view(), (-0.5, 0.0)) - left).max() <= LEVELS
+    assert np.abs(_pixel(picture, _front_view(), (0.5, 0.0)) - srgb_bytes((0.05, 0.1, 0.7))).max() <= LEVELS
 
 
+@pytest.mark.gl
 def test_overlay_draws_the_ramp_as_before_and_no_texture(gl_ctx, checker):
-    """overlay=True replaces the appearance: the same pixels as the renderer before issue 13 (which
-    knew no appearance) drew with the overlay, the ramp colour of P, nowhere the checker."""
+    """overlay=True replaces the appearance: the same pixels as the renderer before the appearance
+    path (which knew none) drew with the overlay, the ramp colour of P, nowhere the checker."""
     hlod, _, image = checker
     before_class = _renderer_before()
     new = Renderer(gl_ctx, hlod, size=SIZE, overlay=True, images={0: image})
@@ -265,11 +268,12 @@ def test_overlay_draws_the_ramp_as_before_and_no_texture(gl_ctx, checker):
             old.release()
         assert np.array_equal(before, after)
     ramp = np.round(255 * np.array(overlay_ramp()[round(0.25 * OVERLAY_RAMP_STEPS)]))
-    assert np.abs(_pixel(after, _front_view(), -0.5, 0.5) - ramp).max() <= 1
+    assert np.abs(_pixel(after, _front_view(), (-0.5, 0.5)) - ramp).max() <= 1
 
 
+@pytest.mark.gl
 def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
-    """No appearance: the renderer before issue 13 and this one draw identical frames (Coh with
+    """No appearance: the renderer before the appearance path and this one draw identical frames (Coh with
     its queries, a cow baked into several levels, from three views)."""
     _, hlod = baked("cow.obj", target_tris=400)
     assert not hlod.has_appearance and hlod.node_count > 1
@@ -280,7 +284,7 @@ def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
     new = Renderer(gl_ctx, hlod, size=SIZE)
     frames = []
     try:
-        assert new._parts is None
+        assert new.appearance is None
         settings = RuntimeSettings()
         old_coh = make("coh", hlod, old, settings) if old is not None else None
         new_coh = make("coh", hlod, new, settings)
@@ -304,6 +308,7 @@ def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
         assert _digest(frames) == FRAMES_BEFORE["untextured"]
 
 
+@pytest.mark.gl
 def test_the_framebuffer_that_encodes_srgb_itself_is_not_encoded_twice(gl_ctx, checker):
     """Drawing into the caller's sRGB framebuffer: with GL.FRAMEBUFFER_SRGB on (Blender's viewport)
     the hardware encodes, off the shader does; both store the texture's own bytes."""
@@ -322,8 +327,8 @@ def test_the_framebuffer_that_encodes_srgb_itself_is_not_encoded_twice(gl_ctx, c
             _draw(renderer, _front_view())
             gl.disable(GL.FRAMEBUFFER_SRGB)
             stored = np.frombuffer(colour.read(), np.uint8).reshape(SIZE[1], SIZE[0], 4)[::-1, :, :3]
-            assert np.abs(_pixel(stored, _front_view(), -0.5, 0.5) - TOP_LEFT).max() <= LEVELS, srgb_on
-            assert np.abs(_pixel(stored, _front_view(), 0.5, -0.5) - BOTTOM_RIGHT).max() <= LEVELS, srgb_on
+            assert np.abs(_pixel(stored, _front_view(), (-0.5, 0.5)) - TOP_LEFT).max() <= LEVELS, srgb_on
+            assert np.abs(_pixel(stored, _front_view(), (0.5, -0.5)) - BOTTOM_RIGHT).max() <= LEVELS, srgb_on
     finally:
         gl.disable(GL.FRAMEBUFFER_SRGB)
         renderer.release()
@@ -339,6 +344,7 @@ def _front_path(frames: int = 2):
                       far=10.0, fovy_deg=45.0)
 
 
+@pytest.mark.gl
 def test_run_draws_the_textures_of_the_hlods_materials(checker, tmp_path):
     """`run` (runner.run_path with its own renderer) loads the material's image file."""
     from hlod_core.report.runner import run_path
@@ -346,10 +352,11 @@ def test_run_draws_the_textures_of_the_hlods_materials(checker, tmp_path):
     hlod, _, _ = checker
     run_path(hlod, "vfc", RuntimeSettings(), _front_path(1), SIZE, save_frames=tmp_path)
     frame = np.asarray(Image.open(tmp_path / "vfc_00000.png").convert("RGB"))
-    assert np.abs(_pixel(frame, _front_view(), 0.5, 0.5) - TOP_RIGHT).max() <= LEVELS
-    assert np.abs(_pixel(frame, _front_view(), -0.5, -0.5) - BOTTOM_LEFT).max() <= LEVELS
+    assert np.abs(_pixel(frame, _front_view(), (0.5, 0.5)) - TOP_RIGHT).max() <= LEVELS
+    assert np.abs(_pixel(frame, _front_view(), (-0.5, -0.5)) - BOTTOM_LEFT).max() <= LEVELS
 
 
+@pytest.mark.gl
 def test_evaluate_compares_textured_images(checker, tmp_path):
     """`evaluate` draws with the textures: Coh(P)'s shaded showcase picture shows the checker, and
     its chroma PSNR against Full is that of identical coloured images."""
@@ -359,21 +366,22 @@ def test_evaluate_compares_textured_images(checker, tmp_path):
     report = evaluate.evaluate(hlod, _front_path(2), SIZE, methods=["full", "coh_p"], repeat=1, out_dir=tmp_path,
                                psnr_frames=2, figures=False)
     shaded = np.asarray(Image.open(tmp_path / report["showcase"]["images"]["coh_p"]["shaded"]).convert("RGB"))
-    assert np.abs(_pixel(shaded, _front_view(), -0.5, 0.5) - TOP_LEFT).max() <= LEVELS
+    assert np.abs(_pixel(shaded, _front_view(), (-0.5, 0.5)) - TOP_LEFT).max() <= LEVELS
     assert report["methods"]["coh_p"]["psnr_cb_vs_full"] == pytest.approx(100.0)
 
 
 # --- GL lifetime and the host's state --------------------------------------------------------------
 
+@pytest.mark.gl
 def test_textures_are_shared_per_image_and_released(gl_ctx, checker):
     """Two materials given the same array share one texture; release() deletes it (glIsTexture)
     with every other GL object, and is idempotent."""
     hlod, png, image = checker
     twice = hlod.replace(materials=hlod.materials + (Material("Again", texture=str(png)),))
     renderer = Renderer(gl_ctx, twice, size=SIZE, images={0: image, 1: image})
-    made = [r for r in renderer._resources if isinstance(r, moderngl.Texture)]
+    made = [r for r in renderer.gl_objects if isinstance(r, moderngl.Texture)]
     names = [t.glo for t in made]
-    assert len(made) == 1 and renderer._parts.texture[0] is renderer._parts.texture[1] is made[0]
+    assert len(made) == 1 and renderer.appearance.texture[0] is renderer.appearance.texture[1] is made[0]
     is_texture = _gl_function(gl_ctx, "glIsTexture", ctypes.c_uint8, ctypes.c_uint32)
     _draw(renderer, _front_view())
     assert all(is_texture(n) for n in names)
@@ -382,6 +390,7 @@ def test_textures_are_shared_per_image_and_released(gl_ctx, checker):
     assert not any(is_texture(n) for n in names)
 
 
+@pytest.mark.gl
 def test_the_hosts_texture_unit_is_given_back(gl_ctx, checker):
     """Blender caches its texture bindings: after construction (moderngl binds new textures on its
     default unit) and after a frame (the renderer samples TEXTURE_UNIT with sampler 0), the host's
@@ -416,7 +425,7 @@ def test_the_hosts_texture_unit_is_given_back(gl_ctx, checker):
         assert bindings() == expected
         picture = _draw(renderer, _front_view())
         assert bindings() == expected
-        assert np.abs(_pixel(picture, _front_view(), -0.5, 0.5) - TOP_LEFT).max() <= LEVELS  # it did sample
+        assert np.abs(_pixel(picture, _front_view(), (-0.5, 0.5)) - TOP_LEFT).max() <= LEVELS  # it did sample
     finally:
         renderer.release()
         for unit in units:
@@ -426,6 +435,7 @@ def test_the_hosts_texture_unit_is_given_back(gl_ctx, checker):
         host.release()
 
 
+@pytest.mark.gl
 def test_images_of_the_wrong_form_are_refused_with_one_line(gl_ctx, checker):
     hlod, _, image = checker
     with pytest.raises(InputError, match=r"image of material 0 \('Checker'\): expected \(h, w, 4\) uint8"):
@@ -474,12 +484,12 @@ def test_load_images_of_an_untextured_hlod_is_empty_and_imports_nothing(monkeypa
     assert textures.load_images(hlod) == {}
 
 
-# --- the issue's acceptance check on the textured scene ---------------------------------------------
+# --- the acceptance check on the textured scene ---------------------------------------------
 
 ACCEPTANCE_SIZE = (640, 480)
 ACCEPTANCE_SCALE = "small"  # tests/scenes/textured_scene.py --scale; "full" is the README's figure
 ACCEPTANCE_FRAMES = 6  # frames at the view before the measured one: Coh's prediction settles
-#: Issue 13's thresholds, dB: Y, Cb, Cr of the textured preview against Full's picture.
+#: The acceptance thresholds, dB: Y, Cb, Cr of the textured preview against Full's picture.
 MIN_PSNR_DB = (30.0, 35.0, 35.0)
 
 
@@ -534,10 +544,11 @@ def _baked_in_blender(blend, repo, tmp_path):
     return hlod_file.load(tmp_path / "out" / f"{blend.stem}.hlod")
 
 
+@pytest.mark.gl
 @pytest.mark.slow
 @pytest.mark.parametrize("source", ["glb", "obj", pytest.param("blend", marks=pytest.mark.blender)])
 def test_textured_scene_preview_matches_full_at_one_pixel(source, tmp_path, request):
-    """Issue 13, done when: the textured scene baked from Blender (the extension's background
+    """Acceptance: the textured scene baked from Blender (the extension's background
     command), from Blender's glTF and from its OBJ export keeps its materials and UVs, and at a view
     where the drawn cut's SSE is at most 1 px (Coh, tau = 1), its textured picture against Full's at
     640x480 has PSNR-Y >= 30 dB, PSNR-Cb/Cr >= 35 dB."""
@@ -560,4 +571,4 @@ def test_textured_scene_preview_matches_full_at_one_pixel(source, tmp_path, requ
     # and the pictures compared are textured: the same cut in base colours alone is far from them
     base_only = acceptance_figures(hlod, {})["picture"]
     assert psnr(figures["picture"], base_only)[0] < MIN_PSNR_DB[0], shown
-    print(f"issue 13 acceptance, {source}: {shown}")
+    print(f"textured acceptance, {source}: {shown}")

@@ -1,4 +1,4 @@
-"""Scene files with appearance (issue 13): glTF/GLB read as scenes, OBJ with its MTL, PLY colours.
+"""Scene files with appearance: glTF/GLB read as scenes, OBJ with its MTL, PLY colours.
 
 The textured scene (tests/scenes/textured_scene.py) is made in the bpy module and written by
 Blender's own glTF and OBJ exporters; what our readers find is compared with what Blender's own
@@ -216,8 +216,8 @@ def test_separate_gltf_refers_to_its_image_files(scene, ours):
                                                    .rsplit("-", 1)[0]) + ".png" for m in glb.materials]
 
 
-def test_the_issues_glb_is_read_whole(scene, ours):
-    """The issue's file shape (a ground grid, 16 linked duplicates of a two-material house,
+def test_the_textured_scenes_glb_is_read_whole(scene, ours):
+    """The textured scene's file shape (a ground grid, 16 linked duplicates of a two-material house,
     subdivided monkeys, from Blender's glTF exporter): pymeshlab read one monkey of it (3,936 of
     49,856 triangles here; 15,744 of 283,880 at full scale), silently. Every triangle now."""
     assert ours["glb"].tri_count == scene["facts"]["triangles"]
@@ -385,7 +385,7 @@ def test_malformed_gltf_parts_are_named(tmp_path):
 
 def test_gltf_without_trimesh_is_one_clear_error_and_obj_still_reads(tmp_path):
     """trimesh is the command line's dependency: without it (as inside Blender) a glTF file is
-    refused in one line, and everything else reads as before (scenefiles is importable)."""
+    refused in one line, and everything else reads as before (the glTF reader is importable)."""
     path = _write_gltf(tmp_path / "hand.gltf", _hand_gltf())
     obj = _textured_obj(tmp_path)
     code = ("import sys; sys.modules['trimesh'] = None\n"

@@ -114,7 +114,7 @@ COMMAND_LINE_ONLY = {"trimesh", "PIL", "matplotlib", "dask", "distributed"}
 #: Modules the extension reaches that may touch a command-line-only library, each behind a guard
 #: that works without it (and the test suite runs that path with the library blocked).
 GUARDED = {"hlod_core.report.figures": {"matplotlib"}, "hlod_core.io.textures": {"PIL"},
-           "hlod_core.io.scene_files": {"trimesh"}, "hlod_core.bake.dask_cluster": {"distributed"}}
+           "hlod_core.io.gltf": {"trimesh"}, "hlod_core.bake.dask_cluster": {"distributed"}}
 
 
 def _reached(graph, cut: tuple[str, str] | None = None) -> set[str]:

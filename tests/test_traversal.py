@@ -362,7 +362,7 @@ def test_release_frees_everything_and_is_idempotent(gl_ctx):
     renderer = Renderer(gl_ctx, baked_city(), size=SIZE)
     _frames(renderer, "coh", street_path(3))
     ids = renderer.queries.ids
-    resources = list(renderer._resources)
+    resources = list(renderer.gl_objects)
     assert ids and resources
     renderer.release()
     renderer.release()
@@ -449,7 +449,7 @@ def test_overlay_of_methods_without_vmsse_is_all_blue(city_renderer, method):
 def sphere_row():
     """Five tessellated spheres in a row (15k triangles, about 400 per node): looking down the row,
     each sphere hides most of the next, whose nodes show as thin crescents."""
-    spheres = [meshes.TriangleMesh(*procedural.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, 48, 32), name=f"sphere {i}")
+    spheres = [meshes.TriangleMesh(*procedural.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, segments=48, rings=32), name=f"sphere {i}")
                for i in range(5)]
     return bake(meshes.merge(spheres, name="sphere row"), BakeSettings(target_tris=400))
 

@@ -1,8 +1,8 @@
-"""Colour: the sRGB transfer function (IEC 61966-2-1) both ways, and the modulation overlay's colour
-ramp (DESIGN §5.2): m = 1 - P from blue (0, weak) through magenta (0.5, moderate) to red (1, strong),
-and its lookup table for drawing. Data form: numpy arrays of values in [0, 1]; the ramp takes (n,)
-modulation values and gives (n,3) float32 linear RGB. The same sRGB encoding in GLSL is
-hlod_core.render.glsl.SRGB_FROM_LINEAR.
+"""Colour: the sRGB transfer function (IEC 61966-2-1) both ways, the plain node colour, and the
+modulation overlay's colour ramp (DESIGN §5.2): m = 1 - P from blue (0, weak) through magenta (0.5,
+moderate) to red (1, strong), and its lookup table for drawing. Data form: numpy arrays of values
+in [0, 1]; the ramp takes (n,) modulation values and gives (n,3) float32 linear RGB. The same sRGB
+encoding in GLSL is hlod_core.render.glsl.SRGB_FROM_LINEAR.
 """
 from __future__ import annotations
 
@@ -12,6 +12,9 @@ import numpy as np
 #: (the ramp's steepest channel moves 1.7 per unit of P, so a colour errs by at most 2.1e-4, a
 #: nineteenth of an 8-bit level).
 OVERLAY_RAMP_STEPS = 4096
+
+#: Linear RGB of a node drawn without the overlay and without an appearance.
+DEFAULT_COLOUR = (0.82, 0.80, 0.76)
 
 
 def modulation_colour(m: np.ndarray) -> np.ndarray:

@@ -20,8 +20,8 @@ from .errors import InputError
 MAX_DEPTH = 64
 
 # A string, or an unterminated one up to the end of the text, in one linear pass ("unrolled loop":
-# runs of plain characters between escapes). With the closing quote required, a text like
-# `"\"\"\"...` made the search restart at every quote: quadratic, minutes for a 64 KB header.
+# runs of plain characters between escapes). The closing quote is optional: required, it would make
+# the search restart at every quote of a text like `"\"\"\"...` (quadratic: minutes for 64 KB).
 _STRING = re.compile(r'"[^"\\]*(?:\\.[^"\\]*)*"?', re.DOTALL)
 
 

@@ -11,24 +11,14 @@ Layout (all integers little-endian):
                          "materials": [...]}  (version 2; absent when the scene has none)
     then       arrays, raw C-order, each starting on a 64-byte boundary
 
-Arrays are memory-mapped on load (numpy.memmap, read-only), so opening a ten-million-triangle file
-costs the header parse plus the range checks below, not a read of the geometry.
+Arrays are memory-mapped on load (numpy.memmap, read-only): opening a file costs the header parse
+and the range checks, not a read of the geometry. What `load` accepts, the renderer can draw without
+reading outside its buffers. Why: docs/how-it-works.md#what-a-hlod-file-must-pass-to-load
 
-What `load` accepts, the renderer can draw without reading outside its buffers (a file is input
-from anywhere). The header is JSON nested at most _MAX_HEADER_DEPTH deep, without NaN/Infinity;
-every table entry is checked with Python integers (no int64 wrap-around) before any arithmetic:
-a known array name, exactly the dtype above, the shape (node arrays share one row count),
-nbytes = itemsize * product(shape), a 64-byte aligned offset after the header, inside the file, no
-two arrays overlapping. `meta` is an object; the fields read as numbers are checked (META_COUNTS,
-META_SECONDS). Then `validate`: tree links, triangle and vertex ranges (each node owns a non-empty
-range inside its buffer; ranges do not overlap, so all of them together fit the buffer), index
-bounds, finite bounds, non-negative errors.
-
-Versions: 2 adds appearance (issue 13): the optional arrays `uvs` (v,2) <f4, `colors` (v,4) <f4 and
+Versions: 2 adds appearance: the optional arrays `uvs` (v,2) <f4, `colors` (v,4) <f4 and
 `tri_material` (t,) <u2, and the header's material table (appearance.Material.to_json; texture
-paths relative to the file's folder where they can be). A scene without appearance writes none of
-them. Version 1 files (positions only) still load, as HLODs without appearance: version 2 only
-added optional parts, so a version 1 file is a version 2 file without them.
+paths relative to the file's folder where they can be); a scene without appearance writes none of
+them. A version 1 file is a version 2 file without them, and loads as an HLOD without appearance.
 """
 from __future__ import annotations
 

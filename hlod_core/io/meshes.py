@@ -1,4 +1,4 @@
-"""Bake input: triangle meshes as numpy arrays, read from OBJ/PLY/STL/glTF/GLB files or scene specs.
+"""Bake input: triangle meshes as numpy arrays, read from mesh files or scene specs, merged into one.
 
 Data form: `TriangleMesh` = positions (v,3) float64 model units, faces (f,3) int64 rows of
 positions, optional normals (v,3) float32, and optional appearance (appearance.py): uvs (v,2)
@@ -12,17 +12,9 @@ Every transform places one instance, baked as its own geometry; paths are relati
 file; a model without "transforms" is placed once, untransformed. A transform must be affine and
 invertible (a singular one would flatten every triangle).
 
-Files are validated before pymeshlab sees them, which fails silently or not at all on some bad
-input: STL is read here (binary: 84 + 50 n bytes; ASCII: solid ... facet ... endsolid), since
-pymeshlab's STL reader loops without end on some truncated files; an OBJ file's vertex and face
-lines are checked here (`check_obj`: numbers, indices inside their lists, and the layouts
-pymeshlab misreads), since its reader drops faces that index past the vertex list, reads
-`v 1 x 0` as (1, 0, 0), and crashes on a face whose vertex it skipped.
-
-Appearance from files (scene_files.py says how): a glTF/GLB file is read as a scene (every node
-of its default scene placed with its world transform, every primitive, materials, TEXCOORD_0,
-COLOR_0), an OBJ with a material library with its UVs and MTL materials, a PLY with its vertex
-colours. Other files (an OBJ with UVs but no materials too) carry no appearance, and read as before.
+Readers: STL in stl.py; OBJ checked (or, with a material library, read) in obj.py, its MTL in
+mtl.py; glTF/GLB scenes in gltf.py; the rest by pymeshlab. PLY vertex colours are decoded from sRGB
+(docs/how-it-works.md#colours-in-the-renderer-linear-in-srgb-out). Other files carry no appearance.
 """
 from __future__ import annotations
 
@@ -35,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core import jsonutil
-from . import obj_stl, scene_files
+from . import gltf, mtl, obj, stl
 from ..model.appearance import DEFAULT_BASE_COLOR, Material, check_material_ids, check_vertex_attributes
 from ..core.arrays import concat_indexed
 from ..core.colour import srgb_to_linear
@@ -105,18 +97,18 @@ def from_arrays(positions, faces, normals=None, *, name: str = "mesh", uvs=None,
         if n.shape != p.shape:
             raise InputError(f"{name}: normals must have the shape of positions {list(p.shape)}, got {list(n.shape)}")
         n = np.where(np.isfinite(n), n, 0.0).astype(np.float32)
-    uv, col = check_vertex_attributes(name, p.shape[0], uvs, colors)
+    uv, col = check_vertex_attributes(name, p.shape[0], uvs=uvs, colors=colors)
     materials = tuple(materials)
     if not all(isinstance(m, Material) for m in materials):
         raise InputError(f"{name}: materials must be appearance.Material rows")
-    ids = check_material_ids(name, f.shape[0], material_ids, materials)
+    ids = check_material_ids(name, f.shape[0], material_ids=material_ids, materials=materials)
     return TriangleMesh(positions=p, faces=f, normals=n, name=name, uvs=uv, colors=col, material_ids=ids,
                         materials=materials)
 
 
 def load_mesh(path: str | os.PathLike, *, texture_dir: str | os.PathLike | None = None) -> TriangleMesh:
-    """Read a mesh file: STL here; glTF/GLB as a scene with its materials, UVs and colours, and an
-    OBJ with a material library with its materials and UVs (scene_files.py); the rest
+    """Read a mesh file: STL (stl.py); glTF/GLB as a scene with its materials, UVs and colours
+    (gltf.py), and an OBJ with a material library with its materials and UVs (obj.py, mtl.py); the rest
     through pymeshlab (polygons are triangulated by the reader, OBJ text validated first; PLY
     vertex colours kept). Images embedded in a glTF file are written into `texture_dir` (made
     when needed; None: such textures are left out, with a warning). Raises InputError naming the
@@ -129,14 +121,14 @@ def load_mesh(path: str | os.PathLike, *, texture_dir: str | os.PathLike | None 
         raise InputError(f"{path}: unsupported file type '{path.suffix}' (expected one of {', '.join(MESH_SUFFIXES)} "
                          "or a .json scene spec)")
     if suffix == ".stl":
-        positions, faces = obj_stl.read_stl(path)
+        positions, faces = stl.read_stl(path)
         return from_arrays(positions, faces, name=str(path))
     if suffix in GLTF_SUFFIXES:
         return _load_gltf(path, texture_dir)
     data = path.read_bytes() if suffix == ".obj" else None
-    if data is not None and obj_stl.obj_has_appearance(data):
+    if data is not None and obj.obj_has_appearance(data):
         return _load_obj(path, data)
-    declared = obj_stl.check_obj(path, data) if data is not None else None
+    declared = obj.check_obj(path, data) if data is not None else None
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
@@ -165,7 +157,7 @@ def _warn_dropped(path: Path, dropped: int, tris: int) -> None:
 def _load_gltf(path: Path, texture_dir) -> TriangleMesh:
     """A glTF scene: each primitive read once, placed once per node that uses it (transform_mesh:
     a mirroring node flips the winding), all merged into one mesh named after the file."""
-    scene = scene_files.read_gltf(path, texture_dir=None if texture_dir is None else Path(texture_dir))
+    scene = gltf.read_gltf(path, texture_dir=None if texture_dir is None else Path(texture_dir))
     base: dict[int, TriangleMesh] = {}
     for i, prim in enumerate(scene.primitives):
         if prim.faces.shape[0] == 0:
@@ -189,18 +181,18 @@ def _load_gltf(path: Path, texture_dir) -> TriangleMesh:
 
 
 def _load_obj(path: Path, data: bytes) -> TriangleMesh:
-    """An OBJ with a material library: obj_stl.read_obj, and its MTL."""
-    obj = obj_stl.read_obj(path, data)
-    _warn_dropped(path, obj.dropped, obj.dropped + obj.faces.shape[0])
+    """An OBJ with a material library: obj.read_obj, and its MTL (mtl.py)."""
+    arrays = obj.read_obj(path, data)
+    _warn_dropped(path, arrays.dropped, arrays.dropped + arrays.faces.shape[0])
     materials, ids = (), None
-    if obj.material_names:
-        materials = scene_files.obj_materials(path, obj.mtllibs, obj.material_names)
-        ids = obj.face_group
+    if arrays.material_names:
+        materials = mtl.obj_materials(path, arrays.mtllibs, arrays.material_names)
+        ids = arrays.face_group
         if (ids < 0).any():  # faces above the first usemtl
             ids = np.where(ids < 0, len(materials), ids)
             materials = materials + (Material("default", DEFAULT_BASE_COLOR),)
-    return from_arrays(obj.positions, obj.faces, obj.normals, name=str(path), uvs=obj.uvs, material_ids=ids,
-                       materials=materials)
+    return from_arrays(arrays.positions, arrays.faces, arrays.normals, name=str(path), uvs=arrays.uvs,
+                       material_ids=ids, materials=materials)
 
 
 def _one_line(message: str) -> str:
@@ -254,7 +246,7 @@ def merge(meshes: list[TriangleMesh], *, name: str = "scene") -> TriangleMesh:
             ids.append(remap[m.material_ids] if m.material_ids is not None else np.full(m.tri_count, remap[0], np.int32))
         material_ids = np.concatenate(ids)
         materials = tuple(table)
-        check_material_ids(name, material_ids.shape[0], material_ids, materials)
+        check_material_ids(name, material_ids.shape[0], material_ids=material_ids, materials=materials)
     return TriangleMesh(positions=positions, faces=faces, normals=normals, name=name, uvs=uvs, colors=colors,
                         material_ids=material_ids, materials=materials)
 
@@ -294,7 +286,7 @@ def scene_spec_models(path: str | os.PathLike) -> list[tuple[Path, list[np.ndarr
         transforms = model.get("transforms", [np.eye(4).ravel().tolist()])
         if not isinstance(transforms, list) or not transforms:
             raise InputError(f"{path}: models[{i}].transforms must be a non-empty list of 16-number lists")
-        out.append((model_path, [_parse_transform(path, i, j, t) for j, t in enumerate(transforms)]))
+        out.append((model_path, [_parse_transform(path, t, model=i, row=j) for j, t in enumerate(transforms)]))
     return out
 
 
@@ -308,8 +300,10 @@ def place(mesh: TriangleMesh, matrix: np.ndarray, *, name: str, where: str, what
     return placed
 
 
-def _parse_transform(spec: Path, i: int, j: int, t) -> np.ndarray:
-    where = f"{spec}: models[{i}].transforms[{j}]"
+def _parse_transform(spec: Path, t, *, model: int, row: int) -> np.ndarray:
+    """Transform `row` of model `model` of the scene spec `spec`: a checked (4,4) float64 affine,
+    invertible matrix; InputError naming where it stands otherwise."""
+    where = f"{spec}: models[{model}].transforms[{row}]"
     try:
         m = np.asarray(t, dtype=np.float64)
     except (TypeError, ValueError):

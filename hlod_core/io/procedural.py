@@ -1,6 +1,6 @@
 """Procedural scenes made by the project itself, with no input files (the main job's `default`).
 
-Data form: `meshio.TriangleMesh` (positions float64 model units, metres by convention; Z up).
+Data form: `meshes.TriangleMesh` (positions float64 model units, metres by convention; Z up).
 The default scene is a seeded city block: a tessellated ground, a grid of finely tessellated
 buildings of random heights, and a sphere on each roof. Seen from the street most of it hides
 behind the first row, which is the high depth complexity the occlusion-driven traversal is for.
@@ -13,7 +13,7 @@ from ..core.arrays import concat_indexed
 from .meshes import TriangleMesh
 
 
-def grid_patch(origin, u, v, nu: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
+def grid_patch(origin, u, v, *, nu: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
     """A parallelogram origin + [0,1]u + [0,1]v tessellated into nu x nv quads (2 tris each).
     Returns positions ((nu+1)(nv+1),3) float64 and faces (2 nu nv,3) int64, counter-clockwise about u x v."""
     s, t = np.meshgrid(np.linspace(0.0, 1.0, nu + 1), np.linspace(0.0, 1.0, nv + 1), indexing="ij")
@@ -38,10 +38,10 @@ def box(lo, hi, n: int) -> tuple[np.ndarray, np.ndarray]:
         (lo, dx, dz), (lo + dy, dz, dx),                  # -y, +y
         (lo, dz, dy), (lo + dx, dy, dz),                       # -x, +x
     ]
-    return concat_indexed([grid_patch(o, u, v, n, n) for o, u, v in patches])
+    return concat_indexed([grid_patch(o, u, v, nu=n, nv=n) for o, u, v in patches])
 
 
-def uv_sphere(center, radius: float, segments: int, rings: int) -> tuple[np.ndarray, np.ndarray]:
+def uv_sphere(center, radius: float, *, segments: int, rings: int) -> tuple[np.ndarray, np.ndarray]:
     """UV sphere with `segments` around and `rings` from pole to pole (pole rows are degenerate
     quads kept as thin triangles: this is real-world input too)."""
     theta = np.linspace(0.0, np.pi, rings + 1)
@@ -65,7 +65,7 @@ def low_scene(*, seed: int = 1, scale: float = 1.0) -> TriangleMesh:
     rng = np.random.default_rng(seed)
     cells = max(2, int(round(300 * np.sqrt(scale))))
     size = 200.0
-    positions, faces = grid_patch([-size / 2, -size / 2, 0.0], [size, 0, 0], [0, size, 0], cells, cells)
+    positions, faces = grid_patch([-size / 2, -size / 2, 0.0], [size, 0, 0], [0, size, 0], nu=cells, nv=cells)
     height = np.zeros(positions.shape[0])
     for _ in range(6):
         direction = rng.normal(size=2)
@@ -100,7 +100,7 @@ def _city(*, seed: int, per_side: int, spacing: float, footprint: float, heights
     rng = np.random.default_rng(seed)
     extent = per_side * spacing
     margin = spacing / 2
-    parts = [grid_patch([-margin, -margin, 0.0], [extent, 0, 0], [0, extent, 0], 64, 64)]
+    parts = [grid_patch([-margin, -margin, 0.0], [extent, 0, 0], [0, extent, 0], nu=64, nv=64)]
     radius = 0.25 * footprint
     for i in range(per_side):
         for j in range(per_side):
@@ -108,7 +108,7 @@ def _city(*, seed: int, per_side: int, spacing: float, footprint: float, heights
             height = float(rng.uniform(*heights))
             lo = np.array([x - footprint / 2, y - footprint / 2, 0.0])
             parts.append(box(lo, lo + [footprint, footprint, height], box_cells))
-            parts.append(uv_sphere([x, y, height + radius], radius, *sphere))
+            parts.append(uv_sphere([x, y, height + radius], radius, segments=sphere[0], rings=sphere[1]))
     positions, faces = concat_indexed(parts)
     return TriangleMesh(positions=positions, faces=faces, name=name)
 

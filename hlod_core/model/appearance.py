@@ -1,4 +1,4 @@
-"""Appearance carried through the bake: materials, UVs, vertex colours (issue 13).
+"""Appearance carried through the bake: materials, UVs, vertex colours.
 
 Data form:
 - `Material`: one row of the material table (glTF's pbrMetallicRoughness subset): name, linear
@@ -31,6 +31,10 @@ MAX_MATERIALS = 65535
 
 #: Base colour of a triangle whose source has no material (Blender's default material).
 DEFAULT_BASE_COLOR = (0.8, 0.8, 0.8, 1.0)
+
+#: Base colour drawn for an HLOD without a material table (glTF's default material), so vertex
+#: colours show as they are.
+NO_MATERIAL_BASE_COLOR = (1.0, 1.0, 1.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -97,7 +101,7 @@ def materials_from_json(value, *, where: str, relative_to: str | os.PathLike | N
     return tuple(Material.from_json(m, where=f"{where}[{i}]", relative_to=relative_to) for i, m in enumerate(value))
 
 
-def check_vertex_attributes(name: str, vertices: int, uvs, colors) -> tuple[np.ndarray | None, np.ndarray | None]:
+def check_vertex_attributes(name: str, vertices: int, *, uvs, colors) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Validate optional per-vertex UVs (v,2) and colours (v,3 or v,4; alpha 1 added) of a mesh
     with `vertices` vertices. Non-finite UVs are refused; colours are clipped to [0, 1] (NaN: 1)."""
     uv = col = None
@@ -117,7 +121,7 @@ def check_vertex_attributes(name: str, vertices: int, uvs, colors) -> tuple[np.n
     return uv, col
 
 
-def check_material_ids(name: str, faces: int, material_ids, materials) -> np.ndarray | None:
+def check_material_ids(name: str, faces: int, *, material_ids, materials) -> np.ndarray | None:
     """Validate optional per-triangle material ids (f,) against the material table."""
     if material_ids is None:
         if materials:

@@ -1,13 +1,14 @@
 """Save and restore the host's GL state around a moderngl pass (DESIGN §7: Blender caches GL state
-and does not notice changes made behind its back).
+and does not notice changes made behind its back), and read what the host's framebuffer does.
 
 Data form: `GLState.values`, a dict of plain Python values read with raw GL calls: name -> int
 (bindings, depth function, active texture unit), tuple (viewport, scissor box, colour mask) or
-bool (depth mask, capability flags).
+bool (depth mask, capability flags); `TextureUnit`, one texture unit's bindings as GL names.
 """
 from __future__ import annotations
 
 import ctypes
+from typing import NamedTuple
 
 from .gl_functions import GL, GLFunctions
 
@@ -65,3 +66,52 @@ class GLState:
         gl.depth_mask(v["depth_mask"])
         for name, cap in _CAPABILITIES.items():
             (gl.enable if v[name] else gl.disable)(cap)
+
+
+class TextureUnit(NamedTuple):
+    """What `save_texture_unit` read: the active unit (GL_TEXTURE0 + i) and, on the unit saved,
+    the bound 2D texture and sampler (GL names, 0 for none)."""
+
+    active: int
+    texture: int
+    sampler: int
+
+
+def save_texture_unit(gl: GLFunctions, unit: int) -> TextureUnit:
+    """The active texture unit, and texture unit `unit`'s 2D texture and sampler bindings. Leaves
+    `unit` active (restore_texture_unit puts the active one back)."""
+    value = ctypes.c_int32(0)
+    gl.get_integerv(GL.ACTIVE_TEXTURE, ctypes.byref(value))
+    active = value.value
+    gl.active_texture(GL.TEXTURE0 + unit)
+    gl.get_integerv(GL.TEXTURE_BINDING_2D, ctypes.byref(value))
+    texture = value.value
+    gl.get_integerv(GL.SAMPLER_BINDING, ctypes.byref(value))
+    return TextureUnit(active, texture, value.value)
+
+
+def restore_texture_unit(gl: GLFunctions, unit: int, saved: TextureUnit) -> None:
+    """Bind `saved`'s texture and sampler on unit `unit` again and make its active unit active."""
+    gl.active_texture(GL.TEXTURE0 + unit)
+    gl.bind_texture(GL.TEXTURE_2D, saved.texture)
+    gl.bind_sampler(unit, saved.sampler)
+    gl.active_texture(saved.active)
+
+
+def draw_framebuffer_encodes_srgb(gl: GLFunctions) -> bool:
+    """Does the bound draw framebuffer convert linear output to sRGB itself (GL_FRAMEBUFFER_SRGB
+    on and an sRGB first draw buffer, as Blender's viewport has)?"""
+    value = ctypes.c_int32(0)
+    if not gl.is_enabled(GL.FRAMEBUFFER_SRGB):
+        return False
+    gl.get_integerv(GL.DRAW_BUFFER0, ctypes.byref(value))
+    attachment = {GL.BACK: GL.BACK_LEFT, GL.FRONT: GL.FRONT_LEFT}.get(value.value, value.value)
+    if attachment == GL.NONE:
+        return False
+    gl.get_framebuffer_attachment_parameteriv(GL.DRAW_FRAMEBUFFER, attachment,
+                                               GL.FRAMEBUFFER_ATTACHMENT_OBJECT_TYPE, ctypes.byref(value))
+    if value.value == GL.NONE:
+        return False
+    gl.get_framebuffer_attachment_parameteriv(GL.DRAW_FRAMEBUFFER, attachment,
+                                               GL.FRAMEBUFFER_ATTACHMENT_COLOR_ENCODING, ctypes.byref(value))
+    return value.value == GL.SRGB

@@ -1,5 +1,5 @@
 """GLSL snippets shared by every shader that draws nodes: the moderngl renderer's programs
-(hlod_core.render.renderer) and the Blender preview's `gpu` shaders (addon/), so the two paths
+(hlod_core.render.shaders) and the Blender preview's `gpu` shaders (addon/), so the two paths
 light and encode colours with the same code.
 
 Data form: source strings to paste into a fragment shader before its `main`.

@@ -39,9 +39,6 @@ class QueryPool:
         self._free: dict[int, list[int]] = {}  # target -> ids free for it
         self._all: list[int] = []
         self._unflushed = False  # an id was handed out since the last flush of `available`
-        #: False: flush on every poll that finds a result not yet back (the code before issue 15's
-        #: CHC++ round; kept to measure against)
-        self.flush_once = True
 
     # --- ids --------------------------------------------------------------------------------------
 
@@ -57,14 +54,17 @@ class QueryPool:
         return free.pop()
 
     def give_back(self, query_id: int, target: int = GL.SAMPLES_PASSED) -> None:
+        """Hand `query_id` out again to queries of `target` (its result has been read)."""
         self._free.setdefault(target, []).append(query_id)
 
     @property
     def allocated(self) -> int:
+        """How many ids the pool has generated (and not deleted)."""
         return len(self._all)
 
     @property
     def ids(self) -> list[int]:
+        """Every id the pool has generated (and not deleted)."""
         return list(self._all)
 
     def release(self) -> None:
@@ -83,7 +83,7 @@ class QueryPool:
         flag = ctypes.c_uint32(0)
         last = query.alpha_query_id if query.alpha_query_id is not None else query.samples_query_id
         self._gl.get_query_uiv(last, GL.QUERY_RESULT_AVAILABLE, ctypes.byref(flag))
-        if not flag.value and (self._unflushed or not self.flush_once):
+        if not flag.value and self._unflushed:
             self._unflushed = False
             self._gl.flush()
             self._gl.get_query_uiv(last, GL.QUERY_RESULT_AVAILABLE, ctypes.byref(flag))

@@ -1,56 +1,35 @@
-"""Scene files with appearance (issue 13): glTF 2.0 / GLB scenes, an OBJ's MTL, PLY colours.
+"""glTF 2.0 / GLB files read as scenes (glTF 2.0 spec 3.5, 3.7): every triangle primitive placed
+by every node of the default scene.
 
-Data form: a file in, numpy arrays and an appearance.Material table out; meshio.load_mesh turns
-them into one TriangleMesh (this module does not import meshio, which the Blender extension imports).
+Data form: a .gltf / .glb file in; `GltfScene` out: primitives (numpy arrays, each read once),
+placements (primitive, (4,4) float64 world matrix, node name) and the material table
+(gltf_materials.py); meshes.load_mesh turns it into one TriangleMesh. trimesh (a command-line
+dependency, imported here only when a glTF file is read) decodes buffers, accessors and
+primitives; the file's JSON gives the rest.
 
-- glTF / GLB (`read_gltf`): trimesh (a command-line dependency, imported here only when a glTF
-  file is read) decodes buffers, accessors and primitives; the file's JSON gives the rest. A glTF
-  file is a scene: every node of the default scene (`scene`, else the first; a file without
-  scenes: every root node) is placed with its world transform (its `matrix`, or T * R * S, times
-  its parents'), every triangle primitive (modes TRIANGLES and TRIANGLE_STRIP) of its mesh once
-  per node, in Blender's axes: glTF defines +Y up and +Z forward, so every world matrix is
-  preceded by GLTF_TO_BLENDER, (x, y, z) -> (x, -z, y), the rotation Blender's glTF importer
-  applies; a scene baked from its GLB then lies where the same scene baked in Blender does (and
-  3D Tiles, which take model space as Z up, export it upright). OBJ, PLY, STL and OFF have no
-  defined up axis and keep their file axes, as before.
-  Per primitive: POSITION, NORMAL, TEXCOORD_0 in Blender/OpenGL convention (trimesh already
-  stores 1 - v), COLOR_0 (linear, as glTF defines it; normalized integers divided by their
-  maximum; RGB gets alpha 1) and the material: baseColorFactor (linear RGBA), metallicFactor,
-  roughnessFactor (glTF's defaults 1, 1, 1) and baseColorTexture as an image file: an image
-  given by URI is the file itself; one embedded in the file (a bufferView or a data: URI) is
-  written once, with its original bytes, into the caller's texture folder as
-  NAME-<sha256 prefix>.png/.jpg (content-named, so equal images are one file) and referenced
-  there. No folder given: the texture is left out with a warning.
-- OBJ: geometry in meshfiles.read_obj; its MTL here (`read_mtl`): Kd (linear RGB, as Blender
-  reads and writes it), d (alpha; or 1 - Tr), Pr / Pm (roughness, metallic), else roughness from
-  Ns as Blender's exporter writes it (Ns = 1000 (1 - roughness)^2), map_Kd (options skipped; path
-  relative to the MTL). With map_Kd the base colour is white (Blender's importer ignores Kd then).
-- PLY vertex colours (core.colour.srgb_to_linear): read by pymeshlab as 8-bit values over 255; taken as
-  sRGB-encoded, as Blender's PLY importer takes them by default and as scanners and MeshLab write
-  them, and decoded to linear (alpha stays linear).
-
-A missing texture image or MTL file: a warning naming the file, and the bake goes on without it.
-A malformed file: InputError naming the file.
+The default scene is `scene`, else the first; a file without scenes places every root node. A
+node's world matrix is its `matrix`, or T * R * S, times its parents'. Primitives of modes
+TRIANGLES and TRIANGLE_STRIP are read: POSITION, NORMAL, TEXCOORD_0 in Blender/OpenGL convention
+(trimesh already stores 1 - v), COLOR_0 (linear; normalized integers divided by their maximum;
+RGB gets alpha 1) and the material index. Every world matrix is preceded by GLTF_TO_BLENDER, glTF's
++Y up to Blender's +Z up (why: docs/how-it-works.md#gltf-scenes-are-turned-z-up). A malformed file:
+InputError naming the file and the part at fault.
 """
 from __future__ import annotations
 
-import base64
-import binascii
-import hashlib
 import importlib.util
 import json
 import logging
 import math
-import re
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from urllib.parse import unquote
 
 import numpy as np
 
-from ..model.appearance import DEFAULT_BASE_COLOR, Material
 from ..core.errors import InputError
+from ..model.appearance import Material
+from .gltf_materials import read_materials
 
 log = logging.getLogger(__name__)
 
@@ -65,9 +44,6 @@ MODE_POINTS, MODE_LINES, MODE_TRIANGLES, MODE_TRIANGLE_STRIP, MODE_TRIANGLE_FAN 
 TRIMESH_MODES = (MODE_POINTS, MODE_LINES, MODE_TRIANGLES, MODE_TRIANGLE_STRIP)
 TRIANGLE_MODES = (MODE_TRIANGLES, MODE_TRIANGLE_STRIP)
 FLOAT = 5126  # accessor componentType
-IMAGE_SUFFIXES = {"image/png": ".png", "image/jpeg": ".jpg", "image/webp": ".webp"}
-#: glTF's default material (spec 3.9.1): white, fully metallic, fully rough.
-GLTF_DEFAULT_FACTORS = {"baseColorFactor": (1.0, 1.0, 1.0, 1.0), "metallicFactor": 1.0, "roughnessFactor": 1.0}
 #: Deepest node hierarchy read (deeper is taken for a cycle).
 MAX_NODE_DEPTH = 1024
 
@@ -96,8 +72,6 @@ class GltfScene:
     materials: tuple[Material, ...]
 
 
-# --- glTF / GLB ----------------------------------------------------------------------------------
-
 #: glTF's +Y-up axes to Blender's +Z-up ones: (x, y, z) -> (x, -z, y), a rotation (no mirror).
 GLTF_TO_BLENDER = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
@@ -121,7 +95,7 @@ def read_gltf(path: Path, *, texture_dir: Path | None) -> GltfScene:
     except Exception as exc:  # a malformed file fails anywhere inside the decoder
         raise InputError(f"{path}: not a readable glTF file ({type(exc).__name__}: {_short(exc)})") from exc
     mesh_primitives, primitives = _primitives(path, header, list(decoded["geometry"].values()))
-    materials = _materials(_Images(path=path, header=header, binary=binary, texture_dir=texture_dir))
+    materials = read_materials(path, header, binary=binary, texture_dir=texture_dir)
     placements = []
     for node, world in worlds:
         mesh = header["nodes"][node].get("mesh")
@@ -157,6 +131,7 @@ def _check_extensions(path: Path, header: dict) -> None:
 
 
 def _trimesh_gltf(path: Path):
+    """trimesh's glTF decoder; InputError naming the file when trimesh is not installed."""
     try:
         from trimesh.exchange import gltf
     except ImportError as exc:
@@ -166,6 +141,7 @@ def _trimesh_gltf(path: Path):
 
 
 def _short(exc: Exception) -> str:
+    """An exception's message on one line, at most 200 characters."""
     return " ".join(str(exc).split())[:200]
 
 
@@ -348,252 +324,3 @@ def _local_matrix(path: Path, index: int, node: dict) -> np.ndarray:
     m[:3, :3] = rotation * s  # R @ diag(s)
     m[:3, 3] = t
     return m
-
-
-@dataclass
-class _Images:
-    """A glTF file's images as files (see the module docstring), each resolved once."""
-
-    path: Path
-    header: dict
-    binary: bytes | None
-    texture_dir: Path | None
-    files: dict = field(default_factory=dict)
-
-    def of_texture(self, info, where: str) -> str | None:
-        """The image file of a baseColorTexture, or None with a warning."""
-        textures = self.header.get("textures", [])
-        index = info.get("index") if isinstance(info, dict) else None
-        if not isinstance(index, int) or not 0 <= index < len(textures) or not isinstance(textures[index], dict):
-            raise InputError(f"{where}.baseColorTexture.index {index!r} is not one of the {len(textures)} textures")
-        if info.get("texCoord", 0) != 0:
-            log.warning("%s: baseColorTexture uses TEXCOORD_%s; only TEXCOORD_0 is read", where, info.get("texCoord"))
-        texture = textures[index]
-        source = texture.get("source")
-        for extension in (texture.get("extensions") or {}).values():  # EXT_texture_webp and the like
-            if isinstance(extension, dict) and isinstance(extension.get("source"), int) and source is None:
-                source = extension["source"]
-        images = self.header.get("images", [])
-        if not isinstance(source, int) or not 0 <= source < len(images) or not isinstance(images[source], dict):
-            log.warning("%s: textures[%d] has no image; the material is read without it", where, index)
-            return None
-        if source not in self.files:
-            self.files[source] = self._file(source)
-        return self.files[source]
-
-    def _file(self, index: int) -> str | None:
-        path, image = self.path, self.header["images"][index]
-        uri, mime = image.get("uri"), image.get("mimeType")
-        name = image.get("name") if isinstance(image.get("name"), str) else f"image{index}"
-        if isinstance(uri, str) and not uri.startswith("data:"):
-            file = (path.parent / unquote(uri)).resolve()
-            if not file.is_file():
-                log.warning("%s: texture image %s is missing; the material is read without it", path, file)
-                return None
-            return str(file)
-        if isinstance(uri, str):  # data:[mime][;base64],payload
-            head, _, payload = uri.partition(",")
-            mime = head[5:].split(";")[0] or mime
-            try:
-                data = base64.b64decode(payload, validate=True) if head.endswith(";base64") \
-                    else unquote(payload).encode()
-            except (binascii.Error, ValueError):
-                raise InputError(f"{path}: images[{index}] has a malformed data URI") from None
-        else:
-            data = _buffer_view(path, self.header, self.binary, view=image.get("bufferView"), what=f"images[{index}]")
-        suffix = IMAGE_SUFFIXES.get(mime) or _sniff_suffix(data)
-        if suffix is None:
-            log.warning("%s: images[%d] (%s) is not PNG, JPEG or WebP; the material is read without it", path, index,
-                        mime)
-            return None
-        if self.texture_dir is None:
-            log.warning("%s: images[%d] (%s) is embedded and no texture folder was given; the material is read "
-                        "without it", path, index, name)
-            return None
-        stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._")[:60] or "image"
-        file = Path(self.texture_dir) / f"{stem}-{hashlib.sha256(data).hexdigest()[:12]}{suffix}"
-        if not file.is_file():
-            file.parent.mkdir(parents=True, exist_ok=True)
-            file.write_bytes(data)
-        return str(file.resolve())
-
-
-def _materials(images: _Images) -> tuple[Material, ...]:
-    """The file's material table (factors clipped to [0, 1]; a non-number is refused)."""
-    out = []
-    for i, mat in enumerate(images.header.get("materials", [])):
-        where = f"{images.path}: materials[{i}]"
-        if not isinstance(mat, dict):
-            raise InputError(f"{where} is not an object")
-        pbr = mat.get("pbrMetallicRoughness", {})
-        if not isinstance(pbr, dict):
-            raise InputError(f"{where}.pbrMetallicRoughness is not an object")
-        color = _factor(where, pbr, "baseColorFactor", 4)
-        metallic = _factor(where, pbr, "metallicFactor", 1)
-        roughness = _factor(where, pbr, "roughnessFactor", 1)
-        info = pbr.get("baseColorTexture")
-        texture = None if info is None else images.of_texture(info, where)
-        name = mat.get("name")
-        out.append(Material(name=name if isinstance(name, str) and name else f"material.{i}",
-                            base_color=tuple(float(c) for c in color), metallic=float(metallic[0]),
-                            roughness=float(roughness[0]), texture=texture))
-    return tuple(out)
-
-
-def _factor(where: str, pbr: dict, key: str, size: int) -> np.ndarray:
-    value = pbr.get(key, GLTF_DEFAULT_FACTORS[key])
-    try:
-        out = np.atleast_1d(np.asarray(value, np.float64))
-    except (TypeError, ValueError):
-        out = np.zeros(0)
-    if out.shape != (size,) or not np.all(np.isfinite(out)):
-        raise InputError(f"{where}.pbrMetallicRoughness.{key} must be {size} finite number(s)")
-    return np.clip(out, 0.0, 1.0)
-
-
-def _sniff_suffix(data: bytes) -> str | None:
-    if data.startswith(b"\x89PNG\r\n\x1a\n"):
-        return ".png"
-    if data.startswith(b"\xff\xd8\xff"):
-        return ".jpg"
-    if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
-        return ".webp"
-    return None
-
-
-def _buffer_view(path: Path, header: dict, binary: bytes | None, *, view, what: str) -> bytes:
-    """The bytes of a buffer view (the GLB's BIN chunk, a data: URI or a file beside the .gltf)."""
-    views, buffers = header.get("bufferViews", []), header.get("buffers", [])
-    if not isinstance(view, int) or not 0 <= view < len(views) or not isinstance(views[view], dict):
-        raise InputError(f"{path}: {what}.bufferView {view!r} is not one of the {len(views)} buffer views")
-    v = views[view]
-    buffer, offset, length = v.get("buffer"), v.get("byteOffset", 0), v.get("byteLength")
-    if not isinstance(buffer, int) or not 0 <= buffer < len(buffers) or not isinstance(buffers[buffer], dict):
-        raise InputError(f"{path}: bufferViews[{view}].buffer {buffer!r} is not one of the {len(buffers)} buffers")
-    uri = buffers[buffer].get("uri")
-    if uri is None:
-        data = binary or b""
-    elif uri.startswith("data:"):
-        try:
-            data = base64.b64decode(uri.partition(",")[2])
-        except (binascii.Error, ValueError):
-            raise InputError(f"{path}: buffers[{buffer}] has a malformed data URI") from None
-    else:
-        file = path.parent / unquote(uri)
-        try:
-            data = file.read_bytes()
-        except OSError as exc:
-            raise InputError(f"{path}: buffers[{buffer}] file {file}: {exc.strerror or exc}") from None
-    if not isinstance(offset, int) or not isinstance(length, int) or offset < 0 or length < 0 \
-            or offset + length > len(data):
-        raise InputError(f"{path}: bufferViews[{view}] lies outside its buffer of {len(data)} bytes")
-    return data[offset:offset + length]
-
-
-# --- OBJ's MTL ----------------------------------------------------------------------------------
-
-#: map_Kd options and how many arguments each takes (-o/-s/-t/-mm: up to that many numbers).
-_MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1, "-imfchan": 1,
-                "-texres": 1, "-type": 1, "-mm": 2, "-o": 3, "-s": 3, "-t": 3}
-_NUMERIC_OPTIONS = ("-mm", "-o", "-s", "-t")
-
-
-def read_mtl(path: Path) -> dict[str, Material]:
-    """The materials of an MTL file by name (see the module docstring). A missing file: a warning
-    and no materials; a malformed line: InputError naming the file and line."""
-    try:
-        text = path.read_text(encoding="utf-8", errors="replace")
-    except FileNotFoundError:
-        log.warning("%s: material library missing; the OBJ is read without its materials", path)
-        return {}
-    except IsADirectoryError:
-        raise InputError(f"{path}: is a folder, expected a material library") from None
-    out: dict[str, Material] = {}
-    current, fields = None, {}
-    for number, raw in enumerate(text.splitlines(), 1):
-        line = raw.split("#", 1)[0].strip()
-        key, _, rest = line.partition(" ")
-        rest = rest.strip()
-        if key == "newmtl":
-            if current is not None:
-                out[current] = _mtl_material(path, current, fields)
-            current, fields = rest, {}
-        elif key in ("Kd", "d", "Tr", "Pr", "Pm", "Ns"):
-            try:
-                values = [float(x) for x in rest.split()]
-            except ValueError:
-                values = []
-            if not values or not all(math.isfinite(v) for v in values):
-                raise InputError(f"{path}: line {number} ('{line[:60]}'): {key} needs numbers")
-            fields[key] = values
-        elif key == "map_Kd":
-            fields[key] = _map_file(rest)
-    if current is not None:
-        out[current] = _mtl_material(path, current, fields)
-    return out
-
-
-def _map_file(rest: str) -> str:
-    """The file name of a map_Kd line: what follows its options (the name may hold spaces)."""
-    tokens = rest.split()
-    at = 0
-    while at < len(tokens) - 1 and tokens[at] in _MAP_OPTIONS:
-        option, at = tokens[at], at + 1
-        for _ in range(_MAP_OPTIONS[option]):
-            if at < len(tokens) - 1 and (option not in _NUMERIC_OPTIONS or _is_number(tokens[at])):
-                at += 1
-    return " ".join(tokens[at:]).replace("\\", "/")
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-def _mtl_material(path: Path, name: str, fields: dict) -> Material:
-    texture = None
-    if fields.get("map_Kd"):
-        file = (path.parent / fields["map_Kd"]).resolve()
-        if file.is_file():
-            texture = str(file)
-        else:
-            log.warning("%s: texture image %s of material %s is missing; the material is read without it",
-                        path, file, name)
-    kd = fields.get("Kd", DEFAULT_BASE_COLOR[:3])
-    rgb = [1.0, 1.0, 1.0] if texture is not None else (list(kd) * 3 if len(kd) == 1 else list(kd[:3]))
-    alpha = fields["d"][0] if "d" in fields else (1.0 - fields["Tr"][0] if "Tr" in fields else 1.0)
-    if "Pr" in fields:
-        roughness = fields["Pr"][0]
-    elif "Ns" in fields:
-        roughness = 1.0 - math.sqrt(max(fields["Ns"][0], 0.0) / 1000.0)
-    else:
-        roughness = 0.5
-    metallic = fields["Pm"][0] if "Pm" in fields else 0.0
-    return Material(name=name, base_color=tuple(min(max(float(c), 0.0), 1.0) for c in (*rgb, alpha)),
-                    metallic=min(max(metallic, 0.0), 1.0), roughness=min(max(roughness, 0.0), 1.0), texture=texture)
-
-
-def obj_materials(path: Path, mtllibs: list[str], names: list[str]) -> tuple[Material, ...]:
-    """One Material per `usemtl` name (in first-use order), from the OBJ's material libraries
-    (relative to the OBJ); a name no library defines: a warning and Blender's default colour."""
-    library: dict[str, Material] = {}
-    missing_library = False
-    for lib in mtllibs:
-        file = path.parent / lib
-        if not file.is_file() and " " in lib and all((path.parent / part).is_file() for part in lib.split()):
-            parts = lib.split()  # `mtllib a.mtl b.mtl`
-        else:
-            parts = [lib]
-        for part in parts:
-            found = read_mtl(path.parent / part)
-            missing_library |= not (path.parent / part).is_file()
-            library.update({k: v for k, v in found.items() if k not in library})
-    out = []
-    for name in names:
-        if name not in library and not missing_library:
-            log.warning("%s: material %s is not in its material library; read with the default colour", path, name)
-        out.append(library.get(name, Material(name=name, base_color=DEFAULT_BASE_COLOR)))
-    return tuple(out)

@@ -1,33 +1,20 @@
-"""Mesh files read or checked here, before pymeshlab sees them (it fails silently, or not at all, on
-some bad input). Data form: a file's bytes in, numpy arrays or counts out; InputError naming the
-file (and the line, for text) at fault.
+"""OBJ files: checked here before pymeshlab reads them (`check_obj`: vertex numbers, face indices
+inside their lists, the layouts pymeshlab misreads), or read here when they name a material library
+(`read_obj`: triangles, UVs, normals, `usemtl` groups; the MTL in mtl.py).
 
-- STL is read here: binary (an 80-byte header, a uint32 triangle count, 50 bytes per triangle, so
-  exactly 84 + 50 n bytes) or ASCII (solid / facet ... outer loop / 3 x vertex / endloop / endfacet /
-  endsolid). pymeshlab's STL reader loops without end on some truncated or zero-filled files.
-- OBJ is checked here (`check_obj`: vertex numbers, face indices inside their lists, and the layouts
-  pymeshlab misreads), vectorised over the bytes: pymeshlab drops faces that index past the
-  vertex list, reads `v 1 x 0` as (1, 0, 0), and crashes on a face whose vertex it skipped.
-  An OBJ with a material library is read here too (`read_obj`: triangles, UVs, normals, `usemtl`
-  groups; its MTL is read in scenefiles.py); pymeshlab reads the others.
+Data form: a file's bytes in, numpy arrays or counts out, vectorised over the bytes; InputError
+naming the file and the line at fault. Why: docs/how-it-works.md#why-obj-and-stl-files-are-checked-before-pymeshlab-reads-them
 """
 from __future__ import annotations
 
 import re
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..core.errors import InputError
-
-#: Binary STL: an 80-byte header, a little-endian uint32 triangle count, 50 bytes per triangle.
-STL_HEADER_BYTES = 80
-STL_RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
-
-
-# --- OBJ: what the file declares, vectorised over its bytes ---------------------------------------
+from .text_numbers import parse_numbers
 
 _TOKEN = re.compile(rb"[^ \t\r\n#]+")
 #: The line keywords the check reads, as codes (0: any other line).
@@ -140,7 +127,7 @@ _USEMTL = re.compile(rb"(?m)^[ \t]*(usemtl|mtllib)[ \t]+([^\r\n#]*?)[ \t]*\r?$")
 
 def obj_has_appearance(data: bytes) -> bool:
     """Whether an OBJ file names a material library (then `read_obj` reads it, with its texture
-    coordinates; otherwise pymeshlab does, as before: texture coordinates without materials have
+    coordinates; otherwise pymeshlab does: texture coordinates without materials have
     no texture to map, and are left out)."""
     return re.search(rb"(?m)^[ \t]*mtllib[ \t]", data) is not None
 
@@ -153,9 +140,9 @@ def read_obj(path: Path, data: bytes) -> ObjArrays:
     text = _ObjText.of(data)
     _check_obj_layout(path, text)
     _, face_sizes, corners = _check_obj_faces(path, text, corners=True)
-    v = _line_vectors(path, text, _V, "vertex", 3, 3)
-    vt = _line_vectors(path, text, _VT, "texture coordinate", 1, 2)
-    vn = _line_vectors(path, text, _VN, "normal", 3, 3)
+    v = _line_vectors(path, text, _V, noun="vertex", least=3, width=3)
+    vt = _line_vectors(path, text, _VT, noun="texture coordinate", least=1, width=2)
+    vn = _line_vectors(path, text, _VN, noun="normal", least=3, width=3)
     first = np.cumsum(face_sizes) - face_sizes  # each face's first corner
     per_face = face_sizes - 2
     face = np.repeat(np.arange(face_sizes.size), per_face)
@@ -207,7 +194,7 @@ def _unique_corners(used: np.ndarray, *, uv_lists: int, normal_lists: int) -> tu
     return unique - np.array([0, 1, 1]), inverse.reshape(-1)
 
 
-def _line_vectors(path: Path, text: _ObjText, code: int, noun: str, least: int, width: int) -> np.ndarray:
+def _line_vectors(path: Path, text: _ObjText, code: int, *, noun: str, least: int, width: int) -> np.ndarray:
     """(lines, width) float64: the first `width` numbers of every line of keyword `code` (a line
     needs `least`; missing ones are 0). InputError naming the line of a token that is no number."""
     lines = text.keyword == code
@@ -220,23 +207,28 @@ def _line_vectors(path: Path, text: _ObjText, code: int, noun: str, least: int, 
     if short.size:
         raise text.fail(path, int(short[0]), "a vertex needs three coordinates" if code == _V
                         else f"a {noun} needs {least} or more numbers")
-    values = _body_numbers(body, text, lines, np.float64, int(token.sum()))
+    values = _body_numbers(body, text, lines=lines, dtype=np.float64, expected=int(token.sum()))
     if values is None or not np.all(np.isfinite(values)):
-        for pos in np.flatnonzero(token):
-            word = _TOKEN.match(text.data, pos).group()
-            try:
-                ok = np.isfinite(float(word))
-            except ValueError:
-                ok = False
-            if not ok:
-                raise text.fail(path, int(text.line_of(pos)),
-                                f"'{word.decode('utf-8', 'replace')}' is not a finite number")
+        pos, word = _first_bad_token(text, token, finite=True)
+        raise text.fail(path, int(text.line_of(pos)), f"'{word}' is not a finite number")
     start = np.cumsum(count) - count
     out = np.zeros((count.size, width))
     for k in range(width):
         has = count > k
         out[has, k] = values[start[has] + k]
     return out
+
+
+def _first_bad_token(text: _ObjText, token: np.ndarray, *, finite: bool) -> tuple[int, str]:
+    """(byte position, text) of the first token (token: (bytes,) bool, True at each token's first
+    byte) that does not read as a number (with `finite`: as a finite number) the way the bulk
+    parse reads it; the caller knows one does not."""
+    for pos in np.flatnonzero(token):
+        word = _TOKEN.match(text.data, pos).group()
+        value = parse_numbers(word, np.float64, 1)
+        if value is None or (finite and not np.isfinite(value[0])):
+            return int(pos), word.decode("utf-8", "replace")
+    raise ValueError("every token reads as a number")  # not reached: the bulk parse failed on one
 
 
 def _has_byte(text: _ObjText, byte: int) -> np.ndarray:
@@ -253,15 +245,10 @@ def _check_obj_vertices(path: Path, text: _ObjText) -> int:
     short = np.flatnonzero(is_v & (_per_line(token, text.line_start) < 3))
     if short.size:
         raise text.fail(path, int(short[0]), "a vertex needs three coordinates")
-    coords = _body_numbers(body, text, is_v, np.float64, int(token.sum()))
-    if coords is None:  # some token is not a number: find the first, for the message
-        for pos in np.flatnonzero(token):
-            word = _TOKEN.match(text.data, pos).group()
-            try:
-                float(word)
-            except ValueError:
-                raise text.fail(path, int(text.line_of(pos)),
-                                f"'{word.decode('utf-8', 'replace')}' is not a number") from None
+    coords = _body_numbers(body, text, lines=is_v, dtype=np.float64, expected=int(token.sum()))
+    if coords is None:  # some token is not a number: name the first
+        pos, word = _first_bad_token(text, token, finite=False)
+        raise text.fail(path, int(text.line_of(pos)), f"'{word}' is not a number")
     if not np.all(np.isfinite(coords)):
         bad_lines = np.unique(text.line_of(np.flatnonzero(token)[~np.isfinite(coords)]))
         raise InputError(f"{path}: {bad_lines.size} of {vertices} vertices could not be read (line "
@@ -302,7 +289,7 @@ def _check_obj_faces(path: Path, text: _ObjText, *, corners: bool = False):
     if bad.any():
         raise text.fail(path, int(text.line_of(np.argmax(bad))),
                         "malformed face (corners are v, v/t, v//n or v/t/n, with integer indices)")
-    values = _body_numbers(number, text, is_f, np.int64, starts.size)
+    values = _body_numbers(number, text, lines=is_f, dtype=np.int64, expected=starts.size)
     lists = ((_V, 0, "vertex", "vertices"), (_VT, 1, "texture coordinate", "texture coordinates"),
              (_VN, 2, "normal", "normals"))
     table = np.full((int(corner.sum()) if corners else 0, 3), -1, np.int64)
@@ -357,107 +344,11 @@ def _range_mask(size: int, begin: np.ndarray, end: np.ndarray) -> np.ndarray:
     return np.cumsum(step[:-1], dtype=np.int8) > 0
 
 
-def _body_numbers(body: np.ndarray, text: _ObjText, lines: np.ndarray, dtype, expected: int) -> np.ndarray | None:
-    """The numbers in the `body` bytes of the selected lines, in order (see _parse_numbers)."""
+def _body_numbers(body: np.ndarray, text: _ObjText, *, lines: np.ndarray, dtype, expected: int) -> np.ndarray | None:
+    """The numbers in the `body` bytes of the selected lines, in order (see text_numbers.parse_numbers)."""
     if expected == 0:
         return np.zeros(0, dtype)
     chosen = np.flatnonzero(lines)
     span = slice(int(text.line_start[chosen[0]]), int(text.line_end[chosen[-1]]))  # only where these lines are
-    return _parse_numbers(np.where(body[span], text.buf[span], ord(" ")).tobytes(), dtype, expected)
+    return parse_numbers(np.where(body[span], text.buf[span], ord(" ")).tobytes(), dtype, expected)
 
-
-def _parse_numbers(text: bytes, dtype, expected: int) -> np.ndarray | None:
-    """The whitespace-separated numbers of `text`; None unless they are exactly `expected`
-    numbers (something else stood between the spaces)."""
-    if expected == 0:
-        return np.zeros(0, dtype)
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", DeprecationWarning)  # numpy's "unmatched data" warning
-        try:
-            values = np.fromstring(text, dtype=dtype, sep=" ")
-        except (ValueError, DeprecationWarning):
-            return None
-    return values if values.size == expected else None
-
-
-# --- STL, read here ------------------------------------------------------------------------------
-
-def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Binary STL when the size is 84 + 50 n for the n its header gives; otherwise ASCII text
-    (solid / facet ... outer loop / 3 x vertex / endloop / endfacet / endsolid). Coordinates are
-    float32, as the format defines them; corners at bit-identical positions become one vertex."""
-    data = path.read_bytes()
-    size = len(data)
-    claimed = int.from_bytes(data[STL_HEADER_BYTES:STL_HEADER_BYTES + 4], "little") if size >= 84 else None
-    binary_size = None if claimed is None else STL_HEADER_BYTES + 4 + STL_RECORD.itemsize * claimed
-    if size == binary_size:
-        records = np.frombuffer(data, STL_RECORD, count=claimed, offset=STL_HEADER_BYTES + 4)
-        corners = records["corners"].reshape(-1, 3)
-    elif re.match(rb"\s*solid(\s|$)", data[:1024]) and _is_text(data):
-        corners = _ascii_stl_corners(path, data)
-    else:
-        binary = "" if claimed is None else f"; a binary STL whose header gives {claimed} triangles has {binary_size}"
-        raise InputError(f"{path}: not an STL file ({size} bytes{binary}; an ASCII STL is text starting with 'solid')")
-    if corners.shape[0] == 0:
-        raise InputError(f"{path}: the mesh has no triangles")
-    corners = corners.astype(np.float32) + np.float32(0.0)  # -0.0 -> 0.0, so both weld
-    keys = np.ascontiguousarray(corners).view(np.dtype((np.void, 12))).ravel()
-    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-    order = np.argsort(first, kind="stable")  # vertices in the order the file first uses them
-    rank = np.empty_like(order)
-    rank[order] = np.arange(order.size)
-    return corners[first[order]], rank[inverse.reshape(-1)].reshape(-1, 3)
-
-
-def _is_text(data: bytes) -> bool:
-    """No control bytes other than tab, CR, LF (binary STL floats nearly always hold some)."""
-    byte = np.frombuffer(data, np.uint8)
-    return not np.any((byte < 32) & (byte != 9) & (byte != 10) & (byte != 13))
-
-
-_STL_VERTEX = re.compile(rb"(?m)^[ \t]*vertex[ \t]+(\S+[ \t]+\S+[ \t]+\S+)[ \t]*\r?$")
-_STL_VERTEX_FAST = re.compile(rb"vertex[ \t]+(\S+[ \t]+\S+[ \t]+\S+)[ \t]*(?:\r?\n|$)")
-
-
-def _ascii_stl_corners(path: Path, data: bytes) -> np.ndarray:
-    """(3f, 3) float64 corners of an ASCII STL; InputError naming the line of the first fault."""
-    end = data.rfind(b"endsolid")
-    if end < 0 or data[data.rfind(b"\n", 0, end) + 1:end].strip():
-        raise InputError(f"{path}: ASCII STL without 'endsolid' (truncated?)")
-    coords = _STL_VERTEX_FAST.findall(data)  # literal-first patterns: fast; checked against counts
-    facets = data.count(b"facet") - 2 * data.count(b"endfacet")  # 'endfacet' holds 'facet'
-    if not (len(coords) == data.count(b"vertex") == 3 * facets and facets == data.count(b"endfacet")):
-        coords = _check_stl_lines(path, data)  # line by line, naming the first fault
-    values = _parse_numbers(b" ".join(coords), np.float64, 3 * len(coords))
-    if values is None:
-        for m in _STL_VERTEX.finditer(data):
-            try:
-                [float(x) for x in m.group(1).split()]
-            except ValueError:
-                line = data.count(b"\n", 0, m.start()) + 1
-                raise InputError(f"{path}: line {line}: vertex coordinates are not numbers") from None
-    return values.reshape(-1, 3)
-
-
-def _check_stl_lines(path: Path, data: bytes) -> list:
-    """The vertex coordinates of an ASCII STL, read line by line; InputError naming the line of
-    the first vertex without three coordinates or facet without three vertices."""
-    def line_of(pos: int) -> int:
-        return data.count(b"\n", 0, pos) + 1
-
-    coords = _STL_VERTEX.findall(data)
-    vertex_lines = re.compile(rb"(?m)^[ \t]*vertex\b")
-    if len(coords) != len(vertex_lines.findall(data)):
-        bad = next(m for m in vertex_lines.finditer(data) if not _STL_VERTEX.match(data, m.start()))
-        raise InputError(f"{path}: line {line_of(bad.start())}: a vertex needs three coordinates")
-    facet_lines, end_lines = re.compile(rb"(?m)^[ \t]*facet\b"), re.compile(rb"(?m)^[ \t]*endfacet\b")
-    facet_at = [m.start() for m in facet_lines.finditer(data)]
-    if len(coords) != 3 * len(facet_at) or len(facet_at) != len(end_lines.findall(data)):
-        vertex_at = [m.start() for m in vertex_lines.finditer(data)]
-        per_facet = np.bincount(np.searchsorted(facet_at, vertex_at, side="right") - 1,
-                                minlength=len(facet_at))[:len(facet_at)] if facet_at else np.zeros(0, np.int64)
-        wrong = np.flatnonzero(per_facet != 3)
-        where = f"line {line_of(facet_at[wrong[0]])}: a facet with {per_facet[wrong[0]]} vertices" if wrong.size \
-            else "facet and endfacet lines do not pair up"
-        raise InputError(f"{path}: {where} (an STL facet is one triangle)")
-    return coords
