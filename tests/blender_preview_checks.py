@@ -1,5 +1,5 @@
-"""Checks of the preview in place of its sources (issue 20), inside the real bpy module, one per
-subprocess (tests/test_preview_in_place.py runs them):
+"""Checks of the preview in place of its sources, inside the real bpy module, one per subprocess
+(tests/test_preview_in_place.py runs them):
 
     python tests/blender_preview_checks.py REPO_DIR CHECK WORK_DIR
 
@@ -159,7 +159,7 @@ def draw_scene(package, *, preview: bool, text: bool = False, size=SIZE) -> np.n
                 gpu.matrix.load_matrix(view)
                 gpu.matrix.load_projection_matrix(projection)
                 if preview:
-                    module.safe_draw(scene, view, projection, *size)
+                    module.safe_draw(scene, module.view_from_matrices(view, projection, size))
             if text:
                 with gpu.matrix.push_pop(), gpu.matrix.push_pop_projection():
                     gpu.matrix.load_identity()
