@@ -106,6 +106,15 @@ def camera_matrices(scene, size):
     return view, projection
 
 
+def pixel_projection(size):
+    """POST_PIXEL's projection for a region of `size` (width, height): region pixels, origin bottom left."""
+    from mathutils import Matrix
+
+    m = Matrix.Identity(4)
+    m[0][0], m[1][1], m[0][3], m[1][3] = 2.0 / size[0], 2.0 / size[1], -1.0, -1.0
+    return m
+
+
 def draw_offscreen(package, scene, size, *, before=None, after=None) -> np.ndarray:
     """Clear a GPUOffScreen (white, depth 1), run before() (Blender-side drawing whose depth the
     preview must respect), the add-on's draw path with the scene camera, then after(); returns the

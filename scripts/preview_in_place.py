@@ -124,7 +124,7 @@ def draw_frame(preview, scene, offscreen, *, size, with_preview: bool):
                 preview.safe_draw(scene, preview.view_from_matrices(view, projection, size))
             with gpu.matrix.push_pop(), gpu.matrix.push_pop_projection():
                 gpu.matrix.load_identity()
-                gpu.matrix.load_projection_matrix(_pixel_projection(size))
+                gpu.matrix.load_projection_matrix(blender_preview.pixel_projection(size))
                 preview.draw_corner_text(scene)
         return gpu.state.active_framebuffer_get().read_color(0, 0, 1, 1, 4, 0, "UBYTE")
 
@@ -137,14 +137,6 @@ def place_camera(camera, *, yaw_deg: float) -> None:
     eye = target + Matrix.Rotation(np.radians(yaw_deg), 3, "Z") @ (Vector(EYE) - target)
     rotation = (target - eye).to_track_quat("-Z", "Y").to_matrix().to_4x4()
     camera.matrix_world = Matrix.Translation(eye) @ rotation
-
-
-def _pixel_projection(size):
-    from mathutils import Matrix
-
-    m = Matrix.Identity(4)
-    m[0][0], m[1][1], m[0][3], m[1][3] = 2.0 / size[0], 2.0 / size[1], -1.0, -1.0
-    return m
 
 
 MODES = ("off", "on", "hidden")  # preview off; on; on but its pass left out (Blender's share of "on")
