@@ -1,29 +1,10 @@
-"""Hiding the objects a bake took while the preview draws the HLOD in their place (issue 20), and
-giving back exactly the visibility there was.
-
-Mechanism: `Object.hide_set(True, view_layer=...)`, the view layer's "Hide in Viewport" (the eye,
-the H key): a per-view-layer base flag that draws nothing and leaves the object's own data
-(`hide_viewport`, `hide_render`) alone; instances made by an object (a collection instance) go with
-it. Hiding also deselects, so each hidden object's selection is recorded and given back. Only
-objects of the view layer that are not hidden already are hidden and recorded: restoring unhides
-exactly those.
-
-The base flag is saved with the .blend, so the hiding must never reach a file:
-- the record (`scene.hlod.hidden_objects`: name and selection of each object hidden, and
-  `scene.hlod.hidden_view_layer`) is written before anything is hidden, so whatever file carries
-  hidden sources (an autosave, quit.blend after a crash, an undo step) also carries the record;
-- saving while the preview runs: save_pre (`suspend`) gives the visibility back and clears the
-  record, save_post (`resume`) hides again; a saved file has the sources visible and no record;
-- loading a file (load_post, `restore_leftovers`): a record in it is a leftover (the preview is
-  off after a load), so its objects are shown again and the record cleared;
-- undo and redo (`on_undo`) bring back the visibility of the undo step: while the preview runs its
-  objects are hidden again (the preview is a way of looking at the scene, not an edit; undo is for
-  the user's edits and does not stop it); with the preview off, a record the step carries is a
-  leftover and is restored;
-- stopping the preview, loading another file (load_pre) and disabling the extension `restore`.
-
-In this session objects are found by `session_uid` (stable across renames and undo), in a saved
-record by name.
+"""Hiding the objects a bake took while the preview draws the HLOD in their place, and giving back
+exactly the visibility there was: `Object.hide_set` in the view layer (the eye, the H key), with
+each object's selection recorded on the scene (`scene.hlod.hidden_objects`) before anything is
+hidden, so no file, undo step or crash leaves them hidden without a record. Every way out shows
+them again: stop (`restore`), save (`suspend`/`resume`), load (`restore_leftovers`), undo/redo
+(`on_undo`). While Blender runs, objects are found by `session_uid`; in a saved record, by name.
+Why: docs/how-it-works.md#hiding-the-sources-while-the-preview-runs
 """
 from __future__ import annotations
 

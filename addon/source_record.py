@@ -1,26 +1,10 @@
-"""The objects a bake took, and whether they changed since (issue 20): a record of
-(object name, content key) rows on the scene, and a tracker that keeps the number of changed
-objects current while the preview runs.
-
-"The objects a bake took" are its sources as `scene_mesh.source_objects` chose them (the selected
-objects, or a collection's objects), the owners of the instances they made. The record lives on the
-scene (`scene.hlod.source_objects`, with `scene.hlod.source_file`, the baked file it belongs to), so
-a reopened .blend knows them; a file the scene did not bake has no record here and the preview
-hides nothing for it.
-
-Content key of an object: blake2b (KEY_DIGEST_BYTES) over its evaluated geometry (vertex positions
-float32 (v, 3), corner vertex indices int32 (c,), edge vertex indices int32 (e, 2): modifiers and
-geometry nodes applied), its evaluated world matrix float64 (4, 4), and, for an object instancing a
-collection, the collection's instance offset and the name and key of every object in it (to
-NESTING_LIMIT levels). Instances made otherwise (particles, vertex/face instancing, geometry-node
-instance outputs) enter through their owner's geometry and matrix only. The key is computed from
-the objects' evaluated data, not from `depsgraph.object_instances`: the preview hides the sources,
-and hidden objects are still evaluated but are not listed there; the key is the same hidden or not.
-
-Cost: geometry digests are cached per object name and recomputed only for the objects a depsgraph
-update names; matrices and the keys (one small hash per object) are recomputed on every update. An
-undo or a new tracker starts from an empty cache. A renamed or deleted source counts as changed
-(the record names it, and nothing has that name now).
+"""The objects a bake took, and whether they changed since: a record of (object name, content key)
+rows on the scene (`scene.hlod.source_objects`, for `scene.hlod.source_file`), and a tracker that
+keeps the number of changed objects current while the preview runs. Content key: blake2b over an
+object's evaluated geometry, world matrix and, for a collection instance, the keys of the
+collection's objects; geometry digests are cached per object and recomputed for the objects a
+depsgraph update names. A renamed or deleted source counts as changed.
+Why: docs/how-it-works.md#content-keys-of-baked-objects
 """
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""The preview's statistics in the viewport's corner (issue 20): a few lines of text drawn with blf in
-a POST_PIXEL draw handler, in region pixels (origin bottom left), bottom left of the region, above
+"""The preview's statistics in the viewport's corner: a few lines of text drawn with blf in a
+POST_PIXEL draw handler, in region pixels (origin bottom left), bottom left of the region, above
 its margin and right of an overlapping toolbar.
 
 Lines (top to bottom): the method and what it drew (nodes, triangles and their share of the
@@ -41,13 +41,26 @@ def corner_lines(*, label: str, stats, source_tris: int, private: bool,
         lines = [(f"HLOD {label}: no frame drawn yet", False)]
     else:
         share = f" ({stats.tris / source_tris:.1%} of {source_tris:,})" if source_tris > 0 else ""
-        lines = [(f"HLOD {label}: {stats.dn:,} nodes, {stats.tris:,} triangles{share}", False),
-                 (f"{stats.queries:,} queries, {stats.frame_ms:.1f} ms" + (", private context" if private else ""), False)]
+        timing = f"{stats.queries:,} queries, {stats.frame_ms:.1f} ms" + (", private context" if private else "")
+        lines = [(f"HLOD {label}: {stats.dn:,} nodes, {stats.tris:,} triangles{share}", False), (timing, False)]
     if recorded == 0:
         lines.append(("sources not recorded for this file: they stay visible (re-bake)", True))
     elif changed:
         lines.append((stale_message(changed, recorded), True))
     return lines
+
+
+def toolbar_width_px(context) -> float:
+    """Width of the toolbar where it overlaps the region (Region Overlap on), else 0."""
+    if context.area is None or not context.preferences.system.use_region_overlap:
+        return 0.0
+    return float(next((r.width for r in context.area.regions if r.type == "TOOLS"), 0))
+
+
+def effective_ui_scale(preferences) -> float:
+    """The effective UI scale (display DPI and the Resolution Scale preference); the bpy module,
+    with no window, leaves the effective one at 0: then the preference alone."""
+    return float(preferences.system.ui_scale or preferences.view.ui_scale or 1.0)
 
 
 def draw(lines: list[tuple[str, bool]], *, left_px: float = 0.0, ui_scale: float = 1.0) -> None:

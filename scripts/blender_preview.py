@@ -81,7 +81,7 @@ def init_gpu() -> None:
     scene.render.engine, scene.render.resolution_x, scene.render.resolution_y = engine, x, y
 
 
-def camera(scene, eye, target, lens_mm: float = 24.0, clip=(0.1, 2000.0)):
+def camera(scene, eye, target, *, lens_mm: float = 24.0, clip=(0.1, 2000.0)):
     """A scene camera at eye looking at target (Z up), made active."""
     import bpy
     from mathutils import Vector
@@ -106,7 +106,16 @@ def camera_matrices(scene, size):
     return view, projection
 
 
-def draw_offscreen(package, scene, size, before=None, after=None) -> np.ndarray:
+def pixel_projection(size):
+    """POST_PIXEL's projection for a region of `size` (width, height): region pixels, origin bottom left."""
+    from mathutils import Matrix
+
+    m = Matrix.Identity(4)
+    m[0][0], m[1][1], m[0][3], m[1][3] = 2.0 / size[0], 2.0 / size[1], -1.0, -1.0
+    return m
+
+
+def draw_offscreen(package, scene, size, *, before=None, after=None) -> np.ndarray:
     """Clear a GPUOffScreen (white, depth 1), run before() (Blender-side drawing whose depth the
     preview must respect), the add-on's draw path with the scene camera, then after(); returns the
     pixels (H, W, 4) uint8, bottom row first."""
@@ -124,7 +133,7 @@ def draw_offscreen(package, scene, size, before=None, after=None) -> np.ndarray:
                 gpu.matrix.load_projection_matrix(projection)
                 if before is not None:
                     before()
-                preview.safe_draw(scene, view, projection, size[0], size[1])
+                preview.safe_draw(scene, preview.view_from_matrices(view, projection, size))
                 if after is not None:
                     after()
             pixels = np.array(fb.read_color(0, 0, size[0], size[1], 4, 0, "UBYTE").to_list(), np.uint8)

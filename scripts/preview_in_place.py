@@ -1,30 +1,14 @@
-"""Viewport frame time with the HLOD preview in place of its sources, against the preview off
-(issue 20), measured in the bpy module, and the README's picture of it.
+"""Viewport frame time with the HLOD preview in place of its sources, against the preview off,
+measured in the bpy module, and the README's picture of it.
 
     .venv/bin/python scripts/preview_in_place.py [--spec tests/scenes/crowd_1m.json] [--size 960x540]
         [--blocks 3] [--frames 8] [--picture docs/preview_in_place.png] [--work DIR]
 
-The scene is made of Blender objects: every placed model of the scene spec becomes a mesh object
-(the models' meshes shared, as linked duplicates, with the spec's transforms; the crowd spec gives
-144 statues, 1.03M triangles), on a ground plane that is not baked. The statues are selected and
-baked with the extension's own operator (hlod.bake, in this process), then the preview is
-toggled with hlod.preview_toggle, which hides them.
-
-One frame is what the viewport draws while the user navigates: Blender's own drawing of the view
-layer (`GPUOffScreen.draw_view3d`, solid shading, from the scene camera) and, with the preview on,
-the add-on's POST_VIEW pass (`preview.safe_draw`, depth-tested against Blender's drawing in the
-same offscreen) and its POST_PIXEL corner text, then a one-pixel read-back, which waits for the
-GPU. The camera turns by YAW_STEP_DEG about the target every frame (the same views in every
-block). The viewport's anti-aliasing is set to one sample (Preferences > Viewport > Anti-Aliasing
-"No Anti-Aliasing"): Blender's viewport draws one sample per redraw while the view moves and
-accumulates more only once it rests, but `draw_view3d` draws all of a new view's samples at once
-(with the default 8: 8 full redraws per frame, measured 18.9 s against 2.4 s for one here), which
-would charge Blender for its resting image. The modes alternate in blocks (`--blocks` of
-`--frames` frames each, after one unmeasured frame per block), so drift over the run falls on all. Figures are medians in milliseconds, on whatever
-GPU the bpy module's EGL finds (Mesa llvmpipe, a CPU rasteriser, on a machine without a GPU:
-then triangles cost CPU time, which is what the HLOD saves). Prints one JSON line; writes the
-picture (the measured view at two thirds of the size, preview off and on side by side) if
---picture is given.
+Blender objects made from a scene spec are baked with the extension's own operator, then frames are
+drawn (Blender's own drawing with `GPUOffScreen.draw_view3d`, the preview's passes after it) with
+the preview off, on, and on with its passes left out, alternating in blocks, one sample per frame.
+Prints one JSON line of medians in milliseconds; writes the picture (preview off and on side by
+side) if --picture is given. Why: docs/how-it-works.md#measuring-the-preview-in-place
 """
 from __future__ import annotations
 
@@ -85,7 +69,7 @@ def build_scene(spec_path: Path, *, unique_meshes: bool = False) -> list:
     return statues
 
 
-def _record_matches(package, scene, statues, baked: Path) -> bool:
+def _record_matches(package, scene, statues, *, baked: Path) -> bool:
     """Whether WORK/crowd.hlod was baked from these objects as they are: its record file
     (crowd.record.json, written after each bake here) holds the same names and content keys."""
     import bpy
@@ -137,10 +121,10 @@ def draw_frame(preview, scene, offscreen, *, size, with_preview: bool):
             with gpu.matrix.push_pop():
                 gpu.matrix.load_matrix(view)
                 gpu.matrix.load_projection_matrix(projection)
-                preview.safe_draw(scene, view, projection, *size)
+                preview.safe_draw(scene, preview.view_from_matrices(view, projection, size))
             with gpu.matrix.push_pop(), gpu.matrix.push_pop_projection():
                 gpu.matrix.load_identity()
-                gpu.matrix.load_projection_matrix(_pixel_projection(size))
+                gpu.matrix.load_projection_matrix(blender_preview.pixel_projection(size))
                 preview.draw_corner_text(scene)
         return gpu.state.active_framebuffer_get().read_color(0, 0, 1, 1, 4, 0, "UBYTE")
 
@@ -153,14 +137,6 @@ def place_camera(camera, *, yaw_deg: float) -> None:
     eye = target + Matrix.Rotation(np.radians(yaw_deg), 3, "Z") @ (Vector(EYE) - target)
     rotation = (target - eye).to_track_quat("-Z", "Y").to_matrix().to_4x4()
     camera.matrix_world = Matrix.Translation(eye) @ rotation
-
-
-def _pixel_projection(size):
-    from mathutils import Matrix
-
-    m = Matrix.Identity(4)
-    m[0][0], m[1][1], m[0][3], m[1][3] = 2.0 / size[0], 2.0 / size[1], -1.0, -1.0
-    return m
 
 
 MODES = ("off", "on", "hidden")  # preview off; on; on but its pass left out (Blender's share of "on")
@@ -287,7 +263,7 @@ def main() -> None:
     scene_seconds = time.perf_counter() - started
     started = time.perf_counter()
     baked = work / "crowd.hlod"
-    if args.reuse and baked.is_file() and _record_matches(package, scene, statues, baked):
+    if args.reuse and baked.is_file() and _record_matches(package, scene, statues, baked=baked):
         result = ["REUSED"]
     else:
         result = sorted(bpy.ops.hlod.bake())

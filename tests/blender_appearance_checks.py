@@ -261,12 +261,12 @@ def check_extraction(repo, work) -> dict:
     out["split"] = {"vertex": vertex.tolist(), "faces": faces.tolist(), "uv": split_uv.tolist()}
     # images as the preview gives them to the renderer: top row first, a float image's linear 0.5
     # sRGB-encoded (188), a byte image's values as they are
-    preview = importlib.import_module(NAME + ".addon.preview")
+    material_images = importlib.import_module(NAME + ".addon.material_images")
     rows = {}
     for name, float_buffer in (("byte", False), ("float", True)):
         image = bpy.data.images.new(name, 1, 2, float_buffer=float_buffer)
         image.pixels.foreach_set(np.array([1, 0, 0, 1, 0.5, 0.5, 0.5, 1], np.float32))  # bottom row first
-        rows[name] = preview.image_rgba8(image)[:, 0].tolist()
+        rows[name] = material_images.image_rgba8(image)[:, 0].tolist()
     out["image_rows"] = rows
     # a plain cube (Blender's default UV map, no material, no colour attribute): no appearance at all
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -353,7 +353,7 @@ def check_appearance(repo, work) -> dict:
     bpy.ops.hlod.preview_toggle()
     preview = importlib.import_module(NAME + ".addon.preview")
     houses = [bpy.data.objects["house"], bpy.data.objects["house twin"]]
-    out["images"] = {str(k): list(v.shape) for k, v in (preview._state.images or {}).items()}
+    out["images"] = {str(k): list(v.shape) for k, v in preview.PREVIEW.session.images.items()}
     out["gl"] = _preview_picture(package, scene, houses)
     props.private_context = True
     out["private"] = _preview_picture(package, scene, houses)

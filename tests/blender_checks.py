@@ -319,7 +319,7 @@ def check_preview(repo, work) -> dict:
     view, projection = blender_preview.camera_matrices(scene, size)
     offscreen = gpu.types.GPUOffScreen(*size)
     with offscreen.bind():
-        preview.safe_draw(scene, view, projection, *size, xray=True)
+        preview.safe_draw(scene, preview.view_from_matrices(view, projection, size), xray=True)
     offscreen.free()
     out["status_xray"] = props.status
     # the panel's CHC++ switches (defaults: both on) and Predict New Nodes reach the traversal's settings
@@ -344,7 +344,7 @@ def check_preview(repo, work) -> dict:
     try:
         props.tau = 1.5  # a new traversal object, with the broken frame()
         view, projection = blender_preview.camera_matrices(scene, size)
-        out["injected_return"] = repr(preview.safe_draw(scene, view, projection, *size))
+        out["injected_return"] = repr(preview.safe_draw(scene, preview.view_from_matrices(view, projection, size)))
     finally:
         traversal.Traversal.frame = original
     out["running_after_error"] = preview.running()
@@ -553,7 +553,7 @@ def _redraw(preview, scene, offscreen, census, view: np.ndarray, projection: np.
             gpu.matrix.load_matrix(Matrix(view.tolist()))
             gpu.matrix.load_projection_matrix(Matrix(projection.tolist()))
             _occluder_quad(shader)
-            preview.safe_draw(scene, view, projection, *LONG_SIZE)
+            preview.safe_draw(scene, preview.view_from_matrices(view, projection, LONG_SIZE))
         return census.drain_errors()
 
 

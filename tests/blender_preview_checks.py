@@ -1,5 +1,5 @@
-"""Checks of the preview in place of its sources (issue 20), inside the real bpy module, one per
-subprocess (tests/test_preview_in_place.py runs them):
+"""Checks of the preview in place of its sources, inside the real bpy module, one per subprocess
+(tests/test_preview_in_place.py runs them):
 
     python tests/blender_preview_checks.py REPO_DIR CHECK WORK_DIR
 
@@ -159,25 +159,16 @@ def draw_scene(package, *, preview: bool, text: bool = False, size=SIZE) -> np.n
                 gpu.matrix.load_matrix(view)
                 gpu.matrix.load_projection_matrix(projection)
                 if preview:
-                    module.safe_draw(scene, view, projection, *size)
+                    module.safe_draw(scene, module.view_from_matrices(view, projection, size))
             if text:
                 with gpu.matrix.push_pop(), gpu.matrix.push_pop_projection():
                     gpu.matrix.load_identity()
-                    gpu.matrix.load_projection_matrix(pixel_projection(size))
+                    gpu.matrix.load_projection_matrix(blender_preview.pixel_projection(size))
                     module.draw_corner_text(scene)
             pixels = np.array(fb.read_color(0, 0, size[0], size[1], 4, 0, "UBYTE").to_list(), np.uint8)
     finally:
         offscreen.free()
     return pixels.reshape(size[1], size[0], 4)
-
-
-def pixel_projection(size):
-    """POST_PIXEL's projection: region pixels, origin bottom left."""
-    from mathutils import Matrix
-
-    m = Matrix.Identity(4)
-    m[0][0], m[1][1], m[0][3], m[1][3] = 2.0 / size[0], 2.0 / size[1], -1.0, -1.0
-    return m
 
 
 def classify(pixels: np.ndarray) -> dict:

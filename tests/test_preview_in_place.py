@@ -1,5 +1,5 @@
-"""The preview as an artist uses it (issue 20): the HLOD drawn in place of the objects it was baked
-from. The extension is built by Blender's tool and installed as Blender installs it (tests/test_addon.py's
+"""The preview as an artist uses it: the HLOD drawn in place of the objects it was baked from. The
+extension is built by Blender's tool and installed as Blender installs it (tests/test_addon.py's
 fixtures); each check runs in its own bpy process (tests/blender_preview_checks.py), where Blender's
 own drawing is real (`GPUOffScreen.draw_view3d`). The corner text's wording is checked without Blender.
 """

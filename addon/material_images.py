@@ -1,0 +1,56 @@
+"""Material images read from Blender for the preview's renderer: bpy images (`Material.image`, the
+datablock of the material's Image Texture node) as (h, w, 4) uint8 RGBA, sRGB-encoded, top row
+first, the form `Renderer(images=...)` takes.
+"""
+from __future__ import annotations
+
+import logging
+
+import bpy
+import numpy as np
+
+from ..hlod_core.core.colour import srgb_from_linear
+
+log = logging.getLogger(__name__)
+
+
+def material_images(materials) -> dict[int, np.ndarray]:
+    """material row -> its image (`Material.image`, a bpy.data.images name) as the renderer takes
+    it: (h, w, 4) uint8 RGBA, sRGB-encoded, top row first. Each datablock is read once; materials
+    sharing it share the array (one texture). A name that is not in bpy.data.images, or an image
+    without pixels (a missing file), logs a warning: the material draws in its base colour."""
+    out, read = {}, {}
+    for row, material in enumerate(materials):
+        if not material.image:
+            continue
+        if material.image not in read:
+            image = bpy.data.images.get(material.image)
+            read[material.image] = image_rgba8(image) if image is not None else None
+            if read[material.image] is None:
+                log.warning("HLOD preview: material %r: image %r %s; drawn in its base colour", material.name,
+                            material.image, "is not in this .blend" if image is None else "has no pixels")
+        if read[material.image] is not None:
+            out[row] = read[material.image]
+    return out
+
+
+def image_rgba8(image) -> np.ndarray | None:
+    """A bpy image's pixels as (h, w, 4) uint8 RGBA, sRGB-encoded, top row first (Blender's rows are
+    bottom row first); None when it has none. Byte images hold their file's (sRGB) values, float
+    images (is_float) linear ones, which are encoded here."""
+    width, height = (int(v) for v in image.size)
+    channels = int(image.channels)
+    if width < 1 or height < 1 or channels not in (1, 2, 3, 4):
+        return None
+    values = np.empty(width * height * channels, np.float32)
+    image.pixels.foreach_get(values)
+    values = values.reshape(height, width, channels)
+    rgba = np.ones((height, width, 4), np.float32)
+    if channels >= 3:
+        rgba[..., :channels] = values
+    else:  # grey, grey + alpha
+        rgba[..., :3] = values[..., :1]
+        rgba[..., 3] = values[..., -1] if channels == 2 else 1.0
+    if image.is_float:
+        rgba[..., :3] = srgb_from_linear(rgba[..., :3])
+    return np.ascontiguousarray(np.round(np.clip(rgba[::-1], 0.0, 1.0) * 255.0).astype(np.uint8))
