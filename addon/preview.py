@@ -57,7 +57,7 @@ from ..hlod_core.core.errors import HlodError
 from ..hlod_core.render.glsl import FLAT_LIGHT, SRGB_FROM_LINEAR
 from ..hlod_core.model.hierarchy import node_geometry, node_mesh
 from ..hlod_core.model.view import View
-from ..hlod_core.traversal.methods import FrameStats
+from ..hlod_core.traversal.stats import FrameStats
 from . import glcontext, source_hiding, source_record, viewport_text
 from .settings import runtime_settings
 

@@ -54,7 +54,8 @@ import numpy as np
 from hlod_core.traversal import boxes, metrics
 from hlod_core.export import tiles3d
 from hlod_core.model.hierarchy import Hlod
-from hlod_core.traversal.methods import RuntimeSettings, make
+from hlod_core.traversal.methods import make
+from hlod_core.traversal.settings import RuntimeSettings
 from hlod_core.model.view import View, look_at, perspective
 
 #: Cesium's CesiumMath.EPSILON7: the smallest eye-to-box distance its SSE divides by.

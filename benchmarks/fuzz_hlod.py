@@ -394,7 +394,8 @@ def run_case(ctx, path: Path, index: int) -> dict:
     from hlod_core.model.camera_path import inspection_path
     from hlod_core.core.errors import HlodError
     from hlod_core.render.renderer import Renderer
-    from hlod_core.traversal.methods import RuntimeSettings, make
+    from hlod_core.traversal.methods import make
+    from hlod_core.traversal.settings import RuntimeSettings
 
     stage = "load"
     renderer = None

@@ -23,7 +23,8 @@ from hlod_core.render.gl_functions import GL, GLFunctions
 from hlod_core.report.image_error import psnr
 from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp
 from hlod_core.render.renderer import TEXTURE_UNIT, Renderer
-from hlod_core.traversal.methods import RuntimeSettings, make
+from hlod_core.traversal.methods import make
+from hlod_core.traversal.settings import RuntimeSettings
 from hlod_core.model.view import View
 
 from helpers import ROOT, baked, standalone_gl

@@ -16,7 +16,7 @@ from ..traversal.alpha_estimators import alpha_cube, alpha_projected
 from ..model.hierarchy import Hlod
 from ..model.view import View
 from ..render.renderer import Renderer
-from ..traversal.methods import ALPHA_MODES
+from ..traversal.settings import ALPHA_MODES
 
 #: Boxes sampled per view at most (seeded with SAMPLE_SEED), to bound the study's time.
 MAX_NODES_PER_VIEW = 300

@@ -56,7 +56,9 @@ from ..render.renderer import Renderer
 from .markdown import markdown
 from .showcase import modulation_frames
 from ..io.textures import load_images
-from ..traversal.methods import ALPHA_MODES, COUNTERS, RuntimeSettings, make
+from ..traversal.methods import make
+from ..traversal.settings import ALPHA_MODES, RuntimeSettings
+from ..traversal.stats import COUNTERS
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,9 @@ from ..model.hierarchy import Hlod
 from ..core.png import write_png
 from ..render.renderer import Renderer
 from ..io.textures import load_images
-from ..traversal.methods import COUNTERS, QUERY_COUNTERS, FrameStats, RuntimeSettings, make
+from ..traversal.methods import make
+from ..traversal.settings import RuntimeSettings
+from ..traversal.stats import COUNTERS, QUERY_COUNTERS, FrameStats
 
 
 def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,
