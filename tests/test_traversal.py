@@ -17,26 +17,27 @@ import moderngl
 import numpy as np
 import pytest
 
-from hlod_core.traversal import alpha_estimators, boxes, metrics
-from hlod_core.io import meshes, procedural
-from hlod_core.core import colour as overlay
 from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.model.camera_path import CameraPath, inspection_path
+from hlod_core.core import colour as overlay
+from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp
 from hlod_core.core.errors import InputError
+from hlod_core.io import meshes, procedural
+from hlod_core.model.camera_path import CameraPath, inspection_path
 from hlod_core.render.gl_functions import GL, GLFunctions
 from hlod_core.render.gl_state import GLState
-from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp
 from hlod_core.render.renderer import DEFAULT_COLOUR, Renderer
+from hlod_core.traversal import alpha_estimators, boxes, metrics
+from hlod_core.traversal.base import NEVER_FRAME
 from hlod_core.traversal.methods import METHODS, make
 from hlod_core.traversal.protocol import DELAY, MEASURE_RATIO, PREDICTED, REFINE, STOP
 from hlod_core.traversal.query_cost import CostModel, LinearCost
-from hlod_core.traversal.query_stream import NEVER_FRAME, keep_hidden, multiquery_groups
+from hlod_core.traversal.query_stream import keep_hidden, multiquery_groups
 from hlod_core.traversal.settings import RuntimeSettings
 from hlod_core.traversal.stats import COUNTERS, QUERY_COUNTERS, FrameStats
 
 from helpers import ScriptedAvailability, baked_city, load_model, standalone_gl, street_path
 
-pytestmark = pytest.mark.gl  # every test here draws with a real OpenGL context
+pytestmark = pytest.mark.gl  # almost every test here draws with a real OpenGL context
 
 SIZE = (320, 240)
 #: Results this many issued commands late (the latency of a GPU behind the CPU).

@@ -18,11 +18,14 @@ import numpy as np
 
 from . import alpha_estimators, boxes, metrics
 from .protocol import NodeRenderer, QueryHandle
-from .query_stream import NEVER_FRAME
 from .settings import RuntimeSettings
 from .stats import MS_PER_S, FrameStats
 from ..model.hierarchy import Hlod
 from ..model.view import View
+
+#: Frame id of "never": far enough below frame 1 that no "visited last frame" and no "measured
+#: within measure_every frames" (RuntimeSettings.measure_every, any int64-sized period) holds for it.
+NEVER_FRAME = -(1 << 40)
 
 
 def state_array(values: list, dtype) -> np.ndarray:

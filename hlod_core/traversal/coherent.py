@@ -20,9 +20,9 @@ from collections import deque
 
 import numpy as np
 
-from .base import Traversal, state_array
+from .base import NEVER_FRAME, Traversal, state_array
 from .protocol import DELAY, MEASURE_RATIO, MULTIQUERY, PREDICTED, REFINE, STOP, Pending, QueryHandle
-from .query_stream import NEVER_FRAME, QueryStream
+from .query_stream import QueryStream
 from .settings import RuntimeSettings
 from .skipping import SkippedQueries
 from .stats import MS_PER_S
@@ -46,7 +46,7 @@ class CoherentLoop(Traversal):
     def __init__(self, hlod, renderer, settings=RuntimeSettings(), *, recheck_seed: int = 0):
         super().__init__(hlod, renderer, settings)
         n = hlod.node_count
-        self.skips = None
+        self.skips: SkippedQueries | None = None
         if self.skips_queries and settings.skip_queries != "off":
             self.skips = SkippedQueries(hlod, mode=settings.skip_queries, recheck_seed=recheck_seed,
                                         box_pixels_given=settings.alpha == "projected")

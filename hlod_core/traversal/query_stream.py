@@ -11,15 +11,13 @@ from __future__ import annotations
 import math
 from collections import deque
 
+from .base import NEVER_FRAME
 from .protocol import DELAY, MULTIQUERY, NodeRenderer, QueryHandle
 from .settings import RuntimeSettings
 
 #: CHC++'s estimate (§4.1, fitted there on several scenes) that a node hidden in each of the last i
 #: frames is hidden in this one: p_keep(i) = KEEP_LIMIT - KEEP_SPREAD exp(-i).
 KEEP_LIMIT, KEEP_SPREAD = 0.99, 0.7
-#: Frame id of "never": far enough below frame 1 that no "visited last frame" and no "measured
-#: within measure_every frames" (RuntimeSettings.measure_every, any int64-sized period) holds for it.
-NEVER_FRAME = -(1 << 40)
 
 
 def keep_hidden(frames: int) -> float:
