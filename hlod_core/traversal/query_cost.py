@@ -7,9 +7,9 @@ Data form: a sample is (count, size, seconds): `count` queries (or draw calls) o
 (or triangles) in all, timed together. A linear model seconds = count * fixed + size * per_unit is
 fitted by least squares over the samples (`fit_linear`), one for queries (per query, per box
 pixel) and one for draws (per draw call, per triangle); `CostModel` holds both, with each fit's
-relative residual. `box_pixels` estimates the pixels a box covers on screen, vectorised over boxes
-(the projected areas of its three face directions); `BoxAreas` keeps its view-independent terms
-for a node table, `NodeCosts` those of the skip test, and `draw_is_cheaper` is the skip test of a
+relative residual. `BoxAreas` estimates the pixels boxes cover on screen, vectorised over boxes
+(the projected areas of their three face directions), from view-independent terms found once for
+a node table; `NodeCosts` holds the skip test's terms and `draw_is_cheaper` is the skip test of a
 frame's few candidate nodes. No GL here: the renderer times the samples (its `cost_model`).
 """
 from __future__ import annotations
@@ -83,46 +83,30 @@ class CostModel:
                 f"{self.draw.per_unit_s * 1e9:.3f} ns/triangle (residual {self.draw.residual:.0%}); {self.clock} clock")
 
 
-def box_pixels(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
-    """(n,) pixels the (n,3) boxes cover on screen, estimated as a parallel projection along the
-    line of sight to each box's centre: sum over the three axes of the face area perpendicular to
-    it times |cos| of its angle to that line, scaled by (pixels per unit at the centre's
-    distance)^2, at most the viewport. Within a factor of about 2 of the exact silhouette
-    (alpha_estimators.alpha_projected) for boxes in front of the eye and unlike the equal-volume
-    cube, it keeps flat boxes' areas. A box holding the eye gets the whole viewport."""
-    return BoxAreas.of(box_min, box_max).pixels(view)
-
-
 @dataclass(frozen=True, eq=False)
 class BoxAreas:
-    """`box_pixels` with the per-box terms that do not depend on the view (the three face areas, the
-    centres) found once: (n,3) float64 each, model units, for a node table's query boxes; a
-    traversal asks for a few of them a frame (`pixels(view, nodes)`)."""
+    """The pixels boxes cover on screen, estimated as a parallel projection along the line of sight
+    to each box's centre: the sum over the three axes of the face area perpendicular to it times
+    |cos| of its angle to that line, scaled by (pixels per unit at the centre's distance)^2, at most
+    the viewport. Within a factor of about 2 of the exact silhouette (alpha_estimators.alpha_projected)
+    for boxes in front of the eye; unlike the equal-volume cube, it keeps flat boxes' areas. Holds the
+    per-box terms that do not depend on the view, found once for a node table's query boxes: the
+    three face areas and the centres, (n,3) float64 each, model units."""
 
-    lo: np.ndarray
-    hi: np.ndarray
     faces: np.ndarray
     centre: np.ndarray
 
     @classmethod
     def of(cls, box_min: np.ndarray, box_max: np.ndarray) -> "BoxAreas":
+        """From (n,3) bounds, model units."""
         lo, hi = np.array(box_min, np.float64), np.array(box_max, np.float64)
         ext = hi - lo
         faces = np.stack([ext[:, 1] * ext[:, 2], ext[:, 0] * ext[:, 2], ext[:, 0] * ext[:, 1]], axis=1)
-        return cls(lo=lo, hi=hi, faces=faces, centre=0.5 * (lo + hi))
-
-    def pixels(self, view: View, nodes: np.ndarray | None = None) -> np.ndarray:
-        """box_pixels of the boxes `nodes` (all when None)."""
-        area = self.pixels_outside(view, nodes)
-        if view.orthographic:
-            return area
-        lo, hi = (self.lo, self.hi) if nodes is None else (self.lo[nodes], self.hi[nodes])
-        inside = np.all((view.eye >= lo) & (view.eye <= hi), axis=1)
-        return np.where(inside, float(view.width * view.height), area)
+        return cls(faces=faces, centre=0.5 * (lo + hi))
 
     def pixels_outside(self, view: View, nodes: np.ndarray | None = None) -> np.ndarray:
-        """`pixels` of boxes known not to hold the eye (the traversal's queryable boxes): the same
-        values without the test (a box holding the eye would get its area, not the viewport)."""
+        """(m,) estimated pixels of the boxes `nodes` (all when None), boxes known not to hold the
+        eye (the traversal's queryable boxes: a box holding it would get its area, not the viewport)."""
         pick = (lambda a: a) if nodes is None else (lambda a: a[nodes])
         faces = pick(self.faces)
         screen = float(view.width * view.height)
