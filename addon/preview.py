@@ -26,7 +26,7 @@ from ..hlod_core.core.errors import HlodError
 from ..hlod_core.io import hlod_file
 from ..hlod_core.model.hierarchy import Hlod
 from ..hlod_core.model.view import View
-from ..hlod_core.traversal.methods import FrameStats
+from ..hlod_core.traversal.stats import FrameStats
 from . import glcontext, source_hiding, source_record, viewport_text
 from .material_images import material_images
 from .preview_boxes import draw_boxes

@@ -11,7 +11,9 @@ from ..hlod_core.model.hierarchy import Hlod
 from ..hlod_core.model.view import View
 from ..hlod_core.render.gl_state import GLState
 from ..hlod_core.render.renderer import Renderer
-from ..hlod_core.traversal.methods import FrameStats, RuntimeSettings, make
+from ..hlod_core.traversal.methods import make
+from ..hlod_core.traversal.settings import RuntimeSettings
+from ..hlod_core.traversal.stats import FrameStats
 
 
 class GLMode:
@@ -35,7 +37,7 @@ class GLMode:
             self.renderer = Renderer(ctx, self.hlod, time_gpu=False, images=self.images)
             self._traversal, self._key = None, None
         if self._key != (method, settings):
-            self._traversal = make(method, self.hlod, self.renderer, settings)
+            self._traversal = make(method, self.hlod, self.renderer, settings=settings)
             self._key = (method, settings)
         self.renderer.overlay = overlay  # colour is the drawing side's choice
         saved = GLState(self.renderer.gl).save()

@@ -12,7 +12,9 @@ from ..hlod_core.core.colour import modulation_colour
 from ..hlod_core.model.hierarchy import Hlod
 from ..hlod_core.model.view import View
 from ..hlod_core.render.renderer import Renderer
-from ..hlod_core.traversal.methods import FrameStats, RuntimeSettings, make
+from ..hlod_core.traversal.methods import make
+from ..hlod_core.traversal.settings import RuntimeSettings
+from ..hlod_core.traversal.stats import FrameStats
 from . import glcontext
 from .preview_contexts import GLContexts
 from .preview_gpu import NodeBatches
@@ -41,7 +43,7 @@ class PrivateMode:
             if self.renderer is None:
                 self.renderer = Renderer(ctx, self.hlod, size=size)
             if self._key != (method, settings):
-                self._traversal = make(method, self.hlod, self.renderer, settings)
+                self._traversal = make(method, self.hlod, self.renderer, settings=settings)
                 self._key = (method, settings)
             stats = self._traversal.frame(view)
         colours = modulation_colour(self._traversal.modulation(stats.drawn)) if modulation else None

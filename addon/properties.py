@@ -10,7 +10,7 @@ import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
                        PointerProperty, StringProperty)
 
-from ..hlod_core.traversal.methods import RuntimeSettings
+from ..hlod_core.traversal.settings import RuntimeSettings
 from . import preview, source_record
 
 # Path properties that may hold a path relative to the .blend ("//..."). Blender 5.0 and later (not

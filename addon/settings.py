@@ -7,7 +7,7 @@ from __future__ import annotations
 import os
 
 from ..hlod_core.bake.pipeline import BakeSettings
-from ..hlod_core.traversal.methods import RuntimeSettings
+from ..hlod_core.traversal.settings import RuntimeSettings
 
 
 def default_jobs() -> int:

@@ -54,7 +54,8 @@ import numpy as np
 from hlod_core.traversal import boxes, metrics
 from hlod_core.export import tiles3d
 from hlod_core.model.hierarchy import Hlod
-from hlod_core.traversal.methods import RuntimeSettings, make
+from hlod_core.traversal.methods import make
+from hlod_core.traversal.settings import RuntimeSettings
 from hlod_core.model.view import View, look_at, perspective
 
 #: Cesium's CesiumMath.EPSILON7: the smallest eye-to-box distance its SSE divides by.
@@ -373,7 +374,7 @@ class SelectionOnly:
 def vfc_nodes(hlod: Hlod, camera: Camera, tau_px: float, renderer=None) -> list[int]:
     """The nodes our VFC traversal draws for `camera` at threshold `tau_px` (traversal.VFC, one frame),
     in draw order; `renderer` defaults to SelectionOnly."""
-    traversal = make("vfc", hlod, renderer or SelectionOnly(hlod), RuntimeSettings(tau=tau_px))
+    traversal = make("vfc", hlod, renderer or SelectionOnly(hlod), settings=RuntimeSettings(tau=tau_px))
     return list(traversal.frame(camera.view()).drawn)
 
 
@@ -428,7 +429,7 @@ def explain(ts: Tileset, hlod: Hlod, camera: Camera, tau_px: float, ours: set, c
     nodes = node_of_row(ts, hlod)
     in_frustum = boxes.boxes_in_frustum(view, hlod.box_min, hlod.box_max)
     sphere_d = metrics.sphere_distance(view, hlod.sphere_center, hlod.sphere_radius)
-    our_sse = metrics.sse(view, hlod.error, hlod.sphere_center, hlod.sphere_radius, hlod.is_leaf)
+    our_sse = metrics.sse(view, hlod.error, center=hlod.sphere_center, radius=hlod.sphere_radius, is_leaf=hlod.is_leaf)
     out = []
     for uri in sorted(ours ^ cesium, key=lambda u: (ts.depth[ts.row_of_uri[u]], u)):
         row = ts.row_of_uri[uri]

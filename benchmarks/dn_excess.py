@@ -1,4 +1,4 @@
-"""Where Coh draws more nodes than SW (issue 15's DN targets): both traversals run on every frame of
+"""Where Coh draws more nodes than SW (the DN targets: README): both traversals run on every frame of
 a path, one after the other on the same view and renderer, and each node Coh draws that SW does
 not is put in the first class that fits:
 
@@ -32,7 +32,8 @@ from hlod_core.io import hlod_file
 from hlod_core.model.camera_path import load_path
 from hlod_core.render.renderer import Renderer
 from hlod_core.io.textures import load_images
-from hlod_core.traversal.methods import RuntimeSettings, make
+from hlod_core.traversal.methods import make
+from hlod_core.traversal.settings import RuntimeSettings
 
 #: Variants of Coh's settings by name (the rest are the defaults).
 VARIANTS = {"default": {}, "skip_off": {"skip_queries": "off"}, "predict_off": {"predict_new": "off"},
@@ -48,7 +49,7 @@ def _ancestors(parent: np.ndarray, node: int) -> list[int]:
     return out
 
 
-def classify(parent: np.ndarray, coh_drawn, sw_drawn, sw_visited: np.ndarray, sw_visible: np.ndarray) -> Counter:
+def classify(parent: np.ndarray, *, coh_drawn, sw_drawn, sw_visited: np.ndarray, sw_visible: np.ndarray) -> Counter:
     """The classes (module docstring) of the nodes in coh_drawn but not sw_drawn; `missing` too.
     sw_visited, sw_visible: (n,) bool, SW's visits this frame and their visibility."""
     sw_set, coh_set = set(sw_drawn), set(coh_drawn)
@@ -70,12 +71,12 @@ def classify(parent: np.ndarray, coh_drawn, sw_drawn, sw_visited: np.ndarray, sw
     return out
 
 
-def run(hlod, path, size, variant: dict) -> dict:
+def run(hlod, path, size, *, variant: dict) -> dict:
     """One pass of SW and Coh (with `variant`'s settings) over `path`, frame by frame."""
     renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod))
     try:
-        sw = make("sw", hlod, renderer, RuntimeSettings())
-        coh = make("coh", hlod, renderer, RuntimeSettings(**variant))
+        sw = make("sw", hlod, renderer, settings=RuntimeSettings())
+        coh = make("coh", hlod, renderer, settings=RuntimeSettings(**variant))
         classes, totals = Counter(), Counter()
         for i in range(len(path)):
             view = path.view(i, size)
@@ -83,7 +84,8 @@ def run(hlod, path, size, variant: dict) -> dict:
             c = coh.frame(view)
             visited = sw.last_visited == sw.frame_id
             extra = set(c.drawn) - set(s.drawn)
-            classes += classify(hlod.parent, c.drawn, s.drawn, visited, sw.visible)
+            classes += classify(hlod.parent, coh_drawn=c.drawn, sw_drawn=s.drawn, sw_visited=visited,
+                                sw_visible=sw.visible)
             totals["sw"] += s.dn
             totals["coh"] += c.dn
             totals["skipped"] += len(extra & set(c.skipped))
@@ -109,7 +111,7 @@ def main() -> None:
     hlod, path = hlod_file.load(args.file), load_path(args.path)
     table = {}
     for name in args.variants:
-        table[name] = run(hlod, path, size, VARIANTS[name])
+        table[name] = run(hlod, path, size, variant=VARIANTS[name])
         print(json.dumps({"variant": name, **table[name]}), flush=True)
     print("| Coh variant | DN Coh / SW | " + " | ".join(f"extra: {c}" for c in CLASSES)
           + " | missing | extra skipped |")

@@ -60,8 +60,8 @@ def drawn_per_frame(hlod, path) -> dict:
     for i in range(len(path)):
         view = path.view(i, VIEWPORT_PX)
         inside = boxes.boxes_in_frustum(view, hlod.box_min, hlod.box_max)
-        refine = ~hlod.is_leaf & ~(metrics.sse(view, hlod.error, hlod.sphere_center, hlod.sphere_radius,
-                                               hlod.is_leaf) <= TAU_PX)
+        refine = ~hlod.is_leaf & ~(metrics.sse(view, hlod.error, center=hlod.sphere_center, radius=hlod.sphere_radius,
+                                               is_leaf=hlod.is_leaf) <= TAU_PX)
         reached = np.zeros(hlod.node_count, bool)
         reached[0] = inside[0]
         for level in levels:

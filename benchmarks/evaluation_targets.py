@@ -1,5 +1,5 @@
-"""Which targets of the evaluation issue an evaluation report meets (the targets are the issue's
-acceptance thresholds, not product behaviour: the report itself holds only measured figures).
+"""Which evaluation targets an evaluation report meets (the targets are acceptance thresholds,
+not product behaviour: the report itself holds only measured figures).
 
     .venv/bin/python -m benchmarks.evaluation_targets DIR/report.json [--strict]
 

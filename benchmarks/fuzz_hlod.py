@@ -394,7 +394,8 @@ def run_case(ctx, path: Path, index: int) -> dict:
     from hlod_core.model.camera_path import inspection_path
     from hlod_core.core.errors import HlodError
     from hlod_core.render.renderer import Renderer
-    from hlod_core.traversal.methods import RuntimeSettings, make
+    from hlod_core.traversal.methods import make
+    from hlod_core.traversal.settings import RuntimeSettings
 
     stage = "load"
     renderer = None
@@ -408,7 +409,7 @@ def run_case(ctx, path: Path, index: int) -> dict:
         camera = inspection_path(hlod, seed=max(index, 0), frames=RENDER_FRAMES)
         frames = 0
         for method in RENDER_METHODS:
-            traversal = make(method, hlod, renderer, RuntimeSettings())
+            traversal = make(method, hlod, renderer, settings=RuntimeSettings())
             for i in range(len(camera)):
                 traversal.frame(camera.view(i, RENDER_SIZE))
                 frames += 1

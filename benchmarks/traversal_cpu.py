@@ -1,7 +1,7 @@
-"""The traversal's own Python CPU cost per visited node, each method, with the GL calls excluded
-(issue 15): the real renderer runs every draw and query, and a timing proxy around it takes the time
+"""The traversal's own Python CPU cost per visited node, each method, with the GL calls excluded:
+the real renderer runs every draw and query, and a timing proxy around it takes the time
 spent inside the renderer (GL calls, waits for query results, the frame's start and end) out of the
-frame; what is left is the traversal's Python (the per-frame vectorised `_prepare` and the walk).
+frame; what is left is the traversal's Python (the per-frame vectorised `prepare` and the walk).
 
     .venv/bin/python -m benchmarks.traversal_cpu FILE.hlod --path PATH.json [--size 640x480] [--repeat 2]
         [--methods coh sw ...] [--alpha query|projected|cube] [--clock wall|thread] [--renderer gl|null]
@@ -33,6 +33,8 @@ import statistics
 import sys
 import time
 from pathlib import Path
+from types import ModuleType
+from typing import NamedTuple
 
 import numpy as np
 
@@ -42,7 +44,8 @@ from hlod_core.model.hierarchy import Hlod, query_box_pad
 from hlod_core.render.queries import Query
 from hlod_core.render.renderer import Renderer
 from hlod_core.io.textures import load_images
-from hlod_core.traversal.methods import METHODS, RuntimeSettings, make
+from hlod_core.traversal.methods import METHODS, make
+from hlod_core.traversal.settings import RuntimeSettings
 
 US_PER_S = 1e6
 MS_PER_S = 1e3
@@ -62,7 +65,7 @@ class TimedRenderer:
         self.inside_s = 0.0
         self.calls = 0
         for name in RENDERER_CALLS:
-            if hasattr(renderer, name):  # the batched calls are optional (traversal.NodeRenderer)
+            if hasattr(renderer, name):  # the batched calls are optional (traversal.protocol.NodeRenderer)
                 setattr(self, name, self._timed(getattr(renderer, name)))
 
     def _timed(self, call):
@@ -124,7 +127,7 @@ class NullRenderer:
         pass
 
 
-def _proxy_overhead_s(calls: int = 20000, clock=time.perf_counter) -> float:
+def proxy_overhead_s(calls: int = 20000, clock=time.perf_counter) -> float:
     """Seconds the proxy adds per call outside its own clock reads (the closure, the counter), measured
     here and taken out of the traversal's time."""
     proxy = TimedRenderer.__new__(TimedRenderer)
@@ -136,9 +139,16 @@ def _proxy_overhead_s(calls: int = 20000, clock=time.perf_counter) -> float:
     return max(0.0, (clock() - started - proxy.inside_s) / calls)
 
 
-def baseline_traversal(folder: str):
-    """The `traversal` module of the hlod_core package in `folder`, imported as package
-    hlod_core_baseline (its relative imports resolve inside it)."""
+class Baseline(NamedTuple):
+    """Another version's traversal: the module with its `make`, and its RuntimeSettings class."""
+
+    methods: ModuleType
+    settings_type: type
+
+
+def baseline_traversal(folder: str) -> Baseline:
+    """The traversal of the hlod_core package in `folder`, imported as package hlod_core_baseline
+    (its relative imports resolve inside it)."""
     package = Path(folder) / "hlod_core"
     flat = (package / "traversal.py").is_file()  # a version from before the subpackages
     if not flat and not (package / "traversal" / "methods.py").is_file():
@@ -150,29 +160,35 @@ def baseline_traversal(folder: str):
     module = importlib.util.module_from_spec(spec)
     sys.modules["hlod_core_baseline"] = module
     spec.loader.exec_module(module)
-    return importlib.import_module("hlod_core_baseline.traversal" + ("" if flat else ".methods"))
+    methods = importlib.import_module("hlod_core_baseline.traversal" + ("" if flat else ".methods"))
+    if hasattr(methods, "RuntimeSettings"):  # a version before traversal/settings.py
+        return Baseline(methods, methods.RuntimeSettings)
+    return Baseline(methods, importlib.import_module("hlod_core_baseline.traversal.settings").RuntimeSettings)
 
 
-def measure(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,
-            renderer: Renderer, call_overhead_s: float, clock=time.perf_counter, traversal_module=None) -> dict:
+def measure(hlod: Hlod, method: str, path: CameraPath, *, settings: RuntimeSettings, size: tuple[int, int],
+            renderer: Renderer, call_overhead_s: float, clock=time.perf_counter,
+            baseline: Baseline | None = None) -> dict:
     """One pass of `method` over `path`: per-frame means of the traversal's Python time (`clock`
-    seconds; call_overhead_s measured with the same clock). traversal_module: another version's
-    traversal module (`baseline_traversal`), its RuntimeSettings made from `settings`' fields."""
+    seconds; call_overhead_s measured with the same clock). baseline: another version's traversal
+    (`baseline_traversal`), its RuntimeSettings made from `settings`' fields."""
     proxy = TimedRenderer(renderer, clock)
-    if traversal_module is None:
-        traversal = make(method, hlod, proxy, settings)
+    if baseline is None:
+        traversal = make(method, hlod, proxy, settings=settings)
     else:
-        fields = traversal_module.RuntimeSettings.__dataclass_fields__
-        theirs = traversal_module.RuntimeSettings(**{k: v for k, v in vars(settings).items() if k in fields})
-        traversal = traversal_module.make(method, hlod, proxy, theirs)
-    prepare = traversal._prepare
+        fields = baseline.settings_type.__dataclass_fields__
+        theirs = baseline.settings_type(**{k: v for k, v in vars(settings).items() if k in fields})
+        traversal = baseline.methods.make(method, hlod, proxy, settings=theirs)
+    # the per-frame vectorised step, `prepare` (`_prepare` in versions before the traversal's subpackage)
+    prepare_name = "prepare" if hasattr(traversal, "prepare") else "_prepare"
+    prepare = getattr(traversal, prepare_name)
     prepare_s = {"s": 0.0}
 
     def timed_prepare(view):
         started = clock()
         prepare(view)
         prepare_s["s"] += clock() - started
-    traversal._prepare = timed_prepare
+    setattr(traversal, prepare_name, timed_prepare)
     visited = 0
     total_s = 0.0
     for i in range(len(path)):
@@ -191,9 +207,10 @@ def measure(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath
 
 
 def run(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: list[str], repeat: int,
-        settings: RuntimeSettings, clock: str = "wall", null_renderer: bool = False, baseline=None) -> dict:
-    """{row: medians}, a row per method, and per "METHOD (baseline)" with a baseline module."""
-    overhead_s = _proxy_overhead_s(clock=CLOCKS[clock])
+        settings: RuntimeSettings, clock: str = "wall", null_renderer: bool = False,
+        baseline: Baseline | None = None) -> dict:
+    """{row: medians}, a row per method, and per "METHOD (baseline)" with a baseline."""
+    overhead_s = proxy_overhead_s(clock=CLOCKS[clock])
     versions = [(m, m, None) for m in methods]
     if baseline is not None:  # each method's two versions side by side, alternating which goes first
         versions = [v for m in methods for v in ((m, m, None), (f"{m} (baseline)", m, baseline))]
@@ -205,8 +222,8 @@ def run(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: list[st
     try:
         for rep in range(repeat):
             for row, method, module in (versions if rep % 2 == 0 else versions[::-1]):
-                runs[row].append(measure(hlod, method, settings, path, size, renderer=renderer,
-                                         call_overhead_s=overhead_s, clock=CLOCKS[clock], traversal_module=module))
+                runs[row].append(measure(hlod, method, path, settings=settings, size=size, renderer=renderer,
+                                         call_overhead_s=overhead_s, clock=CLOCKS[clock], baseline=module))
     finally:
         renderer.release()
     return {row: {k: statistics.median(r[k] for r in runs[row]) for k in runs[row][0]} for row in runs}

@@ -27,7 +27,9 @@ from hlod_core.report import image_error
 from hlod_core.model.camera_path import inspection_path, load_path
 from hlod_core.render.renderer import Renderer
 from hlod_core.report.runner import run_path
-from hlod_core.traversal.methods import COUNTERS, QUERY_COUNTERS, RuntimeSettings, make
+from hlod_core.traversal.methods import make
+from hlod_core.traversal.settings import RuntimeSettings
+from hlod_core.traversal.stats import COUNTERS, QUERY_COUNTERS
 
 #: The per-frame means each row reports.
 ROW_COUNTERS = COUNTERS + QUERY_COUNTERS
@@ -47,7 +49,7 @@ def parse_entry(entry: str) -> tuple[str, RuntimeSettings]:
     return method, RuntimeSettings(**values)
 
 
-def psnr_y(hlod, renderer, path, size, entries: list[str], reference: str, frames: int) -> dict[str, float]:
+def psnr_y(hlod, renderer, path, *, size, entries: list[str], reference: str, frames: int) -> dict[str, float]:
     """Mean PSNR-Y (dB) of each entry's frames against the reference's on `frames` frames spread
     over the path; every traversal runs every frame (coherence), images compared where chosen."""
     chosen = set(np.linspace(0, len(path) - 1, frames).round().astype(int).tolist())
@@ -67,7 +69,7 @@ def psnr_y(hlod, renderer, path, size, entries: list[str], reference: str, frame
 
 def _make(entry, hlod, renderer):
     method, settings = parse_entry(entry)
-    return make(method, hlod, renderer, settings)
+    return make(method, hlod, renderer, settings=settings)
 
 
 def main() -> None:
@@ -102,8 +104,8 @@ def main() -> None:
             for entry in (entries if rep % 2 == 0 else entries[::-1]):
                 method, settings = parse_entry(entry)
                 runs[entry].append(run_path(hlod, method, settings, path, size, renderer=renderer))
-        psnr = psnr_y(hlod, renderer, path, size, entries, args.psnr_reference, args.psnr_frames) \
-            if args.psnr_frames else {}
+        psnr = psnr_y(hlod, renderer, path, size=size, entries=entries, reference=args.psnr_reference,
+                      frames=args.psnr_frames) if args.psnr_frames else {}
     finally:
         renderer.release()
     table = {e: {c: statistics.median(r[c] for r in runs[e]) for c in ROW_COUNTERS} for e in entries}

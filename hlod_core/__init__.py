@@ -6,8 +6,8 @@ Public API:
     fileformat.save / fileformat.load; checks.check(hlod)
     renderer.Renderer (moderngl: standalone EGL or a caller's context; GL entry points and enums in
         gl_functions, query objects in queries, host GL state in gl_state)
-    traversal.make(method, hlod, renderer, RuntimeSettings).frame(view.View) -> FrameStats
-        (any renderer with traversal.NodeRenderer's methods; counters named in traversal.COUNTERS)
+    traversal.methods.make(method, hlod, renderer, settings=RuntimeSettings).frame(view.View) -> FrameStats
+        (any renderer with traversal.protocol.NodeRenderer's methods; counters named in traversal.stats.COUNTERS)
     camera.load_path / camera.inspection_path; runner.run_path
     evaluate.evaluate (report.json, report.md via report_text, figures via report_figures and
         showcase; image error in imagemetrics, alpha estimators in alpha_study)

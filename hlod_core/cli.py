@@ -43,7 +43,7 @@ from .bake.pipeline import ERROR_MEASURES, BakeSettings, bake
 from .core.errors import HlodError, InputError
 from .export.formats import check_output_file, export_hlod
 from .core.signals import Terminated, signals_as_exceptions
-from .traversal.methods import BATCH_QUERY_MODES, MULTIQUERY_MODES, PREDICT_NEW_MODES, SKIP_QUERY_MODES, RuntimeSettings
+from .traversal.settings import BATCH_QUERY_MODES, MULTIQUERY_MODES, PREDICT_NEW_MODES, SKIP_QUERY_MODES, RuntimeSettings
 
 log = logging.getLogger("hlod_core")
 
@@ -495,7 +495,7 @@ def _parse_size(text: str) -> tuple[int, int]:
 def _runtime_setup(args, bias: str = "P"):
     """(hlod, settings, path, size) of the run and evaluate commands, validated before any GL work."""
     from .model.camera_path import inspection_path, load_path
-    from .traversal.methods import RuntimeSettings
+    from .traversal.settings import RuntimeSettings
 
     size = _parse_size(args.size)
     settings = RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha,

@@ -479,8 +479,8 @@ def check_render(repo, work) -> dict:
     view, projection = (np.array(m, np.float64) for m in blender_preview.camera_matrices(scene, RENDER_SIZE))
     camera = View(eye=np.array(FAR_EYE, np.float64), view=view, projection=projection, width=RENDER_SIZE[0],
                   height=RENDER_SIZE[1])
-    out["root_sse_px"] = float(sse(camera, hlod.error[:1], hlod.sphere_center[:1], hlod.sphere_radius[:1],
-                                   np.zeros(1, bool))[0])
+    out["root_sse_px"] = float(sse(camera, hlod.error[:1], center=hlod.sphere_center[:1], radius=hlod.sphere_radius[:1],
+                                   is_leaf=np.zeros(1, bool))[0])
     scene_pixels = np.any(np.abs(source.astype(int) - source[0, 0].astype(int)) > BACKGROUND_LEVELS, axis=2)
     rows, cols = np.flatnonzero(scene_pixels.any(axis=1)), np.flatnonzero(scene_pixels.any(axis=0))
     crop = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # the scene's rectangle

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from hlod_core.report.evaluate import METHOD_SPECS
-from hlod_core.traversal.methods import RuntimeSettings
+from hlod_core.traversal.settings import RuntimeSettings
 
 from helpers import BLENDERS, ROOT, blender_python
 

@@ -12,7 +12,8 @@ from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.model.camera_path import MAX_MAGNITUDE, inspection_path, load_path
 from hlod_core.core.errors import InputError
 from hlod_core.render.renderer import Renderer
-from hlod_core.traversal.methods import RuntimeSettings, make
+from hlod_core.traversal.methods import make
+from hlod_core.traversal.settings import RuntimeSettings
 
 GOOD_FRAME = {"eye": [0.2, -3.0, 0.5], "target": [0.2, 0.0, 0.3], "up": [0, 0, 1]}
 
@@ -93,7 +94,7 @@ def _drawn_nodes(ctx, hlod, method: str, size=(128, 96)) -> np.ndarray:
     path = inspection_path(hlod, seed=4, frames=12)
     renderer = Renderer(ctx, hlod, size=size)
     try:
-        traversal = make(method, hlod, renderer, RuntimeSettings())
+        traversal = make(method, hlod, renderer, settings=RuntimeSettings())
         return np.array([traversal.frame(path.view(i, size)).dn for i in range(len(path))], float)
     finally:
         renderer.release()

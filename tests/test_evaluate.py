@@ -16,7 +16,8 @@ from hlod_core.io import procedural
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.core.errors import InputError
-from hlod_core.traversal.methods import COUNTERS, RuntimeSettings
+from hlod_core.traversal.settings import RuntimeSettings
+from hlod_core.traversal.stats import COUNTERS
 from hlod_core.model.view import look_at, perspective
 
 from helpers import ROOT

@@ -23,7 +23,7 @@ def no_numpy_warnings():
             yield
 
 
-def _view(eye=(0, 0, 10), target=(0, 0, 0), size=(640, 480), fovy=60.0, near=0.01, far=1000.0, ortho=None):
+def _view(*, eye=(0, 0, 10), target=(0, 0, 0), size=(640, 480), fovy=60.0, near=0.01, far=1000.0, ortho=None):
     w, h = size
     proj = orthographic(ortho, w / h, near, far) if ortho else perspective(fovy, w / h, near, far)
     return View(eye=np.array(eye, float), view=look_at(eye, target, (0, 1, 0)), projection=proj, width=w, height=h)
@@ -34,7 +34,7 @@ def _view(eye=(0, 0, 10), target=(0, 0, 0), size=(640, 480), fovy=60.0, near=0.0
 @pytest.mark.parametrize("k", KS)
 @pytest.mark.parametrize("s, t", PAPER_ST + [(0.5, 0.0), (0.5, 1.0), (1.0, 0.3), (0.0, 0.4), (1.0, 0.0), (1.0, 1.0)])
 def test_bias_endpoints_monotone_and_finite(s, t, k):
-    p = metrics.bias(MU, s, t, k)
+    p = metrics.bias(MU, s, t, k=k)
     assert p[0] == 0.0 and p[-1] == 1.0  # exactly, for every s, t, k
     assert np.all(np.isfinite(p)) and np.all((p >= 0) & (p <= 1))
     assert np.all(np.diff(p) >= 0)
@@ -42,13 +42,13 @@ def test_bias_endpoints_monotone_and_finite(s, t, k):
 
 @pytest.mark.parametrize("k", KS)
 def test_s_zero_is_mu(k):
-    assert np.array_equal(metrics.bias(MU, 0.0, 0.3, k), MU)
+    assert np.array_equal(metrics.bias(MU, 0.0, 0.3, k=k), MU)
 
 
 @pytest.mark.parametrize("s, t", PAPER_ST + [(1.0, 0.5), (0.5, 0.99)])
 @pytest.mark.parametrize("k", [1e2, 1e3, 1e6, 1e9, np.inf])
 def test_aggressive_below_t_conservative_above(s, t, k):
-    p = metrics.bias(MU, s, t, k)
+    p = metrics.bias(MU, s, t, k=k)
     band = metrics.band_half_width(k)
     below, above = MU < t - band, MU >= t + band
     assert np.all(p[below] <= MU[below] + 1e-15)
@@ -60,9 +60,10 @@ def test_aggressive_below_t_conservative_above(s, t, k):
 def test_scalar_bias_equals_the_array_bias(s, t, k):
     """The traversal's per-node plain-Python P_{s,t} gives the array version's values."""
     grid = np.concatenate([MU, [t, max(t - 1e-12, 0.0), min(t + 1e-12, 1.0)]])
-    scalar = np.array([metrics.bias_scalar(float(mu), s, t, k) for mu in grid])
-    assert np.allclose(scalar, metrics.bias(grid, s, t, k), rtol=0, atol=1e-12)
-    assert metrics.bias_scalar(float("nan"), s, t, k) == 0.0
+    p = metrics.bias_function(s, t, k=k)
+    scalar = np.array([p(float(mu)) for mu in grid])
+    assert np.allclose(scalar, metrics.bias(grid, s, t, k=k), rtol=0, atol=1e-12)
+    assert p(float("nan")) == 0.0
 
 
 def test_step_is_the_default_and_exact():
@@ -80,13 +81,13 @@ def test_t_zero_and_t_one():
 
 def test_huge_k_matches_the_step_away_from_t():
     away = np.abs(MU - 0.2) > 1e-6
-    assert np.allclose(metrics.bias(MU, 0.6, 0.2, 1e9)[away], metrics.bias(MU, 0.6, 0.2)[away])
+    assert np.allclose(metrics.bias(MU, 0.6, 0.2, k=1e9)[away], metrics.bias(MU, 0.6, 0.2)[away])
 
 
 def test_bad_bias_parameters_are_rejected():
     for s, t, k in [(-0.1, 0.5, 1.0), (0.5, 1.5, 1.0), (0.5, 0.5, 0.0), (0.5, 0.5, np.nan)]:
         with pytest.raises(ValueError):
-            metrics.bias(0.5, s, t, k)
+            metrics.bias(0.5, s, t, k=k)
 
 
 def test_modulation_colours_blue_magenta_red():
@@ -101,40 +102,40 @@ def test_sse_perspective_exact():
     v = _view(size=(640, 480), fovy=90.0)  # P11 = 1/tan(45 deg) = 1
     centre, radius = np.array([[0.0, 0.0, 0.0]]), np.array([2.0])
     # d = 10 - 2 = 8; SSE = 0.5 * (480/2) * 1 / 8 = 15 px
-    assert metrics.sse(v, np.array([0.5]), centre, radius, np.array([False]))[0] == pytest.approx(15.0)
+    assert metrics.sse(v, np.array([0.5]), center=centre, radius=radius, is_leaf=np.array([False]))[0] == pytest.approx(15.0)
 
 
 def test_sse_orthographic_exact_and_distance_free():
     v = _view(ortho=20.0)  # P11 = 2/20; SSE = MSE * 240 * 0.1
-    out = metrics.sse(v, np.array([0.5, 0.5]), np.array([[0, 0, 0], [0, 0, -500.0]]), np.array([1.0, 1.0]),
-                      np.array([False, False]))
+    out = metrics.sse(v, np.array([0.5, 0.5]), center=np.array([[0, 0, 0], [0, 0, -500.0]]), radius=np.array([1.0, 1.0]),
+                      is_leaf=np.array([False, False]))
     assert out.tolist() == pytest.approx([12.0, 12.0])
 
 
 def test_eye_inside_sphere_refines_and_leaves_are_zero_not_nan():
     v = _view(eye=(0, 0, 0.5))
-    out = metrics.sse(v, np.array([1.0, 1.0, 0.0]), np.zeros((3, 3)), np.array([1.0, 1.0, 1.0]),
-                      np.array([False, True, True]))
+    out = metrics.sse(v, np.array([1.0, 1.0, 0.0]), center=np.zeros((3, 3)), radius=np.array([1.0, 1.0, 1.0]),
+                      is_leaf=np.array([False, True, True]))
     assert out[0] == np.inf and out[1] == 0.0 and out[2] == 0.0
 
 
 def test_eye_on_sphere_surface_refines():
     v = _view(eye=(0, 0, 1.0))
-    assert metrics.sse(v, np.array([1e-9]), np.zeros((1, 3)), np.array([1.0]), np.array([False]))[0] == np.inf
+    assert metrics.sse(v, np.array([1e-9]), center=np.zeros((1, 3)), radius=np.array([1.0]), is_leaf=np.array([False]))[0] == np.inf
 
 
 @pytest.mark.parametrize("size", [(1, 1), (7680, 4320)])
 def test_extreme_viewports_give_finite_sse(size):
     v = _view(size=size)
-    out = metrics.sse(v, np.array([1e-4, 1e5]), np.array([[0, 0, 0], [0, 0, -1e5]]), np.array([1e-4, 1.0]),
-                      np.array([False, False]))
+    out = metrics.sse(v, np.array([1e-4, 1e5]), center=np.array([[0, 0, 0], [0, 0, -1e5]]), radius=np.array([1e-4, 1.0]),
+                      is_leaf=np.array([False, False]))
     assert np.all(np.isfinite(out)) and np.all(out > 0)
 
 
 def test_scene_at_1e6_and_extreme_near_far():
     c = np.array([[1e6, 1e6, 1e6]])
     v = _view(eye=(1e6, 1e6, 1e6 + 5), target=(1e6, 1e6, 1e6), near=1e-4, far=1e5)
-    out = metrics.sse(v, np.array([0.01]), c, np.array([1.0]), np.array([False]))
+    out = metrics.sse(v, np.array([0.01]), center=c, radius=np.array([1.0]), is_leaf=np.array([False]))
     # d = 4; SSE = 0.01 * 240 * P11 / 4 with P11 = 1/tan(30 deg)
     assert out[0] == pytest.approx(0.01 * 240 * (1 / np.tan(np.radians(30))) / 4, rel=1e-9)
     assert np.all(boxes.boxes_in_frustum(v, c - 1, c + 1))
@@ -142,8 +143,8 @@ def test_scene_at_1e6_and_extreme_near_far():
 
 def test_nodes_at_1e_minus_4_and_1e5_units():
     v = _view(eye=(0, 0, 1e-3), near=1e-4, far=1e6)
-    out = metrics.sse(v, np.array([1e-6, 1e3]), np.array([[0, 0, 0], [0, 0, -1e5]]), np.array([1e-4, 1e4]),
-                      np.array([False, False]))
+    out = metrics.sse(v, np.array([1e-6, 1e3]), center=np.array([[0, 0, 0], [0, 0, -1e5]]), radius=np.array([1e-4, 1e4]),
+                      is_leaf=np.array([False, False]))
     assert np.all(np.isfinite(out)) and np.all(out > 0)
 
 
@@ -192,7 +193,7 @@ def test_view_tests_equal_the_textbook_box_tests(product_boxes, monkeypatch):
         centre[:10] = eye + rng.normal(size=(10, 3)) * 0.2  # boxes around or beside the eye
         lo, hi, pad = centre - half, centre + half, 0.05
         spheres = centre + rng.normal(size=centre.shape) * 10.0 ** rng.uniform(-3, 3, size=(200, 1))
-        tests = boxes.view_tests(v, boxes.BoxRows.of(lo, hi, pad, spheres))
+        tests = boxes.view_tests(v, boxes.BoxRows.of(lo, hi, query_pad=pad, centre=spheres))
         in_frustum, distance, unqueryable = tests.in_frustum, tests.distance, tests.unqueryable
         assert np.array_equal(tests.centre_distance, np.linalg.norm(spheres - v.eye, axis=1))
         planes = boxes.frustum_planes(v)
@@ -269,9 +270,9 @@ def test_cube_alpha_formula_and_eye_at_centre():
     v = _view(eye=(0, 0, 10), fovy=90.0, size=(480, 480))
     lo, hi = np.array([[-1, -1, -1.0]]), np.array([[1, 1, 1.0]])
     # side 2 at d = 10: (2 * 240 / 10)^2
-    assert alpha_estimators.alpha_cube(v, np.array([2.0]), lo, hi)[0] == pytest.approx((2 * 240 / 10) ** 2)
+    assert alpha_estimators.alpha_cube(v, np.array([2.0]), box_min=lo, box_max=hi)[0] == pytest.approx((2 * 240 / 10) ** 2)
     at_centre = _view(eye=(0, 0, 0), target=(0, 0, -1), fovy=90.0)
-    assert alpha_estimators.alpha_cube(at_centre, np.array([2.0]), lo, hi)[0] == np.inf
+    assert alpha_estimators.alpha_cube(at_centre, np.array([2.0]), box_min=lo, box_max=hi)[0] == np.inf
 
 
 # --- frustum planes over far/near ratios from 1e4 to 1e20 (issue 11) ---------------------------

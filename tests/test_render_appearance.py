@@ -24,7 +24,8 @@ from hlod_core.report.image_error import psnr
 from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp, srgb_from_linear, srgb_to_linear
 from hlod_core.render.materials import TEXTURE_UNIT
 from hlod_core.render.renderer import Renderer
-from hlod_core.traversal.methods import RuntimeSettings, make
+from hlod_core.traversal.methods import make
+from hlod_core.traversal.settings import RuntimeSettings
 from hlod_core.model.view import View
 
 from helpers import ROOT, baked, standalone_gl
@@ -286,8 +287,8 @@ def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
     try:
         assert new.appearance is None
         settings = RuntimeSettings()
-        old_coh = make("coh", hlod, old, settings) if old is not None else None
-        new_coh = make("coh", hlod, new, settings)
+        old_coh = make("coh", hlod, old, settings=settings) if old is not None else None
+        new_coh = make("coh", hlod, new, settings=settings)
         for k, distance in enumerate((0.6, 1.0, 2.5)):
             eye = centre + distance * radius * np.array([np.cos(k), 0.4, np.sin(k)])
             view = View(eye=eye, view=viewmod.look_at(eye, centre, [0, 1, 0]),
@@ -516,10 +517,10 @@ def acceptance_figures(hlod, images, *, method: str = "coh", distance: float = 0
     view = _overview(hlod, size, distance=distance)
     renderer = Renderer.create_standalone(hlod, size, images=images)
     try:
-        full = make("full", hlod, renderer, RuntimeSettings())
+        full = make("full", hlod, renderer, settings=RuntimeSettings())
         full_stats = full.frame(view)
         reference = renderer.read_pixels()
-        traversal = make(method, hlod, renderer, RuntimeSettings(tau=1.0))
+        traversal = make(method, hlod, renderer, settings=RuntimeSettings(tau=1.0))
         for _ in range(ACCEPTANCE_FRAMES):
             stats = traversal.frame(view)
         picture = renderer.read_pixels()

@@ -16,7 +16,7 @@ from helpers import ROOT, SCENES
 from hlod_core.report import evaluate, figures, html_page
 from hlod_core.model.camera_path import load_path, path_from_json
 from hlod_core.core.errors import InputError
-from hlod_core.traversal.methods import COUNTERS
+from hlod_core.traversal.stats import COUNTERS
 
 COMMITTED = ROOT / "docs" / "evaluation"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

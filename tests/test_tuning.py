@@ -16,7 +16,7 @@ from hlod_core.report import tuning
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.core.errors import InputError
-from hlod_core.traversal.methods import RuntimeSettings
+from hlod_core.traversal.settings import RuntimeSettings
 
 from test_cli import hlod, last_json, one_line_error
 from test_report_figures import PNG_SIGNATURE

@@ -16,7 +16,7 @@ from ..traversal.alpha_estimators import alpha_cube, alpha_projected
 from ..model.hierarchy import Hlod
 from ..model.view import View
 from ..render.renderer import Renderer
-from ..traversal.methods import ALPHA_MODES
+from ..traversal.settings import ALPHA_MODES
 
 #: Boxes sampled per view at most (seeded with SAMPLE_SEED), to bound the study's time.
 MAX_NODES_PER_VIEW = 300
@@ -51,7 +51,7 @@ def alpha_estimators(hlod: Hlod, renderer: Renderer, views: list[View], *,
         t1 = time.perf_counter()
         projected = alpha_projected(view, lo[nodes], hi[nodes])
         t2 = time.perf_counter()
-        cube = alpha_cube(view, hlod.cube_side, hlod.box_min, hlod.box_max)[nodes]
+        cube = alpha_cube(view, hlod.cube_side, box_min=hlod.box_min, box_max=hlod.box_max)[nodes]
         t3 = time.perf_counter()
         renderer.end_frame()
         cost_s["query"] += QUERY_ESTIMATOR_SHARE * (t1 - t0)

@@ -56,7 +56,9 @@ from ..render.renderer import Renderer
 from .markdown import markdown
 from .showcase import modulation_frames
 from ..io.textures import load_images
-from ..traversal.methods import ALPHA_MODES, COUNTERS, RuntimeSettings, make
+from ..traversal.methods import make
+from ..traversal.settings import ALPHA_MODES, RuntimeSettings
+from ..traversal.stats import COUNTERS
 
 log = logging.getLogger(__name__)
 
@@ -177,7 +179,7 @@ def run_interleaved(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: t
         # Interleaved per frame, each method keeping its own traversal state: a drift in the
         # machine's speed (on a shared VM, tens of percent over minutes) then hits every method
         # alike. The order rotates every frame and runs backwards on odd repeats.
-        traversals = [(v, make(v.method, hlod, renderer, v.settings)) for v in runs]
+        traversals = [(v, make(v.method, hlod, renderer, settings=v.settings)) for v in runs]
         for i in range(frames):
             view = path.view(i, size)
             turn = traversals[i % len(traversals):] + traversals[:i % len(traversals)]

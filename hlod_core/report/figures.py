@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.atomic import atomic_file
-from ..traversal.methods import ALPHA_MODES, COUNTERS
+from ..traversal.settings import ALPHA_MODES
+from ..traversal.stats import COUNTERS
 
 log = logging.getLogger(__name__)
 

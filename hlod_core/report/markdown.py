@@ -6,7 +6,7 @@ and the method labels; out, one Markdown string.
 """
 from __future__ import annotations
 
-from ..traversal.methods import ALPHA_MODES
+from ..traversal.settings import ALPHA_MODES
 
 # figure file -> what a reader sees in it (report_figures draws them)
 FIGURE_CAPTIONS = {

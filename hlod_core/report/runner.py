@@ -15,7 +15,9 @@ from ..model.hierarchy import Hlod
 from ..core.png import write_png
 from ..render.renderer import Renderer
 from ..io.textures import load_images
-from ..traversal.methods import COUNTERS, QUERY_COUNTERS, FrameStats, RuntimeSettings, make
+from ..traversal.methods import make
+from ..traversal.settings import RuntimeSettings
+from ..traversal.stats import COUNTERS, QUERY_COUNTERS, FrameStats
 
 
 def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,
@@ -25,7 +27,7 @@ def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPat
     own = renderer is None
     renderer = renderer or Renderer.create_standalone(hlod, size, images=load_images(hlod))
     try:
-        traversal = make(method, hlod, renderer, settings)
+        traversal = make(method, hlod, renderer, settings=settings)
         stats: list[FrameStats] = []
         for i in range(len(path)):
             stats.append(traversal.frame(path.view(i, size)))

@@ -20,7 +20,8 @@ from ..model.hierarchy import Hlod
 from ..model.view import View
 from ..core.png import write_png
 from ..render.renderer import DEFAULT_COLOUR, Renderer
-from ..traversal.methods import COUNTERS, make
+from ..traversal.methods import make
+from ..traversal.stats import COUNTERS
 
 SHOWN_KEYS = ("bool", "coh_p", "coh_mu")
 # bird's-eye framing, relative to the root box: the picture's height over the box's extent, the
@@ -81,7 +82,7 @@ def modulation_frames(hlod: Hlod, renderer: Renderer, *, path: CameraPath, size:
     files = {}
     for key in shown:
         v = by_key[key]
-        traversal = make(v.method, hlod, renderer, v.settings)
+        traversal = make(v.method, hlod, renderer, settings=v.settings)
         for i in range(frame + 1):
             stats = traversal.frame(path.view(i, size))
         shaded = renderer.read_pixels()

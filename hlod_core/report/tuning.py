@@ -59,7 +59,8 @@ from ..model.hierarchy import Hlod
 from .image_error import PSNR_CAP_DB
 from ..render.renderer import Renderer
 from ..io.textures import load_images
-from ..traversal.methods import COUNTERS, RuntimeSettings
+from ..traversal.settings import RuntimeSettings
+from ..traversal.stats import COUNTERS
 
 log = logging.getLogger(__name__)
 

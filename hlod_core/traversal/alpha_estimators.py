@@ -21,7 +21,7 @@ from ..model.view import View
 _MIN_CLIP_W = 1e-300
 
 
-def alpha_cube(view: View, cube_side: np.ndarray, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
+def alpha_cube(view: View, cube_side: np.ndarray, *, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
     """2006 paper §4.3: a cube with the box's volume, one face seen head-on at the distance d of
     the box centre; alpha = f_hat (d_hat / d)^2 with f_hat d_hat^2 = side^2 * (W/2 P00)(H/2 P11),
     which depends only on the side and the projection. Orthographic: the face's pixel area.

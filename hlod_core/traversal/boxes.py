@@ -18,6 +18,7 @@ import numpy as np
 
 from ..model.view import View
 
+
 def frustum_planes(view: View) -> np.ndarray:
     """(6,4) float64 world planes (a, b, c, d) with unit normals, inside where
     a x + b y + c z + d >= 0; order left, right, bottom, top, near, far (`_frustum_plane_rows`)."""
@@ -25,19 +26,10 @@ def frustum_planes(view: View) -> np.ndarray:
 
 
 def _frustum_plane_rows(view: View) -> list[list[float]]:
-    """`frustum_planes` as six Python lists of four floats.
-
-    Gribb & Hartmann's rows P3 +- Pi, taken from the projection alone (so they are view-space
-    planes) and moved to world space with the view matrix, plane_world = plane_view @ V. In view
-    space the near and far rows have no x and y terms, so their normals point exactly along the
-    view axis however much P3 - P2 cancels; rows of P @ V would mix that rounding into every
-    component. When far/near exceeds about 1e16, P[2][2] rounds to -1 (the matrix is an infinite
-    far projection) and the far row's normal is exactly zero: that plane lies at infinity and
-    keeps every point in front, instead of a 0/0 that culls everything.
-
-    In plain Python floats: six planes are a few hundred operations, which numpy calls on (6,4)
-    arrays spend more time dispatching than computing (measured: 135 us a frame on the crowd after
-    the rasteriser has filled the caches, against about a third of that here)."""
+    """`frustum_planes` as six Python lists of four floats (plain Python: cheaper than numpy on
+    (6,4) arrays): Gribb & Hartmann's rows P3 +- Pi of the projection, moved to world space with
+    the view matrix; a plane at infinity (far/near above about 1e16) keeps every point in front.
+    Why: docs/how-it-works.md#frustum-planes"""
     p, v = view.projection.tolist(), view.view.tolist()
     p3, planes = p[3], []
     for axis, sign in _PLANE_ROWS:
@@ -63,14 +55,14 @@ NEAR = 4
 
 def boxes_in_frustum(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
     """(n,) bool: the box is not entirely outside any frustum plane (conservative)."""
-    return view_tests(view, BoxRows.of(box_min, box_max, 0.0, centre=box_min)).in_frustum  # centres unused
+    return view_tests(view, BoxRows.of(box_min, box_max, query_pad=0.0, centre=box_min)).in_frustum  # centres unused
 
 
 def boxes_cross_near_plane(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
     """(n,) bool: part of the box lies on the eye's side of the near plane. The near plane clips
     such a box's front faces, so its occlusion query could see only (culled) back faces and read
     0 while the geometry inside is visible: these boxes must not be queried."""
-    return view_tests(view, BoxRows.of(box_min, box_max, 0.0, centre=box_min)).behind_near  # centres unused
+    return view_tests(view, BoxRows.of(box_min, box_max, query_pad=0.0, centre=box_min)).behind_near  # centres unused
 
 
 def box_distance(eye: np.ndarray, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
@@ -110,7 +102,8 @@ class BoxRows:
     scratch: np.ndarray
 
     @classmethod
-    def of(cls, box_min: np.ndarray, box_max: np.ndarray, query_pad: float, centre: np.ndarray | None = None) -> "BoxRows":
+    def of(cls, box_min: np.ndarray, box_max: np.ndarray, *, query_pad: float,
+           centre: np.ndarray | None = None) -> "BoxRows":
         """From (n,3) bounds and, optionally, (n,3) centres (default: the boxes' centres)."""
         box_min, box_max = np.asarray(box_min, np.float64), np.asarray(box_max, np.float64)
         centre = 0.5 * (box_min + box_max) if centre is None else np.asarray(centre, np.float64)
@@ -133,26 +126,10 @@ class ViewTests(NamedTuple):
 
 
 def view_tests(view: View, rows: BoxRows) -> ViewTests:
-    """The traversal's per-frame tests of every node's box in a dozen whole-table numpy calls over
-    as few rows as they need (at a few thousand nodes each call's dispatch and each pass over the
-    rows cost about the same; a software rasteriser run between frames leaves the caches cold):
-
-    - in_frustum: for each plane the box corner farthest along its normal ("p-vertex": max on the
-      axes where the normal is positive, min where negative) is on the inside, reach >= -d;
-    - behind_near: the query box's corner farthest behind the near plane ("n-vertex") is behind it.
-      That corner is the box's own n-vertex moved by the pad against the normal, so its reach is
-      the box's less pad * |n|_1: reach < -d + pad * |n|_1. With the frustum's six reaches, one
-      (7,6) matrix product with the rows of box_min and box_max;
-    - the offsets centre - e, box_min - e, e - box_max (exact differences): distance = |max(box_min
-      - e, e - box_max, 0)|, centre_distance = |c - e| (the axes' squares summed in order, as
-      np.linalg.norm does), and the eye inside the query box, where max(box_min - e, e - box_max)
-      <= pad on every axis;
-    - unqueryable = eye inside | behind_near (DESIGN §5.4 names the first case, the second has the
-      same problem: the near plane clips the box's front faces).
-
-    The query-box tests compare with the pad moved to the other side (box_min - e <= pad, not
-    box_min - pad <= e), which can round differently only where a corner lies within a few ulps of
-    the coordinates' magnitude from the plane or the eye."""
+    """The traversal's per-frame tests of every node's box (`ViewTests`, (n,) each) in a dozen
+    whole-table numpy calls: in the frustum (the p-vertex inside every plane), behind the near plane
+    (the padded box's n-vertex), the distances from the eye, and unqueryable = the eye inside the
+    padded box | behind the near plane. Why: docs/how-it-works.md#the-frames-box-tests-in-one-pass"""
     planes = _frustum_plane_rows(view)
     pad = rows.query_pad
     product = [[min(a, 0.0), min(b, 0.0), min(c, 0.0), max(a, 0.0), max(b, 0.0), max(c, 0.0)] for a, b, c, _ in planes]

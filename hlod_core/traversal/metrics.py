@@ -8,7 +8,7 @@ Papers: the VMSSE `SSE * P(q/alpha)` and the cube estimate of alpha come from Ch
 occlusion queries" (ISVC 2007, `...2007-optimized-hlod-refinement.txt` §3).
 
 Data form: a `view.View` and per-node arrays of the `hierarchy.Hlod` table; every function returns
-(n,) arrays (`bias_function`, `bias_scalar`: one float, for the traversal's per-node path).
+(n,) arrays (`bias_function`: P of one float, for the traversal's per-node path).
 """
 from __future__ import annotations
 
@@ -34,13 +34,15 @@ def sphere_distance(view: View, center: np.ndarray, radius: np.ndarray) -> np.nd
     return np.sqrt(squared, out=squared) - radius
 
 
-def sse(view: View, error: np.ndarray, center: np.ndarray, radius: np.ndarray, is_leaf: np.ndarray) -> np.ndarray:
-    """Screen-space error in pixels (n,): a sphere of diameter MSE at the point of the node's
-    sphere nearest the eye. Perspective: MSE * (H/2) P11 / d; orthographic: MSE * (H/2) P11.
-    d <= 0 (eye inside the sphere): +inf, the node must refine. Leaves: 0 (never 0 * inf)."""
+def sse(view: View, error: np.ndarray, *, center: np.ndarray, radius: np.ndarray, is_leaf: np.ndarray) -> np.ndarray:
+    """Screen-space error in pixels (n,) of nodes with MSE `error` (n,) model units, bounding
+    spheres `center` (n,3) and `radius` (n,) model units, `is_leaf` (n,) bool: a sphere of diameter
+    MSE at the point of the node's sphere nearest the eye. Perspective: MSE * (H/2) P11 / d;
+    orthographic: MSE * (H/2) P11. d <= 0 (eye inside the sphere): +inf, the node must refine.
+    Leaves: 0 (never 0 * inf)."""
     error, inside = sse_inputs(error, is_leaf)
     d = None if view.orthographic else sphere_distance(view, center, radius)
-    return sse_at(view, error, d, inside)
+    return sse_at(view, error, distance=d, inside=inside)
 
 
 def sse_inputs(error: np.ndarray, is_leaf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -50,15 +52,15 @@ def sse_inputs(error: np.ndarray, is_leaf: np.ndarray) -> tuple[np.ndarray, np.n
     return np.where(is_leaf, 0.0, error), np.where(is_leaf, 0.0, np.inf)
 
 
-def sse_at(view: View, error: np.ndarray, d: np.ndarray | None, inside: np.ndarray) -> np.ndarray:
-    """`sse` from the nodes' sphere distances d (n,) model units (unused for an orthographic view)
-    and `sse_inputs`: error * (H/2) P11 / d where d > 0, else `inside`."""
+def sse_at(view: View, error: np.ndarray, *, distance: np.ndarray | None, inside: np.ndarray) -> np.ndarray:
+    """`sse` from the nodes' sphere distances d = `distance` (n,) model units (unused for an
+    orthographic view) and `sse_inputs`: error * (H/2) P11 / d where d > 0, else `inside`."""
     if view.orthographic:
         return error * view.pixels_per_unit_y
     # d tiny but positive: a huge finite or inf SSE, both refine; d <= 0 is replaced by inside
     # (whatever its quotient overflowed, divided by 0 or underflowed to)
     with np.errstate(all="ignore"):
-        return np.where(d > 0, error * view.pixels_per_unit_y / d, inside)
+        return np.where(distance > 0, error * view.pixels_per_unit_y / distance, inside)
 
 
 # --- the bias P_{s,t} (DESIGN §5.2) -------------------------------------------------------------
@@ -73,7 +75,7 @@ def logistic(x: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * np.asarray(x, np.float64)))
 
 
-def sigmoid_step(mu, t: float, k: float = np.inf) -> np.ndarray:
+def sigmoid_step(mu, t: float, *, k: float = np.inf) -> np.ndarray:
     """S_t(mu): the normalised logistic with turnover t and steepness k, or for k = inf the step
     [mu >= t] with S(0) = 0 and S(1) = 1. mu is clamped to [0, 1]."""
     mu = np.clip(np.asarray(mu, np.float64), 0.0, 1.0)
@@ -91,7 +93,7 @@ def sigmoid_step(mu, t: float, k: float = np.inf) -> np.ndarray:
     return np.clip(out, 0.0, 1.0)
 
 
-def bias(mu, s: float, t: float, k: float = np.inf) -> np.ndarray:
+def bias(mu, s: float, t: float, *, k: float = np.inf) -> np.ndarray:
     """P_{s,t}(mu) = (1 - s) mu + s S_t(mu); P(0) = 0 and P(1) = 1 exactly; s = 0 gives mu.
 
     Regions (the papers' aggressive/conservative split): for the step, P <= mu below t and P >= mu
@@ -100,17 +102,12 @@ def bias(mu, s: float, t: float, k: float = np.inf) -> np.ndarray:
     if not (0.0 <= s <= 1.0 and 0.0 <= t <= 1.0):
         raise ValueError(f"s and t must lie in [0, 1], got s={s}, t={t}")
     mu = np.clip(np.asarray(mu, np.float64), 0.0, 1.0)
-    p = (1.0 - s) * mu + s * sigmoid_step(mu, t, k)
+    p = (1.0 - s) * mu + s * sigmoid_step(mu, t, k=k)
     p = np.where(mu <= 0.0, 0.0, np.where(mu >= 1.0, 1.0, p))
     return np.clip(p, 0.0, 1.0)
 
 
-def bias_scalar(mu: float, s: float, t: float, k: float = math.inf) -> float:
-    """`bias` for one float, in plain Python: `bias_function(s, t, k)(mu)`."""
-    return bias_function(s, t, k)(mu)
-
-
-def bias_function(s: float, t: float, k: float = math.inf) -> Callable[[float], float]:
+def bias_function(s: float, t: float, *, k: float = math.inf) -> Callable[[float], float]:
     """P_{s,t} of one float in plain Python with s, t, k bound (the traversal calls it per node; a
     numpy call per scalar costs more than the arithmetic). Same values as `bias` (tests compare
     them on a grid); s, t, k are not validated here (RuntimeSettings does it once); NaN mu counts

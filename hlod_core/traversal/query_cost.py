@@ -1,18 +1,16 @@
 """The renderer's cost model: what a query and a node draw cost, fitted from timed samples, and the
-per-frame test "is drawing this node cheaper than asking about it" (issue 15; CHC++'s skipped
-queries for cheap visible nodes, Mattausch, Bittner, Wimmer, "CHC++: Coherent Hierarchical
-Culling Revisited", Eurographics 2008).
+skip test "is drawing this node cheaper than asking about it" (CHC++'s skipped queries for cheap
+visible nodes: Mattausch, Bittner, Wimmer, "CHC++: Coherent Hierarchical Culling Revisited",
+Eurographics 2008).
 
 Data form: a sample is (count, size, seconds): `count` queries (or draw calls) of `size` pixels
 (or triangles) in all, timed together. A linear model seconds = count * fixed + size * per_unit is
 fitted by least squares over the samples (`fit_linear`), one for queries (per query, per box
 pixel) and one for draws (per draw call, per triangle); `CostModel` holds both, with each fit's
-relative residual. `box_pixels` estimates the pixels a box covers on screen, vectorised over boxes
-(the projected areas of its three face directions); `BoxAreas` keeps its view-independent terms
-for a node table, so a frame computes only the rest, for the boxes it asks about;
-`draw_is_cheaper` is the same test for one node at a time in plain Python, for a frame that asks it
-of a few nodes only (a numpy call costs more than the arithmetic of a few dozen boxes).
-No GL here: the renderer times the samples (renderer.Renderer.cost_model).
+relative residual. `BoxAreas` estimates the pixels boxes cover on screen, vectorised over boxes
+(the projected areas of their three face directions), from view-independent terms found once for
+a node table; `NodeCosts` holds the skip test's terms and `draw_is_cheaper` is the skip test of a
+frame's few candidate nodes. No GL here: the renderer times the samples (its `cost_model`).
 """
 from __future__ import annotations
 
@@ -59,7 +57,8 @@ def fit_linear(count, units, seconds) -> LinearCost:
             rest = y - a[:, bad] * MIN_COST_S
             coef[other] = max(MIN_COST_S, float(a[:, other] @ rest / max(a[:, other] @ a[:, other], MIN_COST_S)))
     rms = float(np.sqrt(np.mean((a @ coef - y) ** 2)))
-    return LinearCost(fixed_s=float(coef[0]), per_unit_s=float(coef[1]), residual=rms / max(float(np.mean(y)), MIN_COST_S))
+    return LinearCost(fixed_s=float(coef[0]), per_unit_s=float(coef[1]),
+                      residual=rms / max(float(np.mean(y)), MIN_COST_S))
 
 
 @dataclass(frozen=True)
@@ -78,56 +77,36 @@ class CostModel:
     def draw_seconds(self, triangles):
         return self.draw.seconds(1, triangles)
 
-    def cheaper_to_draw(self, triangles, box_pixels) -> np.ndarray:
-        """Per node: does drawing its triangles cost less than rasterising its query box?"""
-        return self.draw_seconds(triangles) < self.query_seconds(box_pixels)
-
     def describe(self) -> str:
         return (f"query {self.query.fixed_s * 1e6:.2f} us + {self.query.per_unit_s * 1e9:.3f} ns/px "
                 f"(residual {self.query.residual:.0%}); draw {self.draw.fixed_s * 1e6:.2f} us + "
                 f"{self.draw.per_unit_s * 1e9:.3f} ns/triangle (residual {self.draw.residual:.0%}); {self.clock} clock")
 
 
-def box_pixels(view: View, box_min: np.ndarray, box_max: np.ndarray) -> np.ndarray:
-    """(n,) pixels the (n,3) boxes cover on screen, estimated as a parallel projection along the
-    line of sight to each box's centre: sum over the three axes of the face area perpendicular to
-    it times |cos| of its angle to that line, scaled by (pixels per unit at the centre's
-    distance)^2, at most the viewport. Within a factor of about 2 of the exact silhouette
-    (alpha_estimators.alpha_projected) for boxes in front of the eye and unlike the equal-volume
-    cube, it keeps flat boxes' areas. A box holding the eye gets the whole viewport."""
-    return BoxAreas.of(box_min, box_max).pixels(view)
-
-
 @dataclass(frozen=True, eq=False)
 class BoxAreas:
-    """`box_pixels` with the per-box terms that do not depend on the view (the three face areas, the
-    centres) found once: (n,3) float64 each, model units, for a node table's query boxes; a
-    traversal asks for a few of them a frame (`pixels(view, nodes)`)."""
+    """The pixels boxes cover on screen, estimated as a parallel projection along the line of sight
+    to each box's centre: the sum over the three axes of the face area perpendicular to it times
+    |cos| of its angle to that line, scaled by (pixels per unit at the centre's distance)^2, at most
+    the viewport. Within a factor of about 2 of the exact silhouette (alpha_estimators.alpha_projected)
+    for boxes in front of the eye; unlike the equal-volume cube, it keeps flat boxes' areas. Holds the
+    per-box terms that do not depend on the view, found once for a node table's query boxes: the
+    three face areas and the centres, (n,3) float64 each, model units."""
 
-    lo: np.ndarray
-    hi: np.ndarray
     faces: np.ndarray
     centre: np.ndarray
 
     @classmethod
     def of(cls, box_min: np.ndarray, box_max: np.ndarray) -> "BoxAreas":
+        """From (n,3) bounds, model units."""
         lo, hi = np.array(box_min, np.float64), np.array(box_max, np.float64)
         ext = hi - lo
         faces = np.stack([ext[:, 1] * ext[:, 2], ext[:, 0] * ext[:, 2], ext[:, 0] * ext[:, 1]], axis=1)
-        return cls(lo=lo, hi=hi, faces=faces, centre=0.5 * (lo + hi))
-
-    def pixels(self, view: View, nodes: np.ndarray | None = None) -> np.ndarray:
-        """box_pixels of the boxes `nodes` (all when None)."""
-        area = self.pixels_outside(view, nodes)
-        if view.orthographic:
-            return area
-        lo, hi = (self.lo, self.hi) if nodes is None else (self.lo[nodes], self.hi[nodes])
-        inside = np.all((view.eye >= lo) & (view.eye <= hi), axis=1)
-        return np.where(inside, float(view.width * view.height), area)
+        return cls(faces=faces, centre=0.5 * (lo + hi))
 
     def pixels_outside(self, view: View, nodes: np.ndarray | None = None) -> np.ndarray:
-        """`pixels` of boxes known not to hold the eye (the traversal's queryable boxes): the same
-        values without the test (a box holding the eye would get its area, not the viewport)."""
+        """(m,) estimated pixels of the boxes `nodes` (all when None), boxes known not to hold the
+        eye (the traversal's queryable boxes: a box holding it would get its area, not the viewport)."""
         pick = (lambda a: a) if nodes is None else (lambda a: a[nodes])
         faces = pick(self.faces)
         screen = float(view.width * view.height)
@@ -142,17 +121,65 @@ class BoxAreas:
         return np.fmin(area, screen)  # inf and NaN (the eye at the centre) -> the viewport
 
 
-def draw_is_cheaper(view: View, model: CostModel, tri_count: Sequence[int], faces: Sequence | None = None,
-                    centres: Sequence | None = None, pixels: Sequence[float] | None = None) -> Callable[[int, float], bool]:
-    """cheaper(node, rate): is drawing the node's triangles, times `rate` (the traversal's change
-    rate, or 1), cheaper than rasterising its query box? The traversal's skip test for one node at a
-    time in plain Python: `BoxAreas.pixels_outside`'s terms (faces, centres: a node's (3,) face
-    areas and centre, BoxAreas.faces / centre as lists), or the box's pixels read from `pixels`
-    (a per-node estimate such as the projected alpha) where given; boxes known not to hold the eye."""
+#: Nodes up to which `draw_is_cheaper` tests them in plain Python, one by one (above: numpy): on
+#: small fronts a numpy call costs more than the arithmetic (README "The skip test's start and its
+#: small fronts" gives the measured crossover).
+PYTHON_TEST_NODES = 64
+
+
+@dataclass(frozen=True, eq=False)
+class NodeCosts:
+    """The skip test's view-independent terms of a node table: tri_count (n,) as a list and `tris`
+    (n,) float64, triangles per node; `boxes`, the query boxes' BoxAreas, and `faces`, `centres`,
+    its (n,3) terms as lists for the Python path (all None where the box pixels come per frame)."""
+
+    tri_count: list
+    tris: np.ndarray
+    boxes: BoxAreas | None
+    faces: list | None
+    centres: list | None
+
+    @classmethod
+    def of(cls, tri_count, box_min: np.ndarray | None = None, box_max: np.ndarray | None = None) -> "NodeCosts":
+        """From (n,) triangle counts and, optionally, the (n,3) query boxes (model units)."""
+        boxes = None if box_min is None else BoxAreas.of(box_min, box_max)
+        return cls(tri_count=np.asarray(tri_count).tolist(), tris=np.asarray(tri_count, np.float64), boxes=boxes,
+                   faces=None if boxes is None else boxes.faces.tolist(),
+                   centres=None if boxes is None else boxes.centre.tolist())
+
+
+def draw_is_cheaper(view: View, model: CostModel, nodes: Sequence[int], *, costs: NodeCosts, rate: float,
+                    pixels: np.ndarray | None = None, python_nodes: int = PYTHON_TEST_NODES) -> memoryview:
+    """The skip test (CHC++'s skipped queries): for each of `nodes`, whose query boxes do not hold
+    the eye, is drawing its triangles, times `rate` (the traversal's change rate, or 1), cheaper
+    than rasterising its query box? Box pixels from `pixels` ((n,) per-node estimate, e.g. the
+    projected alpha) where given, else `BoxAreas.pixels_outside` of costs.boxes. Out: an (n,) mask
+    as a memoryview (0/1 bytes, or bool), true where cheaper; false for nodes not asked about.
+    Up to `python_nodes` nodes in plain Python, one by one, more with numpy: the same decisions."""
+    count = len(costs.tri_count)
+    if len(nodes) <= python_nodes:
+        cheaper = _one_node_test(view, model, costs=costs, pixels=pixels)
+        out = bytearray(count)
+        for node in nodes:
+            if cheaper(node, rate):
+                out[node] = 1
+        return memoryview(out)
+    nodes = np.array(nodes, np.int64)
+    box_pixels = pixels[nodes] if pixels is not None else costs.boxes.pixels_outside(view, nodes)
+    mask = np.zeros(count, bool)
+    mask[nodes] = model.draw_seconds(costs.tris[nodes]) * rate < model.query_seconds(box_pixels)
+    return memoryview(mask)
+
+
+def _one_node_test(view: View, model: CostModel, *, costs: NodeCosts,
+                   pixels: np.ndarray | None) -> Callable[[int, float], bool]:
+    """cheaper(node, rate): `draw_is_cheaper` for one node in Python scalars, the same operations
+    as `LinearCost.seconds` and `BoxAreas.pixels_outside`."""
     screen = float(view.width * view.height)
     unit_px = view.pixels_per_unit_x * view.pixels_per_unit_y
     draw_unit, draw_fixed = model.draw.per_unit_s, model.draw.fixed_s
     query_unit, query_fixed = model.query.per_unit_s, model.query.fixed_s
+    tri_count, faces, centres = costs.tri_count, costs.faces, costs.centres
     if pixels is not None:
         box_pixels = pixels.__getitem__
     elif view.orthographic:
