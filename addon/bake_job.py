@@ -129,7 +129,7 @@ class BakeJob:
         self._temp_before = self._output_temps()
         self._scratch = tempfile.mkdtemp(prefix=SCRATCH_PREFIX)
         try:
-            job_file = child.write_job(self._scratch, mesh, settings, self.output, extra_meta=extra_meta,
+            job_file = child.write_job(self._scratch, mesh, settings, output=self.output, extra_meta=extra_meta,
                                             cache_dir=cache_dir)
             self._proc = subprocess.Popen(
                 [sys.executable, "-m", child.MODULE, str(job_file), child.PARENT_STDIN],

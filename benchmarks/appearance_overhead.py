@@ -1,4 +1,4 @@
-"""What carrying appearance (issue 13) costs the bake, in time and in geometric error.
+"""What carrying appearance (materials, UVs, colours) costs the bake, in time and in geometric error.
 
     .venv/bin/python -m benchmarks.appearance_overhead [--repeat R] [--input SCENE] [--out DIR]
     .venv/bin/python -m benchmarks.appearance_overhead --errors [--models NAME ...]
@@ -7,7 +7,7 @@ Time (default): an untextured bake of tests/scenes/gallery_1m.json with today's 
 code of the commit before the appearance work (BEFORE: the commit before the contract, taken with
 `git archive` into a temporary folder), each run as `python -m hlod_core -q bake INPUT -o OUT --jobs 1`
 in its own process, interleaved (old, new, new, old, ...) so drifts in machine load fall on both.
-Prints JSON: the median wall seconds of each, their ratio (new / old; the issue asks <= 1.05), the
+Prints JSON: the median wall seconds of each, their ratio (new / old; the target is <= 1.05), the
 bake's own seconds from each file's meta, and every run.
 
 Errors (--errors): the node errors (Hausdorff MSE) of one geometry baked without attributes and
@@ -35,10 +35,11 @@ import numpy as np
 
 from hlod_core.io import hlod_file, meshes
 from hlod_core.model.appearance import Material
-from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 
 ROOT = Path(__file__).resolve().parents[1]
-#: The commit before the appearance contract (b4edc98^): the bake as it was before issue 13.
+#: The commit before the appearance contract (b4edc98^): the bake as it was without appearance.
 BEFORE = "fed64e9de7e20efcd316ea19c5ab79df4e2bd22a"
 GALLERY = ROOT / "tests" / "scenes" / "gallery_1m.json"
 MODELS = ROOT.parent / "shared" / "models"

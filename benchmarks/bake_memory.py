@@ -1,4 +1,4 @@
-"""Peak memory of a bake against its input size (issue 16: at most 300 bytes per input triangle).
+"""Peak memory of a bake against its input size (the target: at most 300 bytes per input triangle).
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.bake_memory [--sizes 1 5 10] [--jobs 2] [--out DIR]
         [--modes memory out-of-core] [--chunk-tris N] [--error exact|bound]
@@ -6,7 +6,7 @@
 --modes: the in-memory bake (`memory`, the default) and/or the streamed one (`out-of-core`:
 `bake --out-of-core`, the spec read one instance at a time through per-cell scratch files in a
 folder of this benchmark's temporary folder, `--chunk-tris` triangles at a time). With both, the
-two files of each size are compared without their volatile meta (bake.stable_meta): "same_file".
+two files of each size are compared without their volatile meta (meta.stable_meta): "same_file".
 
 For each size (millions of triangles) an instanced scene spec is written from the shared models
 (tests/scenes/generate_specs.py's crowd: its 144 statues, then copies of the whole crowd side by
@@ -126,7 +126,7 @@ def bake_measured(spec: Path, out: Path, jobs: int, *, mode: str = "memory", chu
 def same_file(a: Path, b: Path) -> bool:
     """Whether two .hlod files hold the same bytes once their volatile meta is left out."""
     from hlod_core.io import hlod_file
-    from hlod_core.bake.pipeline import stable_meta
+    from hlod_core.bake.meta import stable_meta
 
     def stable_bytes(path: Path) -> bytes:
         hlod = hlod_file.load(path)

@@ -1,11 +1,11 @@
-"""Where a bake's time goes (issue 16): decimation, welding, Hausdorff sampling, process start and
+"""Where a bake's time goes: decimation, welding, Hausdorff sampling, process start and
 data movement, on one input.
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.bake_profile INPUT [INPUT ...] [--target-tris 2000]
 
 Per input, two bakes in this process, reading excluded:
   jobs 1 under cProfile: every task runs here, so the profile splits the whole bake into the
-    phases (bake.py's phase clock) and, inside the simplify phase, decimation (pymeshlab's quadric
+    phases (meta.PhaseClock) and, inside the simplify phase, decimation (pymeshlab's quadric
     collapse; the weld; the unit frame's mapping back; building pymeshlab meshes) and the error
     measure (nodes measured whole; nodes measured pruned, and in those the exact LOD -> original
     evaluation; pymeshlab's Hausdorff calls in all; the samples; the clusters, built once);
@@ -28,18 +28,19 @@ import pstats
 import time
 from pathlib import Path
 
-from hlod_core.bake import pipeline as bake_module
+from hlod_core.bake import workers
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
-from hlod_core.bake.pipeline import BakeSettings, bake
 
 #: (label, function name, file the function is in): cumulative seconds of each in the jobs 1 profile.
 PARTS = (
     ("decimation", "decimate_node", "simplify.py"),
-    ("  quadric collapse (pymeshlab)", "_decimated", "simplify.py"),
+    ("  quadric collapse (pymeshlab)", "quadric_collapse", "meshlab.py"),
     ("  weld", "weld", "simplify.py"),
-    ("  unit frame back to model (to_model)", "to_model", "simplify.py"),
-    ("  pymeshlab meshes made", "_mesh_set", "simplify.py"),
-    ("error measure", "_measure_task", "bake.py"),
+    ("  unit frame back to model (to_model)", "to_model", "meshlab.py"),
+    ("  pymeshlab meshes made", "mesh_set", "meshlab.py"),
+    ("error measure", "measure_exact", "tasks.py"),
     ("  measured whole (small nodes; big ones pruning cannot help)", "measure", "hausdorff.py"),
     ("  big nodes (pruned, or whole inside)", "measure_clustered", "hausdorff.py"),
     ("    of which LOD -> original against clusters", "_max_to_faces", "hausdorff.py"),
@@ -60,17 +61,18 @@ def _cumulative(stats: pstats.Stats, name: str, file: str) -> tuple[float, int]:
 
 def _worker_start_seconds(jobs: int = 2) -> float:
     started = time.perf_counter()
-    pool = cf.ProcessPoolExecutor(max_workers=jobs, initializer=bake_module._init_worker,
+    pool = cf.ProcessPoolExecutor(max_workers=jobs, initializer=workers.init_worker,
                                   mp_context=multiprocessing.get_context("spawn"))
     try:
-        cf.wait([pool.submit(bake_module._warm_up) for _ in range(jobs)])
+        cf.wait([pool.submit(workers.warm_up) for _ in range(jobs)])
         return time.perf_counter() - started
     finally:
         pool.shutdown()
 
 
 class _Moved:
-    """Counts the pickled bytes of every task's arguments and result, wrapping _Workers.submit."""
+    """Counts the pickled bytes of every task's arguments and result, wrapping workers.Workers.submit
+    and .share for the block."""
 
     def __init__(self):
         self.task_bytes = 0
@@ -78,21 +80,21 @@ class _Moved:
         self.shared_bytes = 0
 
     def __enter__(self):
-        self._submit, self._share = bake_module._Workers.submit, bake_module._Workers.share
+        self._submit, self._share = workers.Workers.submit, workers.Workers.share
         moved = self
 
-        def submit(workers, order, fn, *args):
+        def submit(where, order, fn, *args, **kwargs):
             moved.tasks += 1
-            moved.task_bytes += len(pickle.dumps(args, protocol=pickle.HIGHEST_PROTOCOL))
-            future = moved._submit(workers, order, fn, *args)
+            moved.task_bytes += len(pickle.dumps((args, kwargs), protocol=pickle.HIGHEST_PROTOCOL))
+            future = moved._submit(where, order, fn, *args, **kwargs)
             future.add_done_callback(lambda f: moved._count_result(f))
             return future
 
-        def share(workers, arrays):
+        def share(where, arrays):
             moved.shared_bytes += sum(a.nbytes for a in arrays.values())
-            return moved._share(workers, arrays)
+            return moved._share(where, arrays)
 
-        bake_module._Workers.submit, bake_module._Workers.share = submit, share
+        workers.Workers.submit, workers.Workers.share = submit, share
         return self
 
     def _count_result(self, future):
@@ -100,7 +102,7 @@ class _Moved:
             self.task_bytes += len(pickle.dumps(future.result(), protocol=pickle.HIGHEST_PROTOCOL))
 
     def __exit__(self, *exc):
-        bake_module._Workers.submit, bake_module._Workers.share = self._submit, self._share
+        workers.Workers.submit, workers.Workers.share = self._submit, self._share
 
 
 def profile(path: Path, target_tris: int) -> dict:

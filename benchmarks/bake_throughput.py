@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from hlod_core.io import hlod_file, meshes
-from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 from hlod_core.model.hierarchy import Hlod, cube_sides
 
 ROOT = Path(__file__).resolve().parents[1]

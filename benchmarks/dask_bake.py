@@ -1,4 +1,4 @@
-"""Bakes on a Dask cluster against local worker processes (issue 16), per-task costs, and the bake
+"""Bakes on a Dask cluster against local worker processes, per-task costs, and the bake
 time they predict for 100M triangles on 1, 4 and 16 machines of 16 cores.
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.dask_bake [--spec tests/scenes/gallery_1m.json]
@@ -9,9 +9,9 @@ In one run, on this machine:
    distributed.LocalCluster of 2 worker processes x 1 thread (started once, before; its start-up
    time is reported apart), `--repeat` rounds, the order reversed every other round; each
    speed-up over jobs 1 is the ratio of medians. Every cluster bake is checked to be the file of
-   the jobs 1 bake (arrays and meta less bake.VOLATILE_META) and jobs 2 the same arrays. The
-   issue's target: the cluster's speed-up within 15% of jobs 2's (>= 0.85 x).
-2. Per-task costs, from one more jobs 1 bake with simplify.decimate_node and bake._measure_task
+   the jobs 1 bake (arrays and meta less meta.VOLATILE_META) and jobs 2 the same arrays. The
+   target: the cluster's speed-up within 15% of jobs 2's (>= 0.85 x).
+2. Per-task costs, from one more jobs 1 bake with simplify.decimate_node and tasks.measure_exact
    timed in this process (no worker, no transfer): per kind, tasks, seconds per task, seconds per
    input triangle (a decimation: its children's LOD triangles; a measurement: the original
    triangles below the node), the numpy bytes each task sends and returns, and the root's
@@ -59,13 +59,14 @@ from pathlib import Path
 import numpy as np
 import psutil  # a dependency of distributed
 
-from hlod_core.bake import pipeline as bake_module
-from hlod_core.bake import dask_cluster, hausdorff, simplify
+from hlod_core.bake import dask_cluster, hausdorff, leaf_arrays, simplify, tasks
+from hlod_core.bake.meta import stable_meta
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
-from hlod_core.bake.pipeline import BakeSettings, bake, stable_meta
 
 ROOT = Path(__file__).resolve().parents[1]
-#: The prediction's scene size, machines and cores per machine (the issue's).
+#: The prediction's scene size, machines and cores per machine.
 PREDICT_TRIS = 100_000_000
 PREDICT_MACHINES = (1, 4, 16)
 CORES_PER_MACHINE = 16
@@ -74,19 +75,19 @@ ASSUMED_BANDWIDTH = 1e9
 #: Dask's setting of the workers' profiler, off for the cluster bakes here (README: the workers' environment).
 WORKER_PROFILE = "distributed.worker.profile.enabled"
 #: The bake's phases that run in its own process, whatever executes the tasks (assemble includes
-#: the bounds); the simplify phase adds the leaf arrays (bake._leaf_arrays), timed apart.
+#: the bounds); the simplify phase adds the leaf arrays (leaf_arrays.build), timed apart.
 FIXED_PHASES = ("prepare", "octree", "leaves", "assemble")
 
 
 def identical(a, b, *, meta: bool = True) -> bool:
-    """Same node arrays, geometry and (meta=True) meta less bake.VOLATILE_META (benchmarks/rebake.py)."""
+    """Same node arrays, geometry and (meta=True) meta less meta.VOLATILE_META (benchmarks/rebake.py)."""
     arrays = all(np.array_equal(x, getattr(b, name)) for name, x in a.node_arrays().items())
     geometry = all(np.array_equal(getattr(a, name), getattr(b, name)) for name in ("origin", "positions", "indices"))
     return arrays and geometry and (not meta or stable_meta(a.meta) == stable_meta(b.meta))
 
 
 class _Stats(logging.Handler):
-    """Catches dask_workers' end-of-bake line: tasks, threads, MB sent, MB returned."""
+    """Catches dask_cluster's end-of-bake line: tasks, threads, MB sent, MB returned."""
 
     def __init__(self):
         super().__init__(logging.INFO)
@@ -97,7 +98,7 @@ class _Stats(logging.Handler):
             self.last = record.args
 
 
-def compare(mesh, settings: BakeSettings, client, repeat: int) -> dict:
+def compare(mesh, settings: BakeSettings, client, *, repeat: int) -> dict:
     """Part 1: alternated bakes, jobs 1 / jobs 2 / the cluster."""
     stats = _Stats()
     logging.getLogger("hlod_core.bake.dask_cluster").addHandler(stats)
@@ -124,13 +125,13 @@ def compare(mesh, settings: BakeSettings, client, repeat: int) -> dict:
                 same[kind] &= identical(reference, hlod, meta=kind != "jobs2")  # jobs 2: meta says jobs 2
     median = {k: statistics.median(v) for k, v in runs.items()}
     speedup = {k: median["jobs1"] / median[k] for k in kinds}
-    tasks, threads, sent_mb, returned_mb = stats.last
+    task_count, threads, sent_mb, returned_mb = stats.last
     return {"runs": runs, "median_seconds": median, "speedup_over_jobs1": speedup,
             "cpu_seconds": cpu, "median_cpu_seconds": {k: statistics.median(v) for k, v in cpu.items()},
             "median_own_cpu_seconds": {k: statistics.median(v) for k, v in own.items()},
             "dask_over_jobs2_speedup": speedup["dask2"] / speedup["jobs2"],
             "target_met": speedup["dask2"] >= 0.85 * speedup["jobs2"], "identical": same,
-            "dask_tasks": tasks, "dask_threads": threads, "dask_sent_mb": sent_mb, "dask_returned_mb": returned_mb}
+            "dask_tasks": task_count, "dask_threads": threads, "dask_sent_mb": sent_mb, "dask_returned_mb": returned_mb}
 
 
 def _cpu_seconds(workers) -> float:
@@ -150,24 +151,24 @@ def _own_cpu_seconds() -> float:
 def task_costs(mesh, settings: BakeSettings) -> dict:
     """Part 2: one jobs 1 bake with every task timed in this process."""
     records: list[dict] = []
-    decimate, measure = simplify.decimate_node, bake_module._measure_task
+    decimate, measure = simplify.decimate_node, tasks.measure_exact
     measure_children = hausdorff.measure_to_children
 
-    def timed_decimate(children, *rest):
+    def timed_decimate(children, *rest, **options):
         started = time.perf_counter()
-        lod = decimate(children, *rest)
+        lod = decimate(children, *rest, **options)
         records.append({"kind": "decimate", "seconds": time.perf_counter() - started,
                         "tris": int(sum(c[1].shape[0] for c in children)),
-                        "sent": dask_cluster._array_bytes(children), "returned": dask_cluster._array_bytes(lod)})
+                        "sent": dask_cluster.array_bytes(children), "returned": dask_cluster.array_bytes(lod)})
         return lod
 
-    def timed_measure(folder, positions, faces, ranges):
+    def timed_measure(folder, lod, ranges):
         started = time.perf_counter()
-        value = measure(folder, positions, faces, ranges)
-        start = bake_module._shared(folder)["start"]
+        value = measure(folder, lod, ranges)
+        start = tasks.shared(folder)["start"]
         records.append({"kind": "measure", "seconds": time.perf_counter() - started,
                         "tris": int(start[ranges[3]] - start[ranges[2]]),
-                        "sent": positions.nbytes + faces.nbytes, "returned": 8})
+                        "sent": dask_cluster.array_bytes(lod), "returned": 8})
         return value
 
     def timed_measure_children(lod, children):
@@ -175,35 +176,35 @@ def task_costs(mesh, settings: BakeSettings) -> dict:
         value = measure_children(lod, children)
         records.append({"kind": "measure", "seconds": time.perf_counter() - started,
                         "tris": int(sum(c[1].shape[0] for c in children)),
-                        "sent": dask_cluster._array_bytes((lod, children)), "returned": 8})
+                        "sent": dask_cluster.array_bytes((lod, children)), "returned": 8})
         return value
 
-    leaf_arrays = bake_module._leaf_arrays
+    build_leaf_arrays = leaf_arrays.build
     shared: dict = {"seconds": 0.0, "bytes": 0}
 
-    def timed_leaf_arrays(*args):
+    def timed_leaf_arrays(*args, **options):
         started = time.perf_counter()
-        made = leaf_arrays(*args)
+        made = build_leaf_arrays(*args, **options)
         shared["seconds"] += time.perf_counter() - started
         arrays = made.arrays()
         shared["bytes"] = sum(a.nbytes for a in arrays.values())
         with tempfile.TemporaryDirectory() as folder:  # what a cluster bake adds: the .npy files
             started = time.perf_counter()
-            bake_module._Workers(None, 1, folder).share(arrays)
+            tasks.save_shared(folder, arrays)
             shared["save_seconds"] = time.perf_counter() - started
         return made
 
-    simplify.decimate_node, bake_module._measure_task = timed_decimate, timed_measure
+    simplify.decimate_node, tasks.measure_exact = timed_decimate, timed_measure
     hausdorff.measure_to_children = timed_measure_children
-    bake_module._leaf_arrays = timed_leaf_arrays
+    leaf_arrays.build = timed_leaf_arrays
     try:
         started = time.perf_counter()
         hlod = bake(mesh, BakeSettings(**{**settings.__dict__, "jobs": 1}))
         seconds = time.perf_counter() - started - shared.get("save_seconds", 0.0)
     finally:
-        simplify.decimate_node, bake_module._measure_task = decimate, measure
+        simplify.decimate_node, tasks.measure_exact = decimate, measure
         hausdorff.measure_to_children = measure_children
-        bake_module._leaf_arrays = leaf_arrays
+        leaf_arrays.build = build_leaf_arrays
     out: dict = {"bake_seconds": seconds, "input_tris": mesh.tri_count, "nodes": hlod.node_count,
                  "inner_nodes": int((~hlod.is_leaf).sum()), "depth": int(hlod.depth.max()),
                  "phase_seconds": hlod.meta["phase_seconds"]}
@@ -291,7 +292,7 @@ def per_task_overhead(sample_args, tasks: int = 400) -> dict:
                     out[key] = {"wall_ms": 1e3 * (time.perf_counter() - started) / tasks,
                                 "client_cpu_ms": 1e3 * (time.process_time() - cpu) / tasks,
                                 "scheduler_cpu_ms": 1e3 * (sum(scheduler.cpu_times()[:2]) - other) / tasks}
-    out["decimation_args_kb"] = dask_cluster._array_bytes(sample_args) / 1e3
+    out["decimation_args_kb"] = dask_cluster.array_bytes(sample_args) / 1e3
     return out
 
 
@@ -350,7 +351,7 @@ def main() -> None:
                                   dashboard_address="127.0.0.1:0") as cluster, \
             distributed.Client(cluster, set_as_default=False) as client:
         result["cluster_start_seconds"] = time.perf_counter() - started
-        result["compare"] = compare(mesh, settings, client, args.repeat)
+        result["compare"] = compare(mesh, settings, client, repeat=args.repeat)
         result["costs"] = task_costs(mesh, settings)
     result["overhead"] = per_task_overhead(_sample_children(settings))
     result["predict"] = predict(result["costs"], result["overhead"])

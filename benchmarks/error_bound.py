@@ -1,4 +1,4 @@
-"""The error bound against the exact error (issue 16, `--error bound` beside `--error exact`).
+"""The error bound against the exact error (`--error bound` beside `--error exact`).
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.error_bound [--models cow.obj ...] [--scenes gallery_1m]
         [--jobs 1] [--scene-jobs 2] [--target-tris 2000] [--out DIR]
@@ -30,7 +30,8 @@ import numpy as np
 from hlod_core.traversal import boxes, metrics
 from hlod_core.model import camera_path
 from hlod_core.io import meshes
-from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT.parent / "shared" / "models"

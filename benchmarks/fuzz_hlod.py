@@ -92,7 +92,8 @@ def uv_sphere(rings: int = 24, segments: int = 40):
 def base_file(folder: Path) -> bytes:
     """Bake the sphere, save it, and return the file with HEADER_SLACK spaces after the header."""
     from hlod_core.io import meshes
-    from hlod_core.bake.pipeline import BakeSettings, bake
+    from hlod_core.bake.pipeline import bake
+    from hlod_core.bake.settings import BakeSettings
 
     positions, faces = uv_sphere()
     mesh = meshes.from_arrays(positions, faces, positions.astype(np.float32), name="fuzz_sphere")  # unit normals
@@ -244,7 +245,7 @@ def _header_mutation(base: Base, data: bytes, rng) -> tuple[bytes, str]:
         key = field if field != "entry" else "dtype"
         arrays[name][key], raw = _hostile_value(rng)
         what = f"{name}.{key} = {raw[0][:20] if raw else json.dumps(arrays[name][key])[:40]}"
-    return _mutated_header(base, data, header, raw), what
+    return _mutated_header(base, data, header=header, raw=raw), what
 
 
 def _meta_mutation(base: Base, data: bytes, rng) -> tuple[bytes, str]:
@@ -262,10 +263,10 @@ def _meta_mutation(base: Base, data: bytes, rng) -> tuple[bytes, str]:
                               "phase_seconds", "sources", "log", "leaves_over_budget", "settings"])
         header["meta"][key], raw = _hostile_value(rng)
         what = f"meta.{key} = {raw[0][:20] if raw else json.dumps(header['meta'][key])[:40]}"
-    return _mutated_header(base, data, header, raw), what
+    return _mutated_header(base, data, header=header, raw=raw), what
 
 
-def _mutated_header(base: Base, data: bytes, header: dict, raw: list[str]) -> bytes:
+def _mutated_header(base: Base, data: bytes, *, header: dict, raw: list[str]) -> bytes:
     return _with_header(data, header, old_data_start=base.data_start, new_data_start=base.data_start, raw=raw)
 
 

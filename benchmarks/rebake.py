@@ -1,4 +1,4 @@
-"""Re-bake times with the bake cache (issue 14): a full bake, a re-bake after moving one object,
+"""Re-bake times with the bake cache: a full bake, a re-bake after moving one object,
 a re-bake after changing nothing, in one run.
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.rebake [--spec tests/scenes/crowd_1m.json]
@@ -10,11 +10,11 @@ made absolute). Times are bake() alone, as in bake_throughput.py (reading the in
     full       the spec, into an empty cache folder (it writes the cache);
     unchanged  the same mesh again with that cache;
     moved      the modified spec with that cache.
---error picks the inner nodes' error measure (BakeSettings.error; issue 16: the bound measures a
-node against its children's LODs, not every original below it); the figures go to rebake.json
+--error picks the inner nodes' error measure (BakeSettings.error: the bound measures a node
+against its children's LODs, not every original below it); the figures go to rebake.json
 (exact) or rebake-bound.json.
 --verify also bakes the modified spec from scratch (no cache) and checks that the re-bake gave the
-same arrays and the same meta but bake.VOLATILE_META (the issue's byte-identity).
+same arrays and the same meta but meta.VOLATILE_META (byte-identity).
 --work also measures what the moved re-bake cannot do without (`rebuilt_work`): the cache is put
 back to the spec's state (a bake of the spec), then the moved spec is re-baked with jobs 1, where
 every task runs in this process, each decimation and measurement timed (wall seconds of each call,
@@ -40,12 +40,14 @@ from pathlib import Path
 import numpy as np
 
 from hlod_core.io import meshes
-from hlod_core.bake.pipeline import BakeSettings, bake, stable_meta
+from hlod_core.bake.meta import stable_meta
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def moved_spec(spec_path: Path, instance: int, offset: np.ndarray, folder: Path) -> Path:
+def moved_spec(spec_path: Path, instance: int, offset: np.ndarray, *, folder: Path) -> Path:
     """A copy of the spec in `folder` with instance `instance` translated by `offset`."""
     spec = json.loads(spec_path.read_text())
     seen = 0
@@ -75,27 +77,27 @@ def rebuilt_work(mesh, settings: BakeSettings, cache_dir) -> dict:
     (module docstring, --work): {"seconds", "rebuilt_nodes", "decimations", "decimate_s",
     "measurements", "measure_s", "before_tasks_s"}. The bake's own functions are wrapped in
     place for the call (jobs 1 runs every task in this process) and restored after."""
-    from hlod_core.bake import pipeline as bake_module, hausdorff, simplify
+    from hlod_core.bake import hausdorff, simplify, tasks
 
     spent = {"decimate": [], "measure": []}
-    decimate, measure = simplify.decimate_node, bake_module._measure_task
+    decimate, measure = simplify.decimate_node, tasks.measure_exact  # the scheduler's task functions
     to_children = hausdorff.measure_to_children  # the measure's task with --error bound
 
     def timed(kind, fn):
-        def run(*args):
+        def run(*args, **kwargs):
             started = time.perf_counter()
             try:
-                return fn(*args)
+                return fn(*args, **kwargs)
             finally:
                 spent[kind].append(time.perf_counter() - started)
         return run
 
-    simplify.decimate_node, bake_module._measure_task = timed("decimate", decimate), timed("measure", measure)
+    simplify.decimate_node, tasks.measure_exact = timed("decimate", decimate), timed("measure", measure)
     hausdorff.measure_to_children = timed("measure", to_children)
     try:
         seconds, hlod = timed_bake(mesh, replace(settings, jobs=1), cache_dir)
     finally:
-        simplify.decimate_node, bake_module._measure_task = decimate, measure
+        simplify.decimate_node, tasks.measure_exact = decimate, measure
         hausdorff.measure_to_children = to_children
     phases = hlod.meta["phase_seconds"]
     return {"seconds": seconds, "rebuilt_nodes": hlod.meta["cache"]["rebuilt_nodes"],
@@ -129,7 +131,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="rebake-") as scratch:
         cache = Path(scratch) / "crowd.hlod.cache"
         mesh = meshes.load_inputs([args.spec])
-        moved_mesh = meshes.load_inputs([moved_spec(args.spec, args.move, np.asarray(args.by), Path(scratch))])
+        moved_mesh = meshes.load_inputs([moved_spec(args.spec, args.move, np.asarray(args.by), folder=Path(scratch))])
         runs = {}
         for name, m in (("full", mesh), ("unchanged", mesh), ("moved", moved_mesh)):
             seconds, hlod = timed_bake(m, settings, cache)

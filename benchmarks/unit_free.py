@@ -14,7 +14,8 @@ import json
 import numpy as np
 
 from hlod_core.io import meshes
-from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 
 from .bake_throughput import ROOT
 

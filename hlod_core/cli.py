@@ -39,7 +39,8 @@ from pathlib import Path
 
 from .bake import cache, checks, partition
 from .io import hlod_file, meshes, procedural
-from .bake.pipeline import ERROR_MEASURES, BakeSettings, bake
+from .bake.pipeline import bake, bake_stream
+from .bake.settings import ERROR_MEASURES, BakeSettings
 from .core.errors import HlodError, InputError
 from .export.formats import check_output_file, export_hlod
 from .core.signals import Terminated, signals_as_exceptions
@@ -322,9 +323,7 @@ def _settings(args) -> BakeSettings:
 
 def _cache_dir(args) -> Path | None:
     """The bake's cache folder: --cache, else OUT.hlod.cache beside the output; None with --no-cache."""
-    if args.no_cache:
-        return None
-    return Path(args.cache) if args.cache else cache.default_folder(args.output)
+    return cache.folder_for(args.output, folder=args.cache, enabled=not args.no_cache)
 
 
 def _bake_and_save(mesh, args, sources, *, scheduler=None) -> dict:
@@ -335,9 +334,8 @@ def _bake_and_save(mesh, args, sources, *, scheduler=None) -> dict:
     cache_dir = None if streamed else _cache_dir(args)
     started = time.perf_counter()
     if streamed:
-        hlod = partition.bake_stream(mesh, settings, progress=_Progress(), sources=sources, scheduler=scheduler,
-                                            scratch_dir=args.scratch,
-                                            chunk_tris=args.chunk_tris or partition.CHUNK_TRIS)
+        hlod = bake_stream(mesh, settings, progress=_Progress(), sources=sources, scheduler=scheduler,
+                           scratch_dir=args.scratch, chunk_tris=args.chunk_tris or partition.CHUNK_TRIS)
     else:
         hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
                     scratch_dir=getattr(args, "scratch", None))

@@ -1,13 +1,18 @@
 """Bakes with real pymeshlab on the shared models, and the degenerate inputs of DESIGN §10."""
 import os
+import signal
+import threading
 
 import numpy as np
 import pytest
 
-from hlod_core.bake import checks, hausdorff, simplify
+from hlod_core.bake import checks, hausdorff, meshlab, simplify
+from hlod_core.core import arrays
 from hlod_core.io import meshes
-from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import BakeCancelled, InputError
+from hlod_core.core.signals import Terminated, deliver_held, signals_as_exceptions, stop_signals_held
 
 from helpers import baked, load_model
 
@@ -197,6 +202,44 @@ def test_cancelled_bake_raises_and_leaves_no_scratch_files(jobs, tmp_path, monke
     assert os.listdir(tmp_path) == []
 
 
+# --- stop signals ---------------------------------------------------------------------------------
+
+def test_a_stop_signal_inside_a_held_block_waits_for_a_safe_point():
+    """Inside stop_signals_held a SIGTERM is only recorded: a thread starts untouched (a handler
+    raising inside Thread.start broke its lock: "release unlocked lock", exit 1), and the signal's
+    own handler raises Terminated where the code delivers it."""
+    with signals_as_exceptions():
+        with pytest.raises(Terminated) as info:
+            with stop_signals_held() as held:
+                signal.raise_signal(signal.SIGTERM)
+                assert held.pending
+                thread = threading.Thread(target=lambda: None)
+                thread.start()
+                thread.join()
+                deliver_held()
+                pytest.fail("the recorded signal was not delivered")
+        assert info.value.signum == signal.SIGTERM
+        with stop_signals_held():  # later signals are ignored, held or not: they cannot cut a cleanup short
+            signal.raise_signal(signal.SIGHUP)
+    assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+
+
+def test_a_sigterm_during_a_bake_surfaces_at_its_next_check():
+    """The bake holds stop signals: a SIGTERM sent from its progress callback is raised by the
+    bake at its next check (right after the octree), not inside the callback."""
+    phases = []
+
+    def progress(done, total, phase):
+        phases.append(phase)
+        if phase == "octree":
+            os.kill(os.getpid(), signal.SIGTERM)
+            phases.append("callback returned")
+
+    with signals_as_exceptions(), pytest.raises(Terminated):
+        bake(load_model("cow.obj"), BakeSettings(target_tris=300), progress=progress)
+    assert phases == ["octree", "callback returned"]
+
+
 def test_progress_reaches_every_node():
     mesh = load_model("cow.obj")
     seen = []
@@ -205,7 +248,7 @@ def test_progress_reaches_every_node():
     assert [d for d, _, _ in seen] == sorted(d for d, _, _ in seen)
 
 
-# --- units (issue 11): pymeshlab's quadric collapse has absolute thresholds -----------------------
+# --- units: pymeshlab's quadric collapse has absolute thresholds -----------------------
 
 def _scaled(mesh, factor: float):
     return meshes.transform_mesh(mesh, np.diag([factor, factor, factor, 1.0]), name=f"{mesh.name}x{factor:g}")
@@ -254,10 +297,10 @@ def test_decimated_node_returns_its_fixed_vertices_bit_identical():
     border = np.unique(unique[count == 1])
     p[border, 0] *= np.float32(1e-13)
     quarters = [half[: half.shape[0] // 2], half[half.shape[0] // 2:]]
-    children = [simplify.compact(p, f)[:2] for f in quarters]
-    lod = simplify.decimate_node(children, simplify.DecimationSettings(target_tris=200), with_normals=False)
+    children = [arrays.compact(p, f)[:2] for f in quarters]
+    lod = simplify.decimate_node(children, meshlab.DecimationSettings(target_tris=200), with_normals=False)
     assert lod.decimated and lod.faces.shape[0] <= 220 and border.size > 30
-    frame = simplify.NodeFrame.of(p[np.unique(half)])
+    frame = meshlab.NodeFrame.of(p[np.unique(half)])
     naive = (frame.to_local(p[border]) / frame.scale + frame.center).astype(np.float32)
     assert np.any(naive != p[border])  # the inverse alone would move them: NodeFrame.to_model looks them up
     out = {row.tobytes() for row in lod.positions}
@@ -269,7 +312,7 @@ def test_hausdorff_error_is_unit_free():
     millimetres the same error up to rounding."""
     spot = load_model("spot.obj")
     p, f = spot.positions.astype(np.float32), spot.faces.astype(np.int32)
-    lod = simplify.decimate_node([(p, f)], simplify.DecimationSettings(target_tris=300), with_normals=False)
+    lod = simplify.decimate_node([(p, f)], meshlab.DecimationSettings(target_tris=300), with_normals=False)
     error = hausdorff.measure((lod.positions, lod.faces), (p, f))
     assert error > 0
     for factor in (2.0 ** -20, 2.0 ** 20):

@@ -1,4 +1,4 @@
-"""Appearance through the bake (issue 13): materials, UVs and colours on leaves and decimated nodes.
+"""Appearance through the bake: materials, UVs and colours on leaves and decimated nodes.
 
 The input is a sphere built here in numpy whose attributes are functions of position, so what a
 LOD vertex should carry is known from its position alone:
@@ -23,9 +23,11 @@ import numpy as np
 import pytest
 
 from hlod_core.io import hlod_file, meshes
-from hlod_core.bake import simplify
+from hlod_core.bake import meshlab, seams, simplify
+from hlod_core.core import arrays
 from hlod_core.model.appearance import Material
-from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import InputError
 from hlod_core.model.hierarchy import node_geometry
 
@@ -37,7 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: untextured bake): a mesh without appearance must bake to the same file as it did there.
 BEFORE_APPEARANCE = "6d77cb6"
 #: SHA-256 of that file as the bake at BEFORE_APPEARANCE wrote it (re-saved, timings zeroed; pinned
-#: pymeshlab, on the AMD EPYC machine of that session), for checkouts without the commit; where the
+#: pymeshlab, on an AMD EPYC machine), for checkouts without the commit; where the
 #: commit is there, the old code's own file is compared instead (a digest of floats is per CPU: on an
 #: Intel Xeon both bakes agree with each other, not with this digest).
 FILE_BEFORE_APPEARANCE = "8dabac77528d712a432c148d9bbde862b0b27c769a5fd54d0b8c7697542defd7"
@@ -120,7 +122,7 @@ def _stored(mesh, hlod) -> np.ndarray:
     return (mesh.positions - hlod.origin).astype(np.float32)
 
 
-def _corner_records(positions, faces, uvs, colors, material) -> np.ndarray:
+def _corner_records(positions, faces, *, uvs, colors, material) -> np.ndarray:
     """(f*3,) one record per triangle corner: position, UV, colour and its triangle's material, as bytes."""
     columns = [positions[faces.ravel()].astype(np.float32)]
     columns += [a[faces.ravel()].astype(np.float32) for a in (uvs, colors) if a is not None]
@@ -130,10 +132,10 @@ def _corner_records(positions, faces, uvs, colors, material) -> np.ndarray:
     return rows.view(np.dtype((np.void, rows.shape[1] * 4))).ravel()
 
 
-def _triangle_records(positions, faces, uvs, colors, material) -> np.ndarray:
+def _triangle_records(positions, faces, *, uvs, colors, material) -> np.ndarray:
     """Sorted (f,) triangle records (three corner records, rotated so the smallest comes first:
     the winding is kept), to compare triangles as a multiset."""
-    corners = _corner_records(positions, faces, uvs, colors, material).reshape(-1, 3)
+    corners = _corner_records(positions, faces, uvs=uvs, colors=colors, material=material).reshape(-1, 3)
     first = np.argmin(np.argsort(np.argsort(corners.ravel())).reshape(-1, 3), axis=1)
     rotated = np.take_along_axis(corners, (first[:, None] + np.arange(3)) % 3, axis=1)
     return np.sort(np.ascontiguousarray(rotated).view(np.dtype((np.void, rotated.dtype.itemsize * 3))).ravel())
@@ -149,7 +151,7 @@ def _colour_ranges(positions, colors):
     return keys, lo, hi
 
 
-def _assert_colours_blend_the_inputs(mesh, hlod, positions, colors, where: str) -> None:
+def _assert_colours_blend_the_inputs(mesh, hlod, positions, *, colors, where: str) -> None:
     """Each vertex's colour is the input's colour at its position where the input has one colour
     there, and a blend of the input's colours there (per channel, between their min and max)
     where it has several (a colour jump: colours are welded, not split)."""
@@ -202,9 +204,10 @@ def test_leaves_keep_their_triangles_with_exact_appearance():
     assert hlod.uvs is not None and hlod.colors is not None and hlod.tri_material is not None
     assert hlod.tri_material.dtype == np.uint16 and hlod.materials == MATERIALS
     leaves = [node_geometry(hlod, int(i)) for i in np.flatnonzero(hlod.is_leaf)]
-    got = np.sort(np.concatenate([_triangle_records(g.positions, g.faces, g.uvs, g.colors, g.face_material)
-                                  for g in leaves]))
-    want = _triangle_records(_stored(mesh, hlod), mesh.faces, mesh.uvs, mesh.colors, mesh.material_ids)
+    got = np.sort(np.concatenate([_triangle_records(g.positions, g.faces, uvs=g.uvs, colors=g.colors,
+                                                    material=g.face_material) for g in leaves]))
+    want = _triangle_records(_stored(mesh, hlod), mesh.faces, uvs=mesh.uvs, colors=mesh.colors,
+                             material=mesh.material_ids)
     assert got.shape == want.shape and np.array_equal(got, want)
 
 
@@ -216,14 +219,15 @@ def test_inner_nodes_keep_borders_and_take_their_vertices_attributes_from_the_in
     border positions are input border positions (borders stay put)."""
     mesh, hlod = textured_sphere(), baked()
     stored = _stored(mesh, hlod)
-    input_corners = set(_corner_records(stored, mesh.faces, mesh.uvs, None, mesh.material_ids).tolist())
+    input_corners = set(_corner_records(stored, mesh.faces, uvs=mesh.uvs, colors=None,
+                                        material=mesh.material_ids).tolist())
     inner = np.flatnonzero(~hlod.is_leaf)
     assert inner.size >= 3 and hlod.tri_count[0] < mesh.tri_count / 4  # nodes were really decimated
     for node in inner:
         g = node_geometry(hlod, int(node))
-        corners = set(_corner_records(g.positions, g.faces, g.uvs, None, g.face_material).tolist())
+        corners = set(_corner_records(g.positions, g.faces, uvs=g.uvs, colors=None, material=g.face_material).tolist())
         assert corners <= input_corners, f"node {node}: a vertex has attributes no input vertex has there"
-        _assert_colours_blend_the_inputs(mesh, hlod, g.positions, g.colors, f"node {node}")
+        _assert_colours_blend_the_inputs(mesh, hlod, g.positions, colors=g.colors, where=f"node {node}")
     _assert_material_borders_stay(mesh, hlod)
 
 
@@ -299,12 +303,14 @@ def test_partial_appearance_bakes_what_the_mesh_has(which):
     assert (hlod.tri_material is not None) == (mesh.material_ids is not None)
     assert hlod.materials == mesh.materials
     stored = _stored(mesh, hlod)
-    input_corners = set(_corner_records(stored, mesh.faces, mesh.uvs, None, mesh.material_ids).tolist())
+    input_corners = set(_corner_records(stored, mesh.faces, uvs=mesh.uvs, colors=None,
+                                        material=mesh.material_ids).tolist())
     for node in range(hlod.node_count):
         g = node_geometry(hlod, node)
-        assert set(_corner_records(g.positions, g.faces, g.uvs, None, g.face_material).tolist()) <= input_corners
+        corners = _corner_records(g.positions, g.faces, uvs=g.uvs, colors=None, material=g.face_material)
+        assert set(corners.tolist()) <= input_corners
         if mesh.colors is not None:
-            _assert_colours_blend_the_inputs(mesh, hlod, g.positions, g.colors, f"node {node}")
+            _assert_colours_blend_the_inputs(mesh, hlod, g.positions, colors=g.colors, where=f"node {node}")
     parts = hlod.draw_parts()
     if mesh.material_ids is None:  # no material table: one draw per node, material -1
         assert np.all(parts.count == 1) and np.all(parts.material == -1)
@@ -365,7 +371,7 @@ def test_colour_jumps_do_not_stop_decimation():
     hlod = bake(mesh, BakeSettings(target_tris=TARGET_TRIS))
     bare = bake(meshes.from_arrays(positions, faces, name="bare"), BakeSettings(target_tris=TARGET_TRIS))
     assert hlod.tri_count[0] <= 1.1 * TARGET_TRIS and bare.tri_count[0] <= 1.1 * TARGET_TRIS
-    _assert_colours_blend_the_inputs(mesh, hlod, hlod.positions, hlod.colors, "faceted sphere")
+    _assert_colours_blend_the_inputs(mesh, hlod, hlod.positions, colors=hlod.colors, where="faceted sphere")
 
 
 def test_extra_meta_is_recorded_and_cannot_replace_the_bakes_own():
@@ -382,15 +388,15 @@ def test_undecimated_and_zero_area_nodes_keep_their_rows():
     positions, faces = _sphere(6, 8)
     p = positions.astype(np.float32)
     rows = np.concatenate([expected_uv(positions), np.arange(positions.shape[0])[:, None]], 1).astype(np.float32)
-    halves = [simplify.compact(p, f) for f in (faces[:40], faces[40:])]
+    halves = [arrays.compact(p, f) for f in (faces[:40], faces[40:])]
     children = [(cp, cf, rows[used]) for cp, cf, used in halves]
-    lod = simplify.decimate_node(children, simplify.DecimationSettings(target_tris=500), with_normals=True)
+    lod = simplify.decimate_node(children, meshlab.DecimationSettings(target_tris=500), with_normals=True)
     assert not lod.decimated and lod.faces.shape[0] == faces.shape[0]
     assert np.array_equal(lod.attributes, _lookup(p, rows, lod.positions))
     line = np.stack([np.linspace(0, 1, 301), np.zeros(301), np.zeros(301)], 1).astype(np.float32)  # collinear
     line_faces = np.stack([np.arange(299), np.arange(1, 300), np.arange(2, 301)], 1).astype(np.int32)
     line_rows = np.stack([line[:, 0], 1 - line[:, 0]], 1).astype(np.float32)
-    lod = simplify.decimate_node([(line, line_faces, line_rows)], simplify.DecimationSettings(target_tris=50),
+    lod = simplify.decimate_node([(line, line_faces, line_rows)], meshlab.DecimationSettings(target_tris=50),
                                  with_normals=True)
     assert lod.zero_area and 0 < lod.faces.shape[0] <= 50
     assert np.array_equal(lod.attributes, _lookup(line, line_rows, lod.positions))
@@ -407,7 +413,7 @@ def _lookup(positions, rows, wanted):
 
 
 def test_row_sources_rule():
-    """simplify._row_sources on literal input. Input vertices: 0 at A, 1 and 2 both at B (a point
+    """seams.row_sources on literal input. Input vertices: 0 at A, 1 and 2 both at B (a point
     where two surfaces touch) with rows [0] and [5], 3 at C with row [4]. Output vertex 0 is
     survivor 0 at its own position A: its own row. Output 1 is survivor 3 moved onto B: of the two
     vertices there, vertex 2's row [5] is nearer its own [4]. Output 2 is survivor 0 moved onto C,
@@ -415,7 +421,7 @@ def test_row_sources_rule():
     a, b, c = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]
     local_in = np.array([a, b, b, c])
     rows = np.array([[9.0], [0.0], [5.0], [4.0]], np.float32)
-    source = simplify._row_sources(np.array([a, b, c]), np.array([0, 3, 0]), local_in, rows)
+    source = seams.row_sources(np.array([a, b, c]), np.array([0, 3, 0]), local_in, rows=rows)
     assert source.tolist() == [0, 2, 3]
 
 
@@ -480,7 +486,8 @@ def test_faces_inside_one_uv_island_keep_its_uvs_when_seams_are_crossed():
     mesh = island_sphere()
     hlod = bake(mesh, BakeSettings(target_tris=TARGET_TRIS))
     stored = _stored(mesh, hlod)
-    input_corners = set(_corner_records(stored, mesh.faces, mesh.uvs, None, mesh.material_ids).tolist())
+    input_corners = set(_corner_records(stored, mesh.faces, uvs=mesh.uvs, colors=None,
+                                        material=mesh.material_ids).tolist())
     corner_material = np.repeat(mesh.material_ids, 3)
     input_island = _island_of_uv(stored, mesh.uvs, hlod.origin)[mesh.faces.ravel()]
     where = set(zip(_position_keys(stored)[mesh.faces.ravel()].tolist(), input_island.tolist(),
@@ -491,7 +498,8 @@ def test_faces_inside_one_uv_island_keep_its_uvs_when_seams_are_crossed():
     inside_faces = 0
     for node in crossed:
         g = node_geometry(hlod, int(node))
-        assert set(_corner_records(g.positions, g.faces, g.uvs, None, g.face_material).tolist()) <= input_corners
+        corners = _corner_records(g.positions, g.faces, uvs=g.uvs, colors=None, material=g.face_material)
+        assert set(corners.tolist()) <= input_corners
         keys = _position_keys(g.positions)[g.faces]
         # (m, islands): the islands with an input vertex at all three corners (with the face's material)
         common = np.ones((g.faces.shape[0], islands.size), bool)
@@ -510,11 +518,11 @@ def test_faces_inside_one_uv_island_keep_its_uvs_when_seams_are_crossed():
 
 
 def test_uv_islands_are_edge_connected():
-    """simplify.uv_islands on literal faces: 0 and 1 share the edge (1, 2), 2 and 3 share (4, 5),
+    """seams.uv_islands on literal faces: 0 and 1 share the edge (1, 2), 2 and 3 share (4, 5),
     and 3 touches 0 and 1 at vertex 2 only: two islands, labelled by their lowest face. Face 4
     shares (4, 6) with face 2 only (a LOD face spanning two islands joins one, merging nothing);
     face 5 shares an edge with faces 1, 3 and 4, so everything is one island."""
     faces = np.array([[0, 1, 2], [2, 1, 3], [4, 5, 6], [5, 4, 2], [6, 4, 3], [3, 2, 4]])
-    assert simplify.uv_islands(faces[:4]).tolist() == [0, 0, 2, 2]
-    assert simplify.uv_islands(faces[:5]).tolist() == [0, 0, 2, 2, 2]
-    assert simplify.uv_islands(faces).tolist() == [0] * 6
+    assert seams.uv_islands(faces[:4]).tolist() == [0, 0, 2, 2]
+    assert seams.uv_islands(faces[:5]).tolist() == [0, 0, 2, 2, 2]
+    assert seams.uv_islands(faces).tolist() == [0] * 6

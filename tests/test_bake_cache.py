@@ -1,4 +1,4 @@
-"""The bake cache (issue 14): a re-bake takes the unchanged subtrees from it and writes the file a
+"""The bake cache: a re-bake takes the unchanged subtrees from it and writes the file a
 bake from scratch writes; corrupt entries are ignored and rebuilt; settings and versions are in
 the key. Real pymeshlab bakes of small meshes; decimations and measurements are counted by wrapping
 the real functions (jobs = 1 runs them in this process)."""
@@ -13,19 +13,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlod_core.bake import pipeline as bake_module
-from hlod_core.bake import cache as bake_cache, checks, hausdorff, simplify
+from hlod_core.bake import cache, cache_files, checks, hausdorff, meshlab, prepare, simplify, tasks
+from hlod_core.bake.meta import VOLATILE_META, stable_meta
+from hlod_core.bake.octree import build_octree
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
+from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.io import hlod_file, meshes
 from hlod_core.model.appearance import AttributeLayout
-from hlod_core.bake.pipeline import VOLATILE_META, BakeSettings, bake, stable_meta
-from hlod_core.core.errors import BakeCancelled, InputError
-from hlod_core.bake.octree import build_octree
 
 from helpers import load_model, model
 from test_bake_appearance import TARGET_TRIS as SPHERE_TARGET_TRIS, textured_sphere
 from test_cli import hlod, last_json, one_line_error
 
-CORE = Path(bake_module.__file__).resolve().parent.parent
+CORE = Path(cache.__file__).resolve().parent.parent
 
 COW = BakeSettings(target_tris=300)
 #: The 3 x 3 herd: cows (about 10 units long) 12 units apart; the one in the middle moves.
@@ -59,19 +60,19 @@ class _Counted:
     def __init__(self, monkeypatch):
         self.decimations = 0
         self.measured: list[tuple[int, int]] = []
-        decimate, measure = simplify.decimate_node, bake_module._measure_task
+        decimate, measure = simplify.decimate_node, tasks.measure_exact
 
-        def counting_decimate(*args):
+        def counting_decimate(*args, **kwargs):
             self.decimations += 1
-            return decimate(*args)
+            return decimate(*args, **kwargs)
 
-        def counting_measure(folder, lod_positions, lod_faces, ranges):
-            cluster_start = bake_module._shared(folder)["start"]  # the node's clusters' face range
+        def counting_measure(folder, lod, ranges):
+            cluster_start = tasks.shared(folder)["start"]  # the node's clusters' face range
             self.measured.append((int(cluster_start[ranges[2]]), int(cluster_start[ranges[3]])))
-            return measure(folder, lod_positions, lod_faces, ranges)
+            return measure(folder, lod, ranges)
 
         monkeypatch.setattr(simplify, "decimate_node", counting_decimate)
-        monkeypatch.setattr(bake_module, "_measure_task", counting_measure)
+        monkeypatch.setattr(tasks, "measure_exact", counting_measure)
 
 
 def _file_bytes(hlod, path) -> bytes:
@@ -89,11 +90,11 @@ def _inner(hlod) -> int:
 
 
 def _entries(folder) -> set[str]:
-    return {p.name for p in folder.glob(f"*{bake_cache.ENTRY_SUFFIX}")}
+    return {p.name for p in folder.glob(f"*{cache.ENTRY_SUFFIX}")}
 
 
 def _results(folder) -> set[str]:
-    return {p.name for p in folder.glob(f"*{bake_cache.RESULT_SUFFIX}")}
+    return {p.name for p in folder.glob(f"*{cache.RESULT_SUFFIX}")}
 
 
 def _remove_results(folder) -> None:
@@ -173,7 +174,7 @@ def _subtree_signatures(hlod) -> list[bytes]:
 
 def _cells(mesh):
     """The octree the bake builds for `mesh` at HERD's settings (its cells, origin-relative)."""
-    prepared = bake_module._prepare(mesh)
+    prepared = prepare.prepare(mesh)
     return build_octree(prepared.centroids, target_tris=HERD.target_tris, max_depth=HERD.max_depth,
                         counted=prepared.counted, root=prepared.root_cell)
 
@@ -182,8 +183,8 @@ def test_moving_one_object_rebuilds_only_the_cells_it_overlaps_and_their_ancesto
     """Nine cows; the middle one moves 1.5 units. The re-bake decimates and measures exactly the
     inner nodes whose subtree is not one of the first bake's (signatures from the files), every one
     of them overlaps the cow's old or new box, and the result is the file a bake from scratch of
-    the moved herd writes. Before issue 14 the origin (the centre of the input's box) and every
-    cell were free to move with any edit."""
+    the moved herd writes: the origin (the centre of the input's box) and every cell the edit does
+    not overlap stay where they were."""
     herd, mover = _herd()
     moved, _ = _herd(moved_by=(1.5, 0.0, 0.0))
     folder = tmp_path / "cache"
@@ -228,7 +229,7 @@ def test_changed_settings_or_versions_miss(change, tmp_path, monkeypatch):
     if change == "format version":
         monkeypatch.setattr(hlod_file, "FORMAT_VERSION", hlod_file.FORMAT_VERSION + 1)
     elif change == "cache version":
-        monkeypatch.setattr(bake_cache, "CACHE_VERSION", bake_cache.CACHE_VERSION + 1)
+        monkeypatch.setattr(cache_files, "CACHE_VERSION", cache_files.CACHE_VERSION + 1)
     else:
         value = {"quality_threshold": 0.5, "preserve_normals": True, "boundary_weight": 2.0, "target_tris": 299}[change]
         settings = BakeSettings(**{**COW.__dict__, change: value})
@@ -267,16 +268,16 @@ def _corrupt(folder) -> dict[str, str]:
     data[len(data) // 2] ^= 0x40
     path.write_bytes(bytes(data))
     how[names[1]] = "a byte flipped"
-    key = bytes.fromhex(names[2].removesuffix(bake_cache.ENTRY_SUFFIX))
+    key = bytes.fromhex(names[2].removesuffix(cache.ENTRY_SUFFIX))
     faces = np.array([[0, 1], [1, 2]], np.int32)  # (m,2): a well-formed entry of the wrong shape
     bad = simplify.NodeLod(positions=np.zeros((3, 3), np.float32), faces=faces, normals=None, decimated=True,
                            input_tris=5)
-    (folder / names[2]).write_bytes(bake_cache._node_bytes(key, bad, 0.5))
+    (folder / names[2]).write_bytes(cache_files.node_entry_bytes(key, bad, 0.5))
     how[names[2]] = "wrong-shaped faces"
-    key = bytes.fromhex(names[3].removesuffix(bake_cache.ENTRY_SUFFIX))
+    key = bytes.fromhex(names[3].removesuffix(cache.ENTRY_SUFFIX))
     bad = simplify.NodeLod(positions=np.zeros((3, 3), np.float32), faces=np.array([[0, 1, 7]], np.int32),
                            normals=None, decimated=True, input_tris=5)
-    (folder / names[3]).write_bytes(bake_cache._node_bytes(key, bad, 0.5))
+    (folder / names[3]).write_bytes(cache_files.node_entry_bytes(key, bad, 0.5))
     how[names[3]] = "a face outside the LOD"
     shutil.copyfile(folder / names[5], folder / names[4])
     how[names[4]] = "another key's entry"
@@ -308,15 +309,15 @@ def test_corrupt_entries_are_ignored_logged_once_and_rebuilt(jobs, tmp_path, cap
     assert again.meta["cache"]["reused_nodes"] == _inner(again) and again.meta["cache"]["rejected_entries"] == 0
 
 
-def _cache(folder) -> bake_cache.BakeCache:
-    return bake_cache.BakeCache(folder, decimation=simplify.DecimationSettings(), with_normals=False,
+def _cache(folder) -> cache.BakeCache:
+    return cache.BakeCache(folder, decimation=meshlab.DecimationSettings(), with_normals=False,
                                 row_layout=AttributeLayout(False, False, False))
 
 
 @pytest.mark.parametrize("spoil, why", [
     (lambda d: d[:10], "truncated"),
     (lambda d: b"NOTANODE" + d[8:], "bad magic"),
-    (lambda d: d[:8] + (bake_cache.CACHE_VERSION + 1).to_bytes(4, "little") + d[12:], "cache format"),
+    (lambda d: d[:8] + (cache_files.CACHE_VERSION + 1).to_bytes(4, "little") + d[12:], "cache format"),
     (lambda d: d + b"\0", "payload of"),
     (lambda d: d[:-1] + bytes([d[-1] ^ 1]), "digest mismatch"),
 ])
@@ -324,11 +325,11 @@ def test_a_spoiled_entry_is_a_miss_with_its_reason(spoil, why, tmp_path):
     key = bytes(range(32))
     lod = simplify.NodeLod(positions=np.eye(3, dtype=np.float32), faces=np.array([[0, 1, 2]], np.int32), normals=None,
                            decimated=False, input_tris=1)
-    cache = _cache(tmp_path)
-    cache.store({key: (lod, 0.25)})
+    folder = _cache(tmp_path)
+    folder.store({key: (lod, 0.25)})
     got, error = _cache(tmp_path).load(key)
     assert np.array_equal(got.positions, lod.positions) and np.array_equal(got.faces, lod.faces) and error == 0.25
-    cache.path(key).write_bytes(spoil(cache.path(key).read_bytes()))
+    folder.path(key).write_bytes(spoil(folder.path(key).read_bytes()))
     spoilt = _cache(tmp_path)
     assert spoilt.load(key) is None and len(spoilt.rejected) == 1 and why in spoilt.rejected[0][1]
     assert spoilt.reused_nodes == 0
@@ -400,8 +401,8 @@ def test_command_line_keeps_the_cache_beside_the_output(tmp_path):
 
 
 #: hlod_core modules the bake's code imports that compute nothing a LOD or an error depends on.
-_NOT_RESULT_MODULES = {"core.errors", "model.hierarchy", "io.meshes", "io.hlod_file",
-                       "bake.dask_cluster"}  # dask_cluster: where tasks run
+_NOT_RESULT_MODULES = {"core.errors", "core.signals", "io.meshes", "io.hlod_file",
+                       "bake.workers", "bake.dask_cluster"}  # workers, dask_cluster: where tasks run
 
 
 def _core_imports(name: str, tree) -> set[str]:
@@ -422,15 +423,15 @@ def test_every_module_that_computes_lods_or_errors_keys_the_cache():
     """The cache key holds the source of RESULT_MODULES, so a change to any module that computes
     LODs or errors invalidates every entry (a stale subtree is never served). Every hlod_core module
     those modules import is one of them or names nothing a result depends on."""
-    seen, todo = set(), list(bake_cache.RESULT_MODULES)
+    seen, todo = set(), list(cache.RESULT_MODULES)
     while todo:
         name = todo.pop()
         if name in seen:
             continue
         seen.add(name)
         for module in _core_imports(name, ast.parse((CORE / f"{name.replace('.', '/')}.py").read_text())):
-            assert module in bake_cache.RESULT_MODULES or module in _NOT_RESULT_MODULES, (name, module)
-            todo.extend([module] if module in bake_cache.RESULT_MODULES else [])
+            assert module in cache.RESULT_MODULES or module in _NOT_RESULT_MODULES, (name, module)
+            todo.extend([module] if module in cache.RESULT_MODULES else [])
     assert "bake.hausdorff" in seen
 
 
@@ -444,9 +445,9 @@ def test_rebake_benchmark_times_every_rebuilt_task_and_restores_the_bake(tmp_pat
     moved, _ = _herd(moved_by=(1.5, 0.0, 0.0))
     folder = tmp_path / "cache"
     bake(herd, HERD, cache_dir=folder)
-    decimate, measure = simplify.decimate_node, bake_module._measure_task
+    decimate, measure = simplify.decimate_node, tasks.measure_exact
     work = rebake.rebuilt_work(moved, BakeSettings(**{**HERD.__dict__, "jobs": 2}), folder)
-    assert simplify.decimate_node is decimate and bake_module._measure_task is measure
+    assert simplify.decimate_node is decimate and tasks.measure_exact is measure
     assert 0 < work["rebuilt_nodes"] == work["decimations"] == work["measurements"]
     assert work["decimate_s"] > 0 and work["measure_s"] > 0
     assert 0 < work["before_tasks_s"] < work["seconds"]

@@ -1,4 +1,4 @@
-"""Bakes on a Dask cluster (issue 16, hlod_core/dask_cluster.py): a real distributed.LocalCluster of
+"""Bakes on a Dask cluster (hlod_core/bake/dask_cluster.py): a real distributed.LocalCluster of
 two worker processes on this machine (localhost only, no dashboard) bakes the file a local bake
 writes, byte for byte, with the exact and the bound error; a worker killed in the middle of a bake
 has its tasks retried and the file is still the same; the command line's --scheduler and --scratch,
@@ -18,12 +18,12 @@ import distributed  # requirements.txt installs it (command line only): its abse
 import numpy as np
 import pytest
 
-from hlod_core.bake import pipeline as bake_module
-from hlod_core.bake import dask_cluster
-from hlod_core.io import hlod_file
-from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.bake import dask_cluster, tasks
+from hlod_core.bake.partition import MeshSource
+from hlod_core.bake.pipeline import bake, bake_stream
+from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import BakeCancelled
-from hlod_core.bake.partition import MeshSource, bake_stream
+from hlod_core.io import hlod_file
 
 from helpers import ROOT, model
 from test_bake_cache import HERD_SPACING, _file_bytes, _herd
@@ -232,16 +232,16 @@ def test_check_cluster_refuses_other_code_and_an_unshared_scratch_folder(tmp_pat
     ours = dask_cluster.fingerprint()
 
     def reads(path):
-        return {"tcp://w1:1": dask_cluster._read_probe(path), "tcp://w2:1": dask_cluster._read_probe(path)}
+        return {"tcp://w1:1": dask_cluster.read_probe(path), "tcp://w2:1": dask_cluster.read_probe(path)}
 
-    good = {"fingerprint": {"tcp://w1:1": ours, "tcp://w2:1": ours}, "_read_probe": reads}
+    good = {"fingerprint": {"tcp://w1:1": ours, "tcp://w2:1": ours}, "read_probe": reads}
     assert dask_cluster.check_cluster(_FakeClient(good), str(tmp_path)) == 4  # the threads: the task limit
     assert list(tmp_path.iterdir()) == []  # the probe is removed
     other = {**good, "fingerprint": {"tcp://w1:1": ours, "tcp://w2:1": "python 3.11 0123"}}
     with pytest.raises(dask_cluster.ClusterError, match="worker tcp://w2:1 runs other code or versions") as info:
         dask_cluster.check_cluster(_FakeClient(other), str(tmp_path))
     assert info.value.about == "scheduler"
-    elsewhere = {**good, "_read_probe": {"tcp://w1:1": "cannot read /x/probe: No such file or directory"}}
+    elsewhere = {**good, "read_probe": {"tcp://w1:1": "cannot read /x/probe: No such file or directory"}}
     (tmp_path / "bake").mkdir()
     with pytest.raises(dask_cluster.ClusterError, match="Dask worker tcp://w1:1 does not see it") as info:
         dask_cluster.check_cluster(_FakeClient(elsewhere), str(tmp_path / "bake"))
@@ -251,7 +251,7 @@ def test_check_cluster_refuses_other_code_and_an_unshared_scratch_folder(tmp_pat
 def test_the_workers_shared_arrays_follow_the_folder_and_are_thread_safe(tmp_path):
     """A Dask worker outlives bakes: a folder made again under the same name (other files) is
     loaded anew, and threads loading one folder at once all get the same arrays."""
-    names = bake_module._SHARED_ARRAYS
+    names = tasks.SHARED_ARRAYS
 
     def write(value: int) -> None:
         for name in names:
@@ -259,18 +259,18 @@ def test_the_workers_shared_arrays_follow_the_folder_and_are_thread_safe(tmp_pat
 
     write(1)
     try:
-        assert int(bake_module._shared(str(tmp_path))["positions"][0]) == 1
+        assert int(tasks.shared(str(tmp_path))["positions"][0]) == 1
         for name in names:
             (tmp_path / f"{name}.npy").unlink()
         time.sleep(0.01)
         write(2)
-        assert int(bake_module._shared(str(tmp_path))["positions"][0]) == 2
-        bake_module._release_shared(str(tmp_path))
+        assert int(tasks.shared(str(tmp_path))["positions"][0]) == 2
+        tasks.release_shared(str(tmp_path))
         got, start = [], threading.Barrier(8)
 
         def load():
             start.wait()
-            got.append(bake_module._shared(str(tmp_path)))
+            got.append(tasks.shared(str(tmp_path)))
 
         threads = [threading.Thread(target=load) for _ in range(8)]
         for t in threads:
@@ -279,7 +279,7 @@ def test_the_workers_shared_arrays_follow_the_folder_and_are_thread_safe(tmp_pat
             t.join()
         assert len(got) == 8 and all(g is got[0] for g in got)
     finally:
-        bake_module._release_shared(str(tmp_path))
+        tasks.release_shared(str(tmp_path))
 
 
 def test_an_out_of_core_bake_on_a_cluster_writes_the_local_file(cluster, herd, tmp_path):

@@ -1,6 +1,6 @@
-"""The error bound (issue 16, `BakeSettings(error="bound")`) against the exact error, real pymeshlab.
+"""The error bound (`BakeSettings(error="bound")`) against the exact error, real pymeshlab.
 
-bake.py's module docstring proves bound(n) = h(n) + max child bound >= H(LOD_n, originals below n)
+docs/how-it-works.md#the-error-bound proves bound(n) = h(n) + max child bound >= H(LOD_n, originals below n)
 for the true (continuous) Hausdorff distances. The bake measures both figures from samples (LOD
 vertices and hausdorff.FACE_SAMPLES points to the other surface, the other side's vertices to the
 LOD), and a sampled figure can only fall short of the true one. Where a node's children are leaves
@@ -24,10 +24,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlod_core.io import hlod_file, meshes
 from hlod_core.bake import hausdorff
-from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import InputError
+from hlod_core.io import hlod_file, meshes
 
 from helpers import load_model, numeric_library_env
 
@@ -39,7 +40,7 @@ F32_RELATIVE = 1e-6
 #: The commit before the error bound: an exact bake must write the bytes it wrote there.
 BEFORE_BOUND = "b1e28ff"
 #: SHA-256 of cow.obj baked exactly at target_tris 300 (timings zeroed) at BEFORE_BOUND, pinned
-#: pymeshlab, on the AMD EPYC machine of that session), for checkouts without that commit; where the
+#: pymeshlab, on an AMD EPYC machine), for checkouts without that commit; where the
 #: commit is there, the old code's own file is compared instead (the digest of floats is per CPU).
 FILE_BEFORE_BOUND = "2fab25e0e34669442784e651d8fc51fbf489f05c94501fd5e070348d42762fe7"
 

@@ -1,5 +1,5 @@
-"""hausdorff's pruned measure (issue 14: a moved statue's re-bake went to measuring its ancestors
-against every triangle below them). The pruning must give the very float the unpruned measure
+"""hausdorff's pruned measure (a re-bake after moving one statue measures its ancestors, up to
+the root, against every triangle below them). The pruning must give the very float the unpruned measure
 gives, on every inner node of real bakes, and must skip work. Real pymeshlab: each model (and a
 herd of cows, whose coarse root is where pruning pays) is baked (jobs = 1, so the measure runs in
 this process) with the measure wrapped to keep the (LOD, original) pairs the bake measures, then
@@ -9,10 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hlod_core.bake import pipeline as bake_module
-from hlod_core.bake import hausdorff
+from hlod_core.bake import hausdorff, tasks
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
-from hlod_core.bake.pipeline import BakeSettings, bake
 
 from helpers import load_model
 
@@ -34,41 +34,49 @@ def _scene(name: str):
     return meshes.merge(parts, name="herd")
 
 
-_PAIRS: dict = {}
-
-
-def _measured_pairs(name: str, target_tris: int) -> list[tuple]:
+def _bake_measuring(name: str, target_tris: int) -> list[tuple]:
     """Every (lod, original, error, pruned_by_the_bake) the bake of `name` measures, error as the
-    bake got it (its own clusters over every leaf), once a session per scene."""
-    if (name, target_tris) not in _PAIRS:
-        pairs = []
-        task = bake_module._measure_task
+    bake got it (its own clusters over every leaf)."""
+    pairs = []
+    task = tasks.measure_exact
 
-        def recording(folder, lod_positions, lod_faces, ranges):
-            error = task(folder, lod_positions, lod_faces, ranges)
-            shared = bake_module._shared(folder)
-            vertex_begin, vertex_end, cluster_begin, cluster_end = ranges
-            tri_begin, tri_end = int(shared["start"][cluster_begin]), int(shared["start"][cluster_end])
-            original = (np.asarray(shared["positions"][vertex_begin:vertex_end]),
-                        (np.asarray(shared["faces"][tri_begin:tri_end]) - vertex_begin).astype(np.int32))
-            pairs.append(((lod_positions, lod_faces), original, error,
-                          vertex_end - vertex_begin >= hausdorff.PRUNE_FROM_VERTICES))
-            return error
+    def recording(folder, lod, ranges):
+        error = task(folder, lod, ranges)
+        shared = tasks.shared(folder)
+        vertex_begin, vertex_end, cluster_begin, cluster_end = ranges
+        tri_begin, tri_end = int(shared["start"][cluster_begin]), int(shared["start"][cluster_end])
+        original = (np.asarray(shared["positions"][vertex_begin:vertex_end]),
+                    (np.asarray(shared["faces"][tri_begin:tri_end]) - vertex_begin).astype(np.int32))
+        pairs.append((lod, original, error, vertex_end - vertex_begin >= hausdorff.PRUNE_FROM_VERTICES))
+        return error
 
-        with pytest.MonkeyPatch.context() as patch:
-            patch.setattr(bake_module, "_measure_task", recording)
-            bake(_scene(name), BakeSettings(jobs=1, target_tris=target_tris))
-        _PAIRS[name, target_tris] = pairs
-    return _PAIRS[name, target_tris]
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(tasks, "measure_exact", recording)
+        bake(_scene(name), BakeSettings(jobs=1, target_tris=target_tris))
+    return pairs
+
+
+@pytest.fixture(scope="module")
+def measured_pairs():
+    """measured_pairs(name, target_tris): `_bake_measuring`'s pairs, each scene baked once for this
+    module's tests."""
+    baked: dict[tuple[str, int], list[tuple]] = {}
+
+    def pairs_of(name: str, target_tris: int) -> list[tuple]:
+        if (name, target_tris) not in baked:
+            baked[name, target_tris] = _bake_measuring(name, target_tris)
+        return baked[name, target_tris]
+
+    return pairs_of
 
 
 @pytest.mark.parametrize("name, target_tris",
                          [("cow.obj", 300), ("stanford-bunny.obj", 2000), ("fandisk.obj", 500), ("herd", 600)])
-def test_pruned_measure_gives_the_unpruned_float_on_every_inner_node(name, target_tris):
+def test_pruned_measure_gives_the_unpruned_float_on_every_inner_node(name, target_tris, measured_pairs):
     """Pruned on every node (measure_pruned, not only the large ones the bake prunes): bit-identical
     to measuring every sample, and what the bake itself stored (pruned over its clusters, which
     cut every leaf separately, where the node is large)."""
-    pairs = _measured_pairs(name, target_tris)
+    pairs = measured_pairs(name, target_tris)
     assert len(pairs) >= 3
     if name == "herd":
         assert any(by_bake for *_, by_bake in pairs), "the herd's root is pruned by the bake"
@@ -79,7 +87,7 @@ def test_pruned_measure_gives_the_unpruned_float_on_every_inner_node(name, targe
         assert pruned == unpruned and error == unpruned, (name, original[0].shape, pruned, unpruned, error)
 
 
-def test_the_measure_goes_whole_only_where_the_clusters_cannot_prune(monkeypatch):
+def test_the_measure_goes_whole_only_where_the_clusters_cannot_prune(monkeypatch, measured_pairs):
     """measure_clustered with `whole`: the herd's big nodes (a coarse LOD far from most clusters)
     are pruned, small cells whose LOD hugs the surface (every cluster's bound above the floor) are
     measured whole; both give the unpruned float."""
@@ -87,7 +95,7 @@ def test_the_measure_goes_whole_only_where_the_clusters_cannot_prune(monkeypatch
     measure = hausdorff.measure
     monkeypatch.setattr(hausdorff, "measure", lambda lod, original: measured_whole.append(1) or measure(lod, original))
     went_whole = {}
-    for lod, original, error, _ in _measured_pairs("herd", 600):
+    for lod, original, error, _ in measured_pairs("herd", 600):
         measured_whole.clear()
         assert hausdorff.measure_pruned(lod, original, allow_whole=True) == error
         went_whole[original[0].shape[0]] = bool(measured_whole)
@@ -95,13 +103,13 @@ def test_the_measure_goes_whole_only_where_the_clusters_cannot_prune(monkeypatch
     assert not went_whole[largest] and any(went_whole.values()), went_whole
 
 
-def test_pruning_skips_most_samples_of_a_large_node(monkeypatch):
+def test_pruning_skips_most_samples_of_a_large_node(monkeypatch, measured_pairs):
     """The herd's root (about 54k original vertices): the pruned measure evaluates under 60% of the
     original vertices (30k of 54k: the cow's triangles are large, so a cluster of CLUSTER_FACES of
     them is about half the root's error across, which loosens its bound; on the crowd's root, 1.7k
     of 900k) and under a quarter of the LOD's samples against the original surface (none here),
     and the error is the unpruned one."""
-    lod, original, _, _ = max(_measured_pairs("herd", 600), key=lambda pair: pair[1][0].shape[0])
+    lod, original, _, _ = max(measured_pairs("herd", 600), key=lambda pair: pair[1][0].shape[0])
     assert original[0].shape[0] >= hausdorff.PRUNE_FROM_VERTICES
     to_lod, to_original = [], []
     hausdorff_max = hausdorff.hausdorff_max

@@ -64,7 +64,7 @@ def test_subtree_ranges_are_contiguous_and_breadth_first_children_contiguous():
     assert np.all(layout.tri_end[leaves] - layout.tri_begin[leaves] <= 100)
 
 
-# --- stable cells (issue 14) ------------------------------------------------------------------------
+# --- stable cells -------------------------------------------------------------------------------------
 
 def _subtrees_of(layout, owner: np.ndarray, which: int):
     """{(cell centre, half, level): sorted triangle ids} of the nodes holding only triangles of `which`."""
@@ -77,7 +77,7 @@ def _subtrees_of(layout, owner: np.ndarray, which: int):
     return out
 
 
-def _keys_of(layout, centroids, owner, which):
+def _keys_of(layout, centroids, *, owner, which):
     """The bake cache's keys of the nodes holding only `which`'s triangles, with each leaf's 'LOD'
     its centroids (what node_keys hashes for a leaf is the leaf's own data)."""
     lods = [None] * layout.node_count
@@ -110,6 +110,6 @@ def test_moving_an_object_leaves_another_objects_cells_and_keys_unchanged():
     old_a, new_a = _subtrees_of(old, owner, 0), _subtrees_of(new, owner, 0)
     assert len(old_a) > 50 and old_a.keys() == new_a.keys()
     assert all(np.array_equal(old_a[cell], new_a[cell]) for cell in old_a)
-    assert _keys_of(old, before, owner, 0) == _keys_of(new, after, owner, 0)
+    assert _keys_of(old, before, owner=owner, which=0) == _keys_of(new, after, owner=owner, which=0)
     # and B's did change: the keys are not blind
-    assert _keys_of(old, before, owner, 1) != _keys_of(new, after, owner, 1)
+    assert _keys_of(old, before, owner=owner, which=1) != _keys_of(new, after, owner=owner, which=1)

@@ -1,7 +1,7 @@
-"""Out-of-core bakes (issue 16, "bounded memory"): the streamed partition against the in-memory bake.
+"""Out-of-core bakes (bounded memory): the streamed partition against the in-memory bake.
 
-The main check: a scene spec baked from memory (meshio.load_inputs + bake) and out of core
-(stream_partition.SceneSource + bake_stream, a small chunk forcing many pieces and flushes) gives
+The main check: a scene spec baked from memory (meshes.load_inputs + bake) and out of core
+(partition.SceneSource + bake_stream, a small chunk forcing many pieces and flushes) gives
 the same .hlod bytes once the volatile meta (timings) is left out. Then that it really is out of
 core: no array of one row per input triangle in the partition (tracemalloc's peak stays below one
 (f,) int64 array), every leaf reads its own cell's file and nothing else, and the scratch folder
@@ -16,17 +16,17 @@ import numpy as np
 import pytest
 
 from hlod_core import cli
-from hlod_core.io import hlod_file, meshes as meshio
-from hlod_core.bake import octree, partition as stream_partition
-from hlod_core.bake.pipeline import BakeSettings, bake, stable_meta
+from hlod_core.bake import octree, partition
+from hlod_core.bake.meta import stable_meta
+from hlod_core.bake.pipeline import bake, bake_stream
+from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import BakeCancelled, InputError
-
-from hlod_core.bake.partition import bake_stream
+from hlod_core.io import hlod_file, meshes
 
 from helpers import MODELS, ROOT
 
 
-def _transform(scale, x, y, z=0.0, turn_deg=0.0, mirror=False) -> list[float]:
+def _transform(scale, x, y, *, z=0.0, turn_deg=0.0, mirror=False) -> list[float]:
     c, s = np.cos(np.radians(turn_deg)), np.sin(np.radians(turn_deg))
     m = np.eye(4)
     m[:3, :3] = scale * np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -41,10 +41,11 @@ def spec(tmp_path_factory):
     """42,052 triangles: three models, six instances (one mirrored, one far smaller than the rest)."""
     path = tmp_path_factory.mktemp("spec") / "scene.json"
     path.write_text(json.dumps({"models": [
-        {"path": str(MODELS / "cow.obj"), "transforms": [_transform(1, 0, 0), _transform(1.5, 3, 0, 0, 40),
-                                                         _transform(1, 0, 3, 0.5, mirror=True)]},
-        {"path": str(MODELS / "teapot.obj"), "transforms": [_transform(0.1, -3, -2, 0, 10), _transform(0.05, 2, -3)]},
-        {"path": str(MODELS / "homer.obj"), "transforms": [_transform(1, -2, 2, 0, 90)]}]}))
+        {"path": str(MODELS / "cow.obj"), "transforms": [_transform(1, 0, 0), _transform(1.5, 3, 0, turn_deg=40),
+                                                         _transform(1, 0, 3, z=0.5, mirror=True)]},
+        {"path": str(MODELS / "teapot.obj"),
+         "transforms": [_transform(0.1, -3, -2, turn_deg=10), _transform(0.05, 2, -3)]},
+        {"path": str(MODELS / "homer.obj"), "transforms": [_transform(1, -2, 2, turn_deg=90)]}]}))
     return path
 
 
@@ -104,9 +105,9 @@ def test_octree_from_counts_is_build_octree_float_for_float(seed):
 @pytest.mark.parametrize("error, jobs", [("exact", 1), ("bound", 2)])
 def test_spec_bakes_to_the_same_file_out_of_core(spec, tmp_path, error, jobs):
     settings = BakeSettings(target_tris=500, jobs=jobs, error=error)
-    in_memory = bake(meshio.load_inputs([spec]), settings, sources=[str(spec)])
-    stats = stream_partition.PartitionStats()
-    streamed = bake_stream(stream_partition.SceneSource([spec]), settings, sources=[str(spec)], chunk_tris=4096,
+    in_memory = bake(meshes.load_inputs([spec]), settings, sources=[str(spec)])
+    stats = partition.PartitionStats()
+    streamed = bake_stream(partition.SceneSource([spec]), settings, sources=[str(spec)], chunk_tris=4096,
                            scratch_dir=tmp_path, stats=stats)
     assert in_memory.node_count > 100  # several levels of leaves and inner nodes
     assert _stable_bytes(streamed, tmp_path / "b.hlod") == _stable_bytes(in_memory, tmp_path / "a.hlod")
@@ -117,22 +118,22 @@ def test_spec_bakes_to_the_same_file_out_of_core(spec, tmp_path, error, jobs):
 class _Chunks:
     """A TriangleSource of given meshes, one chunk each."""
 
-    def __init__(self, meshes):
-        self.name, self.meshes = "chunks", meshes
+    def __init__(self, parts):
+        self.name, self.parts = "chunks", parts
 
     def chunks(self):
-        for m in self.meshes:
-            yield stream_partition.TriangleChunk(m.positions, m.faces, m.normals, m.name)
+        for m in self.parts:
+            yield partition.TriangleChunk(m.positions, m.faces, m.normals, m.name)
 
 
-def _with_normals(mesh, *, unused: int = 0) -> meshio.TriangleMesh:
+def _with_normals(mesh, *, unused: int = 0) -> meshes.TriangleMesh:
     """mesh with unit vertex normals and `unused` extra vertices no face uses (far away, even NaN)."""
     p = mesh.positions
     normals = p - p.mean(axis=0)
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     extra = np.full((unused, 3), 1e9)
     extra[:1] = np.nan
-    return meshio.TriangleMesh(positions=np.concatenate([p, extra]), faces=mesh.faces,
+    return meshes.TriangleMesh(positions=np.concatenate([p, extra]), faces=mesh.faces,
                                normals=np.concatenate([normals, np.ones((unused, 3))]).astype(np.float32),
                                name=mesh.name)
 
@@ -140,14 +141,14 @@ def _with_normals(mesh, *, unused: int = 0) -> meshio.TriangleMesh:
 def test_normals_unused_vertices_and_chunks_cut_in_pieces(tmp_path):
     """Chunks with normals and unused vertices, each cut into pieces that share vertices (chunk_tris
     far below a chunk): the same file as the merged mesh baked in memory, normals included."""
-    cow, teapot = (meshio.load_mesh(MODELS / name) for name in ("cow.obj", "teapot.obj"))
-    meshes = [_with_normals(cow, unused=3),
-              _with_normals(meshio.transform_mesh(teapot, np.array(_transform(0.1, 1.5, 0)).reshape(4, 4), name="t")),
-              _with_normals(meshio.transform_mesh(cow, np.array(_transform(1, -1, 1, 0, 30, True)).reshape(4, 4),
-                                                  name="c"))]
+    cow, teapot = (meshes.load_mesh(MODELS / name) for name in ("cow.obj", "teapot.obj"))
+    parts = [_with_normals(cow, unused=3),
+             _with_normals(meshes.transform_mesh(teapot, np.array(_transform(0.1, 1.5, 0)).reshape(4, 4), name="t")),
+             _with_normals(meshes.transform_mesh(
+                 cow, np.array(_transform(1, -1, 1, turn_deg=30, mirror=True)).reshape(4, 4), name="c"))]
     settings = BakeSettings(target_tris=400)
-    in_memory = bake(meshio.merge(meshes), settings, sources=["chunks"])
-    streamed = bake_stream(_Chunks(meshes), settings, sources=["chunks"], chunk_tris=777, scratch_dir=tmp_path)
+    in_memory = bake(meshes.merge(parts), settings, sources=["chunks"])
+    streamed = bake_stream(_Chunks(parts), settings, sources=["chunks"], chunk_tris=777, scratch_dir=tmp_path)
     assert streamed.normals is not None
     assert _stable_bytes(streamed, tmp_path / "b.hlod") == _stable_bytes(in_memory, tmp_path / "a.hlod")
 
@@ -161,36 +162,36 @@ def test_the_partition_holds_no_array_of_every_triangle(tmp_path):
     file, exactly its triangles, and together the leaves read every triangle once."""
     spec = tmp_path / "herd.json"
     spec.write_text(json.dumps({"models": [{"path": str(MODELS / "cow.obj"),
-                                            "transforms": [_transform(1, 1.2 * (k % 12), 1.2 * (k // 12), 0, 17 * k)
+                                            "transforms": [_transform(1, 1.2 * (k % 12), 1.2 * (k // 12), turn_deg=17 * k)
                                                            for k in range(120)]}]}))
-    source = stream_partition.SceneSource([spec])
+    source = partition.SceneSource([spec])
     next(source.chunks())  # the model file read (and kept) before tracing
     chunk = 4096
-    with stream_partition.Partition(source, scratch_dir=tmp_path, chunk_tris=chunk) as partition:
+    with partition.Partition(source, scratch_dir=tmp_path, chunk_tris=chunk) as part:
         tracemalloc.start()
         try:
-            scan = partition.scan()
-            tree = partition.build_octree(target_tris=2000, max_depth=12)
-            partition.route()
+            scan = part.scan()
+            tree = part.build_octree(target_tris=2000, max_depth=12)
+            part.route()
             _, peak = tracemalloc.get_traced_memory()
         finally:
             tracemalloc.stop()
         f = scan.tri_count
         assert f == 120 * 5804 and f > 100 * chunk
         assert peak < 8 * f, f"partition peak {peak} bytes for {f} triangles"
-        assert partition.stats.largest_piece_tris <= chunk
+        assert part.stats.largest_piece_tris <= chunk
         layout = tree.layout
         leaves = np.flatnonzero(layout.is_leaf)
         assert leaves.size > 100
-        files = sorted(p.name for p in partition.folder.iterdir())
+        files = sorted(p.name for p in part.folder.iterdir())
         assert files == sorted(f"cell-{leaf}.bin" for leaf in leaves)
         for leaf in leaves:
-            positions, faces, _ = partition.leaf_lod(int(leaf))
+            positions, faces, _ = part.leaf_lod(int(leaf))
             assert faces.shape[0] == layout.tri_end[leaf] - layout.tri_begin[leaf]
             assert faces.max() < positions.shape[0]
-        assert partition.stats.leaf_reads == {int(leaf): int(tree.tri_count[leaf]) for leaf in leaves}
-        assert sum(partition.stats.leaf_reads.values()) == f
-        folder = partition.folder
+        assert part.stats.leaf_reads == {int(leaf): int(tree.tri_count[leaf]) for leaf in leaves}
+        assert sum(part.stats.leaf_reads.values()) == f
+        folder = part.folder
     assert not folder.exists()
 
 
@@ -203,7 +204,7 @@ def test_scratch_is_removed_after_a_cancel_and_an_error(spec, tmp_path):
         return any(tmp_path.glob("hlod-partition-*/cell-*.bin"))
 
     with pytest.raises(BakeCancelled):
-        bake_stream(stream_partition.SceneSource([spec]), BakeSettings(target_tris=500), chunk_tris=2048,
+        bake_stream(partition.SceneSource([spec]), BakeSettings(target_tris=500), chunk_tris=2048,
                     scratch_dir=tmp_path, cancel=cells_written)
     assert list(tmp_path.iterdir()) == []
 
@@ -214,7 +215,7 @@ def test_scratch_is_removed_after_a_cancel_and_an_error(spec, tmp_path):
                     raise OSError("disk gone")
                 yield chunk
 
-    cow = meshio.load_mesh(MODELS / "cow.obj")
+    cow = meshes.load_mesh(MODELS / "cow.obj")
     with pytest.raises(OSError, match="disk gone"):
         bake_stream(Failing([cow, cow]), BakeSettings(target_tris=300), chunk_tris=1000, scratch_dir=tmp_path)
     assert list(tmp_path.iterdir()) == []
@@ -225,7 +226,7 @@ def test_appearance_is_refused_naming_the_file(tmp_path):
     obj = tmp_path / "quad.obj"
     obj.write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nusemtl red\nf 1 2 3\nf 1 3 4\n")
     with pytest.raises(InputError, match=r"quad\.obj: .*out-of-core bakes take geometry only"):
-        bake_stream(stream_partition.SceneSource([obj]), BakeSettings(), scratch_dir=tmp_path)
+        bake_stream(partition.SceneSource([obj]), BakeSettings(), scratch_dir=tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.mtl", "quad.obj"]
 
 
@@ -249,10 +250,10 @@ def test_command_line_out_of_core_writes_the_same_file(spec, tmp_path, capsys):
 @pytest.mark.parametrize("target_tris, max_depth", [(10_000, 12), (100, 0)])
 def test_one_leaf_inputs(tmp_path, target_tris, max_depth):
     """An input within one leaf's budget, and max_depth 0: the root is the only node, in both ways."""
-    cow = meshio.load_mesh(MODELS / "cow.obj")
+    cow = meshes.load_mesh(MODELS / "cow.obj")
     settings = BakeSettings(target_tris=target_tris, max_depth=max_depth)
     in_memory = bake(cow, settings)
-    streamed = bake_stream(stream_partition.MeshSource(cow), settings, chunk_tris=1000, scratch_dir=tmp_path)
+    streamed = bake_stream(partition.MeshSource(cow), settings, chunk_tris=1000, scratch_dir=tmp_path)
     assert streamed.node_count == 1
     assert _stable_bytes(streamed, tmp_path / "b.hlod") == _stable_bytes(in_memory, tmp_path / "a.hlod")
 
@@ -280,9 +281,9 @@ def test_a_bad_transform_is_named_as_the_in_memory_reader_names_it(tmp_path):
     spec.write_text(json.dumps({"models": [
         {"path": str(MODELS / "cow.obj"), "transforms": [_transform(1, 0, 0), _transform(1e308, 0, 0)]}]}))
     with pytest.raises(InputError) as in_memory:
-        meshio.load_inputs([spec])
+        meshes.load_inputs([spec])
     with pytest.raises(InputError) as streamed:
-        bake_stream(stream_partition.SceneSource([spec]), BakeSettings(target_tris=500), scratch_dir=tmp_path)
+        bake_stream(partition.SceneSource([spec]), BakeSettings(target_tris=500), scratch_dir=tmp_path)
     assert str(streamed.value) == str(in_memory.value)
     assert f"{spec}: models[0].transforms[1] moves" in str(streamed.value)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["far.json"]

@@ -152,25 +152,25 @@ def _module_level(tree: ast.AST):
 
 
 def test_dask_is_imported_only_by_a_bake_given_a_scheduler(graph):
-    """Dask is a command-line-only dependency (issue 16). Everything the extension imports
-    (transitively from `<root>`, deferred imports included), less hlod_core.bake.pipeline's one deferred
-    import of hlod_core.bake.dask_cluster, imports neither dask nor distributed; that import sits in
-    `_workers` under `if scheduler is not None`; dask_workers itself imports distributed only when
-    it is used, not at module level. And in a fresh interpreter a bake without a scheduler (jobs 1
+    """Dask is a command-line-only dependency. Everything the extension imports (transitively
+    from `<root>`, deferred imports included), less hlod_core.bake.workers' one deferred import of
+    hlod_core.bake.dask_cluster, imports neither dask nor distributed; that import sits in
+    `open_workers` under `if scheduler is not None`; dask_cluster itself imports distributed only
+    when it is used, not at module level. And in a fresh interpreter a bake without a scheduler (jobs 1
     and 2) leaves both out of sys.modules."""
     dask = {"dask", "distributed"}
     importers = sorted(name for name, (project, external) in graph.items()
                        if external & dask or "hlod_core.bake.dask_cluster" in project)
-    assert importers == ["hlod_core.bake.dask_cluster", "hlod_core.bake.pipeline", "hlod_core.cli"], importers
-    reached = _reached(graph, cut=("hlod_core.bake.pipeline", "hlod_core.bake.dask_cluster"))
+    assert importers == ["hlod_core.bake.dask_cluster", "hlod_core.bake.workers", "hlod_core.cli"], importers
+    reached = _reached(graph, cut=("hlod_core.bake.workers", "hlod_core.bake.dask_cluster"))
     assert "hlod_core.bake.pipeline" in reached and "addon.preview" in reached
     assert "hlod_core.bake.dask_cluster" not in reached
     assert not {name for name in reached if graph[name][1] & dask}
     modules = _modules()
-    for name in ("hlod_core.bake.pipeline", "hlod_core.bake.dask_cluster"):
+    for name in ("hlod_core.bake.workers", "hlod_core.bake.dask_cluster"):
         project, external = _imports(name, modules[name], set(modules), walk=_module_level)
         assert not external & dask and "hlod_core.bake.dask_cluster" not in project, name
-    tree = ast.parse((ROOT / "hlod_core" / "bake" / "pipeline.py").read_text(encoding="utf-8"))
+    tree = ast.parse((ROOT / "hlod_core" / "bake" / "workers.py").read_text(encoding="utf-8"))
     guarded = [node for node in ast.walk(tree) if isinstance(node, ast.If)
                and ast.unparse(node.test) == "scheduler is not None"
                and any(isinstance(n, ast.ImportFrom) and [a.name for a in n.names] == ["dask_cluster"]

@@ -1,44 +1,33 @@
-"""The bake cache (issue 14): inner nodes' LODs and errors, keyed by what they were made from.
+"""The bake cache: inner nodes' LODs and errors, keyed by what they were made from, and the
+whole result of the last bake. The cache owns its policy: `BakeCache.open` (no folder: no cache),
+`whole_result` (an unchanged input skips the bake), `reuse` (the inner nodes whose subtree is
+unchanged), `finish` (writing, pruning, meta["cache"]); `folder_for` says where it lives.
 
 Data form: a folder (by default `OUT.hlod.cache/` beside the output; safe to delete at any time:
 the next bake is then a bake from scratch) holding a CACHEDIR.TAG and
 - one file per inner node, `<key>.hlodc`: the node's LOD (positions (k,3) float32 origin-relative,
   faces (m,3) int32, normals (k,3) float32 and attribute rows (k,A) float32 when the bake has
-  them), its error (float64, model units: the Hausdorff error, or its bound with --error bound) and what the bake log says of it
-  (`SUMMARY_FIELDS`);
+  them), its error (float64, model units: the Hausdorff error, or its bound) and what the bake log
+  says of it (`SUMMARY_FIELDS`);
 - one file for the whole result of the last bake, `<input key>.hlodr`: every array of its Hlod and
-  the meta entries the bake derives (`RESULT_META`), keyed by the whole input (`input_key`: the
-  mesh's arrays and materials, max_depth and the context below). A re-bake of an unchanged input
-  takes it and skips even the octree (the per-node entries serve every other re-bake).
+  the meta entries the bake derives (meta.DERIVED_META), keyed by the whole input (`input_key`).
 
-Keys (blake2b, 32 bytes) are a Merkle tree over the octree (`node_keys`):
-- a leaf's key hashes its triangles as the bake sees them: float32 origin-relative positions of the
-  vertices its triangles use, its faces local to them in octree order, their normals and attribute
-  rows when present (bake.py: leaves keep these exactly), and its cell (the origin, the cell's
-  centre, half side and grid level);
-- an inner node's key hashes its cell and its children's keys, in order;
-- both hash `context_digest`: the cache format (CACHE_VERSION), the .hlod format version, every
-  setting that changes a LOD or an error (target_tris, quality_threshold, preserve_normals,
-  boundary_weight, the error measure: exact or bound), whether the bake carries normals and which attribute columns, the versions of
-  pymeshlab and numpy, and the source of the modules that compute LODs and errors (`RESULT_MODULES`:
-  editing them retires every entry).
-A node's LOD and error are functions of its subtree's input triangles and these settings alone
-(bake.py: decimation sees the children's LODs, the error the leaves' triangles below the node), so
-equal keys mean equal results. max_depth and target_tris act on the subtree's shape too, and the
-shape is in the key (a leaf hashes triangles, an inner node its children). An edit changes the
-keys of the cells it touches and of their ancestors only (octree.py: cells do not move).
+Keys (blake2b, 32 bytes) are a Merkle tree over the octree (`node_keys`): a leaf's key hashes its
+triangles as the bake sees them and its cell; an inner node's, its cell and its children's keys;
+both hash `context_digest` (the formats, every setting that changes a LOD or an error, the
+versions of pymeshlab and numpy, and the source of RESULT_MODULES). Equal keys mean equal results.
+Why: docs/how-it-works.md#re-bakes-and-the-cache-keys
 
 Integrity: a file starts with magic, CACHE_VERSION, the payload's length and its blake2b digest;
 `load` and `load_result` check all of them, the key and kind recorded inside, and every array's
 dtype, shape and index range (a result: hlod_file.validate, as a .hlod file is) before using
-anything. An entry that fails is ignored (a miss), counted, named once in the log at
-the end of the bake, and rebuilt; nothing is read with pickle. Entries are written once a bake is
-complete (a cancelled bake writes none), each to a temporary name and renamed into place; they are
-not fsynced: a file torn by a crash fails its digest and is rebuilt.
+anything. An entry that fails is ignored (a miss), counted, named once in the log at the end of
+the bake, and rebuilt; nothing is read with pickle. Entries are written once a bake is complete
+(a cancelled bake writes none), each to a temporary name and renamed into place; they are not
+fsynced: a file torn by a crash fails its digest and is rebuilt.
 
 Size: after a complete bake, entries it did not use are removed (`prune`), so the folder holds the
-last bake's inner nodes and its result: about 1.5 times its .hlod (crowd_1m: the inner LODs are
-40% of the file's triangles, and the result is the file again). Bakes of different scenes that
+last bake's inner nodes and its result: about 1.5 times its .hlod. Bakes of different scenes that
 share one folder evict each other's entries (still correct, only slower).
 """
 from __future__ import annotations
@@ -50,44 +39,34 @@ import importlib.metadata
 import json
 import logging
 import os
-import struct
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from ..core.errors import InputError
 from ..io import hlod_file
-from . import simplify
+from ..io.meshes import TriangleMesh
 from ..model.appearance import AttributeLayout
-from ..core.errors import FormatError, InputError
-from ..model.hierarchy import NODE_ARRAYS, Hlod
+from ..model.hierarchy import Hlod
+from . import cache_files
+from .cache_files import KEY_BYTES, CorruptEntry
+from .meshlab import DecimationSettings
 from .octree import OctreeLayout
+from .settings import BakeSettings
+from .simplify import NodeLod
 
 log = logging.getLogger(__name__)
 
-#: Version of the entry format and of the keys' recipe; any change to either bumps it.
-CACHE_VERSION = 1
-MAGIC = b"HLODCACH"
 ENTRY_SUFFIX = ".hlodc"
 RESULT_SUFFIX = ".hlodr"
-#: magic, CACHE_VERSION, reserved (0), payload length, blake2b-256 digest of the payload.
-_PREAMBLE = struct.Struct("<8sIIQ32s")
-_HEADER_LENGTH = struct.Struct("<I")
-_MAX_HEADER_BYTES = 1024 * 1024
-_KEY_BYTES = 32
-#: Modules whose code computes LODs and errors (their source is part of every key).
-RESULT_MODULES = ("bake.simplify", "bake.hausdorff", "model.appearance", "core.arrays", "bake.octree",
-                  "bake.pipeline", "bake.cache")
-#: NodeLod fields the bake log reads, stored per entry as one int64 each.
-SUMMARY_FIELDS = ("decimated", "input_tris", "kept_in_place", "zero_area", "uv_seams_crossed", "seam_kept_tris",
-                  "island_spanning_faces")
-_FLAG_FIELDS = ("decimated", "kept_in_place", "zero_area", "uv_seams_crossed")
-#: meta entries a result entry keeps (what the bake derives; the rest comes from the call).
-RESULT_META = {"leaves_over_budget": int, "collapsed_input_tris": int, "log": list, "log_lines_dropped": int,
-               "uv_seams_crossed_nodes": int}
-#: The Hlod arrays of a result entry (the appearance ones only when the bake has them).
-_RESULT_ARRAYS = (*NODE_ARRAYS, "origin", "positions", "indices", "normals", "uvs", "colors", "tri_material")
+#: Modules whose code computes LODs, errors or the result's arrays and meta (their source is part
+#: of every key: editing one retires every entry).
+RESULT_MODULES = ("bake.simplify", "bake.meshlab", "bake.seams", "bake.hausdorff", "model.appearance",
+                  "model.hierarchy", "core.arrays", "bake.octree", "bake.settings", "bake.prepare", "bake.sources",
+                  "bake.partition", "bake.leaf_arrays", "bake.tasks", "bake.schedule", "bake.assemble", "bake.meta",
+                  "bake.pipeline", "bake.cache", "bake.cache_files")
 #: Temporary files older than this (seconds) are a crashed writer's: prune removes them.
 _STALE_TEMP_SECONDS = 3600.0
 _CACHEDIR_TAG = (b"Signature: 8a477f597d28d172789f06886806bc55\n"
@@ -100,26 +79,38 @@ def default_folder(output: str | os.PathLike) -> Path:
     return output.with_name(output.name + ".cache")
 
 
+def folder_for(output: str | os.PathLike, *, folder: str | os.PathLike | None = None,
+               enabled: bool = True) -> Path | None:
+    """The cache folder of a bake writing `output` (every front end asks here): `folder` if given,
+    else OUT.hlod.cache beside the output (`default_folder`); None when the cache is not enabled.
+    InputError (check_folder) when it names a file."""
+    if not enabled:
+        return None
+    chosen = Path(folder) if folder else default_folder(output)
+    check_folder(chosen)
+    return chosen
+
+
 def check_folder(folder: str | os.PathLike | None) -> None:
     """Raise InputError when `folder` (None: no cache) names something that is not a folder."""
     if folder is not None and os.path.lexists(folder) and not os.path.isdir(folder):
         raise InputError(f"{folder}: is a file; the bake cache is a folder (give another with --cache, or --no-cache)")
 
 
-def context_digest(settings: simplify.DecimationSettings, *, with_normals: bool,
+def context_digest(settings: DecimationSettings, *, with_normals: bool,
                    row_layout: AttributeLayout | None, error: str = "exact") -> bytes:
     """32 bytes: everything besides a subtree's triangles that its LODs and errors depend on;
-    error: the error measure (bake.BakeSettings.error), so a bound is never served for an exact
-    error nor the other way round."""
+    error: the error measure (BakeSettings.error), so a bound is never served for an exact error
+    nor the other way round."""
     core = Path(__file__).resolve().parent.parent
-    code = hashlib.blake2b(digest_size=_KEY_BYTES)
+    code = hashlib.blake2b(digest_size=KEY_BYTES)
     for name in RESULT_MODULES:
         try:
             code.update((core / f"{name.replace('.', '/')}.py").read_bytes())
         except OSError:  # not installed as source files: the versions below still key it
             code.update(name.encode())
     described = {
-        "cache_version": CACHE_VERSION,
+        "cache_version": cache_files.CACHE_VERSION,
         "hlod_format": hlod_file.FORMAT_VERSION,
         "decimation": dataclasses.asdict(settings),
         "with_normals": bool(with_normals),
@@ -130,7 +121,7 @@ def context_digest(settings: simplify.DecimationSettings, *, with_normals: bool,
         "numpy": np.__version__,
         "code": code.hexdigest(),
     }
-    return hashlib.blake2b(json.dumps(described, sort_keys=True).encode(), digest_size=_KEY_BYTES).digest()
+    return hashlib.blake2b(json.dumps(described, sort_keys=True).encode(), digest_size=KEY_BYTES).digest()
 
 
 def _version(package: str) -> str:
@@ -152,7 +143,7 @@ def _hash_array(h, part: np.ndarray | None) -> None:
 def input_key(mesh, *, max_depth: int, context: bytes) -> bytes:
     """32 bytes keying a bake's whole result: the mesh's arrays and materials, max_depth and
     `context` (the settings and versions)."""
-    h = hashlib.blake2b(context, digest_size=_KEY_BYTES, person=b"hlod input")
+    h = hashlib.blake2b(context, digest_size=KEY_BYTES, person=b"hlod input")
     h.update(np.asarray([max_depth], "<i8").tobytes())
     for part in (mesh.positions, mesh.faces, mesh.normals, mesh.uvs, mesh.colors, mesh.material_ids):
         _hash_array(h, part)
@@ -170,12 +161,12 @@ def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: 
     cells["half"], cells["level"] = layout.cell_half, layout.cell_level
     for node in range(n - 1, -1, -1):  # children have larger ids than their parent
         if layout.child_count[node] == 0:
-            h = hashlib.blake2b(context, digest_size=_KEY_BYTES, person=b"hlod leaf")
+            h = hashlib.blake2b(context, digest_size=KEY_BYTES, person=b"hlod leaf")
             h.update(cells[node].tobytes())
             for part in lods[node]:
                 _hash_array(h, part)
         else:
-            h = hashlib.blake2b(context, digest_size=_KEY_BYTES, person=b"hlod node")
+            h = hashlib.blake2b(context, digest_size=KEY_BYTES, person=b"hlod node")
             h.update(cells[node].tobytes())
             first = int(layout.child_offset[node])
             h.update(b"".join(keys[first:first + int(layout.child_count[node])]))
@@ -184,13 +175,14 @@ def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: 
 
 
 class BakeCache:
-    """One bake's view of a cache folder: `load` node entries and `store` the bake's new ones,
-    `load_result` / `store_result` the whole result, `prune`. with_normals / row_layout: what the
-    bake carries (part of the keys; every entry must match it); error: the error measure (part of
-    the keys). Statistics for the bake's meta:
-    reused_nodes, reused_tris, rejected (entries ignored: (file name, why))."""
+    """One bake's view of a cache folder. The pipeline's entry points: `open`, `whole_result`,
+    `reuse`, `finish` (module docstring). Below them: `load` node entries and `store` the bake's
+    new ones, `load_result` / `store_result` the whole result, `prune`. with_normals / row_layout:
+    what the bake carries (part of the keys; every entry must match it); error: the error measure
+    (part of the keys). Statistics for the bake's meta: reused_nodes, reused_tris, rejected
+    (entries ignored: (file name, why))."""
 
-    def __init__(self, folder: str | os.PathLike, *, decimation: simplify.DecimationSettings, with_normals: bool,
+    def __init__(self, folder: str | os.PathLike, *, decimation: DecimationSettings, with_normals: bool,
                  row_layout: AttributeLayout, error: str = "exact"):
         check_folder(folder)
         self.folder = Path(folder)
@@ -200,18 +192,84 @@ class BakeCache:
         self.reused_nodes = 0
         self.reused_tris = 0
         self.rejected: list[tuple[str, str]] = []
+        # one bake's state (open, reuse): the input's key and materials, the nodes' keys, the reused nodes
+        self._result_key, self._materials = b"", ()
+        self._keys: list[bytes] = []
+        self._inner = np.zeros(0, np.int64)
+        self._reused: set[int] = set()
+
+    @classmethod
+    def open(cls, folder: str | os.PathLike | None, *, mesh: TriangleMesh,
+             settings: BakeSettings) -> "BakeCache | None":
+        """The cache of a bake of `mesh` at `settings` in `folder`; None without a folder.
+        InputError when `folder` is a file."""
+        if folder is None:
+            return None
+        row_layout = AttributeLayout(material=mesh.material_ids is not None, uv=mesh.uvs is not None,
+                                     color=mesh.colors is not None)
+        cache = cls(folder, decimation=settings.decimation(), with_normals=mesh.normals is not None,
+                    row_layout=row_layout, error=settings.error)
+        cache._result_key = input_key(mesh, max_depth=settings.max_depth, context=cache.context)
+        cache._materials = tuple(mesh.materials) if mesh.has_appearance else ()
+        return cache
+
+    def whole_result(self) -> tuple[Hlod, dict, dict] | None:
+        """The whole result of an unchanged input (the bake is then skipped): (Hlod without meta,
+        its derived meta entries, meta["cache"]); None when the folder holds none."""
+        found = self.load_result(self._result_key, self._materials)
+        if found is None:
+            return None
+        hlod, derived = found
+        inner = int((~hlod.is_leaf).sum())
+        stats = self._stats(nodes=inner, reused=inner, whole=True)
+        stats["reused_tris"] = int(hlod.tri_count[~hlod.is_leaf].sum())
+        return hlod, derived, stats
+
+    def reuse(self, layout: OctreeLayout, lods: list, *, origin: np.ndarray) -> dict[int, tuple[NodeLod, float]]:
+        """The inner nodes whose subtree the folder holds: node -> (LOD, error). lods: per node, the
+        leaves' (positions, faces, normals, rows) (the keys hash them); origin (3,) float64."""
+        self._keys = node_keys(layout, lods, origin=origin, context=self.context)
+        self._inner = np.flatnonzero(~layout.is_leaf)
+        hits = {}
+        for node in self._inner:
+            hit = self.load(self._keys[node])
+            if hit is not None:
+                hits[int(node)] = hit
+        self._reused = set(hits)
+        return hits
+
+    def finish(self, hlod: Hlod, derived: dict, *, made: dict[int, NodeLod], hausdorff_error: np.ndarray) -> dict:
+        """Once the bake is complete: write the inner nodes it made (made: node -> LOD, with
+        hausdorff_error (n,) float64) and its whole result (hlod, derived meta entries), remove the
+        entries it did not use; returns meta["cache"]."""
+        self.store({self._keys[node]: (made[int(node)], float(hausdorff_error[node])) for node in self._inner
+                    if int(node) not in self._reused})
+        self.store_result(self._result_key, hlod, derived)
+        self.prune({self._keys[node] for node in self._inner}, self._result_key)
+        return self._stats(nodes=int(self._inner.size), reused=len(self._reused), whole=False)
+
+    def _stats(self, *, nodes: int, reused: int, whole: bool) -> dict:
+        """meta["cache"]: nodes (inner nodes: leaves keep their triangles and are never cached),
+        reused_nodes / rebuilt_nodes (decimated and measured in this bake), reused_tris (LOD triangles
+        of the reused nodes), rejected_entries (corrupt ones, rebuilt), reused_result (the whole
+        result came from the cache: the input had not changed)."""
+        self.report()
+        log.info("bake cache %s: %d of %d inner nodes reused%s", self.folder, reused, nodes,
+                 " (the whole result: the input is unchanged)" if whole else "")
+        return {"nodes": nodes, "reused_nodes": reused, "rebuilt_nodes": nodes - reused,
+                "reused_tris": self.reused_tris, "rejected_entries": len(self.rejected), "reused_result": whole}
 
     def path(self, key: bytes, suffix: str = ENTRY_SUFFIX) -> Path:
         return self.folder / f"{key.hex()}{suffix}"
 
-    def load(self, key: bytes) -> tuple[simplify.NodeLod, float] | None:
+    def load(self, key: bytes) -> tuple[NodeLod, float] | None:
         """A node entry's (LOD, Hausdorff error), or None: absent, or rejected (counted)."""
         found = self._read(key, ENTRY_SUFFIX, "node")
         if found is None:
             return None
         try:
-            lod, error = _node_from(*found, with_normals=self.with_normals, row_width=self.row_width)
-        except _Corrupt as exc:
+            lod, error = cache_files.node_entry(*found, with_normals=self.with_normals, row_width=self.row_width)
+        except CorruptEntry as exc:
             self.rejected.append((self.path(key).name, str(exc)))
             return None
         self.reused_nodes += 1
@@ -219,14 +277,14 @@ class BakeCache:
         return lod, error
 
     def load_result(self, key: bytes, materials: tuple) -> tuple[Hlod, dict] | None:
-        """A result entry's (Hlod with `materials`, empty meta; the RESULT_META it keeps), or None."""
+        """A result entry's (Hlod with `materials`, empty meta; the DERIVED_META it keeps), or None."""
         found = self._read(key, RESULT_SUFFIX, "result")
         if found is None:
             return None
         try:
-            return _result_from(*found, materials=materials, with_normals=self.with_normals,
-                                has_rows=self.row_width > 0)
-        except _Corrupt as exc:
+            return cache_files.result_entry(*found, materials=materials, with_normals=self.with_normals,
+                                            has_rows=self.row_width > 0)
+        except CorruptEntry as exc:
             self.rejected.append((self.path(key, RESULT_SUFFIX).name, str(exc)))
             return None
 
@@ -240,18 +298,19 @@ class BakeCache:
             self.rejected.append((path.name, f"unreadable ({exc.strerror or exc})"))
             return None
         try:
-            return _unpack(data, key, kind)
-        except _Corrupt as exc:
+            return cache_files.unpack(data, key, kind)
+        except CorruptEntry as exc:
             self.rejected.append((path.name, str(exc)))
             return None
 
-    def store(self, entries: dict[bytes, tuple[simplify.NodeLod, float]]) -> None:
+    def store(self, entries: dict[bytes, tuple[NodeLod, float]]) -> None:
         """Write node entries (key -> (LOD, error)), each atomically."""
-        self._write((self.path(key), _node_bytes(key, lod, error)) for key, (lod, error) in entries.items())
+        self._write((self.path(key), cache_files.node_entry_bytes(key, lod, error))
+                    for key, (lod, error) in entries.items())
 
     def store_result(self, key: bytes, hlod: Hlod, meta: dict) -> None:
-        """Write the result entry of a bake: its arrays and its RESULT_META entries found in `meta`."""
-        self._write([(self.path(key, RESULT_SUFFIX), _result_bytes(key, hlod, meta))])
+        """Write the result entry of a bake: its arrays and its DERIVED_META entries found in `meta`."""
+        self._write([(self.path(key, RESULT_SUFFIX), cache_files.result_entry_bytes(key, hlod, meta))])
 
     def _write(self, files) -> None:
         """Write (path, bytes) pairs. A failed write (disk full, no permission) is logged once and
@@ -314,137 +373,3 @@ def _write_replacing(path: Path, data: bytes) -> None:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
-
-
-# --- the container: preamble, JSON header, raw little-endian arrays -------------------------------
-
-class _Corrupt(Exception):
-    """An entry that must not be used; the message says why."""
-
-
-def _pack(key: bytes, kind: str, arrays: dict[str, np.ndarray], extra: dict | None = None) -> bytes:
-    table, offset = [], 0
-    arrays = {name: np.ascontiguousarray(a, a.dtype.newbyteorder("<")) for name, a in arrays.items()}
-    for name, a in arrays.items():
-        table.append([name, a.dtype.str, list(a.shape), offset])
-        offset += a.nbytes
-    header = json.dumps({"key": key.hex(), "kind": kind, "arrays": table, "extra": extra or {}}).encode()
-    payload = b"".join([_HEADER_LENGTH.pack(len(header)), header, *(a.tobytes() for a in arrays.values())])
-    digest = hashlib.blake2b(payload, digest_size=_KEY_BYTES).digest()
-    return _PREAMBLE.pack(MAGIC, CACHE_VERSION, 0, len(payload), digest) + payload
-
-
-def _unpack(data: bytes, key: bytes, kind: str) -> tuple[dict, dict[str, np.ndarray]]:
-    """(extra, arrays) of an entry that passes the preamble, digest, key, kind and table checks."""
-    if len(data) < _PREAMBLE.size:
-        raise _Corrupt(f"truncated ({len(data)} bytes)")
-    magic, version, _, length, digest = _PREAMBLE.unpack_from(data)
-    if magic != MAGIC:
-        raise _Corrupt("not a bake cache entry (bad magic)")
-    if version != CACHE_VERSION:
-        raise _Corrupt(f"cache format {version}, this bake reads {CACHE_VERSION}")
-    payload = memoryview(data)[_PREAMBLE.size:]
-    if length != len(payload):
-        raise _Corrupt(f"payload of {len(payload)} bytes, the entry says {length}")
-    if hashlib.blake2b(payload, digest_size=_KEY_BYTES).digest() != digest:
-        raise _Corrupt("payload digest mismatch")
-    (header_bytes,) = _HEADER_LENGTH.unpack_from(payload)
-    if header_bytes > min(_MAX_HEADER_BYTES, len(payload) - _HEADER_LENGTH.size):
-        raise _Corrupt("bad header length")
-    try:
-        header = json.loads(bytes(payload[_HEADER_LENGTH.size:_HEADER_LENGTH.size + header_bytes]))
-        if header["key"] != key.hex() or header["kind"] != kind:
-            raise _Corrupt(f"the entry records another key or kind ({header['kind']})")
-        table = [(str(name), np.dtype(str(dtype)), tuple(int(x) for x in shape), int(offset))
-                 for name, dtype, shape, offset in header["arrays"]]
-        extra = dict(header["extra"])
-    except (ValueError, KeyError, TypeError) as exc:
-        raise _Corrupt(f"bad header ({exc})") from None
-    base = _HEADER_LENGTH.size + header_bytes
-    arrays = {}
-    for name, dtype, shape, offset in table:
-        if dtype.hasobject or any(x < 0 for x in shape):
-            raise _Corrupt(f"{name}: dtype {dtype} shape {list(shape)}")
-        count = int(np.prod(shape, dtype=object))
-        if offset < 0 or base + offset + count * dtype.itemsize > len(payload):
-            raise _Corrupt(f"{name}: outside the entry")
-        arrays[name] = np.frombuffer(payload, dtype, count, base + offset).reshape(shape).copy()
-    return extra, arrays
-
-
-def _expect(arrays: dict[str, np.ndarray], name: str, dtype: str, shape: tuple) -> np.ndarray:
-    """arrays[name], checked: dtype, and shape with None for any length."""
-    a = arrays.get(name)
-    if a is None or a.dtype != np.dtype(dtype) or len(a.shape) != len(shape) \
-            or any(want is not None and got != want for got, want in zip(a.shape, shape)):
-        got = "absent" if a is None else f"{a.dtype}{list(a.shape)}"
-        raise _Corrupt(f"{name}: {got}, expected {np.dtype(dtype)}{list(shape)}")
-    return a
-
-
-# --- node entries ---------------------------------------------------------------------------------
-
-def _node_bytes(key: bytes, lod: simplify.NodeLod, error: float) -> bytes:
-    arrays = {"positions": np.asarray(lod.positions, "<f4"), "faces": np.asarray(lod.faces, "<i4"),
-              "hausdorff": np.array([error], "<f8"),
-              "summary": np.array([int(getattr(lod, name)) for name in SUMMARY_FIELDS], "<i8")}
-    if lod.normals is not None:
-        arrays["normals"] = np.asarray(lod.normals, "<f4")
-    if lod.attributes is not None:
-        arrays["attributes"] = np.asarray(lod.attributes, "<f4")
-    return _pack(key, "node", arrays)
-
-
-def _node_from(extra: dict, arrays: dict, *, with_normals: bool, row_width: int) -> tuple[simplify.NodeLod, float]:
-    expected = {"positions", "faces", "hausdorff", "summary"} | ({"normals"} if with_normals else set()) \
-        | ({"attributes"} if row_width else set())
-    if set(arrays) != expected:
-        raise _Corrupt(f"arrays {sorted(arrays)}, expected {sorted(expected)}")
-    positions = _expect(arrays, "positions", "<f4", (None, 3))
-    k = positions.shape[0]
-    faces = _expect(arrays, "faces", "<i4", (None, 3))
-    normals = _expect(arrays, "normals", "<f4", (k, 3)) if with_normals else None
-    rows = _expect(arrays, "attributes", "<f4", (k, row_width)) if row_width else None
-    error = float(_expect(arrays, "hausdorff", "<f8", (1,))[0])
-    summary = dict(zip(SUMMARY_FIELDS, (int(v) for v in _expect(arrays, "summary", "<i8", (len(SUMMARY_FIELDS),)))))
-    if k == 0 or faces.shape[0] == 0:
-        raise _Corrupt("empty LOD")
-    if faces.min() < 0 or faces.max() >= k:
-        raise _Corrupt("a face refers to a vertex outside the LOD")
-    if not np.all(np.isfinite(positions)):
-        raise _Corrupt("non-finite positions")
-    if error < 0 or np.isinf(error):  # NaN is allowed: pymeshlab gave no distance (bake.py bounds it)
-        raise _Corrupt(f"bad error {error}")
-    if any(summary[name] not in (0, 1) for name in _FLAG_FIELDS) or any(v < 0 for v in summary.values()):
-        raise _Corrupt(f"bad summary {summary}")
-    lod = simplify.NodeLod(positions=positions, faces=faces, normals=normals, attributes=rows,
-                           **{name: bool(summary[name]) if name in _FLAG_FIELDS else summary[name]
-                              for name in SUMMARY_FIELDS})
-    return lod, error
-
-
-# --- result entries -------------------------------------------------------------------------------
-
-def _result_bytes(key: bytes, hlod: Hlod, meta: dict) -> bytes:
-    arrays = {name: getattr(hlod, name) for name in _RESULT_ARRAYS if getattr(hlod, name) is not None}
-    return _pack(key, "result", arrays, {name: meta[name] for name in RESULT_META if name in meta})
-
-
-def _result_from(extra: dict, arrays: dict, *, materials: tuple, with_normals: bool,
-                 has_rows: bool) -> tuple[Hlod, dict]:
-    required = set(NODE_ARRAYS) | {"origin", "positions", "indices"} | ({"normals"} if with_normals else set())
-    if not required <= set(arrays) <= set(_RESULT_ARRAYS) or (not has_rows and set(arrays) - required):
-        raise _Corrupt(f"arrays {sorted(arrays)}")
-    try:
-        hlod = Hlod(**arrays, materials=tuple(materials))
-        hlod_file.validate(hlod, source="bake cache result")
-    except (FormatError, TypeError, ValueError) as exc:
-        raise _Corrupt(str(exc)) from None
-    for name, kind in RESULT_META.items():
-        value = extra.get(name)
-        if name not in extra and name == "uv_seams_crossed_nodes" and not has_rows:
-            continue
-        if not isinstance(value, kind) or (kind is int and value < 0) \
-                or (kind is list and not all(isinstance(line, str) for line in value)):
-            raise _Corrupt(f"meta entry {name!r} is {value!r}")
-    return hlod, {name: extra[name] for name in RESULT_META if name in extra}

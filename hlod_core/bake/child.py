@@ -1,4 +1,4 @@
-"""A bake in a child process (issue 14): `python -m hlod_core.bake.child JOB.json`.
+"""A bake in a child process: `python -m hlod_core.bake.child JOB.json`.
 
 The Blender extension gathers the mesh on Blender's main thread, writes it with `write_job` into a
 private scratch folder and starts this module in a child process of Blender's own Python, which bakes
@@ -11,7 +11,7 @@ Data form of a job (one folder, written by `write_job`, read by `read_job`):
 - `job.json`: {"version", "mesh" (the npz's name), "name" (the mesh's, for messages and meta),
   "materials" (appearance.Material.to_json rows, textures absolute), "settings" (BakeSettings
   fields), "output" (the .hlod path), "extra_meta", "cache_dir" (the bake's cache folder,
-  bake_cache.py; null: no cache)}.
+  cache.py; null: no cache)}.
 Both are written atomically (hlod_core.core.atomic), the npz first, so a job.json always names a whole npz.
 
 Protocol: stdout carries JSON lines only, one object per event, flushed at once:
@@ -48,7 +48,8 @@ import numpy as np
 from ..io import hlod_file, meshes
 from ..model.appearance import materials_from_json
 from ..core.atomic import atomic_file, write_text_atomic
-from .pipeline import BakeSettings, bake
+from .pipeline import bake
+from .settings import BakeSettings
 from ..core.errors import FormatError, HlodError, InputError
 from ..core.signals import Terminated, signals_as_exceptions
 
@@ -62,13 +63,13 @@ PARENT_STDIN = "--parent-stdin"  # the option saying stdin is the parent's pipe 
 OPTIONAL_ARRAYS = ("normals", "uvs", "colors", "material_ids")
 #: Typed errors the error event may name (re-raised by that type in the parent).
 ERROR_TYPES = {cls.__name__: cls for cls in (InputError, FormatError, HlodError)}
-#: Signals that stop a bake (SIGHUP does not exist on Windows).
 
 
 # --- the job files (written by the parent, read here) -------------------------------------------
 
-def write_job(folder: str | os.PathLike, mesh: meshes.TriangleMesh, settings: BakeSettings, output: str | os.PathLike,
-              *, extra_meta: dict | None = None, cache_dir: str | os.PathLike | None = None) -> Path:
+def write_job(folder: str | os.PathLike, mesh: meshes.TriangleMesh, settings: BakeSettings, *,
+              output: str | os.PathLike, extra_meta: dict | None = None,
+              cache_dir: str | os.PathLike | None = None) -> Path:
     """Write `mesh` and what to do with it into `folder` (module notes); returns the job.json path."""
     folder = Path(folder)
     arrays = {"positions": np.ascontiguousarray(mesh.positions, np.float64),
@@ -105,8 +106,6 @@ def read_job(path: str | os.PathLike) -> tuple[meshes.TriangleMesh, BakeSettings
 
 
 # --- the child ----------------------------------------------------------------------------------
-
-
 
 _parent_gone = threading.Event()
 

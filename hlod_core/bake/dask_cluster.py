@@ -1,6 +1,6 @@
-"""The bake's simplify phase on a Dask cluster (issue 16): its tasks (decimations, deepest first;
-measurements, largest first; bake.py `_simplify_inner_nodes`) run as Dask tasks on a
-`distributed` scheduler's workers instead of local worker processes, and the output is the file a
+"""The bake's simplify phase on a Dask cluster: its tasks (decimations, deepest first;
+measurements, largest first; schedule.py) run as Dask tasks on a `distributed` scheduler's
+workers instead of local worker processes (workers.open_workers), and the output is the file a
 local bake writes, byte for byte.
 
 What moves where:
@@ -10,7 +10,7 @@ What moves where:
   process, which keeps every LOD (it assembles the file);
 - the exact measure's shared arrays (the leaves' triangles) are written once per bake as .npy files
   into a fresh folder `hlod-bake-*` inside the scratch folder, which every worker must read (shared
-  storage on a cluster); workers memory-map them on first use (bake._shared) and drop them when the
+  storage on a cluster); workers memory-map them on first use (tasks.shared) and drop them when the
   bake ends, and the folder is removed however the bake ends.
 
 `DaskExecutor` adapts a `distributed.Client` to what the scheduling loop expects of an executor:
@@ -27,7 +27,7 @@ decide LODs and errors (cache.context_digest) and reads a probe file in the scra
 a worker with other code or without the shared folder is refused before anything is baked.
 
 Command line only: Dask (`dask[distributed]`) is an optional dependency of `python -m hlod_core`;
-the Blender extension never imports this module (bake.py imports it only when given a scheduler).
+the Blender extension never imports this module (workers.py imports it only when given a scheduler).
 """
 from __future__ import annotations
 
@@ -137,7 +137,7 @@ def fingerprint() -> str:
     return f"python {sys.version_info[0]}.{sys.version_info[1]} {digest.hex()}"
 
 
-def _read_probe(path: str) -> str:
+def read_probe(path: str) -> str:
     """Runs on each worker: the probe file's text, or why it cannot be read."""
     try:
         with open(path, encoding="ascii") as f:
@@ -168,7 +168,7 @@ def check_cluster(client, scratch: str) -> int:
     with open(probe, "w", encoding="ascii") as f:
         f.write(token)
     try:
-        read = client.run(_read_probe, probe)
+        read = client.run(read_probe, probe)
     finally:
         os.unlink(probe)
     for worker, text in sorted(read.items()):
@@ -179,15 +179,18 @@ def check_cluster(client, scratch: str) -> int:
     return max(1, sum(client.nthreads().values()))
 
 
-def _array_bytes(value) -> int:
-    """Bytes of the numpy arrays in `value` (arrays, tuples and lists of them, dataclasses of them)."""
+def array_bytes(value) -> int:
+    """Bytes of the numpy arrays in `value` (arrays, tuples, lists and dicts of them, dataclasses of
+    them)."""
     if isinstance(value, np.ndarray):
         return value.nbytes
     if isinstance(value, (tuple, list)):
-        return sum(_array_bytes(v) for v in value)
+        return sum(array_bytes(v) for v in value)
+    if isinstance(value, dict):
+        return sum(array_bytes(v) for v in value.values())
     fields = getattr(value, "__dataclass_fields__", None)
     if fields:
-        return sum(_array_bytes(getattr(value, name)) for name in fields)
+        return sum(array_bytes(getattr(value, name)) for name in fields)
     return 0
 
 
@@ -212,14 +215,15 @@ class DaskExecutor:
         self._held: dict[str, object] = {}  # Dask key -> Future, until its result is here
         self._lock = threading.Lock()
 
-    def submit(self, fn: Callable, *args, priority: int = 0) -> cf.Future:
+    def submit(self, fn: Callable, *args, priority: int = 0, **kwargs) -> cf.Future:
+        """fn(*args, **kwargs) as a Dask task of `priority` (higher first); the Future of its result."""
         local: cf.Future = cf.Future()
         local.set_running_or_notify_cancel()
-        remote = self.client.submit(fn, *args, pure=False, priority=priority)
+        remote = self.client.submit(fn, *args, pure=False, priority=priority, **kwargs)
         with self._lock:
             self._held[remote.key] = remote
             self.stats.tasks += 1
-            self.stats.sent_bytes += _array_bytes(args)
+            self.stats.sent_bytes += array_bytes((args, kwargs))
         remote.add_done_callback(lambda done: self._finish(done, local))
         return local
 
@@ -231,7 +235,7 @@ class DaskExecutor:
             local.set_exception(exc)
         else:
             with self._lock:
-                self.stats.returned_bytes += _array_bytes(result)
+                self.stats.returned_bytes += array_bytes(result)
             local.set_result(result)
         finally:
             with self._lock:

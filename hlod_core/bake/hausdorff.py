@@ -1,36 +1,22 @@
 """The inner nodes' errors (DESIGN §4.4, the MSE): the symmetric Hausdorff distance between a
 node's LOD and the original triangles below it, from fixed samples, with pymeshlab
-(`get_hausdorff_distance`); and h of the error bound (issue 16, bake.py "Error measures").
+(`get_hausdorff_distance`); and h of the error bound (`measure_to_children`).
 
 Data form: geometry as (positions (k,3) float32 in the bake's file-relative frame, faces (m,3)
-int rows into them); every distance is computed in the node's unit frame (simplify.NodeFrame,
+int rows into them); every distance is computed in the node's unit frame (meshlab.NodeFrame,
 as the decimation) and returned in model units.
 
 The samples (fixed, so the same input always bakes to the same file): every original vertex
 against the LOD's surface, and the LOD's vertices plus FACE_SAMPLES points of each LOD face
 against the original surface. `measure` evaluates all of them; it is the reference.
 
-Pruned measure (issue 14: a moved statue's ancestors up to the root were measured against every
-triangle below them, 2 to 4 s for the crowd's root). Only the maximum matters, so a sample that
-provably cannot raise it is not evaluated, and every sample that is evaluated gets the very float
-`measure` gives it (the same point against the same nearest face), so `measure_clustered` returns
-`measure`'s float (tests/test_measure_pruned.py checks it on every inner node of real bakes). The
-original triangles are cut once per bake into `Clusters` of about CLUSTER_FACES nearby faces
-(Morton order within each leaf, never across one: a node's clusters are one contiguous range),
-each with a bounding sphere (c, r) of its corners and one of its vertices (a point on the original
-surface). By the triangle inequality:
-  original -> LOD: every vertex v of cluster k has d(v, LOD) <= d(c_k, LOD) + r_k; clusters are
-    evaluated in decreasing order of that bound, in batches growing 4x, until the next bound is not
-    above the running maximum (the previous session's pruned direction, with the clusters made once
-    per bake instead of a grid per node);
-  LOD -> original: a sample s has d(s, O) <= U_s = d(s, R), R the clusters' surface vertices (each a
-    point of O), and its nearest original face lies in a cluster with |s - c_k| - r_k <= U_s.
-    Samples with U_s not above the running maximum (the first direction's result to start with)
-    are skipped; the others are measured in batches against only the clusters within their reach.
-On the crowd's big nodes the LOD -> original direction then measures no sample at all (the
-original vertices far from a coarse LOD dominate) and the first direction a few thousand vertices.
-Nodes below PRUNE_FROM_VERTICES original vertices are measured whole: there the extra calls cost
-more than they save.
+Pruned measure (`measure_clustered`): the original triangles are cut once per bake into
+`Clusters` of about CLUSTER_FACES nearby faces, each with a bounding sphere; the triangle
+inequality bounds what a whole cluster can add to the maximum, and a sample that provably cannot
+raise it is not evaluated. Every sample that is evaluated gets the very float `measure` gives it,
+so the result is `measure`'s float (tests/test_measure_pruned.py checks it on every inner node of
+real bakes). Nodes below PRUNE_FROM_VERTICES original vertices are measured whole.
+Why: docs/how-it-works.md#the-pruned-hausdorff-measure
 """
 from __future__ import annotations
 
@@ -40,7 +26,7 @@ from typing import Callable
 import numpy as np
 
 from ..core.arrays import concat_indexed
-from .simplify import UNIT_DIAGONAL, NodeFrame
+from .meshlab import UNIT_DIAGONAL, NodeFrame
 
 #: Barycentric sample points per LOD face for the LOD -> original direction: centroid, three
 #: inner points and the edge midpoints. Fixed, so a bake is reproducible (pymeshlab's own face
@@ -97,13 +83,12 @@ def measure(lod: tuple[np.ndarray, np.ndarray], original: tuple[np.ndarray, np.n
 
 
 def measure_to_children(lod: tuple[np.ndarray, np.ndarray], children: list[tuple[np.ndarray, np.ndarray]]) -> float:
-    """h(node) of the error bound (bake.py "Error measures"): the symmetric Hausdorff distance
+    """h(node) of the error bound (schedule.compose_bounds): the symmetric Hausdorff distance
     between a LOD and the union of its children's LODs, all (positions f32, faces) in one frame,
     model units; NaN if pymeshlab gives none. Sampled as `measure` samples (the LOD's vertices and
     FACE_SAMPLES points to the children's surface, the children's vertices to the LOD's), in the
-    unit frame of both: where the children are leaves, h is the very float `measure` gives. Sampling
-    the children's faces too (FACE_SAMPLES) made the bunny's bake 1.6x slower (2.9 s against 1.8 s,
-    jobs 1) and changed no node's bound/exact order there."""
+    unit frame of both: where the children are leaves, h is the very float `measure` gives.
+    Why: docs/how-it-works.md#the-error-bound"""
     kids_positions, kids_faces = concat_indexed(children)
     return measure(lod, (kids_positions, np.asarray(kids_faces, np.int32)))
 
@@ -153,7 +138,7 @@ class Clusters:
         return {name: getattr(self, name) for name in self.ARRAYS}
 
     @staticmethod
-    def build(positions: np.ndarray, faces: np.ndarray, segments: np.ndarray,
+    def build(positions: np.ndarray, faces: np.ndarray, segments: np.ndarray, *,
               cluster_faces: int = CLUSTER_FACES) -> "Clusters":
         """positions (V,3) f32; faces (F,3) int rows into them; segments (S+1,) int64 increasing face
         indices from 0 to F, runs no cluster crosses (the bake's leaves), each non-empty. Faces are
@@ -241,12 +226,13 @@ def measure_pruned(lod: tuple[np.ndarray, np.ndarray], original: tuple[np.ndarra
     faces = np.asarray(original[1])
     clusters = Clusters.build(original[0], faces, np.array([0, faces.shape[0]], np.int64))
     p = np.asarray(original[0], np.float64)
-    return measure_clustered(lod, original[0], clusters, 0, clusters.radius.size, original_box=(p.min(axis=0), p.max(axis=0)),
+    return measure_clustered(lod, original[0], clusters, first=0, last=clusters.radius.size,
+                             original_box=(p.min(axis=0), p.max(axis=0)),
                              whole=(lambda: original) if allow_whole else None)
 
 
-def measure_clustered(lod: tuple[np.ndarray, np.ndarray], positions: np.ndarray, clusters: Clusters,
-                      first: int, last: int, *, original_box: tuple[np.ndarray, np.ndarray] | None = None,
+def measure_clustered(lod: tuple[np.ndarray, np.ndarray], positions: np.ndarray, clusters: Clusters, *,
+                      first: int, last: int, original_box: tuple[np.ndarray, np.ndarray] | None = None,
                       whole: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None) -> float:
     """`measure(lod, original)` of the original made of clusters first..last-1 (their faces into
     `positions`, (V,3) float32), pruned (module docstring); the same float. original_box: the
@@ -254,94 +240,125 @@ def measure_clustered(lod: tuple[np.ndarray, np.ndarray], positions: np.ndarray,
     boxes (equal when every original vertex is a face corner, as in the bake's compacted leaves).
     whole: the original as (positions, faces) for `measure`, used instead of pruning where the
     clusters' bounds show it cannot pay (more than PRUNE_MAX_SHARE of them above the floor: a LOD
-    that stays within a cluster's radius of the surface everywhere, as on the gallery's smooth
-    statues at middle levels, where pruning measured nearly every vertex at 1.2 to 1.5x the cost)."""
-    import pymeshlab
-
+    that stays within a cluster's radius of the surface everywhere)."""
     if original_box is None:
         original_box = (clusters.box_min[first:last].min(axis=0), clusters.box_max[first:last].max(axis=0))
-    lod_positions = np.asarray(lod[0], np.float64)
-    lo = np.minimum(lod_positions.min(axis=0), np.asarray(original_box[0], np.float64))
-    hi = np.maximum(lod_positions.max(axis=0), np.asarray(original_box[1], np.float64))
-    frame = NodeFrame.of_box(lo, hi)
-    lod_p = frame.to_local(lod[0])
-    samples = surface_samples(lod_p, lod[1])
-    centre = frame.to_local(clusters.centre[first:last])
-    radius = clusters.radius[first:last] * frame.scale
-    start = clusters.start[first:last + 1]
-    faces = clusters.faces
-
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=lod_p, face_matrix=lod[1]))  # mesh 0: the LOD
-
-    def distances(points: np.ndarray, target: int) -> np.ndarray:
-        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
-        sampled = ms.current_mesh_id()
-        hausdorff_max(ms, sampled=sampled, target=target, count=points.shape[0], save=True)
-        return ms.mesh(sampled).vertex_scalar_array()
-
-    def max_distance(points: np.ndarray, target: int) -> float:
-        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
-        return hausdorff_max(ms, sampled=ms.current_mesh_id(), target=target, count=points.shape[0])
-
-    def faces_of(cluster_ids: np.ndarray) -> np.ndarray:
-        begin, end = start[cluster_ids], start[cluster_ids + 1]
-        lengths = end - begin
-        rows = np.repeat(begin - np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths) + np.arange(lengths.sum())
-        return faces[rows]
-
-    # original -> LOD, by clusters in decreasing order of their bound
-    # (a cluster's vertices are all at least d(c, LOD) - r from the LOD: the largest such floor
-    # skips, from the start, the clusters whose bound is below it; `best` stays a measured value)
-    centre_distance = distances(centre, 0)
+    pruning = _Pruning(lod, positions, clusters, first=first, last=last, original_box=original_box)
+    # original -> LOD, by clusters in decreasing order of their bound d(c, LOD) + r
+    centre_distance = pruning.distances(pruning.centre, 0)
     finite = np.isfinite(centre_distance)
-    bound = np.where(finite, centre_distance + radius + PRUNE_MARGIN, np.inf)
-    floor = float(np.max(centre_distance[finite] - radius[finite], initial=0.0)) - PRUNE_MARGIN
+    bound = np.where(finite, centre_distance + pruning.radius + PRUNE_MARGIN, np.inf)
+    floor = float(np.max(centre_distance[finite] - pruning.radius[finite], initial=0.0)) - PRUNE_MARGIN
     if whole is not None and np.mean(bound > floor) > PRUNE_MAX_SHARE:
         return measure(lod, whole())
-    order = np.argsort(-bound, kind="stable")
-    best, at, batch = 0.0, 0, 1
-    while at < order.size and bound[order[at]] > max(best, floor):
-        take = order[at:at + batch]
-        take = take[bound[take] > max(best, floor)]
-        vertices = np.unique(faces_of(take))
-        value = max_distance(frame.to_local(positions[vertices]), 0)
-        if not np.isfinite(value):
-            return float("nan")
-        best = max(best, value)
-        at += batch
-        batch *= 4
-
-    # LOD -> original: upper bounds from the clusters' surface vertices, then the samples that can
-    # still raise the maximum against the clusters within their reach
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=frame.to_local(positions[clusters.surface_vertex[first:last]])))
-    surface_points = ms.current_mesh_id()
-    reach = distances(samples, surface_points)
-    reach = np.where(np.isfinite(reach), reach + PRUNE_MARGIN, np.inf)
-    candidates = np.flatnonzero(reach > best)
-    candidates = candidates[np.argsort(-reach[candidates], kind="stable")]
-    if candidates.size > WHOLE_TARGET_SHARE * samples.shape[0]:
-        whole = faces_of(np.arange(last - first))
-        value = _max_to_faces(ms, samples[candidates], positions, whole, frame)
-        return max(best, value) / frame.scale if np.isfinite(value) else float("nan")
-    at, batch = 0, FIRST_SAMPLE_BATCH
-    centre_sq = (centre ** 2).sum(axis=1)
-    while at < candidates.size:
-        take = candidates[at:at + batch]
-        take = take[reach[take] > best]
-        at += batch
-        batch *= 4
-        if take.size == 0:
-            break
-        needed = _within_reach(samples[take], reach[take], centre, centre_sq, radius)
-        value = _max_to_faces(ms, samples[take], positions, faces_of(needed), frame)
-        if not np.isfinite(value):
-            return float("nan")
-        best = max(best, value)
-    return best / frame.scale
+    best = pruning.original_to_lod(bound, floor=floor)
+    if not np.isfinite(best):
+        return float("nan")
+    best = pruning.lod_to_original(best)
+    return best / pruning.frame.scale if np.isfinite(best) else float("nan")
 
 
-def _within_reach(points: np.ndarray, reach: np.ndarray, centre: np.ndarray, centre_sq: np.ndarray,
+class _Pruning:
+    """One pruned measure (`measure_clustered`): a pymeshlab MeshSet whose mesh 0 is the LOD, the
+    unit frame of the LOD and the original, the LOD's samples, and clusters first..last-1 in that
+    frame (centre (K,3), radius (K,)); each measured point set is added to the MeshSet."""
+
+    def __init__(self, lod: tuple[np.ndarray, np.ndarray], positions: np.ndarray, clusters: Clusters, *, first: int,
+                 last: int, original_box: tuple[np.ndarray, np.ndarray]):
+        import pymeshlab
+
+        lod_positions = np.asarray(lod[0], np.float64)
+        lo = np.minimum(lod_positions.min(axis=0), np.asarray(original_box[0], np.float64))
+        hi = np.maximum(lod_positions.max(axis=0), np.asarray(original_box[1], np.float64))
+        self.frame = NodeFrame.of_box(lo, hi)
+        lod_p = self.frame.to_local(lod[0])
+        self.samples = surface_samples(lod_p, lod[1])
+        self.centre = self.frame.to_local(clusters.centre[first:last])
+        self.radius = clusters.radius[first:last] * self.frame.scale
+        self.start = clusters.start[first:last + 1]
+        self.positions, self.clusters, self.first, self.last = positions, clusters, first, last
+        self.ms = pymeshlab.MeshSet()
+        self.ms.add_mesh(pymeshlab.Mesh(vertex_matrix=lod_p, face_matrix=lod[1]))  # mesh 0: the LOD
+
+    def distances(self, points: np.ndarray, target: int) -> np.ndarray:
+        """(b,) each of points (b,3)'s distance to mesh `target`, unit frame."""
+        import pymeshlab
+
+        self.ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
+        sampled = self.ms.current_mesh_id()
+        hausdorff_max(self.ms, sampled=sampled, target=target, count=points.shape[0], save=True)
+        return self.ms.mesh(sampled).vertex_scalar_array()
+
+    def max_distance(self, points: np.ndarray, target: int) -> float:
+        """The largest of points (b,3)'s distances to mesh `target`, unit frame."""
+        import pymeshlab
+
+        self.ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
+        return hausdorff_max(self.ms, sampled=self.ms.current_mesh_id(), target=target, count=points.shape[0])
+
+    def faces_of(self, cluster_ids: np.ndarray) -> np.ndarray:
+        """The faces (rows into positions) of the clusters cluster_ids (local to first..last-1)."""
+        begin, end = self.start[cluster_ids], self.start[cluster_ids + 1]
+        lengths = end - begin
+        rows = np.repeat(begin - np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths) + np.arange(lengths.sum())
+        return self.clusters.faces[rows]
+
+    def original_to_lod(self, bound: np.ndarray, *, floor: float) -> float:
+        """The largest distance of an original vertex to the LOD (unit frame; NaN if pymeshlab gives
+        none): clusters in decreasing order of their bound (K,), in batches growing 4x, until the
+        next bound is not above the maximum so far nor the floor (a cluster's vertices are all at
+        least d(c, LOD) - r from the LOD); the result stays a measured value."""
+        order = np.argsort(-bound, kind="stable")
+        best, at, batch = 0.0, 0, 1
+        while at < order.size and bound[order[at]] > max(best, floor):
+            take = order[at:at + batch]
+            take = take[bound[take] > max(best, floor)]
+            vertices = np.unique(self.faces_of(take))
+            value = self.max_distance(self.frame.to_local(self.positions[vertices]), 0)
+            if not np.isfinite(value):
+                return float("nan")
+            best = max(best, value)
+            at += batch
+            batch *= 4
+        return best
+
+    def lod_to_original(self, best: float) -> float:
+        """max(best, the largest distance of a LOD sample to the original surface), unit frame (NaN
+        if pymeshlab gives none): upper bounds from the clusters' surface vertices, then the samples
+        that can still raise the maximum, against the clusters within their reach."""
+        import pymeshlab
+
+        surface = self.clusters.surface_vertex[self.first:self.last]
+        self.ms.add_mesh(pymeshlab.Mesh(vertex_matrix=self.frame.to_local(self.positions[surface])))
+        reach = self.distances(self.samples, self.ms.current_mesh_id())
+        reach = np.where(np.isfinite(reach), reach + PRUNE_MARGIN, np.inf)
+        candidates = np.flatnonzero(reach > best)
+        candidates = candidates[np.argsort(-reach[candidates], kind="stable")]
+        if candidates.size > WHOLE_TARGET_SHARE * self.samples.shape[0]:
+            every_face = self.faces_of(np.arange(self.last - self.first))
+            value = _max_to_faces(self.ms, self.samples[candidates], positions=self.positions, faces=every_face,
+                                  frame=self.frame)
+            return max(best, value) if np.isfinite(value) else float("nan")
+        at, batch = 0, FIRST_SAMPLE_BATCH
+        centre_sq = (self.centre ** 2).sum(axis=1)
+        while at < candidates.size:
+            take = candidates[at:at + batch]
+            take = take[reach[take] > best]
+            at += batch
+            batch *= 4
+            if take.size == 0:
+                break
+            needed = _within_reach(self.samples[take], reach[take], centre=self.centre, centre_sq=centre_sq,
+                                   radius=self.radius)
+            value = _max_to_faces(self.ms, self.samples[take], positions=self.positions, faces=self.faces_of(needed),
+                                  frame=self.frame)
+            if not np.isfinite(value):
+                return float("nan")
+            best = max(best, value)
+        return best
+
+
+def _within_reach(points: np.ndarray, reach: np.ndarray, *, centre: np.ndarray, centre_sq: np.ndarray,
                   radius: np.ndarray) -> np.ndarray:
     """Indices of the clusters (centre (K,3), radius (K,), unit frame) with |p - c| - r <= reach(p)
     (+ PRUNE_MARGIN) for some row p of points (b,3)."""
@@ -355,7 +372,7 @@ def _within_reach(points: np.ndarray, reach: np.ndarray, centre: np.ndarray, cen
     return np.flatnonzero(needed)
 
 
-def _max_to_faces(ms, points: np.ndarray, positions: np.ndarray, faces: np.ndarray, frame: NodeFrame) -> float:
+def _max_to_faces(ms, points: np.ndarray, *, positions: np.ndarray, faces: np.ndarray, frame: NodeFrame) -> float:
     """Max over points (b,3) unit frame of their distance to the surface of `faces` (rows into
     positions, model units): one target mesh of just those faces, compacted."""
     import pymeshlab

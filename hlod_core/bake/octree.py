@@ -8,11 +8,9 @@ range (leaves in depth-first order; input order within a leaf).
 Cells: the root cell (`tight_cube`) is the cube around the centroids' box (centred on it, side its
 longest extent); a cell splits at its centre into octants, so every cell is fixed by the root cell
 and its path. A node's cell (`cell_center`, `cell_half`, `cell_level`) is the octant it was made as
-(the root: the root cube). An edit that keeps the centroids' box (a statue moved inside a crowd)
-leaves every cell it does not overlap where it was, which is what the bake cache (bake_cache.py)
-reuses; an edit that changes the box moves every cell. (A root cube snapped to a power-of-two grid
-would keep cells through such edits too, but not through a change of units by a non-power of two,
-which README "Unit-free bakes" promises; issue 14's note says what was measured.)
+(the root: the root cube). An edit that keeps the centroids' box keeps every cell it does not
+overlap, which is what the bake cache (cache.py) reuses.
+Why: docs/how-it-works.md#octree-cells-that-stay-put
 
 Rules: a cell splits into its 8 octants while it holds more than `target_tris` (counted) triangles
 and its depth is below `max_depth`; each triangle goes to the octant containing its centroid (a
@@ -24,14 +22,11 @@ octant after _MAX_SHRINKS shrinks) cannot be split and becomes a leaf over the b
 Vectorised by depth: each depth costs a few passes over the triangles still in splitting nodes
 (their octant codes, counts per (node, octant)), and one stable sort by leaf at the end.
 
-From counts (`build_octree_counted`, issue 16's out-of-core bakes, stream_partition.py): the same
-layout without an (f,3) array of centroids. Each depth is one pass over a stream of triangles
-(`OctantQuery.count` per chunk, summed): every centroid descends the tree built so far
-(`OctantRouter`) to its node, and for the splitting nodes it is counted per octant at
-COUNT_LEVELS successive levels (each level the octant holding it, halved as `_split_cells` shrinks
-a cell: half *= 0.5, centre += sign * half, the same floats); a cell splits at the first level
-where two octants hold triangles. The layout's tri_order is None: the stream routes each
-triangle to its leaf (`OctantRouter.route`) in input order, as tri_order lists them.
+From counts (`build_octree_counted`, the out-of-core bakes of partition.py): the same layout,
+float for float, without an (f,3) array of centroids: one counting pass over a stream of triangles
+per depth (`OctantQuery.count` per chunk, summed). The layout's tri_order is None: the stream
+routes each triangle to its leaf (`OctantRouter.route`) in input order, as tri_order lists them.
+Why: docs/how-it-works.md#the-octree-from-counts
 """
 from __future__ import annotations
 
@@ -133,13 +128,14 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
         if splitting.size < n - first:
             keep = w >= 0
             tris, w, axes = tris[keep], w[keep], [a[keep] for a in axes]
-        counts, split_center, split_half, shrinks, code = _split_cells(axes, w, rows.center[-1][splitting],
-                                                                        rows.half[-1][splitting])
+        counts, split_center, split_half, shrinks, code = _split_cells(axes, w, center=rows.center[-1][splitting],
+                                                                        half=rows.half[-1][splitting])
         split = np.flatnonzero(counts.any(axis=1))  # (k,) split nodes; the others stay leaves
         occupied = counts[split] > 0
         ids = first + splitting[split]
-        offsets, m = rows.add_children(d, first, n, ids, occupied, split_center[split], split_half[split],
-                                       rows.level[-1][splitting[split]] + shrinks[split] + 1)
+        offsets, m = rows.add_children(ids, occupied, d=d, first=first, n=n, cell_center=split_center[split],
+                                       cell_half=split_half[split],
+                                       child_level=rows.level[-1][splitting[split]] + shrinks[split] + 1)
         child_local = np.full((splitting.size, 8), -1, np.int64)  # child id - n
         child_local[split] = np.where(occupied, offsets[:, None] - n + np.cumsum(occupied, axis=1) - 1, -1)
         where = child_local[w, code]
@@ -153,7 +149,7 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
         d += 1
 
     _, child_offset_a, child_count_a, depth_a = rows.tree()
-    tri_order, tri_begin, tri_end = _depth_first_ranges(child_offset_a, child_count_a, depth_a, node_of)
+    tri_order, tri_begin, tri_end = _depth_first_ranges(child_offset_a, child_count_a, depth=depth_a, node_of=node_of)
     return rows.layout(tri_order, tri_begin, tri_end)
 
 
@@ -170,8 +166,8 @@ class _LevelRows:
         rows.child_offset, rows.child_count = [np.array([-1], np.int32)], [np.array([0], np.int32)]
         return rows
 
-    def add_children(self, d: int, first: int, n: int, ids: np.ndarray, occupied: np.ndarray, cell_center: np.ndarray,
-                     cell_half: np.ndarray, child_level: np.ndarray) -> tuple[np.ndarray, int]:
+    def add_children(self, ids: np.ndarray, occupied: np.ndarray, *, d: int, first: int, n: int,
+                     cell_center: np.ndarray, cell_half: np.ndarray, child_level: np.ndarray) -> tuple[np.ndarray, int]:
         """The children of the nodes `ids` (k,) of depth d (ids first..n-1, n nodes so far): one
         per occupied (k,8) octant of the node's cell (cell_center (k,3), cell_half (k,), shrunk as
         it split), level child_level (k,), in row-major order (parents in id order, octants
@@ -204,7 +200,7 @@ class _LevelRows:
                             cell_level=np.concatenate(self.level))
 
 
-def _split_cells(axes: list[np.ndarray], w: np.ndarray, center: np.ndarray, half: np.ndarray):
+def _split_cells(axes: list[np.ndarray], w: np.ndarray, *, center: np.ndarray, half: np.ndarray):
     """Split k cells at once. axes: three (t,) float64, the x, y, z of their triangles' centroids;
     w (t,) int64: each triangle's cell in 0..k-1; center (k,3), half (k,): the cells. A cell whose
     centroids share one octant shrinks into it and tries again (at most _MAX_SHRINKS times).
@@ -251,13 +247,14 @@ def _split_cells(axes: list[np.ndarray], w: np.ndarray, center: np.ndarray, half
     return counts, center, half, shrinks, code
 
 
-def _depth_first_ranges(child_offset, child_count, depth, node_of):
+def _depth_first_ranges(child_offset, child_count, *, depth, node_of):
     """tri_order (f,) int64 and tri_begin/tri_end (n,) int64: triangles sorted (stably) by their
     leaf's rank in depth-first order, so every subtree is one range."""
     leaf_rank, rank = _leaf_ranks(child_offset, child_count)
     key = leaf_rank[node_of]
     tri_order = np.argsort(key.astype(np.uint16) if rank <= _RADIX_KEYS else key, kind="stable").astype(np.int64)
-    begin, end = _ranges(child_offset, child_count, depth, leaf_rank, np.bincount(key, minlength=rank))
+    begin, end = _ranges(child_offset, child_count, depth=depth, leaf_rank=leaf_rank,
+                         per_rank=np.bincount(key, minlength=rank))
     return tri_order, begin, end
 
 
@@ -278,7 +275,7 @@ def _leaf_ranks(child_offset, child_count) -> tuple[np.ndarray, int]:
     return leaf_rank, rank
 
 
-def _ranges(child_offset, child_count, depth, leaf_rank, per_rank):
+def _ranges(child_offset, child_count, *, depth, leaf_rank, per_rank):
     """tri_begin/tri_end (n,) int64 of the leaves (ranked), per_rank (leaves,) their triangle
     counts in rank order; an inner node spans its first to its last child's range."""
     n = child_offset.shape[0]
@@ -295,7 +292,7 @@ def _ranges(child_offset, child_count, depth, leaf_rank, per_rank):
     return begin, end
 
 
-# --- the same octree from counts (issue 16: inputs bigger than memory) --------------------------
+# --- the same octree from counts (inputs bigger than memory) -----------------------------------
 
 #: Octant levels a counting pass evaluates per splitting cell: a cell whose centroids share one
 #: octant at the first k < COUNT_LEVELS levels shrinks k times and splits within the same pass.
@@ -401,11 +398,12 @@ def build_octree_counted(count_pass, *, root: RootCube, tri_count: int, counted_
         ids = first + splitting
         router = OctantRouter(split_center, child)
         counts, counts_counted, cell_center, cell_half, shrinks = _resolve_splits(
-            count_pass, router, ids, rows.center[-1][splitting], rows.half[-1][splitting], levels)
+            count_pass, router, ids, center=rows.center[-1][splitting], half=rows.half[-1][splitting], levels=levels)
         split = np.flatnonzero(counts.any(axis=1))
         occupied = counts[split] > 0
-        _, m = rows.add_children(d, first, n, ids[split], occupied, cell_center[split], cell_half[split],
-                                 rows.level[-1][splitting[split]] + shrinks[split] + 1)
+        _, m = rows.add_children(ids[split], occupied, d=d, first=first, n=n, cell_center=cell_center[split],
+                                 cell_half=cell_half[split],
+                                 child_level=rows.level[-1][splitting[split]] + shrinks[split] + 1)
         kid_parent, kid_octant = np.nonzero(occupied)  # row-major, as add_children numbers them
         n_all.append(counts[split][occupied])
         n_counted.append(counts_counted[split][occupied])
@@ -422,13 +420,13 @@ def build_octree_counted(count_pass, *, root: RootCube, tri_count: int, counted_
     per_rank = np.zeros(rank, np.int64)
     leaves = np.flatnonzero(leaf_rank >= 0)
     per_rank[leaf_rank[leaves]] = all_a[leaves]
-    tri_begin, tri_end = _ranges(child_offset_a, child_count_a, depth_a, leaf_rank, per_rank)
+    tri_begin, tri_end = _ranges(child_offset_a, child_count_a, depth=depth_a, leaf_rank=leaf_rank, per_rank=per_rank)
     layout = rows.layout(None, tri_begin, tri_end)
     return CountedOctree(layout=layout, router=OctantRouter(split_center, child), tri_count=all_a,
                          counted=np.concatenate(n_counted))
 
 
-def _resolve_splits(count_pass, router: OctantRouter, ids: np.ndarray, center: np.ndarray, half: np.ndarray,
+def _resolve_splits(count_pass, router: OctantRouter, ids: np.ndarray, *, center: np.ndarray, half: np.ndarray,
                     levels: int):
     """_split_cells from counts: for the k cells `ids` (center (k,3), half (k,)), passes of
     `levels` octant levels until each splits or has shrunk _MAX_SHRINKS times. Returns counts and

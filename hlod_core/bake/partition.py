@@ -1,38 +1,34 @@
-"""Streamed octree partition (issue 16, "bounded memory"): bake an input bigger than memory.
+"""Streamed octree partition: an input bigger than memory, never loaded whole, for
+pipeline.bake_stream (sources.StreamedSource).
 
 Data form in: a `TriangleSource`, a re-iterable stream of `TriangleChunk`s (positions (v,3)
 float64 model units, faces (f,3) int64 rows of them, normals (v,3) float32 or None), e.g. a scene
-spec read one instance at a time (`SceneSource`: a model placed many times read once, each
-instance made from it and its transform, meshes.transform_mesh, when the stream reaches it),
-never the whole input concatenated. Data form out: one scratch file per leaf cell holding its
-triangles as `record_dtype` rows (3 global vertex ids int64, 3 corners float32 relative to the
-origin, 3 corner normals float32 when the input has them), in input order, and `leaf_lod`, a
-leaf's compacted vertices and faces read from its file alone (`mapped_leaf_lods`: all leaves
-written back into one file per array, each memory-mapped once).
+spec read one instance at a time (`SceneSource`). Data form out: one scratch file per leaf cell
+holding its triangles as `record_dtype` rows (3 global vertex ids int64, 3 corners float32
+relative to the origin, 3 corner normals float32 when the input has them), in input order, and
+`leaf_lod`, a leaf's compacted vertices and faces read from its file alone (`mapped_leaf_lods`:
+all leaves written back into one file per array, each memory-mapped once).
 
-`bake_stream` is the entry point: a Partition of the source, baked by bake.bake_partitioned.
-The phases (passes over the stream, each a chunk of at most `chunk_tris` triangles at a time):
+The passes over the stream (each a chunk of at most `chunk_tris` triangles at a time):
     scan     -> the origin (centre of the used vertices' box: pass 1), then the float32 positions
-                relative to it, the centroids' box (the root cell, octree.tight_cube) and the
-                counted triangles (not collapsed) (pass 2), exactly as bake._prepare computes them
-    octree   -> octree.build_octree_counted: one counting pass per depth (OctantQuery.count per
-                chunk, summed), no (f,3) array of centroids: build_octree's layout float for float
+                relative to it, the centroids' box (the root cell) and the counted triangles
+                (pass 2), as prepare.prepare computes them (prepare.triangle_centroids)
+    octree   -> octree.build_octree_counted: one counting pass per depth, build_octree's layout
     route    -> each chunk's triangles go to their leaf (OctantRouter.route) and are buffered; once
                 `chunk_tris` triangles are buffered every cell with some is appended to (one file
                 open at a time, never one handle per cell)
     leaves   -> `leaf_lod` reads one cell's file: the vertices its triangles use in ascending
-                global vertex id (a chunk's ids follow the chunks before it), the faces local to
-                them: bake._leaf_lods' compaction, so the leaves equal the in-memory bake's.
-
+                global vertex id, the faces local to them: arrays.compact's order, so the leaves
+                equal the in-memory bake's.
 A global vertex id is the chunk's offset (the vertices of the chunks before it) plus the vertex's
 row: the merged mesh meshes.load_inputs would make, without making it. Nothing here holds an array
-of one row per input triangle or vertex; memory is a chunk's (and a model's) plus the tree.
-`Partition` owns its scratch folder (`hlod-partition-*` in the scratch folder or the temporary
-folder) and removes it when its block exits, however it exits (error, BakeCancelled, a signal
-turned into an exception).
+of one row per input triangle or vertex.
+Why: docs/how-it-works.md#out-of-core-bakes
 
-Geometry only: an input with materials, UVs or colours (issue 13) is refused (InputError naming
-the file). Normals travel with the corners when every chunk has them (as meshes.merge keeps them).
+`Partition` owns its scratch folder (`hlod-partition-*` in the scratch folder or the temporary
+folder) and removes it when its block exits, however it exits. Geometry only: an input with
+materials, UVs or colours is refused (InputError naming the file). Normals travel with the
+corners when every chunk has them (as meshes.merge keeps them).
 """
 from __future__ import annotations
 
@@ -46,30 +42,16 @@ from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
-from . import pipeline as bake_module, octree, simplify
-from ..io import meshes
 from ..core.errors import BakeCancelled, InputError
-from ..model.hierarchy import Hlod
+from ..io import meshes
+from . import octree
+from .prepare import triangle_centroids
 
 log = logging.getLogger(__name__)
 
 #: Triangles per piece of a chunk a pass works on, and buffered before the cell files are appended
 #: to: the partition's memory budget (about 200 bytes a triangle of it at the peak of a pass).
 CHUNK_TRIS = 1 << 18
-
-
-def bake_stream(source: "TriangleSource", settings: "bake_module.BakeSettings" = bake_module.BakeSettings(), *,
-                progress=None, cancel: Callable[[], bool] | None = None, sources: list[str] | None = None,
-                extra_meta: dict | None = None, scheduler=None, scratch_dir: str | os.PathLike | None = None,
-                chunk_tris: int = CHUNK_TRIS, stats: "PartitionStats | None" = None) -> Hlod:
-    """Bake `source` out of core (bake.bake_partitioned through a Partition of it): the file
-    bake.bake makes of the merged input, byte for byte except bake.VOLATILE_META. The partition's
-    folder `hlod-partition-*` lies in `scratch_dir` (default the temporary folder) and is removed
-    however the bake ends. chunk_tris: the memory budget (CHUNK_TRIS); stats: filled with what the
-    partition did. progress, cancel, sources, extra_meta, scheduler: as for bake.bake."""
-    with Partition(source, scratch_dir=scratch_dir, chunk_tris=chunk_tris, cancel=cancel, stats=stats) as partition:
-        return bake_module.bake_partitioned(partition, settings, progress=progress, cancel=cancel, sources=sources,
-                                            extra_meta=extra_meta, scheduler=scheduler, scratch_dir=scratch_dir)
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,7 +134,7 @@ class MeshSource:
 @dataclass(frozen=True)
 class Scan:
     """What the scan passes found: origin (3,) float64 and root (octree.RootCube, origin-relative)
-    as bake._prepare makes them; tri_count, vertex_count (every vertex of every chunk, used or not),
+    as prepare.prepare makes them; tri_count, vertex_count (every vertex of every chunk, used or not),
     counted_count (triangles not collapsed); with_normals: every chunk has normals."""
 
     origin: np.ndarray
@@ -238,7 +220,7 @@ class Partition:
                 if self.cancel():
                     raise BakeCancelled("bake cancelled")
                 faces = chunk.faces[lo:lo + self.chunk_tris]
-                # rel = positions - origin, stored as float32 (bake._prepare)
+                # rel = positions - origin, stored as float32 (prepare.prepare)
                 corners = (chunk.positions[faces] - origin).astype(np.float32)
                 normals = chunk.normals[faces] if with_normals else None
                 self.stats.pieces += 1
@@ -340,7 +322,7 @@ class Partition:
     def leaf_lod(self, node: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """(positions (k,3) float32, faces (m,3) int32 local to them, normals (k,3) float32 or None)
         of one leaf, from its cell file alone (removed once read): the vertices in ascending global
-        id, as bake._compact orders them."""
+        id, as arrays.compact orders them."""
         path = self._cell_file(node)
         rows = np.fromfile(path, record_dtype(self.scan_result.with_normals))
         path.unlink()
@@ -357,8 +339,8 @@ class Partition:
         """leaf_lod of each of `leaves`, appended to one file per array (positions, faces, normals)
         in the scratch folder, each file memory-mapped once, and every leaf's arrays read-only
         views of those maps: the bake's process holds no leaf's triangles in its own memory, and
-        three maps hold three file descriptors however many leaves there are (one map per leaf
-        ran out of descriptors at 10M triangles)."""
+        three maps hold three file descriptors however many leaves there are
+        (docs/how-it-works.md#out-of-core-bakes)."""
         names = ("positions", "faces", "normals")
         dtypes = (np.float32, np.int32, np.float32)
         extents: dict[int, list[tuple[int, int] | None]] = {}
@@ -385,11 +367,5 @@ class Partition:
 
 
 def _centroids(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(t,3) float64 centroids of corners (t,3,3) float32, (a + b + c) / 3 in bake._prepare's order,
-    and counted (t,) bool (not simplify.collapsed_corners)."""
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    centroids = a.astype(np.float64)
-    centroids += b
-    centroids += c
-    centroids /= 3.0
-    return centroids, ~simplify.collapsed_corners(a, b, c)
+    """prepare.triangle_centroids of corners (t,3,3) float32: centroids (t,3) float64, counted (t,) bool."""
+    return triangle_centroids(corners[:, 0], corners[:, 1], corners[:, 2])

@@ -24,3 +24,35 @@ def segment_ranges(offsets: np.ndarray, counts: np.ndarray) -> np.ndarray:
     counts = np.asarray(counts, np.int64)
     starts = np.repeat(np.asarray(offsets, np.int64) - (np.cumsum(counts) - counts), counts)
     return np.arange(int(counts.sum()), dtype=np.int64) + starts
+
+
+def distinct_corners(faces: np.ndarray) -> np.ndarray:
+    """(f,) bool: the triangles of faces (f,3) whose three vertex ids differ; the others collapse
+    (a weld merged two of their corners) and are dropped."""
+    return (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+
+
+#: `compact` marks used vertices in a mask over the span of ids the faces use while that span is
+#: at most this many times the faces' corners (a leaf's vertices mostly come from one object);
+#: a longer span is sorted instead.
+COMPACT_SPAN_FACTOR = 16
+
+
+def compact(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Keep only the vertices the faces use, in ascending id order. positions (v, ...), faces
+    (f,3) int rows into them. Returns (positions of the used vertices, faces (f,3) int32 local to
+    them, used (u,) the kept vertex ids)."""
+    flat = np.asarray(faces).reshape(-1)
+    if flat.size == 0:
+        return np.asarray(positions[:0]), np.zeros((0, 3), np.int32), np.zeros(0, np.int64)
+    lo = int(flat.min())
+    span = int(flat.max()) - lo + 1
+    if span > COMPACT_SPAN_FACTOR * flat.shape[0]:
+        used, local = np.unique(flat, return_inverse=True)
+    else:
+        mask = np.zeros(span, bool)
+        shifted = flat - lo
+        mask[shifted] = True
+        used = np.flatnonzero(mask) + lo
+        local = (np.cumsum(mask, dtype=np.int32) - 1)[shifted]
+    return np.asarray(positions[used]), local.reshape(-1, 3).astype(np.int32), used
