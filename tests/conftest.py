@@ -1,5 +1,141 @@
-"""pytest configuration: tests/ is on sys.path (rootdir-relative imports of helpers.py)."""
+"""pytest configuration: the fixtures every test module shares, and the `gl` marker enforced.
+
+tests/ is on sys.path, so test modules import the helper modules (helpers, sample_meshes, processes,
+figure_checks, blender_runs) by name; a test module never imports another test module.
+
+Fixtures
+    gl_ctx          the test run's one OpenGL context (standalone EGL; Mesa llvmpipe without a GPU),
+                    current during each test that uses it; a GL error still pending after such a test
+                    fails it. Only tests marked `gl` may use it.
+    bakes           helpers.SessionBakes: shared models baked once per session (bakes.baked(name, ...))
+    city_hlod       the default procedural city, baked once per session
+    cow_file        cow.obj baked by the command line (target 400 triangles) into a session folder
+    extension_zip   the extension's linux-x64 zip, built once per session
+    repo            that zip installed for the main .venv's bpy, once per test module
+    versioned_repo  that zip installed in each Blender of blender_runs.BLENDERS, once per session
+
+The `gl` marker is enforced: a test without it that asks for gl_ctx fails at setup, and while it
+runs, making a moderngl context in this process fails and child processes find no EGL device
+(__EGL_VENDOR_LIBRARY_FILENAMES names no vendor file), so a command-line or Blender check that draws
+fails too.
+"""
+from __future__ import annotations
+
+import re
 import sys
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import blender_runs  # noqa: E402
+import helpers  # noqa: E402
+from processes import hlod  # noqa: E402
+
+#: Set for tests not marked gl: libglvnd then loads no EGL vendor, and a context cannot be made.
+NO_EGL_VENDOR = {"__EGL_VENDOR_LIBRARY_FILENAMES": "/nonexistent/no-gl-marker.json"}
+#: What a failure without GL says (moderngl/glcontext in a child, or the in-process refusal).
+GL_FAILURE = re.compile(r"GLWithoutMarker|EGL|egl|found 0 devices|OpenGL")
+
+
+class GLWithoutMarker(RuntimeError):
+    """A test without the `gl` marker made an OpenGL context."""
+
+
+# --- OpenGL ------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def gl_ctx():
+    """The test run's one standalone EGL context (made current for each test by _gl_guard)."""
+    with helpers.standalone_gl() as ctx:
+        yield ctx
+
+
+@pytest.fixture(autouse=True)
+def _gl_guard(request, monkeypatch):
+    """A `gl` test that uses gl_ctx: the context is current during the test and no GL error may be
+    pending after it (fixtures it depends on released first). A test without the marker: no GL."""
+    if request.node.get_closest_marker("gl") is None:
+        _forbid_gl(monkeypatch)
+        yield
+        return
+    if "gl_ctx" not in request.fixturenames:
+        yield
+        return
+    from hlod_core.render.gl_functions import GLFunctions
+
+    ctx = request.getfixturevalue("gl_ctx")
+    with ctx:
+        yield
+        error = GLFunctions(ctx).get_error()
+    assert error == 0, f"GL error 0x{error:04x} is pending after the test"
+
+
+def _forbid_gl(monkeypatch) -> None:
+    for name, value in NO_EGL_VENDOR.items():
+        monkeypatch.setenv(name, value)
+    try:
+        import moderngl
+    except ImportError:
+        return
+
+    def refuse(*args, **kwargs):
+        raise GLWithoutMarker("this test makes an OpenGL context but is not marked gl (@pytest.mark.gl)")
+
+    monkeypatch.setattr(moderngl, "create_context", refuse)
+
+
+def pytest_runtest_setup(item):
+    if "gl_ctx" in item.fixturenames and item.get_closest_marker("gl") is None:
+        pytest.fail(f"{item.nodeid} uses the gl_ctx fixture but is not marked gl (@pytest.mark.gl)", pytrace=False)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    if report.failed and item.get_closest_marker("gl") is None and GL_FAILURE.search(report.longreprtext):
+        report.sections.append(("gl marker", "This test is not marked gl: it ran without OpenGL (conftest.py "
+                                             "_forbid_gl). If it draws, in this process or a child, mark it gl."))
+    return report
+
+
+# --- shared bakes ------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def bakes() -> helpers.SessionBakes:
+    return helpers.SessionBakes()
+
+
+@pytest.fixture(scope="session")
+def city_hlod(bakes):
+    return bakes.city()
+
+
+@pytest.fixture(scope="session")
+def cow_file(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("cow") / "cow.hlod"
+    hlod("-q", "bake", helpers.model("cow.obj"), "-o", out, "--target-tris", "400")
+    return out
+
+
+# --- the extension in the real bpy module ------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def extension_zip(tmp_path_factory) -> Path:
+    return blender_runs.build_extension_zip(tmp_path_factory.mktemp("dist"))
+
+
+@pytest.fixture(scope="module")
+def repo(extension_zip, tmp_path_factory) -> Path:
+    """The extension installed for the main .venv's bpy (5.0), fresh for each test module."""
+    return blender_runs.install_extension(extension_zip, Path(sys.executable), tmp_path_factory.mktemp("extension"))
+
+
+@pytest.fixture(scope="session", params=sorted(blender_runs.BLENDERS), ids=lambda version: f"blender-{version}")
+def versioned_repo(request, extension_zip, tmp_path_factory) -> blender_runs.Installed:
+    """The extension installed in Blender `request.param`'s own environment."""
+    version = request.param
+    python = blender_runs.blender_python(version)
+    base = blender_runs.install_extension(extension_zip, python, tmp_path_factory.mktemp(f"extension-{version}"))
+    return blender_runs.Installed(version, python, base)
