@@ -22,8 +22,8 @@ from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.bake.octree import build_octree
 
 from helpers import load_model, model
-from test_bake_appearance import TARGET_TRIS as SPHERE_TARGET_TRIS, textured_sphere
-from test_cli import hlod, last_json, one_line_error
+from processes import hlod, last_json, one_line_error
+from sample_meshes import SPHERE_TARGET_TRIS, textured_sphere
 
 CORE = Path(bake_module.__file__).resolve().parent.parent
 

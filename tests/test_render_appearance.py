@@ -27,7 +27,6 @@ from hlod_core.traversal.methods import RuntimeSettings, make
 from hlod_core.model.view import View
 
 from helpers import ROOT, baked, standalone_gl
-from test_addon import repo  # noqa: F401 - fixture: the extension installed in the main .venv's bpy
 
 pytestmark = pytest.mark.gl
 
