@@ -14,13 +14,14 @@ Fixtures
     repo            that zip installed for the main .venv's bpy, once per test module
     versioned_repo  that zip installed in each Blender of blender_runs.BLENDERS, once per session
 
-The `gl` marker is enforced: a test without it that asks for gl_ctx fails at setup, and while it
-runs, making a moderngl context in this process fails and child processes find no EGL device
-(__EGL_VENDOR_LIBRARY_FILENAMES names no vendor file), so a command-line or Blender check that draws
-fails too.
+The `gl` marker is enforced: a test without it that asks for gl_ctx fails at setup, and from its
+setup on (its module- and session-scoped fixtures included), making a moderngl context in this
+process fails and child processes find no EGL device (__EGL_VENDOR_LIBRARY_FILENAMES names no vendor
+file), so a command-line or Blender check that draws fails too.
 """
 from __future__ import annotations
 
+import os
 import re
 import sys
 from pathlib import Path
@@ -35,6 +36,9 @@ from processes import hlod  # noqa: E402
 
 #: Set for tests not marked gl: libglvnd then loads no EGL vendor, and a context cannot be made.
 NO_EGL_VENDOR = {"__EGL_VENDOR_LIBRARY_FILENAMES": "/nonexistent/no-gl-marker.json"}
+#: Where the config keeps what _allow_gl changes, as it was before the tests ran (the environment's
+#: values, moderngl's create_context): restored for `gl` tests and at the end.
+GL_ORIGINALS = pytest.StashKey[dict]()
 #: What a failure without GL says (moderngl/glcontext in a child, or the in-process refusal).
 GL_FAILURE = re.compile(r"GLWithoutMarker|EGL|egl|found 0 devices|OpenGL")
 
@@ -53,13 +57,9 @@ def gl_ctx():
 
 
 @pytest.fixture(autouse=True)
-def _gl_guard(request, monkeypatch):
-    """A `gl` test that uses gl_ctx: the context is current during the test and no GL error may be
-    pending after it (fixtures it depends on released first). A test without the marker: no GL."""
-    if request.node.get_closest_marker("gl") is None:
-        _forbid_gl(monkeypatch)
-        yield
-        return
+def _gl_guard(request):
+    """A test that uses gl_ctx: the context is current during the test, and no GL error may be
+    pending after it (the fixtures it depends on released first)."""
     if "gl_ctx" not in request.fixturenames:
         yield
         return
@@ -72,23 +72,40 @@ def _gl_guard(request, monkeypatch):
     assert error == 0, f"GL error 0x{error:04x} is pending after the test"
 
 
-def _forbid_gl(monkeypatch) -> None:
+def _refuse_gl_context(*args, **kwargs):
+    raise GLWithoutMarker("this test makes an OpenGL context but is not marked gl (@pytest.mark.gl)")
+
+
+def _allow_gl(originals: dict, allowed: bool) -> None:
+    """GL on or off for the test about to run, before any of its fixtures (of any scope) is made:
+    off, moderngl.create_context refuses in this process and children find no EGL vendor."""
     for name, value in NO_EGL_VENDOR.items():
-        monkeypatch.setenv(name, value)
+        if allowed and originals[name] is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = originals[name] if allowed else value
     try:
         import moderngl
     except ImportError:
         return
-
-    def refuse(*args, **kwargs):
-        raise GLWithoutMarker("this test makes an OpenGL context but is not marked gl (@pytest.mark.gl)")
-
-    monkeypatch.setattr(moderngl, "create_context", refuse)
+    originals.setdefault("create_context", moderngl.create_context)
+    moderngl.create_context = originals["create_context"] if allowed else _refuse_gl_context
 
 
+def pytest_configure(config):
+    config.stash[GL_ORIGINALS] = {name: os.environ.get(name) for name in NO_EGL_VENDOR}
+
+
+@pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item):
-    if "gl_ctx" in item.fixturenames and item.get_closest_marker("gl") is None:
+    marked = item.get_closest_marker("gl") is not None
+    _allow_gl(item.config.stash[GL_ORIGINALS], marked)
+    if "gl_ctx" in item.fixturenames and not marked:
         pytest.fail(f"{item.nodeid} uses the gl_ctx fixture but is not marked gl (@pytest.mark.gl)", pytrace=False)
+
+
+def pytest_sessionfinish(session):
+    _allow_gl(session.config.stash[GL_ORIGINALS], True)
 
 
 @pytest.hookimpl(wrapper=True)
@@ -96,7 +113,7 @@ def pytest_runtest_makereport(item, call):
     report = yield
     if report.failed and item.get_closest_marker("gl") is None and GL_FAILURE.search(report.longreprtext):
         report.sections.append(("gl marker", "This test is not marked gl: it ran without OpenGL (conftest.py "
-                                             "_forbid_gl). If it draws, in this process or a child, mark it gl."))
+                                             "_allow_gl). If it draws, in this process or a child, mark it gl."))
     return report
 
 

@@ -233,24 +233,10 @@ def _bindings(name: str, path: Path, node: ast.AST, known: dict[str, Path]) -> t
     return bound, names
 
 
-def _top_level_names(path: Path | None) -> set[str]:
-    """The names a module defines at its top level (functions, classes, assignments)."""
-    if path is None:
-        return set()
-    names = set()
-    for node in ast.parse(path.read_text(encoding="utf-8")).body:
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
-            names.add(node.name)
-        elif isinstance(node, (ast.Assign, ast.AnnAssign)):
-            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
-            names |= {t.id for t in targets if isinstance(t, ast.Name)}
-    return names
-
-
 def private_uses(name: str, path: Path, source: str, known: dict[str, Path]) -> list[str]:
     """The private names of other packages' modules that module `name` imports or uses: `from m
     import _f`, `m._f` through an imported module, setattr/getattr/monkeypatch on (m, "_f"), and
-    "pkg.m._f" strings (mock.patch targets)."""
+    "pkg.m._f" targets of mock.patch / monkeypatch.setattr."""
     own = _package_of(name)
     tree = ast.parse(source)
     aliases: dict[str, str] = {}  # local name -> project module
@@ -282,11 +268,11 @@ def private_uses(name: str, path: Path, source: str, known: dict[str, Path]) -> 
                 and isinstance(node.args[1].value, str):
             hit = foreign_private(resolve(node.args[0]), node.args[1].value)
             hit = hit and f"{hit} (by name)"
-        elif isinstance(node, ast.Constant) and isinstance(node.value, str) \
-                and re.fullmatch(r"(hlod_core|addon|operators|panels)(\.\w+)+", node.value):
-            module, attribute = node.value.rsplit(".", 1)
-            hit = foreign_private(module, attribute) if attribute in _top_level_names(known.get(module)) else None
-            hit = hit and f"{hit} (a string)"
+        if isinstance(node, ast.Call) and (_dotted(node.func) or "").endswith(("patch", "setattr")) and node.args \
+                and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str) \
+                and re.fullmatch(r"(hlod_core|addon|operators|panels)(\.\w+)+", node.args[0].value):
+            string_hit = foreign_private(*node.args[0].value.rsplit(".", 1))
+            hit = hit or (string_hit and f"{string_hit} (a string)")
         found += [f"{name}: {hit}"] if hit else []
     return sorted(set(found))
 
