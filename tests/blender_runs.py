@@ -19,9 +19,6 @@ from pathlib import Path
 
 from helpers import ROOT
 
-sys.path.insert(0, str(ROOT / "scripts"))
-import build_extension  # noqa: E402
-
 BLENDER_VENVS = ROOT / ".venv-blender"
 
 
@@ -71,6 +68,9 @@ def build_extension_zip(dist: Path) -> Path:
 
 def extension_tool(python: Path) -> Path:
     """blender_ext.py of the bpy installed for `python` (whichever version)."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import build_extension
+
     platlib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['platlib'])"],
                              capture_output=True, text=True, check=True).stdout.strip()
     return build_extension.blender_ext(platlib)

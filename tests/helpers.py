@@ -2,8 +2,10 @@
 their bakes, the street walk through the default city, the textured scene made with bpy, the
 comparable bytes of a .hlod file, and a scripted query-availability double.
 
-Nothing is cached at module level: what a session shares (the bakes, the GL context) is a fixture in
-conftest.py, made once and dropped by the pytest session. `baked` and `baked_city` at the end are the
+Nothing is cached at module level: what a test run shares (the bakes, the GL context) is a fixture in
+conftest.py, made once and dropped by pytest at the end. The core is imported inside the functions:
+conftest.py imports this module, and a core module that fails to import should fail the tests that
+use it, not the collection of every test. `baked` and `baked_city` at the end are the
 old cached functions, kept only until every test module uses the `bakes` / `city_hlod` fixtures
 (tests/test_structure.py's test_tests_share_fixtures_not_module_state lists who still calls them).
 """
@@ -22,9 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core.bake.pipeline import BakeSettings, bake, stable_meta
-from hlod_core.io import hlod_file, meshes
-
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT.parent / "shared" / "models"
 SCENES = ROOT / "tests" / "scenes"
@@ -40,14 +39,18 @@ def model(name: str) -> Path:
     return path
 
 
-def load_model(name: str) -> meshes.TriangleMesh:
-    """A shared model read from its file (a fresh mesh each call: 20-300 ms)."""
+def load_model(name: str):
+    """A shared model read from its file as a TriangleMesh (a fresh mesh each call: 20-300 ms)."""
+    from hlod_core.io import meshes
+
     return meshes.load_mesh(model(name))
 
 
-def bake_model(name: str, *, jobs: int = 1, offset: float = 0.0,
-               target_tris: int = DEFAULT_TARGET_TRIS) -> tuple[meshes.TriangleMesh, object]:
-    """(mesh, Hlod) of a shared model, optionally translated by `offset` model units on every axis."""
+def bake_model(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = DEFAULT_TARGET_TRIS):
+    """(TriangleMesh, Hlod) of a shared model, optionally translated by `offset` model units on every axis."""
+    from hlod_core.bake.pipeline import BakeSettings, bake
+    from hlod_core.io import meshes
+
     mesh = load_model(name)
     if offset:
         translation = np.eye(4)
@@ -58,6 +61,7 @@ def bake_model(name: str, *, jobs: int = 1, offset: float = 0.0,
 
 def bake_city():
     """The default procedural city (about 217k triangles), baked with 2 jobs: about 10 s."""
+    from hlod_core.bake.pipeline import BakeSettings, bake
     from hlod_core.io import procedural
 
     return bake(procedural.default_scene(seed=1), BakeSettings(jobs=2))
@@ -71,8 +75,7 @@ class SessionBakes:
         self._models: dict[tuple, tuple] = {}
         self._city = None
 
-    def baked(self, name: str, *, jobs: int = 1, offset: float = 0.0,
-              target_tris: int = DEFAULT_TARGET_TRIS) -> tuple[meshes.TriangleMesh, object]:
+    def baked(self, name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = DEFAULT_TARGET_TRIS):
         """(mesh, Hlod) of bake_model(name, ...), baked on first use."""
         key = (name, jobs, offset, target_tris)
         if key not in self._models:
@@ -102,6 +105,9 @@ def street_path(frames: int = 30, *, static: bool = False):
 def file_bytes(hlod, path: Path) -> bytes:
     """The .hlod file of `hlod` saved at `path`, with the volatile meta (timings, cache statistics)
     removed: the bytes two equal bakes must share."""
+    from hlod_core.bake.pipeline import stable_meta
+    from hlod_core.io import hlod_file
+
     return hlod_file.save(hlod.replace(meta=stable_meta(hlod.meta)), path).read_bytes()
 
 

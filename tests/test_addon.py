@@ -20,8 +20,11 @@ import pytest
 from hlod_core.report.evaluate import METHOD_SPECS
 from hlod_core.traversal.methods import RuntimeSettings
 
-from blender_runs import BLENDERS, all_hold, blender, blender_python, build_extension
+from blender_runs import BLENDERS, all_hold, blender, blender_python
 from helpers import ROOT
+
+sys.path.insert(0, str(ROOT / "scripts"))
+import build_extension  # noqa: E402
 
 PREDICT_NEW = RuntimeSettings().predict_new  # the panel's default is the core's
 TOGGLED = {"on": "off", "off": "on"}
