@@ -58,8 +58,11 @@ def gl_ctx():
 
 @pytest.fixture(autouse=True)
 def _gl_guard(request):
-    """A test that uses gl_ctx: the context is current during the test, and no GL error may be
-    pending after it (the fixtures it depends on released first)."""
+    """A test that uses gl_ctx: the context is current when the test starts (a test that makes a
+    context of its own makes gl_ctx current again with `with gl_ctx:`); after it, no GL error may
+    be pending (the fixtures it depends on released first). Whoever makes a GL object releases it:
+    the context runs no garbage collection (gc_mode "context_gc", and moderngl 5.13's gc() fails on
+    objects released already)."""
     if "gl_ctx" not in request.fixturenames:
         yield
         return
@@ -68,6 +71,7 @@ def _gl_guard(request):
     ctx = request.getfixturevalue("gl_ctx")
     with ctx:
         yield
+    with ctx:  # current again: the test may have made (and released) a context of its own
         error = GLFunctions(ctx).get_error()
     assert error == 0, f"GL error 0x{error:04x} is pending after the test"
 
