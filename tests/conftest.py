@@ -7,15 +7,15 @@ Fixtures
     gl_ctx          the test run's one OpenGL context (standalone EGL; Mesa llvmpipe without a GPU),
                     current during each test that uses it; a GL error still pending after such a test
                     fails it. Only tests marked `gl` may use it.
-    bakes           helpers.SessionBakes: shared models baked once per session (bakes.baked(name, ...))
-    city_hlod       the default procedural city, baked once per session
-    cow_file        cow.obj baked by the command line (target 400 triangles) into a session folder
-    extension_zip   the extension's linux-x64 zip, built once per session
+    bakes           helpers.SharedBakes: shared models baked once per test run (bakes.baked(name, ...))
+    city_hlod       the default procedural city, baked once per test run
+    cow_file        cow.obj baked by the command line (target 400 triangles) into a folder of the test run
+    extension_zip   the extension's linux-x64 zip, built once per test run
     repo            that zip installed for the main .venv's bpy, once per test module
-    versioned_repo  that zip installed in each Blender of blender_runs.BLENDERS, once per session
+    versioned_repo  that zip installed in each Blender of blender_runs.BLENDERS, once per test run
 
 The `gl` marker is enforced: a test without it that asks for gl_ctx fails at setup, and from its
-setup on (its module- and session-scoped fixtures included), making a moderngl context in this
+setup on (its fixtures of wider scope included), making a moderngl context in this
 process fails and child processes find no EGL device (__EGL_VENDOR_LIBRARY_FILENAMES names no vendor
 file), so a command-line or Blender check that draws fails too.
 """
@@ -124,8 +124,8 @@ def pytest_runtest_makereport(item, call):
 # --- shared bakes ------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="session")
-def bakes() -> helpers.SessionBakes:
-    return helpers.SessionBakes()
+def bakes() -> helpers.SharedBakes:
+    return helpers.SharedBakes()
 
 
 @pytest.fixture(scope="session")

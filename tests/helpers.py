@@ -67,8 +67,8 @@ def bake_city():
     return bake(procedural.default_scene(seed=1), BakeSettings(jobs=2))
 
 
-class SessionBakes:
-    """Bakes made once and kept by their owner (conftest's session fixture `bakes`): the same
+class SharedBakes:
+    """Bakes made once and kept by their owner (conftest's fixture `bakes`, one per test run): the same
     arguments give the same (mesh, Hlod) objects. Tests must not modify what they get."""
 
     def __init__(self):
@@ -161,7 +161,7 @@ def _stamped(folder: Path, stamp: str) -> bool:
 @contextlib.contextmanager
 def standalone_gl():
     """A headless EGL context (Mesa llvmpipe where there is no GPU), garbage-collected only by its
-    own gc() and released at the end. Its one user is conftest's session fixture `gl_ctx`."""
+    own gc() and released at the end. Its one user is conftest's fixture `gl_ctx`."""
     import moderngl
 
     ctx = moderngl.create_context(standalone=True, backend="egl", require=330)

@@ -3,7 +3,7 @@ installed into a temporary extension repository and enabled as Blender does (bl_
 Each check runs in its own Python process (tests/blender_checks.py): bpy keeps global state, and
 the user's Blender configuration is kept out of it (BLENDER_USER_RESOURCES points at a temp dir).
 
-The fixtures are conftest.py's: the zip is built once per session (the linux one: cp311 and cp313
+The fixtures are conftest.py's: the zip is built once per test run (the linux one: cp311 and cp313
 wheels, the same zip for every Blender). `versioned_repo` installs it in each Blender of BLENDERS
 (4.2 LTS, 5.0.1, 5.2.3), each in its own environment holding only bpy and numpy, as a Blender
 install does: the extension's dependencies come from its own wheels. `repo` installs it for the
