@@ -1,5 +1,162 @@
-"""pytest configuration: tests/ is on sys.path (rootdir-relative imports of helpers.py)."""
+"""pytest configuration: the fixtures every test module shares, and the `gl` marker enforced.
+
+tests/ is on sys.path, so test modules import the helper modules (helpers, sample_meshes, processes,
+figure_checks, blender_runs) by name; a test module never imports another test module.
+
+Fixtures
+    gl_ctx          the test run's one OpenGL context (standalone EGL; Mesa llvmpipe without a GPU),
+                    current during each test that uses it; a GL error still pending after such a test
+                    fails it. Only tests marked `gl` may use it.
+    bakes           helpers.SharedBakes: shared models baked once per test run (bakes.baked(name, ...))
+    city_hlod       the default procedural city, baked once per test run
+    cow_file        cow.obj baked by the command line (target 400 triangles) into a folder of the test run
+    extension_zip   the extension's linux-x64 zip, built once per test run
+    repo            that zip installed for the main .venv's bpy, once per test module
+    versioned_repo  that zip installed in each Blender of blender_runs.BLENDERS, once per test run
+
+The `gl` marker is enforced: a test without it that asks for gl_ctx fails at setup, and from its
+setup on (its fixtures of wider scope included), making a moderngl context in this
+process fails and child processes find no EGL device (__EGL_VENDOR_LIBRARY_FILENAMES names no vendor
+file), so a command-line or Blender check that draws fails too.
+"""
+from __future__ import annotations
+
+import os
+import re
 import sys
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import blender_runs  # noqa: E402
+import helpers  # noqa: E402
+from processes import hlod  # noqa: E402
+
+#: Set for tests not marked gl: libglvnd then loads no EGL vendor, and a context cannot be made.
+NO_EGL_VENDOR = {"__EGL_VENDOR_LIBRARY_FILENAMES": "/nonexistent/no-gl-marker.json"}
+#: Where the config keeps what _allow_gl changes, as it was before the tests ran (the environment's
+#: values, moderngl's create_context): restored for `gl` tests and at the end.
+GL_ORIGINALS = pytest.StashKey[dict]()
+#: What a failure without GL says (moderngl/glcontext in a child, or the in-process refusal).
+GL_FAILURE = re.compile(r"GLWithoutMarker|EGL|egl|found 0 devices|OpenGL")
+
+
+class GLWithoutMarker(RuntimeError):
+    """A test without the `gl` marker made an OpenGL context."""
+
+
+# --- OpenGL ------------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def gl_ctx():
+    """The test run's one standalone EGL context (made current for each test by _gl_guard)."""
+    with helpers.standalone_gl() as ctx:
+        yield ctx
+
+
+@pytest.fixture(autouse=True)
+def _gl_guard(request):
+    """A test that uses gl_ctx: the context is current when the test starts (a test that makes a
+    context of its own makes gl_ctx current again with `with gl_ctx:`); after it, no GL error may
+    be pending (the fixtures it depends on released first). Whoever makes a GL object releases it:
+    the context runs no garbage collection (gc_mode "context_gc", and moderngl 5.13's gc() fails on
+    objects released already)."""
+    if "gl_ctx" not in request.fixturenames:
+        yield
+        return
+    from hlod_core.render.gl_functions import GLFunctions
+
+    ctx = request.getfixturevalue("gl_ctx")
+    with ctx:
+        yield
+    with ctx:  # current again: the test may have made (and released) a context of its own
+        error = GLFunctions(ctx).get_error()
+    assert error == 0, f"GL error 0x{error:04x} is pending after the test"
+
+
+def _refuse_gl_context(*args, **kwargs):
+    raise GLWithoutMarker("this test makes an OpenGL context but is not marked gl (@pytest.mark.gl)")
+
+
+def _allow_gl(originals: dict, allowed: bool) -> None:
+    """GL on or off for the test about to run, before any of its fixtures (of any scope) is made:
+    off, moderngl.create_context refuses in this process and children find no EGL vendor."""
+    for name, value in NO_EGL_VENDOR.items():
+        if allowed and originals[name] is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = originals[name] if allowed else value
+    try:
+        import moderngl
+    except ImportError:
+        return
+    originals.setdefault("create_context", moderngl.create_context)
+    moderngl.create_context = originals["create_context"] if allowed else _refuse_gl_context
+
+
+def pytest_configure(config):
+    config.stash[GL_ORIGINALS] = {name: os.environ.get(name) for name in NO_EGL_VENDOR}
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    marked = item.get_closest_marker("gl") is not None
+    _allow_gl(item.config.stash[GL_ORIGINALS], marked)
+    if "gl_ctx" in item.fixturenames and not marked:
+        pytest.fail(f"{item.nodeid} uses the gl_ctx fixture but is not marked gl (@pytest.mark.gl)", pytrace=False)
+
+
+def pytest_sessionfinish(session):
+    _allow_gl(session.config.stash[GL_ORIGINALS], True)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    if report.failed and item.get_closest_marker("gl") is None and GL_FAILURE.search(report.longreprtext):
+        report.sections.append(("gl marker", "This test is not marked gl: it ran without OpenGL (conftest.py "
+                                             "_allow_gl). If it draws, in this process or a child, mark it gl."))
+    return report
+
+
+# --- shared bakes ------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def bakes() -> helpers.SharedBakes:
+    return helpers.SharedBakes()
+
+
+@pytest.fixture(scope="session")
+def city_hlod(bakes):
+    return bakes.city()
+
+
+@pytest.fixture(scope="session")
+def cow_file(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("cow") / "cow.hlod"
+    hlod("-q", "bake", helpers.model("cow.obj"), "-o", out, "--target-tris", "400")
+    return out
+
+
+# --- the extension in the real bpy module ------------------------------------------------------------
+
+@pytest.fixture(scope="session")
+def extension_zip(tmp_path_factory) -> Path:
+    return blender_runs.build_extension_zip(tmp_path_factory.mktemp("dist"))
+
+
+@pytest.fixture(scope="module")
+def repo(extension_zip, tmp_path_factory) -> Path:
+    """The extension installed for the main .venv's bpy (5.0), fresh for each test module."""
+    return blender_runs.install_extension(extension_zip, Path(sys.executable), tmp_path_factory.mktemp("extension"))
+
+
+@pytest.fixture(scope="session", params=sorted(blender_runs.BLENDERS), ids=lambda version: f"blender-{version}")
+def versioned_repo(request, extension_zip, tmp_path_factory) -> blender_runs.Installed:
+    """The extension installed in Blender `request.param`'s own environment."""
+    version = request.param
+    python = blender_runs.blender_python(version)
+    base = blender_runs.install_extension(extension_zip, python, tmp_path_factory.mktemp(f"extension-{version}"))
+    return blender_runs.Installed(version, python, base)

@@ -1,14 +1,21 @@
-"""Test helpers: the real meshes in ../shared/models, bakes cached for the session, and the Blenders
-the extension checks run in (BLENDERS: version "X.Y" -> that environment's Python interpreter)."""
+"""Test inputs shared by the test modules: where things are, the real meshes in ../shared/models and
+their bakes, the street walk through the default city, the textured scene made with bpy, the
+comparable bytes of a .hlod file, and a scripted query-availability double.
+
+Nothing is cached at module level: what a test run shares (the bakes, the GL context) is a fixture in
+conftest.py, made once and dropped by pytest at the end. The core is imported inside the functions:
+conftest.py imports this module, and a core module that fails to import should fail the tests that
+use it, not the collection of every test. `baked` and `baked_city` at the end are the
+old cached functions, kept only until every test module uses the `bakes` / `city_hlod` fixtures
+(tests/test_structure.py's test_tests_share_fixtures_not_module_state lists who still calls them).
+"""
 from __future__ import annotations
 
 import contextlib
-
 import functools
 import hashlib
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -16,72 +23,70 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from hlod_core.io import meshes
-from hlod_core.bake.pipeline import BakeSettings, bake
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT.parent / "shared" / "models"
 SCENES = ROOT / "tests" / "scenes"
-BLENDER_VENVS = ROOT / ".venv-blender"
 CACHE = ROOT / ".cache"
-
-
-def _blenders() -> dict[str, Path]:
-    """One Blender per requirements-bpyXY.txt, where scripts/bootstrap.sh `ensure_blender_venvs` makes
-    it: the bpy pin's major.minor names the folder .venv-blender/bpy-X.Y, and bin/python there is
-    its interpreter (Python 3.11 or 3.13, as that Blender ships)."""
-    out = {}
-    for req in sorted(ROOT.glob("requirements-bpy*.txt")):
-        pin = re.search(r"^bpy==(\d+\.\d+)\.\d+", req.read_text(), re.M)
-        assert pin, f"{req.name}: no bpy==X.Y.Z line"
-        out[pin.group(1)] = BLENDER_VENVS / f"bpy-{pin.group(1)}" / "bin" / "python"
-    return out
-
-
-BLENDERS = _blenders()  # {"4.2": .venv-blender/bpy-4.2/bin/python, "5.0": ..., "5.2": ...}
-
-
-def blender_python(version: str) -> Path:
-    """The interpreter of Blender `version`'s environment; a missing one is an error, never a skip:
-    the extension checks must run in every Blender we support."""
-    python = BLENDERS[version]
-    assert python.is_file(), (f"Blender {version}'s environment is missing ({python}): run `bash test.sh`, "
-                              f"which makes it (scripts/bootstrap.sh ensure_blender_venvs)")
-    return python
+#: The bake of a shared model unless a test asks for another: the settings `baked` used.
+DEFAULT_TARGET_TRIS = 2000
 
 
 def model(name: str) -> Path:
+    """The path of a shared test model (../shared/models/NAME); a missing one is an error."""
     path = MODELS / name
     assert path.is_file(), f"test model missing: {path} (tests read ../shared/models)"
     return path
 
 
-@functools.lru_cache(maxsize=None)
-def load_model(name: str) -> meshes.TriangleMesh:
+def load_model(name: str):
+    """A shared model read from its file as a TriangleMesh (a fresh mesh each call: 20-300 ms)."""
+    from hlod_core.io import meshes
+
     return meshes.load_mesh(model(name))
 
 
-@functools.lru_cache(maxsize=None)
-def baked(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = 2000):
-    """Bake a shared model once per session (optionally translated by `offset` on every axis)."""
+def bake_model(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = DEFAULT_TARGET_TRIS):
+    """(TriangleMesh, Hlod) of a shared model, optionally translated by `offset` model units on every axis."""
+    from hlod_core.bake.pipeline import BakeSettings, bake
+    from hlod_core.io import meshes
+
     mesh = load_model(name)
     if offset:
-        mesh = meshes.transform_mesh(mesh, _translation(offset), name=f"{name}+{offset:g}")
+        translation = np.eye(4)
+        translation[:3, 3] = offset
+        mesh = meshes.transform_mesh(mesh, translation, name=f"{name}+{offset:g}")
     return mesh, bake(mesh, BakeSettings(jobs=jobs, target_tris=target_tris))
 
 
-def _translation(offset: float) -> np.ndarray:
-    m = np.eye(4)
-    m[:3, 3] = offset
-    return m
-
-
-@functools.lru_cache(maxsize=None)
-def baked_city():
-    """The default procedural city (about 217k triangles), baked once per session."""
+def bake_city():
+    """The default procedural city (about 217k triangles), baked with 2 jobs: about 10 s."""
+    from hlod_core.bake.pipeline import BakeSettings, bake
     from hlod_core.io import procedural
 
     return bake(procedural.default_scene(seed=1), BakeSettings(jobs=2))
+
+
+class SharedBakes:
+    """Bakes made once and kept by their owner (conftest's fixture `bakes`, one per test run): the same
+    arguments give the same (mesh, Hlod) objects. Tests must not modify what they get."""
+
+    def __init__(self):
+        self._models: dict[tuple, tuple] = {}
+        self._city = None
+
+    def baked(self, name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = DEFAULT_TARGET_TRIS):
+        """(mesh, Hlod) of bake_model(name, ...), baked on first use."""
+        key = (name, jobs, offset, target_tris)
+        if key not in self._models:
+            self._models[key] = bake_model(name, jobs=jobs, offset=offset, target_tris=target_tris)
+        return self._models[key]
+
+    def city(self):
+        """bake_city(), baked on first use."""
+        if self._city is None:
+            self._city = bake_city()
+        return self._city
 
 
 def street_path(frames: int = 30, *, static: bool = False):
@@ -97,42 +102,53 @@ def street_path(frames: int = 30, *, static: bool = False):
     return CameraPath(frames=np.array(out, float), near=0.05, far=400.0, fovy_deg=60.0)
 
 
-@functools.lru_cache(maxsize=None)
+def file_bytes(hlod, path: Path) -> bytes:
+    """The .hlod file of `hlod` saved at `path`, with the volatile meta (timings, cache statistics)
+    removed: the bytes two equal bakes must share."""
+    from hlod_core.bake.pipeline import stable_meta
+    from hlod_core.io import hlod_file
+
+    return hlod_file.save(hlod.replace(meta=stable_meta(hlod.meta)), path).read_bytes()
+
+
 def textured_scene(scale: str = "small") -> dict:
-    """The textured test scene of issue 13 (tests/scenes/textured_scene.py, run in the bpy module):
-    generated once into .cache/textured_scene-<scale>/ and again when the generator changes (a hash
-    stamp). Written to a temporary folder and renamed, so a concurrent test process never sees a
-    half-written folder. Returns the paths: dir, blend, glb, obj, mtl, gltf (separate/textured.gltf,
-    external buffer and images), json, textures (the folder), and facts (scene.json read:
-    triangles, materials, ...)."""
+    """The textured test scene (tests/scenes/textured_scene.py, run in the bpy module), generated
+    into .cache/textured_scene-<scale>/ when missing or when the generator changed (a hash stamp).
+    Written to a temporary folder and renamed, so a concurrent test process never sees a half-written
+    folder. Returns the paths: dir, blend, glb, obj, mtl, gltf (separate/textured.gltf, external
+    buffer and images), json, textures (the folder), and facts (scene.json read: triangles, ...)."""
     generator = SCENES / "textured_scene.py"
     stamp = hashlib.sha256(generator.read_bytes() + scale.encode()).hexdigest()
     folder = CACHE / f"textured_scene-{scale}"
     if not _stamped(folder, stamp):
-        CACHE.mkdir(exist_ok=True)
-        scratch = Path(tempfile.mkdtemp(prefix=f".textured_scene-{scale}-", dir=CACHE))
-        try:
-            done = subprocess.run([sys.executable, str(generator), str(scratch), "--scale", scale],
-                                  capture_output=True, text=True, timeout=300)
-            assert done.returncode == 0, f"{generator.name} failed:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
-            (scratch / "stamp.txt").write_text(stamp)
-            if folder.exists():  # stale: move it aside first (rename is atomic, rmtree is not)
-                stale = Path(tempfile.mkdtemp(prefix=".stale-", dir=CACHE))
-                try:
-                    os.rename(folder, stale / "old")
-                except OSError:
-                    pass  # another process moved it
-                shutil.rmtree(stale, ignore_errors=True)
-            try:
-                os.rename(scratch, folder)
-            except OSError:  # another process put its (equal) folder there first
-                assert _stamped(folder, stamp), f"{folder}: cannot replace it"
-        finally:
-            shutil.rmtree(scratch, ignore_errors=True)
+        _generate_textured_scene(generator, scale, stamp, folder)
     facts = json.loads((folder / "scene.json").read_text())
     return {"dir": folder, "blend": folder / facts["blend"], "glb": folder / facts["glb"], "obj": folder / facts["obj"],
             "mtl": folder / facts["mtl"], "gltf": folder / facts["gltf"], "json": folder / "scene.json",
             "textures": folder / "textures", "facts": facts}
+
+
+def _generate_textured_scene(generator: Path, scale: str, stamp: str, folder: Path) -> None:
+    CACHE.mkdir(exist_ok=True)
+    scratch = Path(tempfile.mkdtemp(prefix=f".textured_scene-{scale}-", dir=CACHE))
+    try:
+        done = subprocess.run([sys.executable, str(generator), str(scratch), "--scale", scale],
+                              capture_output=True, text=True, timeout=300)
+        assert done.returncode == 0, f"{generator.name} failed:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}"
+        (scratch / "stamp.txt").write_text(stamp)
+        if folder.exists():  # stale: move it aside first (rename is atomic, rmtree is not)
+            stale = Path(tempfile.mkdtemp(prefix=".stale-", dir=CACHE))
+            try:
+                os.rename(folder, stale / "old")
+            except OSError:
+                pass  # another process moved it
+            shutil.rmtree(stale, ignore_errors=True)
+        try:
+            os.rename(scratch, folder)
+        except OSError:  # another process put its (equal) folder there first
+            assert _stamped(folder, stamp), f"{folder}: cannot replace it"
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def _stamped(folder: Path, stamp: str) -> bool:
@@ -145,7 +161,7 @@ def _stamped(folder: Path, stamp: str) -> bool:
 @contextlib.contextmanager
 def standalone_gl():
     """A headless EGL context (Mesa llvmpipe where there is no GPU), garbage-collected only by its
-    own gc() and released at the end: the GL tests' fixtures."""
+    own gc() and released at the end. Its one user is conftest's fixture `gl_ctx`."""
     import moderngl
 
     ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
@@ -208,3 +224,17 @@ def numeric_library_env() -> dict[str, str]:
     differ by the kernel, not by the code (a machine that sets OPENBLAS_CORETYPE=Haswell on an AMD
     EPYC gave a different cow without it)."""
     return {k: v for k, v in os.environ.items() if k.startswith(("OPENBLAS_", "OMP_", "MKL_", "GOTO", "BLIS_"))}
+
+
+# --- old module-level caches: remove once no test module imports them -------------------------------
+
+@functools.lru_cache(maxsize=None)
+def baked(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = DEFAULT_TARGET_TRIS):
+    """Old form of the `bakes` fixture's bakes.baked(...): use the fixture."""
+    return bake_model(name, jobs=jobs, offset=offset, target_tris=target_tris)
+
+
+@functools.lru_cache(maxsize=None)
+def baked_city():
+    """Old form of the `city_hlod` fixture: use the fixture."""
+    return bake_city()

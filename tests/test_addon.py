@@ -3,19 +3,16 @@ installed into a temporary extension repository and enabled as Blender does (bl_
 Each check runs in its own Python process (tests/blender_checks.py): bpy keeps global state, and
 the user's Blender configuration is kept out of it (BLENDER_USER_RESOURCES points at a temp dir).
 
-The zip is built once per session (the linux one: cp311 and cp313 wheels, the same zip for every
-Blender). `versioned_repo` installs it in each Blender of BLENDERS (4.2 LTS, 5.0.1, 5.2.3), each in its
-own environment holding only bpy and numpy, as a Blender install does: the extension's dependencies
-come from its own wheels. `repo` installs it for the main .venv's bpy 5.0.1, for the checks that do
-not depend on the version (the long session; the preview's own tests import it with `blender`)."""
-import json
-import os
+The fixtures are conftest.py's: the zip is built once per test run (the linux one: cp311 and cp313
+wheels, the same zip for every Blender). `versioned_repo` installs it in each Blender of BLENDERS
+(4.2 LTS, 5.0.1, 5.2.3), each in its own environment holding only bpy and numpy, as a Blender
+install does: the extension's dependencies come from its own wheels. `repo` installs it for the
+main .venv's bpy 5.0.1, for the checks that do not depend on the version (the long session)."""
 import statistics
 import subprocess
 import sys
 import sysconfig
 import zipfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -23,7 +20,8 @@ import pytest
 from hlod_core.report.evaluate import METHOD_SPECS
 from hlod_core.traversal.settings import RuntimeSettings
 
-from helpers import BLENDERS, ROOT, blender_python
+from blender_runs import BLENDERS, all_hold, blender, blender_python
+from helpers import ROOT
 
 sys.path.insert(0, str(ROOT / "scripts"))
 import build_extension  # noqa: E402
@@ -38,99 +36,14 @@ DEPENDENCIES = ("pymeshlab", "moderngl", "glcontext")
 BLENDER_PYTHON = {"4.2": (3, 11), "5.0": (3, 11), "5.2": (3, 13)}  # the Python each Blender ships
 
 
-@dataclass(frozen=True)
-class Installed:
-    """The extension installed for one Blender: base/repo is the extension repository, base/user
-    the BLENDER_USER_RESOURCES of its processes, python that Blender's interpreter."""
-    version: str
-    python: Path
-    base: Path
-
-    def __truediv__(self, name: str) -> Path:  # `repo / "user"` as with the main .venv's `repo`
-        return self.base / name
-
-
-# Built and installed once per session, not per module: tests in other modules import the fixtures.
-_ZIP: dict[str, Path] = {}
-_INSTALLED: dict[str, Installed] = {}
-
-
-def extension_zip(tmp_path_factory) -> Path:
-    """The linux-x64 zip, built once per session by scripts/build_extension.py (main .venv)."""
-    if "linux-x64" not in _ZIP:
-        dist = tmp_path_factory.mktemp("dist")
-        build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms", "linux-x64",
-                                "--output-dir", str(dist)], capture_output=True, text=True, timeout=900)
-        assert build.returncode == 0, build.stderr
-        _ZIP["linux-x64"] = Path(build.stdout.strip().splitlines()[-1])
-    return _ZIP["linux-x64"]
-
-
-def _extension_tool(python: Path) -> Path:
-    """blender_ext.py of the bpy installed for `python` (whichever version)."""
-    platlib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['platlib'])"],
-                             capture_output=True, text=True, check=True).stdout.strip()
-    return build_extension.blender_ext(platlib)
-
-
-def _install(zip_path: Path, python: Path, base: Path) -> None:
-    """Validate the zip and install it with that Blender's own extension tool, as Blender does."""
-    tool = _extension_tool(python)
-    for args in (["validate", str(zip_path)], ["install-files", "--local-dir", str(base / "repo"), str(zip_path)]):
-        proc = subprocess.run([str(python), str(tool), *args], capture_output=True, text=True, timeout=300)
-        assert proc.returncode == 0, f"{tool} {args[0]}: {proc.stdout[-2000:]}{proc.stderr[-2000:]}"
-    (base / "user").mkdir()
-
-
-@pytest.fixture(scope="module")
-def repo(tmp_path_factory):
-    base = tmp_path_factory.mktemp("extension")
-    (base / "repo").mkdir()
-    _install(extension_zip(tmp_path_factory), Path(sys.executable), base)
-    return base
-
-
-@pytest.fixture(scope="module", params=sorted(BLENDERS), ids=lambda version: f"blender-{version}")
-def versioned_repo(request, tmp_path_factory) -> Installed:
-    """The zip installed for Blender `request.param`, once per session."""
-    version = request.param
-    if version not in _INSTALLED:
-        python = blender_python(version)
-        base = tmp_path_factory.mktemp(f"extension-{version}")
-        (base / "repo").mkdir()
-        _install(extension_zip(tmp_path_factory), python, base)
-        _INSTALLED[version] = Installed(version, python, base)
-    return _INSTALLED[version]
-
-
-def blender(repo, check: str, tmp_path, *arguments: str, timeout_s: float = 600, quiet: bool = False,
-            script: str = "blender_checks.py") -> dict:
-    """Run tests/SCRIPT CHECK TMP [ARGUMENTS] in `repo`'s Blender (an Installed; a plain folder is the
-    main .venv's); its JSON result. quiet: the process must print nothing on stderr (no warnings)."""
-    python, base = (repo.python, repo.base) if isinstance(repo, Installed) else (Path(sys.executable), Path(repo))
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([str(python), str(ROOT / "tests" / script), str(base / "repo"), check, str(tmp_path),
-                           *arguments], capture_output=True, text=True, timeout=timeout_s, env=env, cwd=ROOT)
-    assert proc.returncode == 0, proc.stderr[-4000:]
-    assert not (quiet and proc.stderr), proc.stderr[-4000:]
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
-def all_hold(out: dict, **checks: bool) -> None:
-    """Assert every named check of one check's result at once, so a failing run lists every check
-    that failed (and the result), not only the first."""
-    failed = sorted(name for name, ok in checks.items() if not ok)
-    assert not failed, f"failed: {failed}; result: {json.dumps(out, default=str)[:4000]}"
-
-
 def test_manifest_validates_with_blenders_tool():
     proc = subprocess.run([sys.executable, str(BLENDER_EXT), "validate", str(ROOT)], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
-def test_zip_holds_the_package_and_cp311_and_cp313_wheels_of_each_dependency(tmp_path_factory):
+def test_zip_holds_the_package_and_cp311_and_cp313_wheels_of_each_dependency(extension_zip):
     """One zip for every Blender: Blender 4.2 to 5.0 install the cp311 wheels, 5.1 and later cp313."""
-    names = zipfile.ZipFile(extension_zip(tmp_path_factory)).namelist()
+    names = zipfile.ZipFile(extension_zip).namelist()
     assert "blender_manifest.toml" in names and "hlod_core/traversal/methods.py" in names
     assert not any(n.startswith("tests/") for n in names)
     wheels = [n for n in names if n.startswith("wheels/") and n.endswith(".whl")]
@@ -195,6 +108,7 @@ def test_bake_operator_on_modifiers_and_instances(versioned_repo, tmp_path):
              collection_baked=out["collection_result"] == ["FINISHED"] and out["collection_tris"] == 6 * 64 * 2,
              collection_output_next_to_blend=Path(out["collection_file"]) == tmp_path / "project" / "city.hlod")
 
+@pytest.mark.gl  # the preview draws in a GPUOffScreen; the benchmark in a private EGL context
 def test_preview_draw_path_in_an_offscreen(versioned_repo, tmp_path):
     """The add-on's draw path inside a GPUOffScreen with a scene camera's matrices: nodes drawn in
     modulation colours, none over Blender's own occluder (its depth hides them), strongly modulated
@@ -246,7 +160,7 @@ QUERY_POOL_BLOCK = 64  # QueryPool generates query names 64 at a time
 
 
 @pytest.mark.slow
-@pytest.mark.blender
+@pytest.mark.gl
 def test_preview_long_session_is_flat(repo, tmp_path):
     """10,000 redraws of the draw path with an orbiting camera, 50 file switches (load_pre stops the
     preview) each with a re-bake, every method, the private-context mode flipped in every session,

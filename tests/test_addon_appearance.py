@@ -1,5 +1,5 @@
-"""Appearance from Blender (issue 13) with the real bpy module: the extension built by Blender's tool
-and installed as Blender installs it (tests/test_addon.py's fixtures), each check in its own bpy
+"""Appearance from Blender (materials, UVs, colours) with the real bpy module: the extension built by Blender's tool
+and installed as Blender installs it (conftest.py's fixtures), each check in its own bpy
 process (tests/blender_appearance_checks.py, on a textured scene it makes with bpy: a checker PNG
 made in Blender, two materials, a UV map, corner and point colour attributes, a linked mirrored
 duplicate, collection instances).
@@ -14,8 +14,8 @@ name, and its root node renders like the source in Cycles (PSNR).
 
 import pytest
 
+from blender_runs import all_hold, blender
 from helpers import textured_scene
-from test_addon import all_hold, blender, repo, versioned_repo  # noqa: F401 - fixtures
 
 pytestmark = pytest.mark.blender
 
@@ -23,7 +23,7 @@ pytestmark = pytest.mark.blender
 # root's screen-space error is below 1 px, PSNR (dB) over the scene's rectangle. Measured: bpy 4.2.23
 # Y 42.9, Cb 52.3, Cr 51.5; bpy 5.0.1 39.6, 49.8, 48.0; bpy 5.2.3 39.6, 50.0, 48.4 (what differs is
 # Cycles' noise on the simplified faces: 128 samples instead of 32 moved it by 0.1 dB). The same
-# objects without their materials (what Materialize made before issue 13: grey objects): 19.9 to
+# objects with their material slots emptied (grey objects): 19.9 to
 # 20.6, 26.1, 24.6. The limits sit about 5 dB below the lowest measurement, 15 dB above grey.
 PSNR_Y_DB, PSNR_CHROMA_DB = 35.0, 43.0
 FAR_VIEW_SSE_PX = 1.0
@@ -61,6 +61,7 @@ def test_extraction_carries_materials_uvs_and_colours(versioned_repo, tmp_path):
                                                    "uvs": True, "colors": False})
 
 
+@pytest.mark.gl  # the preview draws, in GL mode and in private mode
 def test_bake_preview_and_materialize_keep_the_look(versioned_repo, tmp_path):
     """In each Blender: the Bake operator's file has both materials (the texture by path), the UV map's
     and colour attribute's names, and leaves whose corners are the source's; its inner nodes keep both
@@ -101,8 +102,8 @@ def test_bake_preview_and_materialize_keep_the_look(versioned_repo, tmp_path):
 
 def test_materialized_root_renders_like_the_source(repo, tmp_path):
     """Cycles renders of the far view: the root node's Materialize against the source objects, in PSNR
-    over the scene's rectangle (limits above); the same objects with their slots emptied (grey, as
-    before issue 13) stay below them, so the limits measure the appearance, not the geometry."""
+    over the scene's rectangle (limits above); the same objects with their slots emptied (grey) stay
+    below them, so the limits measure the appearance, not the geometry."""
     out = appearance_check(repo, "render", tmp_path)
     y, cb, cr = out["psnr_crop"]
     grey_y, grey_cb, grey_cr = out["psnr_grey_crop"]

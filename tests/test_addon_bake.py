@@ -1,5 +1,5 @@
-"""The bake outside Blender's process (issue 14) with the real bpy module: the extension built by
-Blender's tool and installed as Blender installs it (tests/test_addon.py's fixtures), each check in
+"""The bake outside Blender's process with the real bpy module: the extension built by
+Blender's tool and installed as Blender installs it (conftest.py's fixtures), each check in
 its own bpy process (tests/blender_bake_checks.py), watching the bake's processes through /proc.
 
 The operator and the background command gather the mesh in Blender, write it to a private scratch
@@ -11,16 +11,17 @@ its signal and last messages while Blender goes on; `--jobs 2` in the background
 operator of the extension runs where only Blender's modules and the wheels import.
 """
 import os
-import time
 from pathlib import Path
 
 import pytest
 
-from test_addon import all_hold, blender, repo, versioned_repo  # noqa: F401 - fixtures
+from blender_runs import all_hold, blender
+from processes import wait_for
 
 pytestmark = pytest.mark.blender
 
-GONE_WITHIN_SECONDS = 1.0  # issue 14: child and workers gone within 1 s of Esc
+GONE_WITHIN_SECONDS = 1.0  # the requirement: child and workers gone within 1 s of Esc (timing is the subject)
+ORPHAN_EXIT_TIMEOUT_S = 30.0  # orphaned child and workers gone (about 1 s): a hang guard on a loaded machine
 
 
 def bake_check(installed, check: str, tmp_path, *arguments: str, timeout_s: float = 600) -> dict:
@@ -110,15 +111,13 @@ def _alive(pid: int) -> bool:
 
 def test_when_blender_dies_the_child_stops_its_workers_and_removes_the_scratch(repo, tmp_path):
     """Blender ends mid-bake without cleaning up (os._exit): the child sees its stdin close, stops
-    its group (itself and its workers) and removes the job's files, within a second or two."""
+    its group (itself and its workers) and removes the job's files (it takes a second or two; the
+    test waits up to ORPHAN_EXIT_TIMEOUT_S, a hang guard)."""
     out = bake_check(repo, "parent_dies", tmp_path)
     assert out["workers_started_s"] is not None and len(out["group"]) >= 3, out  # child, 2 workers (+ tracker)
     assert len(out["scratch"]) == 1, out
-    deadline = time.monotonic() + 5.0
-    while time.monotonic() < deadline and (any(_alive(pid) for pid in out["group"]) or os.listdir(out["tmp"])):
-        time.sleep(0.05)
-    assert not [pid for pid in out["group"] if _alive(pid)], out
-    assert os.listdir(out["tmp"]) == [], out
+    wait_for(lambda: not any(_alive(pid) for pid in out["group"]) and not os.listdir(out["tmp"]),
+             ORPHAN_EXIT_TIMEOUT_S, f"the child's group to exit and its scratch to go: {out}")
 
 
 def test_background_command_with_jobs_2(versioned_repo, tmp_path):
@@ -136,11 +135,12 @@ def test_background_command_with_jobs_2(versioned_repo, tmp_path):
              no_scratch=out["tmp_left"] == [])
 
 
+@pytest.mark.gl  # the Benchmark and Tune to PSNR operators draw in a private EGL context
 def test_every_operator_runs_with_only_blenders_modules_and_the_wheels(versioned_repo, tmp_path):
     """In each Blender's environment (bpy and numpy only, as a Blender install; the extension's
     dependencies from its wheels; no matplotlib): every hlod.* operator registered, enumerated at
     run time, runs to FINISHED, and the Benchmark writes its report without figures, saying so. Tune to
-    PSNR (issue 15) on the camera's animation sets s and t to the (s, t) its report chose (and the
+    PSNR on the camera's animation sets s and t to the (s, t) its report chose (and the
     bias to P, so that they act), and its report holds the curve and says why it has no figures."""
     out = bake_check(versioned_repo, "every_operator", tmp_path)
     tuning = out["tuning"]

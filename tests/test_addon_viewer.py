@@ -1,6 +1,6 @@
-"""View in Browser and `--command hlod view` (issue 17) in the real bpy module, with the extension
+"""View in Browser and `--command hlod view` in the real bpy module, with the extension
 built into its zip (CesiumJS bundled as viewer/cesium) and installed as Blender installs it
-(tests/test_addon.py's fixtures; the main .venv's bpy 5.0: nothing here depends on the version).
+(conftest.py's fixtures; the main .venv's bpy 5.0: nothing here depends on the version).
 
 This file is also the script its checks run in, one bpy process each (as tests/blender_checks.py):
 
@@ -19,13 +19,12 @@ import socket
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 NAME = "bl_ext.r.hlod"
-HTTP_TIMEOUT_S = 10.0  # one request to the local server
+HTTP_TIMEOUT_S = 30.0  # one request to the local server (a hang guard)
 START_TIMEOUT_S = 120.0  # bpy's start-up and the extension's enabling, on a loaded 2-core machine
-STOP_TIMEOUT_S = 10.0  # SIGTERM to exit: serve_forever polls every 0.5 s
+STOP_TIMEOUT_S = 120.0  # SIGTERM to exit (serve_forever polls every 0.5 s; bpy's exit): a hang guard
 
 
 def http_status(port: int, path: str) -> int | str:
@@ -164,8 +163,8 @@ if __name__ == "__main__":
 
 import pytest  # noqa: E402 - not needed by the checks above
 
+from blender_runs import all_hold, blender  # noqa: E402
 from helpers import ROOT  # noqa: E402
-from test_addon import all_hold, blender, repo  # noqa: E402,F401 - fixtures
 
 pytestmark = pytest.mark.blender
 
@@ -260,9 +259,7 @@ def test_background_view_command_prints_the_url_and_serves_until_sigterm(repo, t
         line = (first[0] or "").strip()
         statuses = {path: http_status(port, path) for path in ("/", "/tiles/tileset.json", "/tiles/../tileset.json")}
         proc.send_signal(signal.SIGTERM)
-        started = time.monotonic()
-        status = proc.wait(timeout=STOP_TIMEOUT_S + START_TIMEOUT_S)
-        stop_s = time.monotonic() - started
+        status = proc.wait(timeout=STOP_TIMEOUT_S)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -270,7 +267,7 @@ def test_background_view_command_prints_the_url_and_serves_until_sigterm(repo, t
     stderr = proc.stderr.read()
     assert line == f"http://localhost:{port}/", (line, stderr[-3000:])
     assert statuses == {"/": 200, "/tiles/tileset.json": 200, "/tiles/../tileset.json": 404}, statuses
-    assert status == 0 and stop_s < STOP_TIMEOUT_S, (status, stop_s, stderr[-3000:])
+    assert status == 0, (status, stderr[-3000:])
     assert not port_open(port)
     assert opened(browser) == []
 

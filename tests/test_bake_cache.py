@@ -23,8 +23,8 @@ from hlod_core.io import hlod_file, meshes
 from hlod_core.model.appearance import AttributeLayout
 
 from helpers import load_model, model
-from test_bake_appearance import TARGET_TRIS as SPHERE_TARGET_TRIS, textured_sphere
-from test_cli import hlod, last_json, one_line_error
+from processes import hlod, last_json, one_line_error
+from sample_meshes import SPHERE_TARGET_TRIS, textured_sphere
 
 CORE = Path(cache.__file__).resolve().parent.parent
 

@@ -5,37 +5,15 @@ import os
 import signal
 import subprocess
 import sys
-import time
-from pathlib import Path
 
 import pytest
 
 from helpers import ROOT, SCENES, model
+from processes import hlod, last_json, one_line_error, write_text
 
 BAKE_KEYS = {"nodes", "leaves", "depth", "input_tris", "leaf_tris", "root_tris", "max_error", "seconds",
              "tris_per_second"}
 ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}
-
-
-def hlod(*args, check=True, timeout=600):
-    proc = subprocess.run([sys.executable, "-m", "hlod_core", *map(str, args)], cwd=ROOT, capture_output=True,
-                          text=True, timeout=timeout, env={**os.environ, "PYTHONPATH": str(ROOT)})
-    if check:
-        assert proc.returncode == 0, proc.stderr
-    return proc
-
-
-def last_json(proc) -> dict:
-    return json.loads(proc.stdout.strip().splitlines()[-1])
-
-
-def one_line_error(proc) -> str:
-    """The failure is exactly one line, the last on stderr (progress lines may come before it)."""
-    assert proc.returncode != 0
-    lines = proc.stderr.strip().splitlines()
-    errors = [line for line in lines if "error" in line.lower() or "traceback" in line.lower()]
-    assert len(errors) == 1 and lines[-1] == errors[0], proc.stderr
-    return errors[0]
 
 
 def test_bake_scene_spec_and_info(tmp_path):
@@ -77,15 +55,15 @@ def test_default_scene_command(tmp_path):
 
 @pytest.mark.parametrize("make, expect", [
     (lambda d: d / "missing.obj", r"missing\.obj: no such file"),
-    (lambda d: _write(d / "garbage.obj", "this is not a mesh\n"), r"garbage\.obj: (cannot read mesh|the mesh has no triangles)"),
-    (lambda d: _write(d / "nan.obj", "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n"), r"nan\.obj: 1 of 3 vertices .*NaN"),
-    (lambda d: _write(d / "inf.obj", "v 0 0 0\nv 1 0 0\nv inf 1 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n"),
+    (lambda d: write_text(d / "garbage.obj", "this is not a mesh\n"), r"garbage\.obj: (cannot read mesh|the mesh has no triangles)"),
+    (lambda d: write_text(d / "nan.obj", "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n"), r"nan\.obj: 1 of 3 vertices .*NaN"),
+    (lambda d: write_text(d / "inf.obj", "v 0 0 0\nv 1 0 0\nv inf 1 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n"),
      r"inf\.obj: 1 of 4 vertices could not be read"),
-    (lambda d: _write(d / "bad.json", "{not json"), r"bad\.json: scene spec is not valid JSON"),
-    (lambda d: _write(d / "spec.json", json.dumps({"models": [{"path": "x.obj"}]})), r"x\.obj: no such file"),
-    (lambda d: _write(d / "spec2.json", json.dumps({"models": [{"path": str(model("cow.obj")), "transforms": [[1, 2, 3]]}]})),
+    (lambda d: write_text(d / "bad.json", "{not json"), r"bad\.json: scene spec is not valid JSON"),
+    (lambda d: write_text(d / "spec.json", json.dumps({"models": [{"path": "x.obj"}]})), r"x\.obj: no such file"),
+    (lambda d: write_text(d / "spec2.json", json.dumps({"models": [{"path": str(model("cow.obj")), "transforms": [[1, 2, 3]]}]})),
      r"spec2\.json: models\[0\]\.transforms\[0\] must have 16 numbers"),
-    (lambda d: _write(d / "notes.txt", "hello"), r"notes\.txt: unsupported file type"),
+    (lambda d: write_text(d / "notes.txt", "hello"), r"notes\.txt: unsupported file type"),
 ])
 def test_bad_input_is_one_line_naming_the_file(tmp_path, make, expect):
     import re
@@ -97,12 +75,12 @@ def test_bad_input_is_one_line_naming_the_file(tmp_path, make, expect):
 
 
 def test_info_on_foreign_file_is_one_line(tmp_path):
-    bad = _write(tmp_path / "x.hlod", "v 0 0 0\n")
+    bad = write_text(tmp_path / "x.hlod", "v 0 0 0\n")
     assert "x.hlod: not a .hlod file" in one_line_error(hlod("info", bad, check=False))
 
 
 def test_unwritable_output_is_one_line(tmp_path):
-    blocker = _write(tmp_path / "file", "")
+    blocker = write_text(tmp_path / "file", "")
     proc = hlod("bake", model("cow.obj"), "-o", blocker / "out.hlod", check=False)
     assert f"{blocker} is a file" in one_line_error(proc)
     assert "bake" not in proc.stderr  # refused before baking
@@ -114,10 +92,9 @@ def test_interrupted_bake_leaves_no_output_and_keeps_the_old_file(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "bake", str(model("igea.ply")), "-o", str(out),
                              "--jobs", "2"], cwd=ROOT, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": str(tmp_path)})
-    for line in proc.stderr:  # wait until decimation is under way
+    for line in proc.stderr:  # decimation is under way: the signal comes mid-bake (no sleep: any moment will do)
         if "bake simplify" in line:
             break
-    time.sleep(0.5)
     proc.send_signal(signal.SIGINT)
     proc.communicate(timeout=120)
     assert proc.returncode != 0
@@ -125,35 +102,23 @@ def test_interrupted_bake_leaves_no_output_and_keeps_the_old_file(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["igea.hlod"]
 
 
-def _write(path: Path, text: str) -> Path:
-    path.write_text(text)
-    return path
-
-
 RUN_KEYS = {"dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms", "frames"}
-
-
-@pytest.fixture(scope="module")
-def cow_hlod(tmp_path_factory):
-    out = tmp_path_factory.mktemp("run") / "cow.hlod"
-    hlod("-q", "bake", model("cow.obj"), "-o", out, "--target-tris", "400")
-    return out
 
 
 @pytest.mark.gl
 @pytest.mark.parametrize("method", ["full", "vfc", "bool", "sw", "simp", "coh", "ideal"])
-def test_run_every_method(cow_hlod, method):
-    out = last_json(hlod("-q", "run", cow_hlod, "--method", method, "--frames", "6", "--size", "160x120"))
+def test_run_every_method(cow_file, method):
+    out = last_json(hlod("-q", "run", cow_file, "--method", method, "--frames", "6", "--size", "160x120"))
     assert RUN_KEYS <= out.keys() and out["frames"] == 6 and out["dn"] > 0
 
 
 @pytest.mark.gl
-def test_run_with_a_path_file_orthographic_and_saved_frames(cow_hlod, tmp_path):
+def test_run_with_a_path_file_orthographic_and_saved_frames(cow_file, tmp_path):
     path = tmp_path / "path.json"
     path.write_text(json.dumps({"ortho_height": 1.5, "near": 0.01, "far": 100, "frames": [
         {"eye": [0.2, -3, 0.5], "target": [0.2, 0, 0.3], "up": [0, 0, 1]},
         {"eye": [0.3, -3, 0.5], "target": [0.2, 0, 0.3], "up": [0, 0, 1]}]}))
-    out = last_json(hlod("-q", "run", cow_hlod, "--method", "coh", "--bias", "mu", "--alpha", "projected",
+    out = last_json(hlod("-q", "run", cow_file, "--method", "coh", "--bias", "mu", "--alpha", "projected",
                          "--shift-up", "children", "--path", path, "--save-frames", tmp_path / "frames", "--size", "64x48"))
     assert out["frames"] == 2
     pngs = sorted((tmp_path / "frames").glob("*.png"))
@@ -165,11 +130,11 @@ def test_run_with_a_path_file_orthographic_and_saved_frames(cow_hlod, tmp_path):
     (["--s", "2"], "s and t must lie in [0, 1]"),
     (["--k", "0"], "steepness k must be > 0"),
 ])
-def test_run_bad_options_are_one_line(cow_hlod, args, expect):
-    assert expect in one_line_error(hlod("run", cow_hlod, "--method", "coh", *args, check=False))
+def test_run_bad_options_are_one_line(cow_file, args, expect):
+    assert expect in one_line_error(hlod("run", cow_file, "--method", "coh", *args, check=False))
 
 
-def test_run_bad_path_file_is_one_line(cow_hlod, tmp_path):
-    bad = _write(tmp_path / "p.json", json.dumps({"frames": [{"eye": [0, 0, 0], "target": [0, 0, 0]}]}))
+def test_run_bad_path_file_is_one_line(cow_file, tmp_path):
+    bad = write_text(tmp_path / "p.json", json.dumps({"frames": [{"eye": [0, 0, 0], "target": [0, 0, 0]}]}))
     assert "p.json: a frame's eye equals its target" in one_line_error(
-        hlod("run", cow_hlod, "--method", "coh", "--path", bad, check=False))
+        hlod("run", cow_file, "--method", "coh", "--path", bad, check=False))

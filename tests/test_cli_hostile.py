@@ -1,4 +1,4 @@
-"""Issue 11 (hostile input), the command line: signals mid-bake leave nothing behind, argument and
+"""Hostile input to the command line: signals mid-bake leave nothing behind, argument and
 path errors are one line, outputs named with a trailing slash are refused, a failed write names
 its file, and a far/near of 1e20 still draws (with nothing on stderr under -q)."""
 import json
@@ -7,28 +7,12 @@ import resource
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
 from helpers import ROOT, model
 from hlod_core import cli
-from test_cli import hlod, last_json, one_line_error
-
-
-def _wait_for(predicate, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.02)
-
-
-def _group_is_gone(pgid: int) -> bool:
-    try:
-        os.killpg(pgid, 0)
-    except ProcessLookupError:
-        return True
-    return False
+from processes import group_is_gone, hlod, last_json, one_line_error, wait_for
 
 
 @pytest.mark.parametrize("sig, status, last_line", [
@@ -49,13 +33,13 @@ def test_signal_mid_bake_removes_scratch_and_output(tmp_path, sig, status, last_
                                 start_new_session=True,
                                 env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": str(scratch)})
     try:
-        _wait_for(lambda: "bake simplify" in log.read_text(), 120, "a progress line")
-        _wait_for(lambda: any(p.name.startswith("hlod-bake-") for p in scratch.iterdir()), 60, "the scratch folder")
+        wait_for(lambda: "bake simplify" in log.read_text(), 120, "a progress line")
+        wait_for(lambda: any(p.name.startswith("hlod-bake-") for p in scratch.iterdir()), 60, "the scratch folder")
         proc.send_signal(sig)
         assert proc.wait(timeout=120) == status, log.read_text()[-2000:]
-        _wait_for(lambda: _group_is_gone(proc.pid), 20, "the workers to exit")
+        wait_for(lambda: group_is_gone(proc.pid), 60, "the workers to exit")
     finally:
-        if not _group_is_gone(proc.pid):
+        if not group_is_gone(proc.pid):
             os.killpg(proc.pid, signal.SIGKILL)
     text = log.read_text()
     assert text.strip().splitlines()[-1] == last_line and "Traceback" not in text, text[-2000:]
@@ -119,13 +103,6 @@ def test_failed_write_names_the_output(tmp_path):
     # no .hlod and no temporary file; the cache of the failed bake's finished nodes stays for the next
     # attempt (bake_cache.py: entries are whole files, renamed into place)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["big.hlod.cache", "cow.hlod", "cow.hlod.cache"]
-
-
-@pytest.fixture(scope="module")
-def cow_file(tmp_path_factory):
-    out = tmp_path_factory.mktemp("hostile") / "cow.hlod"
-    hlod("-q", "bake", model("cow.obj"), "-o", out, "--target-tris", "400")
-    return out
 
 
 def _path_file(folder, name, **fields):

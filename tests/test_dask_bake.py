@@ -25,10 +25,9 @@ from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import BakeCancelled
 from hlod_core.io import hlod_file
 
-from helpers import ROOT, model
-from test_bake_cache import HERD_SPACING, _file_bytes, _herd
-from test_cli import hlod, last_json, one_line_error
-from test_cli_hostile import _group_is_gone, _wait_for
+from helpers import ROOT, file_bytes as _file_bytes, model
+from processes import group_is_gone as _group_is_gone, hlod, last_json, one_line_error, wait_for as _wait_for
+from sample_meshes import HERD_SPACING, herd as _herd
 
 HERD_TRIS = 600  # nine cows at 600 triangles a node: 321 nodes, 4 levels, about 2 s a bake here
 #: Clusters listen on localhost only, on free ports; distributed's HTTP server (its health and metrics

@@ -21,8 +21,8 @@ from hlod_core.traversal.stats import COUNTERS
 from hlod_core.model.view import look_at, perspective
 
 from helpers import ROOT
-from test_cli import hlod, last_json, one_line_error
-from test_report_figures import PNG_SIGNATURE, legible
+from figure_checks import PNG_SIGNATURE, legible
+from processes import hlod, last_json, one_line_error
 
 ISSUE_KEYS = {"fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms",
               "psnr_y_vs_bool", "psnr_cb_vs_bool", "psnr_cr_vs_bool", "psnr_y_vs_full"}

@@ -19,9 +19,8 @@ from hlod_core.export import tiles3d
 from hlod_core.model.appearance import Material
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.model.hierarchy import Hlod, node_geometry
-from test_addon import versioned_repo  # noqa: F401 - the extension installed in each Blender
-from test_addon import blender, repo  # noqa: F401 - the extension installed for this bpy module
-from test_cli import hlod, last_json, one_line_error
+from blender_runs import blender
+from processes import hlod, last_json, one_line_error
 
 VALIDATORS = ROOT / "tools/validators"
 

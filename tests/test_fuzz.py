@@ -36,5 +36,5 @@ def test_fuzzed_files_open_cleanly_or_are_refused_in_one_line(tmp_path):
     assert summary["frames_rendered"] == per_file * summary["loaded"]
     assert {k: v["cases"] for k, v in summary["by_kind"].items()} == \
         {k: FUZZ_CASES // len(fuzz_hlod.MUTATIONS) for k in fuzz_hlod.MUTATIONS}
-    # the overflowing ranges once reported are all refused, none crashes
+    # range pairs whose sum wraps (the `overflow` mutation) are all refused, none crashes
     assert summary["by_kind"]["overflow"]["refused"] == FUZZ_CASES // len(fuzz_hlod.MUTATIONS)

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from helpers import ROOT
-from test_addon import blender, repo, versioned_repo  # noqa: F401 - fixtures
+from blender_runs import blender
 
 sys.path.insert(0, str(ROOT))
 from addon import viewport_text  # noqa: E402 - formatting only; blf is imported when drawing

@@ -29,7 +29,6 @@ from hlod_core.traversal.settings import RuntimeSettings
 from hlod_core.model.view import View
 
 from helpers import ROOT, baked, standalone_gl
-from test_addon import repo  # noqa: F401 - fixture: the extension installed in the main .venv's bpy
 
 SIZE = (320, 240)
 #: 8-bit levels a drawn colour may differ from the expected one (float rounding in the shader and

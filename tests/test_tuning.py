@@ -18,8 +18,8 @@ from hlod_core.model.camera_path import inspection_path
 from hlod_core.core.errors import InputError
 from hlod_core.traversal.settings import RuntimeSettings
 
-from test_cli import hlod, last_json, one_line_error
-from test_report_figures import PNG_SIGNATURE
+from figure_checks import PNG_SIGNATURE
+from processes import hlod, last_json, one_line_error
 
 FRAMES, SIZE = 10, (320, 240)
 CANDIDATE_KEYS = {"s", "t", "dn", "psnr_y", "psnr_y_mean", "frame_ms", "frame_ms_vs_bool", "round", "meets"}

@@ -1,0 +1,109 @@
+"""The extension in the real bpy module: the Blenders the checks run in, the zip built by
+scripts/build_extension.py and installed with each Blender's own extension tool, and one check
+script run in a Blender process (its JSON result). conftest.py's fixtures `extension_zip`, `repo`
+and `versioned_repo` are made of these.
+
+BLENDERS: version "X.Y" -> that environment's Python interpreter (.venv-blender/bpy-X.Y, made by
+scripts/bootstrap.sh `ensure_blender_venvs`, one per requirements-bpyXY.txt); the main .venv's bpy
+is the Blender of `repo`. Each check runs in its own process: bpy keeps global state, and the
+user's Blender configuration is kept out of it (BLENDER_USER_RESOURCES points at a temp dir)."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from helpers import ROOT
+
+BLENDER_VENVS = ROOT / ".venv-blender"
+
+
+def _blenders() -> dict[str, Path]:
+    """One Blender per requirements-bpyXY.txt: the bpy pin's major.minor names the folder
+    .venv-blender/bpy-X.Y, and bin/python there is its interpreter (Python 3.11 or 3.13)."""
+    out = {}
+    for req in sorted(ROOT.glob("requirements-bpy*.txt")):
+        pin = re.search(r"^bpy==(\d+\.\d+)\.\d+", req.read_text(), re.M)
+        assert pin, f"{req.name}: no bpy==X.Y.Z line"
+        out[pin.group(1)] = BLENDER_VENVS / f"bpy-{pin.group(1)}" / "bin" / "python"
+    return out
+
+
+BLENDERS = _blenders()  # {"4.2": .venv-blender/bpy-4.2/bin/python, "5.0": ..., "5.2": ...}
+
+
+def blender_python(version: str) -> Path:
+    """The interpreter of Blender `version`'s environment; a missing one is an error, never a skip:
+    the extension checks must run in every Blender we support."""
+    python = BLENDERS[version]
+    assert python.is_file(), (f"Blender {version}'s environment is missing ({python}): run `bash test.sh`, "
+                              f"which makes it (scripts/bootstrap.sh ensure_blender_venvs)")
+    return python
+
+
+@dataclass(frozen=True)
+class Installed:
+    """The extension installed for one Blender: base/repo is the extension repository, base/user
+    the BLENDER_USER_RESOURCES of its processes, python that Blender's interpreter."""
+    version: str
+    python: Path
+    base: Path
+
+    def __truediv__(self, name: str) -> Path:  # `repo / "user"` as with the main .venv's `repo`
+        return self.base / name
+
+
+def build_extension_zip(dist: Path) -> Path:
+    """The linux-x64 zip (cp311 and cp313 wheels: the same zip for every Blender), built into
+    `dist` by scripts/build_extension.py with the main .venv."""
+    build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms", "linux-x64",
+                            "--output-dir", str(dist)], capture_output=True, text=True, timeout=900)
+    assert build.returncode == 0, build.stderr
+    return Path(build.stdout.strip().splitlines()[-1])
+
+
+def extension_tool(python: Path) -> Path:
+    """blender_ext.py of the bpy installed for `python` (whichever version)."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import build_extension
+
+    platlib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['platlib'])"],
+                             capture_output=True, text=True, check=True).stdout.strip()
+    return build_extension.blender_ext(platlib)
+
+
+def install_extension(zip_path: Path, python: Path, base: Path) -> Path:
+    """Validate the zip and install it into base/repo with that Blender's own extension tool, as
+    Blender does; base/user is its processes' user folder. Returns `base`."""
+    (base / "repo").mkdir()
+    tool = extension_tool(python)
+    for args in (["validate", str(zip_path)], ["install-files", "--local-dir", str(base / "repo"), str(zip_path)]):
+        proc = subprocess.run([str(python), str(tool), *args], capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, f"{tool} {args[0]}: {proc.stdout[-2000:]}{proc.stderr[-2000:]}"
+    (base / "user").mkdir()
+    return base
+
+
+def blender(repo, check: str, tmp_path, *arguments: str, timeout_s: float = 600, quiet: bool = False,
+            script: str = "blender_checks.py") -> dict:
+    """Run tests/SCRIPT CHECK TMP [ARGUMENTS] in `repo`'s Blender (an Installed; a plain folder is the
+    main .venv's); its JSON result. quiet: the process must print nothing on stderr (no warnings).
+    timeout_s guards against a hang only."""
+    python, base = (repo.python, repo.base) if isinstance(repo, Installed) else (Path(sys.executable), Path(repo))
+    env = {**os.environ, "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([str(python), str(ROOT / "tests" / script), str(base / "repo"), check, str(tmp_path),
+                           *arguments], capture_output=True, text=True, timeout=timeout_s, env=env, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-4000:]
+    assert not (quiet and proc.stderr), proc.stderr[-4000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def all_hold(out: dict, **checks: bool) -> None:
+    """Assert every named check of one check's result at once, so a failing run lists every check
+    that failed (and the result), not only the first."""
+    failed = sorted(name for name, ok in checks.items() if not ok)
+    assert not failed, f"failed: {failed}; result: {json.dumps(out, default=str)[:4000]}"

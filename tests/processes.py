@@ -1,0 +1,64 @@
+"""Child processes in tests: the command line (`python -m hlod_core`) and its contract (the last
+stdout line is one JSON object; a failure is one line on stderr), waiting for a condition without
+a fixed sleep, and whether a process group is gone."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from helpers import ROOT
+
+#: How often wait_for looks again (seconds): short against what it waits for, long against a busy loop.
+POLL_S = 0.02
+
+
+def hlod(*args, check: bool = True, timeout_s: float = 600) -> subprocess.CompletedProcess:
+    """`python -m hlod_core ARGS` from the repository root; with `check`, exit status 0 is asserted.
+    timeout_s guards against a hang only (it is not what a test measures)."""
+    proc = subprocess.run([sys.executable, "-m", "hlod_core", *map(str, args)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=timeout_s, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    if check:
+        assert proc.returncode == 0, proc.stderr
+    return proc
+
+
+def last_json(proc: subprocess.CompletedProcess) -> dict:
+    """The last stdout line, read as the command's one JSON object."""
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def one_line_error(proc: subprocess.CompletedProcess) -> str:
+    """The failure is exactly one line, the last on stderr (progress lines may come before it)."""
+    assert proc.returncode != 0
+    lines = proc.stderr.strip().splitlines()
+    errors = [line for line in lines if "error" in line.lower() or "traceback" in line.lower()]
+    assert len(errors) == 1 and lines[-1] == errors[0], proc.stderr
+    return errors[0]
+
+
+def write_text(path: Path, text: str) -> Path:
+    """`text` written to `path`; the path (for building bad input files inline)."""
+    path.write_text(text)
+    return path
+
+
+def wait_for(predicate, timeout_s: float, what: str) -> None:
+    """Return as soon as predicate() is true; fail naming `what` after timeout_s (a hang guard, far
+    longer than the wait should take on a loaded machine, not a measurement)."""
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(POLL_S)
+
+
+def group_is_gone(pgid: int) -> bool:
+    """No process of process group `pgid` exists any more."""
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return True
+    return False
