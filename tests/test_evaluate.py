@@ -1,5 +1,5 @@
-"""The evaluation (issue "Evaluation"): procedural scenes, image error, the evaluate command and
-its report (issue 19: per_frame.npz, report.html, figures redrawn from the saved files)."""
+"""The evaluation: procedural scenes, image error, the evaluate command and its report
+(per_frame.npz, report.html, figures redrawn from the saved files)."""
 import base64
 import json
 import re
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from benchmarks import evaluation_targets
-from hlod_core.report import evaluate, image_error
+from hlod_core.report import evaluate, image_error, per_frame_file
 from hlod_core.io import procedural
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.bake.pipeline import BakeSettings, bake
@@ -23,7 +23,7 @@ from helpers import ROOT
 from test_cli import hlod, last_json, one_line_error
 from test_report_figures import PNG_SIGNATURE, legible
 
-ISSUE_KEYS = {"fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms",
+SUMMARY_COLUMNS = {"fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms",
               "psnr_y_vs_bool", "psnr_cb_vs_bool", "psnr_cr_vs_bool", "psnr_y_vs_full"}
 
 
@@ -72,6 +72,7 @@ def _depth_complexity(mesh, views) -> float:
         ctx.release()
 
 
+@pytest.mark.gl
 def test_procedural_scenes_rank_by_depth_complexity():
     """`scene low|middle|high` are what they claim: from the same oblique views around each scene
     (30 degrees down, at 1.2 bounding radii), fragments per covered pixel rise low < middle < high."""
@@ -108,12 +109,13 @@ def short_run(small_high, tmp_path_factory):
     return proc, out_dir
 
 
+@pytest.mark.gl
 def test_evaluate_writes_the_report_and_its_last_line(short_run):
     proc, out_dir = short_run
     line = last_json(proc)
     assert set(line["methods"]) == set(evaluate.METHOD_SPECS)
     for key, row in line["methods"].items():
-        assert ISSUE_KEYS <= row.keys(), key
+        assert SUMMARY_COLUMNS <= row.keys(), key
         assert row["dn"] > 0 and row["fps"] > 0
     assert line["frames"] == 16 and line["size"] == [160, 120]
     m = line["methods"]
@@ -133,7 +135,7 @@ def test_evaluate_writes_the_report_and_its_last_line(short_run):
     assert f"measure_every = {defaults.measure_every}" in (out_dir / "report.md").read_text()
     rel = report["relative"]["coh_p"]["bool"]
     assert rel["node_savings_pct"] == pytest.approx(100 * (1 - m["coh_p"]["dn"] / m["bool"]["dn"]))
-    # the report holds measured figures; the issue's targets are the benchmark script's
+    # the report holds measured figures; the pass/fail targets are the benchmark script's
     assert "targets" not in report and "targets_hold" not in line
     targets = subprocess.run([sys.executable, "-m", "benchmarks.evaluation_targets", out_dir],
                              capture_output=True, text=True, cwd=ROOT, check=True).stdout.splitlines()
@@ -153,6 +155,7 @@ def test_evaluate_writes_the_report_and_its_last_line(short_run):
     assert "Targets" not in md
 
 
+@pytest.mark.gl
 def test_short_run_figures_legible_and_per_frame_saved(short_run):
     """per_frame.npz holds each variant's per-frame medians over the repeats (their means are the
     report's figures), the generated path's parts reach the report, and the figures drawn from
@@ -161,7 +164,7 @@ def test_short_run_figures_legible_and_per_frame_saved(short_run):
 
     _, out_dir = short_run
     report = json.loads((out_dir / "report.json").read_text())
-    medians = evaluate.load_per_frame(out_dir / "per_frame.npz", frames=16)
+    medians = per_frame_file.load_per_frame(out_dir / "per_frame.npz", frames=16)
     assert set(medians) == set(report["methods"]) | set(report["sweep"]["points"])
     for key, row in report["methods"].items():
         assert medians[key].shape == (16, len(COUNTERS))
@@ -175,6 +178,7 @@ def test_short_run_figures_legible_and_per_frame_saved(short_run):
         fig.clf()
 
 
+@pytest.mark.gl
 def test_report_html_is_self_contained(short_run):
     """One page, nothing outside it: no http(s) address, every image a PNG data URI (the four
     figures), a table row for every method."""
@@ -191,6 +195,7 @@ def test_report_html_is_self_contained(short_run):
         assert f"<tr><td>{key}</td>" in page, key
 
 
+@pytest.mark.gl
 def test_redraw_from_the_saved_files(short_run, tmp_path):
     """`python -m hlod_core.report.evaluate --redraw DIR` draws the figures, report.md and report.html again
     from report.json and per_frame.npz alone; a folder that is not an evaluation's, or a per-frame
@@ -220,6 +225,7 @@ def test_redraw_from_the_saved_files(short_run, tmp_path):
         assert proc.returncode == 2 and message in one_line_error(proc), proc.stderr
 
 
+@pytest.mark.gl
 def test_modulation_frames_use_only_the_colour_ramp(small_high, tmp_path):
     """Overlay images: every drawn pixel is on the blue-magenta-red ramp (green at most a fifth of
     the stronger of red and blue, whatever the shading factor); Bool modulates nothing (all blue:

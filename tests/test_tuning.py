@@ -1,12 +1,15 @@
-"""Issue 15, tuning to an image-quality target (hlod_core/report/tuning.py, `evaluate --psnr-target DB`): the
+"""Tuning to an image-quality target (hlod_core/report/tuning.py, `evaluate --psnr-target DB`): the
 (s, t) with the fewest drawn nodes whose lowest PSNR-Y against Bool over the PSNR frames reaches the
 target, the curve of the candidates tried in report.json / report.md / psnr_target.png, the fallback
 when nothing reaches it, and the option's bad values.
 
 Real parts: the high-depth-complexity scene at a quarter of its towers, baked with small nodes, drawn
-by the real renderer on a headless EGL context (llvmpipe here), 10 frames at 320x240."""
+by the real renderer on a headless EGL context (llvmpipe where there is no GPU), 10 frames at 320x240.
+Every query is issued (skip queries off): which nodes are drawn does not depend on the renderer's
+measured costs."""
 import json
 import math
+from dataclasses import replace
 
 import pytest
 
@@ -22,6 +25,8 @@ from test_cli import hlod, last_json, one_line_error
 from test_report_figures import PNG_SIGNATURE
 
 FRAMES, SIZE = 10, (320, 240)
+#: No query skipped for its measured cost: the drawn nodes do not depend on the machine's timing.
+QUERY_EVERY_NODE = RuntimeSettings(skip_queries="off")
 CANDIDATE_KEYS = {"s", "t", "dn", "psnr_y", "psnr_y_mean", "frame_ms", "frame_ms_vs_bool", "round", "meets"}
 
 
@@ -79,7 +84,7 @@ def test_evaluate_psnr_target_meets_it_with_the_fewest_nodes(downtown, tmp_path)
     hlod_file, _, _ = downtown
     out = tmp_path / "report"
     proc = hlod("-q", "evaluate", hlod_file, "--out", out, "--frames", FRAMES, "--size", "320x240", "--repeat", "1",
-                "--psnr-frames", FRAMES, "--psnr-target", "40")
+                "--psnr-frames", FRAMES, "--psnr-target", "40", "--skip-queries", "off")
     line = last_json(proc)
     report = json.loads((out / "report.json").read_text())
     p = report["psnr_target"]
@@ -105,7 +110,8 @@ def test_zero_db_picks_the_fewest_nodes_and_needs_no_matplotlib(downtown, tmp_pa
     """0 dB: every candidate meets it (PSNR >= 0 always); the one with the fewest nodes is chosen.
     Without figures (as in Blender) the report is complete and says why there are none."""
     _, baked, path = downtown
-    report = tuning.tune(baked, path, SIZE, target_db=0.0, out_dir=tmp_path, psnr_frames=FRAMES, figures=False)
+    report = tuning.tune(baked, path, SIZE, target_db=0.0, settings=QUERY_EVERY_NODE, out_dir=tmp_path,
+                         psnr_frames=FRAMES, figures=False)
     p = report["psnr_target"]
     _check_choice(p)
     assert all(x["meets"] for x in p["candidates"])
@@ -123,7 +129,7 @@ def test_unreachable_target_gives_the_most_conservative_setting(downtown, tmp_pa
     P of all (s, t), reported as such. With the logistic (k = 10) no setting draws Bool's image
     exactly, so 100 dB (identical at every PSNR frame) is above them all."""
     _, baked, path = downtown
-    report = tuning.tune(baked, path, SIZE, target_db=100.0, settings=RuntimeSettings(k=10.0), out_dir=tmp_path,
+    report = tuning.tune(baked, path, SIZE, target_db=100.0, settings=replace(QUERY_EVERY_NODE, k=10.0), out_dir=tmp_path,
                          psnr_frames=FRAMES, figures=False)
     p = report["psnr_target"]
     assert max(x["psnr_y"] for x in p["candidates"]) < 100.0, "a candidate equals Bool: the fallback is not reached"
