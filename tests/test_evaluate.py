@@ -85,7 +85,7 @@ def test_procedural_scenes_rank_by_depth_complexity():
         views = []
         for angle in np.linspace(0, 2 * np.pi, 6, endpoint=False):
             eye = centre + 1.2 * radius * np.array([np.cos(angle) * 0.87, np.sin(angle) * 0.87, 0.5])
-            views.append((look_at(eye, centre, [0, 0, 1]), perspective(60, 4 / 3, 0.01 * radius, 4 * radius)))
+            views.append((look_at(eye, centre, [0, 0, 1]), perspective(60, 4 / 3, near=0.01 * radius, far=4 * radius)))
         measured[name] = _depth_complexity(mesh, views)
     assert measured["low"] < measured["middle"] < measured["high"], measured
     assert measured["low"] < 1.6 and measured["high"] > 2.5, measured

@@ -49,7 +49,7 @@ def bird_view(hlod: Hlod, size: tuple[int, int], up_axis: int = 2) -> View:
     up[b] = 1.0
     far = _BIRD_FAR_DEPTHS * depth + _BIRD_FAR_MARGIN * height
     return View(eye=eye, view=view.look_at(eye, centre, up),
-                projection=view.orthographic(height, w / h, _BIRD_NEAR_OF_FAR * far, far), width=w, height=h)
+                projection=view.orthographic(height, w / h, near=_BIRD_NEAR_OF_FAR * far, far=far), width=w, height=h)
 
 
 def draw_nodes(renderer: Renderer, view: View, *, nodes, colours) -> np.ndarray:
