@@ -94,7 +94,7 @@ def gl_ctx():
 RESULT_LAG = 3
 
 
-def _drawn_nodes(ctx, hlod, method: str, size=(128, 96)) -> np.ndarray:
+def _drawn_nodes(ctx, hlod, method: str, *, size=(128, 96)) -> np.ndarray:
     path = inspection_path(hlod, seed=4, frames=12)
     renderer = Renderer(ctx, hlod, size=size)
     try:

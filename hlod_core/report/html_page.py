@@ -61,7 +61,7 @@ def render(text: str, *, folder: Path) -> str:
             if i + 1 < len(blocks) and len(blocks[i + 1]) == 1 and CAPTION_LINE.match(blocks[i + 1][0]):
                 caption = CAPTION_LINE.match(blocks[i + 1][0])["text"]
                 i += 1
-            body.append(_figure(folder, image["file"], image["alt"], caption))
+            body.append(_figure(folder, image["file"], alt=image["alt"], caption=caption))
         else:
             body.append(f"<p>{_inline(' '.join(block))}</p>")
         i += 1
@@ -113,7 +113,7 @@ def _table(block: list[str]) -> str:
     return f"<table>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>"
 
 
-def _figure(folder: Path, file: str, alt: str, caption: str | None) -> str:
+def _figure(folder: Path, file: str, *, alt: str, caption: str | None) -> str:
     """A figure with its PNG inlined as a data URI (a note in its place when the file is missing)."""
     path = folder / file
     mime = MIME_TYPES.get(path.suffix.lower())

@@ -87,7 +87,8 @@ def _relative(relative: dict, *, labels: dict[str, str]) -> list[str]:
              "| method | over | speedup % | node savings % |", "|---|---|---:|---:|"]
     for coh, rows in relative.items():
         for other, r in rows.items():
-            lines.append(f"| {labels[coh]} | {labels[other]} | {_f(r['speedup_pct'], 1)} | {_f(r['node_savings_pct'], 1)} |")
+            lines.append(f"| {labels[coh]} | {labels[other]} | {_f(r['speedup_pct'], 1)} | "
+                         f"{_f(r['node_savings_pct'], 1)} |")
     return lines
 
 
@@ -99,7 +100,8 @@ def _image_quality(report: dict, *, labels: dict[str, str]) -> list[str]:
              "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for key, r in report["methods"].items():
         cells = [f"{_f(r[f'psnr_{c}_vs_{ref}'], 1)} ± {_f(r[f'psnr_{c}_vs_{ref}_sd'], 1)}"
-                 if r[f"psnr_{c}_vs_{ref}"] is not None else "–" for ref in ("bool", "full") for c in ("y", "cb", "cr")]
+                 if r[f"psnr_{c}_vs_{ref}"] is not None else "–"
+                 for ref in ("bool", "full") for c in ("y", "cb", "cr")]
         lines.append(f"| {labels[key]} | " + " | ".join(cells) + f" | {_f(r['rmse_y_vs_full'])} |")
     return lines
 
