@@ -1,4 +1,4 @@
-"""The evaluation report, legible at a glance (issue 19): figure labels that do not overlap, by
+"""The evaluation report, legible at a glance: figure labels that do not overlap, by
 matplotlib's own text extents, on the committed report's data and on literal worst cases; the
 Pareto front; per-frame ratios with a colour and a line style per method and the camera path's
 parts marked; the queries-pay figure; report.html as one self-contained page; the parts in the
