@@ -232,14 +232,14 @@ def test_modulation_frames_use_only_the_colour_ramp(small_high, tmp_path):
     red a tenth of blue); the bird's-eye view shows the drawn front; the shaded image is grey."""
     from matplotlib.image import imread
 
-    from hlod_core.io import hlod_file as fileformat
+    from hlod_core.io import hlod_file
 
     def read_png(path):
         return np.round(imread(path)[..., :3] * 255).astype(np.uint8)
 
-    hlod_file = fileformat.load(small_high)
-    path = inspection_path(hlod_file, seed=2, frames=12)
-    evaluate.evaluate(hlod_file, path, (160, 120), methods=["bool", "coh_mu"], repeat=1, out_dir=tmp_path,
+    baked = hlod_file.load(small_high)
+    path = inspection_path(baked, seed=2, frames=12)
+    evaluate.evaluate(baked, path, (160, 120), methods=["bool", "coh_mu"], repeat=1, out_dir=tmp_path,
                       psnr_frames=2, figures=False)
     white = np.array([255, 255, 255])
     for key in ("bool", "coh_mu"):

@@ -13,7 +13,7 @@ import pytest
 from PIL import Image
 
 from helpers import ROOT, baked, textured_scene
-from hlod_core.io import hlod_file as fileformat, meshes
+from hlod_core.io import hlod_file, meshes
 from hlod_core.export import glb, tiles3d
 from hlod_core.model.appearance import Material
 from hlod_core.bake.pipeline import BakeSettings, bake
@@ -65,11 +65,11 @@ def validate_with_images(folder) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def assert_matches(tiles_dir, hlod_file):
+def assert_matches(tiles_dir, source):
     """Every GLB valid (with the images it refers to); the reader's tiles are the hierarchy's nodes,
     with their triangle counts, boxes and errors; each parent's geometricError is at least its
     children's."""
-    h = fileformat.load(hlod_file)
+    h = hlod_file.load(source)
     read = independent_read(tiles_dir)
     tiles = read["tiles"]
     assert len(tiles) == h.node_count == sum(1 for t in tiles if t["uri"])
@@ -107,7 +107,7 @@ def test_glb_layout_and_axes():
 
 def test_export_command_on_shared_model_passes_the_validators(tmp_path):
     _, h = baked("cow.obj", target_tris=500)
-    src = fileformat.save(h, tmp_path / "cow.hlod")
+    src = hlod_file.save(h, tmp_path / "cow.hlod")
     out = last_json(hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "cow_tiles"))
     assert out["tiles"] == out["glb_files"] == h.node_count and out["triangles"] == int(h.tri_count.sum())
     assert_matches(tmp_path / "cow_tiles", src)
@@ -115,7 +115,7 @@ def test_export_command_on_shared_model_passes_the_validators(tmp_path):
     hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "cow_tiles")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cow.hlod", "cow_tiles"]
     native = last_json(hlod("-q", "export", src, "--format", "hlod", "-o", tmp_path / "native"))
-    assert fileformat.load(native["output"]).node_count == h.node_count
+    assert hlod_file.load(native["output"]).node_count == h.node_count
 
 
 def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_precision(tmp_path):
@@ -125,7 +125,7 @@ def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_prec
     normals = np.zeros_like(p)
     np.add.at(normals, f.ravel(), np.repeat(np.cross(e1, e2), 3, axis=0))
     h = bake(meshes.from_arrays(p, f, normals, name="spot far"), BakeSettings(target_tris=800))
-    src = fileformat.save(h, tmp_path / "spot.hlod")
+    src = hlod_file.save(h, tmp_path / "spot.hlod")
     tiles3d.export(h, tmp_path / "tiles")
     doc = json.loads((tmp_path / "tiles/tileset.json").read_text())
     assert doc["root"]["transform"][12:15] == pytest.approx(list(h.origin))
@@ -138,7 +138,7 @@ def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_prec
 
 def test_export_refuses_to_replace_a_foreign_folder(tmp_path):
     _, h = baked("cow.obj", target_tris=500)
-    src = fileformat.save(h, tmp_path / "cow.hlod")
+    src = hlod_file.save(h, tmp_path / "cow.hlod")
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("keep me")
     assert "holds no tileset.json; not replacing it" in one_line_error(
@@ -454,7 +454,7 @@ def test_textured_bake_exported_by_the_command_passes_the_validators(tmp_path):
     h = bake(meshes.from_arrays(positions, faces, name="grid"), BakeSettings(target_tris=1000))
     assert h.node_count > 1 and not h.has_appearance
     png, jpeg = write_textures(tmp_path)
-    src = fileformat.save(with_appearance(h, png, jpeg), tmp_path / "grid.hlod")
+    src = hlod_file.save(with_appearance(h, png, jpeg), tmp_path / "grid.hlod")
     out = last_json(hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "grid_tiles"))
     assert out["image_files"] == 2 and out["warnings"] == [] and out["glb_files"] == h.node_count
     assert sorted(p.name for p in (tmp_path / "grid_tiles/textures").iterdir()) == ["brick_wall.png", "label.jpg"]
@@ -481,7 +481,7 @@ def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_pa
                          env={**os.environ, "BLENDER_USER_RESOURCES": str(repo / "user")})
     assert run.returncode == 0, run.stderr[-3000:]
     tiles_dir, src = tmp_path / "out" / "textured_3dtiles", tmp_path / "out" / "textured.hlod"
-    h = fileformat.load(src)
+    h = hlod_file.load(src)
     assert h.node_count > 1 and h.uvs is not None and h.colors is not None
     assert_matches(tiles_dir, src)
     textures = sorted(scene["textures"].iterdir())

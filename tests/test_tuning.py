@@ -14,7 +14,7 @@ from dataclasses import replace
 import pytest
 
 from hlod_core import cli
-from hlod_core.io import hlod_file as fileformat, procedural
+from hlod_core.io import hlod_file, procedural
 from hlod_core.report import tuning
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.model.camera_path import inspection_path
@@ -33,10 +33,10 @@ CANDIDATE_KEYS = {"s", "t", "dn", "psnr_y", "psnr_y_mean", "frame_ms", "frame_ms
 @pytest.fixture(scope="module")
 def downtown(tmp_path_factory):
     """(the baked file, its Hlod, the seeded 10-frame inspection path the command generates)."""
-    hlod_file = tmp_path_factory.mktemp("tuning") / "downtown.hlod"
-    fileformat.save(bake(procedural.high_scene(seed=1, scale=0.5), BakeSettings(target_tris=200)), hlod_file)
-    baked = fileformat.load(hlod_file)
-    return hlod_file, baked, inspection_path(baked, seed=1, frames=FRAMES)
+    baked_file = tmp_path_factory.mktemp("tuning") / "downtown.hlod"
+    hlod_file.save(bake(procedural.high_scene(seed=1, scale=0.5), BakeSettings(target_tris=200)), baked_file)
+    baked = hlod_file.load(baked_file)
+    return baked_file, baked, inspection_path(baked, seed=1, frames=FRAMES)
 
 
 def _candidate(s, t, dn, psnr_y):
@@ -81,9 +81,9 @@ def _check_choice(p: dict) -> None:
 def test_evaluate_psnr_target_meets_it_with_the_fewest_nodes(downtown, tmp_path):
     """The command: the last stdout line names the chosen s and t; report.json holds the curve, and
     Bool and Coh(P) at the chosen (s, t) from the same round; report.md its table; psnr_target.png."""
-    hlod_file, _, _ = downtown
+    baked_file, _, _ = downtown
     out = tmp_path / "report"
-    proc = hlod("-q", "evaluate", hlod_file, "--out", out, "--frames", FRAMES, "--size", "320x240", "--repeat", "1",
+    proc = hlod("-q", "evaluate", baked_file, "--out", out, "--frames", FRAMES, "--size", "320x240", "--repeat", "1",
                 "--psnr-frames", FRAMES, "--psnr-target", "40", "--skip-queries", "off")
     line = last_json(proc)
     report = json.loads((out / "report.json").read_text())
@@ -158,8 +158,8 @@ def test_bad_psnr_target_is_one_line(capsys, value, expect):
 
 
 def test_psnr_target_with_methods_is_one_line(downtown, tmp_path):
-    hlod_file, _, _ = downtown
-    line = one_line_error(hlod("evaluate", hlod_file, "--out", tmp_path / "r", "--psnr-target", "40", "--methods",
+    baked_file, _, _ = downtown
+    line = one_line_error(hlod("evaluate", baked_file, "--out", tmp_path / "r", "--psnr-target", "40", "--methods",
                                "bool", check=False))
     assert "--psnr-target runs Bool and the Coh(P) candidates only; leave out --methods" in line
     assert not (tmp_path / "r").exists()
