@@ -160,7 +160,7 @@ def test_short_run_figures_legible_and_per_frame_saved(short_run):
     """per_frame.npz holds each variant's per-frame medians over the repeats (their means are the
     report's figures), the generated path's parts reach the report, and the figures drawn from
     the saved files have no two texts overlapping."""
-    from hlod_core.report import figures
+    from hlod_core.report import figures, per_frame_figure
 
     _, out_dir = short_run
     report = json.loads((out_dir / "report.json").read_text())
@@ -172,7 +172,7 @@ def test_short_run_figures_legible_and_per_frame_saved(short_run):
         assert np.mean(medians[key][:, COUNTERS.index("frame_ms")]) == pytest.approx(row["frame_ms"], rel=1e-5), key
     assert [p["name"] for p in report["parts"]] == ["orbit", "fly-through", "dolly", "rotate"]
     for fig in (figures.error_vs_time_figure(report, labels=evaluate.LABELS),
-                figures.per_frame_figure(report, medians, labels=evaluate.LABELS),
+                per_frame_figure.per_frame_figure(report, medians, labels=evaluate.LABELS),
                 figures.alpha_figure(report)):
         assert legible(fig) == []
         fig.clf()
