@@ -1,7 +1,7 @@
 """The Benchmark and Tune to PSNR operators' work: the scene camera's animation as a camera path,
 evaluated with every method (hlod_core.report.evaluate, DESIGN §9), or searched for the (s, t) with the
-fewest drawn nodes that keeps PSNR-Y against Bool at the scene's target (hlod_core.report.tuning, issue 15),
-in a private headless EGL context; Blender's own context is made current again afterwards (DESIGN §7).
+fewest drawn nodes that keeps PSNR-Y against Bool at the scene's target (hlod_core.report.tuning), in
+a private headless EGL context; Blender's own context is made current again afterwards (DESIGN §7).
 
 The report's figures need matplotlib, which no Blender ships (4.2 to 5.2) and the extension does not
 bundle (about 10 MB of wheels per Python and platform for four PNGs): without it the report is
@@ -15,10 +15,10 @@ import os
 import bpy
 import numpy as np
 
-from ..hlod_core.report import evaluate, tuning
+from ..hlod_core.core.errors import InputError
 from ..hlod_core.io import hlod_file
 from ..hlod_core.model.camera_path import CameraPath
-from ..hlod_core.core.errors import InputError
+from ..hlod_core.report import evaluate, tuning
 from . import glcontext, preview
 from .settings import runtime_settings
 

@@ -109,7 +109,7 @@ def execute(argv: list[str]) -> int:
         return _view(args)
     if args.command == "export":
         try:
-            summary = export_hlod(hlod_file.load(args.file), args.format, Path(args.output), Path(args.file).stem)
+            summary = export_hlod(hlod_file.load(args.file), args.format, Path(args.output), stem=Path(args.file).stem)
         except (HlodError, OSError) as exc:
             print(f"hlod: error: {exc}", file=sys.stderr)
             return 1
@@ -186,7 +186,7 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         outputs = {"hlod": str(target)}
         if "3dtiles" in args.format:
             tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
-            outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir, target.stem)["output"]
+            outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir, stem=target.stem)["output"]
     except (HlodError, OSError) as exc:
         print(f"hlod: {blend}: {exc}", file=sys.stderr)
         return {"blend": blend, "ok": False, "error": str(exc)}

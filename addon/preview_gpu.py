@@ -8,7 +8,7 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..hlod_core.model.hierarchy import Hlod, node_geometry, node_mesh
+from ..hlod_core.model.hierarchy import Hlod, node_geometry
 from ..hlod_core.render.glsl import FLAT_LIGHT, SRGB_FROM_LINEAR
 from ..hlod_core.model.appearance import NO_MATERIAL_BASE_COLOR
 
@@ -95,8 +95,8 @@ class NodeBatches:
 def _flat_batch(shader, hlod: Hlod, node: int):
     from gpu_extras.batch import batch_for_shader
 
-    positions, faces, _ = node_mesh(hlod, node)
-    return batch_for_shader(shader, "TRIS", {"pos": positions}, indices=faces.astype(np.int32))
+    geometry = node_geometry(hlod, node)
+    return batch_for_shader(shader, "TRIS", {"pos": geometry.positions}, indices=geometry.faces.astype(np.int32))
 
 
 def _look_shader():

@@ -1,11 +1,11 @@
 """Scene properties under `scene.hlod` (DESIGN §8): bake settings (with `jobs`, the bake's worker
-processes, and `last_bake`, the line the panel shows about the last bake), runtime settings, overlay settings,
-read-only live statistics (getters over the running preview; nothing is written from the draw
-handler), `psnr_target` and `last_tuning` (Tune to PSNR's target and its last result, issue 15),
-`tiles_dir` (the last 3D Tiles export, which View in Browser serves; issue 17), and two records
-(issue 20): the objects the last bake took, with content keys (`source_objects`, `source_file`;
-addon/source_record.py) and the objects the running preview hid (`hidden_objects`,
-`hidden_view_layer`; addon/source_hiding.py)."""
+processes, and `last_bake`, the line the panel shows about the last bake), runtime settings, overlay
+settings, read-only live statistics (getters over the running preview; nothing is written from the
+draw handler), `psnr_target` and `last_tuning` (Tune to PSNR's target and its last result),
+`tiles_dir` (the last 3D Tiles export, which View in Browser serves), and two records: the objects
+the last bake took, with content keys (`source_objects`, `source_file`; addon/source_record.py) and
+the objects the running preview hid (`hidden_objects`, `hidden_view_layer`;
+addon/source_hiding.py)."""
 import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
                        PointerProperty, StringProperty)
@@ -19,6 +19,17 @@ from . import preview, source_record
 # the option and refuses to register a property naming it. Detected by the RNA flag it sets.
 BLEND_RELATIVE_PATH = ({"PATH_SUPPORTS_BLEND_RELATIVE"}
                        if "is_path_supports_blend_relative" in bpy.types.Property.bl_rna.properties else set())
+
+
+
+def stored_path(path: str) -> str:
+    """How a path property stores `path`: relative to the .blend when it is saved (the file moves
+    with the project), else as given."""
+    try:
+        return bpy.path.relpath(path) if bpy.data.filepath else path
+    except ValueError:  # another drive on Windows
+        return path
+
 
 METHOD_ITEMS = [
     ("coh", "Coherent (Coh)", "Coherent VMSSE traversal with refine/stop/delay prediction (the method)"),
@@ -130,7 +141,7 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     show_corner_text: BoolProperty(name="Viewport Statistics", default=True,
                                    description="Method, drawn nodes, triangles (share of the sources'), queries and "
                                                "the last frame's milliseconds in the viewport's corner")
-    # --- records (issue 20) ---------------------------------------------------------------------
+    # --- records ---------------------------------------------------------------------------------
     source_objects: CollectionProperty(type=HLOD_PG_source_object, name="Baked Objects",
                                        description="The objects the last bake took, with content keys")
     source_file: StringProperty(name="Record Of", subtype="FILE_PATH", options=BLEND_RELATIVE_PATH,

@@ -1,45 +1,36 @@
-"""Blender meshes in and out of hlod_core (DESIGN §8).
-
-In: the evaluated geometry of the chosen objects (modifiers applied, instances from collection
-instances, particles and geometry nodes realised, world transforms), read through the depsgraph
-without touching the source objects, as one `meshio.TriangleMesh` in world units, with its
-appearance (issue 13, hlod_core/model/appearance.py):
+"""Blender meshes into hlod_core (DESIGN §8): the evaluated geometry of the chosen objects (modifiers
+applied, instances from collection instances, particles and geometry nodes realised, world
+transforms), read through the depsgraph without touching the source objects, as one
+`meshes.TriangleMesh` in world units, with its appearance (hlod_core/model/appearance.py):
 - per triangle, the material: loop_triangles' material_index resolved through the evaluated
   object's material slots to the material datablock; one `Material` row per datablock (keyed by
-  name_full, shared by every object and instance using it), the default row for an empty slot;
+  name_full, shared by every object and instance using it; addon/materials.py), the default row
+  for an empty slot;
 - per corner, the active render UV map and the active colour attribute (POINT or CORNER domain,
   linear `.color`). Vertices are split where their corners' values differ: one vertex per distinct
   (vertex, uv, colour) (`split_corners`).
 A selection with no material has no UVs either (nothing it draws uses them); one with no material,
-UV map or colour attribute gives a mesh without appearance, read as before this was added.
-Out: Blender mesh objects for a set of nodes (Materialize), in a collection of their own, with the
-source materials in their slots, the UV map and the colour attribute by their source names.
+UV map or colour attribute gives a mesh without appearance. The way out, Blender objects for a set
+of nodes, is addon/materialize.py.
 """
 from __future__ import annotations
 
-import logging
-import os
 from collections import Counter
 from dataclasses import dataclass
 
-import bpy
 import numpy as np
 
-from ..hlod_core.io import meshes as meshio
-from ..hlod_core.model.appearance import DEFAULT_BASE_COLOR, Material
 from ..hlod_core.core.errors import InputError
-from ..hlod_core.model.hierarchy import node_geometry
+from ..hlod_core.io import meshes
+from ..hlod_core.model.appearance import Material
+from .materials import DEFAULT_MATERIAL, cached_material_row
 
-log = logging.getLogger(__name__)
-
-#: The material row of a triangle whose slot is empty or whose object has no material (meshio.merge's).
-DEFAULT_MATERIAL = Material("default", DEFAULT_BASE_COLOR)
-#: Names Materialize gives the UV map and the colour attribute when the bake did not record them.
-DEFAULT_UV_MAP, DEFAULT_COLOR_ATTRIBUTE = "UVMap", "Color"
 _MESH_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
 
 
 def source_objects(context, props) -> list:
+    """The objects the Source setting names (`props`: scene.hlod): the selected objects, or every
+    object of the chosen collection with its children collections. InputError when there are none."""
     if props.source == "COLLECTION":
         if props.collection is None:
             raise InputError("Bake: choose a collection (Source: Collection)")
@@ -87,7 +78,7 @@ class _Part:
 
 
 def evaluated_mesh(context, objects, *, taken: list | None = None,
-                   attributes: dict | None = None) -> meshio.TriangleMesh:
+                   attributes: dict | None = None) -> meshes.TriangleMesh:
     """Triangles of every object in `objects` and of every instance they make, world space, with
     their appearance (module notes). taken: if given, receives the objects of `objects` that gave
     triangles, in `objects`' order. attributes: if given, receives the names of the UV map and the
@@ -111,14 +102,14 @@ def evaluated_mesh(context, objects, *, taken: list | None = None,
         raise InputError("Bake: the chosen objects have no triangles (meshes, curves or text with faces)")
     if taken is not None:
         taken.extend(o for o in objects if o.name_full in owners)
-    meshes = [_part_mesh(part) for part in parts]
+    part_meshes = [_part_mesh(part) for part in parts]
     if attributes is not None:
         if uv_names:
             attributes["uv_map"] = uv_names.most_common(1)[0][0]
         if colour_names:
             attributes["color_attribute"] = colour_names.most_common(1)[0][0]
     names = [part.label for part in parts]
-    return meshio.merge(meshes, name=", ".join(names[:3]) + (" ..." if len(names) > 3 else ""))
+    return meshes.merge(part_meshes, name=", ".join(names[:3]) + (" ..." if len(names) > 3 else ""))
 
 
 def _owner(inst):
@@ -140,32 +131,20 @@ def _read_instance(inst, depsgraph, label: str, *, rows: dict, uv_names: Counter
     map is read only when `uv_names` is given (the selection has materials), material indices
     only when the object has a material: nothing is read that the scene does not carry."""
     obj = inst.object
-    slots = [_material_row(slot.material, rows) if slot.material is not None else None for slot in obj.material_slots]
+    slots = [cached_material_row(slot.material, rows) if slot.material is not None else None
+             for slot in obj.material_slots]
     mesh = obj.to_mesh(preserve_all_data_layers=False, depsgraph=depsgraph)
     try:
         if mesh is None or len(mesh.loop_triangles) == 0 and not _triangulate(mesh):
             return None
         tris = len(mesh.loop_triangles)
-        positions = _get(mesh.vertices, "co", np.float64, 3)
-        corners = _get(mesh.loop_triangles, "vertices", np.int64, 3).ravel()
+        positions = _get(mesh.vertices, "co", dtype=np.float64, width=3)
+        corners = _get(mesh.loop_triangles, "vertices", dtype=np.int64, width=3).ravel()
         tri_slot = None
         if any(row is not None for row in slots):
-            tri_slot = np.clip(_get(mesh.loop_triangles, "material_index", np.int64, 1).ravel(), 0, len(slots) - 1)
-        uv_layer = None if uv_names is None else next((layer for layer in mesh.uv_layers if layer.active_render), None)
-        colour = mesh.color_attributes.active_color
-        corner_loops = None
-        if uv_layer is not None or colour is not None and colour.domain == "CORNER":
-            corner_loops = _get(mesh.loop_triangles, "loops", np.int64, 3).ravel()
-        corner_uvs = None
-        if uv_layer is not None:
-            corner_uvs = _get(uv_layer.data, "uv", np.float32, 2)[corner_loops]
-            uv_names[uv_layer.name] += 1
-        colors, domain = None, ""
-        if colour is not None:
-            colors, domain = _get(colour.data, "color", np.float32, 4), colour.domain
-            if domain == "CORNER":
-                colors = colors[corner_loops]
-            colour_names[colour.name] += 1
+            slot = _get(mesh.loop_triangles, "material_index", dtype=np.int64, width=1).ravel()
+            tri_slot = np.clip(slot, 0, len(slots) - 1)
+        corner_uvs, colors, domain = _corner_attributes(mesh, uv_names=uv_names, colour_names=colour_names)
     finally:
         obj.to_mesh_clear()
     matrix = np.array(inst.matrix_world, np.float64)
@@ -179,16 +158,38 @@ def _read_instance(inst, depsgraph, label: str, *, rows: dict, uv_names: Counter
                  color_domain=domain, tri_slot=tri_slot, slots=slots)
 
 
-def _get(collection, attribute: str, dtype, width: int) -> np.ndarray:
+def _corner_attributes(mesh, *, uv_names: Counter | None, colour_names: Counter):
+    """(corner_uvs (t*3,2) or None, colours (v,4) or (t*3,4) or None, their domain "POINT", "CORNER"
+    or ""): the active render UV map (read only when `uv_names` is given) and the active colour
+    attribute, per triangle corner; the names read are counted in `uv_names` / `colour_names`."""
+    uv_layer = None if uv_names is None else next((layer for layer in mesh.uv_layers if layer.active_render), None)
+    colour = mesh.color_attributes.active_color
+    corner_loops = None
+    if uv_layer is not None or colour is not None and colour.domain == "CORNER":
+        corner_loops = _get(mesh.loop_triangles, "loops", dtype=np.int64, width=3).ravel()
+    corner_uvs = None
+    if uv_layer is not None:
+        corner_uvs = _get(uv_layer.data, "uv", dtype=np.float32, width=2)[corner_loops]
+        uv_names[uv_layer.name] += 1
+    colors, domain = None, ""
+    if colour is not None:
+        colors, domain = _get(colour.data, "color", dtype=np.float32, width=4), colour.domain
+        if domain == "CORNER":
+            colors = colors[corner_loops]
+        colour_names[colour.name] += 1
+    return corner_uvs, colors, domain
+
+
+def _get(collection, attribute: str, *, dtype, width: int) -> np.ndarray:
     """collection's `attribute` for every item, (n, width) through foreach_get."""
     out = np.empty(len(collection) * width, dtype)
     collection.foreach_get(attribute, out)
     return out.reshape(-1, width)
 
 
-def _part_mesh(part: _Part) -> meshio.TriangleMesh:
+def _part_mesh(part: _Part) -> meshes.TriangleMesh:
     """The part as a TriangleMesh: vertices split where corner values differ; material ids when
-    this object has a material (meshio.merge gives the others the default row)."""
+    this object has a material (meshes.merge gives the others the default row)."""
     corner_colours = part.colors if part.color_domain == "CORNER" else None
     split = [a for a in (part.corner_uvs, corner_colours) if a is not None]
     vertex, faces, uvs, colors = None, part.corners.reshape(-1, 3), None, None
@@ -204,7 +205,7 @@ def _part_mesh(part: _Part) -> meshio.TriangleMesh:
         table = list(dict.fromkeys(row or DEFAULT_MATERIAL for row in part.slots))
         slot_row = np.array([table.index(row or DEFAULT_MATERIAL) for row in part.slots], np.int32)
         materials, material_ids = tuple(table), slot_row[part.tri_slot]
-    return meshio.from_arrays(positions, faces, name=part.label, uvs=uvs, colors=colors,
+    return meshes.from_arrays(positions, faces, name=part.label, uvs=uvs, colors=colors,
                               material_ids=material_ids, materials=materials)
 
 
@@ -237,152 +238,3 @@ def split_corners(corners: np.ndarray, values: list[np.ndarray]) -> tuple[np.nda
 def _triangulate(mesh) -> bool:
     mesh.calc_loop_triangles()
     return len(mesh.loop_triangles) > 0
-
-
-# --- materials -------------------------------------------------------------------------------------
-
-def _material_row(material, rows: dict) -> Material:
-    """The table row of a material datablock (evaluated or original), made once per datablock."""
-    material = material.original
-    row = rows.get(material.name_full)
-    if row is None:
-        row = rows[material.name_full] = material_row(material)
-    return row
-
-
-def material_row(material) -> Material:
-    """Base colour (linear RGBA), metallic, roughness and base-colour texture of a material: the
-    Principled BSDF's inputs when the material uses nodes, its viewport values otherwise. An Image
-    Texture node linked directly into Base Color gives `image` (the datablock's name, which the
-    preview draws) and `texture` (its file, for files on disk; None for packed or generated images)
-    and a white base colour (Blender ignores the socket's own value then)."""
-    base, metallic, roughness = tuple(material.diffuse_color), material.metallic, material.roughness
-    texture = image = None
-    principled = _principled(material)
-    if principled is not None:
-        base_in = principled.inputs["Base Color"]
-        base = tuple(base_in.default_value)
-        metallic, roughness = principled.inputs["Metallic"].default_value, principled.inputs["Roughness"].default_value
-        source = base_in.links[0].from_node if base_in.is_linked else None
-        if source is not None and source.type == "TEX_IMAGE" and source.image is not None:
-            base, image, texture = (1.0, 1.0, 1.0, 1.0), source.image.name, _image_file(source.image, material)
-    return Material(name=material.name_full, base_color=tuple(float(np.clip(c, 0.0, 1.0)) for c in base),
-                    metallic=float(np.clip(metallic, 0.0, 1.0)), roughness=float(np.clip(roughness, 0.0, 1.0)),
-                    texture=texture, image=image)
-
-
-def _uses_nodes(material) -> bool:
-    """Blender 5 always draws a material's node tree (use_nodes is deprecated there)."""
-    return material.node_tree is not None and (bpy.app.version >= (5, 0, 0) or material.use_nodes)
-
-
-def _principled(material):
-    """The Principled BSDF feeding the active output's Surface, else the tree's first one, else None."""
-    if not _uses_nodes(material):
-        return None
-    output = material.node_tree.get_output_node("ALL")
-    surface = output.inputs["Surface"] if output is not None else None
-    if surface is not None and surface.is_linked and surface.links[0].from_node.type == "BSDF_PRINCIPLED":
-        return surface.links[0].from_node
-    return next((node for node in material.node_tree.nodes if node.type == "BSDF_PRINCIPLED"), None)
-
-
-def _image_file(image, material) -> str | None:
-    """The image's file on disk, absolute; None (with a warning) when it has none there."""
-    if image.source == "FILE" and image.packed_file is None:
-        path = os.path.normpath(bpy.path.abspath(image.filepath, library=image.library))
-        if os.path.isfile(path):
-            return path
-        why = f"its file {path} does not exist"
-    else:
-        why = ("it is packed into the .blend" if image.packed_file is not None
-               else f"it is a {image.source.lower()} image")
-    log.warning("HLOD bake: material %r: image %r has no file on disk (%s); the preview draws it, the "
-                ".hlod file refers to no texture for it", material.name_full, image.name, why)
-    return None
-
-
-# --- Materialize -----------------------------------------------------------------------------------
-
-def materialize(hlod, nodes, name: str) -> bpy.types.Collection:
-    """One mesh object per node, world positions (file origin added back), in a new collection
-    linked to the scene: the materials the node uses in its slots (the source's datablocks by name
-    where they exist, else new Principled materials made from the table), the UV map and the
-    colour attribute (per vertex: POINT domain) by the names the bake recorded. Returns the collection."""
-    collection = bpy.data.collections.new(name)
-    bpy.context.scene.collection.children.link(collection)
-    made: dict[int, object] = {}  # table row -> material datablock, shared by the objects
-    uv_name = str(hlod.meta.get("uv_map") or DEFAULT_UV_MAP)
-    colour_name = str(hlod.meta.get("color_attribute") or DEFAULT_COLOR_ATTRIBUTE)
-    for node in nodes:
-        node = int(node)
-        geometry = node_geometry(hlod, node)
-        mesh = _node_mesh_data(f"{name} node {node}", geometry, hlod.origin)
-        if geometry.uvs is not None:
-            layer = mesh.uv_layers.new(name=uv_name)
-            layer.data.foreach_set("uv", geometry.uvs[geometry.faces.ravel()].ravel())
-        if geometry.colors is not None:
-            colour = mesh.color_attributes.new(colour_name, "FLOAT_COLOR", "POINT")
-            colour.data.foreach_set("color", geometry.colors.ravel())
-            mesh.color_attributes.active_color = colour
-            mesh.color_attributes.render_color_index = mesh.color_attributes.active_color_index
-        if geometry.face_material is not None:
-            used, local = np.unique(geometry.face_material, return_inverse=True)
-            for row in used.tolist():
-                if row not in made:
-                    made[row] = _material_for(hlod.materials[row])
-                mesh.materials.append(made[row])
-            mesh.polygons.foreach_set("material_index", local.astype(np.int32))
-        mesh.update()
-        mesh.validate()
-        obj = bpy.data.objects.new(f"{name} node {node}", mesh)
-        obj["hlod_node"] = node
-        obj["hlod_depth"] = int(hlod.depth[node])
-        collection.objects.link(obj)
-    return collection
-
-
-def _node_mesh_data(name: str, geometry, origin: np.ndarray):
-    """A Blender mesh of one node's triangles, world positions."""
-    positions = geometry.positions.astype(np.float64) + origin
-    faces = geometry.faces
-    mesh = bpy.data.meshes.new(name)
-    mesh.vertices.add(positions.shape[0])
-    mesh.vertices.foreach_set("co", positions.astype(np.float32).ravel())
-    mesh.loops.add(faces.size)
-    mesh.loops.foreach_set("vertex_index", faces.ravel().astype(np.int32))
-    mesh.polygons.add(faces.shape[0])
-    mesh.polygons.foreach_set("loop_start", np.arange(0, faces.size, 3, dtype=np.int32))
-    return mesh
-
-
-def _material_for(row: Material):
-    """The source's material datablock of that name, else a new Principled material from the row."""
-    material = bpy.data.materials.get(row.name)
-    if material is not None:
-        return material
-    material = bpy.data.materials.new(row.name)
-    material.diffuse_color, material.metallic, material.roughness = row.base_color, row.metallic, row.roughness
-    if material.node_tree is None:  # Blender 4: a new material has no nodes until asked
-        material.use_nodes = True
-    principled = _principled(material)
-    if principled is None:
-        return material
-    principled.inputs["Base Color"].default_value = row.base_color
-    principled.inputs["Metallic"].default_value = row.metallic
-    principled.inputs["Roughness"].default_value = row.roughness
-    image = bpy.data.images.get(row.image) if row.image else None
-    if image is None and row.texture and os.path.isfile(row.texture):
-        image = bpy.data.images.load(row.texture, check_existing=True)
-    if image is not None:
-        node = material.node_tree.nodes.new("ShaderNodeTexImage")
-        node.image = image
-        node.location = (principled.location.x - 300.0, principled.location.y)
-        material.node_tree.links.new(node.outputs["Color"], principled.inputs["Base Color"])
-    return material
-
-
-def nodes_at_depth(hlod, depth: int) -> np.ndarray:
-    """The cut at `depth`: nodes at that level, plus leaves above it."""
-    level = np.asarray(hlod.depth)
-    return np.flatnonzero((level == depth) | ((hlod.child_count == 0) & (level < depth)))

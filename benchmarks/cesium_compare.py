@@ -1,75 +1,49 @@
 """The tiles CesiumJS chooses for a view against the nodes our VFC traversal draws for the same
-camera and the same screen-space-error threshold (issue 17).
+camera and the same screen-space-error threshold.
 
-    PYTHONPATH=. .venv/bin/python -m benchmarks.cesium_compare [--scale 0.25] [--target-tris 1000]
-        [--size 800x600] [--tau 16 4] [--json OUT.json]
+    PYTHONPATH=. .venv/bin/python -m benchmarks.cesium_compare [--scene terrain city] [--tau 16 2]
+        [--size 800x600] [--json OUT.json]
 
-bakes the default city (procedural.default_scene at `--scale`), exports it as 3D Tiles, serves it with
-hlod_core.export.viewer, opens the viewer page in Chromium (Playwright, /usr/bin/chromium, WebGL through
-SwiftShader), and for each camera of `CAMERAS` and each threshold prints |ours|, |Cesium's|, the
-intersection, the Jaccard index, Cesium's choice as predicted by `cesium_select` (a re-implementation
-of Cesium's rule, must equal what Cesium chose) and, for every tile in one set only, the term that
-decides it.
+bakes a scene of `scene_setups`, exports it as 3D Tiles, serves it with hlod_core.export.viewer,
+opens the viewer page in Chromium (Playwright, /usr/bin/chromium, WebGL through SwiftShader), and
+for each camera and each threshold prints |ours|, |Cesium's|, the intersection, the Jaccard index,
+Cesium's choice as predicted by `cesium_rule.cesium_select` (a re-implementation of Cesium's rule,
+must equal what Cesium chose) and, for every tile in one set only, the term of TERMS that decides it.
+
+Both rules compute `SSE = geometricError * H / (d * 2 tan(fovy / 2))` and refine while SSE > tau;
+they differ in the distance (our node's sphere, Cesium's box), Cesium's culling with children
+bounds, Cesium keeping a tile with no visible child, the root's tileset error, and boxes touching a
+frustum plane. Why: docs/how-it-works.md#our-selection-against-cesiumjss
 
 Data form: a baked `Hlod` and its export's tileset.json (one tile per node with triangles, content
-uri "tiles/<node>.glb", box = the node's subtree box, geometricError = the node's error); a
-`Camera` in the tileset's frame, which is our model space (Blender's Z up, metres; the page maps it
-to Cesium's frame with the rigid transform it places the tileset with, which changes no distance).
-
-Both rules compute `SSE = geometricError * H / (d * 2 tan(fovy / 2))` and refine while SSE > tau
-(we stop at SSE <= tau: the same comparison). They differ in (Cesium 1.1xx,
-Cesium3DTile.getScreenSpaceError, Cesium3DTilesetBaseTraversal, Cesium3DTilesetTraversal):
-- **distance** (`DISTANCE`): ours is to the node's bounding sphere, d = |e - c| - r (DESIGN §5.1),
-  Cesium's to the tile's box (OrientedBoundingBox.distanceSquaredTo, 0 inside, clamped to 1e-7).
-  The sphere contains the box's geometry but reaches closer to the eye than the box, so our SSE is
-  the larger one and we refine some tiles Cesium keeps: ours is the finer (deeper) set.
-- **culling with children bounds** (`CHILDREN_BOUNDS`, Cesium's `cullWithChildrenBounds`, default
-  on): a tile whose children all lie within it (Cesium3DTileOptimizations.checkChildrenWithinParent,
-  strictly, along the axis from its centre to each child's) counts as invisible when none of its
-  children's boxes meets the frustum. We test only the node's own box.
-- **a refinement needs a visible child** (`NO_VISIBLE_CHILD`): Cesium keeps a tile whose SSE is
-  above tau when no child is visible (updateAndPushChildren: `anyChildrenVisible`); our VFC descends
-  and draws nothing there.
-- **the root** (`ROOT_ERROR`): Cesium draws nothing unless the root, with the tileset's own
-  geometricError (our root box diagonal), is above tau; our VFC always draws at least the root.
-- **frustum** (`FRUSTUM`): both test a box plane by plane (conservative, same planes); Cesium counts
-  a box touching a plane from outside (distance = -radius) as outside, we as inside.
-- H is the drawing buffer's height divided by Cesium's pixelRatio (1 at resolutionScale 1 with
-  useBrowserRecommendedResolution) for Cesium, the viewport height for us: the same here. Cesium
-  waits for all children to load before refining (REPLACE, skipLevelOfDetail off); once
-  `allTilesLoaded` every one it needs is loaded, so that changes nothing at rest.
+uri "tiles/<node>.glb", box = the node's subtree box, geometricError = the node's error), read as a
+`cesium_rule.Tileset`; a `cesium_rule.Camera` in the tileset's frame.
 """
 from __future__ import annotations
 
 import argparse
 import json
-import math
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from hlod_core.traversal import boxes, metrics
 from hlod_core.export import tiles3d
-from hlod_core.model.hierarchy import Hlod
+from hlod_core.model.hierarchy import Hlod, query_box_pad
+from hlod_core.model.view import View
+from hlod_core.traversal import boxes, metrics
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
-from hlod_core.model.view import View, look_at, perspective
 
-#: Cesium's CesiumMath.EPSILON7: the smallest eye-to-box distance its SSE divides by.
-CESIUM_MIN_DISTANCE_M = 1e-7
-#: The near and far planes of the frustum Cesium's Camera makes (1.145: 0.1 and 5e8 m).
-CESIUM_NEAR_M, CESIUM_FAR_M = 0.1, 5e8
-#: CullingVolume plane masks.
-MASK_INSIDE, MASK_OUTSIDE, MASK_INDETERMINATE = 0, 0xFFFFFFFF, 0x7FFFFFFF
-OUTSIDE, INTERSECTING, INSIDE = -1, 0, 1
+from .cesium_rule import CESIUM_FAR_M, CESIUM_NEAR_M, Camera, CesiumChoice, Tileset, cesium_select
+
 #: An SSE or a plane distance this close (relative) to its threshold is a tie the two programs
 #: may round either way (Cesium works in its own frame, a rigid transform of ours).
 TIE_RELATIVE = 1e-9
 
-#: Terms that decide a tile chosen by one side only (the module docstring explains each).
+#: Terms that decide a tile chosen by one side only (docs/how-it-works.md explains each).
 DISTANCE = "distance: sphere (ours) vs box (Cesium)"
 EYE_IN_SPHERE = "eye inside the node's sphere: ours refines whatever its error, Cesium divides it by the box distance"
 CHILDREN_BOUNDS = "Cesium culls a tile none of whose children is in the frustum (cullWithChildrenBounds)"
@@ -77,267 +51,7 @@ NO_VISIBLE_CHILD = "Cesium keeps a tile above tau when no child is in the frustu
 ROOT_ERROR = "root: Cesium draws nothing while the tileset geometricError is within tau"
 FRUSTUM = "frustum test at a plane (touching boxes)"
 TERMS = (DISTANCE, EYE_IN_SPHERE, CHILDREN_BOUNDS, NO_VISIBLE_CHILD, ROOT_ERROR, FRUSTUM)
-
-
-@dataclass(frozen=True)
-class Camera:
-    """A perspective camera in the tileset's frame (our model space, Z up, metres).
-
-    position, direction, up: (3,) float64 (direction and up orthonormal, as Cesium keeps them);
-    fovy_rad: vertical field of view; near_m, far_m: Cesium's frustum planes;
-    buffer_px: (width, height) of the drawing buffer; pixel_ratio: Cesium's scene.pixelRatio
-    (SSE is computed for buffer height / pixel_ratio pixels)."""
-
-    position: tuple
-    direction: tuple
-    up: tuple
-    fovy_rad: float
-    buffer_px: tuple = (800, 600)
-    near_m: float = CESIUM_NEAR_M
-    far_m: float = CESIUM_FAR_M
-    pixel_ratio: float = 1.0
-
-    @classmethod
-    def looking_at(cls, eye, target, up=(0.0, 0.0, 1.0), *, fovy_deg: float = 60.0, **kw) -> "Camera":
-        eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
-        direction = (target - eye) / np.linalg.norm(target - eye)
-        right = np.cross(direction, up)
-        right /= np.linalg.norm(right)
-        return cls(position=tuple(eye), direction=tuple(direction), up=tuple(np.cross(right, direction)),
-                   fovy_rad=math.radians(fovy_deg), **kw)
-
-    @property
-    def height_px(self) -> float:
-        return self.buffer_px[1] / self.pixel_ratio
-
-    def view(self) -> View:
-        """Our View of the same camera: look-at, perspective with the same fovy, aspect, near, far,
-        viewport = the drawing buffer over the pixel ratio (SSE uses its height)."""
-        eye = np.asarray(self.position, np.float64)
-        w, h = self.buffer_px
-        return View(eye=eye, view=look_at(eye, eye + np.asarray(self.direction), self.up),
-                    projection=perspective(math.degrees(self.fovy_rad), w / h, self.near_m, self.far_m),
-                    width=int(round(w / self.pixel_ratio)), height=int(round(h / self.pixel_ratio)))
-
-    def to_page(self) -> dict:
-        """The argument of window.hlodViewer.setCamera."""
-        return {"position": list(self.position), "direction": list(self.direction), "up": list(self.up),
-                "fovyRadians": self.fovy_rad}
-
-
-# --- the tileset as Cesium reads it -------------------------------------------------------------
-
-@dataclass
-class Tileset:
-    """tileset.json as arrays, in the tileset's frame (transforms applied), tiles in depth-first
-    order (root 0): uri (content uri or None), node (our node id from the uri, -1 without content),
-    parent (n,) int, children: lists of rows, center (n,3), half_axes (n,3,3) with the box's half
-    axes as columns, geometric_error (n,), depth (n,); tileset_error: the tileset's geometricError."""
-
-    uri: list
-    node: np.ndarray
-    parent: np.ndarray
-    children: list
-    center: np.ndarray
-    half_axes: np.ndarray
-    geometric_error: np.ndarray
-    depth: np.ndarray
-    tileset_error: float
-    row_of_uri: dict = field(default_factory=dict)
-
-    @classmethod
-    def read(cls, tileset_json: Path) -> "Tileset":
-        doc = json.loads(Path(tileset_json).read_text())
-        uri, parent, children, center, axes, error, depth = [], [], [], [], [], [], []
-
-        def visit(tile: dict, parent_row: int, parent_transform: np.ndarray, level: int) -> int:
-            local = np.asarray(tile.get("transform", np.eye(4).ravel()), np.float64).reshape(4, 4).T  # column-major
-            transform = parent_transform @ local
-            box = np.asarray(tile["boundingVolume"]["box"], np.float64)
-            row = len(uri)
-            uri.append((tile.get("content") or {}).get("uri"))
-            parent.append(parent_row)
-            children.append([])
-            center.append(transform[:3, :3] @ box[:3] + transform[:3, 3])
-            axes.append(transform[:3, :3] @ box[3:].reshape(3, 3).T)  # columns: the half axes
-            error.append(float(tile["geometricError"]))
-            depth.append(level)
-            for child in tile.get("children", []):
-                children[row].append(visit(child, row, transform, level + 1))
-            return row
-
-        visit(doc["root"], -1, np.eye(4), 0)
-        node = np.array([int(Path(u).stem) if u else -1 for u in uri], np.int64)
-        return cls(uri=uri, node=node, parent=np.asarray(parent), children=children, center=np.asarray(center),
-                   half_axes=np.asarray(axes), geometric_error=np.asarray(error), depth=np.asarray(depth),
-                   tileset_error=float(doc["geometricError"]),
-                   row_of_uri={u: i for i, u in enumerate(uri) if u})
-
-    @property
-    def tile_count(self) -> int:
-        return len(self.uri)
-
-
-def children_within_parent(ts: Tileset) -> np.ndarray:
-    """(n,) bool: Cesium3DTileOptimizations.checkChildrenWithinParent, formula for formula: for each
-    child, the parent's and the child's boxes projected on the unit axis from the parent's centre to
-    the child's (sum over the half-axis matrix entries of |entry * axis component|); the optimisation
-    holds only if proj_parent > proj_child + |axis| for every child (a shared centre gives NaN,
-    which never fails the test). Leaves keep True (Cesium's value; unused without children)."""
-    out = np.ones(ts.tile_count, bool)
-    for row, kids in enumerate(ts.children):
-        for child in kids:
-            axis = ts.center[child] - ts.center[row]
-            length = np.linalg.norm(axis)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                axis = axis / length
-            # halfAxes[3 * column + r] * axis[r]: column-major entries times the axis component of their row
-            proj_parent = np.sum(np.abs(ts.half_axes[row] * axis[:, None]))
-            proj_child = np.sum(np.abs(ts.half_axes[child] * axis[:, None]))
-            if proj_parent <= proj_child + length:
-                out[row] = False
-                break
-    return out
-
-
-# --- Cesium's camera, culling volume and SSE ----------------------------------------------------
-
-def cesium_planes(camera: Camera) -> np.ndarray:
-    """(6,4) planes (normal, w), inside where n.x + w >= 0, built as Cesium's
-    PerspectiveOffCenterFrustum.computeCullingVolume does: left, right, bottom, top through the eye,
-    near, far."""
-    position, direction, up = (np.asarray(v, np.float64) for v in (camera.position, camera.direction, camera.up))
-    right = np.cross(direction, up)
-    w, h = camera.buffer_px
-    top = camera.near_m * math.tan(0.5 * camera.fovy_rad)
-    r = (w / h) * top
-    near_center = position + direction * camera.near_m
-    far_center = position + direction * camera.far_m
-
-    def unit(v):
-        return v / np.linalg.norm(v)
-
-    def through_eye(normal):
-        return np.append(normal, -normal @ position)
-
-    left_plane = through_eye(unit(np.cross(unit(near_center - right * r - position), up)))
-    right_plane = through_eye(unit(np.cross(up, unit(near_center + right * r - position))))
-    bottom_plane = through_eye(unit(np.cross(right, unit(near_center - up * top - position))))
-    top_plane = through_eye(unit(np.cross(unit(near_center + up * top - position), right)))
-    near_plane = np.append(direction, -direction @ near_center)
-    far_plane = np.append(-direction, direction @ far_center)
-    return np.array([left_plane, right_plane, bottom_plane, top_plane, near_plane, far_plane])
-
-
-def box_plane_intersections(ts: Tileset, planes: np.ndarray) -> np.ndarray:
-    """(n,6) OrientedBoundingBox.intersectPlane per tile and plane: OUTSIDE when the centre's
-    signed distance <= -r, INSIDE when >= r, else INTERSECTING; r = sum_k |n . half_axis_k|."""
-    radius = np.abs(np.einsum("pi,nik->npk", planes[:, :3], ts.half_axes)).sum(axis=2)
-    distance = ts.center @ planes[:, :3].T + planes[:, 3]
-    return np.where(distance <= -radius, OUTSIDE, np.where(distance >= radius, INSIDE, INTERSECTING))
-
-
-def box_distances(ts: Tileset, eye: np.ndarray) -> np.ndarray:
-    """(n,) OrientedBoundingBox.distanceSquaredTo's square root: eye to box, 0 inside."""
-    offset = eye - ts.center
-    half = np.linalg.norm(ts.half_axes, axis=1)  # (n,3) half lengths of the axes (columns)
-    along = np.einsum("ni,nik->nk", offset, ts.half_axes) / half
-    outside = np.maximum(np.abs(along) - half, 0.0)
-    return np.sqrt(np.sum(outside * outside, axis=1))
-
-
-def sse_px(error: np.ndarray, distance: np.ndarray, camera: Camera) -> np.ndarray:
-    """Cesium3DTile.getScreenSpaceError (perspective, no dynamic SSE): error * H / (d * 2 tan(fovy/2))
-    / pixelRatio, d clamped to CESIUM_MIN_DISTANCE_M, 0 where the error is 0."""
-    buffer_height = camera.buffer_px[1]
-    denominator = 2.0 * math.tan(0.5 * camera.fovy_rad)
-    out = error * buffer_height / (np.maximum(distance, CESIUM_MIN_DISTANCE_M) * denominator) / camera.pixel_ratio
-    return np.where(error == 0.0, 0.0, out)
-
-
-@dataclass
-class CesiumChoice:
-    """What `cesium_select` decided: selected rows (in traversal order), and per tile (n,) the
-    box distance, SSE, the children-bounds flag, and whether the traversal tested the tile's
-    visibility (`tested`) and found it visible (`visible`) or refined it (`refines`)."""
-
-    selected: list
-    distance: np.ndarray
-    sse: np.ndarray
-    root_sse: float
-    within_parent: np.ndarray
-    tested: np.ndarray
-    visible: np.ndarray
-    box_visible: np.ndarray
-    refines: np.ndarray
-
-
-def cesium_select(ts: Tileset, camera: Camera, max_sse_px: float) -> CesiumChoice:
-    """Cesium3DTilesetBaseTraversal.selectTiles (REPLACE, skipLevelOfDetail off) at rest, i.e. with
-    every tile it asked for loaded (the state `allTilesLoaded` reports): the root is visible and its
-    SSE with the tileset's geometricError exceeds tau, else nothing; a tile refines when its own SSE
-    exceeds tau and a child is visible (all children are loaded), else it is selected. Visibility:
-    the box against the culling volume with the parent's plane mask, then culled when the tile's
-    children lie within it and none of theirs is visible."""
-    n = ts.tile_count
-    planes = cesium_planes(camera)
-    plane_test = box_plane_intersections(ts, planes)
-    within = children_within_parent(ts)
-    distance = box_distances(ts, np.asarray(camera.position, np.float64))
-    sse = sse_px(ts.geometric_error, distance, camera)
-    root_sse = float(sse_px(np.array([ts.tileset_error]), distance[:1], camera)[0])
-    mask = np.full(n, MASK_INDETERMINATE, np.int64)
-    tested, visible, box_visible, refines = (np.zeros(n, bool) for _ in range(4))
-
-    def plane_mask(row: int, parent_mask: int) -> int:
-        """CullingVolume.computeVisibilityWithPlaneMask."""
-        if parent_mask in (MASK_OUTSIDE, MASK_INSIDE):
-            return parent_mask
-        out = MASK_INSIDE
-        for k in range(planes.shape[0]):
-            flag = 1 << k
-            if not parent_mask & flag:
-                continue
-            if plane_test[row, k] == OUTSIDE:
-                return MASK_OUTSIDE
-            if plane_test[row, k] == INTERSECTING:
-                out |= flag
-        return out
-
-    def update_visibility(row: int) -> bool:
-        """Cesium3DTile.updateVisibility: the tile's own box."""
-        parent = ts.parent[row]
-        mask[row] = plane_mask(row, MASK_INDETERMINATE if parent < 0 else int(mask[parent]))
-        box_visible[row] = mask[row] != MASK_OUTSIDE
-        return bool(box_visible[row])
-
-    def update_tile(row: int) -> None:
-        """Cesium3DTilesetTraversal.updateTileVisibility (REPLACE tiles: no early SSE test)."""
-        tested[row] = True
-        visible[row] = update_visibility(row)
-        if visible[row] and ts.children[row] and within[row]:
-            # anyChildrenVisible, which stops at the first visible child
-            visible[row] = any(update_visibility(child) for child in ts.children[row])
-
-    selected: list = []
-    update_tile(0)
-    if not visible[0] or root_sse <= max_sse_px:
-        return CesiumChoice(selected, distance, sse, root_sse, within, tested, visible, box_visible, refines)
-    stack = [0]
-    while stack:
-        row = stack.pop()
-        if ts.children[row] and sse[row] > max_sse_px:  # canTraverse
-            kids = ts.children[row]
-            for child in kids:
-                update_tile(child)
-            # sortChildrenByDistanceToCamera: farthest first on the stack, nearest popped first
-            for child in sorted(kids, key=lambda c: -distance[c]):
-                if visible[child]:
-                    stack.append(child)
-            refines[row] = bool(any(visible[c] for c in kids))
-        if not refines[row] and ts.uri[row]:
-            selected.append(row)  # selectDesiredTile; no content bounding volume: contentVisibility INSIDE
-    return CesiumChoice(selected, distance, sse, root_sse, within, tested, visible, box_visible, refines)
+UNEXPLAINED = "unexplained"
 
 
 # --- our side -----------------------------------------------------------------------------------
@@ -348,8 +62,6 @@ class SelectionOnly:
     gives VFC the same nodes."""
 
     def __init__(self, hlod: Hlod):
-        from hlod_core.model.hierarchy import query_box_pad
-
         self.query_box_pad = query_box_pad(hlod.box_min, hlod.box_max)
 
     def begin_frame(self, view: View) -> None:
@@ -371,7 +83,7 @@ class SelectionOnly:
         raise AssertionError("VFC issues no occlusion queries")
 
 
-def vfc_nodes(hlod: Hlod, camera: Camera, tau_px: float, renderer=None) -> list[int]:
+def vfc_nodes(hlod: Hlod, camera: Camera, *, tau_px: float, renderer=None) -> list[int]:
     """The nodes our VFC traversal draws for `camera` at threshold `tau_px` (traversal.VFC, one frame),
     in draw order; `renderer` defaults to SelectionOnly."""
     traversal = make("vfc", hlod, renderer or SelectionOnly(hlod), settings=RuntimeSettings(tau=tau_px))
@@ -409,7 +121,7 @@ def node_of_row(ts: Tileset, hlod: Hlod) -> np.ndarray:
 @dataclass
 class Difference:
     """A tile one side chose and the other did not: `side` "ours" or "cesium" (who chose it), the
-    deciding term (one of TERMS, or "unexplained"), `tie` when the deciding values sit within
+    deciding term (one of TERMS, or UNEXPLAINED), `tie` when the deciding values sit within
     TIE_RELATIVE of each other, and a line with the figures."""
 
     uri: str
@@ -420,59 +132,87 @@ class Difference:
     at: str = ""  # the tile where the two rules decide differently
 
 
-def explain(ts: Tileset, hlod: Hlod, camera: Camera, tau_px: float, ours: set, cesium: set,
+@dataclass
+class _OurRule:
+    """Our VFC's per-node decisions for one view: node of each tile row (n_tiles,), in the frustum,
+    sphere distance (model units) and SSE (pixels) per node, leaves."""
+
+    nodes: np.ndarray
+    in_frustum: np.ndarray
+    sphere_d: np.ndarray
+    sse: np.ndarray
+    is_leaf: np.ndarray
+
+    @classmethod
+    def of(cls, ts: Tileset, hlod: Hlod, view: View) -> "_OurRule":
+        return cls(nodes=node_of_row(ts, hlod), in_frustum=boxes.boxes_in_frustum(view, hlod.box_min, hlod.box_max),
+                   sphere_d=metrics.sphere_distance(view, hlod.sphere_center, hlod.sphere_radius),
+                   sse=metrics.sse(view, hlod.error, center=hlod.sphere_center, radius=hlod.sphere_radius,
+                                   is_leaf=hlod.is_leaf),
+                   is_leaf=hlod.is_leaf)
+
+
+def explain(ts: Tileset, hlod: Hlod, camera: Camera, *, tau_px: float, ours: set, cesium: set,
             choice: CesiumChoice) -> list[Difference]:
     """For every tile in one set only, the first node on its path from the root where our VFC and
     Cesium's rule decide differently (enter: in the frustum / visible; refine), and the term that
     makes them differ there."""
-    view = camera.view()
-    nodes = node_of_row(ts, hlod)
-    in_frustum = boxes.boxes_in_frustum(view, hlod.box_min, hlod.box_max)
-    sphere_d = metrics.sphere_distance(view, hlod.sphere_center, hlod.sphere_radius)
-    our_sse = metrics.sse(view, hlod.error, center=hlod.sphere_center, radius=hlod.sphere_radius, is_leaf=hlod.is_leaf)
+    rule = _OurRule.of(ts, hlod, camera.view())
     out = []
     for uri in sorted(ours ^ cesium, key=lambda u: (ts.depth[ts.row_of_uri[u]], u)):
-        row = ts.row_of_uri[uri]
-        path = [row]
+        path = [ts.row_of_uri[uri]]
         while ts.parent[path[-1]] >= 0:
             path.append(int(ts.parent[path[-1]]))
-        term, tie, detail, at = "unexplained", False, "no decision differs on the path", uri
-        for a in reversed(path):
-            at = ts.uri[a]
-            node = int(nodes[a])
-            where = f"{ts.uri[a]} (depth {ts.depth[a]})"
-            ours_enter = bool(in_frustum[node])
-            cesium_enter = bool(choice.visible[a]) and (a != 0 or choice.root_sse > tau_px)
-            if ours_enter != cesium_enter:
-                if a == 0 and choice.visible[0]:
-                    term, tie = ROOT_ERROR, _tie(choice.root_sse, tau_px)
-                    detail = (f"root SSE with the tileset error {ts.tileset_error:.4g} m: "
-                              f"{choice.root_sse:.4g} px <= tau {tau_px:g}")
-                elif ours_enter and choice.box_visible[a] and not choice.visible[a]:
-                    term = CHILDREN_BOUNDS
-                    detail = f"{where}: its box meets the frustum, none of its {len(ts.children[a])} children's does"
-                else:
-                    term = FRUSTUM
-                    detail = f"{where}: in our frustum {ours_enter}, Cesium's box test {bool(choice.box_visible[a])}"
+        term, tie, detail, at = UNEXPLAINED, False, "no decision differs on the path", uri
+        for row in reversed(path):
+            at = ts.uri[row]
+            decided = _entry_term(ts, rule, choice, row=row, tau_px=tau_px)
+            if decided is None and bool(rule.in_frustum[int(rule.nodes[row])]):
+                decided = _refine_term(ts, rule, choice, row=row, tau_px=tau_px)
+            elif decided is None:  # neither enters: nothing below differs
                 break
-            if not ours_enter:
-                break
-            ours_refine = not hlod.is_leaf[node] and our_sse[node] > tau_px
-            cesium_refine = bool(choice.refines[a])
-            if ours_refine != cesium_refine:
-                figures = (f"{where}: ours {our_sse[node]:.4g} px (sphere distance {sphere_d[node]:.4g} m), "
-                           f"Cesium {choice.sse[a]:.4g} px (box distance {choice.distance[a]:.4g} m), "
-                           f"tau {tau_px:g}, error {ts.geometric_error[a]:.4g} m")
-                if (our_sse[node] > tau_px) != (choice.sse[a] > tau_px):
-                    term = EYE_IN_SPHERE if sphere_d[node] <= 0 else DISTANCE
-                    tie = _tie(our_sse[node], tau_px) or _tie(choice.sse[a], tau_px)
-                elif choice.sse[a] > tau_px and not any(choice.visible[c] for c in ts.children[a]):
-                    term = NO_VISIBLE_CHILD
-                detail = figures
+            if decided is not None:
+                term, tie, detail = decided
                 break
         out.append(Difference(uri=uri, side="ours" if uri in ours else "cesium", term=term, tie=tie, detail=detail,
                               at=at))
     return out
+
+
+def _entry_term(ts: Tileset, rule: _OurRule, choice: CesiumChoice, *, row: int, tau_px: float):
+    """(term, tie, detail) when our VFC and Cesium differ on entering tile `row` (in the frustum /
+    visible), else None."""
+    node = int(rule.nodes[row])
+    where = f"{ts.uri[row]} (depth {ts.depth[row]})"
+    ours_enter = bool(rule.in_frustum[node])
+    cesium_enter = bool(choice.visible[row]) and (row != 0 or choice.root_sse > tau_px)
+    if ours_enter == cesium_enter:
+        return None
+    if row == 0 and choice.visible[0]:
+        return (ROOT_ERROR, _tie(choice.root_sse, tau_px), f"root SSE with the tileset error {ts.tileset_error:.4g} m: "
+                f"{choice.root_sse:.4g} px <= tau {tau_px:g}")
+    if ours_enter and choice.box_visible[row] and not choice.visible[row]:
+        return (CHILDREN_BOUNDS, False,
+                f"{where}: its box meets the frustum, none of its {len(ts.children[row])} children's does")
+    return FRUSTUM, False, f"{where}: in our frustum {ours_enter}, Cesium's box test {bool(choice.box_visible[row])}"
+
+
+def _refine_term(ts: Tileset, rule: _OurRule, choice: CesiumChoice, *, row: int, tau_px: float):
+    """(term, tie, detail) when both enter tile `row` and differ on refining it, else None; the
+    term is UNEXPLAINED when neither SSE side nor a missing visible child explains it."""
+    node = int(rule.nodes[row])
+    ours_refine = not rule.is_leaf[node] and rule.sse[node] > tau_px
+    if ours_refine == bool(choice.refines[row]):
+        return None
+    figures = (f"{ts.uri[row]} (depth {ts.depth[row]}): ours {rule.sse[node]:.4g} px (sphere distance "
+               f"{rule.sphere_d[node]:.4g} m), Cesium {choice.sse[row]:.4g} px (box distance "
+               f"{choice.distance[row]:.4g} m), tau {tau_px:g}, error {ts.geometric_error[row]:.4g} m")
+    if (rule.sse[node] > tau_px) != (choice.sse[row] > tau_px):
+        term = EYE_IN_SPHERE if rule.sphere_d[node] <= 0 else DISTANCE
+        return term, _tie(rule.sse[node], tau_px) or _tie(choice.sse[row], tau_px), figures
+    if choice.sse[row] > tau_px and not any(choice.visible[c] for c in ts.children[row]):
+        return NO_VISIBLE_CHILD, False, figures
+    return UNEXPLAINED, False, figures
 
 
 def _tie(value: float, threshold: float) -> bool:
@@ -485,15 +225,15 @@ def jaccard(a: set, b: set) -> float:
     return len(a & b) / len(union) if union else 1.0
 
 
-def compare(ts: Tileset, hlod: Hlod, camera: Camera, tau_px: float, cesium_uris: set | None = None, *,
+def compare(ts: Tileset, hlod: Hlod, camera: Camera, *, tau_px: float, cesium_uris: set | None = None,
             renderer=None) -> dict:
     """One row of the table: ours (VFC), Cesium's rule as predicted here, and Cesium's choice if
     given (else the prediction stands in for it), with the differences explained."""
-    ours = {tile_uri(n) for n in vfc_nodes(hlod, camera, tau_px, renderer)}
+    ours = {tile_uri(n) for n in vfc_nodes(hlod, camera, tau_px=tau_px, renderer=renderer)}
     choice = cesium_select(ts, camera, tau_px)
     predicted = {ts.uri[r] for r in choice.selected}
     cesium = predicted if cesium_uris is None else set(cesium_uris)
-    differences = explain(ts, hlod, camera, tau_px, ours, cesium, choice)
+    differences = explain(ts, hlod, camera, tau_px=tau_px, ours=ours, cesium=cesium, choice=choice)
     return {"tau_px": tau_px, "ours": len(ours), "cesium": len(cesium), "both": len(ours & cesium),
             "jaccard": jaccard(ours, cesium), "predicted": len(predicted),
             "prediction_exact": predicted == cesium, "prediction_misses": sorted(predicted ^ cesium),
@@ -624,7 +364,7 @@ def run(scene: str, taus: list[float], *, size: tuple[int, int] = (800, 600), fo
             for name, make_camera in scene_setups()[scene][2].items():
                 for tau in taus:
                     uris, seen = cesium_choose(browser.page, make_camera(size), tau)
-                    row = compare(ts, hlod, seen, tau, uris)
+                    row = compare(ts, hlod, seen, tau_px=tau, cesium_uris=uris)
                     row.update(scene=scene, camera=name)
                     rows.append(row)
     return rows

@@ -103,7 +103,7 @@ def main() -> None:
         for rep in range(args.repeat):
             for entry in (entries if rep % 2 == 0 else entries[::-1]):
                 method, settings = parse_entry(entry)
-                runs[entry].append(run_path(hlod, method, settings, path, size, renderer=renderer))
+                runs[entry].append(run_path(hlod, method, settings, path=path, size=size, renderer=renderer))
         psnr = psnr_y(hlod, renderer, path, size=size, entries=entries, reference=args.psnr_reference,
                       frames=args.psnr_frames) if args.psnr_frames else {}
     finally:

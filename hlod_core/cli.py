@@ -448,7 +448,7 @@ def _cmd_export(args) -> dict:
     if out.exists() and not out.is_dir():
         raise InputError(f"-o {out}: is a file, expected a folder")
     hlod = hlod_file.load(args.file)
-    return export_hlod(hlod, args.format, out, Path(args.file).stem)
+    return export_hlod(hlod, args.format, out, stem=Path(args.file).stem)
 
 
 def _cmd_view(args) -> dict:
@@ -547,7 +547,7 @@ def _cmd_run(args) -> dict:
     hlod, settings, path, size = _runtime_setup(args, args.bias)
     if args.save_path:
         path.save(args.save_path)
-    out = run_path(hlod, args.method, settings, path, size, save_frames=args.save_frames)
+    out = run_path(hlod, args.method, settings, path=path, size=size, save_frames=args.save_frames)
     out.update(method=args.method, bias=args.bias, size=list(size), alpha=args.alpha, tau=args.tau)
     return out
 

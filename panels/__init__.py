@@ -5,14 +5,25 @@ Draw code reads state only: the count of changed sources is kept current by the 
 (addon/source_record.py), not computed here."""
 import bpy
 
-from .. import operators
 from ..addon import bake_job, preview, source_record, viewport_text
+from ..operators.view_tiles import viewer_url
 
 
 class _HlodPanel:
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = "HLOD"
+
+
+class _HlodSection(_HlodPanel):
+    """A section of the HLOD tab, below its main panel."""
+
+    bl_parent_id = "HLOD_PT_main"
+
+
+#: The read-only statistics the Statistics section shows, in order (scene.hlod's properties).
+STATISTICS = ("stat_drawn", "stat_tris", "stat_queries", "stat_rarn", "stat_d", "stat_stall_ms", "stat_frame_ms",
+              "stat_changed")
 
 
 class HLOD_PT_main(_HlodPanel, bpy.types.Panel):
@@ -24,9 +35,8 @@ class HLOD_PT_main(_HlodPanel, bpy.types.Panel):
         self.layout.label(text=props.status)
 
 
-class HLOD_PT_bake(_HlodPanel, bpy.types.Panel):
+class HLOD_PT_bake(_HlodSection, bpy.types.Panel):
     bl_label = "Bake"
-    bl_parent_id = "HLOD_PT_main"
 
     def draw(self, context):
         props, layout = context.scene.hlod, self.layout
@@ -59,9 +69,8 @@ def _draw_bake_state(layout, props) -> None:
         layout.label(text=props.last_bake, icon="INFO")
 
 
-class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
+class HLOD_PT_preview(_HlodSection, bpy.types.Panel):
     bl_label = "Preview"
-    bl_parent_id = "HLOD_PT_main"
 
     def draw(self, context):
         props, layout = context.scene.hlod, self.layout
@@ -104,7 +113,7 @@ class HLOD_PT_preview(_HlodPanel, bpy.types.Panel):
 
 def _draw_viewer(layout) -> None:
     """While the 3D Tiles viewer serves: its address, and Stop."""
-    url = operators.viewer_url()
+    url = viewer_url()
     if url is None:
         return
     row = layout.row(align=True)
@@ -126,9 +135,8 @@ def _draw_sources(layout) -> None:
         layout.operator("hlod.bake", text="Re-bake", icon="FILE_REFRESH").recorded = True
 
 
-class HLOD_PT_overlay(_HlodPanel, bpy.types.Panel):
+class HLOD_PT_overlay(_HlodSection, bpy.types.Panel):
     bl_label = "Overlay"
-    bl_parent_id = "HLOD_PT_main"
 
     def draw(self, context):
         props, layout = context.scene.hlod, self.layout
@@ -140,14 +148,12 @@ class HLOD_PT_overlay(_HlodPanel, bpy.types.Panel):
         layout.prop(props, "show_corner_text")
 
 
-class HLOD_PT_statistics(_HlodPanel, bpy.types.Panel):
+class HLOD_PT_statistics(_HlodSection, bpy.types.Panel):
     bl_label = "Statistics"
-    bl_parent_id = "HLOD_PT_main"
 
     def draw(self, context):
         props, col = context.scene.hlod, self.layout.column(align=True)
-        for name in ("stat_drawn", "stat_tris", "stat_queries", "stat_rarn", "stat_d", "stat_stall_ms", "stat_frame_ms",
-                     "stat_changed"):
+        for name in STATISTICS:
             row = col.row()
             row.enabled = False
             row.prop(props, name)

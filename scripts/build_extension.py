@@ -11,7 +11,7 @@ zip. Each zip carries every dependency for each Python that Blender ships (PYTHO
 Blender 4.2 to 5.0, cp313 for 5.1 and later); Blender installs the wheels that match its own Python.
 Prints one line per zip: its path.
 
-The 3D Tiles viewer (issue 17): CesiumJS's built files (npm `cesium/Build/Cesium`, installed into
+The 3D Tiles viewer: CesiumJS's built files (npm `cesium/Build/Cesium`, installed into
 tools/viewer by scripts/bootstrap.sh, or --cesium) go into the zip as viewer/cesium/, where
 hlod_core.export.viewer.find_cesium looks in an installed extension, with Cesium's licence, less its
 JavaScript-module entry points (index.js, index.cjs: the page loads Cesium.js). About 6 MB zipped;
@@ -194,8 +194,10 @@ def stage_cesium(cesium: Path, where: Path) -> None:
             shutil.copy2(cesium.parents[1] / licence, target / licence)
 
 
-def stage(manifest_text: str, manifest: dict, platform: str, wheels: list[str], where: Path,
-          cesium: Path | None = None) -> Path:
+def stage(manifest_text: str, platform: str, wheels: list[str], *, where: Path, cesium: Path | None = None) -> Path:
+    """A fresh staging folder `where` of the package files, the platform's wheels (as blender_ready
+    gives them) and the manifest narrowed to that platform and those wheels, with CesiumJS when
+    `cesium` is given; returns it."""
     if where.exists():
         shutil.rmtree(where)
     where.mkdir(parents=True)
@@ -235,7 +237,7 @@ def main() -> None:
         download(wheels, platform)
         # a private staging folder: test runs of several Blender versions may build at the same time
         with tempfile.TemporaryDirectory(prefix=f"hlod-stage-{platform}-") as tmp:
-            where = stage(manifest_text, manifest, platform, wheels, Path(tmp) / "hlod", cesium)
+            where = stage(manifest_text, platform, wheels, where=Path(tmp) / "hlod", cesium=cesium)
             subprocess.run([sys.executable, str(tool), "build", "--source-dir", str(where), "--output-dir", str(out),
                             "--split-platforms"], check=True, stdout=subprocess.DEVNULL)
         zips = sorted(out.glob(f"{manifest['id']}-{manifest['version']}-{platform.replace('-', '_')}.zip"))

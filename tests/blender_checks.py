@@ -595,7 +595,7 @@ def _session(out: dict, *, session: int, blend: Path, preview, glcontext, other,
     props.show_delayed = props.show_rarn = session % 6 == 1
     bpy.ops.hlod.preview_toggle()
     hlod = preview.current_hlod()
-    projection = perspective(50.0, LONG_SIZE[0] / LONG_SIZE[1], 0.1, 500.0)
+    projection = perspective(50.0, LONG_SIZE[0] / LONG_SIZE[1], near=0.1, far=500.0)
     for redraw in range(REDRAWS_PER_SESSION):
         if redraw and redraw % 50 == 0:
             props.method = methods[(session + redraw // 50) % len(methods)]

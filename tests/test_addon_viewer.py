@@ -121,7 +121,7 @@ def check_operator(repo, work) -> dict:
     url = operators.viewer_url()
     out["url"] = url
     port = int(url.rsplit(":", 1)[1].strip("/")) if url else 0
-    out["bound"] = operators._viewer.socket.getsockname()[0] if url else None
+    out["bound"] = operators.view_tiles.running_server().socket.getsockname()[0] if url else None
     out["statuses"] = {path: http_status(port, path) for path in PATHS_200 + PATHS_404}
     out["again"] = sorted(bpy.ops.hlod.view_tiles())  # a second press: the same server, the page again
     out["url_again"] = operators.viewer_url()

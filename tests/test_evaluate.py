@@ -1,5 +1,5 @@
-"""The evaluation (issue "Evaluation"): procedural scenes, image error, the evaluate command and
-its report (issue 19: per_frame.npz, report.html, figures redrawn from the saved files)."""
+"""The evaluation: procedural scenes, image error, the evaluate command and its report
+(per_frame.npz, report.html, figures redrawn from the saved files)."""
 import base64
 import json
 import re
@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from benchmarks import evaluation_targets
-from hlod_core.report import evaluate, image_error
+from hlod_core.report import evaluate, image_error, per_frame_file
 from hlod_core.io import procedural
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.bake.pipeline import BakeSettings, bake
@@ -24,7 +24,7 @@ from helpers import ROOT
 from figure_checks import PNG_SIGNATURE, legible
 from processes import hlod, last_json, one_line_error
 
-ISSUE_KEYS = {"fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms",
+SUMMARY_COLUMNS = {"fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms",
               "psnr_y_vs_bool", "psnr_cb_vs_bool", "psnr_cr_vs_bool", "psnr_y_vs_full"}
 
 
@@ -73,6 +73,7 @@ def _depth_complexity(mesh, views) -> float:
         ctx.release()
 
 
+@pytest.mark.gl
 def test_procedural_scenes_rank_by_depth_complexity():
     """`scene low|middle|high` are what they claim: from the same oblique views around each scene
     (30 degrees down, at 1.2 bounding radii), fragments per covered pixel rise low < middle < high."""
@@ -85,7 +86,7 @@ def test_procedural_scenes_rank_by_depth_complexity():
         views = []
         for angle in np.linspace(0, 2 * np.pi, 6, endpoint=False):
             eye = centre + 1.2 * radius * np.array([np.cos(angle) * 0.87, np.sin(angle) * 0.87, 0.5])
-            views.append((look_at(eye, centre, [0, 0, 1]), perspective(60, 4 / 3, 0.01 * radius, 4 * radius)))
+            views.append((look_at(eye, centre, [0, 0, 1]), perspective(60, 4 / 3, near=0.01 * radius, far=4 * radius)))
         measured[name] = _depth_complexity(mesh, views)
     assert measured["low"] < measured["middle"] < measured["high"], measured
     assert measured["low"] < 1.6 and measured["high"] > 2.5, measured
@@ -109,12 +110,13 @@ def short_run(small_high, tmp_path_factory):
     return proc, out_dir
 
 
+@pytest.mark.gl
 def test_evaluate_writes_the_report_and_its_last_line(short_run):
     proc, out_dir = short_run
     line = last_json(proc)
     assert set(line["methods"]) == set(evaluate.METHOD_SPECS)
     for key, row in line["methods"].items():
-        assert ISSUE_KEYS <= row.keys(), key
+        assert SUMMARY_COLUMNS <= row.keys(), key
         assert row["dn"] > 0 and row["fps"] > 0
     assert line["frames"] == 16 and line["size"] == [160, 120]
     m = line["methods"]
@@ -134,7 +136,7 @@ def test_evaluate_writes_the_report_and_its_last_line(short_run):
     assert f"measure_every = {defaults.measure_every}" in (out_dir / "report.md").read_text()
     rel = report["relative"]["coh_p"]["bool"]
     assert rel["node_savings_pct"] == pytest.approx(100 * (1 - m["coh_p"]["dn"] / m["bool"]["dn"]))
-    # the report holds measured figures; the issue's targets are the benchmark script's
+    # the report holds measured figures; the pass/fail targets are the benchmark script's
     assert "targets" not in report and "targets_hold" not in line
     targets = subprocess.run([sys.executable, "-m", "benchmarks.evaluation_targets", out_dir],
                              capture_output=True, text=True, cwd=ROOT, check=True).stdout.splitlines()
@@ -154,15 +156,16 @@ def test_evaluate_writes_the_report_and_its_last_line(short_run):
     assert "Targets" not in md
 
 
+@pytest.mark.gl
 def test_short_run_figures_legible_and_per_frame_saved(short_run):
     """per_frame.npz holds each variant's per-frame medians over the repeats (their means are the
     report's figures), the generated path's parts reach the report, and the figures drawn from
     the saved files have no two texts overlapping."""
-    from hlod_core.report import figures
+    from hlod_core.report import figures, per_frame_figure
 
     _, out_dir = short_run
     report = json.loads((out_dir / "report.json").read_text())
-    medians = evaluate.load_per_frame(out_dir / "per_frame.npz", frames=16)
+    medians = per_frame_file.load_per_frame(out_dir / "per_frame.npz", frames=16)
     assert set(medians) == set(report["methods"]) | set(report["sweep"]["points"])
     for key, row in report["methods"].items():
         assert medians[key].shape == (16, len(COUNTERS))
@@ -170,12 +173,13 @@ def test_short_run_figures_legible_and_per_frame_saved(short_run):
         assert np.mean(medians[key][:, COUNTERS.index("frame_ms")]) == pytest.approx(row["frame_ms"], rel=1e-5), key
     assert [p["name"] for p in report["parts"]] == ["orbit", "fly-through", "dolly", "rotate"]
     for fig in (figures.error_vs_time_figure(report, labels=evaluate.LABELS),
-                figures.per_frame_figure(report, medians, labels=evaluate.LABELS),
+                per_frame_figure.per_frame_figure(report, medians, labels=evaluate.LABELS),
                 figures.alpha_figure(report)):
         assert legible(fig) == []
         fig.clf()
 
 
+@pytest.mark.gl
 def test_report_html_is_self_contained(short_run):
     """One page, nothing outside it: no http(s) address, every image a PNG data URI (the four
     figures), a table row for every method."""
@@ -192,6 +196,7 @@ def test_report_html_is_self_contained(short_run):
         assert f"<tr><td>{key}</td>" in page, key
 
 
+@pytest.mark.gl
 def test_redraw_from_the_saved_files(short_run, tmp_path):
     """`python -m hlod_core.report.evaluate --redraw DIR` draws the figures, report.md and report.html again
     from report.json and per_frame.npz alone; a folder that is not an evaluation's, or a per-frame
@@ -221,20 +226,21 @@ def test_redraw_from_the_saved_files(short_run, tmp_path):
         assert proc.returncode == 2 and message in one_line_error(proc), proc.stderr
 
 
+@pytest.mark.gl
 def test_modulation_frames_use_only_the_colour_ramp(small_high, tmp_path):
     """Overlay images: every drawn pixel is on the blue-magenta-red ramp (green at most a fifth of
     the stronger of red and blue, whatever the shading factor); Bool modulates nothing (all blue:
     red a tenth of blue); the bird's-eye view shows the drawn front; the shaded image is grey."""
     from matplotlib.image import imread
 
-    from hlod_core.io import hlod_file as fileformat
+    from hlod_core.io import hlod_file
 
     def read_png(path):
         return np.round(imread(path)[..., :3] * 255).astype(np.uint8)
 
-    hlod_file = fileformat.load(small_high)
-    path = inspection_path(hlod_file, seed=2, frames=12)
-    evaluate.evaluate(hlod_file, path, (160, 120), methods=["bool", "coh_mu"], repeat=1, out_dir=tmp_path,
+    baked = hlod_file.load(small_high)
+    path = inspection_path(baked, seed=2, frames=12)
+    evaluate.evaluate(baked, path, (160, 120), methods=["bool", "coh_mu"], repeat=1, out_dir=tmp_path,
                       psnr_frames=2, figures=False)
     white = np.array([255, 255, 255])
     for key in ("bool", "coh_mu"):

@@ -1,5 +1,4 @@
-"""3D Tiles export and batch baking from background mode (issue "Batch export ... 3D Tiles"),
-checked by independent tools: the Khronos glTF validator for every GLB and CesiumGS 3d-tiles-tools
+"""3D Tiles export and batch baking from background mode, checked by independent tools: the Khronos glTF validator for every GLB and CesiumGS 3d-tiles-tools
 reading the tileset back (tools/validators/check_tileset.mjs)."""
 import hashlib
 import json
@@ -14,8 +13,8 @@ import pytest
 from PIL import Image
 
 from helpers import ROOT, baked, textured_scene
-from hlod_core.io import hlod_file as fileformat, meshes
-from hlod_core.export import tiles3d
+from hlod_core.io import hlod_file, meshes
+from hlod_core.export import glb, tiles3d
 from hlod_core.model.appearance import Material
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.model.hierarchy import Hlod, node_geometry
@@ -65,11 +64,11 @@ def validate_with_images(folder) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def assert_matches(tiles_dir, hlod_file):
+def assert_matches(tiles_dir, source):
     """Every GLB valid (with the images it refers to); the reader's tiles are the hierarchy's nodes,
     with their triangle counts, boxes and errors; each parent's geometricError is at least its
     children's."""
-    h = fileformat.load(hlod_file)
+    h = hlod_file.load(source)
     read = independent_read(tiles_dir)
     tiles = read["tiles"]
     assert len(tiles) == h.node_count == sum(1 for t in tiles if t["uri"])
@@ -92,22 +91,22 @@ def assert_matches(tiles_dir, hlod_file):
 
 def test_glb_layout_and_axes():
     positions = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 0], [0, 0, 3]], np.float32)
-    data = tiles3d.glb_bytes(positions, np.array([[0, 1, 2], [0, 2, 3]]))
+    data = glb.glb_bytes(positions, np.array([[0, 1, 2], [0, 2, 3]]))
     magic, version, total = struct.unpack("<III", data[:12])
-    assert (magic, version, total) == (tiles3d.GLB_MAGIC, 2, len(data)) and total % 4 == 0
+    assert (magic, version, total) == (glb.GLB_MAGIC, 2, len(data)) and total % 4 == 0
     json_len, kind = struct.unpack("<II", data[12:20])
     doc = json.loads(data[20:20 + json_len])
-    assert kind == tiles3d.CHUNK_JSON and json_len % 4 == 0
+    assert kind == glb.ChunkType.JSON and json_len % 4 == 0
     position = doc["accessors"][0]
     # Z up (x, y, z) is written Y up as (x, z, -y): model +y (2) becomes glTF -z, +z (3) glTF +y
     assert position["min"] == [0.0, 0.0, -2.0] and position["max"] == [1.0, 3.0, 0.0]
-    assert doc["accessors"][-1]["componentType"] == tiles3d.UNSIGNED_SHORT and "NORMAL" not in doc["meshes"][0][
+    assert doc["accessors"][-1]["componentType"] == glb.ComponentType.UNSIGNED_SHORT and "NORMAL" not in doc["meshes"][0][
         "primitives"][0]["attributes"]
 
 
 def test_export_command_on_shared_model_passes_the_validators(tmp_path):
     _, h = baked("cow.obj", target_tris=500)
-    src = fileformat.save(h, tmp_path / "cow.hlod")
+    src = hlod_file.save(h, tmp_path / "cow.hlod")
     out = last_json(hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "cow_tiles"))
     assert out["tiles"] == out["glb_files"] == h.node_count and out["triangles"] == int(h.tri_count.sum())
     assert_matches(tmp_path / "cow_tiles", src)
@@ -115,7 +114,7 @@ def test_export_command_on_shared_model_passes_the_validators(tmp_path):
     hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "cow_tiles")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cow.hlod", "cow_tiles"]
     native = last_json(hlod("-q", "export", src, "--format", "hlod", "-o", tmp_path / "native"))
-    assert fileformat.load(native["output"]).node_count == h.node_count
+    assert hlod_file.load(native["output"]).node_count == h.node_count
 
 
 def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_precision(tmp_path):
@@ -125,7 +124,7 @@ def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_prec
     normals = np.zeros_like(p)
     np.add.at(normals, f.ravel(), np.repeat(np.cross(e1, e2), 3, axis=0))
     h = bake(meshes.from_arrays(p, f, normals, name="spot far"), BakeSettings(target_tris=800))
-    src = fileformat.save(h, tmp_path / "spot.hlod")
+    src = hlod_file.save(h, tmp_path / "spot.hlod")
     tiles3d.export(h, tmp_path / "tiles")
     doc = json.loads((tmp_path / "tiles/tileset.json").read_text())
     assert doc["root"]["transform"][12:15] == pytest.approx(list(h.origin))
@@ -138,7 +137,7 @@ def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_prec
 
 def test_export_refuses_to_replace_a_foreign_folder(tmp_path):
     _, h = baked("cow.obj", target_tris=500)
-    src = fileformat.save(h, tmp_path / "cow.hlod")
+    src = hlod_file.save(h, tmp_path / "cow.hlod")
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("keep me")
     assert "holds no tileset.json; not replacing it" in one_line_error(
@@ -212,9 +211,9 @@ def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_ch
 
 @pytest.mark.parametrize("umask", [0o022, 0o027])
 def test_export_modes_follow_the_umask(tmp_path, umask):
-    """Issue 11: the tileset folder came out 0700 (mkdtemp's mode) whatever the umask; now folders
-    are 0777 and files 0666 less the umask, like any other tool's output, also when replacing.
-    Issue 13: the copied textures too, whatever the modes of their sources."""
+    """Folders are 0777 and files 0666 less the umask, like any other tool's output (mkdtemp would
+    leave the folder 0700), also when replacing; the copied textures too, whatever the modes of
+    their sources."""
     _, h = baked("cow.obj", target_tris=500)
     png, jpeg = write_textures(tmp_path)
     os.chmod(png, 0o600)
@@ -234,7 +233,7 @@ def test_export_modes_follow_the_umask(tmp_path, umask):
         os.umask(old)
 
 
-# --- appearance (issue 13) ----------------------------------------------------------------------
+# --- appearance ---------------------------------------------------------------------------------
 
 def literal_hlod(*, normals: bool) -> Hlod:
     """A 3-node HLOD written out by hand, no bake: the root's 2-triangle LOD over [0,2]x[0,1], leaves
@@ -279,8 +278,8 @@ def folder_digest(folder) -> tuple[list[str], str]:
     return [p.relative_to(folder).as_posix() for p in files], digest.hexdigest()
 
 
-# SHA-256 of the export of literal_hlod (file names and bytes, see folder_digest) by the code before
-# issue 13: recorded with hlod_core/export/tiles3d.py at commit 6d77cb6 (unchanged since 844ae1f), running
+# SHA-256 of the export of literal_hlod (file names and bytes, see folder_digest) by the exporter before
+# it carried materials: recorded with hlod_core/export/tiles3d.py at commit 6d77cb6 (unchanged since 844ae1f), running
 # `tiles3d.export(literal_hlod(normals=...), DIR)` then `folder_digest(DIR)`.
 BEFORE_APPEARANCE_DIGESTS = {False: "93e9e14dca7b80309e75213edcbea1d67289dcef4ac23a4c31036573010ea475",
                              True: "369da809dca32415f02196c25d4f9fa7b3e3c67b6559f746f4caf1afbcd4eb60"}
@@ -306,7 +305,8 @@ def accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
     """An accessor's values as (count, components) (count,) for scalars, read from the BIN chunk."""
     acc = gltf["accessors"][index]
     view = gltf["bufferViews"][acc["bufferView"]]
-    dtype = {tiles3d.FLOAT: np.float32, tiles3d.UNSIGNED_SHORT: np.uint16, tiles3d.UNSIGNED_INT: np.uint32}[
+    dtype = {glb.ComponentType.FLOAT: np.float32, glb.ComponentType.UNSIGNED_SHORT: np.uint16,
+             glb.ComponentType.UNSIGNED_INT: np.uint32}[
         acc["componentType"]]
     width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[acc["type"]]
     values = np.frombuffer(binary, dtype, acc["count"] * width, view["byteOffset"] + acc.get("byteOffset", 0))
@@ -453,7 +453,7 @@ def test_textured_bake_exported_by_the_command_passes_the_validators(tmp_path):
     h = bake(meshes.from_arrays(positions, faces, name="grid"), BakeSettings(target_tris=1000))
     assert h.node_count > 1 and not h.has_appearance
     png, jpeg = write_textures(tmp_path)
-    src = fileformat.save(with_appearance(h, png, jpeg), tmp_path / "grid.hlod")
+    src = hlod_file.save(with_appearance(h, png, jpeg), tmp_path / "grid.hlod")
     out = last_json(hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "grid_tiles"))
     assert out["image_files"] == 2 and out["warnings"] == [] and out["glb_files"] == h.node_count
     assert sorted(p.name for p in (tmp_path / "grid_tiles/textures").iterdir()) == ["brick_wall.png", "label.jpg"]
@@ -480,7 +480,7 @@ def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_pa
                          env={**os.environ, "BLENDER_USER_RESOURCES": str(repo / "user")})
     assert run.returncode == 0, run.stderr[-3000:]
     tiles_dir, src = tmp_path / "out" / "textured_3dtiles", tmp_path / "out" / "textured.hlod"
-    h = fileformat.load(src)
+    h = hlod_file.load(src)
     assert h.node_count > 1 and h.uvs is not None and h.colors is not None
     assert_matches(tiles_dir, src)
     textures = sorted(scene["textures"].iterdir())

@@ -25,7 +25,7 @@ def no_numpy_warnings():
 
 def _view(*, eye=(0, 0, 10), target=(0, 0, 0), size=(640, 480), fovy=60.0, near=0.01, far=1000.0, ortho=None):
     w, h = size
-    proj = orthographic(ortho, w / h, near, far) if ortho else perspective(fovy, w / h, near, far)
+    proj = orthographic(ortho, w / h, near=near, far=far) if ortho else perspective(fovy, w / h, near=near, far=far)
     return View(eye=np.array(eye, float), view=look_at(eye, target, (0, 1, 0)), projection=proj, width=w, height=h)
 
 

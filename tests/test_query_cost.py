@@ -91,7 +91,7 @@ def test_fit_recovers_known_costs_and_keeps_them_positive():
 def test_box_areas_are_within_a_factor_of_two_of_the_exact_silhouette():
     rng = np.random.default_rng(3)
     view = View(eye=np.zeros(3), view=look_at([0, 0, 0], [0, 0, -1], [0, 1, 0]),
-                projection=perspective(60.0, 4 / 3, 0.1, 1000.0), width=640, height=480)
+                projection=perspective(60.0, 4 / 3, near=0.1, far=1000.0), width=640, height=480)
     centres = np.c_[rng.uniform(-2, 2, (200, 2)), rng.uniform(-40, -10, 200)]
     half = rng.uniform(0.05, 2.0, (200, 3)) * rng.choice([1.0, 0.1], (200, 3))  # flat boxes among them
     lo, hi = centres - half, centres + half
@@ -281,8 +281,8 @@ def test_the_skip_test_decides_the_same_in_python_and_numpy(projection):
     centres[7] = 0.0  # the eye at this box's centre
     lo, hi = centres - half, centres + half
     tris = rng.integers(2, 4000, 400)
-    projection_matrix = perspective(60.0, 4 / 3, 0.1, 1000.0) if projection == "perspective" \
-        else orthographic(8.0, 4 / 3, 0.1, 1000.0)
+    projection_matrix = perspective(60.0, 4 / 3, near=0.1, far=1000.0) if projection == "perspective" \
+        else orthographic(8.0, 4 / 3, near=0.1, far=1000.0)
     view = View(eye=np.zeros(3), view=look_at([0, 0, 0], [0.2, -0.1, -1], [0, 1, 0]), projection=projection_matrix,
                 width=640, height=480)
     model = CostModel(query=LinearCost(fixed_s=20e-6, per_unit_s=2e-9, residual=0.0),

@@ -130,7 +130,7 @@ def _with_appearance(hlod, *, materials, tri_material=None, uv=False, colors=Non
 def _front_view(size=SIZE) -> View:
     eye = np.array([0.0, 0.0, 3.0])
     return View(eye=eye, view=viewmod.look_at(eye, [0, 0, 0], [0, 1, 0]),
-                projection=viewmod.perspective(45.0, size[0] / size[1], 0.1, 10.0), width=size[0], height=size[1])
+                projection=viewmod.perspective(45.0, size[0] / size[1], near=0.1, far=10.0), width=size[0], height=size[1])
 
 
 def _pixel(image: np.ndarray, view: View, point: tuple[float, float], *, radius: int = 3) -> np.ndarray:
@@ -291,7 +291,7 @@ def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
         for k, distance in enumerate((0.6, 1.0, 2.5)):
             eye = centre + distance * radius * np.array([np.cos(k), 0.4, np.sin(k)])
             view = View(eye=eye, view=viewmod.look_at(eye, centre, [0, 1, 0]),
-                        projection=viewmod.perspective(50.0, SIZE[0] / SIZE[1], 0.01 * radius, 10 * radius),
+                        projection=viewmod.perspective(50.0, SIZE[0] / SIZE[1], near=0.01 * radius, far=10 * radius),
                         width=SIZE[0], height=SIZE[1])
             new_coh.frame(view)
             after = new.read_pixels()
@@ -350,7 +350,7 @@ def test_run_draws_the_textures_of_the_hlods_materials(checker, tmp_path):
     from hlod_core.report.runner import run_path
 
     hlod, _, _ = checker
-    run_path(hlod, "vfc", RuntimeSettings(), _front_path(1), SIZE, save_frames=tmp_path)
+    run_path(hlod, "vfc", RuntimeSettings(), path=_front_path(1), size=SIZE, save_frames=tmp_path)
     frame = np.asarray(Image.open(tmp_path / "vfc_00000.png").convert("RGB"))
     assert np.abs(_pixel(frame, _front_view(), (0.5, 0.5)) - TOP_RIGHT).max() <= LEVELS
     assert np.abs(_pixel(frame, _front_view(), (-0.5, -0.5)) - BOTTOM_LEFT).max() <= LEVELS
@@ -504,7 +504,7 @@ def _overview(hlod, size, *, distance: float) -> View:
     direction = np.cos(np.radians(35)) * (side + np.roll(up, 2)) / np.sqrt(2) + np.sin(np.radians(35)) * up
     eye = centre + distance * diagonal * direction
     return View(eye=eye, view=viewmod.look_at(eye, centre, up),
-                projection=viewmod.perspective(45.0, size[0] / size[1], 0.01 * diagonal, 10 * diagonal),
+                projection=viewmod.perspective(45.0, size[0] / size[1], near=0.01 * diagonal, far=10 * diagonal),
                 width=size[0], height=size[1])
 
 

@@ -1,4 +1,4 @@
-"""The evaluation report, legible at a glance (issue 19): figure labels that do not overlap, by
+"""The evaluation report, legible at a glance: figure labels that do not overlap, by
 matplotlib's own text extents, on the committed report's data and on literal worst cases; the
 Pareto front; per-frame ratios with a colour and a line style per method and the camera path's
 parts marked; the queries-pay figure; report.html as one self-contained page; the parts in the
@@ -13,7 +13,7 @@ import pytest
 from matplotlib.text import Text
 
 from helpers import ROOT, SCENES
-from hlod_core.report import evaluate, figures, html_page
+from hlod_core.report import evaluate, figure_style, figures, html_page, per_frame_figure
 from hlod_core.model.camera_path import load_path, path_from_json
 from hlod_core.core.errors import InputError
 from hlod_core.traversal.stats import COUNTERS
@@ -84,7 +84,7 @@ def test_error_vs_time_labels_do_not_overlap_on_the_committed_report():
     texts = drawn_texts(fig)
     shown = [t for t, _ in texts]
     others = {k: r for k, r in report["methods"].items() if k != "full"} | (report["sweep"] or {}).get("points", {})
-    names = {figures.display_name(key, evaluate.LABELS) + (" (bound)" if key == "ideal" else "")
+    names = {figure_style.display_name(key, evaluate.LABELS) + (" (bound)" if key == "ideal" else "")
              for key in others}
     assert names <= set(shown), names - set(shown)
     assert legible(fig) == []
@@ -151,11 +151,11 @@ def test_per_frame_ratios_styles_and_parts():
               "sweep": {"name": "st", "points": {"coh_p s,t=0.6,0.2": {}, "coh_p s,t=0.7,0.15": {}}},
               "parts": [{"name": "orbit", "start": 0}, {"name": "walk", "start": 10}, {"name": "turn", "start": 25},
                         {"name": "dolly", "start": 31}]}
-    fig = figures.per_frame_figure(report, medians, labels=evaluate.LABELS)
+    fig = per_frame_figure.per_frame_figure(report, medians, labels=evaluate.LABELS)
     nodes_ax, time_ax, full_nodes_ax, full_time_ax = fig.axes[:4]
 
     def curve(ax, key):
-        colour = figures.style(key, list(report["sweep"]["points"]))["color"]
+        colour = figure_style.style(key, list(report["sweep"]["points"]))["color"]
         found = [line.get_ydata() for line in ax.get_lines()
                  if line.get_color() == colour and len(line.get_ydata()) == frames]
         return found[0] if found else None
@@ -172,9 +172,9 @@ def test_per_frame_ratios_styles_and_parts():
                                    + ["Coh(P) s,t=0.6,0.2", "Coh(P) s,t=0.7,0.15"])
     # each curve drawn in its method's style (whose colours and dashes all differ: the next test)
     sweep = list(report["sweep"]["points"])
-    by_name = {figures.display_name(k, evaluate.LABELS): k for k in medians}
+    by_name = {figure_style.display_name(k, evaluate.LABELS): k for k in medians}
     for handle, name in zip(legend.legend_handles, names):
-        assert handle.get_color() == figures.style(by_name[name], sweep)["color"], name
+        assert handle.get_color() == figure_style.style(by_name[name], sweep)["color"], name
     texts = drawn_texts(fig)
     assert {"orbit", "walk", "turn", "dolly"} <= {t for t, _ in texts}
     assert legible(fig) == []
@@ -184,7 +184,7 @@ def test_per_frame_ratios_styles_and_parts():
 def test_every_method_and_sweep_point_has_its_own_style():
     """Colours, dash patterns and markers all differ across the 11 methods and up to 4 sweep values."""
     sweep = [f"coh_p tau={t:g}" for t in evaluate.SWEEPS["tau"]]
-    styles = [figures.style(k, sweep) for k in list(evaluate.METHOD_SPECS) + sweep]
+    styles = [figure_style.style(k, sweep) for k in list(evaluate.METHOD_SPECS) + sweep]
     for field in ("color", "linestyle", "marker"):
         values = [str(s[field]) for s in styles]
         assert len(set(values)) == len(values), field
@@ -193,12 +193,12 @@ def test_every_method_and_sweep_point_has_its_own_style():
 def test_running_median_on_literal_values():
     """Window 3: a one-frame spike goes, a step stays; all-NaN windows stay NaN; window 1 is the identity."""
     values = np.array([0.0, 0.0, 9.0, 0.0, 0.0, 5.0, 5.0, 5.0])
-    assert figures.running_median(values, 3).tolist() == [0, 0, 0, 0, 0, 5, 5, 5]
+    assert per_frame_figure.running_median(values, 3).tolist() == [0, 0, 0, 0, 0, 5, 5, 5]
     gap = np.array([1.0, np.nan, np.nan, np.nan, 3.0])
-    smoothed = figures.running_median(gap, 3)
+    smoothed = per_frame_figure.running_median(gap, 3)
     assert smoothed[0] == 1.0 and np.isnan(smoothed[2]) and smoothed[4] == 3.0
-    assert figures.running_median(values, 1) is values
-    assert figures.smoothing_window(1020) == 13 and figures.smoothing_window(60) == 1
+    assert per_frame_figure.running_median(values, 1) is values
+    assert per_frame_figure.smoothing_window(1020) == 13 and per_frame_figure.smoothing_window(60) == 1
 
 
 # --- when do queries pay --------------------------------------------------------------------------

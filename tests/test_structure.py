@@ -42,7 +42,8 @@ CORE_DEPENDENCIES = {"numpy", "pymeshlab", "moderngl", "glcontext"} | COMMAND_LI
 #: Modules the extension reaches that may touch a command-line-only library, each behind a guard
 #: that works without it (and the test suite runs that path with the library blocked).
 GUARDED = {"hlod_core.report.figures": {"matplotlib"}, "hlod_core.io.textures": {"PIL"},
-           "hlod_core.io.gltf": {"trimesh"}, "hlod_core.bake.dask_cluster": {"distributed"}}
+           "hlod_core.io.gltf": {"trimesh"}, "hlod_core.bake.dask_cluster": {"distributed"},
+           "hlod_core.report.figure_style": {"matplotlib"}, "hlod_core.report.label_placement": {"matplotlib"}}
 
 
 def _module_name(path: Path) -> str:

@@ -44,12 +44,14 @@ def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
 
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
+    """Write `data` to `path` atomically (atomic_file); returns the path."""
     with atomic_file(path) as f:
         f.write(data)
     return Path(path)
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
+    """Write `text` as UTF-8 to `path` atomically (atomic_file); returns the path."""
     return write_bytes_atomic(path, text.encode("utf-8"))
 
 

@@ -7,9 +7,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from ..core.errors import InputError
 from ..io import hlod_file
 from . import tiles3d
-from ..core.errors import InputError
 
 
 def check_output_file(path: str, option: str = "-o", example: str = "scene.hlod") -> None:
@@ -30,9 +30,9 @@ def check_output_file(path: str, option: str = "-o", example: str = "scene.hlod"
         raise InputError(f"{out}: folder {parent} is not writable")
 
 
-def export_hlod(hlod, fmt: str, out_dir, stem: str) -> dict:
-    """Export into out_dir: 3D Tiles (tileset.json, tiles/, textures/ when textured) or the native
-    file <stem>.hlod."""
+def export_hlod(hlod, fmt: str, out_dir, *, stem: str) -> dict:
+    """Export into out_dir in format `fmt` ("3dtiles" or "hlod"): 3D Tiles (tileset.json, tiles/,
+    textures/ when textured) or the native file <stem>.hlod. Returns the export's summary."""
     if fmt == "3dtiles":
         return tiles3d.export(hlod, out_dir)
     target = Path(out_dir) / f"{stem}.hlod"

@@ -1,4 +1,4 @@
-"""A local web viewer of a 3D Tiles export (issue 17): a small static HTTP server on 127.0.0.1 that
+"""A local web viewer of a 3D Tiles export: a small static HTTP server on 127.0.0.1 that
 serves the viewer page (`viewer_page/`), CesiumJS's built files and the tileset folder, and nothing
 else. The page (viewer_page/viewer.js) shows the tileset with CesiumJS in a local frame (no globe,
 no imagery, no token, no network) and exposes `window.hlodViewer` for scripts and tests.

@@ -7,11 +7,12 @@ with "ortho_height": h (model units visible vertically) instead of "fovy_deg" fo
 orthographic path. Coordinates are world (model) units, float64. Defaults: fovy_deg 60, near 0.01,
 far 1000, up [0, 0, 1]. Optional "parts": [{"name": "orbit", "start": 0}, ...], the path's named
 parts in order (a part runs from its start frame to the next part's start; the first starts at
-frame 0; the evaluation report marks them on its frame axis). Every field must be a JSON number (not null, a string, a list or
-true/false), finite and at most MAX_MAGNITUDE in size; unknown keys are refused; any far/near
-ratio is accepted (boxes.frustum_planes keeps a far plane beyond float64's reach at infinity).
+frame 0; the evaluation report marks them on its frame axis). Every number field must be a JSON
+number (not null, a string, a list or true/false), finite and at most MAX_MAGNITUDE in size;
+unknown keys are refused; any far/near ratio is accepted (traversal.boxes.frustum_planes keeps a
+far plane beyond float64's reach at infinity).
 
-Seeded sequences (after the dissertation's inspection sessions, §8.1: rotations and changes from
+Seeded sequences (after the dissertation's inspection sequences, §8.1: rotations and changes from
 overall views to extreme close-ups): an orbit around the scene, a fly-through across it, a dolly
 from the overview down to an extreme close-up of a surface point, and a rotation in place there;
 the parts are recorded as such.
@@ -49,9 +50,9 @@ class CameraPath:
         w, h = size
         eye, target, up = self.frames[i]
         if self.ortho_height is not None:
-            proj = orthographic(self.ortho_height, w / h, self.near, self.far)
+            proj = orthographic(self.ortho_height, w / h, near=self.near, far=self.far)
         else:
-            proj = perspective(self.fovy_deg, w / h, self.near, self.far)
+            proj = perspective(self.fovy_deg, w / h, near=self.near, far=self.far)
         return View(eye=eye.copy(), view=look_at(eye, target, up), projection=proj, width=w, height=h)
 
     def __len__(self) -> int:
@@ -99,7 +100,7 @@ def path_from_json(data, *, source: str) -> CameraPath:
     """A CameraPath from the parsed JSON of a path file; `source` names it in errors."""
     if not isinstance(data, dict):
         raise InputError(f"{source}: a camera path is a JSON object with \"frames\", got {_kind(data)}")
-    _known_keys(data, PATH_KEYS, source, "the path")
+    _known_keys(data, PATH_KEYS, source=source, where="the path")
     frames_data = data.get("frames")
     if not isinstance(frames_data, list) or not frames_data:
         raise InputError(f"{source}: \"frames\" must be a non-empty list of {{eye, target, up}}, "
@@ -108,7 +109,7 @@ def path_from_json(data, *, source: str) -> CameraPath:
     for i, frame in enumerate(frames_data):
         if not isinstance(frame, dict):
             raise InputError(f"{source}: frames[{i}] must be an object with eye, target and up, got {_kind(frame)}")
-        _known_keys(frame, FRAME_KEYS, source, f"frames[{i}]")
+        _known_keys(frame, FRAME_KEYS, source=source, where=f"frames[{i}]")
         for j, key in enumerate(FRAME_KEYS):
             if key not in frame and key != "up":
                 raise InputError(f"{source}: frames[{i}] has no \"{key}\"")
@@ -149,7 +150,8 @@ def _kind(value) -> str:
     return repr(value)
 
 
-def _known_keys(obj: dict, keys: tuple[str, ...], source: str, where: str) -> None:
+def _known_keys(obj: dict, keys: tuple[str, ...], *, source: str, where: str) -> None:
+    """InputError naming the first key of `obj` not in `keys` (sorted), at `where` in `source`."""
     unknown = sorted(set(obj) - set(keys))
     if unknown:
         raise InputError(f"{source}: {where} has unknown key {json.dumps(unknown[0][:40])}; "
@@ -180,7 +182,7 @@ def _parts(value, frame_count: int, source: str) -> tuple[tuple[str, int], ...]:
         where = f"parts[{i}]"
         if not isinstance(part, dict):
             raise InputError(f"{source}: {where} must be an object with name and start, got {_kind(part)}")
-        _known_keys(part, PART_KEYS, source, where)
+        _known_keys(part, PART_KEYS, source=source, where=where)
         name, start = part.get("name"), part.get("start")
         if not isinstance(name, str) or not 0 < len(name) <= MAX_PART_NAME:
             raise InputError(f"{source}: {where}.name must be a string of 1 to {MAX_PART_NAME} characters, "
@@ -210,66 +212,103 @@ def inspection_path(hlod: Hlod, *, seed: int, frames: int, up_axis: int = 2) -> 
     there. Scale-free: scaling the model by any factor (1e-9 to 1e9 are tested) scales the path
     by the same factor, near and far included."""
     rng = np.random.default_rng(seed)
-    lo, hi = hlod.box_min[0], hlod.box_max[0]
-    centre = 0.5 * (lo + hi)
-    # every length below is a multiple of the root radius (or of a leaf's radius), so the path of
-    # a model scaled by any factor is the same path scaled; the floor only keeps a model without
-    # extent apart from its eye in float64, and one at the origin gets 1 model unit
-    radius = max(0.5 * float(np.linalg.norm(hi - lo)), MIN_RADIUS_RELATIVE * float(np.abs(centre).max())) or 1.0
-    up = np.zeros(3)
-    up[up_axis] = 1.0
-    a, b = [ax for ax in range(3) if ax != up_axis]
+    scene = _PathFrame.of(hlod, up_axis)
     n_fly = n_dolly = n_rotate = frames // 4
     n_orbit = frames - n_fly - n_dolly - n_rotate
     start = rng.uniform(0, 2 * np.pi)
-    elevation = rng.uniform(0.15, 0.45) * radius
+    elevation = rng.uniform(0.15, 0.45) * scene.radius
+    out = [(scene.orbit_eye(start + 0.75 * np.pi * i / max(n_orbit, 1), 1.6 * scene.radius, elevation), scene.centre,
+            scene.up) for i in range(n_orbit)]
+    out += _fly_through(scene, rng, count=n_fly)
+    leaf = int(rng.choice(np.flatnonzero(hlod.is_leaf)))
+    focus = 0.5 * (hlod.lod_box_min[leaf] + hlod.lod_box_max[leaf])
+    far_eye = scene.orbit_eye(start + 0.75 * np.pi, 1.6 * scene.radius, elevation)
+    close_dist = max(0.02 * scene.radius, 2.0 * float(hlod.sphere_radius[leaf]))
+    near_eye = focus + (far_eye - focus) / np.linalg.norm(far_eye - focus) * close_dist
+    out += _dolly(scene, from_eye=far_eye, to_eye=near_eye, focus=focus, count=n_dolly)
+    out += _rotate(scene, eye=near_eye, look=focus - near_eye, count=n_rotate)
+    near = max(1e-4 * scene.radius, 0.01 * close_dist)
+    counts = (("orbit", n_orbit), ("fly-through", n_fly), ("dolly", n_dolly), ("rotate", n_rotate))
+    starts = np.cumsum([0] + [n for _, n in counts[:-1]])
+    parts = tuple((name, int(start)) for (name, n), start in zip(counts, starts) if n > 0)
+    return CameraPath(frames=np.array(out, np.float64), near=near, far=8.0 * scene.radius, fovy_deg=60.0,
+                      parts=parts)
 
-    def orbit_eye(angle, dist):
-        eye = centre.copy()
-        eye[a] += dist * np.cos(angle)
-        eye[b] += dist * np.sin(angle)
-        eye[up_axis] = centre[up_axis] + elevation * dist / (1.6 * radius)
+
+@dataclass(frozen=True, eq=False)
+class _PathFrame:
+    """The root box an inspection path moves around: lo, hi, centre (3,) float64; radius, a length
+    every distance of the path is a multiple of; the up axis and the two axes across it."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    centre: np.ndarray
+    radius: float
+    up: np.ndarray
+    up_axis: int
+    a: int
+    b: int
+
+    @classmethod
+    def of(cls, hlod: Hlod, up_axis: int) -> "_PathFrame":
+        lo, hi = hlod.box_min[0], hlod.box_max[0]
+        centre = 0.5 * (lo + hi)
+        # every length is a multiple of the root radius (or of a leaf's radius), so the path of a
+        # model scaled by any factor is the same path scaled; the floor only keeps a model without
+        # extent apart from its eye in float64, and one at the origin gets 1 model unit
+        radius = max(0.5 * float(np.linalg.norm(hi - lo)), MIN_RADIUS_RELATIVE * float(np.abs(centre).max())) or 1.0
+        up = np.zeros(3)
+        up[up_axis] = 1.0
+        a, b = [ax for ax in range(3) if ax != up_axis]
+        return cls(lo=lo, hi=hi, centre=centre, radius=radius, up=up, up_axis=up_axis, a=a, b=b)
+
+    def orbit_eye(self, angle: float, dist: float, elevation: float) -> np.ndarray:
+        """The eye at `angle` around the centre, `dist` away across, raised in proportion to dist."""
+        eye = self.centre.copy()
+        eye[self.a] += dist * np.cos(angle)
+        eye[self.b] += dist * np.sin(angle)
+        eye[self.up_axis] = self.centre[self.up_axis] + elevation * dist / (1.6 * self.radius)
         return eye
 
-    out = []
-    for i in range(n_orbit):
-        angle = start + 0.75 * np.pi * i / max(n_orbit, 1)
-        out.append((orbit_eye(angle, 1.6 * radius), centre, up))
-    # fly-through: along axis a or b, at a random lateral offset and a height in the lower half
+
+def _fly_through(scene: _PathFrame, rng: np.random.Generator, *, count: int) -> list:
+    """Along axis a or b, at a random lateral offset and a height in the lower half, looking ahead."""
+    a, b, up_axis, lo, hi = scene.a, scene.b, scene.up_axis, scene.lo, scene.hi
     along, across = (a, b) if rng.uniform() < 0.5 else (b, a)
-    fly_from, fly_to = centre.copy(), centre.copy()
-    fly_from[along], fly_to[along] = lo[along] - 0.2 * radius, hi[along] + 0.2 * radius
+    fly_from, fly_to = scene.centre.copy(), scene.centre.copy()
+    fly_from[along], fly_to[along] = lo[along] - 0.2 * scene.radius, hi[along] + 0.2 * scene.radius
     offset = rng.uniform(-0.35, 0.35) * (hi[across] - lo[across])
     height = lo[up_axis] + rng.uniform(0.1, 0.45) * (hi[up_axis] - lo[up_axis])
     for p in (fly_from, fly_to):
         p[across] += offset
         p[up_axis] = height
     heading = (fly_to - fly_from) / np.linalg.norm(fly_to - fly_from)
-    for i in range(n_fly):
-        eye = fly_from + (fly_to - fly_from) * (i / max(n_fly - 1, 1))
-        out.append((eye, eye + heading * radius, up))
-    leaves = np.flatnonzero(hlod.is_leaf)
-    leaf = int(rng.choice(leaves))
-    focus = 0.5 * (hlod.lod_box_min[leaf] + hlod.lod_box_max[leaf])
-    far_eye = orbit_eye(start + 0.75 * np.pi, 1.6 * radius)
-    close_dist = max(0.02 * radius, 2.0 * float(hlod.sphere_radius[leaf]))
-    direction = (far_eye - focus) / np.linalg.norm(far_eye - focus)
-    near_eye = focus + direction * close_dist
-    for i in range(n_dolly):
-        u = (i + 1) / max(n_dolly, 1)
+    out = []
+    for i in range(count):
+        eye = fly_from + (fly_to - fly_from) * (i / max(count - 1, 1))
+        out.append((eye, eye + heading * scene.radius, scene.up))
+    return out
+
+
+def _dolly(scene: _PathFrame, *, from_eye: np.ndarray, to_eye: np.ndarray, focus: np.ndarray, count: int) -> list:
+    """From the overview to the close-up, easing in and out, the target moving from the centre to
+    the focus."""
+    out = []
+    for i in range(count):
+        u = (i + 1) / max(count, 1)
         u = u * u * (3 - 2 * u)  # ease in and out
-        eye = far_eye * (1 - u) + near_eye * u
-        target = centre * (1 - u) + focus * u
-        out.append((eye, target, up))
-    look = focus - near_eye
-    for i in range(n_rotate):
-        angle = 0.5 * np.pi * np.sin(2 * np.pi * i / max(n_rotate, 1))
+        out.append((from_eye * (1 - u) + to_eye * u, scene.centre * (1 - u) + focus * u, scene.up))
+    return out
+
+
+def _rotate(scene: _PathFrame, *, eye: np.ndarray, look: np.ndarray, count: int) -> list:
+    """In place at `eye`: the view direction `look` swung up to 90 degrees each way about the up axis."""
+    a, b = scene.a, scene.b
+    out = []
+    for i in range(count):
+        angle = 0.5 * np.pi * np.sin(2 * np.pi * i / max(count, 1))
         c, s = np.cos(angle), np.sin(angle)
         d = look.copy()
         d[a], d[b] = c * look[a] - s * look[b], s * look[a] + c * look[b]
-        out.append((near_eye, near_eye + d, up))
-    near = max(1e-4 * radius, 0.01 * close_dist)
-    counts = (("orbit", n_orbit), ("fly-through", n_fly), ("dolly", n_dolly), ("rotate", n_rotate))
-    starts = np.cumsum([0] + [n for _, n in counts[:-1]])
-    parts = tuple((name, int(start)) for (name, n), start in zip(counts, starts) if n > 0)
-    return CameraPath(frames=np.array(out, np.float64), near=near, far=8.0 * radius, fovy_deg=60.0, parts=parts)
+        out.append((eye, eye + d, scene.up))
+    return out

@@ -12,7 +12,7 @@ a model placed 1e6 units away keeps its precision; `indices` are global rows int
 node i draws triangles `tri_offset[i] .. tri_offset[i] + tri_count[i] - 1` (one ranged draw).
 Bounds are float64 in world (model) units.
 
-Appearance (issue 13, appearance.py), only when the scene has it: per vertex `uvs` (v,2) float32
+Appearance (appearance.py), only when the scene has it: per vertex `uvs` (v,2) float32
 and `colors` (v,4) float32 linear RGBA, per triangle `tri_material` (t,) uint16 rows of
 `materials`. Within a node, triangles are sorted by material, so a node draws as one ranged draw
 per (node, material) (`draw_parts`).
@@ -177,13 +177,6 @@ def cube_sides(box_min: np.ndarray, box_max: np.ndarray, pad: float) -> np.ndarr
     return np.cbrt(np.prod(extent, axis=1))
 
 
-def node_mesh(hlod: Hlod, node: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """One node's own LOD (or leaf) triangles as a standalone mesh: (positions (v,3) float32 relative
-    to hlod.origin, faces (t,3) int64 local indices, normals (v,3) float32 or None)."""
-    mesh = node_geometry(hlod, node)
-    return mesh.positions, mesh.faces, mesh.normals
-
-
 @dataclass(frozen=True, eq=False)
 class NodeGeometry:
     """One node's triangles as a standalone mesh: positions (v,3) float32 relative to hlod.origin,
@@ -199,6 +192,8 @@ class NodeGeometry:
 
 
 def node_geometry(hlod: Hlod, node: int) -> NodeGeometry:
+    """One node's own LOD (or leaf) triangles as a standalone mesh (NodeGeometry): the vertices its
+    triangles use, renumbered in the order of their rows in the shared buffer."""
     first, count = int(hlod.tri_offset[node]), int(hlod.tri_count[node])
     rows = np.asarray(hlod.indices[first:first + count], np.int64)
     used, local = np.unique(rows, return_inverse=True)

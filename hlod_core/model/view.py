@@ -37,7 +37,8 @@ class View:
 
 
 def look_at(eye, target, up) -> np.ndarray:
-    """OpenGL view matrix (4,4) float64."""
+    """OpenGL view matrix (4,4) float64 of an eye (3,) looking at target (3,) with `up` (3,) (any up
+    parallel to the view direction is replaced by a perpendicular one)."""
     eye, target, up = (np.asarray(v, np.float64) for v in (eye, target, up))
     f = target - eye
     f /= np.linalg.norm(f)
@@ -54,7 +55,9 @@ def look_at(eye, target, up) -> np.ndarray:
     return m
 
 
-def perspective(fovy_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
+def perspective(fovy_deg: float, aspect: float, *, near: float, far: float) -> np.ndarray:
+    """OpenGL perspective projection (4,4) float64: vertical field of view in degrees, aspect =
+    width / height, near and far planes in model units (0 < near < far)."""
     f = 1.0 / np.tan(np.radians(fovy_deg) / 2.0)
     m = np.zeros((4, 4))
     m[0, 0], m[1, 1] = f / aspect, f
@@ -63,8 +66,9 @@ def perspective(fovy_deg: float, aspect: float, near: float, far: float) -> np.n
     return m
 
 
-def orthographic(height: float, aspect: float, near: float, far: float) -> np.ndarray:
-    """`height`: model units visible vertically."""
+def orthographic(height: float, aspect: float, *, near: float, far: float) -> np.ndarray:
+    """OpenGL orthographic projection (4,4) float64: `height` model units visible vertically, aspect
+    = width / height, near and far planes in model units."""
     m = np.eye(4)
     m[0, 0], m[1, 1] = 2.0 / (height * aspect), 2.0 / height
     m[2, 2], m[2, 3] = -2.0 / (far - near), -(far + near) / (far - near)

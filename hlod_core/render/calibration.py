@@ -127,7 +127,7 @@ def time_draws(renderer, fbo, *, clock: str) -> tuple[list, list, list]:
     eye = centre + CALIBRATION_EYE_DIAGONALS * diagonal * np.array([0.6, -0.7, 0.4])
     width, height = fbo.size
     mv = look_at(eye, centre, [0.0, 0.0, 1.0])
-    mvp = perspective(60.0, width / height, 0.05 * diagonal, 4.0 * diagonal) @ mv
+    mvp = perspective(60.0, width / height, near=0.05 * diagonal, far=4.0 * diagonal) @ mv
     renderer.set_node_matrices(mvp=mvp, mv=mv)
     tris = np.asarray(h.tri_count, np.int64)
     picks = draw_picks(tris)

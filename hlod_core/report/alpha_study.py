@@ -11,11 +11,11 @@ import time
 
 import numpy as np
 
-from ..traversal import boxes
-from ..traversal.alpha_estimators import alpha_cube, alpha_projected
 from ..model.hierarchy import Hlod
 from ..model.view import View
 from ..render.renderer import Renderer
+from ..traversal import boxes
+from ..traversal.alpha_estimators import alpha_cube, alpha_projected
 from ..traversal.settings import ALPHA_MODES
 
 #: Boxes sampled per view at most (seeded with SAMPLE_SEED), to bound the study's time.

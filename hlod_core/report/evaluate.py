@@ -1,33 +1,26 @@
-"""Evaluation (DESIGN §9): every method on one camera path, image error against run time; the run
-loop and the report's summary tables.
+"""Evaluation (DESIGN §9): every method on one camera path, image error against run time, written as
+report.json, report.md, report.html and figures.
 
 Reproduces the measurements of Charalambos' dissertation, chapter 8
 (`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`): Table 8.1 (PSNR of
 luminance and chrominance over 20 random frames against Bool), Table 8.2 (FPS, DN, RARN, D per
 method), Tables 8.3/8.4 (speedup and node savings of Coh(P)/Coh(mu) over Bool, Simp and SW),
-Figures 8.1-8.3 (`showcase`) and 8.4/8.5 (`report_figures`); plus the alpha estimators of DESIGN
-§5.3 (`alpha_study`) and sweeps over tau, (s, t) and alpha. Image error is `imagemetrics`, the
-Markdown `report_text`; pass/fail targets are not the product's: benchmarks/evaluation_targets.py
-reads a report.json and says which hold. `tuning` (issue 15: (s, t) tuned to a PSNR target) runs
-its candidates through the same loop (`run_interleaved`) and rows (`variant_row`, `psnr_against`)
-and writes its report with `write_report`.
+Figures 8.1-8.3 (`showcase`) and 8.4/8.5 (`per_frame_figure`); plus the alpha estimators of DESIGN
+§5.3 (`alpha_study`) and sweeps over tau, (s, t) and alpha. The variants run interleaved on one
+renderer (`interleaved`); their rows are `rows`, image error `image_error`, the Markdown
+`markdown`, the page `html_page`. Pass/fail targets are not the product's: benchmarks/
+evaluation_targets.py reads a report.json and says which hold. `tuning` runs its candidates
+through the same loop and rows and writes its report with `write_report`.
 
-Data form: per_frame[key] is a (repeat, frames, len(COUNTERS)) float64 array of FrameStats
-counters (traversal.COUNTERS order) per report key; the report is a JSON-ready dict of measured
-figures (report.json). Written beside it: per_frame.npz, the per-frame medians over repeats that
-the figures draw ("keys" (V,) report keys, "counters" (C,) COUNTERS, "median" (V, frames, C)
-float32), report.md, report.html (report_html: one self-contained page, figures embedded) and the
-figures; `redraw` draws the figures and pages again from report.json and per_frame.npz alone:
+Data form: per_frame[key] (repeat, frames, len(COUNTERS)) float64 counters per report key (see
+`interleaved`); per frame a counter's value is the median over repeats, a method's figure the mean
+over frames of that. The report is a JSON-ready dict of measured figures (report.json); beside it
+per_frame.npz (`per_frame_file`), from which `redraw` draws the figures and pages again:
 
     python -m hlod_core.report.evaluate --redraw DIR
 
-All variants run in one process on one renderer over the same path, interleaved frame by frame
-(each keeps its own traversal state; the order rotates every frame and runs backwards on odd
-repeats), so a drift in the machine's speed hits them alike and timings compare as ratios within
-the run. Per frame, a counter's value is the median over repeats; a method's figure is the mean
-over frames of that. Images for PSNR come from the first repeat, read back outside the timed frame,
-drawn with the HLOD's appearance where it has one (base-colour textures: textures.load_images),
-so the Cb/Cr columns compare coloured images.
+Images for PSNR come from the first repeat, drawn with the HLOD's appearance where it has one
+(base-colour textures: io.textures.load_images), so the Cb/Cr columns compare coloured images.
 """
 from __future__ import annotations
 
@@ -38,27 +31,26 @@ import logging
 import os
 import sys
 import time
-import zipfile
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from ..core import jsonutil
+from ..core.atomic import write_text_atomic
+from ..core.errors import HlodError, InputError
+from ..io.textures import load_images
+from ..model.camera_path import CameraPath
+from ..model.hierarchy import Hlod
+from ..render.renderer import Renderer
+from ..traversal.settings import ALPHA_MODES, RuntimeSettings
 from . import html_page
 from .alpha_study import alpha_estimators
-from ..core.atomic import atomic_file, write_text_atomic
-from ..model.camera_path import CameraPath
-from ..core.errors import HlodError, InputError
-from ..model.hierarchy import Hlod
-from .image_error import psnr, rmse_y
-from ..render.renderer import Renderer
+from .interleaved import Variant, psnr_frame_indices, run_interleaved
 from .markdown import markdown
+from .per_frame_file import PER_FRAME_FILE, load_per_frame, save_per_frame
+from .rows import SUMMARY_KEYS, relative_tables, settings_json, variant_row
 from .showcase import modulation_frames
-from ..io.textures import load_images
-from ..traversal.methods import make
-from ..traversal.settings import ALPHA_MODES, RuntimeSettings
-from ..traversal.stats import COUNTERS
 
 log = logging.getLogger(__name__)
 
@@ -75,23 +67,8 @@ LABELS = {"full": "Full", "vfc": "VFC", "bool": "Bool", "sw_p": "SW(P)", "sw_mu"
           "coh_p_alg4": "Coh(P) Alg. 4"}
 # Sweeps vary Coh(P) only (the method under study); the values include the paper's settings.
 SWEEPS = {"tau": (0.5, 1.0, 2.0, 4.0), "st": ((0.6, 0.2), (0.7, 0.15), (0.9, 0.05)), "alpha": ALPHA_MODES}
-SUMMARY_KEYS = ("fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms")
-PSNR_REFERENCES = ("bool", "full")  # the PSNR columns are against these methods' images
 ALPHA_STUDY_VIEWS = 5  # the first of the PSNR frames, reused as the alpha estimators' views
-PROGRESS_STEPS = 10  # log lines per repeat
-MS_PER_S = 1e3
-PER_FRAME_FILE = "per_frame.npz"
 REPORT_FILE = "report.json"
-
-
-@dataclass(frozen=True)
-class Variant:
-    """One timed configuration: a report key (a method key, or "coh_p tau=2" in a sweep)."""
-
-    key: str
-    method: str
-    settings: RuntimeSettings
-    sweep_value: object = None
 
 
 def variants(methods: list[str], settings: RuntimeSettings, sweep: str | None) -> list[Variant]:
@@ -100,7 +77,7 @@ def variants(methods: list[str], settings: RuntimeSettings, sweep: str | None) -
     out = []
     for key in methods:
         method, overrides = METHOD_SPECS[key]
-        out.append(Variant(key, method, replace(settings, **{"bias": "P", **overrides})))
+        out.append(Variant(key=key, method=method, settings=replace(settings, **{"bias": "P", **overrides})))
     for value in SWEEPS.get(sweep, ()):
         if sweep == "tau":
             changed, label = replace(settings, tau=float(value)), f"tau={value:g}"
@@ -108,7 +85,7 @@ def variants(methods: list[str], settings: RuntimeSettings, sweep: str | None) -
             changed, label = replace(settings, s=value[0], t=value[1]), f"s,t={value[0]:g},{value[1]:g}"
         else:
             changed, label = replace(settings, alpha=value), f"alpha={value}"
-        out.append(Variant(f"coh_p {label}", "coh", replace(changed, bias="P"), value))
+        out.append(Variant(key=f"coh_p {label}", method="coh", settings=replace(changed, bias="P"), sweep_value=value))
     return out
 
 
@@ -119,14 +96,8 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
              out_dir: str | os.PathLike, psnr_frames: int = 20, seed: int = 1, figures: bool = True) -> dict:
     """Runs, measures and writes report.json, per_frame.npz, report.md, report.html and (with
     `figures`, which needs matplotlib) the figures into out_dir; returns the report (the JSON
-    contents)."""
-    unknown = [m for m in methods if m not in METHOD_SPECS]
-    if unknown:
-        raise InputError(f"unknown method(s) {', '.join(unknown)}; expected some of {', '.join(METHOD_SPECS)}")
-    if repeat < 1:
-        raise InputError(f"repeat must be at least 1, got {repeat}")
-    if sweep is not None and sweep not in SWEEPS:
-        raise InputError(f"sweep must be one of {', '.join(SWEEPS)}, got {sweep!r}")
+    contents). InputError for an unknown method or sweep, or repeat < 1, before any GL work."""
+    _check_arguments(methods, repeat=repeat, sweep=sweep)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     frames = len(path)
@@ -157,41 +128,14 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     return report
 
 
-def psnr_frame_indices(frames: int, count: int, seed: int) -> list[int]:
-    """The seeded PSNR frames: `count` distinct frame indices of a `frames`-frame path (all of them
-    when count >= frames), ascending."""
-    rng = np.random.default_rng(seed)
-    return sorted(rng.choice(frames, size=min(count, frames), replace=False).tolist())
-
-
-def run_interleaved(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: tuple[int, int], runs: list[Variant],
-                    repeat: int, picked: list[int], started: float, label: str = "") -> tuple[dict, dict]:
-    """One timed pass of `runs` over the path, `repeat` times (module docstring: interleaved per
-    frame, each variant keeping its own traversal state, the order rotating every frame and running
-    backwards on odd repeats). Returns (per_frame, images): per_frame[key] (repeat, frames,
-    len(COUNTERS)) float64 counters; images[key][frame] (H, W, 3) uint8 of the first repeat at the
-    `picked` frames, read back outside the timed frame. `label` prefixes the progress lines."""
-    frames = len(path)
-    picked_set = set(picked)
-    per_frame = {v.key: np.zeros((repeat, frames, len(COUNTERS))) for v in runs}
-    images: dict[str, dict[int, np.ndarray]] = {v.key: {} for v in runs}
-    for rep in range(repeat):
-        # Interleaved per frame, each method keeping its own traversal state: a drift in the
-        # machine's speed (on a shared VM, tens of percent over minutes) then hits every method
-        # alike. The order rotates every frame and runs backwards on odd repeats.
-        traversals = [(v, make(v.method, hlod, renderer, settings=v.settings)) for v in runs]
-        for i in range(frames):
-            view = path.view(i, size)
-            turn = traversals[i % len(traversals):] + traversals[:i % len(traversals)]
-            for v, traversal in (turn if rep % 2 == 0 else turn[::-1]):
-                stats = traversal.frame(view)
-                per_frame[v.key][rep, i] = [getattr(stats, c) for c in COUNTERS]
-                if rep == 0 and i in picked_set:
-                    images[v.key][i] = renderer.read_pixels()
-            if (i + 1) % max(frames // PROGRESS_STEPS, 1) == 0 or i + 1 == frames:
-                log.info("%srepeat %d/%d: frame %d/%d (%.0f s)", label, rep + 1, repeat, i + 1, frames,
-                         time.perf_counter() - started)
-    return per_frame, images
+def _check_arguments(methods: list[str], *, repeat: int, sweep: str | None) -> None:
+    unknown = [m for m in methods if m not in METHOD_SPECS]
+    if unknown:
+        raise InputError(f"unknown method(s) {', '.join(unknown)}; expected some of {', '.join(METHOD_SPECS)}")
+    if repeat < 1:
+        raise InputError(f"repeat must be at least 1, got {repeat}")
+    if sweep is not None and sweep not in SWEEPS:
+        raise InputError(f"sweep must be one of {', '.join(SWEEPS)}, got {sweep!r}")
 
 
 def write_report(report: dict, medians: dict | None, out_dir: Path, *, figures: bool) -> None:
@@ -199,9 +143,9 @@ def write_report(report: dict, medians: dict | None, out_dir: Path, *, figures: 
     when there are none: no per-frame figure), report.json, report.md and report.html into out_dir."""
     report["figures"] = {}
     if figures:
-        from . import figures as report_figures  # matplotlib: loaded only when figures are made
+        from .figures import draw as draw_figures  # matplotlib: loaded only when figures are made
 
-        report["figures"] = report_figures.draw(report, medians, out_dir, labels=LABELS)
+        report["figures"] = draw_figures(report, medians, out_dir, labels=LABELS)
     write_text_atomic(out_dir / REPORT_FILE, json.dumps(report, indent=1))
     write_text_atomic(out_dir / "report.md", markdown(report, labels=LABELS))
     write_text_atomic(out_dir / "report.html", html_page.page(report, labels=LABELS, folder=out_dir))
@@ -233,40 +177,13 @@ def redraw(out_dir: str | os.PathLike) -> dict:
     return report
 
 
-def save_per_frame(target: Path, medians: dict) -> None:
-    """per_frame.npz (module docstring) of `medians`: report key -> (frames, len(COUNTERS))."""
-    keys = list(medians)
-    with atomic_file(target) as f:
-        np.savez_compressed(f, keys=np.array(keys, dtype=str), counters=np.array(COUNTERS, dtype=str),
-                            median=np.array([medians[k] for k in keys], dtype=np.float32))
-
-
-def load_per_frame(source: Path, *, frames: int | None = None) -> dict:
-    """report key -> (frames, len(COUNTERS)) float64 medians from per_frame.npz, in COUNTERS order
-    whatever order the file lists its counters in. Raises InputError naming the file when it is not
-    one (or holds another number of frames than `frames`, the report's)."""
-    try:
-        with np.load(source, allow_pickle=False) as data:
-            keys, counters, median = data["keys"], data["counters"], data["median"]
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
-        raise InputError(f"{source}: not an evaluation's per-frame file ({exc})") from None
-    missing = [c for c in COUNTERS if c not in counters.tolist()]
-    if median.ndim != 3 or median.shape[0] != len(keys) or median.shape[2] != len(counters) or missing:
-        raise InputError(f"{source}: not an evaluation's per-frame file (median {median.shape}, "
-                         f"{len(keys)} keys, counters missing: {', '.join(missing) or 'none'})")
-    if frames is not None and median.shape[1] != frames:
-        raise InputError(f"{source}: {median.shape[1]} frames, its report.json {frames}")
-    order = [counters.tolist().index(c) for c in COUNTERS]
-    return {str(k): median[i][:, order].astype(np.float64) for i, k in enumerate(keys)}
-
-
 def _summarise(hlod: Hlod, *, frames: int, size: tuple[int, int], runs: list[Variant], per_frame: dict,
                images: dict, picked: list[int], repeat: int, settings: RuntimeSettings, sweep: str | None) -> dict:
     """The report's figures from the per-frame counters and the PSNR frames' images (see module
     docstring)."""
     methods, sweeps = {}, {}
     for v in runs:
-        row = variant_row(per_frame[v.key], images, v.key, picked)
+        row = variant_row(per_frame[v.key], images, key=v.key, picked=picked)
         if v.sweep_value is None:
             methods[v.key] = row
         else:
@@ -279,62 +196,9 @@ def _summarise(hlod: Hlod, *, frames: int, size: tuple[int, int], runs: list[Var
     return report
 
 
-def settings_json(settings: RuntimeSettings) -> dict:
-    """report.json's "settings": every field of the run's RuntimeSettings but the bias (each method
-    has its own), k None for inf, so two reports made with different query options tell themselves
-    apart."""
-    out = {name: value for name, value in asdict(settings).items() if name != "bias"}
-    out["k"] = None if np.isinf(settings.k) else settings.k
-    return out
-
-
-def variant_row(counters: np.ndarray, images: dict, key: str, picked: list[int]) -> dict:
-    """One variant's row of the report: `counters` (repeat, frames, len(COUNTERS)) -> per frame the
-    median over repeats, then the mean over frames of each of SUMMARY_KEYS (and fps); PSNR mean and
-    s.d. per channel against each of PSNR_REFERENCES present in `images` (key -> frame -> image), and
-    the luminance RMSE against Full, over the `picked` frames (None where the reference is absent)."""
-    index = {c: j for j, c in enumerate(COUNTERS)}
-    median = np.median(counters, axis=0)  # per frame, over repeats
-    row = {c: float(np.mean(median[:, index[c]])) for c in COUNTERS}
-    row["fps"] = MS_PER_S / row["frame_ms"] if row["frame_ms"] > 0 else None
-    row = {k: row[k] for k in SUMMARY_KEYS} | {"traversed": row["traversed"]}
-    for ref in PSNR_REFERENCES:
-        values = psnr_against(images, key, ref, picked)
-        for c, name in enumerate(("y", "cb", "cr")):
-            row[f"psnr_{name}_vs_{ref}"] = None if values is None else float(np.mean(values[:, c]))
-            row[f"psnr_{name}_vs_{ref}_sd"] = None if values is None else float(np.std(values[:, c]))
-    rmse = [rmse_y(images[key][i], images["full"][i]) for i in picked] if "full" in images else None
-    row["rmse_y_vs_full"] = None if rmse is None else float(np.mean(rmse))
-    return row
-
-
-def psnr_against(images: dict, key: str, ref: str, picked: list[int]) -> np.ndarray | None:
-    """(len(picked), 3) PSNR dB of Y, Cb, Cr of `key`'s images against `ref`'s at the picked frames;
-    None when either has no images."""
-    if ref not in images or not images[ref] or not images[key]:
-        return None
-    return np.array([psnr(images[key][i], images[ref][i]) for i in picked])
-
-
-def relative_tables(methods: dict) -> dict:
-    """Tables 8.3/8.4: percent speedup (FPS ratio - 1) and node savings (1 - DN ratio) of Coh(P)
-    and Coh(mu) over Bool, Simp and SW of the same bias."""
-    out = {}
-    for coh, others in (("coh_p", ("bool", "simp_p", "sw_p", "coh_p_alg4")), ("coh_mu", ("bool", "simp_mu", "sw_mu"))):
-        if coh not in methods:
-            continue
-        rows = {}
-        for other in others:
-            if other in methods:
-                a, b = methods[coh], methods[other]
-                rows[other] = {"speedup_pct": 100.0 * (a["fps"] / b["fps"] - 1.0),
-                               "node_savings_pct": 100.0 * (1.0 - a["dn"] / b["dn"]) if b["dn"] > 0 else None}
-        out[coh] = rows
-    return out
-
-
 def summary_line(report: dict, out_dir) -> dict:
-    """The command's last stdout line: the issue's keys per method, frames, size, where the report is."""
+    """The command's last stdout line: SUMMARY_KEYS and the PSNR columns per method (and sweep point),
+    frames, size, where the report is."""
     keys = SUMMARY_KEYS + ("psnr_y_vs_bool", "psnr_cb_vs_bool", "psnr_cr_vs_bool", "psnr_y_vs_full")
     methods = {k: {c: r[c] for c in keys} for k, r in report["methods"].items()}
     out = {"methods": methods, "frames": report["frames"], "size": report["size"],

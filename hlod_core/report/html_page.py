@@ -3,7 +3,7 @@ rendered, every figure embedded as a base64 PNG data URI; no script, no link to 
 the file, so it opens anywhere (a browser offline, a mail attachment, Blender's file browser).
 
 Data form: in, the report dict (evaluate's report.json), the method labels and the folder holding
-the figures' PNG files; out, one HTML string. The Markdown it renders is the subset report_text
+the figures' PNG files; out, one HTML string. The Markdown it renders is the subset `markdown`
 writes: `#`/`##` headings, paragraphs, pipe tables (`---:` right-aligned), image lines
 `![caption](file)` with an optional `*caption*` line after them, and inline `code`, **strong** and
 *emphasis*.
@@ -42,7 +42,7 @@ def page(report: dict, *, labels: dict[str, str], folder: str | Path) -> str:
 
 
 def render(text: str, *, folder: Path) -> str:
-    """One HTML page of report_text's Markdown subset (module docstring); images from `folder`."""
+    """One HTML page of `markdown`'s Markdown subset (module docstring); images from `folder`."""
     blocks = _blocks(text.splitlines())
     body, title = [], "HLOD evaluation"
     i = 0
@@ -61,7 +61,7 @@ def render(text: str, *, folder: Path) -> str:
             if i + 1 < len(blocks) and len(blocks[i + 1]) == 1 and CAPTION_LINE.match(blocks[i + 1][0]):
                 caption = CAPTION_LINE.match(blocks[i + 1][0])["text"]
                 i += 1
-            body.append(_figure(folder, image["file"], image["alt"], caption))
+            body.append(_figure(folder, image["file"], alt=image["alt"], caption=caption))
         else:
             body.append(f"<p>{_inline(' '.join(block))}</p>")
         i += 1
@@ -113,7 +113,7 @@ def _table(block: list[str]) -> str:
     return f"<table>\n<thead><tr>{head}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>"
 
 
-def _figure(folder: Path, file: str, alt: str, caption: str | None) -> str:
+def _figure(folder: Path, file: str, *, alt: str, caption: str | None) -> str:
     """A figure with its PNG inlined as a data URI (a note in its place when the file is missing)."""
     path = folder / file
     mime = MIME_TYPES.get(path.suffix.lower())

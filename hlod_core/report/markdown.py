@@ -1,5 +1,5 @@
 """The evaluation report as Markdown (report.md): the figures first, with captions saying what to
-read in them, then the dissertation's tables. report_html renders the same text as one page.
+read in them, then the dissertation's tables. `html_page` renders the same text as one page.
 
 Data form: in, the report dict that evaluate.evaluate writes as report.json (measured figures only)
 and the method labels; out, one Markdown string.
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from ..traversal.settings import ALPHA_MODES
 
-# figure file -> what a reader sees in it (report_figures draws them)
+# figure file -> what a reader sees in it (`figures` draws them)
 FIGURE_CAPTIONS = {
     "error_vs_time.png": "Each method's mean frame time and image error (luminance RMSE against Full): lower left "
                          "is better; the grey band joins the methods that no other beats on both (the Pareto front).",
@@ -40,62 +40,92 @@ def _query_options(st: dict) -> str:
 
 def markdown(report: dict, *, labels: dict[str, str]) -> str:
     """report.md of a report (evaluate.evaluate's JSON); `labels`: report key -> method name shown."""
-    m = report["methods"]
-    w, h = report["size"]
-    st = report["settings"]
-    lines = [f"# HLOD evaluation: {report['frames']} frames at {w}x{h}",
-             "",
-             f"Scene: {report['scene']['input_tris']:,} input triangles, {report['scene']['nodes']:,} nodes, "
-             f"depth {report['scene']['depth']}. tau = {st['tau']:g} px, (s, t) = ({st['s']:g}, {st['t']:g}), "
-             f"k = {'inf' if st['k'] is None else st['k']}, alpha = {st['alpha']}{_query_options(st)}. {report['repeat']} repeats, methods "
-             f"interleaved frame by frame in a rotating order; per frame the median over repeats, then the mean over frames. Timings compare as "
-             f"ratios within this run (on llvmpipe, absolute times are the CPU rasteriser's).",
-             ""]
-    lines += _figures(report)
+    lines = _heading(report) + _figures(report)
     if report.get("psnr_target"):
         lines += _psnr_target(report["psnr_target"], frames=len(report["psnr_frames"]))
-    lines += ["## Per method (Table 8.2 columns and more)",
-              "",
-              "| method | FPS | frame ms | DN | RARN | D | triangles | queries | stall ms | CPU ms | GPU ms |",
-              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    for key, r in m.items():
+    lines += _per_method(report["methods"], labels=labels)
+    lines += _relative(report["relative"], labels=labels)
+    lines += _image_quality(report, labels=labels)
+    if report.get("sweep"):
+        lines += _sweep(report["sweep"])
+    if report.get("alpha_estimators") is not None:  # a tuning report (tuning.tune) runs no alpha study
+        lines += _alpha_estimators(report["alpha_estimators"])
+    return "\n".join(lines) + "\n"
+
+
+def _heading(report: dict) -> list[str]:
+    """The title and the paragraph on the scene, the settings and how the run was timed."""
+    w, h = report["size"]
+    st = report["settings"]
+    return [f"# HLOD evaluation: {report['frames']} frames at {w}x{h}",
+            "",
+            f"Scene: {report['scene']['input_tris']:,} input triangles, {report['scene']['nodes']:,} nodes, "
+            f"depth {report['scene']['depth']}. tau = {st['tau']:g} px, (s, t) = ({st['s']:g}, {st['t']:g}), "
+            f"k = {'inf' if st['k'] is None else st['k']}, alpha = {st['alpha']}{_query_options(st)}. "
+            f"{report['repeat']} repeats, methods interleaved frame by frame in a rotating order; per frame the "
+            "median over repeats, then the mean over frames. Timings compare as ratios within this run (on "
+            "llvmpipe, absolute times are the CPU rasteriser's).",
+            ""]
+
+
+def _per_method(methods: dict, *, labels: dict[str, str]) -> list[str]:
+    """Table 8.2's columns and more, a row per method."""
+    lines = ["## Per method (Table 8.2 columns and more)",
+             "",
+             "| method | FPS | frame ms | DN | RARN | D | triangles | queries | stall ms | CPU ms | GPU ms |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for key, r in methods.items():
         lines.append(f"| {labels[key]} | {_f(r['fps'], 1)} | {_f(r['frame_ms'])} | {_f(r['dn'])} | {_f(r['rarn'])} | "
                      f"{_f(r['d'])} | {_f(r['tris'], 0)} | {_f(r['queries'], 1)} | {_f(r['stall_ms'])} | "
                      f"{_f(r['cpu_ms'])} | {_f(r['gpu_ms'])} |")
-    lines += ["", "## Speedup and node savings (Tables 8.3 / 8.4), percent", "",
-              "| method | over | speedup % | node savings % |", "|---|---|---:|---:|"]
-    for coh, rows in report["relative"].items():
+    return lines
+
+
+def _relative(relative: dict, *, labels: dict[str, str]) -> list[str]:
+    """Tables 8.3 / 8.4: Coh(P) and Coh(mu) over the others."""
+    lines = ["", "## Speedup and node savings (Tables 8.3 / 8.4), percent", "",
+             "| method | over | speedup % | node savings % |", "|---|---|---:|---:|"]
+    for coh, rows in relative.items():
         for other, r in rows.items():
-            lines.append(f"| {labels[coh]} | {labels[other]} | {_f(r['speedup_pct'], 1)} | {_f(r['node_savings_pct'], 1)} |")
-    lines += ["", f"## Image quality (Table 8.1): PSNR dB, mean ± s.d. over {len(report['psnr_frames'])} seeded "
-              "frames (100 = identical)", "",
-              "| method | Y vs Bool | Cb vs Bool | Cr vs Bool | Y vs Full | Cb vs Full | Cr vs Full | RMSE Y vs Full |",
-              "|---|---:|---:|---:|---:|---:|---:|---:|"]
-    for key, r in m.items():
+            lines.append(f"| {labels[coh]} | {labels[other]} | {_f(r['speedup_pct'], 1)} | "
+                         f"{_f(r['node_savings_pct'], 1)} |")
+    return lines
+
+
+def _image_quality(report: dict, *, labels: dict[str, str]) -> list[str]:
+    """Table 8.1: PSNR of Y, Cb, Cr against Bool and Full, and the luminance RMSE against Full."""
+    lines = ["", f"## Image quality (Table 8.1): PSNR dB, mean ± s.d. over {len(report['psnr_frames'])} seeded "
+             "frames (100 = identical)", "",
+             "| method | Y vs Bool | Cb vs Bool | Cr vs Bool | Y vs Full | Cb vs Full | Cr vs Full | RMSE Y vs Full |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for key, r in report["methods"].items():
         cells = [f"{_f(r[f'psnr_{c}_vs_{ref}'], 1)} ± {_f(r[f'psnr_{c}_vs_{ref}_sd'], 1)}"
-                 if r[f"psnr_{c}_vs_{ref}"] is not None else "–" for ref in ("bool", "full") for c in ("y", "cb", "cr")]
+                 if r[f"psnr_{c}_vs_{ref}"] is not None else "–"
+                 for ref in ("bool", "full") for c in ("y", "cb", "cr")]
         lines.append(f"| {labels[key]} | " + " | ".join(cells) + f" | {_f(r['rmse_y_vs_full'])} |")
-    if report.get("sweep"):
-        lines += ["", f"## Sweep over {report['sweep']['name']} (Coh(P))", "",
-                  "| variant | frame ms | DN | RARN | stall ms | PSNR-Y vs Bool | RMSE Y vs Full |",
-                  "|---|---:|---:|---:|---:|---:|---:|"]
-        for key, r in report["sweep"]["points"].items():
-            lines.append(f"| {key} | {_f(r['frame_ms'])} | {_f(r['dn'])} | {_f(r['rarn'])} | {_f(r['stall_ms'])} | "
-                         f"{_f(r['psnr_y_vs_bool'], 1)} | {_f(r['rmse_y_vs_full'])} |")
-    a = report.get("alpha_estimators")
-    if a is None:  # a tuning report (tuning.tune) runs no alpha study
-        return "\n".join(lines) + "\n"
-    lines += ["", f"## alpha estimators ({a['nodes']} boxes over {a['views']} views; error against the exact "
-              "`query` count)", "", "| estimator | cost µs per node | median error % | 90th percentile error % |",
-              "|---|---:|---:|---:|"]
+    return lines
+
+
+def _sweep(sweep: dict) -> list[str]:
+    lines = ["", f"## Sweep over {sweep['name']} (Coh(P))", "",
+             "| variant | frame ms | DN | RARN | stall ms | PSNR-Y vs Bool | RMSE Y vs Full |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for key, r in sweep["points"].items():
+        lines.append(f"| {key} | {_f(r['frame_ms'])} | {_f(r['dn'])} | {_f(r['rarn'])} | {_f(r['stall_ms'])} | "
+                     f"{_f(r['psnr_y_vs_bool'], 1)} | {_f(r['rmse_y_vs_full'])} |")
+    return lines
+
+
+def _alpha_estimators(a: dict) -> list[str]:
+    lines = ["", f"## alpha estimators ({a['nodes']} boxes over {a['views']} views; error against the exact "
+             "`query` count)", "", "| estimator | cost µs per node | median error % | 90th percentile error % |",
+             "|---|---:|---:|---:|"]
     for mode in ALPHA_MODES:
         r = a[mode]
         lines.append(f"| {mode} | {_f(r['cost_us_per_node'], 1)} | {_f(r['median_rel_error_pct'])} | "
                      f"{_f(r['p90_rel_error_pct'])} |")
-    lines.append("")
-    lines.append("`query` is exact by definition (its cost is one extra GL query per node: charged as half "
-                 "the measured time of issuing and reading both queries).")
-    return "\n".join(lines) + "\n"
+    return lines + ["", "`query` is exact by definition (its cost is one extra GL query per node: charged as half "
+                        "the measured time of issuing and reading both queries)."]
 
 
 def _psnr_target(p: dict, *, frames: int) -> list[str]:

@@ -10,20 +10,20 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.png import write_png
+from ..io.textures import load_images
 from ..model.camera_path import CameraPath
 from ..model.hierarchy import Hlod
-from ..core.png import write_png
 from ..render.renderer import Renderer
-from ..io.textures import load_images
 from ..traversal.methods import make
 from ..traversal.settings import RuntimeSettings
-from ..traversal.stats import COUNTERS, QUERY_COUNTERS, FrameStats
+from ..traversal.stats import COUNTERS, FrameStats, QUERY_COUNTERS
 
 
-def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, path: CameraPath, size: tuple[int, int], *,
+def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, *, path: CameraPath, size: tuple[int, int],
              renderer: Renderer | None = None, save_frames: str | os.PathLike | None = None) -> dict:
     """Per-frame means of every counter, plus "frames". Uses `renderer` or a standalone one (with the
-    HLOD's texture images, textures.load_images)."""
+    HLOD's texture images, io.textures.load_images); `save_frames`: a folder for every frame as PNG."""
     own = renderer is None
     renderer = renderer or Renderer.create_standalone(hlod, size, images=load_images(hlod))
     try:

@@ -13,12 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import colour as overlay
-from ..model import view
+from ..core.colour import modulation_colour
+from ..core.png import write_png
 from ..model.camera_path import CameraPath
 from ..model.hierarchy import Hlod
-from ..model.view import View
-from ..core.png import write_png
+from ..model.view import View, look_at, orthographic
 from ..render.renderer import DEFAULT_COLOUR, Renderer
 from ..traversal.methods import make
 from ..traversal.stats import COUNTERS
@@ -49,8 +48,8 @@ def bird_view(hlod: Hlod, size: tuple[int, int], up_axis: int = 2) -> View:
     up = np.zeros(3)
     up[b] = 1.0
     far = _BIRD_FAR_DEPTHS * depth + _BIRD_FAR_MARGIN * height
-    return View(eye=eye, view=view.look_at(eye, centre, up),
-                projection=view.orthographic(height, w / h, _BIRD_NEAR_OF_FAR * far, far), width=w, height=h)
+    return View(eye=eye, view=look_at(eye, centre, up),
+                projection=orthographic(height, w / h, near=_BIRD_NEAR_OF_FAR * far, far=far), width=w, height=h)
 
 
 def draw_nodes(renderer: Renderer, view: View, *, nodes, colours) -> np.ndarray:
@@ -86,7 +85,7 @@ def modulation_frames(hlod: Hlod, renderer: Renderer, *, path: CameraPath, size:
         for i in range(frame + 1):
             stats = traversal.frame(path.view(i, size))
         shaded = renderer.read_pixels()
-        colours = overlay.modulation_colour(traversal.modulation(stats.drawn))
+        colours = modulation_colour(traversal.modulation(stats.drawn))
         user = draw_nodes(renderer, path.view(frame, size), nodes=stats.drawn, colours=colours)
         above = draw_nodes(renderer, bird, nodes=stats.drawn, colours=colours)
         files[key] = {}

@@ -1,39 +1,20 @@
-"""Tuning the bias P_{s,t} to an image-quality target (issue 15): the (s, t) with the fewest drawn
-nodes whose luminance PSNR against Bool stays at or above a target on a camera path, and the curve
-of drawn nodes against PSNR over the (s, t) tried.
+"""Tuning the bias P_{s,t} to an image-quality target: the (s, t) with the fewest drawn nodes whose
+luminance PSNR against Bool stays at or above a target on a camera path, and the curve of drawn
+nodes against PSNR over the (s, t) tried.
 
 Papers: VMSSE = P_{s,t}(mu) SSE and the bias P_{s,t} = (1 - s) mu + s S_t(mu) come from
 Charalambos, Bittner, Wimmer, Romero (ISVC 2007,
 `../shared/papers/charalambos-bittner-wimmer-romero2007-optimized-hlod-refinement.txt` §3) and
 Charalambos' dissertation (`charalambos2007-dissertation-hlod-refinement-hoq.txt`, chapter 8),
 which chose (s, t) per scene by hand and judged image quality by the PSNR of luminance against Bool
-(Table 8.1). DESIGN §5.2 defines P_{s,t} (the step S_t(mu) = [mu >= t] at k = inf), §9 the
-evaluation whose machinery this reuses (`evaluate.run_interleaved`, `evaluate.variant_row`,
-`evaluate.psnr_against`, `evaluate.write_report`).
+(Table 8.1). DESIGN §5.2 defines P_{s,t}, §9 the evaluation whose loop (`interleaved`), rows
+(`rows`) and report writing (`evaluate.write_report`) this reuses.
 
-The search. For fixed s, P_{s,t}(mu) is non-increasing in t for every mu (S_t(mu) is, for every k), so raising
-t modulates more: fewer drawn nodes, lower PSNR. Along each s of S_LINES a bisection over the
-ladder T_LADDER finds the largest t whose candidate meets the target (at most
-ceil(log2(len(T_LADDER) + 1)) = 4 candidates a line); s = 0, where P = mu for every t (Coh(mu)),
-is one more candidate. All lines advance together: round r runs Bool and each unfinished line's
-next Coh(P) candidate interleaved on one renderer over the same path (`evaluate.run_interleaved`),
-and each candidate's images at the seeded PSNR frames are compared with that round's Bool images.
-At most MAX_CANDIDATES candidates in MAX_ROUNDS rounds, plus Bool once per round. The chosen
-candidate is the one with the fewest drawn nodes among all the candidates tried that meet the
-target (ties: the higher PSNR), so a measured curve that is not quite monotone costs at most a
-missed t, never a choice that fails the target.
-
-The criterion is the *minimum* PSNR-Y over the PSNR frames, not the mean the report's PSNR column
-shows: the target reads "stays at or above DB on the path", and a mean in dB is inflated by frames
-identical to Bool's (capped at 100 dB), so half the frames at 100 and half at 30 would "meet" 60.
-Both are reported.
-
-When no candidate meets the target, only Bool's own image (the reference) does: the result is then
-(s, t) = MOST_CONSERVATIVE = (1, 0), the pointwise largest P of all (s, t): for the step (k = inf)
-P = 1 for every visible node (mu > 0) and P(0) = 0, Bool's criterion of queries as booleans; for a
-finite k, P = S_0(mu) >= mu. (s = 0 is the other end: P = mu modulates every partly visible node.)
-It is always among the candidates then (its line's bisection ends at t = 0), and the result says
-`met: false`.
+The search: a bisection over T_LADDER along each s of S_LINES, all lines advancing together, one
+round a pass of Bool and each line's next candidate; the chosen candidate has the fewest drawn
+nodes among those whose *lowest* PSNR-Y over the PSNR frames meets the target; when none does,
+MOST_CONSERVATIVE with `met: false`.
+Why: docs/how-it-works.md#tuning-s-and-t-to-a-psnr-target
 
 Data form: `search` returns a Search: candidates (a list of Candidate, in the order tried),
 the chosen one, whether it meets the target, and for the chosen one's round the report rows and
@@ -52,15 +33,18 @@ from pathlib import Path
 
 import numpy as np
 
-from . import evaluate
-from ..model.camera_path import CameraPath
 from ..core.errors import InputError
-from ..model.hierarchy import Hlod
-from .image_error import PSNR_CAP_DB
-from ..render.renderer import Renderer
 from ..io.textures import load_images
+from ..model.camera_path import CameraPath
+from ..model.hierarchy import Hlod
+from ..render.renderer import Renderer
 from ..traversal.settings import RuntimeSettings
 from ..traversal.stats import COUNTERS
+from .evaluate import write_report
+from .image_error import PSNR_CAP_DB
+from .interleaved import Variant, psnr_frame_indices, run_interleaved
+from .per_frame_file import PER_FRAME_FILE, save_per_frame
+from .rows import psnr_against, relative_tables, settings_json, variant_row
 
 log = logging.getLogger(__name__)
 
@@ -205,26 +189,27 @@ def search(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: tuple[int,
 def _round(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: tuple[int, int], settings: RuntimeSettings,
            points: list[tuple[float, float]], rnd: int, picked: list[int], repeat: int,
            started: float) -> tuple[dict, list]:
-    """One pass: Bool and Coh(P) at each (s, t) of `points`, interleaved (evaluate.run_interleaved).
+    """One pass: Bool and Coh(P) at each (s, t) of `points`, interleaved (interleaved.run_interleaved).
     Returns (Bool's report row, [(Candidate, its report row, {"bool", "coh_p": (frames, C) per-frame
     medians of this pass}) per point]). The pass's images are compared here and dropped."""
-    runs = [evaluate.Variant("bool", "bool", replace(settings, bias="P"))]
-    runs += [evaluate.Variant(candidate_key(s, t), "coh", replace(settings, s=s, t=t, bias="P")) for s, t in points]
-    per_frame, images = evaluate.run_interleaved(hlod, renderer, path, size=size, runs=runs, repeat=repeat,
-                                                 picked=picked, started=started, label=f"round {rnd + 1}: ")
+    runs = [Variant(key="bool", method="bool", settings=replace(settings, bias="P"))]
+    runs += [Variant(key=candidate_key(s, t), method="coh", settings=replace(settings, s=s, t=t, bias="P"))
+             for s, t in points]
+    per_frame, images = run_interleaved(hlod, renderer, path, size=size, runs=runs, repeat=repeat, picked=picked,
+                                        started=started, label=f"round {rnd + 1}: ")
     ms = COUNTERS.index("frame_ms")
     bool_median = np.median(per_frame["bool"], axis=0)  # per frame, over repeats
     bool_ms = float(np.mean(bool_median[:, ms]))
     measured = []
     for (s, t), v in zip(points, runs[1:]):
-        row = evaluate.variant_row(per_frame[v.key], images, v.key, picked)
-        psnr_y = evaluate.psnr_against(images, v.key, "bool", picked)[:, 0]
+        row = variant_row(per_frame[v.key], images, key=v.key, picked=picked)
+        psnr_y = psnr_against(images, key=v.key, ref="bool", picked=picked)[:, 0]
         candidate = Candidate(s=s, t=t, dn=row["dn"], psnr_y=float(np.min(psnr_y)), psnr_y_mean=float(np.mean(psnr_y)),
                               frame_ms=row["frame_ms"],
                               frame_ms_vs_bool=row["frame_ms"] / bool_ms if bool_ms > 0 else None, round=rnd)
         medians = {"bool": bool_median, "coh_p": np.median(per_frame[v.key], axis=0)}
         measured.append((candidate, row, medians))
-    return evaluate.variant_row(per_frame["bool"], images, "bool", picked), measured
+    return variant_row(per_frame["bool"], images, key="bool", picked=picked), measured
 
 
 def tune(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, target_db: float,
@@ -238,7 +223,7 @@ def tune(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, target_db: floa
         raise InputError(f"repeat must be at least 1, got {repeat}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    picked = evaluate.psnr_frame_indices(len(path), psnr_frames, seed)
+    picked = psnr_frame_indices(len(path), psnr_frames, seed)
     started = time.perf_counter()
     renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod))
     try:
@@ -249,14 +234,14 @@ def tune(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, target_db: floa
     chosen = replace(settings, s=found.chosen.s, t=found.chosen.t, bias="P")
     methods = {"bool": found.bool_rows[found.chosen.round], "coh_p": found.rows[found.chosen.key]}
     report = {"methods": methods, "frames": len(path), "size": list(size), "repeat": repeat,
-              "settings": evaluate.settings_json(chosen),
+              "settings": settings_json(chosen),
               "psnr_frames": picked, "sweep": None, "scene": hlod.summary(),
-              "relative": evaluate.relative_tables(methods), "psnr_target": section(found),
+              "relative": relative_tables(methods), "psnr_target": section(found),
               "parts": [{"name": name, "start": start} for name, start in path.parts],
               "seconds": time.perf_counter() - started}
-    evaluate.save_per_frame(out_dir / evaluate.PER_FRAME_FILE, found.medians)
+    save_per_frame(out_dir / PER_FRAME_FILE, found.medians)
     path.save(out_dir / "path.json")
-    evaluate.write_report(report, found.medians, out_dir, figures=figures)
+    write_report(report, found.medians, out_dir, figures=figures)
     return report
 
 
