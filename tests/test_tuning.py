@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from hlod_core import cli
+from hlod_core.cli import main as cli
 from hlod_core.io import hlod_file as fileformat, procedural
 from hlod_core.report import tuning
 from hlod_core.bake.pipeline import BakeSettings, bake
