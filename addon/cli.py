@@ -33,7 +33,7 @@ from pathlib import Path
 import bpy
 
 from ..hlod_core.bake import cache
-from ..hlod_core.bake.settings import BakeSettings, bake_settings
+from ..hlod_core.bake.settings import ERROR_MEASURES, BakeSettings, bake_settings
 from ..hlod_core.core.errors import HlodError, InputError
 from ..hlod_core.export.formats import export_hlod
 from ..hlod_core.io import hlod_file
@@ -49,6 +49,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def parser() -> argparse.ArgumentParser:
+    """The background command's parser: bake, export and view (docs/command-line.md lists their options)."""
     p = _Parser(prog="blender -b [FILE.blend] --command hlod",
                 description="Bake, export and view octree HLODs in batch.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -63,7 +64,7 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--target-tris", type=int, default=BakeSettings.target_tris)
     b.add_argument("--max-depth", type=int, default=BakeSettings.max_depth)
     b.add_argument("--quality-threshold", type=float, default=BakeSettings.quality_threshold)
-    b.add_argument("--error", choices=["exact", "bound"], default=BakeSettings.error,
+    b.add_argument("--error", choices=list(ERROR_MEASURES), default=BakeSettings.error,
                    help="inner nodes' error: exact (default) or bound (faster; looser, never smaller)")
     b.add_argument("--jobs", type=int, default=0, metavar="N",
                    help="worker processes of the bake (default 0: all cores but one)")
