@@ -1,13 +1,9 @@
-"""A bake in a child process (issue 14), for the Bake operator (modal or not) and the background
-command. No bpy here: the caller gathers the mesh on Blender's main thread first.
+"""A bake in a child process, for the Bake operator (modal or not) and the background command. No
+bpy here: the caller gathers the mesh on Blender's main thread first.
 
 `BakeJob` writes the mesh into a private scratch folder (`hlod-blender-*` in the temp folder;
-hlod_core/child.py says what is in it), then runs `python -m hlod_core.bake.child` with
-Blender's own Python (`sys.executable`: Blender's bundled interpreter, or the bpy module's) and only
-this extension's folder and the folders of its dependencies' wheels on PYTHONPATH, so `hlod_core`
-imports as from the command line and the bake runs `settings.jobs` worker processes. The child is
-the leader of its own process group (POSIX; on Windows its own process group too, without the
-signals), and it writes its temporary files into the scratch folder (TMPDIR).
+hlod_core/bake/child.py says what is in it), then runs `python -m hlod_core.bake.child` with
+Blender's own Python, which bakes with `settings.jobs` worker processes in its own process group.
 
 State, read from the main thread: `progress` (done, total, phase), from the child's progress lines
 (read by a thread, never blocking the caller); once `running` is false, `result` (a BakeResult) or
@@ -15,13 +11,11 @@ State, read from the main thread: `progress` (done, total, phase), from the chil
 reported, or BakeProcessError for a child that died (killed, crashed, out of memory) with its exit
 signal or status and the last lines it wrote on stderr.
 
-Cancel sends SIGTERM to the child's group (the workers end at once, the child unwinds its pool and
-its atomic write) and SIGKILL after STOP_GRACE_SECONDS. Whatever ends the child, the watcher thread
-then kills what is left of its group, removes the scratch folder and any temporary file the child's
-atomic write left beside the output, and only then reports the job finished: an earlier .hlod stays
-as it was unless the child renamed a complete new one over it. The child's stdin is a pipe this
-process keeps open: if Blender dies, the child sees it close, stops its group and removes the job's
-files itself. On Windows, cancel terminates the child; its workers end when they next read from it.
+`cancel()` sends SIGTERM to the child's process group, SIGKILL after STOP_GRACE_SECONDS. Whatever
+ends the child, what is left of its group, the scratch folder and the temporary files of its atomic
+write go before the job reports itself finished: an earlier .hlod stays as it was unless the child
+renamed a complete new one over it. If Blender dies, the child stops itself (its stdin closes).
+Why: docs/how-it-works.md#the-bakes-child-process-and-its-cleanup
 """
 from __future__ import annotations
 
@@ -41,7 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..hlod_core.bake import child
-from ..hlod_core.bake.pipeline import BakeSettings
+from ..hlod_core.bake.settings import BakeSettings
 from ..hlod_core.core.errors import BakeCancelled, HlodError
 from ..hlod_core.io.meshes import TriangleMesh
 

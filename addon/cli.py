@@ -8,20 +8,19 @@ with `bpy.utils.register_cli_command`, and the same code through the bpy module
     hlod view DIR [--port N] [--no-browser] [--cesium CESIUM_DIR]
 
 `bake` gathers each file's meshes in Blender and bakes them in a child process of Blender's Python
-with N worker processes (addon/bake_job.py, as the Bake operator; default 0 = all cores but one);
-Ctrl-C stops the child and its workers and writes nothing for that file. The bake keeps its cache
-(hlod_core/cache.py) in OUT.hlod.cache beside each .hlod, so a re-bake redoes only what
-changed; --no-cache bakes from scratch and keeps none.
+with N worker processes (addon/bake_job.py, as the Bake operator; default 0 = all cores but one,
+hlod_core.bake.settings.resolve_jobs); Ctrl-C stops the child and its workers and writes nothing
+for that file. The bake keeps its cache (hlod_core/bake/cache.py) in OUT.hlod.cache beside each
+.hlod, so a re-bake redoes only what changed; --no-cache bakes from scratch and keeps none.
 `bake` without .blend files bakes the open file into OUT (a .hlod path); with files, OUT is a
 folder and each file FILE.blend gives OUT/FILE.hlod and, with `--format 3dtiles`, OUT/FILE_3dtiles/.
 A file that fails is reported and the others go on. The last stdout line is a JSON summary
 ({"files": [{"blend", "ok", "outputs" | "error"}], "failed": N}); the exit status is 1 if any
 failed, 2 for bad arguments.
-`view` (issue 17) serves a 3D Tiles export (DIR holds tileset.json) and the CesiumJS viewer page on
-127.0.0.1 (hlod_core/export/viewer.py, imported only by this command) until Ctrl-C or SIGTERM, then exits
-0; the first line it prints is the page's URL (http://localhost:N/), for scripts. It opens the page
-with `webbrowser` unless --no-browser; --port 0 (the default) takes a free port. A folder without
-tileset.json, CesiumJS not found or a port in use is one line on stderr and exit status 2.
+`view` is the core's `view` command (hlod_core.export.viewer.serve_until_stopped, imported only by
+this command): the first line it prints is the page's URL (http://localhost:N/), for scripts; it
+serves until Ctrl-C or SIGTERM, then exits 0. A folder without tileset.json, CesiumJS not found or
+a port in use is one line on stderr and exit status 2.
 """
 from __future__ import annotations
 
@@ -34,13 +33,12 @@ from pathlib import Path
 import bpy
 
 from ..hlod_core.bake import cache
-from ..hlod_core.io import hlod_file
-from ..hlod_core.bake.pipeline import BakeSettings
-from ..hlod_core.export.formats import export_hlod
+from ..hlod_core.bake.settings import ERROR_MEASURES, BakeSettings, bake_settings
 from ..hlod_core.core.errors import HlodError, InputError
+from ..hlod_core.export.formats import export_hlod
+from ..hlod_core.io import hlod_file
 from . import scene_mesh
 from .bake_job import BakeJob
-from .settings import bake_settings
 
 _cli_command = None  # the handle of the registered command
 
@@ -51,6 +49,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def parser() -> argparse.ArgumentParser:
+    """The background command's parser: bake, export and view (docs/command-line.md lists their options)."""
     p = _Parser(prog="blender -b [FILE.blend] --command hlod",
                 description="Bake, export and view octree HLODs in batch.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -65,7 +64,7 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--target-tris", type=int, default=BakeSettings.target_tris)
     b.add_argument("--max-depth", type=int, default=BakeSettings.max_depth)
     b.add_argument("--quality-threshold", type=float, default=BakeSettings.quality_threshold)
-    b.add_argument("--error", choices=["exact", "bound"], default=BakeSettings.error,
+    b.add_argument("--error", choices=list(ERROR_MEASURES), default=BakeSettings.error,
                    help="inner nodes' error: exact (default) or bound (faster; looser, never smaller)")
     b.add_argument("--jobs", type=int, default=0, metavar="N",
                    help="worker processes of the bake (default 0: all cores but one)")
@@ -127,30 +126,25 @@ def execute(argv: list[str]) -> int:
 
 
 def _view(args) -> int:
-    """Serve until Ctrl-C or SIGTERM (signals as exceptions from before the URL is printed, so a
-    script that stops it once it has read the URL always gets exit status 0)."""
-    import webbrowser
-
+    """Serve until Ctrl-C or SIGTERM, exit status 0 (signals as exceptions from before the URL is
+    printed, so a script that stops it once it has read the URL always gets 0); 2 with one line
+    on stderr when it cannot serve."""
+    from ..hlod_core.core.signals import signals_as_exceptions
     from ..hlod_core.export import viewer  # here: the add-on imports no viewer code until it is used
-    from ..hlod_core.core.signals import Terminated, signals_as_exceptions
 
     with signals_as_exceptions():
         try:
-            if not 0 <= args.port <= 65535:
-                raise InputError(f"--port {args.port}: give 0 (a free port) or a port in 1..65535")
-            server = viewer.serve(Path(args.dir), port=args.port, cesium_dir=Path(args.cesium) if args.cesium else None)
+            viewer.serve_until_stopped(args.dir, port=args.port, cesium_dir=args.cesium or None,
+                                       open_browser=not args.no_browser, on_serving=_print_url)
         except (HlodError, OSError) as exc:
             print(f"hlod: error: {exc}", file=sys.stderr)
             return 2
-        with server:
-            print(server.url, flush=True)
-            if not args.no_browser:
-                webbrowser.open(server.url)
-            try:
-                server.serve_forever()
-            except (KeyboardInterrupt, Terminated):
-                pass
     return 0
+
+
+def _print_url(url: str) -> None:
+    """The view command's first stdout line, flushed at once (scripts wait for it)."""
+    print(url, flush=True)
 
 
 def _bake_file(args, blend: Path) -> dict:
@@ -175,10 +169,10 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
             raise InputError(f"--jobs {args.jobs}: give 0 (all cores but one) or a number of worker processes")
         objects = _objects(args)
         mesh = scene_mesh.evaluated_mesh(bpy.context, objects)
-        settings = bake_settings(args)
+        settings = bake_settings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=args.jobs,
+                                 quality_threshold=args.quality_threshold, error=args.error)
         target.parent.mkdir(parents=True, exist_ok=True)
-        cache_dir = None if args.no_cache else cache.default_folder(target)
-        cache.check_folder(cache_dir)
+        cache_dir = cache.folder_for(target, enabled=not args.no_cache)
         job = BakeJob(mesh, settings, str(target), cache_dir=cache_dir)
         job.join()
         if job.error is not None:

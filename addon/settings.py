@@ -1,30 +1,19 @@
 """Property group to core settings: the one pair of converters (STYLE: one function converts the
-Blender PropertyGroup into core settings). `scene.hlod` (addon/properties.py) and the background
-command's parsed arguments (addon/cli.py) carry the same field names, so both go through here.
+Blender PropertyGroup into core settings), over the core's builders (hlod_core.bake.settings
+.bake_settings, the one every front end calls; RuntimeSettings).
 """
 from __future__ import annotations
 
-import os
-
-from ..hlod_core.bake.pipeline import BakeSettings
+from ..hlod_core.bake.settings import BakeSettings, bake_settings as core_bake_settings
 from ..hlod_core.traversal.settings import RuntimeSettings
 
 
-def default_jobs() -> int:
-    """All the cores this process may use but one, at least 1: Blender keeps a core while the
-    bake's worker processes (issue 14) use the rest."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, cores - 1)
-
-
-def bake_settings(source) -> BakeSettings:
-    """`source`: scene.hlod or the command's arguments (target_tris, max_depth, quality_threshold,
-    jobs: worker processes, 0 = default_jobs()). The bake runs in a child process of Blender's
-    Python (addon/bake_job.py), where worker processes import hlod_core as from the command line."""
-    jobs = int(getattr(source, "jobs", 0) or 0) or default_jobs()
-    return BakeSettings(target_tris=int(source.target_tris), max_depth=int(source.max_depth), jobs=jobs,
-                        quality_threshold=float(source.quality_threshold),
-                        error=str(getattr(source, "error", "exact") or "exact"))
+def bake_settings(props) -> BakeSettings:
+    """scene.hlod -> the bake's settings (jobs 0 = all cores but one: bake.settings.resolve_jobs).
+    The bake runs in a child process of Blender's Python (addon/bake_job.py), where worker
+    processes import hlod_core as from the command line."""
+    return core_bake_settings(target_tris=props.target_tris, max_depth=props.max_depth, jobs=props.jobs,
+                              quality_threshold=props.quality_threshold, error=props.error)
 
 
 def runtime_settings(props) -> RuntimeSettings:

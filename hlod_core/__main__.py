@@ -1,6 +1,6 @@
 import sys
 
-from .cli import main
+from .cli import main as command_line
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(command_line.main())

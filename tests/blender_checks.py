@@ -165,7 +165,7 @@ def check_bake(repo, work) -> dict:
     # between tasks and writes nothing; a finished job has written its file
     job_mod = importlib.import_module(NAME + ".addon.bake_job")
     scenes = importlib.import_module(NAME + ".hlod_core.io.procedural")
-    settings_cls = importlib.import_module(NAME + ".hlod_core.bake.pipeline").BakeSettings
+    settings_cls = importlib.import_module(NAME + ".hlod_core.bake.settings").BakeSettings
     city = scenes.default_scene(scale=0.5)
     target = Path(work) / "job" / "city.hlod"
     target.parent.mkdir()

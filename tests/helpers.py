@@ -48,7 +48,8 @@ def load_model(name: str):
 
 def bake_model(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = DEFAULT_TARGET_TRIS):
     """(TriangleMesh, Hlod) of a shared model, optionally translated by `offset` model units on every axis."""
-    from hlod_core.bake.pipeline import BakeSettings, bake
+    from hlod_core.bake.pipeline import bake
+    from hlod_core.bake.settings import BakeSettings
     from hlod_core.io import meshes
 
     mesh = load_model(name)
@@ -61,7 +62,8 @@ def bake_model(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: in
 
 def bake_city():
     """The default procedural city (about 217k triangles), baked with 2 jobs: about 10 s."""
-    from hlod_core.bake.pipeline import BakeSettings, bake
+    from hlod_core.bake.pipeline import bake
+    from hlod_core.bake.settings import BakeSettings
     from hlod_core.io import procedural
 
     return bake(procedural.default_scene(seed=1), BakeSettings(jobs=2))

@@ -9,11 +9,28 @@ import sys
 import pytest
 
 from helpers import ROOT, SCENES, model
+from hlod_core.bake import settings as bake_settings_module
+from hlod_core.cli.main import build_parser
+from hlod_core.cli.options import bake_settings_of
+from hlod_core.core.errors import InputError
 from processes import hlod, last_json, one_line_error, write_text
 
 BAKE_KEYS = {"nodes", "leaves", "depth", "input_tris", "leaf_tris", "root_tris", "max_error", "seconds",
              "tris_per_second"}
 ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}
+
+
+@pytest.mark.parametrize("cores, expected", [(1, 1), (2, 1), (8, 7)])
+def test_jobs_0_is_all_cores_but_one(monkeypatch, cores, expected):
+    """One rule for every front end (bake.settings.resolve_jobs, which the extension's settings
+    and its background command call too): 0 = the cores this process may use but one, at least 1;
+    any other count is kept; a negative one is refused."""
+    monkeypatch.setattr(bake_settings_module, "usable_cores", lambda: cores)
+    assert bake_settings_module.resolve_jobs(0) == expected and bake_settings_module.resolve_jobs(3) == 3
+    args = build_parser().parse_args(["bake", "a.obj", "-o", "x.hlod", "--jobs", "0"])
+    assert bake_settings_of(args).jobs == expected
+    with pytest.raises(InputError, match="all cores but one"):
+        bake_settings_module.resolve_jobs(-1)
 
 
 def test_bake_scene_spec_and_info(tmp_path):

@@ -11,7 +11,7 @@ import sys
 import pytest
 
 from helpers import ROOT, model
-from hlod_core import cli
+from hlod_core.cli.main import main
 from processes import group_is_gone, hlod, last_json, one_line_error, wait_for
 
 
@@ -62,7 +62,7 @@ def test_argument_errors_are_one_line(capsys, args, expect):
     """argparse printed its whole usage before the error; a negative --seed reached numpy's
     default_rng as a ValueError traceback (run, evaluate, scene). In process: the real parser."""
     with pytest.raises(SystemExit) as exit_info:
-        cli.main(args)
+        main(args)
     out, err = capsys.readouterr()
     assert exit_info.value.code == 2 and out == ""
     lines = err.splitlines()

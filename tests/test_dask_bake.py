@@ -163,7 +163,7 @@ def _refused(tmp_path, *args, prelude: str = "") -> str:
     """Run a bake of cow.obj with `args` (prelude: Python run first, in the same process); returns
     its one error line after checking exit 2 and that nothing was written next to the output."""
     before = sorted(p.name for p in tmp_path.iterdir())
-    code = f"{prelude}\nimport sys\nfrom hlod_core.cli import main\nsys.exit(main(sys.argv[1:]))"
+    code = f"{prelude}\nimport sys\nfrom hlod_core.cli.main import main\nsys.exit(main(sys.argv[1:]))"
     proc = subprocess.run([sys.executable, "-c", code, "bake", str(model("cow.obj")), "-o", str(tmp_path / "x.hlod"),
                            *map(str, args)], cwd=ROOT, capture_output=True, text=True, timeout=120,
                           env={**os.environ, "PYTHONPATH": str(ROOT)})

@@ -90,7 +90,7 @@ def _core_options() -> tuple[dict[str, set[str]], set[str]]:
     """({subcommand: its option strings}, the top level's) of `python -m hlod_core`."""
     import argparse
 
-    from hlod_core.cli import build_parser
+    from hlod_core.cli.main import build_parser
 
     parser = build_parser()
     commands: dict[str, set[str]] = {}

@@ -334,7 +334,7 @@ def test_a_write_past_the_file_size_limit_names_the_file(saved, tmp_path):
     script = ("import resource, signal, sys\n"
               "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
               "resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))\n"
-              "from hlod_core.cli import main\n"
+              "from hlod_core.cli.main import main\n"
               f"sys.exit(main(['-q', 'export', {str(saved)!r}, '--format', 'hlod', '-o', {str(out)!r}]))\n")
     env = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONDONTWRITEBYTECODE": "1"}
     proc = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)

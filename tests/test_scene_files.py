@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from hlod_core import cli
+from hlod_core.cli import main as cli
 from hlod_core.io import hlod_file, meshes
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.core.errors import InputError

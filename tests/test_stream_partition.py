@@ -15,7 +15,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from hlod_core import cli
+from hlod_core.cli import main as cli
 from hlod_core.bake import octree, partition
 from hlod_core.bake.meta import stable_meta
 from hlod_core.bake.pipeline import bake, bake_stream
@@ -265,7 +265,7 @@ def test_open_files_stay_few_however_many_leaves(spec, tmp_path):
     scratch = tmp_path / "scratch"
     scratch.mkdir()
     limited = ("import resource, sys; resource.setrlimit(resource.RLIMIT_NOFILE, (128, resource.getrlimit("
-               "resource.RLIMIT_NOFILE)[1])); from hlod_core import cli; sys.exit(cli.main(sys.argv[1:]))")
+               "resource.RLIMIT_NOFILE)[1])); from hlod_core.cli.main import main; sys.exit(main(sys.argv[1:]))")
     run = subprocess.run([sys.executable, "-c", limited, "bake", str(spec), "-o", str(tmp_path / "a.hlod"),
                           "--target-tris", "60", "--jobs", "1", "--out-of-core", "--scratch", str(scratch)],
                          cwd=ROOT, capture_output=True, text=True, timeout=600)

@@ -13,7 +13,7 @@ from dataclasses import replace
 
 import pytest
 
-from hlod_core import cli
+from hlod_core.cli import main as cli
 from hlod_core.io import hlod_file, procedural
 from hlod_core.report import tuning
 from hlod_core.bake.pipeline import BakeSettings, bake

@@ -1,7 +1,9 @@
-"""The bake's settings: one frozen dataclass, checked when made, that every front end builds
-(the command line, the Blender extension's properties, a bake job's JSON)."""
+"""The bake's settings: one frozen dataclass, checked when made, and `bake_settings`, the builder
+every front end calls (the command line, the Blender extension's properties and its background
+command); a bake job's JSON holds the dataclass's fields."""
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 from ..core.errors import InputError
@@ -43,3 +45,29 @@ class BakeSettings:
         """The settings pymeshlab's collapse takes (meshlab.quadric_collapse)."""
         return DecimationSettings(target_tris=self.target_tris, quality_threshold=self.quality_threshold,
                                   preserve_normals=self.preserve_normals, boundary_weight=self.boundary_weight)
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the platform has one), at least 1."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return os.cpu_count() or 1
+
+
+def resolve_jobs(jobs: int) -> int:
+    """Worker processes for a front end's `jobs`: `jobs` itself when >= 1; 0 = all the cores this
+    process may use but one, at least 1 (the bake's own process schedules the tasks and composes
+    their results; in Blender it also keeps the interface responsive). InputError below 0."""
+    if jobs < 0:
+        raise InputError(f"jobs must be 0 (all cores but one) or a number of worker processes, got {jobs}")
+    return int(jobs) if jobs > 0 else max(1, usable_cores() - 1)
+
+
+def bake_settings(*, target_tris: int, max_depth: int, jobs: int, quality_threshold: float,
+                  preserve_normals: bool = False, error: str = "exact") -> BakeSettings:
+    """The BakeSettings of a front end's values (the command line's options, the extension's
+    properties or its background command's options): plain ints, floats and strings (Blender's
+    properties give their own), jobs through resolve_jobs. InputError for a value out of range."""
+    return BakeSettings(target_tris=int(target_tris), max_depth=int(max_depth), jobs=resolve_jobs(int(jobs)),
+                        quality_threshold=float(quality_threshold), preserve_normals=bool(preserve_normals),
+                        error=str(error))

@@ -24,8 +24,10 @@ import os
 import threading
 import urllib.parse
 from pathlib import Path
+from typing import Callable
 
 from ..core.errors import InputError
+from ..core.signals import Terminated
 
 log = logging.getLogger(__name__)
 
@@ -161,3 +163,24 @@ def serve(tiles_dir: str | os.PathLike, *, port: int = 0, cesium_dir: str | os.P
     if not 0 <= port <= 65535:
         raise InputError(f"--port {port}: give 0 (a free port) or a port in 1..65535")
     return ViewerServer(tiles_dir, find_cesium(cesium_dir), port=port)
+
+
+def serve_until_stopped(tiles_dir: str | os.PathLike, *, port: int = 0, cesium_dir: str | os.PathLike | None = None,
+                        open_browser: bool = True, on_serving: Callable[[str], None] | None = None) -> str:
+    """The `view` command of both front ends: serve `tiles_dir` (as `serve`) from this thread until
+    Ctrl-C or a stop signal (core.signals.Terminated, under signals_as_exceptions), a normal end;
+    returns the page's URL. `on_serving(url)` runs once the port is open (the commands print the
+    URL there), then the page opens in the web browser unless `open_browser` is false. InputError
+    as `serve`; the port is free again when this returns."""
+    import webbrowser
+
+    with serve(tiles_dir, port=port, cesium_dir=cesium_dir) as server:
+        if on_serving is not None:
+            on_serving(server.url)
+        if open_browser and not webbrowser.open(server.url):
+            log.info("no web browser found: open %s", server.url)
+        try:
+            server.serve_forever()
+        except (KeyboardInterrupt, Terminated):
+            pass
+    return server.url
