@@ -181,7 +181,7 @@ def test_view_tests_equal_the_textbook_box_tests(product_boxes, monkeypatch):
     distances bit for bit (same operations), the booleans exactly. product_boxes 64: the frustum
     test's matrix product in chunks of 64 boxes (as above 4,096 boxes)."""
     if product_boxes is not None:
-        monkeypatch.setattr(boxes, "_PRODUCT_BOXES", product_boxes)
+        monkeypatch.setattr(boxes, "PRODUCT_BOXES", product_boxes)
     rng = np.random.default_rng(7)
     checked = {"in": 0, "out": 0, "unqueryable": 0, "eye inside": 0}
     for trial in range(40):
