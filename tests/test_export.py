@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import ROOT, baked, textured_scene
+from helpers import ROOT, textured_scene
 from hlod_core.io import hlod_file as fileformat, meshes
 from hlod_core.export import tiles3d
 from hlod_core.model.appearance import Material
@@ -105,8 +105,8 @@ def test_glb_layout_and_axes():
         "primitives"][0]["attributes"]
 
 
-def test_export_command_on_shared_model_passes_the_validators(tmp_path):
-    _, h = baked("cow.obj", target_tris=500)
+def test_export_command_on_shared_model_passes_the_validators(bakes, tmp_path):
+    _, h = bakes.baked("cow.obj", target_tris=500)
     src = fileformat.save(h, tmp_path / "cow.hlod")
     out = last_json(hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "cow_tiles"))
     assert out["tiles"] == out["glb_files"] == h.node_count and out["triangles"] == int(h.tri_count.sum())
@@ -136,8 +136,8 @@ def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_prec
     assert_matches(tmp_path / "tiles", src)
 
 
-def test_export_refuses_to_replace_a_foreign_folder(tmp_path):
-    _, h = baked("cow.obj", target_tris=500)
+def test_export_refuses_to_replace_a_foreign_folder(bakes, tmp_path):
+    _, h = bakes.baked("cow.obj", target_tris=500)
     src = fileformat.save(h, tmp_path / "cow.hlod")
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("keep me")
@@ -191,8 +191,8 @@ def test_background_command_names_a_missing_extension_repository(tmp_path):
         "(make one with blender_ext.py install-files --local-dir DIR hlod-*.zip)"]
 
 
-def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_children():
-    _, h = baked("cow.obj", target_tris=500)
+def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_children(bakes):
+    _, h = bakes.baked("cow.obj", target_tris=500)
     leaves = np.flatnonzero(h.child_count == 0)
     counts = np.asarray(h.tri_count).copy()
     counts[leaves[0]] = 0  # an empty leaf: no tile at all
@@ -211,11 +211,11 @@ def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_ch
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o027])
-def test_export_modes_follow_the_umask(tmp_path, umask):
+def test_export_modes_follow_the_umask(bakes, tmp_path, umask):
     """Issue 11: the tileset folder came out 0700 (mkdtemp's mode) whatever the umask; now folders
     are 0777 and files 0666 less the umask, like any other tool's output, also when replacing.
     Issue 13: the copied textures too, whatever the modes of their sources."""
-    _, h = baked("cow.obj", target_tris=500)
+    _, h = bakes.baked("cow.obj", target_tris=500)
     png, jpeg = write_textures(tmp_path)
     os.chmod(png, 0o600)
     os.chmod(jpeg, 0o755)
