@@ -386,7 +386,7 @@ def check_make_blends(repo, work) -> dict:
 
 
 
-# --- the long session (issue 11): redraws, file switches, re-bakes, toggles, every method -------------
+# --- the long session: redraws, file switches, re-bakes, toggles, every method -------------
 
 SESSIONS = 50  # file switches, each followed by a re-bake
 REDRAWS_PER_SESSION = 200  # 50 x 200 = 10,000 redraws

@@ -1,7 +1,7 @@
 """Appearance through the bake: materials, UVs and colours on leaves and decimated nodes.
 
-The input is a sphere built in numpy (sample_meshes.textured_sphere) whose attributes are functions of position, so what a
-LOD vertex should carry is known from its position alone:
+The input is a sphere built in numpy (sample_meshes.textured_sphere) whose attributes are
+functions of position, so what a LOD vertex should carry is known from its position alone:
   - two materials, split by the plane x = 0.2 (a material border);
   - UV = planar projection of the position (u, v) = (x, y) / 2 + 0.5, plus 1 on u for the faces
     behind z = 0 (a UV seam: the vertices there are split in two, one per side);

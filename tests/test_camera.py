@@ -94,7 +94,8 @@ def _drawn_nodes(ctx, hlod, method: str, size=(128, 96)) -> np.ndarray:
     path = inspection_path(hlod, seed=4, frames=12)
     renderer = Renderer(ctx, hlod, size=size)
     try:
-        traversal = make(method, hlod, ScriptedAvailability(renderer, LAG), settings=RuntimeSettings(skip_queries="off"))
+        lagged = ScriptedAvailability(renderer, LAG)
+        traversal = make(method, hlod, lagged, settings=RuntimeSettings(skip_queries="off"))
         return np.array([traversal.frame(path.view(i, size)).dn for i in range(len(path))], float)
     finally:
         renderer.release()

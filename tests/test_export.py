@@ -1,4 +1,4 @@
-"""3D Tiles export and batch baking from background mode (issue "Batch export ... 3D Tiles"),
+"""3D Tiles export and batch baking from background mode,
 checked by independent tools: the Khronos glTF validator for every GLB and CesiumGS 3d-tiles-tools
 reading the tileset back (tools/validators/check_tileset.mjs)."""
 import hashlib
@@ -212,9 +212,9 @@ def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_ch
 
 @pytest.mark.parametrize("umask", [0o022, 0o027])
 def test_export_modes_follow_the_umask(bakes, tmp_path, umask):
-    """Issue 11: the tileset folder came out 0700 (mkdtemp's mode) whatever the umask; now folders
-    are 0777 and files 0666 less the umask, like any other tool's output, also when replacing.
-    Issue 13: the copied textures too, whatever the modes of their sources."""
+    """Folders are 0777 and files 0666 less the umask, like any other tool's output, also when
+    replacing (a tileset folder made by mkdtemp is 0700 whatever the umask); the copied textures
+    too, whatever the modes of their sources."""
     _, h = bakes.baked("cow.obj", target_tris=500)
     png, jpeg = write_textures(tmp_path)
     os.chmod(png, 0o600)
@@ -234,7 +234,7 @@ def test_export_modes_follow_the_umask(bakes, tmp_path, umask):
         os.umask(old)
 
 
-# --- appearance (issue 13) ----------------------------------------------------------------------
+# --- appearance: materials, UVs, colours, textures -----------------------------------------------
 
 def literal_hlod(*, normals: bool) -> Hlod:
     """A 3-node HLOD written out by hand, no bake: the root's 2-triangle LOD over [0,2]x[0,1], leaves
@@ -280,7 +280,8 @@ def folder_digest(folder) -> tuple[list[str], str]:
 
 
 # SHA-256 of the export of literal_hlod (file names and bytes, see folder_digest) by the code before
-# issue 13: recorded with hlod_core/export/tiles3d.py at commit 6d77cb6 (unchanged since 844ae1f), running
+# the export carried appearance: recorded with hlod_core/export/tiles3d.py at commit 6d77cb6 (unchanged
+# since 844ae1f), running
 # `tiles3d.export(literal_hlod(normals=...), DIR)` then `folder_digest(DIR)`.
 BEFORE_APPEARANCE_DIGESTS = {False: "93e9e14dca7b80309e75213edcbea1d67289dcef4ac23a4c31036573010ea475",
                              True: "369da809dca32415f02196c25d4f9fa7b3e3c67b6559f746f4caf1afbcd4eb60"}

@@ -275,7 +275,7 @@ def test_cube_alpha_formula_and_eye_at_centre():
     assert alpha_estimators.alpha_cube(at_centre, np.array([2.0]), box_min=lo, box_max=hi)[0] == np.inf
 
 
-# --- frustum planes over far/near ratios from 1e4 to 1e20 (issue 11) ---------------------------
+# --- frustum planes over far/near ratios from 1e4 to 1e20 ---------------------------
 
 def test_frustum_planes_exact_for_a_90_degree_camera_at_the_origin():
     # looking down -z, fovy 90, square viewport: inside is |x| <= -z, |y| <= -z, 1 <= -z <= 100

@@ -1,4 +1,4 @@
-"""Issue 15, tuning to an image-quality target (hlod_core/report/tuning.py, `evaluate --psnr-target DB`): the
+"""Tuning to an image-quality target (hlod_core/report/tuning.py, `evaluate --psnr-target DB`): the
 (s, t) with the fewest drawn nodes whose lowest PSNR-Y against Bool over the PSNR frames reaches the
 target, the curve of the candidates tried in report.json / report.md / psnr_target.png, the fallback
 when nothing reaches it, and the option's bad values.

@@ -1,4 +1,4 @@
-"""Issue 17: the tiles CesiumJS chooses against the nodes our VFC traversal draws for the same camera
+"""The tiles CesiumJS chooses against the nodes our VFC traversal draws for the same camera
 and threshold (benchmarks/cesium_compare.py holds the comparison and the explanation of each term).
 
 Cesium runs for real: the viewer page (hlod_core/export/viewer_page) served by hlod_core.export.viewer, in
