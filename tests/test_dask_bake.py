@@ -55,7 +55,9 @@ def _both_workers(client) -> dict[str, int]:
     return client.run(os.getpid)
 
 
-@pytest.mark.parametrize("error", ["exact", "bound"])
+# the bound measure on a cluster is slow: the quick set has the bound's own checks (test_error_bound)
+# and this cluster path with the exact measure
+@pytest.mark.parametrize("error", ["exact", pytest.param("bound", marks=pytest.mark.slow)])
 def test_a_cluster_bake_writes_the_file_a_local_bake_writes(cluster, herd, error, tmp_path):
     settings = BakeSettings(target_tris=HERD_TRIS, error=error)
     local = bake(herd, settings)
@@ -67,6 +69,7 @@ def test_a_cluster_bake_writes_the_file_a_local_bake_writes(cluster, herd, error
     assert list(scratch.iterdir()) == []  # the bake's subfolder is gone
 
 
+@pytest.mark.slow  # robustness beside the cluster bake's path (above), a bake and a worker restart
 def test_a_worker_killed_mid_bake_has_its_tasks_retried(cluster, herd, tmp_path):
     """SIGKILL of a worker process that is running a task, a third of the way through the inner
     nodes: the scheduler gives its tasks to the other worker (and to the one its nanny restarts),
@@ -285,6 +288,7 @@ def test_the_workers_shared_arrays_follow_the_folder_and_are_thread_safe(tmp_pat
         tasks.release_shared(str(tmp_path))
 
 
+@pytest.mark.slow  # out of core and on a cluster each have their quick checks: together, two more bakes
 def test_an_out_of_core_bake_on_a_cluster_writes_the_local_file(cluster, herd, tmp_path):
     """--out-of-core with --scheduler: the partition's cell files and memory-mapped leaves in the
     scratch folder, the simplify phase on the cluster's workers; the file of a local bake."""

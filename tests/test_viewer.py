@@ -254,6 +254,8 @@ def test_colour_by_depth_and_boxes_change_the_picture(page, tmp_path):
     assert page.problems == []
 
 
+# slow: a textured bake and a second page (about 30 s); the GLBs' materials pass the validators in test_export
+@pytest.mark.slow
 def test_page_shows_the_exports_textures_and_colours(browser, tmp_path):
     """The textured test scene (tests/scenes/textured_scene.py, read from its GLB) exported with its
     materials, textures and vertex colours: the page draws them (the city above is one grey)."""

@@ -43,6 +43,7 @@ def rows(terrain):
     return out, errors
 
 
+@pytest.mark.slow  # Cesium in Chromium at every camera and threshold: about 30 s, an analysis beside the viewer
 def test_cesium_chooses_exactly_what_its_rule_predicts(rows):
     """Our re-implementation of Cesium's base traversal (box distance, REPLACE, children bounds, the
     tileset's error at the root) predicts every tile Cesium chose and no other: the explanation of
@@ -53,6 +54,7 @@ def test_cesium_chooses_exactly_what_its_rule_predicts(rows):
     assert sum(r["cesium"] for r in table) > len(table), "Cesium chose (almost) nothing: the comparison is empty"
 
 
+@pytest.mark.slow  # Cesium in Chromium at every camera and threshold: about 30 s, an analysis beside the viewer
 def test_every_difference_from_ours_is_one_documented_term(rows):
     """Each tile only one side chose is decided by a named term at the first node where the rules
     part, never 'unexplained'; on this terrain it is the distance (sphere vs box, or the eye inside
@@ -72,6 +74,7 @@ def test_every_difference_from_ours_is_one_documented_term(rows):
             assert r["ours"] >= r["cesium"], (r["camera"], r["tau_px"], r["ours"], r["cesium"])
 
 
+@pytest.mark.slow  # Cesium in Chromium at every camera and threshold: about 30 s, an analysis beside the viewer
 def test_ours_and_cesiums_sets_overlap_as_measured(rows):
     table, errors = rows
     close = [r["jaccard"] for r in table if r["camera"] != "beyond"]
