@@ -188,7 +188,7 @@ class _Hider:
         self._renderer.begin_frame(view)
         if self.frame >= self.hide_from:
             self._renderer.fbo.clear(depth=0.0)
-            self._renderer._mode = None  # moderngl's clear puts its own depth mask back
+            self._renderer.forget_mode()  # moderngl's clear puts its own depth mask back
         self.frame += 1
 
 
