@@ -1,4 +1,4 @@
-"""Checks of appearance from Blender (issue 13) inside the real bpy module, one per subprocess
+"""Checks of appearance from Blender (materials, UVs, colours) inside the real bpy module, one per subprocess
 (tests/test_addon_appearance.py runs them):
 
     python tests/blender_appearance_checks.py REPO_DIR CHECK WORK_DIR [ARGUMENT]
@@ -436,7 +436,7 @@ def _show(objects, shown: bool) -> None:
 def check_render(repo, work) -> dict:
     """A far view of the textured scene rendered with Cycles from the source objects and from the
     objects Materialize makes of the root node (the source hidden), then again with those objects'
-    material slots emptied (what Materialize made before issue 13: grey objects); PSNR of Y, Cb, Cr
+    material slots emptied (what Materialize made before it kept materials: grey objects); PSNR of Y, Cb, Cr
     (hlod_core.report.image_error, the evaluation's measure) of each against the source's render."""
     blender_preview.enable_from_repo(repo)
     work = Path(work)

@@ -1,5 +1,5 @@
-"""Checks of the bake outside Blender's process (issue 14) inside the real bpy module, one per
-subprocess (tests/test_addon_bake.py runs them):
+"""Checks of the bake outside Blender's process (a child process with workers) inside the real bpy
+module, one per subprocess (tests/test_addon_bake.py runs them):
 
     python tests/blender_bake_checks.py REPO_DIR CHECK WORK_DIR [ARGUMENT ...]
 
@@ -41,7 +41,7 @@ import bpy  # noqa: E402
 
 NAME = "bl_ext.r.hlod"
 CHILD_MODULE = "hlod_core.bake.child"
-GONE_WITHIN_SECONDS = 1.0  # issue 14: the child and its workers are gone within 1 s of Esc
+GONE_WITHIN_SECONDS = 1.0  # the requirement: the child and its workers are gone within 1 s of Esc
 SPY_SECONDS = 0.02  # how often the spy reads /proc (every process's stat: not too often)
 TIMING_KEYS = ("bake_seconds", "phase_seconds")  # meta entries that differ between any two bakes
 CACHE_KEY = "cache"  # the meta entry of a bake with a cache (the in-process reference bakes without)
@@ -392,7 +392,7 @@ def check_every_operator(repo, work) -> dict:
     """Every operator the installed extension registers (enumerated from bpy.ops.hlod, so a new one
     cannot be missed: one this check does not know is reported) runs to FINISHED in this Blender's
     environment, where only Blender's own modules and the extension's wheels import (no matplotlib:
-    the Benchmark writes its report without figures). Tune to PSNR (issue 15) runs on the same
+    the Benchmark writes its report without figures). Tune to PSNR runs on the same
     animated camera from s, t, bias = 0.42, 0.42, mu (no candidate of its search): what it set on
     the scene and the report it wrote come back under "tuning"."""
     import importlib.util
@@ -441,7 +441,7 @@ def check_every_operator(repo, work) -> dict:
 
 
 def check_bake_speed(repo, work, repeats: str = "1") -> dict:
-    """Measurement (issue 14): a collection of 64 Suzannes at subdivision level 2 (1,007,616
+    """Measurement: a collection of 64 Suzannes at subdivision level 2 (1,007,616
     triangles) baked by the Bake operator with jobs 1 and jobs 2, alternating, `repeats` pairs; and
     the child's overhead on the box row (5,028 triangles): the operator's whole bake (gather,
     scratch write, child start-up, bake, save) against an in-process bake() + save of the same mesh

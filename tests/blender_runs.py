@@ -89,12 +89,13 @@ def install_extension(zip_path: Path, python: Path, base: Path) -> Path:
 
 
 def blender(repo, check: str, tmp_path, *arguments: str, timeout_s: float = 600, quiet: bool = False,
-            script: str = "blender_checks.py") -> dict:
+            script: str = "blender_checks.py", env: dict[str, str] | None = None) -> dict:
     """Run tests/SCRIPT CHECK TMP [ARGUMENTS] in `repo`'s Blender (an Installed; a plain folder is the
     main .venv's); its JSON result. quiet: the process must print nothing on stderr (no warnings).
+    env: variables set for that process on top of this one's (read before its GPU starts).
     timeout_s guards against a hang only."""
     python, base = (repo.python, repo.base) if isinstance(repo, Installed) else (Path(sys.executable), Path(repo))
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT)}
+    env = {**os.environ, **(env or {}), "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT)}
     proc = subprocess.run([str(python), str(ROOT / "tests" / script), str(base / "repo"), check, str(tmp_path),
                            *arguments], capture_output=True, text=True, timeout=timeout_s, env=env, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-4000:]

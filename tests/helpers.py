@@ -5,14 +5,11 @@ comparable bytes of a .hlod file, and a scripted query-availability double.
 Nothing is cached at module level: what a test run shares (the bakes, the GL context) is a fixture in
 conftest.py, made once and dropped by pytest at the end. The core is imported inside the functions:
 conftest.py imports this module, and a core module that fails to import should fail the tests that
-use it, not the collection of every test. `baked` and `baked_city` at the end are the
-old cached functions, kept only until every test module uses the `bakes` / `city_hlod` fixtures
-(tests/test_structure.py's test_tests_share_fixtures_not_module_state lists who still calls them).
+use it, not the collection of every test.
 """
 from __future__ import annotations
 
 import contextlib
-import functools
 import hashlib
 import json
 import os
@@ -28,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT.parent / "shared" / "models"
 SCENES = ROOT / "tests" / "scenes"
 CACHE = ROOT / ".cache"
-#: The bake of a shared model unless a test asks for another: the settings `baked` used.
+#: The target of a shared model's bake unless a test asks for another (SharedBakes.baked, bake_model).
 DEFAULT_TARGET_TRIS = 2000
 
 
@@ -226,17 +223,3 @@ def numeric_library_env() -> dict[str, str]:
     differ by the kernel, not by the code (a machine that sets OPENBLAS_CORETYPE=Haswell on an AMD
     EPYC gave a different cow without it)."""
     return {k: v for k, v in os.environ.items() if k.startswith(("OPENBLAS_", "OMP_", "MKL_", "GOTO", "BLIS_"))}
-
-
-# --- old module-level caches: remove once no test module imports them -------------------------------
-
-@functools.lru_cache(maxsize=None)
-def baked(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = DEFAULT_TARGET_TRIS):
-    """Old form of the `bakes` fixture's bakes.baked(...): use the fixture."""
-    return bake_model(name, jobs=jobs, offset=offset, target_tris=target_tris)
-
-
-@functools.lru_cache(maxsize=None)
-def baked_city():
-    """Old form of the `city_hlod` fixture: use the fixture."""
-    return bake_city()

@@ -14,7 +14,7 @@ from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.core.signals import Terminated, deliver_held, signals_as_exceptions, stop_signals_held
 
-from helpers import baked, load_model
+from helpers import load_model
 
 ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}
 
@@ -35,8 +35,8 @@ def _input_triangles(mesh, origin) -> np.ndarray:
 
 @pytest.mark.parametrize("name, jobs", [("stanford-bunny.obj", 1), pytest.param("igea.ply", 2, marks=pytest.mark.slow),
                                         ("nefertiti.obj", 1)])
-def test_shared_models_bake_with_every_invariant(name, jobs):
-    mesh, hlod = baked(name, jobs=jobs)
+def test_shared_models_bake_with_every_invariant(bakes, name, jobs):
+    mesh, hlod = bakes.baked(name, jobs=jobs)
     assert checks.check(hlod)["checks"] == ALL_TRUE
     assert hlod.meta["input_tris"] == mesh.tri_count
     # leaves hold exactly the input triangles (as a multiset of stored coordinates)
@@ -58,10 +58,10 @@ def test_igea_triangle_strips_are_read_as_triangles():
 
 
 @pytest.mark.slow
-def test_model_far_from_origin_keeps_its_precision():
+def test_model_far_from_origin_keeps_its_precision(bakes):
     """nefertiti (coordinates in the hundreds) and a copy 1e6 away bake to the same hierarchy."""
-    mesh, near = baked("nefertiti.obj")
-    _, far = baked("nefertiti.obj", offset=1e6)
+    mesh, near = bakes.baked("nefertiti.obj")
+    _, far = bakes.baked("nefertiti.obj", offset=1e6)
     assert checks.check(far)["checks"] == ALL_TRUE
     assert np.array_equal(near.tri_count, far.tri_count) and np.array_equal(near.child_count, far.child_count)
     np.testing.assert_allclose(far.box_min - 1e6, near.box_min, atol=1e-6)
@@ -75,9 +75,9 @@ def test_model_far_from_origin_keeps_its_precision():
     assert np.all(np.abs(far.error - near.error) <= 0.25 * near.error.max())
 
 
-def test_parallel_and_serial_bakes_are_identical():
-    _, serial = baked("stanford-bunny.obj", jobs=1)
-    _, parallel = baked("stanford-bunny.obj", jobs=2)
+def test_parallel_and_serial_bakes_are_identical(bakes):
+    _, serial = bakes.baked("stanford-bunny.obj", jobs=1)
+    _, parallel = bakes.baked("stanford-bunny.obj", jobs=2)
     for name, arr in serial.node_arrays().items():
         assert np.array_equal(arr, getattr(parallel, name)), name
     assert np.array_equal(serial.positions, parallel.positions)

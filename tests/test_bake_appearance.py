@@ -1,7 +1,7 @@
 """Appearance through the bake: materials, UVs and colours on leaves and decimated nodes.
 
-The input is a sphere built here in numpy whose attributes are functions of position, so what a
-LOD vertex should carry is known from its position alone:
+The input is a sphere built in numpy (sample_meshes.textured_sphere) whose attributes are
+functions of position, so what a LOD vertex should carry is known from its position alone:
   - two materials, split by the plane x = 0.2 (a material border);
   - UV = planar projection of the position (u, v) = (x, y) / 2 + 0.5, plus 1 on u for the faces
     behind z = 0 (a UV seam: the vertices there are split in two, one per side);
@@ -10,7 +10,6 @@ LOD vertex should carry is known from its position alone:
 """
 from __future__ import annotations
 
-import functools
 import hashlib
 import io
 import json
@@ -32,6 +31,8 @@ from hlod_core.core.errors import InputError
 from hlod_core.model.hierarchy import node_geometry
 
 from helpers import numeric_library_env
+from sample_meshes import SPHERE_CENTER as CENTER, SPHERE_MATERIALS as MATERIALS, SPHERE_TARGET_TRIS as TARGET_TRIS
+from sample_meshes import expected_rgb, expected_uv, sphere as _sphere, textured_sphere
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,77 +45,22 @@ BEFORE_APPEARANCE = "6d77cb6"
 #: Intel Xeon both bakes agree with each other, not with this digest).
 FILE_BEFORE_APPEARANCE = "8dabac77528d712a432c148d9bbde862b0b27c769a5fd54d0b8c7697542defd7"
 
-CENTER = np.array([3.0, -2.0, 1.0])  # away from the origin: the bake stores positions relative to its own
-TARGET_TRIS = 200
 #: float32 rounding of a unit-sized position or attribute (a few ulps of 1.0).
 F32_TOLERANCE = 1e-6
-MATERIALS = (Material("red", base_color=(0.8, 0.1, 0.1, 1.0)), Material("blue", base_color=(0.1, 0.1, 0.8, 1.0)))
 
 
-def _sphere(rings: int = 24, segments: int = 48) -> tuple[np.ndarray, np.ndarray]:
-    """A closed unit sphere at CENTER, welded (one vertex per position): poles, rings x segments."""
-    theta = np.pi * np.arange(1, rings) / rings
-    phi = 2 * np.pi * np.arange(segments) / segments
-    ring = np.stack([np.sin(theta)[:, None] * np.cos(phi), np.sin(theta)[:, None] * np.sin(phi),
-                     np.repeat(np.cos(theta)[:, None], segments, 1)], -1).reshape(-1, 3)
-    positions = np.concatenate([[[0, 0, 1]], ring, [[0, 0, -1]]]) + CENTER
-    grid = 1 + np.arange((rings - 1) * segments).reshape(rings - 1, segments)
-    nxt = np.roll(grid, -1, axis=1)
-    quads_a = np.stack([grid[:-1], grid[1:], nxt[1:]], -1).reshape(-1, 3)
-    quads_b = np.stack([grid[:-1], nxt[1:], nxt[:-1]], -1).reshape(-1, 3)
-    south = positions.shape[0] - 1
-    caps = np.concatenate([np.stack([np.zeros(segments, int), grid[0], nxt[0]], -1),
-                           np.stack([np.full(segments, south), nxt[-1], grid[-1]], -1)])
-    return positions, np.concatenate([caps, quads_a, quads_b]).astype(np.int64)
+@pytest.fixture(scope="module")
+def baked():
+    """baked(jobs=1, **which): the textured sphere (with the attributes `which` keeps) baked to
+    TARGET_TRIS, once per test module for each set of arguments."""
+    made = {}
 
-
-def _split(faces: np.ndarray, side: np.ndarray, vertex_count: int):
-    """Duplicate every vertex used by faces on both sides of `side` (f,) bool; the `side` faces use
-    the copies. Returns (source (v',) rows of the old vertices, faces, on_side (v',) bool)."""
-    used_side = np.zeros(vertex_count, bool)
-    used_side[faces[side].ravel()] = True
-    used_other = np.zeros(vertex_count, bool)
-    used_other[faces[~side].ravel()] = True
-    shared = used_side & used_other
-    copy = np.full(vertex_count, -1)
-    copy[shared] = vertex_count + np.arange(int(shared.sum()))
-    out = faces.copy()
-    sub = out[side]
-    sub[shared[sub]] = copy[sub[shared[sub]]]
-    out[side] = sub
-    source = np.concatenate([np.arange(vertex_count), np.flatnonzero(shared)])
-    return source, out, np.concatenate([used_side & ~shared, np.ones(int(shared.sum()), bool)])
-
-
-def expected_uv(positions: np.ndarray) -> np.ndarray:
-    """(k,2) the planar projection of (k,3) world positions, before the seam's offset."""
-    return (positions[:, :2] - CENTER[:2]) * 0.5 + 0.5
-
-
-def expected_rgb(positions: np.ndarray) -> np.ndarray:
-    return np.clip((positions - CENTER) * 0.5 + 0.5, 0.0, 1.0)
-
-
-@functools.lru_cache(maxsize=None)
-def textured_sphere(*, uvs: bool = True, colors: bool = True, materials: bool = True) -> meshes.TriangleMesh:
-    positions, faces = _sphere()
-    centroid = positions[faces].mean(axis=1)
-    source, faces, back = _split(faces, centroid[:, 2] < CENTER[2], positions.shape[0])  # the UV seam
-    positions = positions[source]
-    source, faces, top = _split(faces, centroid[:, 1] > CENTER[1] + 0.35, positions.shape[0])  # the colour jump
-    positions, back = positions[source], back[source]
-    uv = expected_uv(positions) + np.stack([back, np.zeros_like(back)], 1)
-    rgb = expected_rgb(positions)
-    rgb[top] = 1.0 - rgb[top]
-    material = (centroid[:, 0] > CENTER[0] + 0.2).astype(np.int32)
-    return meshes.from_arrays(positions, faces, name="textured sphere", uvs=uv if uvs else None,
-                              colors=np.concatenate([rgb, np.ones((rgb.shape[0], 1))], 1) if colors else None,
-                              material_ids=material if materials else None, materials=MATERIALS if materials else ())
-
-
-@functools.lru_cache(maxsize=None)
-def baked(jobs: int = 1, **which):
-    return bake(textured_sphere(**which), BakeSettings(target_tris=TARGET_TRIS, jobs=jobs))
+    def bake_once(jobs: int = 1, **which):
+        key = (jobs, tuple(sorted(which.items())))
+        if key not in made:
+            made[key] = bake(textured_sphere(**which), BakeSettings(target_tris=TARGET_TRIS, jobs=jobs))
+        return made[key]
+    return bake_once
 
 
 def _stored(mesh, hlod) -> np.ndarray:
@@ -191,7 +137,7 @@ def _border_positions(positions, faces, material) -> np.ndarray:
     return unique[lo != hi]
 
 
-def test_parallel_and_serial_bakes_with_appearance_are_identical():
+def test_parallel_and_serial_bakes_with_appearance_are_identical(baked):
     """Worker processes get the attribute rows with the child LODs: the same HLOD as inline."""
     serial, parallel = baked(1), baked(2)
     for name in ("positions", "indices", "uvs", "colors", "tri_material", "error", "tri_count", "vertex_count"):
@@ -199,7 +145,7 @@ def test_parallel_and_serial_bakes_with_appearance_are_identical():
     assert serial.materials == parallel.materials == MATERIALS
 
 
-def test_leaves_keep_their_triangles_with_exact_appearance():
+def test_leaves_keep_their_triangles_with_exact_appearance(baked):
     mesh, hlod = textured_sphere(), baked()
     assert hlod.uvs is not None and hlod.colors is not None and hlod.tri_material is not None
     assert hlod.tri_material.dtype == np.uint16 and hlod.materials == MATERIALS
@@ -211,7 +157,7 @@ def test_leaves_keep_their_triangles_with_exact_appearance():
     assert got.shape == want.shape and np.array_equal(got, want)
 
 
-def test_inner_nodes_keep_borders_and_take_their_vertices_attributes_from_the_input():
+def test_inner_nodes_keep_borders_and_take_their_vertices_attributes_from_the_input(baked):
     """Every inner node: (1) each corner's (position, UV, material) is one of the input's: the LOD
     vertex sits on an input vertex and carries that vertex's attributes, and its colour is the
     input's there (a blend of them at a colour jump); (2) it has the materials of the triangles
@@ -250,7 +196,7 @@ def _assert_material_borders_stay(mesh, hlod) -> None:
         assert set(_border_positions(g.positions, g.faces, g.face_material).tolist()) <= input_border
 
 
-def test_decimated_uvs_and_colours_are_the_inputs_functions_of_position():
+def test_decimated_uvs_and_colours_are_the_inputs_functions_of_position(baked):
     """UV = planar projection of the vertex's own position (+1 on u behind the seam) and colour =
     its colour function (or a blend of the two sides' at the colour jump), to float32 precision,
     at every vertex of every node. The quadric collapse with optimal placement moves vertices and
@@ -271,7 +217,7 @@ def test_decimated_uvs_and_colours_are_the_inputs_functions_of_position():
     assert exact.mean() > 0.9  # blends only along the colour jump
 
 
-def test_each_node_draws_one_part_per_material():
+def test_each_node_draws_one_part_per_material(baked):
     hlod = baked()
     parts = hlod.draw_parts()
     for node in range(hlod.node_count):
@@ -284,7 +230,7 @@ def test_each_node_draws_one_part_per_material():
     assert np.any(parts.count == 2) and np.any(parts.count == 1)
 
 
-def test_appearance_survives_save_and_load(tmp_path):
+def test_appearance_survives_save_and_load(baked, tmp_path):
     hlod = baked()
     path = hlod_file.save(hlod, tmp_path / "sphere.hlod")
     back = hlod_file.load(path)
@@ -296,7 +242,7 @@ def test_appearance_survives_save_and_load(tmp_path):
 @pytest.mark.parametrize("which", [dict(uvs=False, colors=False), dict(materials=False),
                                    dict(uvs=False, materials=False)],
                          ids=["materials only", "uvs and colours, no materials", "colours only"])
-def test_partial_appearance_bakes_what_the_mesh_has(which):
+def test_partial_appearance_bakes_what_the_mesh_has(baked, which):
     mesh, hlod = textured_sphere(**which), baked(**which)
     assert (hlod.uvs is not None) == (mesh.uvs is not None)
     assert (hlod.colors is not None) == (mesh.colors is not None)
@@ -433,7 +379,6 @@ ISLAND_BLOCK = 8
 ISLAND_STRIDE = 2.0
 
 
-@functools.lru_cache(maxsize=None)
 def island_sphere(rings: int = 24, segments: int = 48) -> meshes.TriangleMesh:
     """The sphere cut into UV islands of ISLAND_BLOCK x ISLAND_BLOCK cells (as Blender's smart
     project cuts a house into many): island i's UV is the planar projection expected_uv shifted by
@@ -459,7 +404,7 @@ def _island_of_uv(positions, uvs, origin) -> np.ndarray:
     return np.round((uvs[:, 0] - expected_uv(world)[:, 0]) / ISLAND_STRIDE).astype(np.int64)
 
 
-def test_many_uv_islands_are_crossed_so_the_root_reaches_its_target():
+def test_many_uv_islands_are_crossed_so_the_root_reaches_its_target(baked):
     """Every island edge is a UV seam; keeping them all (frozen, as open boundaries) kept the root
     at 668 triangles against a target of 200. The bake decimates such a node again across its UV
     seams: the root reaches its target, the log says so and meta counts the node."""

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from hlod_core.bake import cache, cache_files, checks, hausdorff, meshlab, prepare, simplify, tasks
-from hlod_core.bake.meta import VOLATILE_META, stable_meta
+from hlod_core.bake.meta import VOLATILE_META
 from hlod_core.bake.octree import build_octree
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
@@ -22,35 +22,14 @@ from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.io import hlod_file, meshes
 from hlod_core.model.appearance import AttributeLayout
 
-from helpers import load_model, model
+from helpers import file_bytes, load_model, model
 from processes import hlod, last_json, one_line_error
-from sample_meshes import SPHERE_TARGET_TRIS, textured_sphere
+from sample_meshes import SPHERE_TARGET_TRIS, herd, textured_sphere
 
 CORE = Path(cache.__file__).resolve().parent.parent
 
 COW = BakeSettings(target_tris=300)
-#: The 3 x 3 herd: cows (about 10 units long) 12 units apart; the one in the middle moves.
-HERD_SPACING, HERD_MOVER = 12.0, 4
 HERD = BakeSettings(target_tris=600)
-
-
-def _translated(mesh, offset, name):
-    m = np.eye(4)
-    m[:3, 3] = offset
-    return meshes.transform_mesh(mesh, m, name=name)
-
-
-def _herd(moved_by=(0.0, 0.0, 0.0)) -> tuple[meshes.TriangleMesh, np.ndarray]:
-    """Nine cows on a grid, the middle one moved by `moved_by`; and the (f,) bool mask of its triangles."""
-    cow = load_model("cow.obj")
-    parts = []
-    for k in range(9):
-        offset = np.array([HERD_SPACING * (k % 3), HERD_SPACING * (k // 3), 0.0])
-        if k == HERD_MOVER:
-            offset = offset + np.asarray(moved_by)
-        parts.append(_translated(cow, offset, f"cow{k}"))
-    mover = np.repeat(np.arange(9) == HERD_MOVER, cow.tri_count)
-    return meshes.merge(parts, name="herd"), mover
 
 
 class _Counted:
@@ -75,14 +54,9 @@ class _Counted:
         monkeypatch.setattr(tasks, "measure_exact", counting_measure)
 
 
-def _file_bytes(hlod, path) -> bytes:
-    """The .hlod file of `hlod` with the volatile meta removed: what must be byte-identical."""
-    return hlod_file.save(hlod.replace(meta=stable_meta(hlod.meta)), path).read_bytes()
-
-
 def _assert_same_file(a, b, tmp_path):
     assert set(VOLATILE_META) >= {"bake_seconds", "phase_seconds", "cache"}
-    assert _file_bytes(a, tmp_path / "a.hlod") == _file_bytes(b, tmp_path / "b.hlod")
+    assert file_bytes(a, tmp_path / "a.hlod") == file_bytes(b, tmp_path / "b.hlod")
 
 
 def _inner(hlod) -> int:
@@ -185,10 +159,10 @@ def test_moving_one_object_rebuilds_only_the_cells_it_overlaps_and_their_ancesto
     of them overlaps the cow's old or new box, and the result is the file a bake from scratch of
     the moved herd writes: the origin (the centre of the input's box) and every cell the edit does
     not overlap stay where they were."""
-    herd, mover = _herd()
-    moved, _ = _herd(moved_by=(1.5, 0.0, 0.0))
+    cows, mover = herd()
+    moved, _ = herd(moved_by=(1.5, 0.0, 0.0))
     folder = tmp_path / "cache"
-    first = bake(herd, HERD, cache_dir=folder)
+    first = bake(cows, HERD, cache_dir=folder)
     counted = _Counted(monkeypatch)
     again = bake(moved, HERD, cache_dir=folder)
     monkeypatch.undo()
@@ -207,7 +181,7 @@ def test_moving_one_object_rebuilds_only_the_cells_it_overlaps_and_their_ancesto
     cells = _cells(moved)
     assert cells.node_count == again.node_count and np.array_equal(cells.child_count, again.child_count)
     cow_boxes = [(p.min(axis=0), p.max(axis=0)) for p in
-                 (herd.positions[herd.faces[mover].ravel()], moved.positions[moved.faces[mover].ravel()])]
+                 (cows.positions[cows.faces[mover].ravel()], moved.positions[moved.faces[mover].ravel()])]
     lo_cell = cells.cell_center - cells.cell_half[:, None] + again.origin
     hi_cell = cells.cell_center + cells.cell_half[:, None] + again.origin
     for node in changed:
@@ -441,10 +415,10 @@ def test_rebake_benchmark_times_every_rebuilt_task_and_restores_the_bake(tmp_pat
     counted, the result is still the scratch bake's file, and the bake's functions are restored."""
     from benchmarks import rebake
 
-    herd, _ = _herd()
-    moved, _ = _herd(moved_by=(1.5, 0.0, 0.0))
+    cows, _ = herd()
+    moved, _ = herd(moved_by=(1.5, 0.0, 0.0))
     folder = tmp_path / "cache"
-    bake(herd, HERD, cache_dir=folder)
+    bake(cows, HERD, cache_dir=folder)
     decimate, measure = simplify.decimate_node, tasks.measure_exact
     work = rebake.rebuilt_work(moved, BakeSettings(**{**HERD.__dict__, "jobs": 2}), folder)
     assert simplify.decimate_node is decimate and tasks.measure_exact is measure
@@ -456,7 +430,7 @@ def test_rebake_benchmark_times_every_rebuilt_task_and_restores_the_bake(tmp_pat
     assert again.meta["cache"]["reused_result"]
     _assert_same_file(bake(moved, HERD), again, tmp_path)
     bound = BakeSettings(**{**HERD.__dict__, "error": "bound"})  # its measure is another task function
-    bake(herd, bound, cache_dir=tmp_path / "bound")
+    bake(cows, bound, cache_dir=tmp_path / "bound")
     to_children = hausdorff.measure_to_children
     with_bound = rebake.rebuilt_work(moved, bound, tmp_path / "bound")
     assert hausdorff.measure_to_children is to_children

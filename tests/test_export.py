@@ -1,4 +1,5 @@
-"""3D Tiles export and batch baking from background mode, checked by independent tools: the Khronos glTF validator for every GLB and CesiumGS 3d-tiles-tools
+"""3D Tiles export and batch baking from background mode,
+checked by independent tools: the Khronos glTF validator for every GLB and CesiumGS 3d-tiles-tools
 reading the tileset back (tools/validators/check_tileset.mjs)."""
 import hashlib
 import json
@@ -12,8 +13,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import ROOT, baked, textured_scene
-from hlod_core.io import hlod_file, meshes
+from helpers import ROOT, textured_scene
+from hlod_core.io import hlod_file as fileformat, meshes
 from hlod_core.export import glb, tiles3d
 from hlod_core.model.appearance import Material
 from hlod_core.bake.pipeline import BakeSettings, bake
@@ -64,11 +65,11 @@ def validate_with_images(folder) -> dict:
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def assert_matches(tiles_dir, source):
+def assert_matches(tiles_dir, hlod_file):
     """Every GLB valid (with the images it refers to); the reader's tiles are the hierarchy's nodes,
     with their triangle counts, boxes and errors; each parent's geometricError is at least its
     children's."""
-    h = hlod_file.load(source)
+    h = fileformat.load(hlod_file)
     read = independent_read(tiles_dir)
     tiles = read["tiles"]
     assert len(tiles) == h.node_count == sum(1 for t in tiles if t["uri"])
@@ -104,9 +105,9 @@ def test_glb_layout_and_axes():
         "primitives"][0]["attributes"]
 
 
-def test_export_command_on_shared_model_passes_the_validators(tmp_path):
-    _, h = baked("cow.obj", target_tris=500)
-    src = hlod_file.save(h, tmp_path / "cow.hlod")
+def test_export_command_on_shared_model_passes_the_validators(bakes, tmp_path):
+    _, h = bakes.baked("cow.obj", target_tris=500)
+    src = fileformat.save(h, tmp_path / "cow.hlod")
     out = last_json(hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "cow_tiles"))
     assert out["tiles"] == out["glb_files"] == h.node_count and out["triangles"] == int(h.tri_count.sum())
     assert_matches(tmp_path / "cow_tiles", src)
@@ -114,7 +115,7 @@ def test_export_command_on_shared_model_passes_the_validators(tmp_path):
     hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "cow_tiles")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cow.hlod", "cow_tiles"]
     native = last_json(hlod("-q", "export", src, "--format", "hlod", "-o", tmp_path / "native"))
-    assert hlod_file.load(native["output"]).node_count == h.node_count
+    assert fileformat.load(native["output"]).node_count == h.node_count
 
 
 def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_precision(tmp_path):
@@ -124,7 +125,7 @@ def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_prec
     normals = np.zeros_like(p)
     np.add.at(normals, f.ravel(), np.repeat(np.cross(e1, e2), 3, axis=0))
     h = bake(meshes.from_arrays(p, f, normals, name="spot far"), BakeSettings(target_tris=800))
-    src = hlod_file.save(h, tmp_path / "spot.hlod")
+    src = fileformat.save(h, tmp_path / "spot.hlod")
     tiles3d.export(h, tmp_path / "tiles")
     doc = json.loads((tmp_path / "tiles/tileset.json").read_text())
     assert doc["root"]["transform"][12:15] == pytest.approx(list(h.origin))
@@ -135,9 +136,9 @@ def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_prec
     assert_matches(tmp_path / "tiles", src)
 
 
-def test_export_refuses_to_replace_a_foreign_folder(tmp_path):
-    _, h = baked("cow.obj", target_tris=500)
-    src = hlod_file.save(h, tmp_path / "cow.hlod")
+def test_export_refuses_to_replace_a_foreign_folder(bakes, tmp_path):
+    _, h = bakes.baked("cow.obj", target_tris=500)
+    src = fileformat.save(h, tmp_path / "cow.hlod")
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("keep me")
     assert "holds no tileset.json; not replacing it" in one_line_error(
@@ -190,8 +191,8 @@ def test_background_command_names_a_missing_extension_repository(tmp_path):
         "(make one with blender_ext.py install-files --local-dir DIR hlod-*.zip)"]
 
 
-def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_children():
-    _, h = baked("cow.obj", target_tris=500)
+def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_children(bakes):
+    _, h = bakes.baked("cow.obj", target_tris=500)
     leaves = np.flatnonzero(h.child_count == 0)
     counts = np.asarray(h.tri_count).copy()
     counts[leaves[0]] = 0  # an empty leaf: no tile at all
@@ -210,11 +211,11 @@ def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_ch
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o027])
-def test_export_modes_follow_the_umask(tmp_path, umask):
-    """Folders are 0777 and files 0666 less the umask, like any other tool's output (mkdtemp would
-    leave the folder 0700), also when replacing; the copied textures too, whatever the modes of
-    their sources."""
-    _, h = baked("cow.obj", target_tris=500)
+def test_export_modes_follow_the_umask(bakes, tmp_path, umask):
+    """Folders are 0777 and files 0666 less the umask, like any other tool's output, also when
+    replacing (a tileset folder made by mkdtemp is 0700 whatever the umask); the copied textures
+    too, whatever the modes of their sources."""
+    _, h = bakes.baked("cow.obj", target_tris=500)
     png, jpeg = write_textures(tmp_path)
     os.chmod(png, 0o600)
     os.chmod(jpeg, 0o755)
@@ -233,7 +234,7 @@ def test_export_modes_follow_the_umask(tmp_path, umask):
         os.umask(old)
 
 
-# --- appearance ---------------------------------------------------------------------------------
+# --- appearance: materials, UVs, colours, textures -----------------------------------------------
 
 def literal_hlod(*, normals: bool) -> Hlod:
     """A 3-node HLOD written out by hand, no bake: the root's 2-triangle LOD over [0,2]x[0,1], leaves
@@ -278,8 +279,9 @@ def folder_digest(folder) -> tuple[list[str], str]:
     return [p.relative_to(folder).as_posix() for p in files], digest.hexdigest()
 
 
-# SHA-256 of the export of literal_hlod (file names and bytes, see folder_digest) by the exporter before
-# it carried materials: recorded with hlod_core/export/tiles3d.py at commit 6d77cb6 (unchanged since 844ae1f), running
+# SHA-256 of the export of literal_hlod (file names and bytes, see folder_digest) by the code before
+# the export carried appearance: recorded with hlod_core/export/tiles3d.py at commit 6d77cb6 (unchanged
+# since 844ae1f), running
 # `tiles3d.export(literal_hlod(normals=...), DIR)` then `folder_digest(DIR)`.
 BEFORE_APPEARANCE_DIGESTS = {False: "93e9e14dca7b80309e75213edcbea1d67289dcef4ac23a4c31036573010ea475",
                              True: "369da809dca32415f02196c25d4f9fa7b3e3c67b6559f746f4caf1afbcd4eb60"}
@@ -305,8 +307,7 @@ def accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
     """An accessor's values as (count, components) (count,) for scalars, read from the BIN chunk."""
     acc = gltf["accessors"][index]
     view = gltf["bufferViews"][acc["bufferView"]]
-    dtype = {glb.ComponentType.FLOAT: np.float32, glb.ComponentType.UNSIGNED_SHORT: np.uint16,
-             glb.ComponentType.UNSIGNED_INT: np.uint32}[
+    dtype = {glb.ComponentType.FLOAT: np.float32, glb.ComponentType.UNSIGNED_SHORT: np.uint16, glb.ComponentType.UNSIGNED_INT: np.uint32}[
         acc["componentType"]]
     width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[acc["type"]]
     values = np.frombuffer(binary, dtype, acc["count"] * width, view["byteOffset"] + acc.get("byteOffset", 0))
@@ -453,7 +454,7 @@ def test_textured_bake_exported_by_the_command_passes_the_validators(tmp_path):
     h = bake(meshes.from_arrays(positions, faces, name="grid"), BakeSettings(target_tris=1000))
     assert h.node_count > 1 and not h.has_appearance
     png, jpeg = write_textures(tmp_path)
-    src = hlod_file.save(with_appearance(h, png, jpeg), tmp_path / "grid.hlod")
+    src = fileformat.save(with_appearance(h, png, jpeg), tmp_path / "grid.hlod")
     out = last_json(hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "grid_tiles"))
     assert out["image_files"] == 2 and out["warnings"] == [] and out["glb_files"] == h.node_count
     assert sorted(p.name for p in (tmp_path / "grid_tiles/textures").iterdir()) == ["brick_wall.png", "label.jpg"]
@@ -480,7 +481,7 @@ def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_pa
                          env={**os.environ, "BLENDER_USER_RESOURCES": str(repo / "user")})
     assert run.returncode == 0, run.stderr[-3000:]
     tiles_dir, src = tmp_path / "out" / "textured_3dtiles", tmp_path / "out" / "textured.hlod"
-    h = hlod_file.load(src)
+    h = fileformat.load(src)
     assert h.node_count > 1 and h.uvs is not None and h.colors is not None
     assert_matches(tiles_dir, src)
     textures = sorted(scene["textures"].iterdir())

@@ -181,7 +181,7 @@ def test_view_tests_equal_the_textbook_box_tests(product_boxes, monkeypatch):
     distances bit for bit (same operations), the booleans exactly. product_boxes 64: the frustum
     test's matrix product in chunks of 64 boxes (as above 4,096 boxes)."""
     if product_boxes is not None:
-        monkeypatch.setattr(boxes, "_PRODUCT_BOXES", product_boxes)
+        monkeypatch.setattr(boxes, "PRODUCT_BOXES", product_boxes)
     rng = np.random.default_rng(7)
     checked = {"in": 0, "out": 0, "unqueryable": 0, "eye inside": 0}
     for trial in range(40):
@@ -275,7 +275,7 @@ def test_cube_alpha_formula_and_eye_at_centre():
     assert alpha_estimators.alpha_cube(at_centre, np.array([2.0]), box_min=lo, box_max=hi)[0] == np.inf
 
 
-# --- frustum planes over far/near ratios from 1e4 to 1e20 (issue 11) ---------------------------
+# --- frustum planes over far/near ratios from 1e4 to 1e20 ---------------------------
 
 def test_frustum_planes_exact_for_a_90_degree_camera_at_the_origin():
     # looking down -z, fovy 90, square viewport: inside is |x| <= -z, |y| <= -z, 1 <= -z <= 100

@@ -1,5 +1,5 @@
 """The preview as an artist uses it: the HLOD drawn in place of the objects it was baked from. The
-extension is built by Blender's tool and installed as Blender installs it (tests/test_addon.py's
+extension is built by Blender's tool and installed as Blender installs it (conftest.py's
 fixtures); each check runs in its own bpy process (tests/blender_preview_checks.py), where Blender's
 own drawing is real (`GPUOffScreen.draw_view3d`). The corner text's wording is checked without Blender.
 """
@@ -29,6 +29,7 @@ def hidden_names(visibility: dict) -> list[str]:
     return sorted(name for name, (hidden, _selected, _hide_viewport, _visible) in visibility.items() if hidden)
 
 
+@pytest.mark.gl
 @pytest.mark.blender
 def test_preview_draws_the_hlod_in_place_of_its_sources(versioned_repo, tmp_path):
     """On a baked row (subdivided and arrayed cubes, two collection instances of a sphere; a wall in

@@ -20,7 +20,7 @@ from hlod_core.traversal.protocol import STOP
 from hlod_core.traversal.query_cost import CostModel, LinearCost, fit_linear
 from hlod_core.traversal.settings import RuntimeSettings
 
-from helpers import ScriptedAvailability, baked_city, standalone_gl, street_path
+from helpers import ScriptedAvailability, street_path
 
 SIZE = (320, 240)
 #: Results this many issued commands late (the latency of a GPU behind the CPU).
@@ -36,24 +36,16 @@ WARM_UP_FRAMES = 15
 VANISHED_SHARE = 0.5
 
 
-@pytest.fixture(scope="module")
-def gl_ctx():
-    with standalone_gl() as ctx:
-        yield ctx
-
-
 @pytest.fixture
-def city_renderer(gl_ctx):
-    renderer = Renderer(gl_ctx, baked_city(), size=SIZE)
+def city_renderer(gl_ctx, city_hlod):
+    renderer = Renderer(gl_ctx, city_hlod, size=SIZE)
     yield renderer
-    assert GLFunctions(gl_ctx).get_error() == 0, "a GL error is pending after the test"
     renderer.release()
 
 
-def _overview(frames: int, *, static: bool = False) -> CameraPath:
-    """A slow orbit high above the city looking down at its centre: every building in view, few
+def _overview(h, frames: int, *, static: bool = False) -> CameraPath:
+    """A slow orbit high above `h` (the city) looking down at its centre: every building in view, few
     hiding others (nothing that changes what is drawn)."""
-    h = baked_city()
     lo, hi = h.box_min[0], h.box_max[0]
     centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
     out = []
@@ -157,7 +149,8 @@ def test_queries_all_but_vanish_where_nothing_hides(city_renderer):
     of LOD, which its re-check catches within recheck_frames frames. Bool likewise. `expected` is
     the default."""
     assert RuntimeSettings().skip_queries == "expected"
-    path, r = _overview(45), city_renderer
+    r = city_renderer
+    path = _overview(r.hlod, 45)
     off = _run(make("coh", r.hlod, _lagged(r), settings=RuntimeSettings(skip_queries="off")), path)
     on_traversal = make("coh", r.hlod, _lagged(r), settings=RuntimeSettings(skip_queries="expected"))
     on = _run(on_traversal, path)
@@ -195,14 +188,14 @@ class _Hider:
         self._renderer.begin_frame(view)
         if self.frame >= self.hide_from:
             self._renderer.fbo.clear(depth=0.0)
-            self._renderer._mode = None  # moderngl's clear puts its own depth mask back
+            self._renderer.forget_mode()  # moderngl's clear puts its own depth mask back
         self.frame += 1
 
 
 @pytest.mark.gl
 @pytest.mark.parametrize("method", ["coh", "bool"])
 def test_a_node_that_becomes_hidden_is_found_within_the_recheck_interval(city_renderer, method):
-    path, hide_from = _overview(40, static=True), 25
+    path, hide_from = _overview(city_renderer.hlod, 40, static=True), 25
     hider = _lagged(_Hider(city_renderer, hide_from))
     traversal = make(method, city_renderer.hlod, hider, settings=RuntimeSettings(skip_queries="expected"))
     stats = _run(traversal, path)
@@ -260,7 +253,7 @@ def test_skipping_tests_only_the_nodes_visible_last_frame_and_changes_nothing(ci
     runs = []
     for traversal_class in (cls, EveryCandidate):
         traversal = traversal_class(r.hlod, _lagged(r), RuntimeSettings(skip_queries=mode))
-        stats = _run(traversal, street_path(30)) + _run(traversal, _overview(30))
+        stats = _run(traversal, street_path(30)) + _run(traversal, _overview(r.hlod, 30))
         runs.append([(s.drawn, s.skipped, s.queries) for s in stats])
     assert runs[0] == runs[1]
     skipped = sum(len(skips) for _, skips, _ in runs[0])
@@ -315,7 +308,7 @@ def test_skip_tests_in_python_and_numpy_give_the_same_frames(city_renderer, meth
     for limit in (0, 10**9):
         traversal = make(method, r.hlod, _lagged(r), settings=RuntimeSettings(skip_queries="expected"))
         traversal.skips.python_test_nodes = limit
-        stats = _run(traversal, street_path(30)) + _run(traversal, _overview(30))
+        stats = _run(traversal, street_path(30)) + _run(traversal, _overview(r.hlod, 30))
         runs.append([(s.drawn, s.skipped, s.queries) for s in stats])
     assert runs[0] == runs[1]
     assert sum(len(skips) for _, skips, _ in runs[0]) > 20 and sum(q for _, _, q in runs[0]) > 20
@@ -340,7 +333,7 @@ def test_the_change_rate_is_the_mean_of_its_results_until_its_weight_takes_over(
         else:
             assert skips.change_rate == pytest.approx(before + (float(changed) - before) / 64, abs=1e-15)
     still = make("coh", city_renderer.hlod, _lagged(city_renderer), settings=RuntimeSettings(skip_queries="expected"))
-    stats = _run(still, _overview(4, static=True))
+    stats = _run(still, _overview(city_renderer.hlod, 4, static=True))
     assert stats[1].dn > 5 and still.skips.change_results > 5  # STOP results were counted
     assert still.skips.change_rate == 0.0
     assert (1 - skips.change_rate_weight) ** still.skips.change_results > 0.1  # the old start would still count
@@ -350,7 +343,8 @@ def test_the_change_rate_is_the_mean_of_its_results_until_its_weight_takes_over(
 def test_recheck_frames_follow_the_seed(city_renderer):
     """Same seed, same phases and the same frames' work; another seed, other phases, and no node
     is ever skipped on its own re-check frame."""
-    r, path = city_renderer, _overview(30)
+    r = city_renderer
+    path = _overview(r.hlod, 30)
     settings = RuntimeSettings(skip_queries="expected")
     first, again, other = (Coh(r.hlod, _lagged(r), settings, recheck_seed=seed) for seed in (7, 7, 8))
     phase, n = first.skips.recheck_phase, first.skips.recheck_frames
@@ -370,7 +364,7 @@ def test_a_frame_timer_after_calibration_raises_no_gl_error(city_renderer):
     r = city_renderer
     gl = GLFunctions(r.ctx)
     r.calibrate_costs(clock="wall")
-    r.begin_frame(_overview(1).view(0, SIZE), time_gpu=True)
+    r.begin_frame(_overview(r.hlod, 1).view(0, SIZE), time_gpu=True)
     r.draw_node(0)
     assert r.end_frame() > 0
     assert gl.get_error() == 0

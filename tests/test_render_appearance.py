@@ -28,12 +28,14 @@ from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
 from hlod_core.model.view import View
 
-from helpers import ROOT, baked, standalone_gl
+from helpers import ROOT, ScriptedAvailability
 
 SIZE = (320, 240)
 #: 8-bit levels a drawn colour may differ from the expected one (float rounding in the shader and
 #: the sRGB texture decode; an orientation or colour-space error moves them by tens of levels).
 LEVELS = 2
+#: Coh's query results come back this many issued commands late (ScriptedAvailability).
+LAG = 3
 #: The renderer before the appearance path existed: the reference of the paths it must leave unchanged.
 BEFORE_COMMIT = "b4edc98"
 #: Where the modules that renderer imports live now (hlod_core's subpackages came after it).
@@ -49,21 +51,6 @@ FRAMES_BEFORE = {"overlay": "e485d44211be50b763d4ea2af7969d07bd4fc6813dc9ef2732f
 
 def _digest(frames) -> str:
     return hashlib.sha256(b"".join(np.ascontiguousarray(f).tobytes() for f in frames)).hexdigest()
-
-
-@pytest.fixture(scope="module")
-def _gl_context():
-    with standalone_gl() as ctx:
-        yield ctx
-
-
-@pytest.fixture
-def gl_ctx(_gl_context):
-    """The module's context, current for the test (`run`/`evaluate` make and release their own);
-    no GL error may be pending after the test."""
-    with _gl_context:
-        yield _gl_context
-        assert GLFunctions(_gl_context).get_error() == 0, "a GL error is pending after the test"
 
 
 def _gl_function(ctx, name, restype, *argtypes):
@@ -272,10 +259,12 @@ def test_overlay_draws_the_ramp_as_before_and_no_texture(gl_ctx, checker):
 
 
 @pytest.mark.gl
-def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
+def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx, bakes):
     """No appearance: the renderer before the appearance path and this one draw identical frames (Coh with
-    its queries, a cow baked into several levels, from three views)."""
-    _, hlod = baked("cow.obj", target_tris=400)
+    its queries, a cow baked into several levels, from three views). Both answer Coh's queries
+    after the same scripted lag, every query asked, so what Coh draws does not depend on when
+    llvmpipe's results are ready."""
+    _, hlod = bakes.baked("cow.obj", target_tris=400)
     assert not hlod.has_appearance and hlod.node_count > 1
     centre = (hlod.box_min[0] + hlod.box_max[0]) / 2
     radius = float(np.linalg.norm(hlod.box_max[0] - hlod.box_min[0]))
@@ -285,9 +274,9 @@ def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx):
     frames = []
     try:
         assert new.appearance is None
-        settings = RuntimeSettings()
-        old_coh = make("coh", hlod, old, settings=settings) if old is not None else None
-        new_coh = make("coh", hlod, new, settings=settings)
+        settings = RuntimeSettings(skip_queries="off")
+        old_coh = make("coh", hlod, ScriptedAvailability(old, LAG), settings=settings) if old is not None else None
+        new_coh = make("coh", hlod, ScriptedAvailability(new, LAG), settings=settings)
         for k, distance in enumerate((0.6, 1.0, 2.5)):
             eye = centre + distance * radius * np.array([np.cos(k), 0.4, np.sin(k)])
             view = View(eye=eye, view=viewmod.look_at(eye, centre, [0, 1, 0]),
@@ -478,8 +467,8 @@ def test_load_images_without_pillow_draws_base_colours(checker, monkeypatch, cap
     assert len(caplog.records) == 1 and "Pillow" in caplog.records[0].getMessage()
 
 
-def test_load_images_of_an_untextured_hlod_is_empty_and_imports_nothing(monkeypatch):
-    _, hlod = baked("cow.obj", target_tris=400)
+def test_load_images_of_an_untextured_hlod_is_empty_and_imports_nothing(bakes, monkeypatch):
+    _, hlod = bakes.baked("cow.obj", target_tris=400)
     monkeypatch.setitem(sys.modules, "PIL", None)
     assert textures.load_images(hlod) == {}
 
@@ -534,7 +523,7 @@ def acceptance_figures(hlod, images, *, method: str = "coh", distance: float = 0
 
 
 def _baked_in_blender(blend, repo, tmp_path):
-    """The .blend baked by the extension installed in the main .venv's bpy (tests/test_addon.py's
+    """The .blend baked by the extension installed in the main .venv's bpy (conftest.py's
     `repo` fixture), through its background command."""
     run = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "--extension-repo", str(repo / "repo"),
                           "bake", str(blend), "-o", str(tmp_path / "out")],

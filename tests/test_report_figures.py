@@ -4,14 +4,12 @@ Pareto front; per-frame ratios with a colour and a line style per method and the
 parts marked; the queries-pay figure; report.html as one self-contained page; the parts in the
 camera path format."""
 import base64
-import contextlib
-import itertools
 import json
 
 import numpy as np
 import pytest
-from matplotlib.text import Text
 
+from figure_checks import PNG_SIGNATURE, drawn_texts, legible
 from helpers import ROOT, SCENES
 from hlod_core.report import evaluate, figure_style, figures, html_page, per_frame_figure
 from hlod_core.model.camera_path import load_path, path_from_json
@@ -19,48 +17,6 @@ from hlod_core.core.errors import InputError
 from hlod_core.traversal.stats import COUNTERS
 
 COMMITTED = ROOT / "docs" / "evaluation"
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
-@contextlib.contextmanager
-def _recording_drawn_texts(drawn: list):
-    """While active, every Text matplotlib draws is appended to `drawn` as (text, glyph extent in
-    display pixels): what is on the picture, not what exists (tick labels outside the view are not
-    drawn; an Annotation's own extent would include its arrow, Text's is the glyphs alone)."""
-    original = Text.draw
-
-    def draw(self, renderer):
-        original(self, renderer)
-        if self.get_visible() and self.get_text().strip():
-            drawn.append((self.get_text(), Text.get_window_extent(self, renderer)))
-
-    Text.draw = draw
-    try:
-        yield
-    finally:
-        Text.draw = original
-
-
-def drawn_texts(fig) -> list:
-    drawn = []
-    with _recording_drawn_texts(drawn):
-        fig.canvas.draw()
-    return drawn
-
-
-def overlapping(texts) -> list:
-    """Pairs of drawn texts whose extents overlap."""
-    return [(a, b) for (a, box_a), (b, box_b) in itertools.combinations(texts, 2) if box_a.overlaps(box_b)]
-
-
-def legible(fig) -> list:
-    """What keeps `fig`'s texts from being read: pairs of overlapping texts, and texts cut by the
-    figure's edge (as ("cut", text))."""
-    texts = drawn_texts(fig)
-    edge = fig.bbox
-    cut = [("cut", t) for t, box in texts
-           if box.x0 < edge.x0 or box.y0 < edge.y0 or box.x1 > edge.x1 or box.y1 > edge.y1]
-    return overlapping(texts) + cut
 
 
 def _row(frame_ms: float, rmse: float) -> dict:

@@ -1,6 +1,5 @@
-"""The tiles CesiumJS chooses against the nodes our VFC traversal draws for the same camera and
-threshold (benchmarks/cesium_compare.py holds the comparison and the terms that explain it,
-benchmarks/cesium_rule.py Cesium's rule).
+"""The tiles CesiumJS chooses against the nodes our VFC traversal draws for the same camera
+and threshold (benchmarks/cesium_compare.py holds the comparison and the explanation of each term).
 
 Cesium runs for real: the viewer page (hlod_core/export/viewer_page) served by hlod_core.export.viewer, in
 Chromium from the system packages driven by Playwright, WebGL through SwiftShader."""
@@ -37,13 +36,14 @@ def rows(terrain):
             for name, make_camera in cc.scene_setups()["terrain"][2].items():
                 for tau in TAUS_PX:
                     uris, seen = cc.cesium_choose(browser.page, make_camera(browser.size), tau)
-                    row = cc.compare(ts, hlod, seen, tau_px=tau, cesium_uris=uris)
+                    row = cc.compare(ts, hlod, seen, tau, uris)
                     row["camera"] = name
                     out.append(row)
             errors = list(browser.console_errors)
     return out, errors
 
 
+@pytest.mark.slow  # Cesium in Chromium at every camera and threshold: about 30 s, an analysis beside the viewer
 def test_cesium_chooses_exactly_what_its_rule_predicts(rows):
     """Our re-implementation of Cesium's base traversal (box distance, REPLACE, children bounds, the
     tileset's error at the root) predicts every tile Cesium chose and no other: the explanation of
@@ -54,6 +54,7 @@ def test_cesium_chooses_exactly_what_its_rule_predicts(rows):
     assert sum(r["cesium"] for r in table) > len(table), "Cesium chose (almost) nothing: the comparison is empty"
 
 
+@pytest.mark.slow  # Cesium in Chromium at every camera and threshold: about 30 s, an analysis beside the viewer
 def test_every_difference_from_ours_is_one_documented_term(rows):
     """Each tile only one side chose is decided by a named term at the first node where the rules
     part, never 'unexplained'; on this terrain it is the distance (sphere vs box, or the eye inside
@@ -73,6 +74,7 @@ def test_every_difference_from_ours_is_one_documented_term(rows):
             assert r["ours"] >= r["cesium"], (r["camera"], r["tau_px"], r["ours"], r["cesium"])
 
 
+@pytest.mark.slow  # Cesium in Chromium at every camera and threshold: about 30 s, an analysis beside the viewer
 def test_ours_and_cesiums_sets_overlap_as_measured(rows):
     table, errors = rows
     close = [r["jaccard"] for r in table if r["camera"] != "beyond"]
@@ -91,6 +93,6 @@ def test_the_vfc_nodes_compared_are_those_the_gl_renderer_draws(terrain):
         for make_camera in cc.scene_setups()["terrain"][2].values():
             camera = make_camera((800, 600))
             for tau in TAUS_PX:
-                assert cc.vfc_nodes(hlod, camera, tau_px=tau, renderer=renderer) == cc.vfc_nodes(hlod, camera, tau_px=tau)
+                assert cc.vfc_nodes(hlod, camera, tau, renderer) == cc.vfc_nodes(hlod, camera, tau)
     finally:
         renderer.release()

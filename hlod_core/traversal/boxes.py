@@ -86,7 +86,7 @@ _CENTRE, _MIN, _MAX = slice(0, 3), slice(3, 6), slice(6, 9)
 #: from which OpenBLAS splits a matrix product over its threads. Their hand-off costs more than such
 #: a product on a loaded machine (the rasteriser has threads too): a (6,) @ (6,3048) vector product,
 #: which OpenBLAS splits from 9,216, made a frame's `view_tests` up to 1 ms slower (measured).
-_PRODUCT_BOXES = 4096
+PRODUCT_BOXES = 4096
 
 
 @dataclass(frozen=True, eq=False)
@@ -138,8 +138,8 @@ def view_tests(view: View, rows: BoxRows) -> ViewTests:
     boxes = rows.rows[3:]
     n = boxes.shape[1]
     product = np.array(product)
-    reach = product @ boxes if n <= _PRODUCT_BOXES else np.concatenate(
-        [product @ boxes[:, i:i + _PRODUCT_BOXES] for i in range(0, n, _PRODUCT_BOXES)], axis=1)
+    reach = product @ boxes if n <= PRODUCT_BOXES else np.concatenate(
+        [product @ boxes[:, i:i + PRODUCT_BOXES] for i in range(0, n, PRODUCT_BOXES)], axis=1)
     in_frustum = np.all(reach[:6] >= np.array([[-plane[3]] for plane in planes]), axis=0)
     behind_near = reach[6] < -d + pad * (abs(a) + abs(b) + abs(c))
     eye = view.eye[:, None]
