@@ -3,13 +3,16 @@
     .venv/bin/python scripts/build_extension.py [--platforms linux-x64 windows-x64 macos-arm64] [--output-dir dist]
                                                 [--viewer auto|bundle|none] [--cesium CESIUM_DIR]
 
-For each platform: download the wheels the manifest lists for it into ./wheels/ (pip, from PyPI,
-once; later builds reuse them), stage the package files with a manifest narrowed to that platform
-and its wheels, and run `blender_ext.py build` (shipped in the bpy wheel of the interpreter running
-this script, whichever Blender version that is) on the stage, then `blender_ext.py validate` on the
-zip. Each zip carries every dependency for each Python that Blender ships (PYTHON_TAGS: cp311 for
-Blender 4.2 to 5.0, cp313 for 5.1 and later); Blender installs the wheels that match its own Python.
-Prints one line per zip: its path.
+One zip per platform and Blender line: Blender 4.2 to 5.0 run Python 3.11, 5.1 and later 3.13
+(BLENDER_LINES), and a zip carries the wheels of its line's Python only, with blender_version_min
+and blender_version_max set so that Blender offers each Blender the zip it can load (the extension
+platform lists both; Install from Disk of the other one is refused by Blender). For each platform:
+download the wheels the manifest lists for it into ./wheels/ (pip, from PyPI, once; later builds
+reuse them); for each line, stage the package files with a manifest narrowed to that platform, that
+line's wheels and versions, and run `blender_ext.py build` (shipped in the bpy wheel of the
+interpreter running this script, whichever Blender version that is) on the stage, then
+`blender_ext.py validate` on the zip, named hlod-VERSION-LINE-PLATFORM.zip (e.g.
+hlod-0.1.0-blender-4.2-5.0-linux_x64.zip). Prints one line per zip: its path.
 
 The 3D Tiles viewer: CesiumJS's built files (npm `cesium/Build/Cesium`, installed into
 tools/viewer by scripts/bootstrap.sh, or --cesium) go into the zip as viewer/cesium/, where
@@ -32,6 +35,7 @@ import sysconfig
 import tempfile
 import tomllib
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,6 +54,21 @@ PIP_PLATFORMS = {
 WHEEL_PLATFORM = {"linux-x64": "linux", "windows-x64": "win_amd64", "macos-arm64": "macosx_11_0_arm64"}
 # The Pythons of the Blenders we support, as wheel tags: 3.11 (Blender 4.2 LTS to 5.0), 3.13 (5.1 on).
 PYTHON_TAGS = {"cp311": "3.11", "cp313": "3.13"}
+
+
+@dataclass(frozen=True)
+class BlenderLine:
+    """The Blenders of one Python: the zip's name part and its manifest's version range
+    (blender_version_max is exclusive, as Blender reads it; None: open)."""
+
+    label: str
+    python_tag: str
+    version_min: str
+    version_max: str | None
+
+
+BLENDER_LINES = (BlenderLine("blender-4.2-5.0", "cp311", "4.2.0", "5.1.0"),
+                 BlenderLine("blender-5.1", "cp313", "5.1.0", None))
 VIEWER_CESIUM = "viewer/cesium"  # in the zip: where hlod_core.export.viewer.find_cesium looks (<hlod_core>/../viewer/cesium)
 CESIUM_LEFT_OUT = ("index.js", "index.cjs")  # Build/Cesium's module entry points (9 MB); the page loads Cesium.js
 # The extension tool inside a bpy wheel: bpy/<major.minor>/scripts/addons_core/bl_pkg/cli/blender_ext.py
@@ -151,7 +170,7 @@ def blender_ready(wheel: Path, flat_dir: Path = FLAT_WHEELS) -> Path:
 
 
 def check_zip(zip_path: Path, wheels: list[str]) -> None:
-    """The zip holds exactly the platform's wheels (every PYTHON_TAG among them, see wheels_for)."""
+    """The zip holds exactly `wheels` (its platform's, of its Blender line's Python)."""
     held = sorted(n for n in zipfile.ZipFile(zip_path).namelist() if n.startswith("wheels/") and n.endswith(".whl"))
     want = sorted(f"wheels/{Path(w).name}" for w in wheels)
     if held != want:
@@ -194,10 +213,11 @@ def stage_cesium(cesium: Path, where: Path) -> None:
             shutil.copy2(cesium.parents[1] / licence, target / licence)
 
 
-def stage(manifest_text: str, platform: str, wheels: list[str], *, where: Path, cesium: Path | None = None) -> Path:
-    """A fresh staging folder `where` of the package files, the platform's wheels (as blender_ready
-    gives them) and the manifest narrowed to that platform and those wheels, with CesiumJS when
-    `cesium` is given; returns it."""
+def stage(manifest_text: str, platform: str, wheels: list[str], *, where: Path, cesium: Path | None = None,
+          line: BlenderLine | None = None) -> Path:
+    """A fresh staging folder `where` of the package files, the wheels (as blender_ready gives them)
+    and the manifest narrowed to that platform, those wheels and `line`'s Blender versions, with
+    CesiumJS when `cesium` is given; returns it."""
     if where.exists():
         shutil.rmtree(where)
     where.mkdir(parents=True)
@@ -212,6 +232,11 @@ def stage(manifest_text: str, platform: str, wheels: list[str], *, where: Path, 
         (where / w).symlink_to(blender_ready(ROOT / w))
     text = re.sub(r"(?ms)^platforms = \[.*?\]\n", f'platforms = ["{platform}"]\n', manifest_text)
     text = re.sub(r"(?ms)^wheels = \[.*?\]\n", "wheels = [\n" + "".join(f'  "{w}",\n' for w in wheels) + "]\n", text)
+    if line is not None:
+        versions = f'blender_version_min = "{line.version_min}"\n'
+        if line.version_max is not None:
+            versions += f'blender_version_max = "{line.version_max}"\n'
+        text = re.sub(r"(?m)^blender_version_min = .*\n(blender_version_max = .*\n)?", versions, text)
     (where / "blender_manifest.toml").write_text(text)
     if cesium is not None:
         stage_cesium(cesium, where)
@@ -235,18 +260,31 @@ def main() -> None:
     for platform in args.platforms:
         wheels = wheels_for(manifest, platform)
         download(wheels, platform)
-        # a private staging folder: test runs of several Blender versions may build at the same time
-        with tempfile.TemporaryDirectory(prefix=f"hlod-stage-{platform}-") as tmp:
-            where = stage(manifest_text, platform, wheels, where=Path(tmp) / "hlod", cesium=cesium)
-            subprocess.run([sys.executable, str(tool), "build", "--source-dir", str(where), "--output-dir", str(out),
-                            "--split-platforms"], check=True, stdout=subprocess.DEVNULL)
-        zips = sorted(out.glob(f"{manifest['id']}-{manifest['version']}-{platform.replace('-', '_')}.zip"))
-        if not zips:
-            sys.exit(f"build_extension: no zip for {platform} in {out}")
-        subprocess.run([sys.executable, str(tool), "validate", str(zips[-1])], check=True, stdout=subprocess.DEVNULL)
-        check_zip(zips[-1], wheels)
-        print(zips[-1])
+        for line in BLENDER_LINES:
+            print(build_zip(manifest_text, manifest, platform, line=line, wheels=wheels, out=out, tool=tool,
+                            cesium=cesium))
 
+
+def build_zip(manifest_text: str, manifest: dict, platform: str, *, line: BlenderLine, wheels: list[str], out: Path,
+              tool: Path, cesium: Path | None) -> Path:
+    """Build, validate and check the zip of one platform and Blender line; its path in `out`."""
+    line_wheels = [w for w in wheels if wheel_tags(w)[1] == line.python_tag]
+    name = f"{manifest['id']}-{manifest['version']}-{line.label}-{platform.replace('-', '_')}.zip"
+    # a private staging and output folder: test runs of several Blender versions may build at once
+    with tempfile.TemporaryDirectory(prefix=f"hlod-stage-{platform}-{line.python_tag}-") as tmp:
+        where = stage(manifest_text, platform, line_wheels, where=Path(tmp) / "hlod", cesium=cesium, line=line)
+        built_dir = Path(tmp) / "dist"
+        built_dir.mkdir()
+        subprocess.run([sys.executable, str(tool), "build", "--source-dir", str(where), "--output-dir", str(built_dir),
+                        "--split-platforms"], check=True, stdout=subprocess.DEVNULL)
+        built = sorted(built_dir.glob("*.zip"))
+        if len(built) != 1:
+            sys.exit(f"build_extension: expected one zip for {platform} {line.label}, got {[b.name for b in built]}")
+        subprocess.run([sys.executable, str(tool), "validate", str(built[0])], check=True, stdout=subprocess.DEVNULL)
+        check_zip(built[0], line_wheels)
+        target = out / name
+        shutil.move(built[0], target)
+    return target
 
 if __name__ == "__main__":
     main()
