@@ -36,7 +36,9 @@ BYTES_PER_MB = 1 << 20
 #: Generations below a held-back node that are requested with it (children, grandchildren, ...),
 #: following the nodes whose screen-space error says they would refine.
 PREFETCH_GENERATIONS = 4
-#: A prefetched node only takes the place of nodes unused for at least this many frames.
+#: A node wanted now takes the place of nodes unused for at least this many frames; a prefetched
+#: node, of nodes unused for PREFETCH_EVICTS_AFTER_FRAMES.
+EVICTS_AFTER_FRAMES = 1
 PREFETCH_EVICTS_AFTER_FRAMES = 8
 
 
@@ -194,8 +196,9 @@ class Residency:
             size = self._bytes[node]
             if upload and sent + size > cap:
                 break
-            # a prefetched node (a later generation) may only push out nodes unused for a while
-            oldest = self.frame if self._requests[node][1] == 0.0 else self.frame - PREFETCH_EVICTS_AFTER_FRAMES
+            # a node wanted now pushes out nodes unused this frame and the last (a cut that does not
+            # fit then settles instead of alternating); a prefetched one only nodes unused for a while
+            oldest = self.frame - (EVICTS_AFTER_FRAMES if self._requests[node][1] == 0.0 else PREFETCH_EVICTS_AFTER_FRAMES)
             taken, freed = 0, 0
             while projected - freed + size > budget and taken < len(candidates) \
                     and self.last_used[candidates[taken]] < oldest:

@@ -117,7 +117,7 @@ class Traversal(abc.ABC):
         if self._residency is not None:
             residency = self._residency
             stats.substitutions, stats.waiting = residency.substitutions, residency.waiting
-            stats.resident_bytes, stats.uploaded_bytes = residency.resident_bytes, residency.uploaded_bytes - uploaded
+            stats.resident_bytes, stats.upload_bytes = residency.resident_bytes, residency.uploaded_bytes - uploaded
             stats.upload_ms = residency.upload_seconds * MS_PER_S
         stats.state_changes = getattr(self.renderer, "state_changes", 0) - state_changes
         stats.frame_ms = (ended - started) * MS_PER_S

@@ -13,7 +13,7 @@ COUNTERS = ("dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_
 #: evaluation's per-frame files, which keep the counters they were saved with.
 QUERY_COUNTERS = ("multiqueries", "state_changes", "predicted")
 #: FrameStats' counters of streamed node geometry (render.residency), 0 without a GPU budget.
-STREAM_COUNTERS = ("substitutions", "waiting", "resident_bytes", "uploaded_bytes", "upload_ms")
+STREAM_COUNTERS = ("substitutions", "waiting", "resident_bytes", "upload_bytes", "upload_ms")
 
 
 @dataclass
@@ -36,7 +36,7 @@ class FrameStats:
     substitutions: int = 0  # nodes drawn in place of children whose geometry was not resident yet
     waiting: int = 0        # nodes wanted and still not resident after the frame's uploads
     resident_bytes: int = 0  # node geometry on the GPU after the frame
-    uploaded_bytes: int = 0  # node geometry uploaded after the frame
+    upload_bytes: int = 0    # node geometry uploaded after the frame
     upload_ms: float = 0.0   # of frame_ms, the evictions and uploads after the frame
     drawn: list = field(default_factory=list)       # node ids in draw order (not counters)
     delayed: list = field(default_factory=list)     # the nodes counted in d
