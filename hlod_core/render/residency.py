@@ -31,7 +31,7 @@ from ..core.errors import InputError
 #: Default bytes uploaded per frame when streaming: a few milliseconds of copying.
 UPLOAD_BYTES_PER_FRAME = 4 << 20
 #: Share of the budget the pinned top levels may take (whole levels only; the root always).
-PINNED_SHARE = 0.25
+PINNED_SHARE = 0.125
 BYTES_PER_MB = 1 << 20
 #: Generations below a held-back node that are requested with it (children, grandchildren, ...),
 #: following the nodes whose screen-space error says they would refine.
