@@ -33,7 +33,7 @@ from .preview_boxes import draw_boxes
 from .preview_contexts import GLContexts, blender_backend
 from .preview_gl import GLMode
 from .preview_private import PrivateMode
-from .settings import runtime_settings
+from .settings import runtime_settings, streaming_settings
 
 log = logging.getLogger(__name__)
 
@@ -188,17 +188,17 @@ class Preview:
             self._status = "on: drawing in the first window's context only"
             return None
         props = scene.hlod
-        settings = runtime_settings(props)
+        settings, streaming = runtime_settings(props), streaming_settings(props)
         name = bpy.path.basename(session.file)
         if props.private_context or blender_backend() != "OPENGL":
             session.gl.release()  # switched modes: free the other mode's objects (its context is current)
             stats = session.private.draw(view, contexts=self.contexts, method=props.method, settings=settings,
-                                         modulation=bool(props.show_modulation))
+                                         modulation=bool(props.show_modulation), streaming=streaming)
             status = f"on (private context): {name} - Blender's objects hide the nodes but do not occlude the queries"
         else:
             session.private.release()
             stats = session.gl.draw(view, ctx=self.contexts.attach(current), method=props.method,
-                                    settings=settings, overlay=bool(props.show_modulation))
+                                    settings=settings, overlay=bool(props.show_modulation), streaming=streaming)
             status = f"on: {name}" + (" - X-ray clears the depth: Blender's objects do not occlude the nodes"
                                       if xray else "")
         session.stats = stats
@@ -206,18 +206,25 @@ class Preview:
         self._status = status
         return stats
 
+    def corner_lines(self, scene) -> list[tuple[str, bool]]:
+        """The corner statistics' (text, is_warning) lines (viewport_text.corner_lines); [] when off."""
+        session, props = self.session, scene.hlod
+        if session is None:
+            return []
+        tracker = source_record.tracker()
+        return viewport_text.corner_lines(
+            label=viewport_text.method_label(props.method, props.bias), stats=session.stats,
+            source_tris=session.source_tris, private=bool(props.private_context) or blender_backend() != "OPENGL",
+            changed=len(tracker.changed) if tracker is not None else None, recorded=session.recorded,
+            budget_bytes=streaming_settings(props).budget_bytes)
+
     def draw_corner_text(self, scene, *, left_px: float = 0.0) -> int:
         """The corner statistics (viewport_text) drawn into the bound pixel-space projection
         (POST_PIXEL's: region pixels, origin bottom left). Returns the number of lines drawn: 0 when
         the preview is off or scene.hlod.show_corner_text is."""
-        session, props = self.session, scene.hlod
-        if session is None or not props.show_corner_text:
+        if self.session is None or not scene.hlod.show_corner_text:
             return 0
-        tracker = source_record.tracker()
-        lines = viewport_text.corner_lines(
-            label=viewport_text.method_label(props.method, props.bias), stats=session.stats,
-            source_tris=session.source_tris, private=bool(props.private_context) or blender_backend() != "OPENGL",
-            changed=len(tracker.changed) if tracker is not None else None, recorded=session.recorded)
+        lines = self.corner_lines(scene)
         viewport_text.draw(lines, left_px=left_px, ui_scale=viewport_text.effective_ui_scale(bpy.context.preferences))
         return len(lines)
 
@@ -282,3 +289,4 @@ shutdown = PREVIEW.shutdown
 safe_draw = PREVIEW.safe_draw
 draw_view = PREVIEW.draw_view
 draw_corner_text = PREVIEW.draw_corner_text
+corner_lines = PREVIEW.corner_lines

@@ -11,6 +11,7 @@ from ..hlod_core.model.hierarchy import Hlod
 from ..hlod_core.model.view import View
 from ..hlod_core.render.gl_state import GLState
 from ..hlod_core.render.renderer import Renderer
+from ..hlod_core.render.residency import StreamingSettings
 from ..hlod_core.traversal.methods import make
 from ..hlod_core.traversal.settings import RuntimeSettings
 from ..hlod_core.traversal.stats import FrameStats
@@ -24,17 +25,23 @@ class GLMode:
         self.hlod = hlod
         self.images = images
         self.renderer = None
+        self._streaming = None
         self._traversal = None
         self._key = None
 
-    def draw(self, view: View, *, ctx, method: str, settings: RuntimeSettings, overlay: bool) -> FrameStats:
+    def draw(self, view: View, *, ctx, method: str, settings: RuntimeSettings, overlay: bool,
+             streaming: StreamingSettings | None = None) -> FrameStats:
         """One frame of `method` for `view` into the bound framebuffer, with `ctx` (the moderngl
         context attached to the current one) and Blender's GL state restored afterwards.
-        overlay: nodes in their modulation colours."""
+        overlay: nodes in their modulation colours; streaming: the GPU budget for node geometry (a
+        change makes the renderer again)."""
         import gpu
 
+        if self.renderer is not None and self._streaming != streaming:
+            self.release()  # Blender's context, which made it, is current
         if self.renderer is None:
-            self.renderer = Renderer(ctx, self.hlod, time_gpu=False, images=self.images)
+            self.renderer = Renderer(ctx, self.hlod, time_gpu=False, images=self.images, streaming=streaming)
+            self._streaming = streaming
             self._traversal, self._key = None, None
         if self._key != (method, settings):
             self._traversal = make(method, self.hlod, self.renderer, settings=settings)

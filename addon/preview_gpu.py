@@ -85,6 +85,12 @@ class NodeBatches:
         return {row: gpu.texture.from_image(bpy.data.images[material.image])
                 for row, material in enumerate(self.hlod.materials) if row in self.images}
 
+    def keep_only(self, resident: np.ndarray) -> None:
+        """Drop the batches of nodes not `resident` ((n,) bool: the private renderer's GPU budget)."""
+        for cache in (self._flat, self._looks):
+            for node in [node for node in cache if not resident[node]]:
+                del cache[node]
+
     def release(self) -> None:
         """Drop every gpu object, the latest made first. Idempotent."""
         self._looks.clear()

@@ -12,6 +12,7 @@ from ..hlod_core.core.colour import modulation_colour
 from ..hlod_core.model.hierarchy import Hlod
 from ..hlod_core.model.view import View
 from ..hlod_core.render.renderer import Renderer
+from ..hlod_core.render.residency import StreamingSettings
 from ..hlod_core.traversal.methods import make
 from ..hlod_core.traversal.settings import RuntimeSettings
 from ..hlod_core.traversal.stats import FrameStats
@@ -27,27 +28,33 @@ class PrivateMode:
     def __init__(self, hlod: Hlod, *, images: dict[int, np.ndarray]):
         self.hlod = hlod
         self.renderer = None
+        self._streaming = None
         self._traversal = None
         self._key = None
         self.batches = NodeBatches(hlod, images=images)
 
     def draw(self, view: View, *, contexts: GLContexts, method: str, settings: RuntimeSettings,
-             modulation: bool) -> FrameStats:
+             modulation: bool, streaming: StreamingSettings | None = None) -> FrameStats:
         """One frame of `method` for `view`: traversed in the private context, the drawn nodes then
         drawn with the gpu module into the bound framebuffer (in modulation colours with
-        `modulation`, else in their appearance or the default colour)."""
+        `modulation`, else in their appearance or the default colour). streaming: the GPU budget
+        for node geometry, in the private renderer and for the gpu batches alike (a batch is kept
+        only while its node is resident there)."""
         size = (view.width, view.height)
-        if self.renderer is not None and self.renderer.fbo.size != size:
+        if self.renderer is not None and (self.renderer.fbo.size != size or self._streaming != streaming):
             self.release_renderer()
         with glcontext.keep_current(), contexts.private() as ctx:  # Blender's is current again after it
             if self.renderer is None:
-                self.renderer = Renderer(ctx, self.hlod, size=size)
+                self.renderer = Renderer(ctx, self.hlod, size=size, streaming=streaming)
+                self._streaming = streaming
             if self._key != (method, settings):
                 self._traversal = make(method, self.hlod, self.renderer, settings=settings)
                 self._key = (method, settings)
             stats = self._traversal.frame(view)
         colours = modulation_colour(self._traversal.modulation(stats.drawn)) if modulation else None
         self._draw_nodes(stats.drawn, colours=colours, view=view)
+        if self.renderer.residency is not None:
+            self.batches.keep_only(self.renderer.residency.resident)
         return stats
 
     def _draw_nodes(self, nodes, *, colours: np.ndarray | None, view: View) -> None:

@@ -5,6 +5,7 @@ Blender PropertyGroup into core settings), over the core's builders (hlod_core.b
 from __future__ import annotations
 
 from ..hlod_core.bake.settings import BakeSettings, bake_settings as core_bake_settings
+from ..hlod_core.render.residency import StreamingSettings
 from ..hlod_core.traversal.settings import RuntimeSettings
 
 
@@ -23,3 +24,8 @@ def runtime_settings(props) -> RuntimeSettings:
                            bias=props.bias, alpha=props.alpha, skip_queries=props.skip_queries,
                            multiquery=props.multiquery, batch_queries="on" if props.batch_queries else "off",
                            predict_new="on" if props.predict_new else "off")
+
+
+def streaming_settings(props) -> StreamingSettings:
+    """scene.hlod -> the preview's GPU budget for node geometry (0 MB: unlimited)."""
+    return StreamingSettings.from_megabytes(float(props.gpu_budget_mb))

@@ -3,8 +3,9 @@ POST_PIXEL draw handler, in region pixels (origin bottom left), bottom left of t
 its margin and right of an overlapping toolbar.
 
 Lines (top to bottom): the method and what it drew (nodes, triangles and their share of the
-sources' triangles), the queries and the last frame's milliseconds, then a warning when sources
-changed since the bake or the file has no record of them.
+sources' triangles), the queries and the last frame's milliseconds, under a GPU budget the node
+geometry on the GPU and the nodes waiting for theirs, then a warning when sources changed since
+the bake or the file has no record of them.
 """
 from __future__ import annotations
 
@@ -33,16 +34,20 @@ def stale_message(changed: int, total: int) -> str:
 
 
 def corner_lines(*, label: str, stats, source_tris: int, private: bool,
-                 changed: int | None, recorded: int) -> list[tuple[str, bool]]:
+                 changed: int | None, recorded: int, budget_bytes: int = 0) -> list[tuple[str, bool]]:
     """(text, is_warning) per line. stats: the last FrameStats or None; source_tris: triangles
     the bake took; changed: baked objects changed since the bake (None: not tracked);
-    recorded: baked objects on record (0: the file's sources are not recorded)."""
+    recorded: baked objects on record (0: the file's sources are not recorded); budget_bytes: the
+    GPU budget for node geometry (0: unlimited, no line about it)."""
     if stats is None:
         lines = [(f"HLOD {label}: no frame drawn yet", False)]
     else:
         share = f" ({stats.tris / source_tris:.1%} of {source_tris:,})" if source_tris > 0 else ""
         timing = f"{stats.queries:,} queries, {stats.frame_ms:.1f} ms" + (", private context" if private else "")
         lines = [(f"HLOD {label}: {stats.dn:,} nodes, {stats.tris:,} triangles{share}", False), (timing, False)]
+        if budget_bytes:
+            waiting = f", {stats.waiting:,} nodes waiting" if stats.waiting else ""
+            lines.append((f"GPU {stats.resident_bytes / 2**20:.1f} of {budget_bytes / 2**20:.0f} MB{waiting}", False))
     if recorded == 0:
         lines.append(("sources not recorded for this file: they stay visible (re-bake)", True))
     elif changed:

@@ -23,7 +23,7 @@ class _HlodSection(_HlodPanel):
 
 #: The read-only statistics the Statistics section shows, in order (scene.hlod's properties).
 STATISTICS = ("stat_drawn", "stat_tris", "stat_queries", "stat_rarn", "stat_d", "stat_stall_ms", "stat_frame_ms",
-              "stat_changed")
+              "stat_resident_mb", "stat_waiting", "stat_changed")
 
 
 class HLOD_PT_main(_HlodPanel, bpy.types.Panel):
@@ -97,6 +97,7 @@ class HLOD_PT_preview(_HlodSection, bpy.types.Panel):
         row = col.row()
         row.active = props.method == "coh"  # the prediction is Coh's
         row.prop(props, "predict_new")
+        layout.prop(props, "gpu_budget_mb")
         layout.prop(props, "private_context")
         layout.operator("hlod.materialize", icon="OUTLINER_OB_MESH")
         row = layout.row(align=True)

@@ -279,15 +279,62 @@ def check_in_place(repo, work) -> dict:
     return out
 
 
+def check_streaming(repo, work) -> dict:
+    """The preview under a GPU budget smaller than the file's node geometry (room for the unlimited
+    frame's nodes, 1.5 times), in the GL mode and the private-context mode, the sources hidden, the
+    camera held: resident bytes within the budget every frame, the picture converging to the one
+    drawn without a budget (SW, whose choice does not depend on query timing), the statistics and
+    the corner text saying it."""
+    package = blender_preview.enable_from_repo(repo)
+    preview = importlib.import_module(NAME + ".addon.preview")
+    streamed = importlib.import_module(NAME + ".hlod_core.render.streamed_geometry")
+    blender_preview.init_gpu()
+    names = row_scene()
+    scene, props = bpy.context.scene, bpy.context.scene.hlod
+    out = {"bake": bake(work, target_tris=60)}
+    props.method, props.show_modulation, props.skip_queries = "sw", False, "off"
+    out["toggle_on"] = sorted(bpy.ops.hlod.preview_toggle())
+    hlod = preview.current_hlod()
+    out["nodes"] = int(hlod.node_count)
+    whole = int(streamed.node_bytes(hlod, with_uv=False, with_colour=False).sum())
+    out["sources_hidden"] = all(bpy.data.objects[n].hide_get() for n in names["sources"] if n != "arrayed")
+    for private in (False, True):
+        props.private_context = private
+        props.gpu_budget_mb = 0.0
+        for _ in range(3):
+            reference = draw_scene(package, preview=True)
+        # the budget: what the unlimited frame uses (its cut and their ancestors), with room to spare
+        # for the nodes that stand in first, and less than the file
+        used = set()
+        for node in preview.last_stats().drawn:
+            while node >= 0 and node not in used:
+                used.add(node)
+                node = int(hlod.parent[node])
+        sizes = streamed.node_bytes(hlod, with_uv=False, with_colour=False)
+        props.gpu_budget_mb = min(0.75 * whole, 1.5 * int(sizes[sorted(used)].sum())) / 2**20
+        budget = int(round(props.gpu_budget_mb * 2**20))
+        frames = []
+        for _ in range(FRAMES_TO_CONVERGE):
+            image = draw_scene(package, preview=True)
+            stats = preview.last_stats()
+            frames.append({"differing": int(np.any(image != reference, axis=-1).sum()), "dn": stats.dn,
+                           "resident": stats.resident_bytes, "waiting": stats.waiting,
+                           "substitutions": stats.substitutions})
+        out["private" if private else "gl"] = {
+            "budget": budget, "whole": whole, "frames": frames,
+            "stat_resident_mb": props.stat_resident_mb, "stat_waiting": props.stat_waiting,
+            "corner": _corner_lines(preview, scene)}
+    props.private_context = False
+    out["toggle_off"] = sorted(bpy.ops.hlod.preview_toggle())
+    return out
+
+
+#: Frames a held camera is drawn under the budget in check_streaming.
+FRAMES_TO_CONVERGE = 12
+
+
 def _corner_lines(preview, scene) -> list[str]:
-    text = importlib.import_module(NAME + ".addon.viewport_text")
-    tracker = importlib.import_module(NAME + ".addon.source_record").tracker()
-    props = scene.hlod
-    recorded, _ = preview.sources_in_place()
-    return [line for line, _ in text.corner_lines(
-        label=text.method_label(props.method, props.bias), stats=preview.last_stats(),
-        source_tris=preview.current_hlod().meta["input_tris"], private=props.private_context,
-        changed=len(tracker.changed) if tracker else None, recorded=recorded)]
+    return [line for line, _ in preview.corner_lines(scene)]
 
 
 TEXT_ROWS = 60  # the corner text's lines (two or three) fit in the bottom 60 rows at UI scale 1

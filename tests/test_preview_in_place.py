@@ -172,3 +172,23 @@ def test_corner_text_lines():
     assert viewport_text.corner_lines(label="Full", stats=None, source_tris=10, private=False, changed=None,
                                       recorded=0) == [("HLOD Full: no frame drawn yet", False),
                                                       ("sources not recorded for this file: they stay visible (re-bake)", True)]
+
+
+@pytest.mark.blender
+@pytest.mark.gl
+def test_preview_streams_under_a_gpu_budget_and_converges(repo, tmp_path):
+    """A budget below the file's node geometry, in both drawing modes, camera held: the
+    first frame already draws (coarser nodes stand in), resident bytes never exceed the budget, and
+    the picture becomes the one drawn without a budget; the statistics and the corner text show the
+    GPU memory."""
+    out = preview_check(repo, "streaming", tmp_path)
+    assert out["bake"] == ["FINISHED"] and out["toggle_on"] == ["FINISHED"] and out["sources_hidden"]
+    for mode in ("gl", "private"):
+        run = out[mode]
+        frames = run["frames"]
+        assert 0 < run["budget"] < run["whole"], mode
+        assert all(f["resident"] <= run["budget"] for f in frames), mode
+        assert frames[0]["dn"] >= 1 and frames[0]["substitutions"] >= 1, mode  # held back at first
+        assert frames[-1]["differing"] == 0 and frames[-1]["waiting"] == 0, (mode, frames)
+        assert 0 < run["stat_resident_mb"] * 2**20 <= run["budget"] + 1, mode
+        assert any(line.startswith("GPU ") and " MB" in line for line in run["corner"]), run["corner"]

@@ -3,10 +3,12 @@ each group makes (argparse Namespace -> BakeSettings / RuntimeSettings)."""
 from __future__ import annotations
 
 import argparse
+import math
 
 from ..bake import partition
 from ..bake.settings import ERROR_MEASURES, BakeSettings, bake_settings
 from ..core.errors import InputError
+from ..render.residency import StreamingSettings
 from ..traversal.settings import (BATCH_QUERY_MODES, MULTIQUERY_MODES, PREDICT_NEW_MODES, SKIP_QUERY_MODES,
                                   RuntimeSettings)
 
@@ -160,3 +162,27 @@ def runtime_settings_of(args: argparse.Namespace, *, bias: str = "P") -> Runtime
                            shift_up=args.shift_up, skip_queries=args.skip_queries, multiquery=args.multiquery,
                            batch_queries=args.batch_queries, predict_new=args.predict_new,
                            measure_every=args.measure_every)
+
+
+def gpu_budget_option(p: argparse.ArgumentParser) -> None:
+    """--gpu-budget: node geometry streamed under a GPU memory budget (render.residency)."""
+    p.add_argument("--gpu-budget", type=megabytes, default=0.0, metavar="MB",
+                   help="GPU memory for node geometry, MB (2^20 bytes): nodes are uploaded as the traversal wants "
+                        "them and the least recently used evicted; a coarser resident node stands in until they "
+                        "arrive. 0 (default): unlimited, the whole file uploaded at the start")
+
+
+def megabytes(text: str) -> float:
+    """argparse type: a finite number of MB >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of MB >= 0, got {text!r}") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"expected a number of MB >= 0, got {text!r}")
+    return value
+
+
+def streaming_of(args: argparse.Namespace) -> StreamingSettings:
+    """The StreamingSettings of --gpu-budget."""
+    return StreamingSettings.from_megabytes(args.gpu_budget)

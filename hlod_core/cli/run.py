@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import logging
+import time
 from pathlib import Path
 
 from ..core.errors import InputError
 from ..export.formats import check_output_file
 from ..io import hlod_file
-from .options import parse_size, psnr_db, runtime_options, runtime_settings_of, whole_number
+from .options import (gpu_budget_option, parse_size, psnr_db, runtime_options, runtime_settings_of,
+                      streaming_of, whole_number)
 
 log = logging.getLogger("hlod_core")
 
@@ -30,6 +32,10 @@ def add_run(sub) -> None:
     p.add_argument("--size", default="640x480", help="viewport WxH pixels")
     p.add_argument("--save-frames", metavar="DIR", help="write every frame as PNG")
     p.add_argument("--save-path", metavar="PATH.json", help="write the camera path used")
+    gpu_budget_option(p)
+    p.add_argument("--compare-unlimited", action="store_true",
+                   help="also draw each frame without a GPU budget; report the median PSNR-Y against those "
+                        "frames after the tenth (psnr_y_vs_unlimited_median)")
     p.set_defaults(run=run_command)
 
 
@@ -52,6 +58,7 @@ def add_evaluate(sub) -> None:
     p.add_argument("--psnr-target", type=psnr_db, metavar="DB",
                    help="instead of the methods: find the (s, t) with the fewest drawn nodes whose PSNR-Y against Bool "
                         "stays >= DB at every PSNR frame (Bool and Coh(P) candidates only; see README)")
+    gpu_budget_option(p)
     p.set_defaults(run=evaluate_command)
 
 
@@ -72,10 +79,15 @@ def run_command(args: argparse.Namespace) -> dict:
 
     if args.save_path:
         check_output_file(args.save_path, "--save-path", "path.json")
+    streaming = streaming_of(args)
+    started = time.perf_counter()  # first_frame_ms counts the file's opening
     hlod, settings, path, size = _runtime_setup(args, bias=args.bias)
     if args.save_path:
         path.save(args.save_path)
-    out = run_path(hlod, args.method, settings, path=path, size=size, save_frames=args.save_frames)
+    if args.compare_unlimited:
+        started = None  # the unlimited pass runs first: the first frame counts from the renderer's creation
+    out = run_path(hlod, args.method, settings, path=path, size=size, save_frames=args.save_frames,
+                   streaming=streaming, compare_unlimited=args.compare_unlimited, started_s=started)
     out.update(method=args.method, bias=args.bias, size=list(size), alpha=args.alpha, tau=args.tau)
     return out
 
@@ -95,7 +107,8 @@ def evaluate_command(args: argparse.Namespace) -> dict:
         return _tune(args, out_dir)
     hlod, settings, path, size = _runtime_setup(args)
     report = evaluate.evaluate(hlod, path, size, methods=methods, settings=settings, repeat=args.repeat,
-                               sweep=args.sweep, out_dir=out_dir, psnr_frames=args.psnr_frames, seed=args.seed)
+                               sweep=args.sweep, out_dir=out_dir, psnr_frames=args.psnr_frames, seed=args.seed,
+                               streaming=streaming_of(args))
     log.info("report: %s", out_dir / "report.md")
     return evaluate.summary_line(report, out_dir)
 
@@ -110,6 +123,6 @@ def _tune(args: argparse.Namespace, out_dir: Path) -> dict:
                          "(evaluate the chosen --s and --t without --psnr-target for the other methods)")
     hlod, settings, path, size = _runtime_setup(args)
     report = tuning.tune(hlod, path, size, target_db=args.psnr_target, settings=settings, repeat=args.repeat,
-                         out_dir=out_dir, psnr_frames=args.psnr_frames, seed=args.seed)
+                         out_dir=out_dir, psnr_frames=args.psnr_frames, seed=args.seed, streaming=streaming_of(args))
     log.info("report: %s", out_dir / "report.md")
     return evaluate.summary_line(report, out_dir) | {"psnr_target": tuning.summary(report)}

@@ -30,6 +30,8 @@ CALIBRATION_ROUNDS = 3
 CALIBRATION_DRAW_NODES = 4
 #: Triangles a node's timed draws aim at, in at most CALIBRATION_MAX_REPEATS draws.
 CALIBRATION_DRAW_TRIANGLES = 4_000
+#: Nodes drawn to calibrate have at most this many triangles where the file has such nodes.
+CALIBRATION_MAX_NODE_TRIANGLES = 16_000
 CALIBRATION_MAX_REPEATS = 16
 #: Framebuffer (width, height) pixels of a renderer without an own framebuffer.
 CALIBRATION_SIZE = (256, 256)
@@ -106,13 +108,18 @@ def time_queries(renderer, fbo, *, clock: str) -> tuple[list, list, list]:
     return counts, pixels, seconds
 
 
-def draw_picks(tri_count: np.ndarray) -> np.ndarray:
+def draw_picks(tri_count: np.ndarray, *, among: np.ndarray | None = None) -> np.ndarray:
     """Up to CALIBRATION_DRAW_NODES node rows with triangles, spread over the triangle counts
-    (tri_count: (n,) per node), in ascending order of row."""
+    (tri_count: (n,) per node) up to CALIBRATION_MAX_NODE_TRIANGLES (the smallest nodes when none
+    is that small: the cost is linear, and the largest nodes of a huge file would make calibrating
+    grow with it), in ascending order of row. among: (n,) bool, the nodes that may be drawn (the
+    resident ones under a GPU budget); None: all."""
     tris = np.asarray(tri_count, np.int64)
-    drawable = np.flatnonzero(tris > 0)
+    drawable = np.flatnonzero((tris > 0) if among is None else (tris > 0) & np.asarray(among, bool))
     if drawable.size == 0:
         raise InputError("the HLOD has no triangles: no draw cost to calibrate")
+    small = drawable[tris[drawable] <= CALIBRATION_MAX_NODE_TRIANGLES]
+    drawable = small if small.size else drawable[np.argsort(tris[drawable], kind="stable")[:CALIBRATION_DRAW_NODES]]
     by_count = drawable[np.argsort(tris[drawable], kind="stable")]
     spread = np.linspace(0, by_count.size - 1, CALIBRATION_DRAW_NODES).round().astype(int)
     return np.unique(by_count[spread])
@@ -130,7 +137,7 @@ def time_draws(renderer, fbo, *, clock: str) -> tuple[list, list, list]:
     mvp = perspective(60.0, width / height, near=0.05 * diagonal, far=4.0 * diagonal) @ mv
     renderer.set_node_matrices(mvp=mvp, mv=mv)
     tris = np.asarray(h.tri_count, np.int64)
-    picks = draw_picks(tris)
+    picks = draw_picks(tris, among=None if renderer.residency is None else renderer.residency.resident)
     calls, triangles, seconds = [], [], []
     for divisor in (2, 1):
         for node in picks.tolist():

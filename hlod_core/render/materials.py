@@ -41,15 +41,18 @@ class MaterialParts:
         self.gl = gl
         textures = _textures(ctx, hlod, images=images or {}, gl=gl, keep=keep)
         self.has_uv = any(t is not None for t in textures)
-        has_color = hlod.colors is not None
-        vertex_shader, fragment_shader = parts_sources(has_uv=self.has_uv, has_color=has_color)
+        self.has_color = hlod.colors is not None
+        vertex_shader, fragment_shader = parts_sources(has_uv=self.has_uv, has_color=self.has_color)
         self.program = keep(ctx.program(vertex_shader=vertex_shader, fragment_shader=fragment_shader))
-        content = [(vbo, "3f", "in_pos")]
-        for present, values, layout, name in ((self.has_uv, hlod.uvs, "2f", "in_uv"),
-                                              (has_color, hlod.colors, "4f", "in_color")):
-            if present:
-                content.append((keep(ctx.buffer(np.ascontiguousarray(values, np.float32).tobytes())), layout, name))
-        self.vao = keep(ctx.vertex_array(self.program, content, index_buffer=ibo, index_element_size=4))
+        self.vao = None  # the whole file's; None when node geometry is streamed (vbo None)
+        if vbo is not None:
+            content = [(vbo, "3f", "in_pos")]
+            for present, values, layout, name in ((self.has_uv, hlod.uvs, "2f", "in_uv"),
+                                                  (self.has_color, hlod.colors, "4f", "in_color")):
+                if present:
+                    data = np.ascontiguousarray(values, np.float32).tobytes()
+                    content.append((keep(ctx.buffer(data)), layout, name))
+            self.vao = keep(ctx.vertex_array(self.program, content, index_buffer=ibo, index_element_size=4))
         parts = hlod.draw_parts()
         self.part_first = parts.first.tolist()
         self.part_end = (parts.first + parts.count).tolist()
@@ -102,14 +105,16 @@ class MaterialParts:
                 self.bound = texture
         self.current_material = material
 
-    def draw(self, node: int, *, triangles: int) -> None:
-        """Draw node `node`'s parts, each in its material (`triangles`: moderngl.TRIANGLES)."""
-        render = self.vao.render
+    def draw(self, node: int, *, triangles: int, vao=None, index_base: int = 0) -> None:
+        """Draw node `node`'s parts, each in its material (`triangles`: moderngl.TRIANGLES); vao:
+        the node's own vertex array whose indices start at the file's index `index_base` (streamed
+        geometry), else the whole file's."""
+        render = (vao or self.vao).render
         for j in range(self.part_first[node], self.part_end[node]):
             material = self.material[j]
             if material != self.current_material:
                 self.use_material(material)
-            render(triangles, vertices=self.index_count[j], first=self.index_first[j])
+            render(triangles, vertices=self.index_count[j], first=self.index_first[j] - index_base)
 
 
 def _textures(ctx, hlod: Hlod, *, images: dict, gl: GLFunctions, keep) -> list:

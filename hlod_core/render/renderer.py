@@ -3,7 +3,9 @@ read-back and release.
 
 Data form: all node geometry in one vertex buffer (float32 positions relative to the file's
 origin) and one index buffer (uint32); node i is the ranged draw of indices
-[3 tri_offset[i], 3 (tri_offset[i] + tri_count[i])). The renderer works on a standalone EGL context
+[3 tri_offset[i], 3 (tri_offset[i] + tri_count[i])). Under a GPU budget (`streaming`) node geometry
+is uploaded node by node instead, as the traversal wants it (streamed_geometry.py, residency.py):
+`residency` then says which nodes are resident and holds the traversal back where they are not. The renderer works on a standalone EGL context
 (`create_standalone`, headless: Mesa llvmpipe on machines without a GPU) or on a context handed in
 by the caller (Blender's, in the add-on), drawing into the caller's framebuffer.
 
@@ -34,7 +36,9 @@ from .gl_functions import GL, GLFunctions
 from .materials import MaterialParts
 from .queries import Query, QueryPool
 from .query_boxes import QueryBoxes
+from .residency import Residency, StreamingSettings
 from .resources import GLObjects
+from .streamed_geometry import StreamedGeometry, node_bytes
 from .shaders import NODE_FS, NODE_VS
 
 log = logging.getLogger(__name__)
@@ -55,10 +59,12 @@ class Renderer:
     nodes in the modulation colour of the ratio P passed to `draw_node`. `time_gpu`: time each
     frame with a GL timer query (False inside a host that may run its own timer queries).
     `images`: material row -> (h, w, 4) uint8 RGBA, top row first, sRGB-encoded (materials.py);
-    InputError for an image of another form or a key that is no material row."""
+    InputError for an image of another form or a key that is no material row. `streaming`: a GPU
+    budget for node geometry (None or an unlimited one: the whole file is uploaded at the start)."""
 
     def __init__(self, ctx, hlod: Hlod, *, size: tuple[int, int] | None = None, owns_context: bool = False,
-                 time_gpu: bool = True, overlay: bool = False, images: dict[int, np.ndarray] | None = None):
+                 time_gpu: bool = True, overlay: bool = False, images: dict[int, np.ndarray] | None = None,
+                 streaming: StreamingSettings | None = None):
         import moderngl
 
         self._triangles, self._depth_test = moderngl.TRIANGLES, moderngl.DEPTH_TEST
@@ -71,10 +77,11 @@ class Renderer:
         self.gl = GLFunctions(ctx)
         self.queries = QueryPool(self.gl)
         self._gl_objects = GLObjects()
+        self.streamed: StreamedGeometry | None = None
         try:
-            self._make_gl_objects(ctx, hlod, size=size, images=images)
+            self._make_gl_objects(ctx, hlod, size=size, images=images, streaming=streaming)
         except BaseException:
-            self._gl_objects.release()
+            self._release_geometry()
             raise
         self._tri_first = (np.asarray(hlod.tri_offset) * 3).astype(np.int64)
         self._tri_vertices = (np.asarray(hlod.tri_count) * 3).astype(np.int64)
@@ -85,14 +92,18 @@ class Renderer:
         self._timer = None
         self._cost_model: CostModel | None = None
 
-    def _make_gl_objects(self, ctx, hlod: Hlod, *, size, images) -> None:
-        """Programs, buffers, the query boxes, the own framebuffer and the appearance, in that order."""
+    def _make_gl_objects(self, ctx, hlod: Hlod, *, size, images, streaming) -> None:
+        """Programs, buffers, the query boxes, the own framebuffer, the appearance and (under a
+        budget) the streamed node geometry, in that order."""
         keep = self._gl_objects.keep
         self.node_program = keep(ctx.program(vertex_shader=NODE_VS, fragment_shader=NODE_FS))
-        self.vbo = keep(ctx.buffer(np.ascontiguousarray(hlod.positions, np.float32).tobytes()))
-        self.ibo = keep(ctx.buffer(np.ascontiguousarray(hlod.indices, np.uint32).tobytes()))
-        self.vao = keep(ctx.vertex_array(self.node_program, [(self.vbo, "3f", "in_pos")],
-                                         index_buffer=self.ibo, index_element_size=4))
+        streamed = streaming is not None and not streaming.unlimited
+        self.vbo = self.ibo = self.vao = None
+        if not streamed:
+            self.vbo = keep(ctx.buffer(np.ascontiguousarray(hlod.positions, np.float32).tobytes()))
+            self.ibo = keep(ctx.buffer(np.ascontiguousarray(hlod.indices, np.uint32).tobytes()))
+            self.vao = keep(ctx.vertex_array(self.node_program, [(self.vbo, "3f", "in_pos")],
+                                             index_buffer=self.ibo, index_element_size=4))
         self._u_colour, self._u_mvp, self._u_mv = (self.node_program[u] for u in ("u_colour", "u_mvp", "u_mv"))
         self.boxes = QueryBoxes(ctx, hlod, keep=keep)
         self.query_box_pad = self.boxes.pad  # model units (hierarchy.query_box_pad)
@@ -108,16 +119,35 @@ class Renderer:
                                             keep=keep)
         elif images:
             log.warning("%d material images given but the HLOD has no materials: not drawn", len(images))
+        if streamed:
+            parts = None if self.appearance is None else (self.appearance.program, self.appearance.has_uv,
+                                                          self.appearance.has_color)
+            self.streamed = StreamedGeometry(ctx, hlod, node_program=self.node_program, parts=parts,
+                                             settings=streaming)
+
+    @property
+    def residency(self) -> Residency | None:
+        """Which nodes' geometry is resident under the GPU budget (None: no budget, all of it)."""
+        return None if self.streamed is None else self.streamed.residency
+
+    @property
+    def geometry_bytes(self) -> int:
+        """GPU bytes of node geometry now: the resident nodes' under a budget, else the whole file's."""
+        if self.streamed is not None:
+            return self.streamed.residency.resident_bytes
+        with_uv = self.appearance is not None and self.appearance.has_uv
+        with_colour = self.appearance is not None and self.appearance.has_color
+        return int(node_bytes(self.hlod, with_uv=with_uv, with_colour=with_colour).sum())
 
     @classmethod
-    def create_standalone(cls, hlod: Hlod, size: tuple[int, int], *,
-                          images: dict[int, np.ndarray] | None = None) -> "Renderer":
+    def create_standalone(cls, hlod: Hlod, size: tuple[int, int], *, images: dict[int, np.ndarray] | None = None,
+                          streaming: StreamingSettings | None = None) -> "Renderer":
         """A private headless EGL context (llvmpipe where there is no GPU) and an own framebuffer."""
         import moderngl
 
         ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
         try:
-            return cls(ctx, hlod, size=size, owns_context=True, images=images)
+            return cls(ctx, hlod, size=size, owns_context=True, images=images, streaming=streaming)
         except BaseException:
             ctx.release()
             raise
@@ -147,6 +177,8 @@ class Renderer:
         self.boxes.set_matrix(mvp_bytes)
         self._u_mv.write(mv_bytes)
         self._refresh_host_framebuffer()
+        if self.streamed is not None:
+            self.streamed.begin_frame()
         if self.fbo is not None:
             self.fbo.use()
         if self.appearance is not None:
@@ -173,6 +205,8 @@ class Renderer:
             gpu_ms = self.queries.elapsed_ms(self._timer)
             self.queries.give_back(self._timer, GL.TIME_ELAPSED)
             self._timer = None
+        if self.streamed is not None:
+            self.streamed.end_frame()  # evictions and this frame's uploads, for the next frames
         self.ctx.finish()
         if self.fbo is not None:
             self._host_fbo.use()  # never leave ours bound: moderngl rebinds its last one later
@@ -220,12 +254,18 @@ class Renderer:
     def draw_node(self, node: int, ratio_p: float = 1.0) -> None:
         """Draw a node chosen by a traversal; ratio_p in [0, 1] is the P that steered its LOD (1 for
         none), shown as its modulation colour when `overlay` is on."""
+        if self.streamed is not None:
+            node = self.streamed.drawable(node)
         if self.overlay:
             step = round(min(1.0, max(0.0, float(ratio_p))) * OVERLAY_RAMP_STEPS)
             self.draw_node_coloured(node, self._ramp[step])
         elif self.appearance is not None:
             self.set_mode("draw")
-            self.appearance.draw(node, triangles=self._triangles)
+            if self.streamed is None:
+                self.appearance.draw(node, triangles=self._triangles)
+            elif self.streamed.parts_vao(node) is not None:
+                self.appearance.draw(node, triangles=self._triangles, vao=self.streamed.parts_vao(node),
+                                     index_base=self.streamed.index_base(node))
         else:
             self.draw_node_coloured(node, DEFAULT_COLOUR)
 
@@ -235,7 +275,13 @@ class Renderer:
         if colour is not self._colour:
             self._u_colour.value = tuple(float(c) for c in colour)
             self._colour = colour
-        self.vao.render(self._triangles, vertices=int(self._tri_vertices[node]), first=int(self._tri_first[node]))
+        if self.streamed is None:
+            self.vao.render(self._triangles, vertices=int(self._tri_vertices[node]), first=int(self._tri_first[node]))
+        else:
+            node = self.streamed.drawable(node)
+            vao = self.streamed.vao(node)
+            if vao is not None:
+                vao.render(self._triangles, vertices=int(self._tri_vertices[node]), first=0)
 
     def issue_query(self, node: int, *, with_alpha: bool) -> Query:
         """Occlusion query of the node's box against the current depth buffer; with_alpha adds
@@ -385,6 +431,12 @@ class Renderer:
             self.queries.release()
             if self.fbo is not None:
                 self._host_fbo.use()
-            self._gl_objects.release()
+            self._release_geometry()
         if self._owns_context:
             self.ctx.release()
+
+    def _release_geometry(self) -> None:
+        """The streamed nodes' buffers, then every other GL object, newest first."""
+        if self.streamed is not None:
+            self.streamed.release()
+        self._gl_objects.release()

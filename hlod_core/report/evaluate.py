@@ -43,6 +43,7 @@ from ..io.textures import load_images
 from ..model.camera_path import CameraPath
 from ..model.hierarchy import Hlod
 from ..render.renderer import Renderer
+from ..render.residency import StreamingSettings
 from ..traversal.settings import ALPHA_MODES, RuntimeSettings
 from . import html_page
 from .alpha_study import alpha_estimators
@@ -93,10 +94,12 @@ def variants(methods: list[str], settings: RuntimeSettings, sweep: str | None) -
 
 def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: list[str],
              settings: RuntimeSettings = RuntimeSettings(), repeat: int = 2, sweep: str | None = None,
-             out_dir: str | os.PathLike, psnr_frames: int = 20, seed: int = 1, figures: bool = True) -> dict:
+             out_dir: str | os.PathLike, psnr_frames: int = 20, seed: int = 1, figures: bool = True,
+             streaming: StreamingSettings | None = None) -> dict:
     """Runs, measures and writes report.json, per_frame.npz, report.md, report.html and (with
     `figures`, which needs matplotlib) the figures into out_dir; returns the report (the JSON
-    contents). InputError for an unknown method or sweep, or repeat < 1, before any GL work."""
+    contents). InputError for an unknown method or sweep, or repeat < 1, before any GL work.
+    streaming: a GPU budget for node geometry, shared by every method (render.residency)."""
     _check_arguments(methods, repeat=repeat, sweep=sweep)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -104,7 +107,8 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     picked = psnr_frame_indices(frames, psnr_frames, seed)
     runs = variants(methods, settings, sweep)
     started = time.perf_counter()
-    renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod))  # coloured images: Cb/Cr
+    renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod),  # coloured images: Cb/Cr
+                                          streaming=streaming)
     try:
         per_frame, images = run_interleaved(hlod, renderer, path, size=size, runs=runs, repeat=repeat, picked=picked,
                                             started=started)
@@ -120,6 +124,7 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     if showcase is not None:
         report["showcase"] = showcase
     report["parts"] = [{"name": name, "start": start} for name, start in path.parts]
+    report["settings"]["gpu_budget_bytes"] = 0 if streaming is None else streaming.budget_bytes
     report["seconds"] = time.perf_counter() - started
     medians = {key: np.median(counters, axis=0) for key, counters in per_frame.items()}
     save_per_frame(out_dir / PER_FRAME_FILE, medians)

@@ -38,6 +38,7 @@ from ..io.textures import load_images
 from ..model.camera_path import CameraPath
 from ..model.hierarchy import Hlod
 from ..render.renderer import Renderer
+from ..render.residency import StreamingSettings
 from ..traversal.settings import RuntimeSettings
 from ..traversal.stats import COUNTERS
 from .evaluate import write_report
@@ -214,7 +215,7 @@ def _round(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: tuple[int,
 
 def tune(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, target_db: float,
          settings: RuntimeSettings = RuntimeSettings(), repeat: int = 1, out_dir: str | os.PathLike,
-         psnr_frames: int = 20, seed: int = 1, figures: bool = True) -> dict:
+         psnr_frames: int = 20, seed: int = 1, figures: bool = True, streaming: StreamingSettings | None = None) -> dict:
     """`search` on a private headless renderer, then the report into out_dir (module docstring):
     evaluate's report of Bool and Coh(P) at the chosen (s, t) (both from the chosen candidate's
     round), with a "psnr_target" section (`section`). Returns the report (report.json's contents)."""
@@ -225,7 +226,7 @@ def tune(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, target_db: floa
     out_dir.mkdir(parents=True, exist_ok=True)
     picked = psnr_frame_indices(len(path), psnr_frames, seed)
     started = time.perf_counter()
-    renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod))
+    renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod), streaming=streaming)
     try:
         found = search(hlod, renderer, path, size=size, target_db=target_db, settings=settings, picked=picked,
                        repeat=repeat)

@@ -64,6 +64,8 @@ class Traversal(abc.ABC):
         self._query_alpha = settings.alpha == "query"
         self._tau = settings.tau
         self._p = metrics.bias_function(settings.bias_s, settings.t, k=settings.k)
+        #: the renderer's streamed-geometry residency (render.residency) under a GPU budget, else None
+        self._residency = getattr(renderer, "residency", None)
 
     # (n,) arrays of the per-node state, new on each read (the walk's lists stay the state)
     visible = property(lambda self: state_array(self._visible, bool), doc="(n,) bool: visible in the last query result")
@@ -109,8 +111,14 @@ class Traversal(abc.ABC):
         self.renderer.begin_frame(view)
         self._traverse(stats)
         traversed_at = time.perf_counter()
+        uploaded = 0 if self._residency is None else self._residency.uploaded_bytes
         stats.gpu_ms = self.renderer.end_frame()
         ended = time.perf_counter()
+        if self._residency is not None:
+            residency = self._residency
+            stats.substitutions, stats.waiting = residency.substitutions, residency.waiting
+            stats.resident_bytes, stats.upload_bytes = residency.resident_bytes, residency.uploaded_bytes - uploaded
+            stats.upload_ms = residency.upload_seconds * MS_PER_S
         stats.state_changes = getattr(self.renderer, "state_changes", 0) - state_changes
         stats.frame_ms = (ended - started) * MS_PER_S
         stats.cpu_ms = (traversed_at - started) * MS_PER_S - stats.stall_ms
@@ -133,11 +141,25 @@ class Traversal(abc.ABC):
         if self._rendered[node] == self.frame_id:
             return False
         self._rendered[node] = self.frame_id
+        if self._residency is not None:
+            self._residency.use(node)
         stats.dn += 1
         stats.tris += self._tri_count[node]
         stats.drawn.append(node)
         self.renderer.draw_node(node, self._ratio[node] if self.modulates else 1.0)
         return True
+
+    def _refinable(self, node: int, *, visible: bool) -> bool:
+        """May the walk descend into the node's children? Always without a GPU budget; under one,
+        only when their geometry is resident: else the node is drawn in their place this frame and
+        they are requested, visible ones and larger errors first (render.residency)."""
+        residency = self._residency
+        if residency is None:
+            return True
+        residency.use(node)
+        sse, tau = self.sse, self._tau
+        return residency.can_refine(node, visible=visible, error_over_tau=sse[node] / tau,
+                                    needed=self.in_frustum.__getitem__, refines=lambda child: sse[child] > tau)
 
     def _sse_stop(self, node: int) -> bool:
         """Leaves stop; else SSE <= tau (a leaf's SSE is 0)."""

@@ -143,7 +143,10 @@ class CoherentLoop(Traversal):
         elif stop or self._measures_refined(node):
             self._query(node, mode if stop else MEASURE_RATIO)
         if mode == REFINE:
-            self._schedule(self._heap, self._children[node])
+            if self._residency is None or self._refinable(node, visible=True):
+                self._schedule(self._heap, self._children[node])
+            else:
+                self._render(node, self._stats)
         elif mode != DELAY and self._render(node, self._stats) and mode == PREDICTED:
             self._stats.predicted += 1
 
@@ -189,6 +192,9 @@ class CoherentLoop(Traversal):
             self.skips.queried(node, mode, changed=not stop, frame_id=self.frame_id)
         stats = self._stats
         if not stop:
+            if self._residency is not None and not self._refinable(node, visible=True):
+                self._render(node, stats)
+                return
             if self._rendered[node] == self.frame_id:
                 stats.rarn += 1
                 stats.refined_after_draw.append(node)

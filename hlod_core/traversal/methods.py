@@ -30,8 +30,20 @@ class Full(Traversal):
         leaves = np.flatnonzero(self._is_leaf & np.asarray(self.in_frustum))
         order = leaves[np.argsort(np.asarray(self.key)[leaves], kind="stable")]
         stats.traversed = int(order.shape[0])
+        residency = self._residency
         for node in order.tolist():
+            if residency is not None and not residency.resident[node]:
+                node = self._resident_ancestor(node)
             self._render(node, stats)
+
+    def _resident_ancestor(self, node: int) -> int:
+        """Under a GPU budget: the nearest resident ancestor of a leaf not resident yet, drawn in its
+        place; the leaf's path is requested one level a frame (`_refinable` of that ancestor)."""
+        parent, resident = self._parent, self._residency.resident
+        while not resident[node]:
+            node = parent[node]
+        self._refinable(node, visible=True)
+        return node
 
 
 class VFC(Traversal):
@@ -48,7 +60,7 @@ class VFC(Traversal):
         while heap:
             node = heappop(heap)[1]
             traversed += 1
-            if self._sse_stop(node):
+            if self._sse_stop(node) or not self._refinable(node, visible=True):
                 self._render(node, stats)
             else:
                 self._schedule(heap, children[node])
@@ -81,7 +93,10 @@ class StopAndWait(Traversal):
             stop = self._vmsse_stop(node, p)
             stop_refinement[node] = stop
             if not stop:
-                self._schedule(heap, children[node])
+                if self._refinable(node, visible=True):
+                    self._schedule(heap, children[node])
+                else:
+                    self._render(node, stats)
             elif self._render(node, stats):
                 stats.d += 1
                 stats.delayed.append(node)
