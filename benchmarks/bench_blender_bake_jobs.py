@@ -16,7 +16,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from blender_runs import blender, build_extension_zip, install_extension  # noqa: E402
+from blender_runs import blender, build_extension_zips, install_extension, line_of  # noqa: E402
 
 SPEEDUP_JOBS_2 = 1.6  # jobs 2 against jobs 1 on about 1M triangles, same run
 
@@ -24,7 +24,8 @@ SPEEDUP_JOBS_2 = 1.6  # jobs 2 against jobs 1 on about 1M triangles, same run
 @pytest.fixture
 def repo(tmp_path_factory) -> Path:
     """The extension built and installed for the main .venv's bpy (tests/conftest.py's `repo`)."""
-    return install_extension(build_extension_zip(tmp_path_factory.mktemp("dist")), Path(sys.executable),
+    return install_extension(build_extension_zips(tmp_path_factory.mktemp("dist"))[line_of("5.0").python_tag],
+                             Path(sys.executable),
                              tmp_path_factory.mktemp("extension"))
 
 

@@ -1,6 +1,6 @@
 """The extension in the real bpy module: the Blenders the checks run in, the zip built by
 scripts/build_extension.py and installed with each Blender's own extension tool, and one check
-script run in a Blender process (its JSON result). conftest.py's fixtures `extension_zip`, `repo`
+script run in a Blender process (its JSON result). conftest.py's fixtures `extension_zips`, `repo`
 and `versioned_repo` are made of these.
 
 BLENDERS: version "X.Y" -> that environment's Python interpreter (.venv-blender/bpy-X.Y, made by
@@ -57,20 +57,39 @@ class Installed:
         return self.base / name
 
 
-def build_extension_zip(dist: Path) -> Path:
-    """The linux-x64 zip (cp311 and cp313 wheels: the same zip for every Blender), built into
-    `dist` by scripts/build_extension.py with the main .venv."""
+def build_extension_zips(dist: Path) -> dict[str, Path]:
+    """The linux-x64 zips, one per Blender line, built into `dist` by scripts/build_extension.py with
+    the main .venv: {python tag ("cp311", "cp313"): zip path}."""
     build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms", "linux-x64",
                             "--output-dir", str(dist)], capture_output=True, text=True, timeout=900)
     assert build.returncode == 0, build.stderr
-    return Path(build.stdout.strip().splitlines()[-1])
+    zips = [Path(line) for line in build.stdout.strip().splitlines()]
+    lines = _build_extension().BLENDER_LINES
+    assert len(zips) == len(lines), zips
+    return {line.python_tag: next(z for z in zips if f"-{line.label}-" in z.name) for line in lines}
+
+
+def line_of(version: str):
+    """The build's BlenderLine of Blender `version` ("X.Y"): the zip that Blender installs."""
+    wanted = tuple(int(x) for x in version.split("."))
+    for line in _build_extension().BLENDER_LINES:
+        low = tuple(int(x) for x in line.version_min.split("."))[:2]
+        high = None if line.version_max is None else tuple(int(x) for x in line.version_max.split("."))[:2]
+        if low <= wanted and (high is None or wanted < high):
+            return line
+    raise AssertionError(f"no Blender line of scripts/build_extension.py takes Blender {version}")
+
+
+def _build_extension():
+    sys.path.insert(0, str(ROOT / "scripts"))
+    import build_extension
+
+    return build_extension
 
 
 def extension_tool(python: Path) -> Path:
     """blender_ext.py of the bpy installed for `python` (whichever version)."""
-    sys.path.insert(0, str(ROOT / "scripts"))
-    import build_extension
-
+    build_extension = _build_extension()
     platlib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['platlib'])"],
                              capture_output=True, text=True, check=True).stdout.strip()
     return build_extension.blender_ext(platlib)

@@ -10,7 +10,7 @@ Fixtures
     bakes           helpers.SharedBakes: shared models baked once per test run (bakes.baked(name, ...))
     city_hlod       the default procedural city, baked once per test run
     cow_file        cow.obj baked by the command line (target 400 triangles) into a folder of the test run
-    extension_zip   the extension's linux-x64 zip, built once per test run
+    extension_zips  the extension's linux-x64 zips, one per Blender line, built once per test run
     repo            that zip installed for the main .venv's bpy, once per test module
     versioned_repo  that zip installed in each Blender of blender_runs.BLENDERS, once per test run
 
@@ -143,20 +143,23 @@ def cow_file(tmp_path_factory) -> Path:
 # --- the extension in the real bpy module ------------------------------------------------------------
 
 @pytest.fixture(scope="session")
-def extension_zip(tmp_path_factory) -> Path:
-    return blender_runs.build_extension_zip(tmp_path_factory.mktemp("dist"))
+def extension_zips(tmp_path_factory) -> dict[str, Path]:
+    """The linux-x64 zips of the extension, {python tag: path}, one per Blender line."""
+    return blender_runs.build_extension_zips(tmp_path_factory.mktemp("dist"))
 
 
 @pytest.fixture(scope="module")
-def repo(extension_zip, tmp_path_factory) -> Path:
+def repo(extension_zips, tmp_path_factory) -> Path:
     """The extension installed for the main .venv's bpy (5.0), fresh for each test module."""
-    return blender_runs.install_extension(extension_zip, Path(sys.executable), tmp_path_factory.mktemp("extension"))
+    zip_path = extension_zips[blender_runs.line_of("5.0").python_tag]
+    return blender_runs.install_extension(zip_path, Path(sys.executable), tmp_path_factory.mktemp("extension"))
 
 
 @pytest.fixture(scope="session", params=sorted(blender_runs.BLENDERS), ids=lambda version: f"blender-{version}")
-def versioned_repo(request, extension_zip, tmp_path_factory) -> blender_runs.Installed:
-    """The extension installed in Blender `request.param`'s own environment."""
+def versioned_repo(request, extension_zips, tmp_path_factory) -> blender_runs.Installed:
+    """The extension installed in Blender `request.param`'s own environment, from its line's zip."""
     version = request.param
     python = blender_runs.blender_python(version)
-    base = blender_runs.install_extension(extension_zip, python, tmp_path_factory.mktemp(f"extension-{version}"))
+    zip_path = extension_zips[blender_runs.line_of(version).python_tag]
+    base = blender_runs.install_extension(zip_path, python, tmp_path_factory.mktemp(f"extension-{version}"))
     return blender_runs.Installed(version, python, base)

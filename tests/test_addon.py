@@ -41,15 +41,41 @@ def test_manifest_validates_with_blenders_tool():
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
-def test_zip_holds_the_package_and_cp311_and_cp313_wheels_of_each_dependency(extension_zip):
-    """One zip for every Blender: Blender 4.2 to 5.0 install the cp311 wheels, 5.1 and later cp313."""
-    names = zipfile.ZipFile(extension_zip).namelist()
-    assert "blender_manifest.toml" in names and "hlod_core/traversal/methods.py" in names
-    assert not any(n.startswith("tests/") for n in names)
-    wheels = [n for n in names if n.startswith("wheels/") and n.endswith(".whl")]
-    assert sorted(build_extension.wheel_tags(w) for w in wheels) == sorted(
-        (name, python) for name in DEPENDENCIES for python in ("cp311", "cp313"))
-    assert all(w.endswith("_x86_64.whl") for w in wheels), wheels
+def test_each_zip_holds_the_package_and_its_blender_lines_wheels(extension_zips):
+    """One zip per Blender line: 4.2 to 5.0 (cp311 wheels, blender_version_max 5.1.0, exclusive),
+    5.1 and later (cp313 wheels, blender_version_min 5.1.0); the package in each, no tests."""
+    expected = {"cp311": ('"4.2.0"', '"5.1.0"'), "cp313": ('"5.1.0"', None)}
+    assert sorted(extension_zips) == sorted(expected)
+    for tag, zip_path in extension_zips.items():
+        names = zipfile.ZipFile(zip_path).namelist()
+        assert "blender_manifest.toml" in names and "hlod_core/traversal/methods.py" in names
+        assert not any(n.startswith("tests/") for n in names)
+        wheels = [n for n in names if n.startswith("wheels/") and n.endswith(".whl")]
+        assert sorted(build_extension.wheel_tags(w) for w in wheels) == sorted((name, tag) for name in DEPENDENCIES)
+        assert all(w.endswith("_x86_64.whl") for w in wheels), wheels
+        manifest = zipfile.ZipFile(zip_path).read("blender_manifest.toml").decode()
+        low, high = expected[tag]
+        assert f"blender_version_min = {low}" in manifest
+        assert ("blender_version_max" not in manifest) if high is None else f"blender_version_max = {high}" in manifest
+
+
+def test_blender_offers_each_blender_only_its_lines_zip(extension_zips):
+    """Blender's own compatibility filter (blender_ext.py's repository_filter_skip, which Install
+    from Disk and the extension listing apply) takes each zip in its line's Blenders only."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("blender_ext_tool", BLENDER_EXT)
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    blenders = {(4, 2, 0): (3, 11, 7), (5, 0, 1): (3, 11, 7), (5, 1, 0): (3, 13, 1), (5, 2, 0): (3, 13, 1)}
+    for tag, zip_path in extension_zips.items():
+        item = tool.toml_from_bytes_or_error(zipfile.ZipFile(zip_path).read("blender_manifest.toml"))
+        assert isinstance(item, dict), item
+        taken = [blender for blender, python in blenders.items()
+                 if not tool.repository_filter_skip(item, filter_blender_version=blender, filter_platform="linux-x64",
+                                                    filter_python_version=python, skip_message_fn=lambda _: None,
+                                                    error_fn=lambda exc: (_ for _ in ()).throw(exc))]
+        assert taken == ([(4, 2, 0), (5, 0, 1)] if tag == "cp311" else [(5, 1, 0), (5, 2, 0)]), (tag, taken)
 
 
 def test_the_checks_run_in_blender_4_2_5_0_and_5_2_and_a_missing_environment_is_an_error(monkeypatch, tmp_path):
