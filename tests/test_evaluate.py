@@ -143,7 +143,7 @@ def test_evaluate_writes_the_report_and_its_last_line(short_run):
     assert report["settings"] == {"tau": 1.0, "s": 0.9, "t": 0.05, "k": None, "alpha": "query", "shift_up": "measured",
                                   "skip_queries": defaults.skip_queries, "multiquery": defaults.multiquery,
                                   "batch_queries": defaults.batch_queries, "predict_new": defaults.predict_new,
-                                  "measure_every": defaults.measure_every}
+                                  "measure_every": defaults.measure_every, "gpu_budget_bytes": 0}
     assert f"measure_every = {defaults.measure_every}" in (out_dir / "report.md").read_text()
     rel = report["relative"]["coh_p"]["bool"]
     assert rel["node_savings_pct"] == pytest.approx(100 * (1 - m["coh_p"]["dn"] / m["bool"]["dn"]))

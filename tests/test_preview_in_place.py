@@ -71,7 +71,9 @@ def test_preview_draws_the_hlod_in_place_of_its_sources(versioned_repo, tmp_path
     assert out["stats"]["drawn"] > 0 and out["stats"]["tris"] > 0
 
     assert re.fullmatch(r"HLOD Coh\(P\): \d+ nodes, [\d,]+ triangles \(\d+\.\d% of [\d,]+\)", out["text_lines"][0])
-    assert re.fullmatch(r"\d+ queries, \d+\.\d ms", out["text_lines"][1]) and len(out["text_lines"]) == 2
+    assert re.fullmatch(r"\d+ queries, \d+\.\d ms", out["text_lines"][1])
+    # the GPU budget (default 512 MB, larger than this file: every node resident)
+    assert re.fullmatch(r"GPU \d+\.\d of 512 MB", out["text_lines"][2]) and len(out["text_lines"]) == 3
     assert out["text"]["in_corner"] > 500 and out["text"]["outside"] == 0
     assert 0 <= out["text"]["leftmost"] < 20  # left-aligned at the margin
     assert out["text_hidden"] == {"in_corner": 0, "outside": 0, "leftmost": -1}
@@ -156,6 +158,7 @@ def test_sources_changed_since_the_bake_are_counted_and_rebaked(repo, tmp_path):
 
 class _Stats:
     dn, tris, queries, frame_ms = 12, 34_567, 21, 4.31
+    resident_bytes, waiting = 3 * 2**20 + 2**19, 0  # 3.5 MB on the GPU, nothing waiting
 
 
 def test_corner_text_lines():
@@ -172,6 +175,17 @@ def test_corner_text_lines():
     assert viewport_text.corner_lines(label="Full", stats=None, source_tris=10, private=False, changed=None,
                                       recorded=0) == [("HLOD Full: no frame drawn yet", False),
                                                       ("sources not recorded for this file: they stay visible (re-bake)", True)]
+    # under a GPU budget (64 MB): resident MB, and the nodes waiting when there are any
+    lines = viewport_text.corner_lines(label="Coh(P)", stats=_Stats, source_tris=0, private=False, changed=0,
+                                       recorded=144, budget_bytes=64 * 2**20)
+    assert lines[-1] == ("GPU 3.5 of 64 MB", False)
+
+    class Waiting(_Stats):
+        waiting = 5
+
+    lines = viewport_text.corner_lines(label="Coh(P)", stats=Waiting, source_tris=0, private=False, changed=0,
+                                       recorded=144, budget_bytes=64 * 2**20)
+    assert lines[-1] == ("GPU 3.5 of 64 MB, 5 nodes waiting", False)
 
 
 @pytest.mark.blender

@@ -36,7 +36,7 @@ def rows(terrain):
             for name, make_camera in cc.scene_setups()["terrain"][2].items():
                 for tau in TAUS_PX:
                     uris, seen = cc.cesium_choose(browser.page, make_camera(browser.size), tau)
-                    row = cc.compare(ts, hlod, seen, tau, uris)
+                    row = cc.compare(ts, hlod, seen, tau_px=tau, cesium_uris=uris)
                     row["camera"] = name
                     out.append(row)
             errors = list(browser.console_errors)
@@ -93,6 +93,6 @@ def test_the_vfc_nodes_compared_are_those_the_gl_renderer_draws(terrain):
         for make_camera in cc.scene_setups()["terrain"][2].values():
             camera = make_camera((800, 600))
             for tau in TAUS_PX:
-                assert cc.vfc_nodes(hlod, camera, tau, renderer) == cc.vfc_nodes(hlod, camera, tau)
+                assert cc.vfc_nodes(hlod, camera, tau_px=tau, renderer=renderer) == cc.vfc_nodes(hlod, camera, tau_px=tau)
     finally:
         renderer.release()
