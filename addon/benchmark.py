@@ -1,7 +1,7 @@
 """The Benchmark and Tune to PSNR operators' work: the scene camera's animation as a camera path,
-evaluated with every method (hlod_core.report.evaluate, DESIGN §9), or searched for the (s, t) with the
+evaluated with every method (hlod_core.report.evaluate, docs/evaluation.md), or searched for the (s, t) with the
 fewest drawn nodes that keeps PSNR-Y against Bool at the scene's target (hlod_core.report.tuning), in
-a private headless EGL context; Blender's own context is made current again afterwards (DESIGN §7).
+a private headless EGL context; Blender's own context is made current again afterwards (docs/how-it-works.md#gl-queries).
 
 The report's figures need matplotlib, which no Blender ships (4.2 to 5.2) and the extension does not
 bundle (about 10 MB of wheels per Python and platform for four PNGs): without it the report is

@@ -1,4 +1,4 @@
-"""Batch work from background mode (DESIGN §8): `blender -b [FILE.blend] --command hlod ...`, registered
+"""Batch work from background mode (docs/user-guide.md): `blender -b [FILE.blend] --command hlod ...`, registered
 with `bpy.utils.register_cli_command`, and the same code through the bpy module
 (`python scripts/hlod_blender.py ...`, for machines with the bpy wheel and no Blender install).
 

@@ -1,4 +1,4 @@
-"""Which native GL context is current, and keeping Blender's current around a private one (DESIGN §7:
+"""Which native GL context is current, and keeping Blender's current around a private one (docs/how-it-works.md#gl-queries:
 a standalone EGL context made current in Blender's process leaves Blender's context unbound).
 
 Only the window-system libraries' own "get current" and "make current" entry points are used, via

@@ -1,4 +1,4 @@
-"""The live viewport preview (DESIGN §7-8): the HLOD drawn in the 3D viewport in place of the objects
+"""The live viewport preview (docs/how-it-works.md#the-viewport-preview): the HLOD drawn in the 3D viewport in place of the objects
 it was baked from, by the chosen traversal, with Blender's objects occluding the nodes.
 
 `Preview` holds the running preview's state (`Session`: the file, what it hid, its two drawing

@@ -1,4 +1,4 @@
-"""Scene properties under `scene.hlod` (DESIGN §8): bake settings (with `jobs`, the bake's worker
+"""Scene properties under `scene.hlod` (docs/user-guide.md): bake settings (with `jobs`, the bake's worker
 processes, and `last_bake`, the line the panel shows about the last bake), runtime settings, overlay
 settings, read-only live statistics (getters over the running preview; nothing is written from the
 draw handler), `psnr_target` and `last_tuning` (Tune to PSNR's target and its last result),

@@ -1,4 +1,4 @@
-"""Blender meshes into hlod_core (DESIGN §8): the evaluated geometry of the chosen objects (modifiers
+"""Blender meshes into hlod_core (docs/user-guide.md): the evaluated geometry of the chosen objects (modifiers
 applied, instances from collection instances, particles and geometry nodes realised, world
 transforms), read through the depsgraph without touching the source objects, as one
 `meshes.TriangleMesh` in world units, with its appearance (hlod_core/model/appearance.py):

@@ -1,4 +1,4 @@
-"""hlod_core: bake, store, inspect and traverse octree HLODs. Never imports bpy (DESIGN §2).
+"""hlod_core: bake, store, inspect and traverse octree HLODs. Never imports bpy (docs/development.md#layout).
 
 Rooms (subpackages), each importing only the ones listed before it:
     core/       typed errors, array helpers, the one atomic write, JSON reading, PNG writing, colour

@@ -1,4 +1,4 @@
-"""Operators (DESIGN §8; ids fixed: hlod.bake, hlod.clear, hlod.preview_toggle, hlod.materialize,
+"""Operators (docs/user-guide.md; ids fixed: hlod.bake, hlod.clear, hlod.preview_toggle, hlod.materialize,
 hlod.export, hlod.benchmark, hlod.tune_psnr, hlod.view_tiles), one module per topic: `bake` (Bake,
 Clear), `preview` (Toggle Preview, Materialize), `export`, `evaluation` (Benchmark, Tune to PSNR),
 `view_tiles` (View in Browser and its server; its name keeps "viewer" for the server code, which

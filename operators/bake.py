@@ -1,4 +1,4 @@
-"""Bake and Clear (DESIGN §8). Bake gathers the evaluated meshes on Blender's main thread and bakes
+"""Bake and Clear (docs/user-guide.md). Bake gathers the evaluated meshes on Blender's main thread and bakes
 them in a child process of Blender's Python with `scene.hlod.jobs` worker processes
 (addon/bake_job.py; modal with progress in the status bar and the panel, Esc cancels; synchronous in
 execute(), as in background mode). A bake that fails or dies is reported; Blender and an earlier

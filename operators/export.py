@@ -1,4 +1,4 @@
-"""Export (DESIGN §8): the baked file as a copy of the native .hlod, or as 3D Tiles 1.1
+"""Export (docs/user-guide.md): the baked file as a copy of the native .hlod, or as 3D Tiles 1.1
 (hlod_core/export/tiles3d.py, imported only when used); a 3D Tiles export is what View in Browser
 serves next."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Toggle Preview and Materialize (DESIGN §8): the live preview in the 3D viewport (addon/preview.py),
+"""Toggle Preview and Materialize (docs/user-guide.md): the live preview in the 3D viewport (addon/preview.py),
 and Blender mesh objects of its current front or of every node at a depth (addon/materialize.py)."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Drive the add-on in the bpy module, headless (DESIGN §7-8): enable it (from an installed extension
+"""Drive the add-on in the bpy module, headless (docs/how-it-works.md#the-viewport-preview): enable it (from an installed extension
 repository, as Blender does, or from this source folder), initialise the GPU with a 16x16 Workbench
 render, and draw the preview through the add-on's own draw path into a gpu.types.GPUOffScreen.
 
@@ -70,7 +70,7 @@ def enable_from_source(name: str = "hlod_source"):
 
 
 def init_gpu() -> None:
-    """GPU functions of the bpy module work only after a render has run once (DESIGN §7)."""
+    """GPU functions of the bpy module work only after a render has run once (docs/how-it-works.md#gl-queries)."""
     import bpy
 
     scene = bpy.context.scene

@@ -1,4 +1,4 @@
-"""Bakes with real pymeshlab on the shared models, and the degenerate inputs of DESIGN §10."""
+"""Bakes with real pymeshlab on the shared models, and the degenerate inputs of docs/how-it-works.md#numerical-stability."""
 import os
 import signal
 import threading
@@ -97,7 +97,7 @@ def test_normals_are_carried_only_when_given():
     assert np.allclose(np.linalg.norm(with_normals.normals, axis=1), 1.0, atol=1e-3)
 
 
-# --- degenerate input (DESIGN §10) ---------------------------------------------------------------
+# --- degenerate input (docs/how-it-works.md#numerical-stability) ---------------------------------------------------------------
 
 def test_empty_mesh_is_a_clear_error():
     with pytest.raises(InputError, match="empty-thing: the mesh has no triangles"):

@@ -202,3 +202,22 @@ def test_the_overlay_legend_draws_from_the_code(tmp_path, monkeypatch):
     spec.loader.exec_module(module)
     path = module.draw_legend(tmp_path)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+#: A docs page named in code (a docstring's "Why: docs/how-it-works.md#anchor"), wrapped or not.
+CODE_DOC_LINK = re.compile(r"docs/([\w-]+\.md)(?:#([\w-]+))?")
+CODE_FOLDERS = ("hlod_core", "addon", "operators", "panels", "scripts", "benchmarks")
+
+
+def test_every_docs_page_and_anchor_named_in_the_code_exists():
+    """The code points readers at docs pages for its reasoning: each page and anchor it names exists."""
+    broken = []
+    files = [ROOT / "__init__.py", *(p for folder in CODE_FOLDERS for p in sorted((ROOT / folder).rglob("*.py")))]
+    for path in files:
+        for match in CODE_DOC_LINK.finditer(path.read_text(encoding="utf-8")):
+            page, anchor = ROOT / "docs" / match.group(1), match.group(2)
+            if not page.is_file():
+                broken.append(f"{path.relative_to(ROOT)}: docs/{match.group(1)}: no such page")
+            elif anchor and anchor not in anchors(page):
+                broken.append(f"{path.relative_to(ROOT)}: docs/{match.group(1)}#{anchor}: no such heading")
+    assert not broken, "\n".join(broken)

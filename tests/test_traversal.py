@@ -278,7 +278,7 @@ def test_mu_stays_in_0_1_when_alpha_is_underestimated(city_renderer):
 @pytest.mark.slow
 def test_extreme_viewports(gl_ctx, city_hlod):
     """1x1 and 8k viewports: every method's counters agree with what it drew, and the SSE follows
-    the viewport height (DESIGN §5.1: SSE is proportional to H): at 1x1 only nodes whose sphere holds
+    the viewport height (docs/how-it-works.md#sse: SSE is proportional to H): at 1x1 only nodes whose sphere holds
     the eye (SSE = inf) refine, at 8k far more do, so every frame draws fewer nodes at 1x1."""
     hlod = city_hlod
     path = street_path(3)
@@ -809,7 +809,7 @@ def test_traversal_cpu_baseline_runs_another_version_side_by_side(city_hlod):
 
 
 class _ReferenceTraversal:
-    """The traversals of DESIGN §6 written plainly, without the library's speed-ups: per-node
+    """The traversals of docs/how-it-works.md#the-traversal-methods written plainly, without the library's speed-ups: per-node
     state in numpy arrays read one scalar at a time, the frame's box tests and SSE by the textbook
     (n,3) formulas, one helper call per step, every child pushed and the ones outside the frustum
     dropped when popped. Methods vfc, sw, bool, simp, coh (both shift-ups, predict_new on and off);

@@ -1,4 +1,4 @@
-"""The inner nodes' errors (DESIGN §4.4, the MSE): the symmetric Hausdorff distance between a
+"""The inner nodes' errors (docs/how-it-works.md#the-error, the MSE): the symmetric Hausdorff distance between a
 node's LOD and the original triangles below it, from fixed samples, with pymeshlab
 (`get_hausdorff_distance`); and h of the error bound (`measure_to_children`).
 

@@ -1,4 +1,4 @@
-"""Top-down octree partition of triangles (DESIGN §4.2).
+"""Top-down octree partition of triangles (docs/how-it-works.md#the-bake).
 
 Data form in: triangle centroids (f,3) float64 (in the bake: relative to its origin). Data form
 out: `OctreeLayout`, a node table in breadth-first order (children contiguous) with each node's

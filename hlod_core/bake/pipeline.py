@@ -1,4 +1,4 @@
-"""Bake an octree HLOD from triangles (DESIGN §4), as one pipeline of named phases over an input
+"""Bake an octree HLOD from triangles (docs/how-it-works.md#the-bake), as one pipeline of named phases over an input
 source (sources.py: a mesh in memory, or a stream bigger than memory):
 
     cache    -> with a cache folder (cache.py): an input it holds the whole result of comes back

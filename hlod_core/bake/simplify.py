@@ -1,4 +1,4 @@
-"""One inner node's LOD (DESIGN §4.3), with pymeshlab: the children's LODs concatenated, welded
+"""One inner node's LOD (docs/how-it-works.md#decimating-a-node), with pymeshlab: the children's LODs concatenated, welded
 and decimated by quadric edge collapse (meshlab.py) to `target_tris`.
 
 Data form: node geometry as positions (k,3) float32, in the bake's file-relative frame, faces

@@ -1,4 +1,4 @@
-"""Native `.hlod` container (DESIGN §3): versioned, no pickle, validated on load, atomic writes.
+"""Native `.hlod` container (docs/how-it-works.md#the-node-table): versioned, no pickle, validated on load, atomic writes.
 
 Layout (all integers little-endian):
 

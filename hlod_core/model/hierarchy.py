@@ -1,6 +1,6 @@
 """The HLOD node table: structure of arrays, one row per node, root = row 0.
 
-Implements the data model of DESIGN §3 (after the octree HLODs of Charalambos' dissertation,
+Implements the data model of docs/how-it-works.md#the-node-table (after the octree HLODs of Charalambos' dissertation,
 `../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`, §3.3: one discrete LOD of
 about `target_tris` triangles per node, a model-space error per node, nested bounding volumes).
 
@@ -31,8 +31,8 @@ from ..core.arrays import segment_ranges
 #: of them inside float32 (the renderer's origin-relative query boxes).
 MAX_COORDINATE = 1e30
 
-#: Query boxes (DESIGN §5.4) are enlarged by this fraction of the root box diagonal; the cube side
-#: of DESIGN §5.3 is computed on the enlarged box so that flat boxes keep a non-zero cube.
+#: Query boxes (docs/how-it-works.md#query-boxes) are enlarged by this fraction of the root box diagonal; the cube side
+#: of docs/how-it-works.md#alpha-three-ways is computed on the enlarged box so that flat boxes keep a non-zero cube.
 QUERY_BOX_PAD_FRACTION = 1e-3
 
 # name -> (dtype, trailing shape); the leading dimension is the node count.
@@ -142,7 +142,7 @@ class Hlod:
         return dataclasses.replace(self, **changes)
 
     def summary(self) -> dict:
-        """Counts shared by `bake` and `info` (DESIGN §4; the CLI's JSON contract)."""
+        """Counts shared by `bake` and `info` (docs/how-it-works.md#the-bake; the CLI's JSON contract)."""
         leaves = self.is_leaf
         return {
             "nodes": self.node_count,
@@ -169,7 +169,7 @@ class DrawParts:
 
 
 def cube_sides(box_min: np.ndarray, box_max: np.ndarray, pad: float) -> np.ndarray:
-    """Side of the cube with the volume of each box enlarged by `pad` on every face (DESIGN §5.3).
+    """Side of the cube with the volume of each box enlarged by `pad` on every face (docs/how-it-works.md#alpha-three-ways).
 
     box_min, box_max: (n,3) float64; pad: model units. Returns (n,) float64 > 0 when pad > 0.
     """

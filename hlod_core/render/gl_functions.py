@@ -6,7 +6,7 @@ and a conversion in every ctypes call on the per-query path); and
 `GLFunctions`, ctypes function pointers resolved by moderngl's own loader (glcontext, or moderngl's
 DefaultLoader for `moderngl.get_context()`), one attribute per entry point. moderngl has no
 non-blocking "query result available" check and Blender's cached state must be read and restored
-behind moderngl's back (DESIGN §7), hence these.
+behind moderngl's back (docs/how-it-works.md#gl-queries), hence these.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Save and restore the host's GL state around a moderngl pass (DESIGN §7: Blender caches GL state
+"""Save and restore the host's GL state around a moderngl pass (docs/how-it-works.md#gl-queries: Blender caches GL state
 and does not notice changes made behind its back), and read what the host's framebuffer does.
 
 Data form: `GLState.values`, a dict of plain Python values read with raw GL calls: name -> int

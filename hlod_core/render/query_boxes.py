@@ -1,4 +1,4 @@
-"""The nodes' query boxes (DESIGN §5.4): one unit cube, stretched per draw to a node's box.
+"""The nodes' query boxes (docs/how-it-works.md#query-boxes): one unit cube, stretched per draw to a node's box.
 
 Data form: a node's query box is its subtree box enlarged by `hierarchy.query_box_pad`, relative to
 the file's origin, as float32 corners (n,3) kept as Python tuples (a uniform's value, no conversion

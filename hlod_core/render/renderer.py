@@ -1,4 +1,4 @@
-"""GL renderer for the traversal (DESIGN §7), on moderngl: frames, node draws, occlusion queries,
+"""GL renderer for the traversal (docs/how-it-works.md#gl-queries), on moderngl: frames, node draws, occlusion queries,
 read-back and release.
 
 Data form: all node geometry in one vertex buffer (float32 positions relative to the file's

@@ -1,4 +1,4 @@
-"""The alpha estimators compared (DESIGN §5.3, report section "alpha estimators"): the error of
+"""The alpha estimators compared (docs/how-it-works.md#alpha-three-ways, report section "alpha estimators"): the error of
 `projected` and `cube` against the exact `query` count, and each one's cost per node.
 
 Data form: in, a renderer and a few views; out, a dict {"nodes", "views", and per estimator

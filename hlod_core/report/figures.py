@@ -1,4 +1,4 @@
-"""The evaluation report's figures (DESIGN §9), drawn with matplotlib (imported only when figures are
+"""The evaluation report's figures (docs/evaluation.md), drawn with matplotlib (imported only when figures are
 drawn; Blender's Python has no matplotlib and gets a report without them).
 
 - error_vs_time.png: luminance RMSE against Full over the PSNR frames, against mean frame time; one

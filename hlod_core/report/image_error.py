@@ -1,4 +1,4 @@
-"""Image error between two renders of one view (DESIGN §9, dissertation Table 8.1).
+"""Image error between two renders of one view (docs/evaluation.md, dissertation Table 8.1).
 
 Data form: images are (H, W, 3) uint8 RGB arrays of one size, top row first; colours convert to
 YCbCr of ITU-R BT.601, full range (as JPEG), float64 0..255. PSNR uses peak 255 per channel;

@@ -7,7 +7,7 @@ Charalambos, Bittner, Wimmer, Romero (ISVC 2007,
 `../shared/papers/charalambos-bittner-wimmer-romero2007-optimized-hlod-refinement.txt` §3) and
 Charalambos' dissertation (`charalambos2007-dissertation-hlod-refinement-hoq.txt`, chapter 8),
 which chose (s, t) per scene by hand and judged image quality by the PSNR of luminance against Bool
-(Table 8.1). DESIGN §5.2 defines P_{s,t}, §9 the evaluation whose loop (`interleaved`), rows
+(Table 8.1). docs/how-it-works.md#vmsse-and-the-bias-p_st defines P_{s,t}, §9 the evaluation whose loop (`interleaved`), rows
 (`rows`) and report writing (`evaluate.write_report`) this reuses.
 
 The search: a bisection over T_LADDER along each s of S_LINES, all lines advancing together, one

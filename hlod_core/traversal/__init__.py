@@ -1,4 +1,4 @@
-"""The runtime traversal (DESIGN §5-6; docs/how-it-works.md): which HLOD nodes to draw each frame,
+"""The runtime traversal (docs/how-it-works.md#the-runtime; docs/how-it-works.md): which HLOD nodes to draw each frame,
 driven by occlusion queries. Draws nothing itself: a renderer (hlod_core.render's, or Blender's
 preview) is passed in through the `protocol.NodeRenderer` protocol.
 

@@ -1,4 +1,4 @@
-"""Estimators of alpha, the pixels a node's box covers with nothing in front (DESIGN §5.3), besides
+"""Estimators of alpha, the pixels a node's box covers with nothing in front (docs/how-it-works.md#alpha-three-ways), besides
 the exact `query` count that the renderer measures: `cube` (the 2006 paper's cube of equal volume,
 vectorised over nodes) and `projected` (the box's silhouette clipped to the viewport: the summed
 area of its back faces' projections, vectorised over nodes).

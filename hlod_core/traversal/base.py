@@ -1,4 +1,4 @@
-"""The state and helpers every traversal method shares (DESIGN §6): per-node `visible`,
+"""The state and helpers every traversal method shares (docs/how-it-works.md#the-traversal-methods): per-node `visible`,
 `last_visited`, `stop_refinement`, `ratio` (= cached P) and the frame each node was last drawn in;
 the frame's node-table results (frustum test, priority key, queryable boxes, SSE, alpha estimate),
 vectorised once a frame; one `frame(view)` entry point that times the walk and fills `FrameStats`.

@@ -1,11 +1,11 @@
-"""The coherent traversals (DESIGN §6): Algorithm 2's loop of Charalambos' dissertation
+"""The coherent traversals (docs/how-it-works.md#the-traversal-methods): Algorithm 2's loop of Charalambos' dissertation
 (`charalambos2007-dissertation-hlod-refinement-hoq.txt`), after CHC (Bittner, Wimmer, Piringer,
 Purgathofer 2004: the front-to-back priority queue, the FIFO query queue, visibility pulled up,
 queries never stalling while work remains), and its three predictors: Bool (Algorithm 1, after
 Gobbetti & Marton), Simp (Algorithm 3, the 2006 predictor) and Coh (Algorithm 4: refine / stop /
 delay from the previous frame's cached ratio).
 
-Decisions on points the pseudocode leaves open (DESIGN §6): a node drawn this frame is never drawn
+Decisions on points the pseudocode leaves open (docs/how-it-works.md#the-traversal-methods): a node drawn this frame is never drawn
 again; if its query later says "refine" it counts in RARN and its children are traversed. A query
 result of 0 sets ratio = P(0) = 0 and leaves the node invisible. In Algorithm 4 a child not visited
 in the previous frame counts as stopped with ratio 0, and the average ratio is over all children.

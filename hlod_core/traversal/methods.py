@@ -1,4 +1,4 @@
-"""HLOD traversal methods (DESIGN §6), one class each, one `frame(view)` entry point, the same
+"""HLOD traversal methods (docs/how-it-works.md#the-traversal-methods), one class each, one `frame(view)` entry point, the same
 counters (`stats.FrameStats`): Full, VFC, SW and Ideal here; Bool, Simp and Coh, the coherent
 loop's, in `coherent`. `make` builds one by name.
 

@@ -1,4 +1,4 @@
-"""Runtime metrics of DESIGN §5.1-5.2, vectorised over the node table: the screen-space error (SSE),
+"""Runtime metrics of docs/how-it-works.md#the-runtime, vectorised over the node table: the screen-space error (SSE),
 the bias P_{s,t} of VMSSE = P(mu) SSE, and the modulation m = 1 - P the overlay shows.
 
 Papers: the VMSSE `SSE * P(q/alpha)` and the cube estimate of alpha come from Charalambos,
@@ -20,7 +20,7 @@ import numpy as np
 from ..model.view import View
 
 
-# --- SSE (DESIGN §5.1) --------------------------------------------------------------------------
+# --- SSE (docs/how-it-works.md#sse) --------------------------------------------------------------------------
 
 def sphere_distance(view: View, center: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """d = |e - c| - r (n,), model units; <= 0 when the eye is inside the sphere. The norm sums
@@ -63,7 +63,7 @@ def sse_at(view: View, error: np.ndarray, *, distance: np.ndarray | None, inside
         return np.where(distance > 0, error * view.pixels_per_unit_y / distance, inside)
 
 
-# --- the bias P_{s,t} (DESIGN §5.2) -------------------------------------------------------------
+# --- the bias P_{s,t} (docs/how-it-works.md#vmsse-and-the-bias-p_st) -------------------------------------------------------------
 
 #: Below this k the normalised logistic is computed as its k -> 0 limit, mu itself (the
 #: difference of two logistics then cancels catastrophically).

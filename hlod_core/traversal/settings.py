@@ -1,4 +1,4 @@
-"""The traversal's runtime settings (DESIGN §5.2, §6): one frozen `RuntimeSettings`, validated on
+"""The traversal's runtime settings (docs/how-it-works.md#vmsse-and-the-bias-p_st, §6): one frozen `RuntimeSettings`, validated on
 construction, and the tuples of the values each mode setting accepts."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""What one traversal frame did (DESIGN §6): `FrameStats`, its counters (`COUNTERS`, the columns of
+"""What one traversal frame did (docs/how-it-works.md#the-traversal-methods): `FrameStats`, its counters (`COUNTERS`, the columns of
 per-frame tables, then `QUERY_COUNTERS` and, under a GPU budget, `STREAM_COUNTERS`) and the node
 lists behind some of them."""
 from __future__ import annotations
@@ -18,7 +18,7 @@ STREAM_COUNTERS = ("substitutions", "waiting", "resident_bytes", "upload_bytes",
 
 @dataclass
 class FrameStats:
-    """Counters of one frame (DESIGN §6). Times in milliseconds."""
+    """Counters of one frame (docs/how-it-works.md#the-traversal-methods). Times in milliseconds."""
 
     dn: int = 0          # drawn nodes
     rarn: int = 0        # drawn, then refined in the same frame

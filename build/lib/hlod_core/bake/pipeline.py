@@ -1,0 +1,182 @@
+"""Bake an octree HLOD from triangles (DESIGN §4), as one pipeline of named phases over an input
+source (sources.py: a mesh in memory, or a stream bigger than memory):
+
+    cache    -> with a cache folder (cache.py): an input it holds the whole result of comes back
+                from it at once
+    prepare  -> the origin, file-relative float32 positions, triangle centroids, the root cell
+                (a streamed input: the "scan" passes; partition.py)
+    octree   -> top-down partition of the root cell, split at cell centres (octree.py)
+    leaves   -> each leaf keeps its original triangles (and their exact attribute rows)
+    cache    -> the inner nodes whose subtree the cache holds take their LODs and errors from it
+    simplify -> the other inner nodes bottom-up: weld, quadric decimation, error (schedule.py), as
+                tasks on worker processes or a Dask cluster (workers.py)
+    assemble -> one vertex and one index buffer, node ranges, appearance arrays, nested bounds
+                and monotone errors (assemble.py)
+
+After Charalambos' dissertation (`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`
+§3.3, §8: octree, one LOD of ~2000 triangles per node, offline bottom-up simplification).
+A node's LOD and error depend on its subtree's input triangles and the settings only, so a bake
+from the cache, a streamed bake and a Dask bake all write the file a bake from scratch writes,
+byte for byte except meta.VOLATILE_META.
+Why: docs/how-it-works.md#re-bakes-and-the-cache-keys
+
+Stop signals: the whole bake runs inside core.signals.stop_signals_held; a SIGTERM, SIGHUP or
+Ctrl-C is raised at the bake's cancel checks (between tasks, at least every
+schedule.POLL_SECONDS, and between phases), never inside a thread or process start.
+"""
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.signals import deliver_held, stop_signals_held
+from ..io.meshes import TriangleMesh
+from ..model.hierarchy import Hlod
+from .assemble import assemble
+from .cache import BakeCache
+from .meta import VOLATILE_META, PhaseClock, bake_meta, check_extra_meta, derived_meta, stable_meta
+from .partition import CHUNK_TRIS, Partition, PartitionStats, TriangleSource
+from .schedule import CancelFn, ProgressFn, SimplifyInput, simplify_phase
+from .settings import ERROR_MEASURES, BakeSettings
+from .simplify import NodeLod
+from .sources import BakeSource, InMemorySource, SourceOctree, StreamedSource
+from .workers import open_workers
+
+log = logging.getLogger(__name__)
+
+#: The bake's front door: its entry points and what their callers need with them.
+__all__ = ["bake", "bake_stream", "BakeSettings", "ERROR_MEASURES", "VOLATILE_META", "stable_meta"]
+
+
+def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
+         progress: ProgressFn | None = None, cancel: CancelFn | None = None,
+         sources: list[str] | None = None, extra_meta: dict | None = None,
+         cache_dir: str | os.PathLike | None = None, scheduler=None,
+         scratch_dir: str | os.PathLike | None = None) -> Hlod:
+    """Bake `mesh` into an Hlod. Raises InputError for unusable input, BakeCancelled if `cancel()`
+    turns true (checked between nodes). Writes nothing to disk except worker scratch files and,
+    with `cache_dir`, once the bake is complete, the cache folder (cache.py: what it did not
+    hold is added, the entries this bake did not use are removed).
+    extra_meta: JSON-serialisable entries added to the HLOD's meta (the Blender side records the
+    UV map and colour attribute names, "uv_map" and "color_attribute"); they may not replace the
+    bake's own entries. The HLOD carries uvs / colors / tri_material and mesh.materials exactly
+    when the mesh has them.
+    scheduler: a Dask scheduler's address ("tcp://host:8786") or a distributed.Client: the simplify
+    phase's tasks run on its workers instead of `settings.jobs` local processes (dask_cluster.py),
+    for the same file; scratch_dir: a folder every worker reads (shared storage on a cluster;
+    default the temporary folder), where the bake writes its shared arrays into a subfolder of its
+    own, removed at the end. Neither is a setting: they change where the work runs, not the file."""
+    with stop_signals_held():
+        check_extra_meta(extra_meta)
+        cache = BakeCache.open(cache_dir, mesh=mesh, settings=settings)
+        return _bake(InMemorySource(mesh), settings, _Callbacks(progress, cancel), cache=cache, scheduler=scheduler,
+                     scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta)
+
+
+def bake_stream(source: TriangleSource, settings: BakeSettings = BakeSettings(), *,
+                progress: ProgressFn | None = None, cancel: CancelFn | None = None, sources: list[str] | None = None,
+                extra_meta: dict | None = None, scheduler=None, scratch_dir: str | os.PathLike | None = None,
+                chunk_tris: int = CHUNK_TRIS, stats: PartitionStats | None = None) -> Hlod:
+    """Bake `source` (a partition.TriangleSource) out of core: never loaded whole, streamed through
+    per-cell scratch files (partition.py) in a folder `hlod-partition-*` inside `scratch_dir`
+    (default the temporary folder), removed however the bake ends. The result is the file `bake`
+    makes of the merged input, byte for byte except meta.VOLATILE_META. Geometry only (normals
+    kept); no cache. chunk_tris: the memory budget (partition.CHUNK_TRIS); stats: filled with what
+    the partition did. progress, cancel, sources, extra_meta, scheduler: as for `bake`."""
+    with stop_signals_held():
+        check_extra_meta(extra_meta)
+        callbacks = _Callbacks(progress, cancel)
+        with Partition(source, scratch_dir=scratch_dir, chunk_tris=chunk_tris, cancel=callbacks.cancel,
+                       stats=stats) as partition:
+            return _bake(StreamedSource(partition), settings, callbacks, cache=None, scheduler=scheduler,
+                         scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta)
+
+
+class _Callbacks:
+    """A bake's progress and cancel callbacks (defaulted) and its phase clock. cancel() first
+    raises a stop signal recorded since the last check (core.signals.deliver_held)."""
+
+    def __init__(self, progress: ProgressFn | None, cancel: CancelFn | None):
+        self.progress: ProgressFn = progress or (lambda done, total, phase: None)
+        self._cancel: CancelFn = cancel or (lambda: False)
+        self.clock = PhaseClock()
+
+    def cancel(self) -> bool:
+        deliver_held()
+        return self._cancel()
+
+
+def _bake(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache: BakeCache | None, scheduler,
+          scratch_dir: str | os.PathLike | None, sources: list[str] | None, extra_meta: dict | None) -> Hlod:
+    """The phases (module docstring), once for every source; scheduler, scratch_dir: as for `bake`."""
+    clock = run.clock
+    found = cache.whole_result() if cache is not None else None
+    if found is not None:  # the input is unchanged: the cache holds the whole result
+        clock.lap("cache")
+        hlod, derived, stats = found
+        run.progress(hlod.node_count, hlod.node_count, "done")
+        return hlod.replace(meta=bake_meta(source.size, settings, derived, cache_stats=stats, sources=sources,
+                                           extra_meta=extra_meta, clock=clock))
+    nodes = _baked_nodes(source, settings, run, cache=cache, scheduler=scheduler, scratch_dir=scratch_dir)
+    layout, n = nodes.tree.layout, nodes.tree.layout.node_count
+    hlod = assemble(layout, nodes.lods, nodes.tree.origin, hausdorff_error=nodes.hausdorff_error,
+                    normals=source.with_normals, row_layout=source.row_layout)
+    del nodes.lods
+    if source.materials:
+        hlod = hlod.replace(materials=source.materials)
+    clock.lap("assemble")
+    derived = derived_meta(layout, nodes.made, nodes.hausdorff_error, counted_per_node=nodes.tree.counted_per_node,
+                           settings=settings, collapsed_tris=nodes.tree.collapsed_tris,
+                           with_rows=not source.row_layout.empty)
+    stats = None
+    if cache is not None:
+        stats = cache.finish(hlod, derived, made=nodes.made, hausdorff_error=nodes.hausdorff_error)
+        clock.lap("cache_write")
+    run.progress(n, n, "done")
+    return hlod.replace(meta=bake_meta(source.size, settings, derived, cache_stats=stats, sources=sources,
+                                       extra_meta=extra_meta, clock=clock))
+
+
+@dataclass(eq=False)
+class _Nodes:
+    """Every node baked: tree (sources.SourceOctree), lods per node (positions, faces, normals,
+    rows), hausdorff_error (n,) float64 and made (inner node -> its simplify.NodeLod)."""
+
+    tree: SourceOctree
+    lods: list
+    hausdorff_error: np.ndarray
+    made: dict[int, NodeLod]
+
+
+def _baked_nodes(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache: BakeCache | None,
+                 scheduler, scratch_dir: str | os.PathLike | None) -> _Nodes:
+    """The phases from the octree to the simplify phase, with the workers running. They start
+    first and import pymeshlab while this process prepares; an input of one leaf has no inner
+    node to simplify, and runs inline."""
+    clock = run.clock
+    several = source.count(clock) > settings.target_tris
+    with open_workers(settings.jobs if several else 1, scheduler=scheduler if several else None,
+                      scratch_dir=scratch_dir) as workers:
+        tree = source.octree(settings, clock)
+        layout, n = tree.layout, tree.layout.node_count
+        run.progress(0, n, "octree")
+        log.info("octree: %d nodes, %d leaves%s", n, int(layout.is_leaf.sum()), source.log_note)
+        deliver_held()
+        nodes = _Nodes(tree=tree, lods=source.leaf_lods(layout, clock), hausdorff_error=np.zeros(n, np.float64),
+                       made={})
+        clock.lap("leaves")
+        if cache is not None:
+            for node, (lod, error) in cache.reuse(layout, nodes.lods, origin=tree.origin).items():
+                nodes.made[node], nodes.hausdorff_error[node] = lod, error
+                nodes.lods[node] = (lod.positions, lod.faces, lod.normals, lod.attributes)
+            clock.lap("cache")
+        what = SimplifyInput(with_normals=source.with_normals,
+                             row_layout=None if source.row_layout.empty else source.row_layout,
+                             leaf_folder=source.leaf_folder)
+        simplify_phase(layout, nodes.lods, hausdorff_error=nodes.hausdorff_error, made=nodes.made, settings=settings,
+                       source=what, workers=workers, cancel=run.cancel, progress=run.progress)
+        clock.lap("simplify")
+    return nodes

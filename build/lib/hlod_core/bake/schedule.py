@@ -1,0 +1,213 @@
+"""The simplify phase's task scheduler: every inner node without a LOD yet is decimated once its
+children's LODs exist and then measured, as tasks on `workers.Workers`.
+
+Two kinds of task: DECIMATE a node (simplify.decimate_node) and MEASURE its error (exact:
+tasks.measure_exact over the leaves' shared arrays; bound: hausdorff.measure_to_children against
+its children's LODs, the bounds composed after the phase, `compose_bounds`). Priority:
+decimations first, deepest first (they unlock the rest), then measurements, largest first; at
+most `workers.limit` tasks are in flight, so the priority holds.
+Why: docs/how-it-works.md#scheduling-the-simplify-phase
+
+The task functions are looked up on their modules at each submit (simplify.decimate_node,
+tasks.measure_exact, hausdorff.measure_to_children), and leaf_arrays.build when it runs: a jobs-1
+bake runs them all in this process, where a profiler or a test may wrap them
+(benchmarks/rebake.py, benchmarks/dask_bake.py, tests/test_bake_cache.py).
+
+Data form: lods, per node (positions (k,3) f32, faces (m,3) int32, normals (k,3) f32 or None,
+attribute rows (k,A) f32 or None), None where not made yet; hausdorff (n,) float64 model units.
+"""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import contextlib
+import heapq
+import os
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from ..core.arrays import segment_ranges
+from ..core.errors import BakeCancelled
+from ..core.signals import deliver_held
+from ..model.appearance import AttributeLayout
+from . import hausdorff, leaf_arrays, simplify, tasks
+from .leaf_arrays import LeafArrays
+from .octree import OctreeLayout
+from .settings import BakeSettings
+from .workers import Workers
+
+#: progress(done_nodes, total_nodes, phase)
+ProgressFn = Callable[[int, int, str], None]
+#: cancel() -> True to stop the bake (checked between tasks)
+CancelFn = Callable[[], bool]
+
+#: Task kinds of the simplify phase; the values order the heap (decimations before measurements).
+TASK_DECIMATE, TASK_MEASURE = 0, 1
+#: How often (seconds) the scheduler wakes while tasks run, to check cancel().
+POLL_SECONDS = 0.25
+
+
+@dataclass(frozen=True)
+class SimplifyInput:
+    """What the phase decimates: with_normals (the LODs carry normals), row_layout (the attribute
+    rows' columns; None without rows) and leaf_folder (a folder for the exact measure's leaf
+    arrays, memory-mapped: an out-of-core bake; None: in memory)."""
+
+    with_normals: bool
+    row_layout: AttributeLayout | None
+    leaf_folder: str | os.PathLike | None = None
+
+
+def simplify_phase(layout: OctreeLayout, lods: list, *, hausdorff_error: np.ndarray, made: dict,
+                   settings: BakeSettings, source: SimplifyInput, workers: Workers, cancel: CancelFn,
+                   progress: ProgressFn) -> None:
+    """The inner nodes not in `made` (the cache's are, with their LODs in lods and errors in
+    hausdorff_error) decimated and measured, made[node] (a simplify.NodeLod) set as each completes
+    and progress reported per node; with the "bound" measure the bounds composed. BakeCancelled
+    once cancel() turns true."""
+    n = layout.node_count
+    inner = np.flatnonzero(~layout.is_leaf)
+    from_cache = np.fromiter(made, np.int64, count=len(made))
+    done = n - inner.size + len(made)
+    progress(done, n, "simplify")
+
+    def node_done(node: int, lod: simplify.NodeLod) -> None:
+        nonlocal done
+        made[node] = lod
+        done += 1
+        progress(done, n, "simplify")
+
+    _Scheduler(layout, lods, hausdorff_error, settings=settings, source=source, workers=workers).run(
+        cancel=cancel, node_done=node_done)
+    if cancel():
+        raise BakeCancelled("bake cancelled")
+    if settings.error == "bound":
+        compose_bounds(layout, hausdorff_error, rebuilt=np.setdiff1d(inner, from_cache))
+
+
+def compose_bounds(layout: OctreeLayout, hausdorff_error: np.ndarray, *, rebuilt: np.ndarray) -> None:
+    """Bound measure: hausdorff_error[node] holds h(node) (hausdorff.measure_to_children) for the
+    `rebuilt` inner nodes and the final bound for the others (leaves 0, cache entries); make the
+    rebuilt ones h + the largest child bound, deepest level first:
+        bound(leaf) = 0;  bound(n) = h(n) + max over children c of bound(c).
+    A NaN (no distance from pymeshlab) stays NaN up the tree (assemble bounds such a node by its
+    box diagonal). Why: docs/how-it-works.md#the-error-bound"""
+    pending = np.zeros(layout.node_count, bool)
+    pending[rebuilt] = True
+    for d in range(int(layout.depth.max()) - 1, -1, -1):
+        nodes = np.flatnonzero((layout.depth == d) & pending)
+        if nodes.size == 0:
+            continue
+        first, count = layout.child_offset[nodes], layout.child_count[nodes]
+        kids = segment_ranges(first, count)
+        worst = np.full(nodes.size, -np.inf)
+        np.maximum.at(worst, np.repeat(np.arange(nodes.size), count), hausdorff_error[kids])
+        hausdorff_error[nodes] += worst
+
+
+class _Scheduler:
+    """One simplify phase's tasks (module docstring): the heap of tasks ready to run, the ones in
+    flight, the LODs decimated but not yet measured, and the leaf arrays of the exact measure."""
+
+    def __init__(self, layout: OctreeLayout, lods: list, hausdorff_error: np.ndarray, *, settings: BakeSettings,
+                 source: SimplifyInput, workers: Workers):
+        self.layout, self.lods, self.hausdorff_error = layout, lods, hausdorff_error
+        self.source, self.workers = source, workers
+        self.decimation = settings.decimation()
+        self.bound = settings.error == "bound"
+        self.todo = np.array([lod is None for lod in lods]) & ~layout.is_leaf
+        self.waiting = np.zeros(layout.node_count, np.int64)  # children whose LODs are still to make
+        todo_children = np.flatnonzero(self.todo & (layout.parent >= 0))
+        np.add.at(self.waiting, layout.parent[todo_children], 1)
+        self.heap: list[tuple[int, int, int]] = []  # (kind, size, node), smallest first
+        self.running: dict[cf.Future, tuple[int, int]] = {}  # future -> (kind, node)
+        self.decimated: dict[int, simplify.NodeLod] = {}  # LODs made, until their measurement is done
+        self.leaves: LeafArrays | None = None  # the exact measure's tasks wait for them
+
+    def run(self, *, cancel: CancelFn, node_done: Callable[[int, simplify.NodeLod], None]) -> None:
+        """Run every task; node_done(node, lod) once a node is decimated and measured. The exact
+        measure's leaf arrays are made on a thread of this process while the workers run the first
+        decimations (inline: first, in this thread)."""
+        nodes = np.flatnonzero(self.todo)
+        if nodes.size == 0:
+            return
+        for node in nodes[self.waiting[nodes] == 0]:
+            self._push(TASK_DECIMATE, int(node))
+        with contextlib.ExitStack() as stack:
+            building = None
+            if not self.bound and self.workers.scratch:
+                builder = stack.enter_context(cf.ThreadPoolExecutor(max_workers=1,
+                                                                    thread_name_prefix="hlod-leaf-arrays"))
+                building = builder.submit(self._shared_leaf_arrays)
+            elif not self.bound:
+                self.leaves = self._shared_leaf_arrays()
+            while self.heap or self.running:
+                self._submit_ready()
+                waits = [*self.running, *([building] if self.leaves is None and building else [])]
+                finished, _ = cf.wait(waits, timeout=POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
+                if cancel():
+                    raise BakeCancelled("bake cancelled")
+                for fut in finished:
+                    if fut is building:
+                        self.leaves = building.result()
+                    else:
+                        self._finish(fut, node_done=node_done)
+
+    def _shared_leaf_arrays(self) -> LeafArrays:
+        """The leaf arrays (the leaves' entries of lods only: final), shared with the workers."""
+        arrays = leaf_arrays.build(self.layout, self.lods, folder=self.source.leaf_folder)
+        self.workers.share(arrays.arrays())
+        return arrays
+
+    def _push(self, kind: int, node: int) -> None:
+        layout = self.layout
+        if kind == TASK_DECIMATE:
+            size = -int(layout.depth[node])
+        else:
+            size = -int(layout.tri_end[node] - layout.tri_begin[node])
+        heapq.heappush(self.heap, (kind, size, node))
+
+    def _submit_ready(self) -> None:
+        """Submit tasks from the heap while fewer than workers.limit run."""
+        while self.heap and len(self.running) < self.workers.limit:
+            if self.heap[0][0] == TASK_MEASURE and self.leaves is None and not self.bound:
+                return  # every decimation that can run is in flight: wait for the leaf arrays
+            kind, size, node = heapq.heappop(self.heap)
+            self.running[self._submit(kind, size, node)] = (kind, node)
+
+    def _submit(self, kind: int, size: int, node: int) -> cf.Future:
+        layout, lods = self.layout, self.lods
+        kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
+        order = (kind, size)
+        if kind == TASK_DECIMATE:
+            children = [(lods[k][0], lods[k][1], lods[k][3]) for k in kids]
+            return self.workers.submit(order, simplify.decimate_node, children, self.decimation,
+                                       with_normals=self.source.with_normals, layout=self.source.row_layout)
+        if self.bound:
+            return self.workers.submit(order, hausdorff.measure_to_children, (lods[node][0], lods[node][1]),
+                                       [(lods[k][0], lods[k][1]) for k in kids])
+        return self.workers.submit(order, tasks.measure_exact, self.workers.scratch, (lods[node][0], lods[node][1]),
+                                   self.leaves.ranges(node))
+
+    def _finish(self, fut: cf.Future, *, node_done) -> None:
+        """A task's result: a measurement completes its node; a decimation queues its measurement
+        and, once all siblings are done, the parent's decimation."""
+        kind, node = self.running.pop(fut)
+        try:
+            result = fut.result()
+        except Exception:
+            deliver_held()  # a stop signal that also ended the workers wins over their failure
+            raise
+        if kind == TASK_MEASURE:
+            self.hausdorff_error[node] = result
+            node_done(node, self.decimated.pop(node))
+            return
+        self.lods[node] = (result.positions, result.faces, result.normals, result.attributes)
+        self.decimated[node] = result
+        self._push(TASK_MEASURE, node)
+        parent = int(self.layout.parent[node])
+        if parent >= 0 and self.todo[parent]:
+            self.waiting[parent] -= 1
+            if self.waiting[parent] == 0:
+                self._push(TASK_DECIMATE, parent)

@@ -1,0 +1,169 @@
+"""The `bake` and `scene` commands: inputs (files and scene specs, streamed with --out-of-core, or a
+procedural scene) -> one .hlod, its cache folder and the folder of its inputs' embedded images;
+the bake runs on local worker processes or on a Dask cluster's workers (--scheduler)."""
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import time
+from pathlib import Path
+
+from ..bake import cache, partition
+from ..bake.pipeline import bake, bake_stream
+from ..core.errors import InputError
+from ..export.formats import check_output_file
+from ..io import hlod_file, meshes, procedural
+from .options import bake_options, bake_settings_of, cluster_options, out_of_core_options, whole_number
+from .texture_folder import EmbeddedTextures
+
+log = logging.getLogger("hlod_core")
+
+
+def add_bake(sub) -> None:
+    """The `bake` command's parser, on the subparsers `sub`."""
+    p = sub.add_parser("bake", help="bake mesh files and/or JSON scene specs into one .hlod")
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="OBJ/PLY/STL/GLB file or JSON scene spec")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
+    bake_options(p)
+    out_of_core_options(p)
+    cluster_options(p)
+    p.set_defaults(run=bake_command)
+
+
+def add_scene(sub) -> None:
+    """The `scene` command's parser, on the subparsers `sub`."""
+    p = sub.add_parser("scene", help="bake a procedural scene made by the project (no input files)")
+    p.add_argument("name", choices=list(procedural.SCENES),
+                   help="low / middle / high depth complexity (terrain / sparse town / dense downtown), "
+                        "or default (the city block of the main job)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
+    p.add_argument("--seed", type=whole_number(0), default=1)
+    p.add_argument("--scale", type=float, default=1.0, help="size factor (1 = CI-sized)")
+    bake_options(p)
+    p.set_defaults(run=scene_command)
+
+
+def bake_command(args: argparse.Namespace) -> dict:
+    """`bake`: the summary line (hlod.summary() with the output, jobs, timings, cache and texture folder)."""
+    check_output_file(args.output)
+    if args.out_of_core:
+        return _bake_out_of_core(args)
+    if args.chunk_tris is not None:
+        raise InputError("--chunk-tris: only with --out-of-core")
+    cache_dir = _cache_dir(args)
+    with _cluster(args) as client:
+        started = time.perf_counter()
+        with EmbeddedTextures(Path(args.output)) as textures:
+            mesh = textures.relocate(meshes.load_inputs(args.inputs, texture_dir=textures.scratch))
+            load_seconds = time.perf_counter() - started
+            summary = _bake_and_save(mesh, args, sources=[str(p) for p in args.inputs], cache_dir=cache_dir,
+                                     scheduler=client)
+            summary["texture_folder"] = textures.publish()
+    summary["load_seconds"] = load_seconds
+    return summary
+
+
+def _bake_out_of_core(args: argparse.Namespace) -> dict:
+    """bake --out-of-core: the inputs streamed (partition.SceneSource), never loaded whole; no cache."""
+    if args.cache is not None:
+        raise InputError("--cache: out-of-core bakes keep no bake cache (leave out --cache, or bake in memory)")
+    if args.scratch is not None and not Path(args.scratch).is_dir():
+        raise InputError(f"--scratch {args.scratch}: no such folder")
+    with _cluster(args) as client:
+        started = time.perf_counter()
+        source = partition.SceneSource(args.inputs)
+        load_seconds = time.perf_counter() - started
+        summary = _bake_and_save(source, args, sources=[str(p) for p in args.inputs], scheduler=client)
+    summary.update(load_seconds=load_seconds, texture_folder=None, out_of_core=True)
+    return summary
+
+
+def scene_command(args: argparse.Namespace) -> dict:
+    """`scene`: the summary line of the bake of a procedural scene (procedural.SCENES)."""
+    check_output_file(args.output)
+    cache_dir = _cache_dir(args)
+    if not 0 < args.scale <= 64:
+        raise InputError(f"--scale {args.scale}: expected a factor in (0, 64]")
+    mesh = procedural.SCENES[args.name](seed=args.seed, scale=args.scale)
+    summary = _bake_and_save(mesh, args, sources=[mesh.name], cache_dir=cache_dir)
+    summary["scene"] = args.name
+    return summary
+
+
+def _cache_dir(args: argparse.Namespace) -> Path | None:
+    """The bake's cache folder: --cache, else OUT.hlod.cache beside the output; None with --no-cache.
+    InputError when it names a file (cache.folder_for)."""
+    return cache.folder_for(args.output, folder=args.cache, enabled=not args.no_cache)
+
+
+def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_dir: Path | None = None,
+                   scheduler=None) -> dict:
+    """Bake, save to --output and summarise. mesh: a TriangleMesh, or a partition.TriangleSource
+    (--out-of-core: bake_stream, no cache); scheduler: the distributed.Client of `_cluster` (None:
+    local workers)."""
+    settings = bake_settings_of(args)
+    streamed = not isinstance(mesh, meshes.TriangleMesh)
+    started = time.perf_counter()
+    if streamed:
+        hlod = bake_stream(mesh, settings, progress=_Progress(), sources=sources, scheduler=scheduler,
+                           scratch_dir=args.scratch, chunk_tris=args.chunk_tris or partition.CHUNK_TRIS)
+    else:
+        hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
+                    scratch_dir=getattr(args, "scratch", None))
+    hlod_file.save(hlod, args.output)
+    seconds = time.perf_counter() - started
+    for line in hlod.meta["log"]:
+        log.info(line)
+    summary = hlod.summary()
+    summary.update(output=str(args.output), jobs=settings.jobs, seconds=seconds,
+                   phase_seconds=hlod.meta["phase_seconds"],
+                   tris_per_second=summary["input_tris"] / seconds if seconds > 0 else None,
+                   cache=None if cache_dir is None else {"folder": str(cache_dir), **hlod.meta["cache"]})
+    if scheduler is not None:
+        summary["scheduler"] = {"address": args.scheduler, "worker_threads": sum(scheduler.nthreads().values())}
+    return summary
+
+
+@contextlib.contextmanager
+def _cluster(args: argparse.Namespace):
+    """The distributed.Client of --scheduler (None without it), connected and checked (its workers
+    run this code and read --scratch) before any input is read or output written; each fault is
+    one line naming the option. Closed when the block exits."""
+    if args.scheduler is None:
+        for name, value in (("--scratch", None if args.out_of_core else args.scratch),
+                            ("--scheduler-timeout", args.scheduler_timeout)):
+            if value is not None:
+                raise InputError(f"{name}: only with --scheduler (a local bake's workers use $TMPDIR)")
+        yield None
+        return
+    from ..bake import dask_cluster
+
+    # distributed's own INFO lines (one per connection) stay off stderr; its warnings show, not under -q
+    logging.getLogger("distributed").setLevel(max(logging.WARNING, logging.getLogger().level))
+    try:
+        if args.scratch is not None:
+            dask_cluster.check_scratch(args.scratch)
+        client = dask_cluster.connect(args.scheduler, timeout_s=args.scheduler_timeout or dask_cluster.CONNECT_TIMEOUT_S)
+    except dask_cluster.ClusterError as exc:
+        raise InputError(f"--{exc}") from None
+    with contextlib.closing(client):
+        try:
+            with dask_cluster.on_cluster(client, scratch_dir=args.scratch):  # the checks, in a folder of their own
+                pass
+        except dask_cluster.ClusterError as exc:
+            raise InputError(f"--{exc}") from None
+        yield client
+
+
+class _Progress:
+    """Reports bake progress to the log every 10%."""
+
+    def __init__(self):
+        self._next = 0.0
+
+    def __call__(self, done: int, total: int, phase: str) -> None:
+        fraction = done / total if total else 1.0
+        if fraction >= self._next or phase == "done":
+            log.info("bake %s: %d/%d nodes (%.0f%%)", phase, done, total, 100 * fraction)
+            self._next = fraction + 0.1

@@ -1,0 +1,214 @@
+"""glTF 2.0 binary (GLB) writing: one mesh of indexed triangles per file, with its materials.
+
+Specification: Khronos glTF 2.0 (the GLB container: a 12-byte header, a JSON chunk and a BIN chunk,
+each padded to 4 bytes; accessors into buffer views of one buffer). Nothing else is needed: numpy
+arrays are the buffer.
+
+Data form: positions (v,3) and normals (v,3) given Z up (Blender's model space) and written Y up as
+glTF asks, (x, y, z) -> (x, z, -y); faces (t,3) local rows; uvs (v,2) in Blender's convention
+(written as (u, 1 - v): glTF's origin is the image's top-left); colors (v,4) float linear RGBA;
+face_material (t,) rows of a tuple of appearance.Material.
+"""
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from ..model.appearance import Material
+
+GLB_MAGIC, GLB_VERSION = 0x46546C67, 2  # "glTF"
+GLB_HEADER_BYTES, CHUNK_HEADER_BYTES = 12, 8
+Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x, y, z) -> (x, z, -y)
+GENERATOR = "HLOD Bake & Preview"
+
+
+class ChunkType(IntEnum):
+    JSON = 0x4E4F534A
+    BIN = 0x004E4942
+
+
+class BufferViewTarget(IntEnum):
+    ARRAY_BUFFER = 34962
+    ELEMENT_ARRAY_BUFFER = 34963
+
+
+class ComponentType(IntEnum):
+    UNSIGNED_SHORT = 5123
+    UNSIGNED_INT = 5125
+    FLOAT = 5126
+
+
+class SamplerFilter(IntEnum):
+    LINEAR = 9729
+    LINEAR_MIPMAP_LINEAR = 9987
+
+
+class WrapMode(IntEnum):
+    REPEAT = 10497
+
+
+class PrimitiveMode(IntEnum):
+    TRIANGLES = 4
+
+
+@dataclass(frozen=True)
+class TileImage:
+    """A texture file a GLB refers to: `uri` relative to the GLB, its mime type."""
+
+    uri: str
+    mime_type: str
+
+
+class _Buffer:
+    """The one binary buffer of a GLB as it is built: byte parts, buffer views and accessors."""
+
+    def __init__(self):
+        self.parts: list[bytes] = []
+        self.views: list[dict] = []
+        self.accessors: list[dict] = []
+
+    def view(self, data: bytes, target: BufferViewTarget) -> int:
+        self.views.append({"buffer": 0, "byteOffset": sum(map(len, self.parts)), "byteLength": len(data),
+                           "target": int(target)})
+        self.parts.append(data)
+        return len(self.views) - 1
+
+    def accessor(self, fields: dict) -> int:
+        self.accessors.append(fields)
+        return len(self.accessors) - 1
+
+    def vertex_attribute(self, values: np.ndarray, kind: str) -> int:
+        """A float32 attribute (v, k) in a view of its own; its accessor index."""
+        view = self.view(values.tobytes(), BufferViewTarget.ARRAY_BUFFER)
+        return self.accessor({"bufferView": view, "componentType": int(ComponentType.FLOAT),
+                              "count": int(values.shape[0]), "type": kind})
+
+    def binary(self) -> bytes:
+        data = b"".join(self.parts)
+        return data + b"\0" * (-len(data) % 4)
+
+
+def glb_bytes(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None, *,
+              uvs: np.ndarray | None = None, colors: np.ndarray | None = None,
+              face_material: np.ndarray | None = None, materials: tuple[Material, ...] = (),
+              images: dict[str, TileImage] | None = None) -> bytes:
+    """A GLB with one mesh of indexed triangles (module docstring for the arrays; each optional one
+    may be None). Without face_material: one primitive with glTF's default material. With it: one
+    primitive per material used, triangles grouped by material (stable), sharing the vertex
+    accessors; a material's texture is bound when its path is a key of `images` and uvs are given."""
+    buffer = _Buffer()
+    attributes = _vertex_attributes(buffer, positions, normals=normals, uvs=uvs, colors=colors)
+    primitives, document = _primitives(buffer, faces, attributes=attributes, vertex_count=positions.shape[0],
+                                       face_material=face_material, materials=materials,
+                                       images=None if uvs is None else images or {})
+    binary = buffer.binary()
+    gltf = {"asset": {"version": "2.0", "generator": GENERATOR},
+            "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": primitives}],
+            "accessors": buffer.accessors, "bufferViews": buffer.views, "buffers": [{"byteLength": len(binary)}],
+            **document}
+    return container(json.dumps(gltf, separators=(",", ":")).encode(), binary)
+
+
+def container(json_chunk: bytes, binary: bytes) -> bytes:
+    """The GLB file of a JSON chunk (padded here with spaces) and a BIN chunk (4-byte aligned)."""
+    json_chunk += b" " * (-len(json_chunk) % 4)
+    total = GLB_HEADER_BYTES + CHUNK_HEADER_BYTES + len(json_chunk) + CHUNK_HEADER_BYTES + len(binary)
+    return (struct.pack("<III", GLB_MAGIC, GLB_VERSION, total)
+            + struct.pack("<II", len(json_chunk), ChunkType.JSON) + json_chunk
+            + struct.pack("<II", len(binary), ChunkType.BIN) + binary)
+
+
+def _vertex_attributes(buffer: _Buffer, positions: np.ndarray, *, normals, uvs, colors) -> dict[str, int]:
+    """POSITION (with its bounds) and, where given, NORMAL (unit length; zero ones become +Y),
+    TEXCOORD_0 and COLOR_0, each in its own view; attribute name -> accessor index."""
+    pos = np.ascontiguousarray((positions.astype(np.float64) @ Z_UP_TO_Y_UP.T).astype(np.float32))
+    view = buffer.view(pos.tobytes(), BufferViewTarget.ARRAY_BUFFER)
+    attributes = {"POSITION": buffer.accessor({"bufferView": view, "componentType": int(ComponentType.FLOAT),
+                                               "count": int(pos.shape[0]), "type": "VEC3",
+                                               "min": pos.min(0).tolist(), "max": pos.max(0).tolist()})}
+    if normals is not None:
+        nrm = np.ascontiguousarray((normals.astype(np.float64) @ Z_UP_TO_Y_UP.T).astype(np.float32))
+        length = np.linalg.norm(nrm, axis=1, keepdims=True)
+        nrm = np.where(length > 0, nrm / np.where(length > 0, length, 1), [[0.0, 1.0, 0.0]]).astype(np.float32)
+        attributes["NORMAL"] = buffer.vertex_attribute(nrm, "VEC3")
+    if uvs is not None:
+        st = np.asarray(uvs, np.float32).copy()
+        st[:, 1] = 1.0 - st[:, 1]  # glTF's v runs down the image, Blender's up
+        attributes["TEXCOORD_0"] = buffer.vertex_attribute(np.ascontiguousarray(st), "VEC2")
+    if colors is not None:
+        attributes["COLOR_0"] = buffer.vertex_attribute(np.ascontiguousarray(colors, np.float32), "VEC4")
+    return attributes
+
+
+def _primitives(buffer: _Buffer, faces: np.ndarray, *, attributes: dict[str, int], vertex_count: int,
+                face_material, materials: tuple[Material, ...], images: dict[str, TileImage] | None):
+    """The index buffer (uint16 when the vertices allow, else uint32) in one view, and a primitive per
+    material part, each an accessor on its range of that view. Returns (primitives, the document's
+    materials, textures, images and samplers)."""
+    index_type, index_dtype = ((ComponentType.UNSIGNED_SHORT, np.uint16) if vertex_count <= 0xFFFF
+                               else (ComponentType.UNSIGNED_INT, np.uint32))
+    parts_by_material = _group_by_material(faces, face_material)
+    idx = np.ascontiguousarray(np.concatenate([f for _, f in parts_by_material]).astype(index_dtype)).ravel()
+    view = buffer.view(idx.tobytes(), BufferViewTarget.ELEMENT_ARRAY_BUFFER)
+    primitives, document, first_index = [], {}, 0
+    for material, part_faces in parts_by_material:  # each material once
+        accessor = {"bufferView": view, "componentType": int(index_type), "count": int(part_faces.size),
+                    "type": "SCALAR"}
+        if first_index:
+            accessor["byteOffset"] = first_index * idx.itemsize
+        first_index += int(part_faces.size)
+        primitive = {"attributes": attributes, "indices": buffer.accessor(accessor),
+                     "mode": int(PrimitiveMode.TRIANGLES)}
+        if material is not None:
+            primitive["material"] = _material(materials[material], document, images)
+        primitives.append(primitive)
+    return primitives, document
+
+
+def _group_by_material(faces: np.ndarray, face_material: np.ndarray | None) -> list[tuple[int | None, np.ndarray]]:
+    """[(material row or None, faces (k,3))]: all faces as one part without materials, else one part
+    per material in ascending order, triangles keeping their order within it."""
+    if face_material is None:
+        return [(None, np.asarray(faces))]
+    face_material = np.asarray(face_material)
+    order = np.argsort(face_material, kind="stable")
+    used, start = np.unique(face_material[order], return_index=True)
+    ends = np.append(start[1:], order.shape[0])
+    return [(int(m), np.asarray(faces)[order[a:b]]) for m, a, b in zip(used, start, ends)]
+
+
+def _material(material: Material, document: dict, images: dict[str, TileImage] | None) -> int:
+    """Append `material` to the glTF document's materials (pbrMetallicRoughness: base colour factor,
+    metallic, roughness, and baseColorTexture when `images` holds its texture); returns its index."""
+    pbr = {"baseColorFactor": [float(c) for c in material.base_color], "metallicFactor": float(material.metallic),
+           "roughnessFactor": float(material.roughness)}
+    image = None if images is None or material.texture is None else images.get(material.texture)
+    if image is not None:
+        pbr["baseColorTexture"] = {"index": _texture(image, document)}
+    rows = document.setdefault("materials", [])
+    rows.append({"name": material.name, "pbrMetallicRoughness": pbr})
+    return len(rows) - 1
+
+
+def _texture(image: TileImage, document: dict) -> int:
+    """The document's texture of `image` (its image row, the one sampler and the texture made on
+    first use); its index."""
+    image_rows = document.setdefault("images", [])
+    source = next((i for i, row in enumerate(image_rows) if row["uri"] == image.uri), None)
+    if source is None:
+        image_rows.append({"uri": image.uri, "mimeType": image.mime_type})
+        source = len(image_rows) - 1
+    document.setdefault("samplers", [{"magFilter": int(SamplerFilter.LINEAR),
+                                      "minFilter": int(SamplerFilter.LINEAR_MIPMAP_LINEAR),
+                                      "wrapS": int(WrapMode.REPEAT), "wrapT": int(WrapMode.REPEAT)}])
+    textures = document.setdefault("textures", [])
+    texture = next((i for i, row in enumerate(textures) if row["source"] == source), None)
+    if texture is None:
+        textures.append({"sampler": 0, "source": source})
+        texture = len(textures) - 1
+    return texture

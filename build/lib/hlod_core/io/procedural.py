@@ -1,0 +1,116 @@
+"""Procedural scenes made by the project itself, with no input files (the main job's `default`).
+
+Data form: `meshes.TriangleMesh` (positions float64 model units, metres by convention; Z up).
+The default scene is a seeded city block: a tessellated ground, a grid of finely tessellated
+buildings of random heights, and a sphere on each roof. Seen from the street most of it hides
+behind the first row, which is the high depth complexity the occlusion-driven traversal is for.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..core.arrays import concat_indexed
+from .meshes import TriangleMesh
+
+
+def grid_patch(origin, u, v, *, nu: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
+    """A parallelogram origin + [0,1]u + [0,1]v tessellated into nu x nv quads (2 tris each).
+    Returns positions ((nu+1)(nv+1),3) float64 and faces (2 nu nv,3) int64, counter-clockwise about u x v."""
+    s, t = np.meshgrid(np.linspace(0.0, 1.0, nu + 1), np.linspace(0.0, 1.0, nv + 1), indexing="ij")
+    p = np.asarray(origin, float) + s[..., None] * np.asarray(u, float) + t[..., None] * np.asarray(v, float)
+    return p.reshape(-1, 3), _grid_faces(nu + 1, nv + 1)
+
+
+def _grid_faces(rows: int, cols: int) -> np.ndarray:
+    """Two triangles per quad of a rows x cols vertex grid (row-major vertex ids), (2 (rows-1)(cols-1), 3)
+    int64, counter-clockwise in (row, column) order."""
+    idx = np.arange(rows * cols).reshape(rows, cols)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    return np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def box(lo, hi, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Closed axis-aligned box, each face an n x n grid, outward-facing."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    dx, dy, dz = np.diag(hi - lo)
+    patches = [
+        (lo, dy, dx), (lo + dz, dx, dy),                  # bottom (-z), top (+z)
+        (lo, dx, dz), (lo + dy, dz, dx),                  # -y, +y
+        (lo, dz, dy), (lo + dx, dy, dz),                       # -x, +x
+    ]
+    return concat_indexed([grid_patch(o, u, v, nu=n, nv=n) for o, u, v in patches])
+
+
+def uv_sphere(center, radius: float, *, segments: int, rings: int) -> tuple[np.ndarray, np.ndarray]:
+    """UV sphere with `segments` around and `rings` from pole to pole (pole rows are degenerate
+    quads kept as thin triangles: this is real-world input too)."""
+    theta = np.linspace(0.0, np.pi, rings + 1)
+    phi = np.linspace(0.0, 2.0 * np.pi, segments + 1)
+    t, f = np.meshgrid(theta, phi, indexing="ij")
+    p = np.stack([np.sin(t) * np.cos(f), np.sin(t) * np.sin(f), np.cos(t)], -1) * radius + np.asarray(center, float)
+    return p.reshape(-1, 3), _grid_faces(rings + 1, segments + 1)
+
+
+def default_scene(*, seed: int = 1, scale: float = 1.0) -> TriangleMesh:
+    """About 220k triangles: an 8 x 8 block of buildings on a 160 m ground (scale multiplies the
+    building count per side, rounded; 1.0 is the CI-sized default)."""
+    return _city(seed=seed, per_side=max(1, int(round(8 * scale))), spacing=20.0, footprint=12.0,
+                 heights=(10.0, 45.0), box_cells=12, sphere=(32, 24), name=f"default scene (seed {seed})")
+
+
+def low_scene(*, seed: int = 1, scale: float = 1.0) -> TriangleMesh:
+    """Low depth complexity, about 180k triangles: a rolling terrain (a 300 x 300 quad heightfield
+    of seeded sine waves, 200 m across, hills up to about 12 m). Seen from any point above it,
+    little of it hides behind other parts (scale multiplies the cells per side)."""
+    rng = np.random.default_rng(seed)
+    cells = max(2, int(round(300 * np.sqrt(scale))))
+    size = 200.0
+    positions, faces = grid_patch([-size / 2, -size / 2, 0.0], [size, 0, 0], [0, size, 0], nu=cells, nv=cells)
+    height = np.zeros(positions.shape[0])
+    for _ in range(6):
+        direction = rng.normal(size=2)
+        direction /= np.linalg.norm(direction)
+        wavelength = rng.uniform(25.0, 120.0)
+        phase = rng.uniform(0, 2 * np.pi)
+        height += rng.uniform(0.5, 2.5) * np.sin(2 * np.pi * (positions[:, :2] @ direction) / wavelength + phase)
+    positions[:, 2] = height - height.min()
+    return TriangleMesh(positions=positions, faces=faces, name=f"low scene (seed {seed})")
+
+
+def middle_scene(*, seed: int = 1, scale: float = 1.0) -> TriangleMesh:
+    """Middle depth complexity, about 210k triangles: a sparse town, 6 x 6 low houses (5-16 m) on
+    30 m plots, each with a dome; from street level the nearer rows hide part of the farther ones,
+    from above little is hidden."""
+    return _city(seed=seed, per_side=max(1, int(round(6 * scale))), spacing=30.0, footprint=12.0,
+                 heights=(5.0, 16.0), box_cells=16, sphere=(40, 30), name=f"middle scene (seed {seed})")
+
+
+def high_scene(*, seed: int = 1, scale: float = 1.0) -> TriangleMesh:
+    """High depth complexity, about 220k triangles: a dense downtown, 10 x 10 towers of 20-60 m on
+    a 14 m grid with 3 m alleys; from street level or any oblique view most towers hide behind
+    the first rows and are seen only through alleys, as slivers."""
+    return _city(seed=seed, per_side=max(1, int(round(10 * scale))), spacing=14.0, footprint=11.0,
+                 heights=(20.0, 60.0), box_cells=10, sphere=(24, 16), name=f"high scene (seed {seed})")
+
+
+def _city(*, seed: int, per_side: int, spacing: float, footprint: float, heights: tuple[float, float],
+          box_cells: int, sphere: tuple[int, int], name: str) -> TriangleMesh:
+    """Seeded towers of random heights (box_cells x box_cells quads per face) with a sphere on each
+    roof (segments, rings), on a 64 x 64 quad ground."""
+    rng = np.random.default_rng(seed)
+    extent = per_side * spacing
+    margin = spacing / 2
+    parts = [grid_patch([-margin, -margin, 0.0], [extent, 0, 0], [0, extent, 0], nu=64, nv=64)]
+    radius = 0.25 * footprint
+    for i in range(per_side):
+        for j in range(per_side):
+            x, y = i * spacing, j * spacing
+            height = float(rng.uniform(*heights))
+            lo = np.array([x - footprint / 2, y - footprint / 2, 0.0])
+            parts.append(box(lo, lo + [footprint, footprint, height], box_cells))
+            parts.append(uv_sphere([x, y, height + radius], radius, segments=sphere[0], rings=sphere[1]))
+    positions, faces = concat_indexed(parts)
+    return TriangleMesh(positions=positions, faces=faces, name=name)
+
+
+SCENES = {"low": low_scene, "middle": middle_scene, "high": high_scene, "default": default_scene}

@@ -1,0 +1,44 @@
+"""per_frame.npz, the per-frame medians an evaluation keeps beside its report.json so that its
+figures can be drawn again: "keys" (V,) report keys, "counters" (C,) counter names (traversal
+COUNTERS), "median" (V, frames, C) float32 medians over repeats. Written atomically, read without
+pickle.
+"""
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from ..core.atomic import atomic_file
+from ..core.errors import InputError
+from ..traversal.stats import COUNTERS
+
+PER_FRAME_FILE = "per_frame.npz"
+
+
+def save_per_frame(target: Path, medians: dict) -> None:
+    """per_frame.npz (module docstring) of `medians`: report key -> (frames, len(COUNTERS))."""
+    keys = list(medians)
+    with atomic_file(target) as f:
+        np.savez_compressed(f, keys=np.array(keys, dtype=str), counters=np.array(COUNTERS, dtype=str),
+                            median=np.array([medians[k] for k in keys], dtype=np.float32))
+
+
+def load_per_frame(source: Path, *, frames: int | None = None) -> dict:
+    """report key -> (frames, len(COUNTERS)) float64 medians from per_frame.npz, in COUNTERS order
+    whatever order the file lists its counters in. Raises InputError naming the file when it is not
+    one (or holds another number of frames than `frames`, the report's)."""
+    try:
+        with np.load(source, allow_pickle=False) as data:
+            keys, counters, median = data["keys"], data["counters"], data["median"]
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise InputError(f"{source}: not an evaluation's per-frame file ({exc})") from None
+    missing = [c for c in COUNTERS if c not in counters.tolist()]
+    if median.ndim != 3 or median.shape[0] != len(keys) or median.shape[2] != len(counters) or missing:
+        raise InputError(f"{source}: not an evaluation's per-frame file (median {median.shape}, "
+                         f"{len(keys)} keys, counters missing: {', '.join(missing) or 'none'})")
+    if frames is not None and median.shape[1] != frames:
+        raise InputError(f"{source}: {median.shape[1]} frames, its report.json {frames}")
+    order = [counters.tolist().index(c) for c in COUNTERS]
+    return {str(k): median[i][:, order].astype(np.float64) for i, k in enumerate(keys)}

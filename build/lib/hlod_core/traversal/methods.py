@@ -1,0 +1,137 @@
+"""HLOD traversal methods (DESIGN §6), one class each, one `frame(view)` entry point, the same
+counters (`stats.FrameStats`): Full, VFC, SW and Ideal here; Bool, Simp and Coh, the coherent
+loop's, in `coherent`. `make` builds one by name.
+
+Papers: Charalambos' dissertation (`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`):
+stop-and-wait (SW, the ideal node count) and Algorithms 1-4; Bittner, Wimmer, Piringer, Purgathofer,
+"Coherent hierarchical culling" (2004) for the front-to-back priority queue all of them share.
+"""
+from __future__ import annotations
+
+import heapq
+
+import numpy as np
+
+from .base import Traversal
+from .coherent import Bool, Coh, Simp
+from .protocol import NodeRenderer
+from .settings import RuntimeSettings
+from ..core.errors import InputError
+from ..model.hierarchy import Hlod
+
+
+class Full(Traversal):
+    """Every leaf in the frustum, front to back: the ground-truth image."""
+
+    name = "full"
+    modulates = False
+
+    def _traverse(self, stats):
+        leaves = np.flatnonzero(self._is_leaf & np.asarray(self.in_frustum))
+        order = leaves[np.argsort(np.asarray(self.key)[leaves], kind="stable")]
+        stats.traversed = int(order.shape[0])
+        residency = self._residency
+        for node in order.tolist():
+            if residency is not None and not residency.resident[node]:
+                node = self._resident_ancestor(node)
+            self._render(node, stats)
+
+    def _resident_ancestor(self, node: int) -> int:
+        """Under a GPU budget: the nearest resident ancestor of a leaf not resident yet, drawn in its
+        place; the leaf's path is requested one level a frame (`_refinable` of that ancestor)."""
+        parent, resident = self._parent, self._residency.resident
+        while not resident[node]:
+            node = parent[node]
+        self._refinable(node, visible=True)
+        return node
+
+
+class VFC(Traversal):
+    """View-frustum culling and SSE, no queries."""
+
+    name = "vfc"
+    modulates = False
+
+    def _traverse(self, stats):
+        heap: list = []
+        self._schedule(heap, (0,))
+        children, heappop = self._children, heapq.heappop
+        traversed = 0
+        while heap:
+            node = heappop(heap)[1]
+            traversed += 1
+            if self._sse_stop(node) or not self._refinable(node, visible=True):
+                self._render(node, stats)
+            else:
+                self._schedule(heap, children[node])
+        stats.traversed += traversed
+
+
+class StopAndWait(Traversal):
+    """SW: query every visited node and wait for it; VMSSE decides. The ideal node count."""
+
+    name = "sw"
+
+    def _traverse(self, stats):
+        heap: list = []
+        self._schedule(heap, (0,))
+        frame_id, children, heappop = self.frame_id, self._children, heapq.heappop
+        visible, last_visited, stop_refinement, ratio = (self._visible, self._last_visited, self._stop_refinement,
+                                                         self._ratio)
+        traversed = 0
+        while heap:
+            node = heappop(heap)[1]
+            traversed += 1
+            last_visited[node] = frame_id
+            q, mu = self._mu(node, self._issue(node, stats), stats)
+            if q == 0:
+                visible[node] = False
+                ratio[node] = 0.0
+                continue
+            visible[node] = True
+            ratio[node] = p = self._p(mu)
+            stop = self._vmsse_stop(node, p)
+            stop_refinement[node] = stop
+            if not stop:
+                if self._refinable(node, visible=True):
+                    self._schedule(heap, children[node])
+                else:
+                    self._render(node, stats)
+            elif self._render(node, stats):
+                stats.d += 1
+                stats.delayed.append(node)
+        stats.traversed += traversed
+
+
+class Ideal(Traversal):
+    """Draws exactly the node set SW finds for the frame, with no queries: a lower bound on time.
+    SW runs first in an untimed pass into the same framebuffer, which is then cleared."""
+
+    name = "ideal"
+
+    def __init__(self, hlod, renderer, settings=RuntimeSettings()):
+        super().__init__(hlod, renderer, settings)
+        self._sw = StopAndWait(hlod, renderer, settings)
+        self._chosen: list[int] = []
+
+    def frame(self, view):
+        self._chosen = self._sw.frame(view).drawn
+        self._ratio = self._sw._ratio
+        return super().frame(view)
+
+    def _traverse(self, stats):
+        stats.traversed = len(self._chosen)
+        for node in self._chosen:
+            self._render(node, stats)
+
+
+METHODS = {"full": Full, "vfc": VFC, "bool": Bool, "sw": StopAndWait, "simp": Simp, "coh": Coh, "ideal": Ideal}
+
+
+def make(method: str, hlod: Hlod, renderer: NodeRenderer, *,
+         settings: RuntimeSettings = RuntimeSettings()) -> Traversal:
+    """A new traversal of `method` (a key of METHODS) with its own per-node state."""
+    cls = METHODS.get(method)
+    if cls is None:
+        raise InputError(f"unknown method {method!r}; expected one of {', '.join(METHODS)}")
+    return cls(hlod, renderer, settings)
