@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -22,15 +23,27 @@ import pytest
 from helpers import ROOT, file_bytes, model
 
 
+def _source_copy(where: Path) -> Path:
+    """What `pip install .` reads (pyproject.toml, hlod_core/, the readme it names), copied to `where`:
+    setuptools builds in the source folder (build/, *.egg-info), which must not be the checkout."""
+    where.mkdir()
+    shutil.copy2(ROOT / "pyproject.toml", where)
+    (where / "docs").mkdir()
+    shutil.copy2(ROOT / "docs" / "command-line.md", where / "docs")
+    shutil.copytree(ROOT / "hlod_core", where / "hlod_core", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    return where
+
+
 def _venv_with_the_package(where: Path) -> Path:
-    """A venv at `where` with hlod_core installed by pip from ROOT; its bin folder."""
+    """A venv at `where` with hlod_core installed by pip from a copy of ROOT's package; its bin folder."""
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(where)], check=True)
     site = Path(subprocess.run([str(where / "bin" / "python"), "-c",
                                 "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                                capture_output=True, text=True, check=True).stdout.strip())
     (site / "test-run-dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     subprocess.run([sys.executable, "-m", "pip", "--python", str(where / "bin" / "python"), "install", "-q",
-                    "--disable-pip-version-check", "--no-deps", "--no-build-isolation", str(ROOT)],
+                    "--disable-pip-version-check", "--no-deps", "--no-build-isolation",
+                    str(_source_copy(where.parent / "source"))],
                    check=True, capture_output=True, text=True, timeout=600)
     return where / "bin"
 
