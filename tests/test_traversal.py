@@ -1418,7 +1418,9 @@ def test_a_frame_that_raised_hands_nothing_to_the_next(city_renderer):
 
 def test_a_frame_begun_after_one_that_raised_times_cleanly(city_renderer):
     """A frame that raised never reached end_frame, so its GPU timer query is still active: the
-    next begin_frame ends it first instead of beginning the same target again (a GL error)."""
+    next begin_frame ends it first instead of beginning the same target again (a GL error). Its own
+    framebuffer, still bound, is not taken for the caller's: after release nothing deleted is left
+    bound, and the next renderer starts without a GL error."""
     r = city_renderer
     view = street_path(5).view(0, SIZE)
     assert r.ctx.error == "GL_NO_ERROR"
@@ -1427,4 +1429,7 @@ def test_a_frame_begun_after_one_that_raised_times_cleanly(city_renderer):
     r.begin_frame(view, time_gpu=True)
     r.draw_node(0)
     assert r.end_frame() > 0.0
+    assert r.ctx.error == "GL_NO_ERROR"
+    r.release()
+    Renderer(r.ctx, r.hlod, size=SIZE).release()
     assert r.ctx.error == "GL_NO_ERROR"

@@ -414,10 +414,12 @@ class Renderer:
         """Follow the caller's draw framebuffer, which may change between frames. moderngl's
         detect_framebuffer() keeps a few hundred bytes per call while a non-zero framebuffer is
         bound (Blender's viewport always is: tens of MB an hour at 60 fps), so it is asked only
-        when the binding has changed."""
+        when the binding has changed. Our own framebuffer bound is no caller's: a frame that raised
+        left it bound, and taken for the host's it would stay bound after release (deleted: the
+        next renderer's detect_framebuffer() reads a framebuffer that is gone, GL_INVALID_OPERATION)."""
         bound = ctypes.c_int32(0)
         self.gl.get_integerv(GL.DRAW_FRAMEBUFFER_BINDING, ctypes.byref(bound))
-        if self._host_fbo.glo != bound.value:
+        if self._host_fbo.glo != bound.value and (self.fbo is None or self.fbo.glo != bound.value):
             self._host_fbo = self.ctx.detect_framebuffer()
 
     def release(self) -> None:
