@@ -327,7 +327,7 @@ def test_the_change_rate_is_the_mean_of_its_results_until_its_weight_takes_over(
     results = [True, False, False, True, False] + [False] * 100
     for k, changed in enumerate(results, start=1):
         before = skips.change_rate
-        skips.queried(0, STOP, changed=changed, frame_id=1)
+        skips.queried_step(1)(0, STOP, changed)
         if k <= 64:
             assert skips.change_rate == pytest.approx(np.mean(results[:k]), abs=1e-12)
         else:

@@ -13,11 +13,12 @@ from __future__ import annotations
 import abc
 import heapq
 import time
+from collections.abc import Callable
 
 import numpy as np
 
 from . import alpha_estimators, boxes, metrics
-from .protocol import NodeRenderer, QueryHandle
+from .protocol import NodeRenderer
 from .settings import RuntimeSettings
 from .stats import MS_PER_S, FrameStats
 from ..model.hierarchy import Hlod
@@ -136,18 +137,26 @@ class Traversal(abc.ABC):
         p = [ratio[node] for node in np.asarray(nodes, np.int64).tolist()] if self.modulates else np.ones(len(nodes))
         return metrics.modulation(p)
 
-    def _render(self, node: int, stats: FrameStats) -> bool:
-        """Draw once per frame; False if the node was already drawn."""
-        if self._rendered[node] == self.frame_id:
-            return False
-        self._rendered[node] = self.frame_id
-        if self._residency is not None:
-            self._residency.use(node)
-        stats.dn += 1
-        stats.tris += self._tri_count[node]
-        stats.drawn.append(node)
-        self.renderer.draw_node(node, self._ratio[node] if self.modulates else 1.0)
-        return True
+    def _draw_step(self, stats: FrameStats) -> Callable[[int], bool]:
+        """The frame's `render(node) -> bool`: draws the node once per frame (False if it was drawn
+        already) with its ratio P (1 for methods VMSSE does not steer), counts it in `stats` and,
+        under a GPU budget, marks it used. A closure over the frame's state: the walk calls it
+        for every node it draws."""
+        frame_id, rendered, ratio, tri_count = self.frame_id, self._rendered, self._ratio, self._tri_count
+        residency, modulates, draw_node, drawn = self._residency, self.modulates, self.renderer.draw_node, stats.drawn
+
+        def render(node: int) -> bool:
+            if rendered[node] == frame_id:
+                return False
+            rendered[node] = frame_id
+            if residency is not None:
+                residency.use(node)
+            stats.dn += 1
+            stats.tris += tri_count[node]
+            drawn.append(node)
+            draw_node(node, ratio[node] if modulates else 1.0)
+            return True
+        return render
 
     def _refinable(self, node: int, *, visible: bool) -> bool:
         """May the walk descend into the node's children? Always without a GPU budget; under one,
@@ -161,36 +170,26 @@ class Traversal(abc.ABC):
         return residency.can_refine(node, visible=visible, error_over_tau=sse[node] / tau,
                                     needed=self.in_frustum.__getitem__, refines=lambda child: sse[child] > tau)
 
-    def _sse_stop(self, node: int) -> bool:
-        """Leaves stop; else SSE <= tau (a leaf's SSE is 0)."""
-        return self.sse[node] <= self._tau
-
     def _vmsse_stop(self, node: int, ratio: float) -> bool:
         """Leaves stop; d <= 0 (SSE = inf) refines whatever the ratio; else ratio * SSE <= tau. One
         comparison does all three for a ratio in [0, 1]: a leaf's SSE is 0, and ratio * inf is inf
-        or, for ratio 0, NaN, which compares False."""
+        or, for ratio 0, NaN, which compares False. Written out in the per-frame closures, and as
+        SSE <= tau (ratio 1) for the methods VMSSE does not steer."""
         return ratio * self.sse[node] <= self._tau
 
-    def _issue(self, node: int, stats: FrameStats) -> QueryHandle | None:
-        """The node's query, or None where its box cannot be queried (`unqueryable`)."""
-        if self.unqueryable[node]:
-            return None
-        stats.queries += 1
-        return self.renderer.issue_query(node, with_alpha=self._query_alpha)
+    def _visibility_step(self) -> Callable[[int, int, int | None], float]:
+        """The frame's `visibility(node, q, alpha_q) -> mu` of a query result: mu = clamp(q / alpha,
+        0, 1), alpha from the node's own alpha query (alpha_q) or the frame's estimate; alpha 0 or
+        NaN gives 0, q > alpha gives 1 (q >= 0)."""
+        query_alpha, alpha_estimate = self._query_alpha, self.alpha_estimate
 
-    def _mu(self, node: int, query: QueryHandle | None, stats: FrameStats) -> tuple[int, float]:
-        """(q, mu) of a finished query; an unqueryable box (query None) gives (1, 1.0)."""
-        if query is None:
-            return 1, 1.0
-        q, alpha_q, stall = self.renderer.result(query)
-        stats.stall_ms += stall * MS_PER_S
-        return q, self._visibility(node, q, alpha_q)
-
-    def _visibility(self, node: int, q: int, alpha_q: int | None) -> float:
-        """mu = clamp(q / alpha, 0, 1) of a query result, alpha from its own alpha query or the
-        frame's estimate; alpha 0 or NaN gives 0, q > alpha gives 1 (q >= 0)."""
-        alpha = float(alpha_q) if self._query_alpha else float(self.alpha_estimate[node])
-        return 0.0 if not alpha > 0 else min(1.0, q / alpha)
+        def visibility(node: int, q: int, alpha_q: int | None) -> float:
+            alpha = float(alpha_q) if query_alpha else float(alpha_estimate[node])
+            if not alpha > 0:
+                return 0.0
+            mu = q / alpha
+            return mu if mu < 1.0 else 1.0  # min(1.0, mu) without the call
+        return visibility
 
     def _schedule(self, heap: list, nodes) -> None:
         """Push those of `nodes` that lie in the frustum on the front-to-back heap (a node outside

@@ -17,6 +17,7 @@ import abc
 import heapq
 import math
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
@@ -29,11 +30,10 @@ from .stats import MS_PER_S
 
 
 class CoherentLoop(Traversal):
-    """Algorithm 2's loop (Algorithm 1 when `_predict` and `_stop_on_result` are Bool's), with
+    """Algorithm 2's loop (Algorithm 1 with Bool's `_predict_step` and `_stop_step`), with
     CHC++'s query stream (`stream`: multiqueries and batches), skipped queries (`skips`, for the
     classes with `skips_queries`: None otherwise or with skip_queries "off") and, for the classes
-    with `predicts_new`, nodes not visited last frame predicted visible (settings predict_new).
-    During a frame the walk's heap, query queue and stats are `_heap`, `_queue`, `_stats`."""
+    with `predicts_new`, nodes not visited last frame predicted visible (settings predict_new)."""
 
     skips_queries = False
     predicts_new = False
@@ -76,20 +76,24 @@ class CoherentLoop(Traversal):
         visible, in_frustum, unqueryable = self._visible, self.in_frustum, self.unqueryable
         return [node for node in self._visited if visible[node] and in_frustum[node] and not unqueryable[node]]
 
-    @abc.abstractmethod
-    def _predict(self, node: int) -> str:
-        """REFINE, STOP, DELAY or PREDICTED for a node popped from the priority queue."""
+    # The per-node hooks of the classes, each made once a frame as a closure over the frame's state
+    # (the walk calls them for every node it visits or gets a result of).
 
     @abc.abstractmethod
-    def _stop_on_result(self, node: int, mu: float) -> bool:
-        """Stop refinement at a node whose query came back visible with visibility mu?"""
+    def _predict_step(self) -> Callable[[int], str]:
+        """The frame's `predict(node)`: REFINE, STOP, DELAY or PREDICTED for a node popped from the
+        priority queue."""
 
-    def _measures_refined(self, node: int) -> bool:
-        """Hook: query this node although it refines (Coh's measured shift-up)?"""
-        return False
+    @abc.abstractmethod
+    def _stop_step(self) -> Callable[[int, float], bool]:
+        """The frame's `stop_on_result(node, mu)`: stop refinement at a node whose query came back
+        visible with visibility mu?"""
 
-    def _measured_ratio(self, node: int, q: int, mu: float) -> None:
-        """Hook: the result of a MEASURE_RATIO query; it draws and refines nothing."""
+    def _measure_steps(self) -> tuple[Callable[[int], bool], Callable[[int, int, float], None]] | None:
+        """Hook: the frame's `measures_refined(node)`, query this node although it refines, and
+        `measured_ratio(node, q, mu)`, the result of such a MEASURE_RATIO query, which draws and
+        refines nothing (Coh's measured shift-up); None: no node is measured."""
+        return None
 
     def _predict_unvisited(self, node: int) -> str:
         """DELAY or PREDICTED for a node not visited last frame (predict_new on): a candidate, one
@@ -108,115 +112,147 @@ class CoherentLoop(Traversal):
 
     def _traverse(self, stats):
         """Results taken in the order issued while they are back (all of them once the heap is
-        empty), then the nearest node popped and visited; queries waiting in the stream go out
-        when due."""
+        empty), then the nearest node popped and visited. Queries waiting in the stream go out
+        when due (CHC++): the i-queue when full, when nothing is in flight (multiquery "on") or
+        before the walk would wait (the heap empty); else the batch, when full or before the walk
+        would wait. The per-node steps are closures over the frame's state (`_visit_step`,
+        `_result_step`): this loop is the traversal's Python cost per node."""
         heap: list = []
         self._schedule(heap, (0,))
         queue: deque[Pending] = deque()
-        self._heap, self._queue, self._stats = heap, queue, stats
         stream = self.stream
         stream.clear()
-        self._visited = []
-        waiting_hidden, waiting_batch = stream.waiting_hidden, stream.waiting_batch
-        available, heappop, take_result, visit = self.renderer.available, heapq.heappop, self._take_result, self._visit
+        self._visited = visited = []
+        render = self._draw_step(stats)
+        visit = self._visit_step(heap, queue, visited, render=render, stats=stats)
+        take_result = self._result_step(heap, queue, render=render, stats=stats)
+        waiting_hidden, waiting_batch, heappop = stream.waiting_hidden, stream.waiting_batch, heapq.heappop
+        eager, hidden_full, batch_full = stream.eager_groups, stream.multiquery_batch, stream.query_batch
+        available, popleft = self.renderer.available, queue.popleft
         while heap or queue or waiting_hidden or waiting_batch:
             while queue and (not heap or queue[0][2] is None or available(queue[0][2])):
-                take_result(*queue.popleft())
+                take_result(*popleft())
             if heap:
                 visit(heappop(heap)[1])
-            if waiting_hidden or waiting_batch:
-                stream.issue_due(queue, heap_empty=not heap)
-        stats.traversed += len(self._visited)
+            if waiting_hidden and (not heap or (eager and not queue) or len(waiting_hidden) >= hidden_full):
+                stream.issue_hidden(queue)
+            elif waiting_batch and (not heap or len(waiting_batch) >= batch_full):
+                stream.issue_batch(queue)
+        stats.traversed += len(visited)
 
-    def _visit(self, node: int) -> None:
-        """A node popped from the heap: predicted, then skipped (assumed visible), queried (or
-        queued to be), refined or drawn as its prediction says."""
-        self._visited.append(node)
-        mode = self._predict(node)
-        stop = mode != REFINE
-        self._stop_refinement[node] = stop
-        self._visible[node] = False
-        self._last_visited[node] = self.frame_id
-        if mode == STOP and self._skipping and self.skips.skips(node, self.frame_id):
-            self._pull_up(node)  # assumed visible: pulled up, stays so, keeps its ratio
-            self._stats.skipped.append(node)
-        elif stop or self._measures_refined(node):
-            self._query(node, mode if stop else MEASURE_RATIO)
-        if mode == REFINE:
-            if self._residency is None or self._refinable(node, visible=True):
-                self._schedule(self._heap, self._children[node])
+    def _visit_step(self, heap: list, queue: deque, visited: list, *, render, stats) -> Callable[[int], None]:
+        """The frame's `visit(node)` of a node popped from the heap: predicted, then skipped
+        (assumed visible), queried (or queued to be: an unqueryable box without a query, visible
+        with mu = 1), refined or drawn as its prediction says."""
+        frame_id, children, parent, unqueryable = self.frame_id, self._children, self._parent, self.unqueryable
+        visible, last_visited, stop_refinement = self._visible, self._last_visited, self._stop_refinement
+        predict, measure, schedule = self._predict_step(), self._measure_steps(), self._schedule
+        measures_refined = None if measure is None else measure[0]
+        skips = self.skips.skip_step(frame_id) if self._skipping else None
+        residency, refinable = self._residency, self._refinable
+        issue, in_flight = self.stream.issue_step(queue, frame_id=frame_id), queue.append
+        mark_visited, mark_skipped = visited.append, stats.skipped.append
+
+        def visit(node: int) -> None:
+            mark_visited(node)
+            mode = predict(node)
+            stop = mode != REFINE
+            stop_refinement[node] = stop
+            visible[node] = False
+            last_visited[node] = frame_id
+            if mode == STOP and skips is not None and skips(node):
+                pull_up(node, visible, parent)  # assumed visible: pulled up, stays so, keeps its ratio
+                mark_skipped(node)
+            elif stop or (measures_refined is not None and measures_refined(node)):
+                if unqueryable[node]:
+                    in_flight((node, mode if stop else MEASURE_RATIO, None))
+                else:
+                    issue(node, mode if stop else MEASURE_RATIO)
+            if mode == REFINE:
+                if residency is None or refinable(node, visible=True):
+                    schedule(heap, children[node])
+                else:
+                    render(node)
+            elif mode != DELAY and render(node) and mode == PREDICTED:
+                stats.predicted += 1
+        return visit
+
+    def _result_step(self, heap: list, queue: deque, *, render, stats) -> Callable[[int, str, QueryHandle | None], None]:
+        """The frame's `take_result(node, mode, query)` of a query in flight, taken off `queue` in
+        the order issued. Query None: an unqueryable box, visible with mu = 1."""
+        frame_id, candidate_in, predicting_new = self.frame_id, self._candidate_in, self._predicting_new
+        result = self.renderer.result
+        visibility, measure, key = self._visibility_step(), self._measure_steps(), self.key
+        measured_ratio = None if measure is None else measure[1]  # MEASURE_RATIO queries only where measured
+        multiquery_result = self.stream.multiquery_result
+        found_visible, found_hidden = self._found_steps(heap, render=render, stats=stats)
+
+        def take_result(node: int, mode: str, query: QueryHandle | None) -> None:
+            if query is None:
+                q, mu = 1, 1.0
             else:
-                self._render(node, self._stats)
-        elif mode != DELAY and self._render(node, self._stats) and mode == PREDICTED:
-            self._stats.predicted += 1
+                stats.queries += 1
+                q, alpha_q, stall = result(query)
+                stats.stall_ms += stall * MS_PER_S
+                if mode == MULTIQUERY:
+                    stats.multiqueries += 1
+                    for member in multiquery_result(query, q, queue, key=key):
+                        found_hidden(member, DELAY)
+                    return
+                mu = visibility(node, q, alpha_q)
+                if predicting_new and candidate_in[node] == frame_id:
+                    self.new_visible_share += (float(q > 0) - self.new_visible_share) * self.new_share_weight
+            if mode == MEASURE_RATIO:
+                measured_ratio(node, q, mu)
+            elif q > 0:
+                found_visible(node, mode, mu)
+            else:
+                found_hidden(node, mode)
+        return take_result
 
-    def _query(self, node: int, mode: str) -> None:
-        """The node's query in `mode`: queued without one where its box cannot be queried (visible,
-        mu = 1), else through the stream."""
-        if self.unqueryable[node]:
-            self._queue.append((node, mode, None))
-        else:
-            self.stream.issue(node, mode, self._queue, frame_id=self.frame_id)
+    def _found_steps(self, heap: list, *, render, stats) -> tuple[Callable, Callable]:
+        """The frame's `found_visible(node, mode, mu)` and `found_hidden(node, mode)`, what a query
+        result in `mode` does. Visible with visibility mu: visibility pulled up, then refine (RARN
+        if drawn already) or stop (drawn, once; D if it waited for this result). Hidden (its own
+        query or a multiquery): P(0) = 0, it stays invisible."""
+        frame_id, children, parent, rendered = self.frame_id, self._children, self._parent, self._rendered
+        visible, stop_refinement, ratio = self._visible, self._stop_refinement, self._ratio
+        stop_on_result, schedule, residency, refinable = self._stop_step(), self._schedule, self._residency, self._refinable
+        queried = self.skips.queried_step(frame_id) if self._skipping else None
+        hidden = self.stream.found_hidden if self.stream.grouping else None
 
-    def _take_result(self, node: int, mode: str, query: QueryHandle | None) -> None:
-        """The result of a query in flight (query None: an unqueryable box, visible with mu = 1)."""
-        if query is None:
-            q, mu = 1, 1.0
-        else:
-            stats = self._stats
-            stats.queries += 1
-            q, alpha_q, stall = self.renderer.result(query)
-            stats.stall_ms += stall * MS_PER_S
-            if mode == MULTIQUERY:
-                stats.multiqueries += 1
-                for member in self.stream.multiquery_result(query, q, self._queue, key=self.key):
-                    self._found_hidden(member, DELAY)
-                return
-            mu = self._visibility(node, q, alpha_q)
-            if self._predicting_new and self._candidate_in[node] == self.frame_id:
-                self.new_visible_share += (float(q > 0) - self.new_visible_share) * self.new_share_weight
-        if mode == MEASURE_RATIO:
-            self._measured_ratio(node, q, mu)
-        elif q > 0:
-            self._found_visible(node, mode, mu)
-        else:
-            self._found_hidden(node, mode)
+        def found_visible(node: int, mode: str, mu: float) -> None:
+            pull_up(node, visible, parent)
+            stop = stop_on_result(node, mu)
+            stop_refinement[node] = stop
+            if queried is not None:
+                queried(node, mode, not stop)
+            if not stop:
+                if residency is not None and not refinable(node, visible=True):
+                    render(node)
+                    return
+                if rendered[node] == frame_id:
+                    stats.rarn += 1
+                    stats.refined_after_draw.append(node)
+                schedule(heap, children[node])
+            elif render(node) and mode == DELAY:
+                stats.d += 1
+                stats.delayed.append(node)
 
-    def _found_visible(self, node: int, mode: str, mu: float) -> None:
-        """A query in `mode` found the node visible with visibility mu: visibility pulled up, then
-        refine (RARN if drawn already) or stop (drawn, once; D if it waited for this result)."""
-        self._pull_up(node)
-        stop = self._stop_on_result(node, mu)
-        self._stop_refinement[node] = stop
-        if self._skipping:
-            self.skips.queried(node, mode, changed=not stop, frame_id=self.frame_id)
-        stats = self._stats
-        if not stop:
-            if self._residency is not None and not self._refinable(node, visible=True):
-                self._render(node, stats)
-                return
-            if self._rendered[node] == self.frame_id:
-                stats.rarn += 1
-                stats.refined_after_draw.append(node)
-            self._schedule(self._heap, self._children[node])
-        elif self._render(node, stats) and mode == DELAY:
-            stats.d += 1
-            stats.delayed.append(node)
+        def found_hidden(node: int, mode: str) -> None:
+            ratio[node] = 0.0
+            if queried is not None:
+                queried(node, mode, True)
+            if hidden is not None:
+                hidden(node, frame_id)
+        return found_visible, found_hidden
 
-    def _found_hidden(self, node: int, mode: str) -> None:
-        """A query in `mode` (or a multiquery) found the node hidden: P(0) = 0, it stays invisible."""
-        self._ratio[node] = 0.0
-        if self._skipping:
-            self.skips.queried(node, mode, changed=True, frame_id=self.frame_id)
-        if self.stream.grouping:
-            self.stream.found_hidden(node, self.frame_id)
 
-    def _pull_up(self, node: int) -> None:
-        """The node and its ancestors up to the first visible one become visible (CHC)."""
-        visible, parent = self._visible, self._parent
-        while node >= 0 and not visible[node]:
-            visible[node] = True
-            node = parent[node]
+def pull_up(node: int, visible: list, parent: list) -> None:
+    """The node and its ancestors up to the first visible one become visible (CHC)."""
+    while node >= 0 and not visible[node]:
+        visible[node] = True
+        node = parent[node]
 
 
 class Bool(CoherentLoop):
@@ -230,15 +266,22 @@ class Bool(CoherentLoop):
         super().__init__(hlod, renderer, settings, recheck_seed=recheck_seed)
         self._ratio = [1.0] * hlod.node_count  # queries are booleans: VMSSE never lowers its LOD
 
-    def _predict(self, node):
-        was_visible = self._visible[node] and self._last_visited[node] == self.frame_id - 1
-        if not was_visible:
-            return DELAY
-        return STOP if self._sse_stop(node) else REFINE
+    def _predict_step(self):
+        previous, visible, last_visited, sse, tau = self.frame_id - 1, self._visible, self._last_visited, self.sse, self._tau
 
-    def _stop_on_result(self, node, mu):
-        self._ratio[node] = 1.0
-        return self._sse_stop(node)
+        def predict(node: int) -> str:
+            if not (visible[node] and last_visited[node] == previous):  # not visible last frame
+                return DELAY
+            return STOP if sse[node] <= tau else REFINE  # _vmsse_stop at ratio 1
+        return predict
+
+    def _stop_step(self):
+        ratio, sse, tau = self._ratio, self.sse, self._tau
+
+        def stop_on_result(node: int, mu: float) -> bool:
+            ratio[node] = 1.0
+            return sse[node] <= tau  # _vmsse_stop at ratio 1
+        return stop_on_result
 
 
 class Simp(CoherentLoop):
@@ -267,16 +310,24 @@ class Simp(CoherentLoop):
             self._scheduled += 1
         super()._schedule(heap, nodes)
 
-    def _predict(self, node):
-        if self._last_visited[node] != self.frame_id - 1 or not self._visible[node]:
-            return DELAY
-        total = max(self._previous_scheduled, 1)
-        mu_hat = 1.0 - self._previous_position[node] / total
-        return STOP if self._vmsse_stop(node, self._p(mu_hat)) else REFINE
+    def _predict_step(self):
+        previous, last_visited, visible, position = self.frame_id - 1, self._last_visited, self._visible, self._previous_position
+        total, p, sse, tau = max(self._previous_scheduled, 1), self._p, self.sse, self._tau
 
-    def _stop_on_result(self, node, mu):
-        self._ratio[node] = ratio = self._p(mu)
-        return self._vmsse_stop(node, ratio)
+        def predict(node: int) -> str:
+            if last_visited[node] != previous or not visible[node]:
+                return DELAY
+            mu_hat = 1.0 - position[node] / total
+            return STOP if p(mu_hat) * sse[node] <= tau else REFINE  # _vmsse_stop
+        return predict
+
+    def _stop_step(self):
+        ratio, p, sse, tau = self._ratio, self._p, self.sse, self._tau
+
+        def stop_on_result(node: int, mu: float) -> bool:
+            ratio[node] = node_ratio = p(mu)
+            return node_ratio * sse[node] <= tau  # _vmsse_stop
+        return stop_on_result
 
 
 class Coh(CoherentLoop):
@@ -298,21 +349,26 @@ class Coh(CoherentLoop):
 
     measured = property(lambda self: state_array(self._measured, np.int64), doc="(n,) int64 frame id")
 
-    def _predict(self, node):
-        previous = self.frame_id - 1
+    def _predict_step(self):
+        frame_id, previous, measured, every = self.frame_id, self.frame_id - 1, self._measured, self.measure_every_frames
         last_visited, stop_refinement, ratio = self._last_visited, self._stop_refinement, self._ratio
-        if last_visited[node] != previous:
-            return self._predict_unvisited(node) if self._predicting_new else DELAY
-        if not self._visible[node]:
-            return DELAY
-        if self._leaf[node]:
-            return STOP if stop_refinement[node] else DELAY
-        sse, tau = self.sse, self._tau  # ratio * sse <= tau below is _vmsse_stop, written out
-        if stop_refinement[node]:
-            return STOP if ratio[node] * sse[node] <= tau else REFINE
-        if self._measure and self.frame_id - self._measured[node] <= self.measure_every_frames:
-            return DELAY if ratio[node] * sse[node] <= tau else REFINE
-        return DELAY if self._children_stop(node) else REFINE
+        visible, leaf, sse, tau, measure = self._visible, self._leaf, self.sse, self._tau, self._measure
+        unvisited, children_stop = self._predict_unvisited if self._predicting_new else None, self._children_stop
+
+        def predict(node: int) -> str:
+            if last_visited[node] != previous:
+                return DELAY if unvisited is None else unvisited(node)
+            if not visible[node]:
+                return DELAY
+            if leaf[node]:
+                return STOP if stop_refinement[node] else DELAY
+            # ratio * sse <= tau below is _vmsse_stop, written out
+            if stop_refinement[node]:
+                return STOP if ratio[node] * sse[node] <= tau else REFINE
+            if measure and frame_id - measured[node] <= every:
+                return DELAY if ratio[node] * sse[node] <= tau else REFINE
+            return DELAY if children_stop(node) else REFINE
+        return predict
 
     def _children_stop(self, node: int) -> bool:
         """Algorithm 4's shift-up: all children stopped last frame (one not visited counts as
@@ -331,15 +387,25 @@ class Coh(CoherentLoop):
                 candidate = False
         return candidate and total / count * sse[node] <= tau
 
-    def _stop_on_result(self, node, mu):
-        self._ratio[node] = ratio = self._p(mu)
-        self._measured[node] = self.frame_id
-        return ratio * self.sse[node] <= self._tau  # _vmsse_stop
+    def _stop_step(self):
+        frame_id, ratio, measured, p, sse, tau = self.frame_id, self._ratio, self._measured, self._p, self.sse, self._tau
 
-    def _measures_refined(self, node):
-        return self._measure and (node + self.frame_id) % self.measure_every_frames == 0 \
-            and not self.unqueryable[node] and math.isfinite(self.sse[node])
+        def stop_on_result(node: int, mu: float) -> bool:
+            ratio[node] = node_ratio = p(mu)
+            measured[node] = frame_id
+            return node_ratio * sse[node] <= tau  # _vmsse_stop
+        return stop_on_result
 
-    def _measured_ratio(self, node, q, mu):
-        self._ratio[node] = self._p(mu) if q > 0 else 0.0
-        self._measured[node] = self.frame_id
+    def _measure_steps(self):
+        if not self._measure:
+            return None
+        frame_id, every, unqueryable, sse = self.frame_id, self.measure_every_frames, self.unqueryable, self.sse
+        ratio, measured, p = self._ratio, self._measured, self._p
+
+        def measures_refined(node: int) -> bool:  # every measure_every-th frame, staggered by node index
+            return (node + frame_id) % every == 0 and not unqueryable[node] and math.isfinite(sse[node])
+
+        def measured_ratio(node: int, q: int, mu: float) -> None:
+            ratio[node] = p(mu) if q > 0 else 0.0
+            measured[node] = frame_id
+        return measures_refined, measured_ratio

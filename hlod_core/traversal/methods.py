@@ -16,6 +16,7 @@ from .base import Traversal
 from .coherent import Bool, Coh, Simp
 from .protocol import NodeRenderer
 from .settings import RuntimeSettings
+from .stats import MS_PER_S
 from ..core.errors import InputError
 from ..model.hierarchy import Hlod
 
@@ -30,11 +31,11 @@ class Full(Traversal):
         leaves = np.flatnonzero(self._is_leaf & np.asarray(self.in_frustum))
         order = leaves[np.argsort(np.asarray(self.key)[leaves], kind="stable")]
         stats.traversed = int(order.shape[0])
-        residency = self._residency
+        residency, render = self._residency, self._draw_step(stats)
         for node in order.tolist():
             if residency is not None and not residency.resident[node]:
                 node = self._resident_ancestor(node)
-            self._render(node, stats)
+            render(node)
 
     def _resident_ancestor(self, node: int) -> int:
         """Under a GPU budget: the nearest resident ancestor of a leaf not resident yet, drawn in its
@@ -55,15 +56,16 @@ class VFC(Traversal):
     def _traverse(self, stats):
         heap: list = []
         self._schedule(heap, (0,))
-        children, heappop = self._children, heapq.heappop
+        children, heappop, schedule, render = self._children, heapq.heappop, self._schedule, self._draw_step(stats)
+        sse, tau, residency = self.sse, self._tau, self._residency
         traversed = 0
         while heap:
             node = heappop(heap)[1]
             traversed += 1
-            if self._sse_stop(node) or not self._refinable(node, visible=True):
-                self._render(node, stats)
+            if sse[node] <= tau or (residency is not None and not self._refinable(node, visible=True)):  # _vmsse_stop at ratio 1
+                render(node)
             else:
-                self._schedule(heap, children[node])
+                schedule(heap, children[node])
         stats.traversed += traversed
 
 
@@ -78,12 +80,20 @@ class StopAndWait(Traversal):
         frame_id, children, heappop = self.frame_id, self._children, heapq.heappop
         visible, last_visited, stop_refinement, ratio = (self._visible, self._last_visited, self._stop_refinement,
                                                          self._ratio)
+        unqueryable, issue_query, result = self.unqueryable, self.renderer.issue_query, self.renderer.result
+        render, visibility, query_alpha = self._draw_step(stats), self._visibility_step(), self._query_alpha
         traversed = 0
         while heap:
             node = heappop(heap)[1]
             traversed += 1
             last_visited[node] = frame_id
-            q, mu = self._mu(node, self._issue(node, stats), stats)
+            if unqueryable[node]:  # its box cannot be queried: visible, mu = 1
+                q, mu = 1, 1.0
+            else:
+                stats.queries += 1
+                q, alpha_q, stall = result(issue_query(node, with_alpha=query_alpha))
+                stats.stall_ms += stall * MS_PER_S
+                mu = visibility(node, q, alpha_q)
             if q == 0:
                 visible[node] = False
                 ratio[node] = 0.0
@@ -96,8 +106,8 @@ class StopAndWait(Traversal):
                 if self._refinable(node, visible=True):
                     self._schedule(heap, children[node])
                 else:
-                    self._render(node, stats)
-            elif self._render(node, stats):
+                    render(node)
+            elif render(node):
                 stats.d += 1
                 stats.delayed.append(node)
         stats.traversed += traversed
@@ -121,8 +131,9 @@ class Ideal(Traversal):
 
     def _traverse(self, stats):
         stats.traversed = len(self._chosen)
+        render = self._draw_step(stats)
         for node in self._chosen:
-            self._render(node, stats)
+            render(node)
 
 
 METHODS = {"full": Full, "vfc": VFC, "bool": Bool, "sw": StopAndWait, "simp": Simp, "coh": Coh, "ideal": Ideal}

@@ -118,7 +118,7 @@ def bias_function(s: float, t: float, *, k: float = math.inf) -> Callable[[float
                 return 0.0
             if mu >= 1.0:
                 return 1.0
-            return min(1.0, max(0.0, (1.0 - s) * mu + (s if mu >= t else 0.0)))
+            return _unit((1.0 - s) * mu + (s if mu >= t else 0.0))
         return p
     if k < _K_LINEAR:
         def step(mu: float) -> float:
@@ -128,15 +128,20 @@ def bias_function(s: float, t: float, *, k: float = math.inf) -> Callable[[float
         den = 0.5 * (1.0 + math.tanh(0.5 * k * (1.0 - t))) - lo
 
         def step(mu: float) -> float:
-            return min(1.0, max(0.0, (0.5 * (1.0 + math.tanh(0.5 * k * (mu - t))) - lo) / den))
+            return _unit((0.5 * (1.0 + math.tanh(0.5 * k * (mu - t))) - lo) / den)
 
     def p(mu: float) -> float:
         if not mu > 0.0:
             return 0.0
         if mu >= 1.0:
             return 1.0
-        return min(1.0, max(0.0, (1.0 - s) * mu + s * step(mu)))
+        return _unit((1.0 - s) * mu + s * step(mu))
     return p
+
+
+def _unit(x: float) -> float:
+    """min(1.0, max(0.0, x)) of one float, NaN and -0.0 giving 0.0 as there, without the two calls."""
+    return 0.0 if not x > 0.0 else (x if x < 1.0 else 1.0)
 
 
 def band_half_width(k: float) -> float:

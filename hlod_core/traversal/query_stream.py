@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 
 from .base import NEVER_FRAME
 from .protocol import DELAY, MULTIQUERY, NodeRenderer, QueryHandle
@@ -49,9 +50,10 @@ def multiquery_groups(nodes: list[int], hidden_frames: list[int]) -> list[list[i
 class QueryStream:
     """How one traversal's queries are issued: each at once, or, with the settings on and a renderer
     that can (`issue_multiquery`, `issue_queries`), through CHC++'s i-queue (`waiting_hidden`:
-    nodes hidden last frame, tested together) and v-queue (`waiting_batch`: (node, mode) of the
-    queries that gate nothing, issued together). Keeps per node the frames in a row its own query
-    found it hidden (`hidden_frames`, up to frame `hidden_in`)."""
+    nodes hidden last frame, tested together) and v-queue (`waiting_batch`, the nodes of the queries
+    that gate nothing, issued together, and `waiting_modes`, their modes). When each goes out is the
+    traversal's loop (coherent.CoherentLoop). Keeps per node the frames in a row its own query found
+    it hidden (`hidden_frames`, up to frame `hidden_in`)."""
 
     #: CHC++'s i-queue batch size b: hidden nodes waiting for a multiquery, at most.
     multiquery_batch = 50
@@ -67,43 +69,43 @@ class QueryStream:
         self.hidden_frames = [0] * node_count
         self.hidden_in = [NEVER_FRAME] * node_count
         self.waiting_hidden: list[int] = []
-        self.waiting_batch: list[tuple[int, str]] = []
+        self.waiting_batch: list[int] = []
+        self.waiting_modes: list[str] = []  # the modes of waiting_batch's queries
 
     def clear(self) -> None:
         """Drop what waits: a frame that raised must not hand its waiting nodes to the next."""
         self.waiting_hidden.clear()
         self.waiting_batch.clear()
+        self.waiting_modes.clear()
 
-    def issue(self, node: int, mode: str, queue: deque, *, frame_id: int) -> None:
-        """The query of a queryable node popped in frame `frame_id`, with its mode: waits in the
-        i-queue if predicted DELAY and hidden last frame (multiquery), in the batch otherwise
-        (batch_queries; a DELAY query gates its subtree, so the batch goes out with it), or is
-        issued now."""
-        if self.grouping and mode == DELAY and self.hidden_in[node] == frame_id - 1:
-            self.waiting_hidden.append(node)
-        elif self.batching:
-            self.waiting_batch.append((node, mode))
-            if mode == DELAY:
-                self.issue_batch(queue)
-        else:
-            queue.append((node, mode, self.renderer.issue_query(node, with_alpha=self.query_alpha)))
+    def issue_step(self, queue: deque, *, frame_id: int) -> Callable[[int, str], None]:
+        """The frame's `issue(node, mode)` of the query of a queryable node popped in frame
+        `frame_id`: it waits in the i-queue if predicted DELAY and hidden last frame (multiquery),
+        in the batch otherwise (batch_queries; a DELAY query gates its subtree, so the batch goes
+        out with it), or is issued now. The traversal issues the waiting ones when due."""
+        grouping, batching, hidden_in, previous = self.grouping, self.batching, self.hidden_in, frame_id - 1
+        wait_hidden, wait_batch, wait_mode = self.waiting_hidden.append, self.waiting_batch.append, self.waiting_modes.append
+        issue_query, query_alpha, in_flight, issue_batch = (self.renderer.issue_query, self.query_alpha, queue.append,
+                                                            self.issue_batch)
 
-    def issue_due(self, queue: deque, *, heap_empty: bool) -> None:
-        """Issue the i-queue when full, when nothing is in flight ("on") or before the traversal
-        would wait (`heap_empty`); else the batch, when full or before the traversal would wait."""
-        waiting_hidden = self.waiting_hidden
-        if waiting_hidden and (heap_empty or (self.eager_groups and not queue)
-                               or len(waiting_hidden) >= self.multiquery_batch):
-            self.issue_hidden(queue)
-        elif self.waiting_batch and (heap_empty or len(self.waiting_batch) >= self.query_batch):
-            self.issue_batch(queue)
+        def issue(node: int, mode: str) -> None:
+            if grouping and mode == DELAY and hidden_in[node] == previous:
+                wait_hidden(node)
+            elif batching:
+                wait_batch(node)
+                wait_mode(mode)
+                if mode == DELAY:
+                    issue_batch(queue)
+            else:
+                in_flight((node, mode, issue_query(node, with_alpha=query_alpha)))
+        return issue
 
     def issue_batch(self, queue: deque) -> None:
         """Issue the waiting batch through the renderer's issue_queries."""
-        batch = self.waiting_batch
-        issued = self.renderer.issue_queries([node for node, _ in batch], with_alpha=self.query_alpha)
-        queue.extend((node, mode, query) for (node, mode), query in zip(batch, issued))
-        batch.clear()
+        nodes, modes = self.waiting_batch, self.waiting_modes
+        queue.extend(zip(nodes, modes, self.renderer.issue_queries(nodes.copy(), with_alpha=self.query_alpha)))
+        nodes.clear()
+        modes.clear()
 
     def issue_hidden(self, queue: deque) -> None:
         """Issue the i-queue: its groups of several as multiqueries, then its groups of one as
@@ -119,7 +121,8 @@ class QueryStream:
         """Each of `nodes` (queryable, predicted DELAY) gets its own query: through the batch when
         batching, else one issue_query each."""
         if self.batching:
-            self.waiting_batch.extend((node, DELAY) for node in nodes)
+            self.waiting_batch.extend(nodes)
+            self.waiting_modes.extend([DELAY] * len(nodes))
             if self.waiting_batch:
                 self.issue_batch(queue)
             return

@@ -10,6 +10,8 @@ Why and how: docs/how-it-works.md#skipped-queries
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from . import query_cost
@@ -61,18 +63,26 @@ class SkippedQueries:
         self.skippable = query_cost.draw_is_cheaper(view, model, candidates, costs=self._costs, rate=rate,
                                                     pixels=pixels, python_nodes=self.python_test_nodes)
 
-    def skips(self, node: int, frame_id: int) -> bool:
-        """Is the node, predicted STOP in frame `frame_id`, drawn without its query?"""
-        return bool(self.skippable[node]) and frame_id < self.recheck_due[node]
+    def skip_step(self, frame_id: int) -> Callable[[int], bool]:
+        """Frame `frame_id`'s `skips(node)`: is the node, predicted STOP, drawn without its query?
+        A closure over this frame's `skippable` (made after `prepare`)."""
+        skippable, recheck_due = self.skippable, self.recheck_due
 
-    def queried(self, node: int, mode: str, *, changed: bool, frame_id: int) -> None:
-        """Bookkeeping of a finished STOP / DELAY / PREDICTED query in frame `frame_id`: the node's
-        next re-check (1 to recheck_frames frames on) and, for a STOP result, the change rate: an
-        exponential mean of weight max(change_rate_weight, 1 / results), so its start value stops
-        counting at the first result."""
-        after = frame_id + 1
-        self.recheck_due[node] = after + (-after - self.recheck_phase[node]) % self.recheck_frames
-        if mode == STOP:
-            self.change_results += 1
-            weight = max(self.change_rate_weight, 1.0 / self.change_results)
-            self.change_rate += (float(changed) - self.change_rate) * weight
+        def skips(node: int) -> bool:
+            return bool(skippable[node]) and frame_id < recheck_due[node]
+        return skips
+
+    def queried_step(self, frame_id: int) -> Callable[[int, str, bool], None]:
+        """Frame `frame_id`'s `queried(node, mode, changed)`, the bookkeeping of a finished STOP /
+        DELAY / PREDICTED query: the node's next re-check (1 to recheck_frames frames on) and, for
+        a STOP result, the change rate: an exponential mean of weight max(change_rate_weight,
+        1 / results), so its start value stops counting at the first result."""
+        after, recheck_due, phase, frames = frame_id + 1, self.recheck_due, self.recheck_phase, self.recheck_frames
+
+        def queried(node: int, mode: str, changed: bool) -> None:
+            recheck_due[node] = after + (-after - phase[node]) % frames
+            if mode == STOP:
+                self.change_results += 1
+                weight = max(self.change_rate_weight, 1.0 / self.change_results)
+                self.change_rate += (float(changed) - self.change_rate) * weight
+        return queried
