@@ -15,6 +15,7 @@ of nodes, is addon/materialize.py.
 """
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from dataclasses import dataclass
 
@@ -89,15 +90,17 @@ def evaluated_mesh(context, objects, *, taken: list | None = None,
     with_materials = any(slot.material is not None for inst in _instances(depsgraph, wanted)
                          for slot in inst.object.material_slots)
     rows: dict[str, Material] = {}  # material name_full -> its row, made once per datablock
-    parts, owners, uv_names, colour_names = [], set(), Counter(), Counter()
+    keyed, owners, uv_names, colour_names = [], set(), Counter(), Counter()
     for inst in _instances(depsgraph, wanted):
         owner = _owner(inst)
         label = f"{owner.name}" + (f" (instance of {inst.object.original.name})" if inst.is_instance else "")
         part = _read_instance(inst, depsgraph, label, rows=rows, uv_names=uv_names if with_materials else None,
                               colour_names=colour_names)
         if part is not None:
-            parts.append(part)
+            keyed.append((_instance_key(inst, owner), part))
             owners.add(owner.name_full)
+    keyed.sort(key=lambda item: item[0])
+    parts = [part for _, part in keyed]
     if not parts:
         raise InputError("Bake: the chosen objects have no triangles (meshes, curves or text with faces)")
     if taken is not None:
@@ -109,7 +112,29 @@ def evaluated_mesh(context, objects, *, taken: list | None = None,
         if colour_names:
             attributes["color_attribute"] = colour_names.most_common(1)[0][0]
     names = [part.label for part in parts]
-    return meshes.merge(part_meshes, name=", ".join(names[:3]) + (" ..." if len(names) > 3 else ""))
+    return _materials_by_name(meshes.merge(part_meshes, name=", ".join(names[:3]) + (" ..." if len(names) > 3 else "")))
+
+
+def _instance_key(inst, owner) -> tuple:
+    """Where an instance goes in the bake's input: by its chosen object's name, then the
+    instanced object's name and the instance's place in its instancer (persistent_id). The
+    depsgraph lists instances in the view layer's order, which linking an object again or moving
+    it to another collection changes; this order does not, so neither do the triangles' order and
+    the bake cache's keys ([re-bakes](docs/how-it-works.md#re-bakes-and-the-cache-keys))."""
+    return (owner.name_full, inst.object.original.name_full, tuple(inst.persistent_id) if inst.is_instance else ())
+
+
+def _materials_by_name(mesh: meshes.TriangleMesh) -> meshes.TriangleMesh:
+    """The mesh with its material table sorted by name: a material's id (an attribute column of
+    every vertex row, part of the bake cache's keys) then depends on which materials the scene has,
+    not on which object came first."""
+    if mesh.material_ids is None or len(mesh.materials) < 2:
+        return mesh
+    order = sorted(range(len(mesh.materials)), key=lambda i: (mesh.materials[i].name, repr(mesh.materials[i])))
+    new_id = np.empty(len(order), np.int32)
+    new_id[order] = np.arange(len(order), dtype=np.int32)
+    return dataclasses.replace(mesh, material_ids=new_id[mesh.material_ids],
+                               materials=tuple(mesh.materials[i] for i in order))
 
 
 def _owner(inst):

@@ -383,6 +383,86 @@ def check_cli_jobs(repo, work) -> dict:
             "tmp_left": _leftovers(tmp)}
 
 
+def _mixed_statues() -> list:
+    """Sixteen statues on a 4 x 4 grid, two meshes alternating: a UV sphere with UVs and a
+    material, an ico sphere with neither (mixed attribute layouts: its rows get the default
+    material and zero UVs)."""
+    for obj in list(bpy.data.objects):
+        bpy.data.objects.remove(obj)
+    stone = bpy.data.materials.new("Stone")
+    stone.diffuse_color = (0.6, 0.5, 0.4, 1.0)
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=40, ring_count=20, radius=0.8)
+    textured = bpy.context.active_object
+    textured.data.materials.append(stone)
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=0.8)
+    plain = bpy.context.active_object
+    while plain.data.uv_layers:
+        plain.data.uv_layers.remove(plain.data.uv_layers[0])
+    statues = []
+    for i in range(4):
+        for j in range(4):
+            source = textured if (i + j) % 2 == 0 else plain
+            statue = source.copy()
+            statue.name = f"statue {i} {j}"
+            statue.location = (2.0 * i, 2.0 * j, 0.0)
+            bpy.context.scene.collection.objects.link(statue)
+            statues.append(statue)
+    bpy.data.objects.remove(textured)
+    bpy.data.objects.remove(plain)
+    bpy.context.view_layer.update()
+    return statues
+
+
+def check_cache_mixed_scene(repo, work) -> dict:
+    """The bake cache on a scene of two meshes with different attribute layouts (`_mixed_statues`),
+    through the background command: a re-bake after linking a statue again (the depsgraph then
+    lists the objects in another order; the geometry is the same) takes the whole result from the
+    cache; after moving an interior statue by 0.05 it rebuilds only the inner nodes above it and
+    the file equals a bake from scratch (--no-cache)."""
+    blender_preview.enable_from_repo(repo)
+    _private_tmp(work)
+    cli = importlib.import_module(NAME + ".addon.cli")
+    fileformat = importlib.import_module(NAME + ".hlod_core.io.hlod_file")
+    statues = _mixed_statues()
+    out_path, fresh_path = Path(work) / "statues.hlod", Path(work) / "fresh.hlod"
+
+    def bake(path: Path, *extra: str) -> dict:
+        with contextlib.redirect_stdout(io.StringIO()) as stdout:
+            status = cli.execute(["bake", "--target-tris", "300", *extra, "-o", str(path)])
+        summary = json.loads(stdout.getvalue().strip().splitlines()[-1])["files"][0]
+        return {"status": status, "cache": summary.get("cache"), "error": summary.get("error")}
+
+    def order() -> list[str]:
+        return [inst.object.name for inst in bpy.context.evaluated_depsgraph_get().object_instances][:4]
+
+    names = ("parent", "child_offset", "child_count", "box_min", "box_max", "error", "origin", "positions", "indices",
+             "uvs", "tri_material")
+
+    def arrays_differ(path_a: Path, path_b: Path) -> list[str]:
+        a, b = fileformat.load(path_a), fileformat.load(path_b)
+        return [name for name in names if not np.array_equal(getattr(a, name), getattr(b, name))]
+
+    first = bake(out_path)
+    first_path = Path(work) / "first.hlod"
+    first_path.write_bytes(out_path.read_bytes())
+    order_before = order()
+    bpy.context.scene.collection.objects.unlink(statues[0])
+    bpy.context.scene.collection.objects.link(statues[0])
+    bpy.context.view_layer.update()
+    order_after = order()
+    relinked = bake(out_path)
+    relinked_differ = arrays_differ(first_path, out_path)
+    statues[5].location.x += 0.05  # statue 1 1: inside the grid, the scene's box unchanged
+    bpy.context.view_layer.update()
+    moved = bake(out_path)
+    fresh = bake(fresh_path, "--no-cache")
+    a = fileformat.load(out_path)
+    return {"first": first, "relinked": relinked, "moved": moved, "fresh": fresh, "order_before": order_before,
+            "order_after": order_after, "relinked_arrays_differ": relinked_differ,
+            "moved_arrays_differ": arrays_differ(out_path, fresh_path),
+            "materials": [m.name for m in a.materials], "inner_nodes": int(np.count_nonzero(a.child_count))}
+
+
 # Operators this check knows how to run, in order, with their arguments (set up by check_every_operator).
 OPERATOR_RUNS = ("bake", "preview_toggle", "materialize", "export", "view_tiles", "benchmark", "tune_psnr",
                  "preview_toggle", "clear")

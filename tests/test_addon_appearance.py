@@ -40,7 +40,7 @@ def test_extraction_carries_materials_uvs_and_colours(versioned_repo, tmp_path):
     UV and colour as the source has them (house and its mirrored linked duplicate: bevel modifier,
     corner byte colours; the instanced ball: point float colours), vertices split at UV seams and
     colour jumps only; images for the renderer top row first, float ones sRGB-encoded; a plain cube (a UV map but no material or colour) has no appearance at all; an
-    empty slot gives the default row."""
+    empty slot gives the default row; the table is sorted by name."""
     out = appearance_check(versioned_repo, "extraction", tmp_path)
     texture = out["names"]["texture"]
     all_hold(out,
@@ -57,7 +57,7 @@ def test_extraction_carries_materials_uvs_and_colours(versioned_repo, tmp_path):
                                               "float": [[188, 188, 188, 255], [255, 0, 0, 255]]},
              plain_has_no_appearance=out["plain"] == {"appearance": False, "attributes": {}, "vertices": 8,
                                                       "uv_layers": 1},
-             empty_slot_default=out["slotted"] == {"materials": ["default", "Only"], "tris_per_material": [6, 6],
+             empty_slot_default=out["slotted"] == {"materials": ["Only", "default"], "tris_per_material": [6, 6],
                                                    "uvs": True, "colors": False})
 
 
