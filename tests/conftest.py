@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import sys
 from pathlib import Path
 
@@ -98,6 +99,12 @@ def _allow_gl(originals: dict, allowed: bool) -> None:
 
 def pytest_configure(config):
     config.stash[GL_ORIGINALS] = {name: os.environ.get(name) for name in NO_EGL_VENDOR}
+    # A suite started in the background (nohup, `cmd &` in a script) inherits Ctrl-C's signal
+    # ignored, and an ignored signal stays ignored in every process it starts: the bakes the tests
+    # interrupt with SIGINT would run on to the end. The command line keeps an inherited ignore, as
+    # a program started that way should; the tests start theirs with the default.
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.hookimpl(tryfirst=True)
