@@ -383,6 +383,101 @@ def test_malformed_gltf_parts_are_named(tmp_path):
         meshes.load_mesh(_write_gltf(tmp_path / "meshopt.gltf", gltf))
 
 
+def _with_gpu_instances(gltf: dict, translations, rotations_i16, scales) -> dict:
+    """The hand-written glTF with node 0 instanced by EXT_mesh_gpu_instancing: per instance a
+    float translation, a rotation as normalized int16 (x, y, z, w) and a float scale, in a second
+    buffer (a data URI) with a byteStride on the rotations' view."""
+    t = np.asarray(translations, np.float32)
+    r = np.asarray(rotations_i16, np.int16)
+    r_padded = np.zeros((len(r), 6), np.int16)  # 12-byte stride: 8 bytes of rotation, 4 of padding
+    r_padded[:, :4] = r
+    sc = np.asarray(scales, np.float32)
+    blob = t.tobytes() + r_padded.tobytes() + sc.tobytes()
+    buffer = len(gltf["buffers"])
+    gltf["buffers"].append({"byteLength": len(blob),
+                            "uri": "data:application/octet-stream;base64," + base64.b64encode(blob).decode()})
+    first_view, first_accessor = len(gltf["bufferViews"]), len(gltf["accessors"])
+    gltf["bufferViews"] += [{"buffer": buffer, "byteOffset": 0, "byteLength": t.nbytes},
+                            {"buffer": buffer, "byteOffset": t.nbytes, "byteLength": r_padded.nbytes, "byteStride": 12},
+                            {"buffer": buffer, "byteOffset": t.nbytes + r_padded.nbytes, "byteLength": sc.nbytes}]
+    gltf["accessors"] += [{"bufferView": first_view, "componentType": 5126, "count": len(t), "type": "VEC3"},
+                          {"bufferView": first_view + 1, "componentType": 5122, "normalized": True, "count": len(r),
+                           "type": "VEC4"},
+                          {"bufferView": first_view + 2, "componentType": 5126, "count": len(sc), "type": "VEC3"}]
+    gltf["nodes"][0]["extensions"] = {"EXT_mesh_gpu_instancing": {"attributes": {
+        "TRANSLATION": first_accessor, "ROTATION": first_accessor + 1, "SCALE": first_accessor + 2}}}
+    gltf["extensionsUsed"] = ["EXT_mesh_gpu_instancing"]
+    return gltf
+
+
+@pytest.mark.parametrize("container", ["gltf", "glb"])
+def test_gpu_instances_are_placed_each(tmp_path, container, caplog):
+    """EXT_mesh_gpu_instancing: node 0's triangle once per instance, at the node's matrix times the
+    instance's T * R * S (the rotation a normalized int16 quaternion read through a byteStride),
+    with no warning; node 1 is placed once as before."""
+    quarter = round(32767 * np.sqrt(0.5))  # 90 degrees about z
+    gltf = _with_gpu_instances(_hand_gltf(), translations=[[0, 0, 0], [0, 0, 3], [5, 0, 0]],
+                               rotations_i16=[[0, 0, 0, 32767], [0, 0, quarter, quarter], [0, 0, 0, 32767]],
+                               scales=[[1, 1, 1], [1, 1, 1], [2, 2, 2]])
+    path = tmp_path / f"instanced.{container}"
+    if container == "glb":
+        gltf["buffers"] = [gltf["buffers"][0]]  # the GLB holds one buffer: move the instances into it
+        first = base64.b64decode(_hand_gltf()["buffers"][0]["uri"].split(",", 1)[1])
+        extra = base64.b64decode(_with_gpu_instances(_hand_gltf(), [[0, 0, 0], [0, 0, 3], [5, 0, 0]],
+                                                     [[0, 0, 0, 32767], [0, 0, quarter, quarter], [0, 0, 0, 32767]],
+                                                     [[1, 1, 1], [1, 1, 1], [2, 2, 2]])["buffers"][1]["uri"]
+                                 .split(",", 1)[1])
+        gltf["buffers"][0] = {"byteLength": len(first) + len(extra), "uri": "data:application/octet-stream;base64,"
+                              + base64.b64encode(first + extra).decode()}
+        for view in gltf["bufferViews"][-3:]:
+            view["buffer"], view["byteOffset"] = 0, view["byteOffset"] + len(first)
+        path.write_bytes(_glb(gltf))
+    else:
+        _write_gltf(path, gltf)
+    with caplog.at_level(logging.WARNING):
+        mesh = meshes.load_mesh(path, texture_dir=tmp_path / "textures")
+    assert mesh.tri_count == 4 and "EXT_mesh_gpu_instancing" not in caplog.text
+    triangle = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    node = np.array([10.0, 0.0, 0.0])
+    turned = triangle @ np.array([[0, 1, 0], [-1, 0, 0], [0, 0, 1]], float)  # (x, y) -> (-y, x)
+    expected = [triangle + node, turned + node + [0, 0, 3], 2 * triangle + node + [5, 0, 0]]
+    found = {tuple(sorted(map(tuple, np.round(t, 4)))) for t in mesh.positions[mesh.faces]}
+    for corners in expected:
+        assert tuple(sorted(map(tuple, np.round(_to_blender_axes(corners), 4)))) in found
+
+
+def test_gltf_extensions_are_named_never_ignored(tmp_path, caplog):
+    """An extension the file requires and the reader does not read: refused in one line naming it;
+    one it only uses: read, with one warning naming it; an appearance-only one: no warning."""
+    gltf = _hand_gltf()
+    gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["KHR_mesh_quantization", "EXT_made_up"]
+    with pytest.raises(InputError) as err:
+        meshes.load_mesh(_write_gltf(tmp_path / "required.gltf", gltf))
+    assert str(err.value).endswith("requires EXT_made_up, KHR_mesh_quantization, which this reader does not read")
+    assert "\n" not in str(err.value)
+    gltf = _hand_gltf()
+    gltf["extensionsUsed"] = ["EXT_made_up", "KHR_materials_emissive_strength"]
+    with caplog.at_level(logging.WARNING):
+        mesh = meshes.load_mesh(_write_gltf(tmp_path / "used.gltf", gltf))
+    assert mesh.tri_count == 2
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert [w for w in warnings if "EXT_made_up" in w] == [
+        f"{tmp_path / 'used.gltf'}: uses EXT_made_up, which this reader does not read; where it changes "
+        "geometry, the bake leaves that out"]
+    assert not any("KHR_materials_emissive_strength" in w for w in warnings)
+
+
+def test_malformed_gpu_instances_are_named(tmp_path):
+    """Attributes of different lengths, an accessor index outside the file: one line naming the part."""
+    gltf = _with_gpu_instances(_hand_gltf(), [[0, 0, 0], [1, 0, 0]], [[0, 0, 0, 32767]], [[1, 1, 1]])
+    with pytest.raises(InputError, match=r"EXT_mesh_gpu_instancing\.attributes give different instance counts"):
+        meshes.load_mesh(_write_gltf(tmp_path / "counts.gltf", gltf))
+    gltf = _with_gpu_instances(_hand_gltf(), [[0, 0, 0], [1, 0, 0]], [[0, 0, 0, 32767]] * 2, [[1, 1, 1]] * 2)
+    gltf["nodes"][0]["extensions"]["EXT_mesh_gpu_instancing"]["attributes"]["ROTATION"] = 99
+    with pytest.raises(InputError, match=r"EXT_mesh_gpu_instancing\.attributes\.ROTATION 99 is not one of"):
+        meshes.load_mesh(_write_gltf(tmp_path / "bad_index.gltf", gltf))
+
+
 def test_gltf_without_trimesh_is_one_clear_error_and_obj_still_reads(tmp_path):
     """trimesh is the command line's dependency: without it (as inside Blender) a glTF file is
     refused in one line, and everything else reads as before (the glTF reader is importable)."""

@@ -14,6 +14,11 @@ TRIANGLES and TRIANGLE_STRIP are read: POSITION, NORMAL, TEXCOORD_0 in Blender/O
 RGB gets alpha 1) and the material index. Every world matrix is preceded by GLTF_TO_BLENDER, glTF's
 +Y up to Blender's +Z up (why: docs/how-it-works.md#gltf-scenes-are-turned-z-up). A malformed file:
 InputError naming the file and the part at fault.
+
+Extensions: a node with EXT_mesh_gpu_instancing places its mesh once per instance (the instance's
+T * R * S, then the node's world matrix). A file that requires an extension outside READ_EXTENSIONS
+and APPEARANCE_EXTENSIONS is refused in one line naming it; one that uses such an extension
+without requiring it is read with a warning naming it (its geometry, if it has any, is left out).
 """
 from __future__ import annotations
 
@@ -29,6 +34,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..model.appearance import Material
+from .gltf_accessors import read_accessor
 from .gltf_materials import read_materials
 
 log = logging.getLogger(__name__)
@@ -46,6 +52,17 @@ TRIANGLE_MODES = (MODE_TRIANGLES, MODE_TRIANGLE_STRIP)
 FLOAT = 5126  # accessor componentType
 #: Deepest node hierarchy read (deeper is taken for a cycle).
 MAX_NODE_DEPTH = 1024
+#: Extensions that bear geometry and are read: instances (here), Draco (trimesh, with DracoPy).
+READ_EXTENSIONS = frozenset({"EXT_mesh_gpu_instancing", "KHR_draco_mesh_compression"})
+#: Extensions that change only how a surface looks: the bake's geometry is whole without them (the
+#: material's base colour and texture are read as gltf_materials.py says).
+APPEARANCE_EXTENSIONS = frozenset({
+    "KHR_materials_emissive_strength", "KHR_materials_ior", "KHR_materials_specular", "KHR_materials_clearcoat",
+    "KHR_materials_sheen", "KHR_materials_transmission", "KHR_materials_volume", "KHR_materials_iridescence",
+    "KHR_materials_anisotropy", "KHR_materials_dispersion", "KHR_materials_unlit", "KHR_materials_variants",
+    "KHR_materials_pbrSpecularGlossiness", "KHR_texture_transform", "KHR_texture_basisu", "EXT_texture_webp",
+    "EXT_texture_avif", "KHR_lights_punctual", "KHR_animation_pointer", "KHR_xmp_json_ld"})
+GPU_INSTANCING = "EXT_mesh_gpu_instancing"
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,7 +121,12 @@ def read_gltf(path: Path, *, texture_dir: Path | None) -> GltfScene:
         if not isinstance(mesh, int) or not 0 <= mesh < len(mesh_primitives):
             raise InputError(f"{path}: nodes[{node}].mesh {mesh!r} is not a mesh of the file")
         name = str(header["nodes"][node].get("name", f"node {node}"))
-        placements.extend((index, GLTF_TO_BLENDER @ world, name) for index in mesh_primitives[mesh])
+        instances = _gpu_instances(path, header, binary, node)
+        if instances is None:
+            placements.extend((index, GLTF_TO_BLENDER @ world, name) for index in mesh_primitives[mesh])
+        else:
+            placements.extend((index, GLTF_TO_BLENDER @ world @ local, f"{name} #{k}")
+                               for k, local in enumerate(instances) for index in mesh_primitives[mesh])
     if not placements:
         raise InputError(f"{path}: the default scene places no triangles")
     return GltfScene(primitives=primitives, placements=placements, materials=materials)
@@ -123,11 +145,46 @@ def _check_extensions(path: Path, header: dict) -> None:
            if isinstance(v, dict)):
         raise InputError(f"{path}: meshopt-compressed buffers (EXT_meshopt_compression) are not read; "
                          "decompress the file first")
-    used = set(header.get("extensionsUsed", []) or [])
-    for name, effect in (("KHR_texture_transform", "texture transforms are not applied"),
-                         ("EXT_mesh_gpu_instancing", "GPU instances are not expanded (each node placed once)")):
-        if name in used:
-            log.warning("%s: uses %s; %s", path, name, effect)
+    used = {str(name) for name in header.get("extensionsUsed", []) or []}
+    required = {str(name) for name in header.get("extensionsRequired", []) or []}
+    unread = sorted(name for name in required if name not in READ_EXTENSIONS and name not in APPEARANCE_EXTENSIONS)
+    if unread:
+        raise InputError(f"{path}: requires {', '.join(unread)}, which this reader does not read")
+    if "KHR_texture_transform" in used:
+        log.warning("%s: uses KHR_texture_transform; texture transforms are not applied", path)
+    unknown = sorted(name for name in used - required if name not in READ_EXTENSIONS
+                     and name not in APPEARANCE_EXTENSIONS)
+    if unknown:
+        log.warning("%s: uses %s, which this reader does not read; where it changes geometry, the bake "
+                    "leaves that out", path, ", ".join(unknown))
+
+
+def _gpu_instances(path: Path, header: dict, binary: bytes | None, node: int) -> list[np.ndarray] | None:
+    """The (4,4) local matrices T * R * S of a node's EXT_mesh_gpu_instancing instances, each
+    applied before the node's world matrix (its mesh drawn once per instance); None for a node
+    without the extension. Attributes left out default to no translation, no rotation, scale 1."""
+    extension = (header["nodes"][node].get("extensions") or {}).get(GPU_INSTANCING)
+    if extension is None:
+        return None
+    where = f"nodes[{node}].extensions.{GPU_INSTANCING}.attributes"
+    attributes = extension.get("attributes") if isinstance(extension, dict) else None
+    if not isinstance(attributes, dict) or not attributes:
+        raise InputError(f"{path}: {where} must name at least one of TRANSLATION, ROTATION and SCALE")
+    shapes = {"TRANSLATION": 3, "ROTATION": 4, "SCALE": 3}
+    values = {}
+    for key, width in shapes.items():
+        if key in attributes:
+            values[key] = read_accessor(path, header, binary, index=attributes[key], what=f"{where}.{key}")
+            if values[key].shape[1] != width:
+                raise InputError(f"{path}: {where}.{key} must be VEC{width}")
+    counts = {value.shape[0] for value in values.values()}
+    if len(counts) != 1:
+        raise InputError(f"{path}: {where} give different instance counts ({sorted(counts)})")
+    (count,) = counts
+    local = {"translation": values.get("TRANSLATION", np.zeros((count, 3))),
+             "rotation": values.get("ROTATION", np.tile([0.0, 0.0, 0.0, 1.0], (count, 1))),
+             "scale": values.get("SCALE", np.ones((count, 3)))}
+    return [_local_matrix(path, node, {key: local[key][k].tolist() for key in local}) for k in range(count)]
 
 
 def _trimesh_gltf(path: Path):

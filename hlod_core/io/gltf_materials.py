@@ -24,6 +24,7 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..model.appearance import Material
+from .gltf_accessors import buffer_view
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +90,7 @@ class _Images:
             except (binascii.Error, ValueError):
                 raise InputError(f"{path}: images[{index}] has a malformed data URI") from None
         else:
-            data = _buffer_view(path, self.header, self.binary, view=image.get("bufferView"), what=f"images[{index}]")
+            data = buffer_view(path, self.header, self.binary, view=image.get("bufferView"), what=f"images[{index}]")
         suffix = IMAGE_SUFFIXES.get(mime) or _sniff_suffix(data)
         if suffix is None:
             log.warning("%s: images[%d] (%s) is not PNG, JPEG or WebP; the material is read without it", path, index,
@@ -150,32 +151,3 @@ def _sniff_suffix(data: bytes) -> str | None:
     if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
         return ".webp"
     return None
-
-
-def _buffer_view(path: Path, header: dict, binary: bytes | None, *, view, what: str) -> bytes:
-    """The bytes of a buffer view (the GLB's BIN chunk, a data: URI or a file beside the .gltf)."""
-    views, buffers = header.get("bufferViews", []), header.get("buffers", [])
-    if not isinstance(view, int) or not 0 <= view < len(views) or not isinstance(views[view], dict):
-        raise InputError(f"{path}: {what}.bufferView {view!r} is not one of the {len(views)} buffer views")
-    v = views[view]
-    buffer, offset, length = v.get("buffer"), v.get("byteOffset", 0), v.get("byteLength")
-    if not isinstance(buffer, int) or not 0 <= buffer < len(buffers) or not isinstance(buffers[buffer], dict):
-        raise InputError(f"{path}: bufferViews[{view}].buffer {buffer!r} is not one of the {len(buffers)} buffers")
-    uri = buffers[buffer].get("uri")
-    if uri is None:
-        data = binary or b""
-    elif uri.startswith("data:"):
-        try:
-            data = base64.b64decode(uri.partition(",")[2])
-        except (binascii.Error, ValueError):
-            raise InputError(f"{path}: buffers[{buffer}] has a malformed data URI") from None
-    else:
-        file = path.parent / unquote(uri)
-        try:
-            data = file.read_bytes()
-        except OSError as exc:
-            raise InputError(f"{path}: buffers[{buffer}] file {file}: {exc.strerror or exc}") from None
-    if not isinstance(offset, int) or not isinstance(length, int) or offset < 0 or length < 0 \
-            or offset + length > len(data):
-        raise InputError(f"{path}: bufferViews[{view}] lies outside its buffer of {len(data)} bytes")
-    return data[offset:offset + length]
