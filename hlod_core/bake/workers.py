@@ -23,6 +23,9 @@ import numpy as np
 from ..core.signals import stop_signals_held
 from . import tasks
 
+#: How long a stopped pool waits for each killed worker to be gone (seconds; a kill takes milliseconds).
+STOP_JOIN_SECONDS = 5.0
+
 
 def init_worker() -> None:
     """A worker process's initializer. Ctrl-C in a terminal (and a hangup) reaches the whole
@@ -105,7 +108,32 @@ def open_workers(jobs: int, *, scheduler=None, scratch_dir: str | os.PathLike | 
             stack.callback(executor.shutdown, wait=True, cancel_futures=True)
             for _ in range(jobs):
                 executor.submit(warm_up)
-            yield Workers(executor, jobs, scratch)
+            try:
+                yield Workers(executor, jobs, scratch)
+            except BaseException:
+                stop_pool(executor)
+                raise
+
+
+def stop_pool(executor: cf.ProcessPoolExecutor) -> None:
+    """A pool the bake leaves by an exception (a cancel, a stop signal, a failed task): its
+    workers killed, and the pool's result pipe closed on this side, so that its shutdown cannot
+    hang. A worker killed while it wrote a result (a cancel stops the whole process group) leaves
+    half a message in that pipe; the executor's manager thread then waits for the rest forever,
+    since this process holds the pipe's write end too, and `shutdown(wait=True)` with it. Closing
+    that end gives the reader end of file: the pool counts as broken and shuts down. Reaches into
+    the executor's `_processes` and `_result_queue` (CPython 3.11 to 3.13)."""
+    processes = list((getattr(executor, "_processes", None) or {}).values())
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError):
+            process.kill()
+    for process in processes:
+        with contextlib.suppress(OSError, ValueError, AssertionError):
+            process.join(STOP_JOIN_SECONDS)
+    writer = getattr(getattr(executor, "_result_queue", None), "_writer", None)
+    if writer is not None:
+        with contextlib.suppress(OSError):
+            writer.close()
 
 
 @contextlib.contextmanager
