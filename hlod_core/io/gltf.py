@@ -25,7 +25,6 @@ from __future__ import annotations
 import importlib.util
 import json
 import logging
-import math
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -181,10 +180,9 @@ def _gpu_instances(path: Path, header: dict, binary: bytes | None, node: int) ->
     if len(counts) != 1:
         raise InputError(f"{path}: {where} give different instance counts ({sorted(counts)})")
     (count,) = counts
-    local = {"translation": values.get("TRANSLATION", np.zeros((count, 3))),
-             "rotation": values.get("ROTATION", np.tile([0.0, 0.0, 0.0, 1.0], (count, 1))),
-             "scale": values.get("SCALE", np.ones((count, 3)))}
-    return [_local_matrix(path, node, {key: local[key][k].tolist() for key in local}) for k in range(count)]
+    return list(_trs_matrices(values.get("TRANSLATION", np.zeros((count, 3))),
+                              values.get("ROTATION", np.tile([0.0, 0.0, 0.0, 1.0], (count, 1))),
+                              values.get("SCALE", np.ones((count, 3))), where=f"{path}: {where}.ROTATION"))
 
 
 def _trimesh_gltf(path: Path):
@@ -368,16 +366,24 @@ def _local_matrix(path: Path, index: int, node: dict) -> np.ndarray:
     if "matrix" in node:
         return numbers("matrix", 16, None).reshape(4, 4).T
     t = numbers("translation", 3, (0.0, 0.0, 0.0))
-    x, y, z, w = numbers("rotation", 4, (0.0, 0.0, 0.0, 1.0))
+    q = numbers("rotation", 4, (0.0, 0.0, 0.0, 1.0))
     s = numbers("scale", 3, (1.0, 1.0, 1.0))
-    norm = math.sqrt(x * x + y * y + z * z + w * w)
-    if norm == 0:
-        raise InputError(f"{path}: nodes[{index}].rotation is a zero quaternion")
-    x, y, z, w = x / norm, y / norm, z / norm, w / norm
-    rotation = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                         [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-    m = np.eye(4)
-    m[:3, :3] = rotation * s  # R @ diag(s)
-    m[:3, 3] = t
+    return _trs_matrices(t[None], q[None], s[None], where=f"{path}: nodes[{index}].rotation")[0]
+
+
+def _trs_matrices(t: np.ndarray, q: np.ndarray, s: np.ndarray, *, where: str) -> np.ndarray:
+    """(k,4,4) matrices T * R * S of k translations (k,3), rotations (k,4) as quaternions x, y, z,
+    w (normalised here) and scales (k,3); InputError `where` for a zero quaternion."""
+    norm = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])
+    zero = np.flatnonzero(norm == 0)
+    if zero.size:
+        raise InputError(f"{where} is a zero quaternion" + (f" (instance {zero[0]})" if q.shape[0] > 1 else ""))
+    x, y, z, w = (q[:, i] / norm for i in range(4))
+    m = np.zeros((q.shape[0], 4, 4))
+    m[:, 0, 0], m[:, 0, 1], m[:, 0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)
+    m[:, 1, 0], m[:, 1, 1], m[:, 1, 2] = 2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)
+    m[:, 2, 0], m[:, 2, 1], m[:, 2, 2] = 2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)
+    m[:, :3, :3] *= s[:, None, :]  # R @ diag(s)
+    m[:, :3, 3] = t
+    m[:, 3, 3] = 1.0
     return m
