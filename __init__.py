@@ -20,7 +20,8 @@ hides the objects the bake took, and no way out may leave them hidden):
 - save_pre / save_post: show the hidden sources for the write, hide them again after it;
 - undo_post / redo_post: hide the running preview's sources again (or restore a leftover record),
   and recount the sources changed since the bake;
-- depsgraph_update_post / frame_change_post: recount the changed sources from the update.
+- depsgraph_update_post / frame_change_post: recount the changed sources from the update, and
+  (on a timer) what a bake of the Source setting would take.
 """
 _registered = False
 
@@ -68,8 +69,9 @@ def _on_undo_redo(*_args) -> None:
 
 
 def _on_depsgraph_update(scene, depsgraph=None, *_args) -> None:
-    from .addon import preview, source_record
+    from .addon import bake_plan, preview, source_record
 
+    bake_plan.schedule()  # the Bake section's count of what a bake would take
     if depsgraph is not None and source_record.on_depsgraph_update(scene, depsgraph):
         preview.redraw()  # the panel and the corner text show the new count
 
@@ -103,7 +105,7 @@ def unregister() -> None:
         return
     import bpy
 
-    from .addon import cli, preview, properties
+    from .addon import bake_plan, cli, preview, properties
 
     preview.shutdown()  # stops the preview (the hidden sources are shown) and frees the private context too
     cli.unregister()
@@ -111,6 +113,7 @@ def unregister() -> None:
         handlers = getattr(bpy.app.handlers, event)
         if handler in handlers:
             handlers.remove(handler)
+    bake_plan.clear()
     properties.unregister()
     for cls in reversed(_classes()):
         bpy.utils.unregister_class(cls)

@@ -4,6 +4,7 @@ with `bpy.utils.register_cli_command`, and the same code through the bpy module
 
     hlod bake [FILE.blend ...] [--collection NAME | --objects A,B] -o OUT [--format hlod 3dtiles]
               [--target-tris 2000] [--max-depth 12] [--quality-threshold 0.3] [--error exact|bound] [--jobs N] [--no-cache]
+              [--include-hidden]
     hlod export IN.hlod --format 3dtiles|hlod -o DIR
     hlod view DIR [--port N] [--no-browser] [--cesium CESIUM_DIR]
 
@@ -14,9 +15,12 @@ for that file. The bake keeps its cache (hlod_core/bake/cache.py) in OUT.hlod.ca
 .hlod, so a re-bake redoes only what changed; --no-cache bakes from scratch and keeps none.
 `bake` without .blend files bakes the open file into OUT (a .hlod path); with files, OUT is a
 folder and each file FILE.blend gives OUT/FILE.hlod and, with `--format 3dtiles`, OUT/FILE_3dtiles/.
-A file that fails is reported and the others go on. The last stdout line is a JSON summary
-({"files": [{"blend", "ok", "outputs" | "error"}], "failed": N}); the exit status is 1 if any
-failed, 2 for bad arguments.
+By default a bake takes what the view layer shows (the objects named, or every object of the
+scene); --include-hidden takes objects hidden in the viewport too. What it leaves out (hidden
+objects, kinds without triangles: addon/scene_objects.py) is named in one stderr line per file.
+A file that fails is one stderr line naming it and the reason (never a traceback) and the others
+go on. The last stdout line is a JSON summary ({"files": [{"blend", "ok", "outputs", "skipped" |
+"error"}], "failed": N}); the exit status is 1 if any failed, 2 for bad arguments.
 `view` is the core's `view` command (hlod_core.export.viewer.serve_until_stopped, imported only by
 this command): the first line it prints is the page's URL (http://localhost:N/), for scripts; it
 serves until Ctrl-C or SIGTERM, then exits 0. A folder without tileset.json, CesiumJS not found or
@@ -39,6 +43,7 @@ from ..hlod_core.export.formats import export_hlod
 from ..hlod_core.io import hlod_file
 from . import scene_mesh
 from .bake_job import BakeJob
+from .scene_objects import HIDDEN, Skipped
 
 _cli_command = None  # the handle of the registered command
 
@@ -69,6 +74,8 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--jobs", type=int, default=0, metavar="N",
                    help="worker processes of the bake (default 0: all cores but one)")
     b.add_argument("--no-cache", action="store_true", help="bake from scratch and keep no cache beside the output")
+    b.add_argument("--include-hidden", action="store_true",
+                   help="bake objects hidden in the viewport too (default: what the view layer shows)")
     e = sub.add_parser("export", help="export a baked .hlod")
     e.add_argument("file", metavar="IN.hlod")
     e.add_argument("--format", choices=["3dtiles", "hlod"], required=True)
@@ -150,11 +157,12 @@ def _print_url(url: str) -> None:
 def _bake_file(args, blend: Path) -> dict:
     try:
         if not blend.is_file():
-            raise InputError(f"{blend}: no such .blend file")
+            raise InputError("no such .blend file")
         bpy.ops.wm.open_mainfile(filepath=str(blend.resolve()), load_ui=False)
     except (HlodError, RuntimeError) as exc:
-        print(f"hlod: error: {exc}".rstrip(), file=sys.stderr)
-        return {"blend": str(blend), "ok": False, "error": str(exc).strip()}
+        message = _one_line(exc) if isinstance(exc, HlodError) else f"cannot open it: {' '.join(str(exc).split())}"
+        print(f"hlod: {blend}: {message}", file=sys.stderr)
+        return {"blend": str(blend), "ok": False, "error": message}
     out_dir = Path(args.output)
     return _bake_current(args, out_dir / f"{blend.stem}.hlod", out_dir / f"{blend.stem}_3dtiles")
 
@@ -168,7 +176,9 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         if args.jobs < 0:
             raise InputError(f"--jobs {args.jobs}: give 0 (all cores but one) or a number of worker processes")
         objects = _objects(args)
-        mesh = scene_mesh.evaluated_mesh(bpy.context, objects)
+        skipped = Skipped()  # a bake with nothing to take names what it skipped in its error
+        mesh = scene_mesh.evaluated_mesh(bpy.context, objects, skipped=skipped, include_hidden=args.include_hidden)
+        _print_skipped(blend, skipped)
         settings = bake_settings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=args.jobs,
                                  quality_threshold=args.quality_threshold, error=args.error)
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -181,12 +191,27 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         if "3dtiles" in args.format:
             tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
             outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir, stem=target.stem)["output"]
-    except (HlodError, OSError) as exc:
-        print(f"hlod: {blend}: {exc}", file=sys.stderr)
-        return {"blend": blend, "ok": False, "error": str(exc)}
+    except Exception as exc:  # noqa: BLE001 - one line per failed file, and the batch goes on
+        message = _one_line(exc)
+        print(f"hlod: {blend}: {message}", file=sys.stderr)
+        return {"blend": blend, "ok": False, "error": message}
     return {"blend": blend, "ok": True, "outputs": outputs, "nodes": job.result.node_count,
             "input_tris": job.result.input_tris, "jobs": job.result.jobs, "cache": job.result.cache,
-            "seconds": time.perf_counter() - started}
+            "skipped": skipped.as_dict(), "seconds": time.perf_counter() - started}
+
+
+def _one_line(exc: BaseException) -> str:
+    """An error as one line: the core's typed errors and OS errors as their message, anything else
+    with its type's name (a bug or a Blender error, still never a traceback in a batch)."""
+    text = " ".join(str(exc).split())
+    return text if isinstance(exc, (HlodError, OSError)) else f"{type(exc).__name__}: {text}"
+
+
+def _print_skipped(blend: str, skipped: Skipped) -> None:
+    """What the bake of `blend` left out, one line on stderr (none when nothing)."""
+    if skipped:
+        hint = " (--include-hidden bakes hidden objects)" if skipped.kinds.get(HIDDEN) else ""
+        print(f"hlod: {blend}: {skipped.text()}{hint}", file=sys.stderr)
 
 
 def _objects(args) -> list:
@@ -201,7 +226,7 @@ def _objects(args) -> list:
         if missing:
             raise InputError(f"--objects: no object named {', '.join(missing)} in {bpy.data.filepath or 'the file'}")
         return [bpy.data.objects[n] for n in names]
-    objects = [o for o in bpy.context.scene.objects if o.type in {"MESH", "CURVE", "SURFACE", "FONT", "META", "EMPTY"}]
+    objects = list(bpy.context.scene.objects)  # kinds without triangles are named as skipped
     if not objects:
         raise InputError(f"{bpy.data.filepath or 'the file'}: the scene has no objects to bake")
     return objects

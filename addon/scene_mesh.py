@@ -1,6 +1,7 @@
 """Blender meshes into hlod_core (docs/user-guide.md): the evaluated geometry of the chosen objects (modifiers
 applied, instances from collection instances, particles and geometry nodes realised, world
-transforms), read through the depsgraph without touching the source objects, as one
+transforms; which instances, and what is skipped and named: addon/scene_objects.py), read through
+the depsgraph without touching the source objects, as one
 `meshes.TriangleMesh` in world units, with its appearance (hlod_core/model/appearance.py):
 - per triangle, the material: loop_triangles' material_index resolved through the evaluated
   object's material slots to the material datablock; one `Material` row per datablock (keyed by
@@ -25,8 +26,7 @@ from ..hlod_core.core.errors import InputError
 from ..hlod_core.io import meshes
 from ..hlod_core.model.appearance import Material
 from .materials import DEFAULT_MATERIAL, cached_material_row
-
-_MESH_TYPES = {"MESH", "CURVE", "SURFACE", "FONT", "META"}
+from .scene_objects import NOT_FINITE, Skipped, drawn_instances, note_hidden, owner, shown_hidden
 
 
 def source_objects(context, props) -> list:
@@ -38,7 +38,9 @@ def source_objects(context, props) -> list:
         objects = list(props.collection.all_objects)
         where = f"collection {props.collection.name!r}"
     else:
-        objects = list(context.selected_objects)
+        # a timer's context (the panel's count, addon/bake_plan.py) has the view layer, not selected_objects
+        selected = context.selected_objects if hasattr(context, "selected_objects") else context.view_layer.objects.selected
+        objects = list(selected)
         where = "the selection"
     if not objects:
         raise InputError(f"Bake: {where} has no objects")
@@ -78,31 +80,52 @@ class _Part:
     slots: list
 
 
-def evaluated_mesh(context, objects, *, taken: list | None = None,
-                   attributes: dict | None = None) -> meshes.TriangleMesh:
+def evaluated_mesh(context, objects, *, taken: list | None = None, attributes: dict | None = None,
+                   skipped: Skipped | None = None, include_hidden: bool = False) -> meshes.TriangleMesh:
     """Triangles of every object in `objects` and of every instance they make, world space, with
-    their appearance (module notes). taken: if given, receives the objects of `objects` that gave
-    triangles, in `objects`' order. attributes: if given, receives the names of the UV map and the
-    colour attribute carried ({"uv_map": ..., "color_attribute": ...}, each only when carried:
-    the most used name when the objects name them differently), for the bake's meta."""
+    their appearance (module notes): each triangle Blender draws (addon/scene_objects.py).
+    taken: if given, receives the objects of `objects` that gave triangles, in `objects`' order.
+    attributes: if given, receives the names of the UV map and the colour attribute carried
+    ({"uv_map": ..., "color_attribute": ...}, each only when carried: the most used name when the
+    objects name them differently), for the bake's meta. skipped: if given, receives what was left
+    out (kinds without triangles, hidden objects, geometry that cannot be baked). include_hidden:
+    take objects hidden in the viewport too. InputError when nothing gives triangles."""
+    skipped = Skipped() if skipped is None else skipped
+    if include_hidden:
+        with shown_hidden(context) as depsgraph:
+            return _evaluated_mesh(depsgraph, objects, taken=taken, attributes=attributes, skipped=skipped)
     depsgraph = context.evaluated_depsgraph_get()
+    note_hidden(objects, depsgraph, skipped)
+    return _evaluated_mesh(depsgraph, objects, taken=taken, attributes=attributes, skipped=skipped)
+
+
+def _evaluated_mesh(depsgraph, objects, *, taken: list | None, attributes: dict | None,
+                    skipped: Skipped) -> meshes.TriangleMesh:
     wanted = {o.name_full for o in objects}
-    with_materials = any(slot.material is not None for inst in _instances(depsgraph, wanted)
+    with_materials = any(slot.material is not None for inst in drawn_instances(depsgraph, wanted)
                          for slot in inst.object.material_slots)
     rows: dict[str, Material] = {}  # material name_full -> its row, made once per datablock
     keyed, owners, uv_names, colour_names = [], set(), Counter(), Counter()
-    for inst in _instances(depsgraph, wanted):
-        owner = _owner(inst)
-        label = f"{owner.name}" + (f" (instance of {inst.object.original.name})" if inst.is_instance else "")
-        part = _read_instance(inst, depsgraph, label, rows=rows, uv_names=uv_names if with_materials else None,
-                              colour_names=colour_names)
-        if part is not None:
-            keyed.append((_instance_key(inst, owner), part))
-            owners.add(owner.name_full)
+    for inst in drawn_instances(depsgraph, wanted, skipped):
+        chosen = owner(inst)
+        label = f"{chosen.name}" + (f" (instance of {inst.object.original.name})" if inst.is_instance else "")
+        try:
+            part = _read_instance(inst, depsgraph, label, rows=rows, uv_names=uv_names if with_materials else None,
+                                  colour_names=colour_names)
+        except RuntimeError as exc:  # Blender could not give the object's mesh
+            raise InputError(f"Bake: object {chosen.name!r}: Blender gives no mesh for it: {exc}") from exc
+        if part is None:
+            continue
+        if not np.isfinite(part.positions).all():
+            skipped.add(NOT_FINITE, chosen.name)
+            continue
+        keyed.append((_instance_key(inst, chosen), part))
+        owners.add(chosen.name_full)
     keyed.sort(key=lambda item: item[0])
     parts = [part for _, part in keyed]
     if not parts:
-        raise InputError("Bake: the chosen objects have no triangles (meshes, curves or text with faces)")
+        left_out = f" ({skipped.text()})" if skipped else ""
+        raise InputError(f"Bake: the chosen objects have no triangles (meshes, curves or text with faces){left_out}")
     if taken is not None:
         taken.extend(o for o in objects if o.name_full in owners)
     part_meshes = [_part_mesh(part) for part in parts]
@@ -135,19 +158,6 @@ def _materials_by_name(mesh: meshes.TriangleMesh) -> meshes.TriangleMesh:
     new_id[order] = np.arange(len(order), dtype=np.int32)
     return dataclasses.replace(mesh, material_ids=new_id[mesh.material_ids],
                                materials=tuple(mesh.materials[i] for i in order))
-
-
-def _owner(inst):
-    """The chosen object an instance belongs to: its instancer, else itself."""
-    return inst.parent.original if inst.is_instance and inst.parent is not None else inst.object.original
-
-
-def _instances(depsgraph, wanted: set):
-    """The depsgraph's instances of the objects named in `wanted` that can have triangles (each
-    valid only until the next one is taken)."""
-    for inst in depsgraph.object_instances:
-        if inst.object.type in _MESH_TYPES and _owner(inst).name_full in wanted:
-            yield inst
 
 
 def _read_instance(inst, depsgraph, label: str, *, rows: dict, uv_names: Counter | None,

@@ -19,6 +19,7 @@ from bpy.props import BoolProperty
 from ..addon import preview, scene_mesh, source_record
 from ..addon.bake_job import BakeJob
 from ..addon.properties import stored_path
+from ..addon.scene_objects import Skipped
 from ..addon.settings import bake_settings
 from ..hlod_core.bake import cache
 from ..hlod_core.core.errors import BakeCancelled, HlodError, InputError
@@ -66,7 +67,10 @@ class HLOD_OT_bake(bpy.types.Operator):
         objects = self._recorded_objects(context) if self.recorded else scene_mesh.source_objects(context, props)
         taken: list = []
         attributes: dict = {}
-        mesh = scene_mesh.evaluated_mesh(context, objects, taken=taken, attributes=attributes)
+        skipped = Skipped()
+        mesh = scene_mesh.evaluated_mesh(context, objects, taken=taken, attributes=attributes, skipped=skipped)
+        if skipped:  # kinds without triangles, hidden objects: named once (addon/scene_objects.py)
+            self.report({"WARNING"}, f"HLOD bake: {skipped.text()}")
         rows = source_record.record(taken, context.evaluated_depsgraph_get())
         return mesh, out, bake_settings(props), rows, attributes or None
 

@@ -5,7 +5,7 @@ Draw code reads state only: the count of changed sources is kept current by the 
 (addon/source_record.py), not computed here."""
 import bpy
 
-from ..addon import bake_job, preview, source_record, viewport_text
+from ..addon import bake_job, bake_plan, preview, source_record, viewport_text
 from ..operators.view_tiles import viewer_url
 
 
@@ -54,18 +54,23 @@ class HLOD_PT_bake(_HlodSection, bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("hlod.bake", icon="MOD_DECIM")
         row.operator("hlod.clear", icon="X", text="")
-        _draw_bake_state(layout, props)
+        _draw_bake_state(layout, context, props)
         layout.prop(props, "file")
 
 
-def _draw_bake_state(layout, props) -> None:
-    """The running bake's progress (read from its child process's progress lines), else how the
-    last bake went (time, jobs, and how much of it came from the cache)."""
+def _draw_bake_state(layout, context, props) -> None:
+    """The running bake's progress (read from its child process's progress lines), else what a bake
+    would take (addon/bake_plan.py) and how the last bake went (time, jobs, and how much of it came
+    from the cache)."""
     job = bake_job.active()
     if job is not None:
         layout.progress(factor=job.percent / 100.0, type="BAR", text=job.status_line())  # Blender 4.0+
         layout.label(text="Esc cancels", icon="CANCEL")
-    elif props.last_bake:
+        return
+    plan = bake_plan.line(context.scene)
+    if plan:
+        layout.label(text=plan, icon="MESH_DATA")
+    if props.last_bake:
         layout.label(text=props.last_bake, icon="INFO")
 
 

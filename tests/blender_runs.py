@@ -114,7 +114,10 @@ def blender(repo, check: str, tmp_path, *arguments: str, timeout_s: float = 600,
     env: variables set for that process on top of this one's (read before its GPU starts).
     timeout_s guards against a hang only."""
     python, base = (repo.python, repo.base) if isinstance(repo, Installed) else (Path(sys.executable), Path(repo))
-    env = {**os.environ, **(env or {}), "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT)}
+    temp = Path(tmp_path) / "blender-temp"  # Blender's own temp folder (blender_XXXXXX), which a bpy
+    temp.mkdir(exist_ok=True)                # process that ends through os._exit leaves behind
+    env = {**os.environ, **(env or {}), "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT),
+           "TMPDIR": str(temp)}
     proc = subprocess.run([str(python), str(ROOT / "tests" / script), str(base / "repo"), check, str(tmp_path),
                            *arguments], capture_output=True, text=True, timeout=timeout_s, env=env, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-4000:]
