@@ -227,6 +227,28 @@ def check_kinds(repo, work) -> dict:
                              bpy.context.view_layer.layer_collection.children["HiddenCollection"].exclude]}
 
 
+def check_uv_maps(repo, work) -> dict:
+    """A textured quad with two UV maps, the first active in the editor, the second the active
+    render map (what Blender renders and the viewport's texture shows): the bake's UVs and the
+    meta's map name are the render map's."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blender_preview.enable_from_repo(repo)
+    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    quad = _link("Quad", _mesh("Quad", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)]))
+    material = bpy.data.materials.new("Paint")
+    quad.data.materials.append(material)
+    for name, uv in (("Edit", (0.125, 0.25)), ("Render", (0.75, 0.5))):
+        layer = quad.data.uv_layers.new(name=name)
+        for loop in layer.data:
+            loop.uv = uv
+    quad.data.uv_layers["Edit"].active = True
+    quad.data.uv_layers["Render"].active_render = True
+    attributes: dict = {}
+    mesh = scene_mesh.evaluated_mesh(bpy.context, [quad], attributes=attributes)
+    return {"uvs": np.unique(mesh.uvs, axis=0).tolist(), "attributes": attributes,
+            "active": quad.data.uv_layers.active.name}
+
+
 def check_batch(repo, work) -> dict:
     """A batch of files where some cannot bake: one stderr line each naming the file and the reason,
     no traceback, and the files after them still bake."""

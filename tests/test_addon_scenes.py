@@ -58,6 +58,14 @@ def test_every_kind_of_geometry_bakes_as_blender_draws_it(versioned_repo, tmp_pa
              and all(f"1 {kind}: {name}" in out["plan"] for kind, name in KINDS_SKIPPED))
 
 
+def test_the_active_render_uv_map_is_baked(versioned_repo, tmp_path):
+    """Of two UV maps, the bake takes the one Blender renders (active_render), not the one active in
+    the UV editor, and names it in the meta."""
+    out = scene_check(versioned_repo, "uv_maps", tmp_path)
+    all_hold(out, editor_map_active=out["active"] == "Edit", render_map_baked=out["uvs"] == [[0.75, 0.5]],
+             named=out["attributes"].get("uv_map") == "Render")
+
+
 def test_a_batch_goes_on_past_files_that_cannot_bake(versioned_repo, tmp_path):
     """Four files: not a .blend, one with only a light, a missing one, a good one: three failures,
     each one stderr line naming its file and the reason (no traceback), and the good file is baked."""
