@@ -383,18 +383,19 @@ def check_cli_jobs(repo, work) -> dict:
             "tmp_left": _leftovers(tmp)}
 
 
-def _mixed_statues() -> list:
+def _mixed_statues(detail: int = 1) -> list:
     """Sixteen statues on a 4 x 4 grid, two meshes alternating: a UV sphere with UVs and a
     material, an ico sphere with neither (mixed attribute layouts: its rows get the default
-    material and zero UVs)."""
+    material and zero UVs). detail (a power of two) multiplies the sphere's segments and rings
+    and each statue's triangles by detail^2 (1: 1,520 and 5,120 triangles)."""
     for obj in list(bpy.data.objects):
         bpy.data.objects.remove(obj)
     stone = bpy.data.materials.new("Stone")
     stone.diffuse_color = (0.6, 0.5, 0.4, 1.0)
-    bpy.ops.mesh.primitive_uv_sphere_add(segments=40, ring_count=20, radius=0.8)
+    bpy.ops.mesh.primitive_uv_sphere_add(segments=40 * detail, ring_count=20 * detail, radius=0.8)
     textured = bpy.context.active_object
     textured.data.materials.append(stone)
-    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4, radius=0.8)
+    bpy.ops.mesh.primitive_ico_sphere_add(subdivisions=4 + int(np.log2(detail)), radius=0.8)
     plain = bpy.context.active_object
     while plain.data.uv_layers:
         plain.data.uv_layers.remove(plain.data.uv_layers[0])
@@ -461,6 +462,36 @@ def check_cache_mixed_scene(repo, work) -> dict:
             "order_after": order_after, "relinked_arrays_differ": relinked_differ,
             "moved_arrays_differ": arrays_differ(out_path, fresh_path),
             "materials": [m.name for m in a.materials], "inner_nodes": int(np.count_nonzero(a.child_count))}
+
+
+def check_mixed_rebake_speed(repo, work, detail: str = "4", jobs: str = "2") -> dict:
+    """Benchmark (benchmarks/bench_blender_mixed_rebake.py): `_mixed_statues(detail)` through the
+    background command with the cache: a full bake, a re-bake after moving an interior statue by
+    0.05 (the scene's box unchanged), and a bake of the moved scene from scratch, wall seconds of
+    each (cli.execute: gathering the mesh in Blender, the child's bake, the write)."""
+    blender_preview.enable_from_repo(repo)
+    _private_tmp(work)
+    cli = importlib.import_module(NAME + ".addon.cli")
+    fileformat = importlib.import_module(NAME + ".hlod_core.io.hlod_file")
+    statues = _mixed_statues(int(detail))
+    out_path, fresh_path = Path(work) / "statues.hlod", Path(work) / "fresh.hlod"
+
+    def bake(path: Path, *extra: str) -> tuple[float, dict]:
+        started = time.perf_counter()
+        with contextlib.redirect_stdout(io.StringIO()) as stdout:
+            cli.execute(["bake", "--jobs", jobs, *extra, "-o", str(path)])
+        return time.perf_counter() - started, json.loads(stdout.getvalue().strip().splitlines()[-1])["files"][0]
+
+    full_s, full = bake(out_path)
+    statues[5].location.x += 0.05
+    bpy.context.view_layer.update()
+    moved_s, moved = bake(out_path)
+    fresh_s, fresh = bake(fresh_path, "--no-cache")
+    a, b = fileformat.load(out_path), fileformat.load(fresh_path)
+    names = ("parent", "child_count", "box_min", "box_max", "error", "positions", "indices", "uvs", "tri_material")
+    return {"tris": full.get("input_tris"), "full_s": full_s, "moved_s": moved_s, "fresh_s": fresh_s,
+            "cache": moved.get("cache"), "identical": all(np.array_equal(getattr(a, n), getattr(b, n)) for n in names),
+            "load_1min": os.getloadavg()[0]}
 
 
 # Operators this check knows how to run, in order, with their arguments (set up by check_every_operator).
