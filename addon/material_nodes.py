@@ -357,13 +357,19 @@ def _invert(node, socket, groups) -> _Value:
 
 
 def _rgb_curves(node, socket, groups) -> _Value:
-    mapping = node.mapping
-    mapping.initialize()
-    x = np.linspace(0.0, 1.0, CURVE_TABLE_SIZE)
-    combined = [mapping.evaluate(mapping.curves[3], float(t)) for t in x]
-    tables = np.array([[mapping.evaluate(mapping.curves[c], v) for v in combined] for c in range(3)], np.float32)
+    mapping, tables = node.mapping, []
+
+    def table() -> np.ndarray:  # made when the function is first evaluated, not when the tree is read
+        if not tables:
+            mapping.initialize()
+            x = np.linspace(0.0, 1.0, CURVE_TABLE_SIZE)
+            combined = [mapping.evaluate(mapping.curves[3], float(t)) for t in x]
+            tables.append(np.array([[mapping.evaluate(mapping.curves[c], v) for v in combined] for c in range(3)],
+                                   np.float32))
+        return tables[0]
+
     fac, colour = _inputs(node, groups, "Fac", "Color")
-    return _combine(lambda f, c: cm.curves(c, tables, f), fac, colour)
+    return _combine(lambda f, c: cm.curves(c, table(), f), fac, colour)
 
 
 #: The Math node's operations on numbers (a, b, c) this reader evaluates.

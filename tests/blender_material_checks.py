@@ -15,6 +15,7 @@ up at the same UVs (through the UV transform it carries) and compared as PSNR in
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import math
@@ -142,6 +143,19 @@ def build_case(case: str, image):
         _, a, b, out = _mix(nodes, "OVERLAY", 0.6)
         a.default_value, b.default_value = (0.2, 0.5, 0.7, 1.0), (0.9, 0.2, 0.3, 1.0)
         links.new(out, base)
+    elif case == "unlit":  # as the glTF importer builds KHR_materials_unlit: camera rays see the emission
+        nodes.remove(principled)
+        emission, transparent = nodes.new("ShaderNodeEmission"), nodes.new("ShaderNodeBsdfTransparent")
+        light_path, mix = nodes.new("ShaderNodeLightPath"), nodes.new("ShaderNodeMixShader")
+        _, a, b, out = _mix(nodes, "MULTIPLY", 1.0)
+        links.new(tex.outputs["Color"], a)
+        b.default_value = (0.5, 0.9, 0.7, 1.0)
+        links.new(out, emission.inputs["Color"])
+        links.new(light_path.outputs["Is Camera Ray"], mix.inputs["Fac"])
+        links.new(transparent.outputs[0], mix.inputs[1])
+        links.new(emission.outputs[0], mix.inputs[2])
+        output = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
+        links.new(mix.outputs[0], output.inputs["Surface"])
     elif case == "noise":  # a procedural texture: not read
         noise = nodes.new("ShaderNodeTexNoise")
         _, a, b, out = _mix(nodes, "MULTIPLY", 1.0)
@@ -197,10 +211,10 @@ def cycles_base_colour(obj) -> np.ndarray:
     scene.cycles.device, scene.cycles.samples = "CPU", BAKE_SAMPLES
     material = obj.material_slots[0].material
     nodes, links = material.node_tree.nodes, material.node_tree.links
-    principled = next(n for n in nodes if n.type == "BSDF_PRINCIPLED")
+    shader = next((n for n in nodes if n.type == "BSDF_PRINCIPLED"), None)
+    base = shader.inputs["Base Color"] if shader is not None else next(n for n in nodes if n.type == "EMISSION").inputs[0]
     output = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
     emission = nodes.new("ShaderNodeEmission")
-    base = principled.inputs["Base Color"]
     if base.is_linked:
         links.new(base.links[0].from_socket, emission.inputs["Color"])
     else:
@@ -269,7 +283,7 @@ def psnr_db(a: np.ndarray, b: np.ndarray) -> float:
 
 CASES = ("direct", "mix_multiply", "mix_screen", "mix_overlay", "mix_soft_light", "mix_hue", "mixrgb_mix",
          "mixrgb_dodge", "mixrgb_linear_light", "hue_saturation", "gamma", "bright_contrast", "invert", "curves",
-         "mapping", "uv_map", "group", "constant", "noise")
+         "mapping", "uv_map", "group", "constant", "unlit", "noise")
 
 
 def check_node_trees(repo, work) -> dict:
@@ -295,6 +309,89 @@ def check_node_trees(repo, work) -> dict:
         out[case] = {"psnr_db": psnr_db(ours, reference), "grey_psnr_db": psnr_db(grey, reference),
                      "texture": row.texture is not None, "unreadable": bool(reading and reading.unreadable),
                      "uv_map": source.uv_map if source is not None else None}
+    return out
+
+
+def _alpha_material(name: str, image, *, clip: bool):
+    """Image colour into Base Color, its alpha into Alpha (through Greater Than 0.5 when `clip`)."""
+    material, nodes, links, principled = _material(name)
+    tex = _image_node(nodes, image)
+    links.new(tex.outputs["Color"], principled.inputs["Base Color"])
+    alpha = tex.outputs["Alpha"]
+    if clip:
+        step = nodes.new("ShaderNodeMath")
+        step.operation = "GREATER_THAN"
+        step.inputs[1].default_value = 0.5
+        links.new(alpha, step.inputs[0])
+        alpha = step.outputs[0]
+    links.new(alpha, principled.inputs["Alpha"])
+    return material
+
+
+def _attribute_plane(tint):
+    """A plane with two colour attributes (the active one "Other", and "Tint" that its material's
+    Color Attribute node reads, multiplied by `tint`)."""
+    material, nodes, links, principled = _material("painted")
+    attribute = nodes.new("ShaderNodeVertexColor")
+    attribute.layer_name = "Tint"
+    _, a, b, out = _mix(nodes, "MULTIPLY", 1.0)
+    links.new(attribute.outputs["Color"], a)
+    b.default_value = tint
+    links.new(out, principled.inputs["Base Color"])
+    obj = _plane("painted", material)
+    mesh = obj.data
+    tint_values = np.array([[1, 0, 0, 1], [0, 1, 0, 1], [0, 0, 1, 1], [1, 1, 1, 1]], np.float32)
+    for name, values in (("Tint", tint_values), ("Other", np.full((4, 4), 0.5, np.float32))):
+        layer = mesh.color_attributes.new(name, "FLOAT_COLOR", "POINT")
+        layer.data.foreach_set("color", values.ravel())
+    mesh.color_attributes.active_color = mesh.color_attributes["Other"]
+    return obj, tint_values
+
+
+def check_scene_reading(repo, work) -> dict:
+    """Through the bake's reading of the scene (scene_mesh.evaluated_mesh): the UV map and UV
+    transform a material's image is looked up through, applied to its triangles' UVs; a colour
+    attribute named by a Color Attribute node becoming the vertex colours through the colour nodes;
+    the alpha mode of a clipped and of a blended image alpha; the written textures placed beside
+    the output."""
+    blender_preview.enable_from_repo(repo)
+    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    materials = importlib.import_module(NAME + ".addon.materials")
+    material_texture = importlib.import_module(NAME + ".addon.material_texture")
+    bpy.ops.wm.read_homefile(use_empty=True)
+    image = _source_image()
+    out = {}
+    for case in ("mapping", "uv_map"):
+        obj = build_case(case, image)
+        mesh = scene_mesh.evaluated_mesh(bpy.context, [obj])
+        source = importlib.import_module(NAME + ".addon.material_nodes").read_base_colour(
+            obj.material_slots[0].material).source
+        corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)  # the plane's UVMap, per vertex
+        if source.uv_map == "Flipped":
+            corners = corners[:, ::-1]
+        affine = np.array(source.uv_affine)
+        expected = corners @ affine[:, :2].T + affine[:, 2]
+        got = mesh.uvs[np.argsort(mesh.positions[:, 0] * 2 + mesh.positions[:, 1])]  # vertices (0,0),(0,1),(1,0),(1,1)
+        want = expected[[0, 3, 1, 2]]
+        out[case] = {"uv_error": float(np.abs(got - want).max()), "identity": bool(np.allclose(affine, np.eye(3)[:2]))}
+        bpy.data.objects.remove(obj)
+    tint = (0.5, 0.25, 1.0, 1.0)
+    obj, tint_values = _attribute_plane(tint)
+    mesh = scene_mesh.evaluated_mesh(bpy.context, [obj])
+    order = np.argsort(mesh.positions[:, 0] * 2 + mesh.positions[:, 1])  # (0,0),(0,1),(1,0),(1,1)
+    want = tint_values[[0, 3, 1, 2]] * np.array([*tint[:3], 1.0], np.float32)
+    out["attribute"] = {"colour_error": float(np.abs(mesh.colors[order] - want).max()),
+                        "base_color": list(mesh.materials[0].base_color)}
+    alpha_image = bpy.data.images.new("alpha", SIDE_PX, SIDE_PX, alpha=True)
+    ramp = np.ones((SIDE_PX, SIDE_PX, 4), np.float32)
+    ramp[..., 3] = np.linspace(0.0, 1.0, SIDE_PX)[None, :]
+    alpha_image.pixels.foreach_set(ramp.ravel())
+    rows = {clip: materials.material_row(_alpha_material(f"alpha {clip}", alpha_image, clip=clip))
+            for clip in (True, False)}
+    out["alpha_modes"] = {"clip": rows[True].alpha_mode, "blend": rows[False].alpha_mode}
+    placed = material_texture.place_textures(dataclasses.replace(mesh, materials=(rows[True], rows[False])),
+                                             Path(work) / "out.hlod")
+    out["placed"] = sorted(str(Path(m.texture).relative_to(Path(work).resolve())) for m in placed.materials)
     return out
 
 
