@@ -309,7 +309,37 @@ def check_node_trees(repo, work) -> dict:
         out[case] = {"psnr_db": psnr_db(ours, reference), "grey_psnr_db": psnr_db(grey, reference),
                      "texture": row.texture is not None, "unreadable": bool(reading and reading.unreadable),
                      "uv_map": source.uv_map if source is not None else None}
+        if case == "mapping":
+            bpy.data.objects.remove(obj)
+            obj = _gltf_round_trip(image, Path(work))
+            material = obj.material_slots[0].material
+            row, source = materials.material_row(material), material_nodes.read_base_colour(material).source
+            ours = reader_base_colour(row, np.array(source.uv_affine, np.float64), False)
+            reference = cycles_base_colour(obj)
+            out["gltf_import"] = {"psnr_db": psnr_db(ours, reference), "grey_psnr_db": psnr_db(grey, reference),
+                                  "texture": row.texture is not None, "unreadable": False, "uv_map": source.uv_map,
+                                  "nodes": sorted({n.type for n in material.node_tree.nodes})}
     return out
+
+
+def _gltf_round_trip(image, work: Path):
+    """A plane whose image is tinted (Multiply by a colour) and transformed (Mapping), written by
+    Blender's glTF exporter (baseColorFactor, KHR_texture_transform) and read back by its importer,
+    which builds its own nodes (Mix, Mapping, UV Map)."""
+    obj = build_case("mix_multiply", image)
+    material = obj.material_slots[0].material
+    mix = next(n for n in material.node_tree.nodes if n.type == "MIX")
+    next(s for s in mix.inputs if s.identifier == "Factor_Float").default_value = 1.0  # a glTF factor
+    _mapping(material.node_tree.nodes, material.node_tree.links,
+             next(n for n in material.node_tree.nodes if n.type == "TEX_IMAGE"))
+    bpy.ops.object.select_all(action="DESELECT")
+    obj.select_set(True)
+    path = work / "tinted.glb"
+    bpy.ops.export_scene.gltf(filepath=str(path), use_selection=True)
+    bpy.data.objects.remove(obj)
+    before = set(bpy.context.scene.objects)
+    bpy.ops.import_scene.gltf(filepath=str(path))
+    return next(o for o in bpy.context.scene.objects if o not in before and o.type == "MESH")
 
 
 def _alpha_material(name: str, image, *, clip: bool):
