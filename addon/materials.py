@@ -3,7 +3,8 @@ a row from a material's Principled BSDF (or its viewport values), and a material
 (the source's datablock by name where it exists, else a new Principled material).
 
 Data form: a Material row holds linear RGBA base colour, metallic, roughness, the base-colour
-texture's file (`texture`, for files on disk) and image datablock name (`image`).
+texture's file (`texture`) and the image datablock name the preview draws (`image`), and glTF's
+alpha mode.
 """
 from __future__ import annotations
 
@@ -14,6 +15,8 @@ import bpy
 import numpy as np
 
 from ..hlod_core.model.appearance import DEFAULT_BASE_COLOR, Material
+from .material_nodes import read_base_colour, surface_shader
+from .material_texture import base_colour_texture
 
 log = logging.getLogger(__name__)
 
@@ -34,24 +37,37 @@ def cached_material_row(material, rows: dict) -> Material:
 
 
 def material_row(material) -> Material:
-    """Base colour (linear RGBA), metallic, roughness and base-colour texture of a material: the
-    Principled BSDF's inputs when the material uses nodes, its viewport values otherwise. An Image
-    Texture node linked directly into Base Color gives `image` (the datablock's name, which the
-    preview draws) and `texture` (its file, for files on disk; None for packed or generated images)
-    and a white base colour (Blender ignores the socket's own value then)."""
+    """Base colour (linear RGBA), metallic, roughness, base-colour texture and alpha mode of a
+    material: its node tree's surface as the viewport draws it (material_nodes) when the material
+    uses nodes, its viewport values otherwise. An image used as it is (a file on disk, sRGB, no
+    colour node on the way) gives its own file; an image processed by colour nodes, packed or
+    generated gives a PNG of the processed pixels (material_texture.base_colour_texture). Either way
+    `image` names what the preview draws and the base colour is white."""
     base, metallic, roughness = tuple(material.diffuse_color), material.metallic, material.roughness
     texture = image = None
+    alpha_mode, alpha_cutoff = "OPAQUE", 0.5
     principled = principled_node(material)
     if principled is not None:
-        base_in = principled.inputs["Base Color"]
-        base = tuple(base_in.default_value)
+        base = tuple(principled.inputs["Base Color"].default_value)
         metallic, roughness = principled.inputs["Metallic"].default_value, principled.inputs["Roughness"].default_value
-        source = base_in.links[0].from_node if base_in.is_linked else None
-        if source is not None and source.type == "TEX_IMAGE" and source.image is not None:
-            base, image, texture = (1.0, 1.0, 1.0, 1.0), source.image.name, _image_file(source.image, material)
+    reading = read_base_colour(material) if _uses_nodes(material) else None
+    if reading is not None and reading.unreadable:
+        log.warning("HLOD bake: material %r: its base colour cannot be read from its nodes (%s); baked with the "
+                    "Base Color value", material.name_full, reading.unreadable)
+    elif reading is not None and reading.source is None:
+        base = reading.constant
+        alpha_mode = "OPAQUE" if base[3] >= 1.0 else "BLEND"
+    elif reading is not None and reading.source.kind == "image":
+        found = base_colour_texture(material, reading)
+        if found is not None:
+            base, (texture, image, alpha_mode, alpha_cutoff) = (1.0, 1.0, 1.0, 1.0), found
+    elif reading is not None:  # a colour attribute: the vertex colours carry it (scene_mesh)
+        base = (1.0, 1.0, 1.0, 1.0)
+    if reading is not None and reading.emissive:
+        metallic, roughness = 0.0, 1.0
     return Material(name=material.name_full, base_color=tuple(float(np.clip(c, 0.0, 1.0)) for c in base),
                     metallic=float(np.clip(metallic, 0.0, 1.0)), roughness=float(np.clip(roughness, 0.0, 1.0)),
-                    texture=texture, image=image)
+                    texture=texture, image=image, alpha_mode=alpha_mode, alpha_cutoff=float(alpha_cutoff))
 
 
 def _uses_nodes(material) -> bool:
@@ -60,29 +76,14 @@ def _uses_nodes(material) -> bool:
 
 
 def principled_node(material):
-    """The Principled BSDF feeding the active output's Surface, else the tree's first one, else None."""
+    """The Principled BSDF the active output's Surface draws (through Mix/Add Shader nodes), else the
+    tree's first one, else None."""
     if not _uses_nodes(material):
         return None
-    output = material.node_tree.get_output_node("ALL")
-    surface = output.inputs["Surface"] if output is not None else None
-    if surface is not None and surface.is_linked and surface.links[0].from_node.type == "BSDF_PRINCIPLED":
-        return surface.links[0].from_node
+    node, emissive = surface_shader(material)
+    if node is not None and not emissive:
+        return node
     return next((node for node in material.node_tree.nodes if node.type == "BSDF_PRINCIPLED"), None)
-
-
-def _image_file(image, material) -> str | None:
-    """The image's file on disk, absolute; None (with a warning) when it has none there."""
-    if image.source == "FILE" and image.packed_file is None:
-        path = os.path.normpath(bpy.path.abspath(image.filepath, library=image.library))
-        if os.path.isfile(path):
-            return path
-        why = f"its file {path} does not exist"
-    else:
-        why = ("it is packed into the .blend" if image.packed_file is not None
-               else f"it is a {image.source.lower()} image")
-    log.warning("HLOD bake: material %r: image %r has no file on disk (%s); the preview draws it, the "
-                ".hlod file refers to no texture for it", material.name_full, image.name, why)
-    return None
 
 
 def material_from_row(row: Material):

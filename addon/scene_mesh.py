@@ -8,8 +8,9 @@ the depsgraph without touching the source objects, as one
   name_full, shared by every object and instance using it; addon/materials.py), the default row
   for an empty slot;
 - per corner, the active render UV map and the active colour attribute (POINT or CORNER domain,
-  linear `.color`). Vertices are split where their corners' values differ: one vertex per distinct
-  (vertex, uv, colour) (`split_corners`).
+  linear `.color`), or for a material's triangles the UV map, UV transform and colour attribute its
+  nodes read (addon/material_attributes.py). Vertices are split where their corners' values
+  differ: one vertex per distinct (vertex, uv, colour) (`split_corners`).
 A selection with no material has no UVs either (nothing it draws uses them); one with no material,
 UV map or colour attribute gives a mesh without appearance. The way out, Blender objects for a set
 of nodes, is addon/materialize.py.
@@ -25,6 +26,7 @@ import numpy as np
 from ..hlod_core.core.errors import InputError
 from ..hlod_core.io import meshes
 from ..hlod_core.model.appearance import Material
+from .material_attributes import material_corners
 from .materials import DEFAULT_MATERIAL, cached_material_row
 from .scene_objects import NOT_FINITE, Skipped, drawn_instances, note_hidden, owner, shown_hidden
 
@@ -180,6 +182,9 @@ def _read_instance(inst, depsgraph, label: str, *, rows: dict, uv_names: Counter
             slot = _get(mesh.loop_triangles, "material_index", dtype=np.int64, width=1).ravel()
             tri_slot = np.clip(slot, 0, len(slots) - 1)
         corner_uvs, colors, domain = _corner_attributes(mesh, uv_names=uv_names, colour_names=colour_names)
+        corner_uvs, colors, domain = material_corners(mesh, [s.material for s in obj.material_slots],
+                                                      tri_slot=tri_slot, corner_uvs=corner_uvs, colors=colors,
+                                                      domain=domain)
     finally:
         obj.to_mesh_clear()
     matrix = np.array(inst.matrix_world, np.float64)

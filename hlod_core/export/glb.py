@@ -190,8 +190,13 @@ def _material(material: Material, document: dict, images: dict[str, TileImage] |
     image = None if images is None or material.texture is None else images.get(material.texture)
     if image is not None:
         pbr["baseColorTexture"] = {"index": _texture(image, document)}
+    row = {"name": material.name, "pbrMetallicRoughness": pbr}
+    if material.alpha_mode != "OPAQUE":
+        row["alphaMode"] = material.alpha_mode
+        if material.alpha_mode == "MASK":
+            row["alphaCutoff"] = float(material.alpha_cutoff)
     rows = document.setdefault("materials", [])
-    rows.append({"name": material.name, "pbrMetallicRoughness": pbr})
+    rows.append(row)
     return len(rows) - 1
 
 

@@ -4,7 +4,8 @@ Data form:
 - `Material`: one row of the material table (glTF's pbrMetallicRoughness subset): name, linear
   RGBA base colour factor, metallic and roughness factors, the base-colour texture as an image
   file path (`texture`, absolute in memory; relative to the .hlod file where it can be in a file)
-  and, for a bake from Blender, the name of the image datablock (`image`) the preview draws there.
+  and, for a bake from Blender, the name of the image datablock (`image`) the preview draws there;
+  glTF's alpha mode ("OPAQUE", "MASK": alpha below `alpha_cutoff` is not drawn, "BLEND").
 - Per vertex, optional: `uvs` (v,2) float32 in Blender's and OpenGL's convention (origin at the
   image's bottom-left, v up; glTF's v is 1 - v), `colors` (v,4) float32 linear RGBA in [0, 1].
 - Per triangle, optional: a material id (row of the material table).
@@ -32,6 +33,9 @@ MAX_MATERIALS = 65535
 #: Base colour of a triangle whose source has no material (Blender's default material).
 DEFAULT_BASE_COLOR = (0.8, 0.8, 0.8, 1.0)
 
+#: glTF's alpha modes (material.alphaMode).
+ALPHA_MODES = ("OPAQUE", "MASK", "BLEND")
+
 #: Base colour drawn for an HLOD without a material table (glTF's default material), so vertex
 #: colours show as they are.
 NO_MATERIAL_BASE_COLOR = (1.0, 1.0, 1.0, 1.0)
@@ -47,6 +51,8 @@ class Material:
     roughness: float = 0.5
     texture: str | None = None
     image: str | None = None
+    alpha_mode: str = "OPAQUE"
+    alpha_cutoff: float = 0.5
 
     def to_json(self, *, relative_to: str | os.PathLike | None = None) -> dict:
         """A JSON object; `texture` relative to the folder `relative_to` when it is below it or
@@ -58,9 +64,12 @@ class Material:
             except ValueError:  # another drive (Windows)
                 pass
             texture = texture.replace(os.sep, "/")
-        return {"name": self.name, "base_color": [float(c) for c in self.base_color],
-                "metallic": float(self.metallic), "roughness": float(self.roughness),
-                "texture": texture, "image": self.image}
+        out = {"name": self.name, "base_color": [float(c) for c in self.base_color],
+               "metallic": float(self.metallic), "roughness": float(self.roughness),
+               "texture": texture, "image": self.image}
+        if self.alpha_mode != "OPAQUE":  # files of opaque materials stay as they were
+            out.update(alpha_mode=self.alpha_mode, alpha_cutoff=float(self.alpha_cutoff))
+        return out
 
     @staticmethod
     def from_json(value, *, where: str, relative_to: str | os.PathLike | None = None) -> "Material":
@@ -84,8 +93,14 @@ class Material:
                 raise InputError(f"{where}.{key} must be a non-empty string or null")
         if texture is not None and relative_to is not None and not os.path.isabs(texture):
             texture = os.path.normpath(os.path.join(relative_to, texture))
+        alpha_mode, alpha_cutoff = value.get("alpha_mode", "OPAQUE"), value.get("alpha_cutoff", 0.5)
+        if alpha_mode not in ALPHA_MODES:
+            raise InputError(f"{where}.alpha_mode must be one of {', '.join(ALPHA_MODES)}")
+        if not _unit_number(alpha_cutoff):
+            raise InputError(f"{where}.alpha_cutoff must be a number in [0, 1]")
         return Material(name=name, base_color=tuple(float(c) for c in colour), metallic=float(factors["metallic"]),
-                        roughness=float(factors["roughness"]), texture=texture, image=image)
+                        roughness=float(factors["roughness"]), texture=texture, image=image, alpha_mode=alpha_mode,
+                        alpha_cutoff=float(alpha_cutoff))
 
 
 def _unit_number(value) -> bool:
