@@ -17,7 +17,6 @@ import hashlib
 import logging
 import os
 import re
-import shutil
 import tempfile
 from pathlib import Path
 
@@ -117,7 +116,7 @@ def place_textures(mesh, output: str | os.PathLike):
             k += 1
             name = f"{stem}_{k}.png"
         names.add(name.lower())
-        shutil.copyfile(material.texture, folder / name)
+        write_bytes_atomic(folder / name, Path(material.texture).read_bytes())
         moved[material.name] = str((folder / name).resolve())
     materials = tuple(dataclasses.replace(m, texture=moved[m.name]) if m.name in moved else m for m in mesh.materials)
     log.info("HLOD bake: %d base-colour textures written into %s", len(moved), folder)
