@@ -249,6 +249,37 @@ def check_uv_maps(repo, work) -> dict:
             "active": quad.data.uv_layers.active.name}
 
 
+def check_textures_beside(repo, work) -> dict:
+    """A quad whose Base Color is a generated image through a Hue/Saturation node, baked by the
+    background command with --format hlod 3dtiles: the texture is written beside the .hlod
+    (OUT.textures/), the file's material refers to it, and the tileset carries it."""
+    work = Path(work)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blender_preview.enable_from_repo(repo)
+    cli = importlib.import_module(NAME + ".addon.cli")
+    hlod_file = importlib.import_module(NAME + ".hlod_core.io.hlod_file")
+    quad = _link("Quad", _mesh("Quad", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)]))
+    quad.data.uv_layers.new(name="UVMap")
+    image = bpy.data.images.new("Grid", 16, 16)
+    image.generated_type = "COLOR_GRID"
+    material = bpy.data.materials.new("Shifted")
+    material.use_nodes = True
+    nodes, links = material.node_tree.nodes, material.node_tree.links
+    texture, hue = nodes.new("ShaderNodeTexImage"), nodes.new("ShaderNodeHueSaturation")
+    texture.image = image
+    hue.inputs["Hue"].default_value = 0.3
+    links.new(texture.outputs["Color"], hue.inputs["Color"])
+    links.new(hue.outputs["Color"], nodes["Principled BSDF"].inputs["Base Color"])
+    quad.data.materials.append(material)
+    status, summary, stderr = _cli(cli, "bake", "--format", "hlod", "3dtiles", "-o", str(work / "quad.hlod"))
+    textures = sorted(p.name for p in (work / "quad.textures").iterdir()) if (work / "quad.textures").is_dir() else []
+    baked = hlod_file.load(work / "quad.hlod") if status == 0 else None
+    tiles = work / "quad_3dtiles"
+    return {"status": status, "stderr": stderr, "textures": textures,
+            "material_texture": baked.materials[0].texture if baked is not None else None,
+            "tile_images": sorted(p.name for p in tiles.rglob("*.png")) if tiles.is_dir() else []}
+
+
 def check_batch(repo, work) -> dict:
     """A batch of files where some cannot bake: one stderr line each naming the file and the reason,
     no traceback, and the files after them still bake."""

@@ -66,6 +66,16 @@ def test_the_active_render_uv_map_is_baked(versioned_repo, tmp_path):
              named=out["attributes"].get("uv_map") == "Render")
 
 
+def test_a_texture_made_from_nodes_is_written_beside_the_hlod(versioned_repo, tmp_path):
+    """A generated image through a Hue/Saturation node (no file of its own) comes out as a PNG in
+    OUT.textures/ that the .hlod refers to, and in the 3D Tiles export."""
+    out = scene_check(versioned_repo, "textures_beside", tmp_path)
+    texture = out["material_texture"] or ""
+    all_hold(out, baked=out["status"] == 0, one_texture=len(out["textures"]) == 1,
+             referred=texture.endswith("quad.textures/" + (out["textures"] or ["?"])[0]),
+             in_tiles=len(out["tile_images"]) == 1)
+
+
 def test_a_batch_goes_on_past_files_that_cannot_bake(versioned_repo, tmp_path):
     """Four files: not a .blend, one with only a light, a missing one, a good one: three failures,
     each one stderr line naming its file and the reason (no traceback), and the good file is baked."""
