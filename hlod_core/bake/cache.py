@@ -66,7 +66,7 @@ RESULT_SUFFIX = ".hlodr"
 RESULT_MODULES = ("bake.simplify", "bake.meshlab", "bake.seams", "bake.hausdorff", "model.appearance",
                   "model.hierarchy", "core.arrays", "bake.octree", "bake.settings", "bake.prepare", "bake.sources",
                   "bake.partition", "bake.leaf_arrays", "bake.tasks", "bake.schedule", "bake.assemble", "bake.meta",
-                  "bake.pipeline", "bake.cache", "bake.cache_files")
+                  "bake.pipeline", "bake.cache", "bake.cache_files", "bake.lattice")
 #: Temporary files older than this (seconds) are a crashed writer's: prune removes them.
 _STALE_TEMP_SECONDS = 3600.0
 _CACHEDIR_TAG = (b"Signature: 8a477f597d28d172789f06886806bc55\n"
@@ -151,13 +151,16 @@ def input_key(mesh, *, max_depth: int, context: bytes) -> bytes:
     return h.digest()
 
 
-def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: bytes) -> list[bytes]:
+def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: bytes,
+              unit_length: float = 0.0) -> list[bytes]:
     """(n,) 32-byte keys, one per node (module docstring). lods: per node (positions, faces,
-    normals or None, attribute rows or None); only the leaves' are read."""
+    normals or None, attribute rows or None); only the leaves' are read; unit_length: the lattice
+    the positions are points of (lattice.py), which the decimations snap to."""
     n = layout.node_count
     keys: list[bytes] = [b""] * n
-    cells = np.zeros(n, [("origin", "<f8", 3), ("center", "<f8", 3), ("half", "<f8"), ("level", "<i8")])
-    cells["origin"], cells["center"] = origin, layout.cell_center
+    cells = np.zeros(n, [("origin", "<f8", 3), ("unit", "<f8"), ("center", "<f8", 3), ("half", "<f8"),
+                         ("level", "<i8")])
+    cells["origin"], cells["unit"], cells["center"] = origin, unit_length, layout.cell_center
     cells["half"], cells["level"] = layout.cell_half, layout.cell_level
     for node in range(n - 1, -1, -1):  # children have larger ids than their parent
         if layout.child_count[node] == 0:
@@ -225,10 +228,12 @@ class BakeCache:
         stats["reused_tris"] = int(hlod.tri_count[~hlod.is_leaf].sum())
         return hlod, derived, stats
 
-    def reuse(self, layout: OctreeLayout, lods: list, *, origin: np.ndarray) -> dict[int, tuple[NodeLod, float]]:
+    def reuse(self, layout: OctreeLayout, lods: list, *, origin: np.ndarray,
+              unit_length: float) -> dict[int, tuple[NodeLod, float]]:
         """The inner nodes whose subtree the folder holds: node -> (LOD, error). lods: per node, the
-        leaves' (positions, faces, normals, rows) (the keys hash them); origin (3,) float64."""
-        self._keys = node_keys(layout, lods, origin=origin, context=self.context)
+        leaves' (positions, faces, normals, rows) (the keys hash them); origin (3,) float64;
+        unit_length: the lattice's (lattice.py)."""
+        self._keys = node_keys(layout, lods, origin=origin, context=self.context, unit_length=unit_length)
         self._inner = np.flatnonzero(~layout.is_leaf)
         hits = {}
         for node in self._inner:

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import lattice
+
 #: Fewest triangles asked of pymeshlab. An edge collapse removes the edge's two triangles, so a
 #: closed surface decimated to 1 triangle goes from 2 to 0 and pymeshlab returns an empty mesh.
 MIN_DECIMATION_TRIS = 2
@@ -36,20 +38,25 @@ class DecimationSettings:
 
 @dataclass(frozen=True)
 class NodeFrame:
-    """The unit frame pymeshlab works in: local = (model - center) * scale, with the node's box
+    """The unit frame pymeshlab works in: local = (x - center) * scale, with the node's box
     centred on the origin and its diagonal UNIT_DIAGONAL (scale = 1 for a node of one point).
-    It makes pymeshlab's absolute thresholds scale-free, so a model baked in millimetres gives
-    the LODs of the same model in metres, scaled.
+    x is the model position, or with unit_length > 0 the canonical coordinate of a bake's stored
+    position (lattice.py), so the frame and every local coordinate are the same numbers at every
+    scale. It makes pymeshlab's absolute thresholds scale-free, so a model baked in millimetres
+    gives the LODs of the same model in metres, scaled.
     Why: docs/how-it-works.md#the-unit-frame-of-a-node"""
 
-    center: np.ndarray  # (3,) float64, model units
-    scale: float        # 1 / model units
+    center: np.ndarray        # (3,) float64, model units (canonical units with unit_length)
+    scale: float              # 1 / those units
+    unit_length: float = 0.0  # the lattice's unit, model units; 0: positions are not on it
 
     @staticmethod
-    def of(positions: np.ndarray) -> "NodeFrame":
-        """The unit frame of positions (k,3), k >= 1, finite."""
-        p = np.asarray(positions, np.float64)
-        return NodeFrame.of_box(p.min(axis=0), p.max(axis=0))
+    def of(positions: np.ndarray, *, unit_length: float = 0.0) -> "NodeFrame":
+        """The unit frame of positions (k,3), k >= 1, finite; with unit_length, stored lattice
+        positions (lattice.py) framed by their canonical coordinates."""
+        p = lattice.canonical(positions, unit_length) if unit_length > 0 else np.asarray(positions, np.float64)
+        frame = NodeFrame.of_box(p.min(axis=0), p.max(axis=0))
+        return NodeFrame(center=frame.center, scale=frame.scale, unit_length=unit_length)
 
     @staticmethod
     def of_box(lo: np.ndarray, hi: np.ndarray) -> "NodeFrame":
@@ -59,13 +66,20 @@ class NodeFrame:
 
     def to_local(self, positions: np.ndarray) -> np.ndarray:
         """(k,3) model units -> (k,3) float64 in the unit frame."""
+        if self.unit_length > 0:
+            return (lattice.canonical(positions, self.unit_length) - self.center) * self.scale
         return (np.asarray(positions, np.float64) - self.center) * self.scale
 
     def to_model(self, local_out: np.ndarray, local_in: np.ndarray, model_in: np.ndarray) -> np.ndarray:
-        """(j,3) float64 pymeshlab output -> (j,3) float32 model units. A vertex bit-identical to
-        an input `local_in` row was not moved: it gets that row's exact `model_in` (float32)
-        position, which the inverse transform would only round to."""
-        out = (np.asarray(local_out, np.float64) / self.scale + self.center).astype(np.float32)
+        """(j,3) float64 pymeshlab output -> (j,3) float32 model units (lattice points with
+        unit_length). A vertex bit-identical to an input `local_in` row was not moved: it gets
+        that row's exact `model_in` (float32) position, which the inverse transform would only
+        round to."""
+        back = np.asarray(local_out, np.float64) / self.scale + self.center
+        if self.unit_length > 0:
+            out = lattice.from_canonical(back, self.unit_length)
+        else:
+            out = back.astype(np.float32)
         if local_out.shape[0] == 0 or local_in.shape[0] == 0:
             return out
         keys_in = row_keys(local_in)

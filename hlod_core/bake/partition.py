@@ -10,8 +10,9 @@ relative to the origin, 3 corner normals float32 when the input has them), in in
 all leaves written back into one file per array, each memory-mapped once).
 
 The passes over the stream (each a chunk of at most `chunk_tris` triangles at a time):
-    scan     -> the origin (centre of the used vertices' box: pass 1), then the float32 positions
-                relative to it, the centroids' box (the root cell) and the counted triangles
+    scan     -> the origin and the lattice (the used vertices' box: pass 1), then the float32
+                positions relative to it (lattice points), the centroids' box (the root cell) and
+                the counted triangles
                 (pass 2), as prepare.prepare computes them (prepare.triangle_centroids)
     octree   -> octree.build_octree_counted: one counting pass per depth, build_octree's layout
     route    -> each chunk's triangles go to their leaf (OctantRouter.route) and are buffered; once
@@ -44,7 +45,7 @@ import numpy as np
 
 from ..core.errors import BakeCancelled, InputError
 from ..io import meshes
-from . import octree
+from . import lattice, octree
 from .prepare import triangle_centroids
 
 log = logging.getLogger(__name__)
@@ -133,11 +134,13 @@ class MeshSource:
 
 @dataclass(frozen=True)
 class Scan:
-    """What the scan passes found: origin (3,) float64 and root (octree.RootCube, origin-relative)
-    as prepare.prepare makes them; tri_count, vertex_count (every vertex of every chunk, used or not),
+    """What the scan passes found: origin (3,) float64, unit_length (the lattice's, lattice.py) and
+    root (octree.RootCube, origin-relative) as prepare.prepare makes them; tri_count, vertex_count
+    (every vertex of every chunk, used or not),
     counted_count (triangles not collapsed); with_normals: every chunk has normals."""
 
     origin: np.ndarray
+    unit_length: float
     root: octree.RootCube
     tri_count: int
     vertex_count: int
@@ -210,7 +213,7 @@ class Partition:
 
     # --- passes -----------------------------------------------------------------------------------
 
-    def _pieces(self, origin: np.ndarray, with_normals: bool = False) -> Iterator[_Piece]:
+    def _pieces(self, origin: np.ndarray, length: float, with_normals: bool = False) -> Iterator[_Piece]:
         """One pass: every chunk cut into pieces of at most chunk_tris triangles, in input order."""
         self.stats.passes += 1
         offset = 0
@@ -220,8 +223,8 @@ class Partition:
                 if self.cancel():
                     raise BakeCancelled("bake cancelled")
                 faces = chunk.faces[lo:lo + self.chunk_tris]
-                # rel = positions - origin, stored as float32 (prepare.prepare)
-                corners = (chunk.positions[faces] - origin).astype(np.float32)
+                # rel = positions - origin, stored as float32 lattice points (prepare.prepare)
+                corners = lattice.stored(chunk.positions[faces] - origin, length)
                 normals = chunk.normals[faces] if with_normals else None
                 self.stats.pieces += 1
                 self.stats.largest_piece_tris = max(self.stats.largest_piece_tris, faces.shape[0])
@@ -249,16 +252,17 @@ class Partition:
         self.stats.passes += 1
         if tris == 0:
             raise InputError(f"{self.source.name}: the mesh has no triangles")
-        origin = 0.5 * (lo + hi)
+        origin, length = 0.5 * (lo + hi), lattice.unit_length(lo, hi)
         c_lo, c_hi = np.full(3, np.inf), np.full(3, -np.inf)
         counted_count = 0
-        for piece in self._pieces(origin):
+        for piece in self._pieces(origin, length):
             if not np.all(np.isfinite(piece.corners)):
                 raise InputError(f"{piece.chunk.name}: coordinates exceed the float32 range after centring")
             centroids, counted = _centroids(piece.corners)
             c_lo, c_hi = np.minimum(c_lo, centroids.min(axis=0)), np.maximum(c_hi, centroids.max(axis=0))
             counted_count += int(counted.sum())
-        self.scan_result = Scan(origin=origin, root=octree.tight_cube(c_lo, c_hi), tri_count=tris,
+        self.scan_result = Scan(origin=origin, unit_length=length, root=octree.tight_cube(c_lo, c_hi),
+                                tri_count=tris,
                                 vertex_count=vertices, counted_count=counted_count, with_normals=with_normals)
         log.info("out-of-core scan: %d triangles, %d vertices", tris, vertices)
         return self.scan_result
@@ -269,7 +273,7 @@ class Partition:
 
         def count_pass(query: octree.OctantQuery):
             every = mine = 0
-            for piece in self._pieces(scan.origin):
+            for piece in self._pieces(scan.origin, scan.unit_length):
                 e, m = query.count(*_centroids(piece.corners))
                 every, mine = every + e, mine + m
             return every, mine
@@ -285,7 +289,7 @@ class Partition:
         dtype = record_dtype(scan.with_normals)
         buffered: dict[int, list[np.ndarray]] = {}
         count = 0
-        for piece in self._pieces(scan.origin, scan.with_normals):
+        for piece in self._pieces(scan.origin, scan.unit_length, scan.with_normals):
             centroids, _ = _centroids(piece.corners)
             leaf = router.route(centroids)
             del centroids

@@ -169,13 +169,14 @@ def _baked_nodes(source: BakeSource, settings: BakeSettings, run: _Callbacks, *,
                        made={})
         clock.lap("leaves")
         if cache is not None:
-            for node, (lod, error) in cache.reuse(layout, nodes.lods, origin=tree.origin).items():
+            for node, (lod, error) in cache.reuse(layout, nodes.lods, origin=tree.origin,
+                                                  unit_length=tree.unit_length).items():
                 nodes.made[node], nodes.hausdorff_error[node] = lod, error
                 nodes.lods[node] = (lod.positions, lod.faces, lod.normals, lod.attributes)
             clock.lap("cache")
         what = SimplifyInput(with_normals=source.with_normals,
                              row_layout=None if source.row_layout.empty else source.row_layout,
-                             leaf_folder=source.leaf_folder)
+                             leaf_folder=source.leaf_folder, unit_length=tree.unit_length)
         simplify_phase(layout, nodes.lods, hausdorff_error=nodes.hausdorff_error, made=nodes.made, settings=settings,
                        source=what, workers=workers, cancel=run.cancel, progress=run.progress)
         clock.lap("simplify")

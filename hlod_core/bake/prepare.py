@@ -3,7 +3,8 @@ file-relative float32 positions, triangle centroids and counted (not collapsed) 
 with appearance the vertices turned into attribute rows; then each leaf's triangles.
 
 Data form: positions (r,3) float32 relative to the origin (3,) float64, the centre of the used
-vertices' box; faces (f,3) int64; centroids (f,3) float64 of the float32 corners (what is stored
+vertices' box, each a point of the bake's lattice (lattice.py, unit_length: the box's longest
+extent); faces (f,3) int64; centroids (f,3) float64 of the float32 corners (what is stored
 is what is split); counted (f,) bool. The streamed input (partition.py) computes the same floats
 piece by piece with `triangle_centroids`.
 """
@@ -18,6 +19,7 @@ from ..core.arrays import compact
 from ..core.errors import InputError
 from ..io.meshes import TriangleMesh
 from ..model import appearance
+from . import lattice
 from .octree import OctreeLayout, RootCube, tight_cube
 from .simplify import collapsed_corners
 
@@ -26,13 +28,15 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True, eq=False)
 class Prepared:
-    """root_cell (octree.RootCube, model units, origin-relative) and origin (3,) f64; positions
+    """root_cell (octree.RootCube, model units, origin-relative) and origin (3,) f64; unit_length
+    (model units) of the lattice the positions are points of (lattice.py); positions
     (r,3) f32 relative to the origin, faces (f,3) int64, normals (r,3) f32 or None and attribute
     rows (r,A) f32 or None (with appearance the rows of appearance.pack, else the vertices);
     row_layout: the rows' columns (empty without); centroids (f,3) f64 origin-relative (None once
     the octree is built); counted (f,) bool (not simplify.collapsed)."""
 
     origin: np.ndarray
+    unit_length: float
     root_cell: RootCube
     positions: np.ndarray
     faces: np.ndarray
@@ -55,8 +59,9 @@ def triangle_centroids(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.
 
 
 def prepare(mesh: TriangleMesh) -> Prepared:
-    """The origin (centre of the used vertices' box); float32 positions relative to it; triangle
-    centroids of the float32 positions; with appearance, the vertices become attribute rows
+    """The origin (centre of the used vertices' box); float32 positions relative to it, points of
+    the lattice of the box's longest extent (lattice.py); triangle centroids of those positions;
+    with appearance, the vertices become attribute rows
     (`pack_rows`). InputError for a mesh without triangles or with non-finite coordinates."""
     if mesh.tri_count == 0:
         raise InputError(f"{mesh.name}: the mesh has no triangles")
@@ -65,11 +70,12 @@ def prepare(mesh: TriangleMesh) -> Prepared:
     p_used = mesh.positions[used]
     if not np.all(np.isfinite(p_used)):
         raise InputError(f"{mesh.name}: vertices used by faces have NaN or infinite coordinates")
-    origin = 0.5 * (p_used.min(axis=0) + p_used.max(axis=0))
+    lo, hi = p_used.min(axis=0), p_used.max(axis=0)
     del p_used
+    origin, length = 0.5 * (lo + hi), lattice.unit_length(lo, hi)
     rel = mesh.positions - origin
     rel[~used] = 0.0  # unused vertices may hold anything (even NaN); they are never stored
-    positions = rel.astype(np.float32)
+    positions = lattice.stored(rel, length)
     if not np.all(np.isfinite(positions)):
         raise InputError(f"{mesh.name}: coordinates exceed the float32 range after centring")
     faces = mesh.faces
@@ -78,7 +84,8 @@ def prepare(mesh: TriangleMesh) -> Prepared:
     normals, rows, row_layout = mesh.normals, None, appearance.AttributeLayout(False, False, False)
     if mesh.has_appearance:
         row_layout, positions, faces, normals, rows = pack_rows(mesh, positions, normals)
-    return Prepared(origin=origin, root_cell=root_cell, positions=positions, faces=faces, normals=normals, rows=rows,
+    return Prepared(origin=origin, unit_length=length, root_cell=root_cell, positions=positions, faces=faces,
+                    normals=normals, rows=rows,
                     row_layout=row_layout, centroids=centroids, counted=counted)
 
 

@@ -51,12 +51,14 @@ POLL_SECONDS = 0.25
 @dataclass(frozen=True)
 class SimplifyInput:
     """What the phase decimates: with_normals (the LODs carry normals), row_layout (the attribute
-    rows' columns; None without rows) and leaf_folder (a folder for the exact measure's leaf
-    arrays, memory-mapped: an out-of-core bake; None: in memory)."""
+    rows' columns; None without rows), leaf_folder (a folder for the exact measure's leaf
+    arrays, memory-mapped: an out-of-core bake; None: in memory) and unit_length (the lattice the
+    positions are points of, lattice.py; 0: none)."""
 
     with_normals: bool
     row_layout: AttributeLayout | None
     leaf_folder: str | os.PathLike | None = None
+    unit_length: float = 0.0
 
 
 def simplify_phase(layout: OctreeLayout, lods: list, *, hausdorff_error: np.ndarray, made: dict,
@@ -183,7 +185,8 @@ class _Scheduler:
         if kind == TASK_DECIMATE:
             children = [(lods[k][0], lods[k][1], lods[k][3]) for k in kids]
             return self.workers.submit(order, simplify.decimate_node, children, self.decimation,
-                                       with_normals=self.source.with_normals, layout=self.source.row_layout)
+                                       with_normals=self.source.with_normals, layout=self.source.row_layout,
+                                       unit_length=self.source.unit_length)
         if self.bound:
             return self.workers.submit(order, hausdorff.measure_to_children, (lods[node][0], lods[node][1]),
                                        [(lods[k][0], lods[k][1]) for k in kids])

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.arrays import distinct_corners, segment_ranges
+from .lattice import unique_by_first
 from .meshlab import DecimationSettings, quadric_collapse, row_keys
 
 
@@ -33,10 +34,9 @@ def decimate_across_uv_seams(positions: np.ndarray, local: np.ndarray, rows: np.
         material_bytes = np.ascontiguousarray(rows[:, material]).view(np.uint8).reshape(-1, 4)
         keyed = np.concatenate([keyed, material_bytes], axis=1)
     key = np.ascontiguousarray(keyed).view(np.dtype((np.void, keyed.shape[1]))).ravel()
-    _, first, coarse_of = np.unique(key, return_index=True, return_inverse=True)
+    first, coarse_of = unique_by_first(key)
     if first.shape[0] == local.shape[0]:
         return None  # no UV seam: the same mesh as the one that kept them
-    coarse_of = coarse_of.reshape(-1)
     coarse_faces = coarse_of[faces]
     coarse_faces = coarse_faces[distinct_corners(coarse_faces)].astype(np.int32)
     coarse_ids = np.arange(first.shape[0], dtype=np.float64)

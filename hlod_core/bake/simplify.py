@@ -25,6 +25,7 @@ import numpy as np
 
 from ..core.arrays import compact, concat_indexed, distinct_corners
 from ..model.appearance import AttributeLayout
+from .lattice import unique_by_first
 from .meshlab import DecimationSettings, NodeFrame, mesh_set, quadric_collapse, row_keys, unit_normals
 from .seams import decimate_across_uv_seams, row_sources
 
@@ -63,10 +64,11 @@ class NodeLod:
 
 
 def weld(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Merge vertices with bit-identical float32 positions; drop triangles that collapse."""
+    """Merge vertices with bit-identical float32 positions, numbered in order of first appearance
+    (lattice.unique_by_first); drop triangles that collapse."""
     key = np.ascontiguousarray(positions, dtype=np.float32).view(np.dtype((np.void, 12))).ravel()
-    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    welded = inverse.reshape(-1)[faces]
+    first, inverse = unique_by_first(key)
+    welded = inverse[faces]
     return positions[first], welded[distinct_corners(welded)].astype(np.int32)
 
 
@@ -74,7 +76,8 @@ def weld_rows(positions: np.ndarray, rows: np.ndarray, faces: np.ndarray, *,
               key_columns: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`weld` for vertices with attribute rows (k,A) float32: merge vertices whose float32 position
     AND first `key_columns` row columns (all by default) are bit-identical; the other columns of a
-    merged vertex are the mean of its vertices'. Drops triangles that collapse. Returns
+    merged vertex are the mean of its vertices'; numbered in order of first appearance. Drops
+    triangles that collapse. Returns
     (positions, rows (float32), faces int32)."""
     p = np.ascontiguousarray(positions, dtype=np.float32)
     r = np.ascontiguousarray(rows, dtype=np.float32)
@@ -82,8 +85,7 @@ def weld_rows(positions: np.ndarray, rows: np.ndarray, faces: np.ndarray, *,
     both = np.concatenate([p.view(np.uint8).reshape(-1, 12),
                            np.ascontiguousarray(r[:, :keyed]).view(np.uint8).reshape(p.shape[0], -1)], axis=1)
     key = np.ascontiguousarray(both).view(np.dtype((np.void, 4 * (3 + keyed)))).ravel()
-    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    first, inverse = unique_by_first(key)
     welded_rows = r[first]
     if keyed < r.shape[1]:
         members = np.bincount(inverse, minlength=first.shape[0]).astype(np.float64)
@@ -106,20 +108,23 @@ def collapsed_corners(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray
 
 
 def decimate_node(child_lods: list[tuple], settings: DecimationSettings, *, with_normals: bool,
-                  layout: AttributeLayout | None = None) -> NodeLod:
+                  layout: AttributeLayout | None = None, unit_length: float = 0.0) -> NodeLod:
     """child_lods: [(positions f32, faces)] or [(positions f32, faces, attribute rows (k,A) f32 or
     None)] of the children, all with rows or all without; layout: the rows' columns (None: every
-    column is kept exact, as a UV). The node's error is `measure`'s job: it needs the original
+    column is kept exact, as a UV); unit_length: the bake's lattice unit (lattice.py; the children's
+    positions are its points and so is the LOD's every vertex), 0 for positions off any lattice.
+    The node's error is `measure`'s job: it needs the original
     triangles, the decimation does not, so the two run as separate tasks."""
     rows = _child_rows(child_lods)
     if rows is not None:
-        return _decimate_with_rows(child_lods, rows, settings, with_normals=with_normals, layout=layout)
+        return _decimate_with_rows(child_lods, rows, settings, with_normals=with_normals, layout=layout,
+                                   unit_length=unit_length)
     positions, faces = concat_indexed((child[0], child[1]) for child in child_lods)
     positions, faces = weld(positions, faces)
 
     welded_tris = int(faces.shape[0])
     decimated = welded_tris > settings.target_tris
-    frame = NodeFrame.of(positions)
+    frame = NodeFrame.of(positions, unit_length=unit_length)
     local = frame.to_local(positions)
     if not decimated:
         ms = mesh_set(local, faces)
@@ -167,7 +172,7 @@ def _evenly_spaced(count: int, wanted: int) -> np.ndarray:
 
 
 def _decimate_with_rows(child_lods: list[tuple], rows: np.ndarray, settings: DecimationSettings, *,
-                        with_normals: bool, layout: AttributeLayout | None) -> NodeLod:
+                        with_normals: bool, layout: AttributeLayout | None, unit_length: float) -> NodeLod:
     """decimate_node for children with attribute rows (module docstring): weld by (position,
     material, UV), colours averaged, collapse with vertices kept in place, and give every LOD
     vertex the row of the input vertex it sits on. pymeshlab carries each input vertex's id
@@ -179,7 +184,7 @@ def _decimate_with_rows(child_lods: list[tuple], rows: np.ndarray, settings: Dec
                                        key_columns=columns["color"].start if "color" in columns else None)
     welded_tris = int(faces.shape[0])
     decimated = welded_tris > settings.target_tris
-    frame = NodeFrame.of(positions)
+    frame = NodeFrame.of(positions, unit_length=unit_length)
     local = frame.to_local(positions)
     ids = np.arange(local.shape[0], dtype=np.float64)  # exact: far fewer than 2**53 vertices
     if decimated:

@@ -34,11 +34,13 @@ NO_ROWS = AttributeLayout(False, False, False)
 @dataclass(frozen=True, eq=False)
 class SourceOctree:
     """A source's octree: layout, origin (3,) float64 (model units; positions are stored relative
-    to it), counted_per_node (n,) int64 (each node's triangles that are not collapsed) and
+    to it), unit_length (model units: the stored positions are points of its lattice, lattice.py),
+    counted_per_node (n,) int64 (each node's triangles that are not collapsed) and
     collapsed_tris (the input's collapsed triangles)."""
 
     layout: OctreeLayout
     origin: np.ndarray
+    unit_length: float
     counted_per_node: np.ndarray
     collapsed_tris: int
 
@@ -96,7 +98,7 @@ class InMemorySource:
                               counted=prepared.counted, root=prepared.root_cell)
         self._prepared = replace(prepared, centroids=None)  # only the octree reads them: 24 bytes a triangle
         clock.lap("octree")
-        return SourceOctree(layout=layout, origin=prepared.origin,
+        return SourceOctree(layout=layout, origin=prepared.origin, unit_length=prepared.unit_length,
                             counted_per_node=counted_per_node(layout, prepared.counted),
                             collapsed_tris=int((~prepared.counted).sum()))
 
@@ -132,7 +134,8 @@ class StreamedSource:
         tree = self.partition.build_octree(target_tris=settings.target_tris, max_depth=settings.max_depth)
         clock.lap("octree")
         scan = self.partition.scan_result
-        return SourceOctree(layout=tree.layout, origin=scan.origin, counted_per_node=tree.counted,
+        return SourceOctree(layout=tree.layout, origin=scan.origin, unit_length=scan.unit_length,
+                            counted_per_node=tree.counted,
                             collapsed_tris=scan.tri_count - scan.counted_count)
 
     def leaf_lods(self, layout: OctreeLayout, clock: PhaseClock) -> list[tuple | None]:
