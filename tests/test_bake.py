@@ -6,7 +6,7 @@ import threading
 import numpy as np
 import pytest
 
-from hlod_core.bake import checks, hausdorff, meshlab, simplify
+from hlod_core.bake import checks, hausdorff, lattice, meshlab, simplify
 from hlod_core.core import arrays
 from hlod_core.io import meshes
 from hlod_core.bake.pipeline import bake
@@ -28,7 +28,9 @@ def _leaf_triangles(hlod) -> np.ndarray:
 
 
 def _input_triangles(mesh, origin) -> np.ndarray:
-    rel = (mesh.positions - origin).astype(np.float32).astype(np.float64) + origin  # what is stored
+    used = mesh.positions[np.unique(mesh.faces)]
+    length = lattice.unit_length(used.min(axis=0), used.max(axis=0))
+    rel = lattice.stored(mesh.positions - origin, length).astype(np.float64) + origin  # what is stored
     world = rel[mesh.faces.ravel()].reshape(-1, 9)
     return world[np.lexsort(world.T[::-1])]
 
@@ -121,12 +123,15 @@ def test_all_vertices_at_one_point_give_one_finite_unsplittable_leaf():
 
 
 def test_unsplittable_leaf_over_budget_is_counted():
-    # 300 distinct triangles (a, b, -(a+b)) on integer coordinates: every centroid is exactly 0, so
-    # the cell cannot be split, but they are real triangles and count toward the budget.
+    # 300 distinct triangles (a, b, -(a+b)) on integer coordinates and their mirror images (-a, -b,
+    # a+b), with one more pair reaching x = +-64: the box is centred on 0 with a longest extent of
+    # 128, so every stored position is the integer itself (lattice.py) and every centroid is exactly
+    # 0: the cell cannot be split, but they are real triangles and count toward the budget.
     i, j = np.meshgrid(np.arange(1, 21), np.arange(1, 16), indexing="ij")
     a = np.stack([i.ravel(), j.ravel(), np.ones(i.size)], 1)
     b = np.stack([j.ravel(), -i.ravel(), np.full(i.size, 2.0)], 1)
-    p = np.stack([a, b, -(a + b)], 1).reshape(-1, 3)
+    half = np.concatenate([np.stack([a, b, -(a + b)], 1), [[[64, 0, 0], [-32, 1, 0], [-32, -1, 0]]]])
+    p = np.concatenate([half, -half]).reshape(-1, 3)
     hlod = bake(meshes.from_arrays(p, np.arange(p.shape[0]).reshape(-1, 3), name="fan"), BakeSettings(target_tris=100))
     assert hlod.node_count == 1
     report = checks.check(hlod)
