@@ -136,8 +136,9 @@ def check_bake(repo, work) -> dict:
     props.target_tris = 400
     out["result"] = sorted(bpy.ops.hlod.bake())
     hlod = hlod_file.load(bpy.path.abspath(props.file))
+    leaves = hlod.child_count == 0  # the leaves hold the input's triangles: their boxes span its extent
     out.update(file=props.file, nodes=hlod.node_count, input_tris=int(hlod.meta["input_tris"]),
-               box_min=hlod.box_min[0].tolist(), box_max=hlod.box_max[0].tolist())
+               box_min=hlod.box_min[leaves].min(axis=0).tolist(), box_max=hlod.box_max[leaves].max(axis=0).tolist())
     out["sources_untouched"] = before == {o.name: (len(o.data.vertices) if o.type == "MESH" else None, len(o.modifiers))
                                           for o in made}
     bpy.ops.object.select_all(action="DESELECT")

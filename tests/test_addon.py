@@ -119,8 +119,8 @@ def test_bake_operator_on_modifiers_and_instances(versioned_repo, tmp_path):
              baked=out["result"] == ["FINISHED"] and Path(out["file"]).is_file(),
              # evaluated geometry: subdivision and array modifiers applied, collection instances realised
              evaluated_triangles=out["input_tris"] == out["expected_tris"],
-             evaluated_extent=out["box_min"][0] == pytest.approx(-9.5, abs=0.02)
-             and out["box_max"][0] == pytest.approx(8.5, abs=0.02),
+             evaluated_extent=out["box_min"][0] == pytest.approx(-9.5, abs=1e-5)
+             and out["box_max"][0] == pytest.approx(8.5, abs=1e-5),
              sources_untouched=out["sources_untouched"],
              empty_selection_refused="the selection has no objects" in out["empty_selection_error"],
              materialized=out["materialize"] == ["FINISHED"] and out["materialized_objects"] > 1,

@@ -28,9 +28,7 @@ def _leaf_triangles(hlod) -> np.ndarray:
 
 
 def _input_triangles(mesh, origin) -> np.ndarray:
-    used = mesh.positions[np.unique(mesh.faces)]
-    length = lattice.unit_length(used.min(axis=0), used.max(axis=0))
-    rel = lattice.stored(mesh.positions - origin, length).astype(np.float64) + origin  # what is stored
+    rel = lattice.stored_input(mesh.positions, mesh.faces, origin).astype(np.float64) + origin  # what is stored
     world = rel[mesh.faces.ravel()].reshape(-1, 9)
     return world[np.lexsort(world.T[::-1])]
 

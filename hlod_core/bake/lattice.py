@@ -42,6 +42,13 @@ def stored(relative: np.ndarray, length: float) -> np.ndarray:
     return (snap(np.asarray(relative, np.float64) / length) * length).astype(np.float32)
 
 
+def stored_input(positions: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """A mesh's positions (v,3) float64 world as a bake of it stores them: relative to its `origin`
+    (3,), on the lattice of the box of the vertices its faces (f,3) use (float32 (v,3))."""
+    used = np.asarray(positions, np.float64)[np.unique(faces)]
+    return stored(np.asarray(positions, np.float64) - origin, unit_length(used.min(axis=0), used.max(axis=0)))
+
+
 def canonical(positions: np.ndarray, length: float) -> np.ndarray:
     """Stored float32 positions (..., 3) -> their canonical coordinates u (float64, exact)."""
     return snap(np.asarray(positions, np.float64) / length)
