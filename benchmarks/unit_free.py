@@ -20,7 +20,8 @@ from hlod_core.bake.settings import BakeSettings
 from .bake_throughput import ROOT
 
 MODELS = (("spot.obj", 200), ("cow.obj", 200), ("fandisk.obj", 500), ("rocker-arm.obj", 500),
-          ("teapot.obj", 200), ("homer.obj", 500), ("stanford-bunny.obj", 2000))
+          ("teapot.obj", 200), ("homer.obj", 500), ("stanford-bunny.obj", 2000), ("nefertiti.obj", 200),
+          ("igea.ply", 200))
 SCALES = (1e-3, 1.0, 1e3)
 JITTERED = ("spot.obj", "fandisk.obj")
 
