@@ -275,9 +275,29 @@ def check_textures_beside(repo, work) -> dict:
     textures = sorted(p.name for p in (work / "quad.textures").iterdir()) if (work / "quad.textures").is_dir() else []
     baked = hlod_file.load(work / "quad.hlod") if status == 0 else None
     tiles = work / "quad_3dtiles"
+    material_images = importlib.import_module(NAME + ".addon.material_images").material_images
+    first = material_images(baked.materials)[0] if baked is not None else None
+    hue.inputs["Hue"].default_value = 0.7  # the same material re-baked: new pixels under the same name
+    status_again = _cli(cli, "bake", "-o", str(work / "quad.hlod"))[0]
+    again = material_images(hlod_file.load(work / "quad.hlod").materials)[0]
     return {"status": status, "stderr": stderr, "textures": textures,
             "material_texture": baked.materials[0].texture if baked is not None else None,
-            "tile_images": sorted(p.name for p in tiles.rglob("*.png")) if tiles.is_dir() else []}
+            "tile_images": sorted(p.name for p in tiles.rglob("*.png")) if tiles.is_dir() else [],
+            "status_again": status_again, "preview_changed": first is not None and not np.array_equal(first, again),
+            "preview_again_equals_file": bool(np.array_equal(again, _png_rgba(work / "quad.textures" / textures[0])))
+            if textures else False}
+
+
+def _png_rgba(path: Path) -> np.ndarray:
+    """A PNG's pixels as (h, w, 4) uint8 RGBA, top row first, read by Blender."""
+    image = bpy.data.images.load(str(path), check_existing=False)
+    try:
+        w, h = image.size
+        values = np.empty(w * h * 4, np.float32)
+        image.pixels.foreach_get(values)
+        return np.round(values.reshape(h, w, 4)[::-1] * 255.0).astype(np.uint8)
+    finally:
+        bpy.data.images.remove(image)
 
 
 def check_batch(repo, work) -> dict:
