@@ -15,8 +15,10 @@ up at the same UVs (through the UV transform it carries) and compared as PSNR in
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
+import io
 import json
 import logging
 import math
@@ -494,7 +496,17 @@ def check_cycles_fallback(repo, work) -> dict:
             "base_color_psnr_db": psnr_db(reader_base_colour(unread, np.eye(3)[:2], False), reference),
             "texture": str(Path(row.texture).relative_to(Path(work).resolve())) if row.texture else None,
             "base_color": list(row.base_color), "side_px": list(bpy.data.images.load(row.texture).size)}
+    out["cli"] = _cli_bake(importlib.import_module(NAME + ".addon.cli"), Path(work))
     return out
+
+
+def _cli_bake(cli, work: Path) -> dict:
+    """The background command's bake of the open scene: its stderr lines and the textures beside
+    its output."""
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
+        status = cli.execute(["bake", "--target-tris", "64", "--max-depth", "1", "-o", str(work / "cli.hlod")])
+    return {"status": status, "stderr": err.getvalue().splitlines(),
+            "textures": sorted(p.name for p in (work / "cli.textures").glob("*.png"))}
 
 
 def _bare_plane(material):
