@@ -22,6 +22,7 @@ import io
 import json
 import logging
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -497,7 +498,33 @@ def check_cycles_fallback(repo, work) -> dict:
             "texture": str(Path(row.texture).relative_to(Path(work).resolve())) if row.texture else None,
             "base_color": list(row.base_color), "side_px": list(bpy.data.images.load(row.texture).size)}
     out["cli"] = _cli_bake(importlib.import_module(NAME + ".addon.cli"), Path(work))
+    out["operator"] = _operator_bake([*planes, bare], Path(work))
     return out
+
+
+def _operator_bake(objects, work: Path) -> dict:
+    """The Bake operator on `objects` (selected): its result, the lines Blender printed while it ran
+    (its reports among them) and the textures beside its output."""
+    props = bpy.context.scene.hlod
+    props.source, props.output_path, props.target_tris = "SELECTED", str(work / "op.hlod"), 64
+    for obj in bpy.context.view_layer.objects:
+        obj.select_set(obj in objects)
+    printed = work / "operator.txt"
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    with open(printed, "wb") as sink:
+        os.dup2(sink.fileno(), 1)
+        os.dup2(sink.fileno(), 2)
+        try:
+            result = sorted(bpy.ops.hlod.bake())
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+    return {"result": result, "printed": printed.read_text(errors="replace").splitlines(),
+            "textures": sorted(p.name for p in (work / "op.textures").glob("*.png"))}
 
 
 def _cli_bake(cli, work: Path) -> dict:

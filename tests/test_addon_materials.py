@@ -73,8 +73,8 @@ def test_unreadable_trees_baked_by_cycles(versioned_repo, tmp_path):
     mixed, through the bake's path: each baked into a 512 px texture placed in OUT.textures/ (base
     colour white) that matches Cycles' own bake of its base colour, far closer than the Base Color
     value it held before; the scene's settings, selection, datablocks and node trees as they were;
-    the materials named once in the report and in the background command's stderr line, their
-    textures beside its output; a second bake gives the same files; a material on a plane without
+    the materials named once in the Bake operator's report and in the background command's stderr
+    line, their textures beside either's output; a second bake gives the same files; a material on a plane without
     UVs keeps its Base Color with a warning naming it."""
     out = blender(versioned_repo, "cycles_fallback", tmp_path, script="blender_material_checks.py")
     print(json.dumps({case: (r["psnr_db"], r["base_color_psnr_db"]) for case, r in out["cases"].items()}),
@@ -94,7 +94,10 @@ def test_unreadable_trees_baked_by_cycles(versioned_repo, tmp_path):
              no_uv=out["no_uv"] == {"texture": None, "base_color_kept": True},
              warned=len(out["warnings"]) == 1 and "UV map" in out["warnings"][0],
              cli=out["cli"]["status"] == 0 and "hlod: (unsaved): " + out["report"] in out["cli"]["stderr"]
-             and out["cli"]["textures"] == ["noise.png", "two_images.png", "voronoi.png"])
+             and out["cli"]["textures"] == ["noise.png", "two_images.png", "voronoi.png"],
+             operator=out["operator"]["result"] == ["FINISHED"]
+             and sum(out["report"] in line for line in out["operator"]["printed"]) == 1
+             and out["operator"]["textures"] == ["noise.png", "two_images.png", "voronoi.png"])
 
 
 def test_alpha_mode_round_trips_and_reaches_gltf():
