@@ -2,15 +2,17 @@
 reader does not know: material_nodes' `unreadable`), baked by Cycles into a texture per material.
 
 For each such material, one mesh object using it is chosen (the one with the most faces in its
-slots, among those with a UV map). A temporary copy of that object (same mesh, modifiers and
-transform) gets a temporary copy of the material in that material's slots (its other slots left
-empty, so nothing else is baked); in the copy, the socket the base colour is read from (Principled
-Base Color, or an unlit surface's Emission Color) is relinked into an Emission shader, and Cycles
-bakes the EMIT pass over the object's active render UV map: the colour reaching that socket, exactly,
-without the diffuse lobe's weighting (a DIFFUSE pass with only COLOR gives the base colour times
-the Principled BSDF's diffuse weight, darker where it is metallic or specular). The artist's
-objects, materials and images are never edited; the render settings, selection and active object
-are put back, and the temporaries removed, whatever happens.
+slots, among those with a UV map). A temporary copy of that object (same mesh, modifiers, parent
+and transform) goes into a temporary scene of its own (Cycles, CPU, BAKE_SAMPLES samples, the
+current frame), with a temporary copy of the material in that material's slots (its other slots
+left empty, so nothing else is baked). In the material's copy, the socket the base colour is read
+from (Principled Base Color, or an unlit surface's Emission Color) is relinked into an Emission
+shader, and Cycles bakes the EMIT pass over the object's active render UV map: the colour reaching
+that socket, exactly. A DIFFUSE pass with only COLOR is not used: it gives the Principled BSDF's
+diffuse albedo, the base colour times the diffuse lobe's weight (darker where it is metallic,
+transmissive or under a specular layer). The bake syncs only the copy (seconds, whatever the
+scene's size); the artist's scene, its settings and selection, objects, materials and images are
+never touched, and the temporaries are removed whatever happens.
 
 The baked pixels become a written texture (material_texture.written_texture: a PNG in the scratch
 folder that place_textures moves beside the .hlod) and the material row gets it with a white base
@@ -81,7 +83,7 @@ def _baked_texture(context, material, why: str) -> str | None:
         return None
     try:
         pixels = bake_base_colour(context, obj, material)
-    except (RuntimeError, AttributeError) as exc:  # Cycles missing or the bake refused (its message)
+    except (RuntimeError, AttributeError) as exc:  # Cycles missing (no scene.cycles) or the bake refused
         log.warning("HLOD bake: material %r: its node tree cannot be read (%s) and Cycles could not bake it on "
                     "object %r: %s; baked with the Base Color value", material.name_full, why, obj.name,
                     " ".join(str(exc).split()))
@@ -112,13 +114,15 @@ def bake_object(material):
 def bake_base_colour(context, obj, material) -> np.ndarray:
     """(BAKE_SIDE_PX, BAKE_SIDE_PX, 4) float32 linear RGBA (alpha 1, bottom row first): the colour
     reaching the material's base colour socket on `obj`, baked by Cycles (EMIT) over its active render
-    UV map (module notes). RuntimeError when Cycles refuses."""
+    UV map, in a temporary scene (module notes). RuntimeError when Cycles refuses."""
     uv_map = next((layer.name for layer in obj.data.uv_layers if layer.active_render), obj.data.uv_layers[0].name)
     with contextlib.ExitStack() as undo:
-        copy, target = _bake_setup(context, obj, material, undo)
-        bpy.ops.object.bake(type="EMIT", margin=BAKE_MARGIN_PX, use_clear=True, uv_layer=uv_map,
-                            target="IMAGE_TEXTURES", save_mode="INTERNAL", use_selected_to_active=False,
-                            use_cage=False)
+        scene, copy, target = _bake_scene(context, obj, material, undo)
+        with context.temp_override(scene=scene, view_layer=scene.view_layers[0], active_object=copy, object=copy,
+                                   selected_objects=[copy], selected_editable_objects=[copy]):
+            bpy.ops.object.bake(type="EMIT", margin=BAKE_MARGIN_PX, use_clear=True, uv_layer=uv_map,
+                                target="IMAGE_TEXTURES", save_mode="INTERNAL", use_selected_to_active=False,
+                                use_cage=False)
         pixels = np.empty(BAKE_SIDE_PX * BAKE_SIDE_PX * 4, np.float32)
         target.pixels.foreach_get(pixels)
     pixels = pixels.reshape(BAKE_SIDE_PX, BAKE_SIDE_PX, 4)
@@ -126,12 +130,14 @@ def bake_base_colour(context, obj, material) -> np.ndarray:
     return pixels
 
 
-def _bake_setup(context, obj, material, undo: contextlib.ExitStack):
-    """(the temporary object, the target image): the scene set up for the bake, every change
-    registered on `undo` (removed or put back when it closes)."""
-    scene, view_layer = context.scene, context.view_layer
-    _keep(undo, scene.render, engine="CYCLES")
-    _keep(undo, scene.cycles, device="CPU", samples=BAKE_SAMPLES, use_denoising=False)
+def _bake_scene(context, obj, material, undo: contextlib.ExitStack):
+    """(a temporary scene set up for the bake, the object's copy in it, the target image); each
+    datablock made is removed when `undo` closes."""
+    scene = bpy.data.scenes.new(f"{material.name} (Cycles bake)")
+    undo.callback(bpy.data.scenes.remove, scene)
+    scene.render.engine = "CYCLES"
+    scene.cycles.device, scene.cycles.samples, scene.cycles.use_denoising = "CPU", BAKE_SAMPLES, False
+    scene.frame_current = context.scene.frame_current  # animated materials and modifiers as they are now
     target = bpy.data.images.new(f"{material.name} (Cycles bake)", BAKE_SIDE_PX, BAKE_SIDE_PX, alpha=False,
                                  float_buffer=True)
     undo.callback(bpy.data.images.remove, target)
@@ -146,13 +152,10 @@ def _bake_setup(context, obj, material, undo: contextlib.ExitStack):
         used = slot.material == material
         slot.link = "OBJECT"
         slot.material = copy_material if used else None
-    selected = [o for o in view_layer.objects if o.select_get()]
-    undo.callback(_restore_selection, view_layer, selected, view_layer.objects.active)
-    for other in selected:
-        other.select_set(False)
-    copy.select_set(True)
-    view_layer.objects.active = copy
-    return copy, target
+    layer = scene.view_layers[0]
+    copy.select_set(True, view_layer=layer)
+    layer.objects.active = copy
+    return scene, copy, target
 
 
 def _emission_surface(material, target) -> None:
@@ -177,21 +180,3 @@ def _emission_surface(material, target) -> None:
     holder = tree.nodes.new("ShaderNodeTexImage")
     holder.image = target
     tree.nodes.active = holder
-
-
-def _keep(undo: contextlib.ExitStack, owner, **values) -> None:
-    """Set owner's attributes to `values`, their old values put back when `undo` closes."""
-    old = {name: getattr(owner, name) for name in values}
-    undo.callback(_set_all, owner, old)
-    _set_all(owner, values)
-
-
-def _set_all(owner, values: dict) -> None:
-    for name, value in values.items():
-        setattr(owner, name, value)
-
-
-def _restore_selection(view_layer, selected: list, active) -> None:
-    for obj in view_layer.objects:
-        obj.select_set(obj in selected)
-    view_layer.objects.active = active

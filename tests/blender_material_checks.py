@@ -482,12 +482,13 @@ def check_cycles_fallback(repo, work) -> dict:
     again = material_bake.bake_unreadable_materials(bpy.context, mesh)[0]
     placed = material_texture.place_textures(baked_mesh, Path(work) / "out.hlod")
     rows = {row.name: row for row in placed.materials}
+    bare_row = materials.material_row(bare.active_material)
     out = {"names": names, "report": material_bake.cycles_report(names), "seconds": round(seconds, 2),
            "state_changed": sorted(k for k in before if before[k] != after[k]),
            "same_files": [m.texture for m in again.materials] == [m.texture for m in baked_mesh.materials],
            "warnings": [w for w in warned if "no_uv" in w],
            "no_uv": {"texture": rows["no_uv"].texture,
-                     "base_color_kept": rows["no_uv"].base_color == materials.material_row(bare.active_material).base_color},
+                     "base_color_kept": rows["no_uv"].base_color == bare_row.base_color},
            "cases": {}}
     for obj in planes:
         row, unread = rows[obj.name], materials.material_row(obj.material_slots[0].material)
@@ -499,7 +500,27 @@ def check_cycles_fallback(repo, work) -> dict:
             "base_color": list(row.base_color), "side_px": list(bpy.data.images.load(row.texture).size)}
     out["cli"] = _cli_bake(importlib.import_module(NAME + ".addon.cli"), Path(work))
     out["operator"] = _operator_bake([*planes, bare], Path(work))
+    out["chosen"] = _chosen_objects(material_bake, planes[0].material_slots[0].material)
     return out
+
+
+def _chosen_objects(material_bake, material) -> list:
+    """The object bake_object picks for `material` as objects using it are added: the plane alone
+    (one face), then a strip of three faces without UVs (not taken), then one with UVs of which two
+    faces use it (taken: more faces of the material than the plane)."""
+    chosen = [material_bake.bake_object(material).name]
+    for name, uvs in (("strip without UVs", False), ("strip", True)):
+        mesh = bpy.data.meshes.new(name)
+        mesh.from_pydata([(x, 5, 0) for x in range(4)] + [(x, 6, 0) for x in range(4)], [],
+                         [(0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6)])
+        if uvs:
+            mesh.uv_layers.new(name="UVMap")
+        mesh.materials.append(material)
+        mesh.materials.append(None)
+        mesh.polygons[2].material_index = 1 if uvs else 0
+        bpy.context.scene.collection.objects.link(bpy.data.objects.new(name, mesh))
+        chosen.append(material_bake.bake_object(material).name)
+    return chosen
 
 
 def _operator_bake(objects, work: Path) -> dict:
@@ -569,7 +590,7 @@ def _scene_state() -> dict:
     state["selected"] = sorted(o.name for o in layer.objects if o.select_get())
     state["active"] = layer.objects.active.name if layer.objects.active else None
     state["datablocks"] = {kind: sorted(x.name for x in getattr(bpy.data, kind))
-                           for kind in ("objects", "meshes", "materials", "images", "node_groups")}
+                           for kind in ("scenes", "objects", "meshes", "materials", "images", "node_groups")}
     state["slots"] = {o.name: [(s.link, s.material.name if s.material else None) for s in o.material_slots]
                       for o in bpy.data.objects}
     state["trees"] = {m.name: _tree(m.node_tree) for m in bpy.data.materials if m.node_tree is not None}
