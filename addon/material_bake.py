@@ -30,6 +30,7 @@ import logging
 import bpy
 import numpy as np
 
+from ..hlod_core.io import meshes
 from .material_nodes import read_base_colour, surface_shader
 from .material_texture import texture_image_name, written_texture
 
@@ -44,7 +45,7 @@ BAKE_SAMPLES = 4
 BAKE_MARGIN_PX = 8
 
 
-def bake_unreadable_materials(context, mesh) -> tuple[object, list[str]]:
+def bake_unreadable_materials(context, mesh: meshes.TriangleMesh) -> tuple[meshes.TriangleMesh, list[str]]:
     """(the mesh with each unreadable material's row given its Cycles-baked texture and a white
     base colour, the names of the materials baked so, sorted). Materials that cannot be baked
     keep their row, with a warning naming the material and why."""
@@ -81,9 +82,13 @@ def _baked_texture(context, material, why: str) -> str | None:
         log.warning("HLOD bake: material %r: its node tree cannot be read (%s) and no mesh object using it has a "
                     "UV map to bake its colour over; baked with the Base Color value", material.name_full, why)
         return None
+    if not hasattr(context.scene, "cycles"):
+        log.warning("HLOD bake: material %r: its node tree cannot be read (%s) and Cycles, which would bake it, "
+                    "is not enabled; baked with the Base Color value", material.name_full, why)
+        return None
     try:
         pixels = bake_base_colour(context, obj, material)
-    except (RuntimeError, AttributeError) as exc:  # Cycles missing (no scene.cycles) or the bake refused
+    except RuntimeError as exc:  # the bake refused (Blender's message)
         log.warning("HLOD bake: material %r: its node tree cannot be read (%s) and Cycles could not bake it on "
                     "object %r: %s; baked with the Base Color value", material.name_full, why, obj.name,
                     " ".join(str(exc).split()))

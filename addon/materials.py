@@ -54,8 +54,8 @@ def material_row(material) -> Material:
         metallic, roughness = principled.inputs["Metallic"].default_value, principled.inputs["Roughness"].default_value
     reading = read_base_colour(material) if _uses_nodes(material) else None
     if reading is not None and reading.unreadable:
-        log.info("HLOD bake: material %r: its base colour cannot be read from its nodes (%s); its row keeps the "
-                 "Base Color value until Cycles bakes it (material_bake)", material.name_full, reading.unreadable)
+        log.info("HLOD bake: material %r: its base colour cannot be read from its nodes (%s); Cycles bakes it "
+                 "where an object using it has a UV map", material.name_full, reading.unreadable)
     elif reading is not None and reading.source is None:
         base = reading.constant
         alpha_mode = "OPAQUE" if base[3] >= 1.0 else "BLEND"
