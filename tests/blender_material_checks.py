@@ -181,6 +181,13 @@ def build_case(case: str, image):
         links.new(tex.outputs["Color"], a)
         links.new(second.outputs["Color"], b)
         links.new(out, base)
+    elif case == "unlit_noise":  # an Emission-only surface coloured by a procedural texture
+        nodes.remove(tex)
+        nodes.remove(principled)
+        emission, noise = nodes.new("ShaderNodeEmission"), nodes.new("ShaderNodeTexNoise")
+        noise.inputs["Scale"].default_value = 3.0
+        links.new(noise.outputs["Color"], emission.inputs["Color"])
+        links.new(emission.outputs[0], next(n for n in nodes if n.type == "OUTPUT_MATERIAL").inputs["Surface"])
     else:
         raise ValueError(case)
     return _plane(case, material)
@@ -446,7 +453,7 @@ def check_scene_reading(repo, work) -> dict:
 
 # --- materials whose tree cannot be read, baked by Cycles (addon/material_bake.py) -----------------
 
-FALLBACK_CASES = ("noise", "voronoi", "two_images")
+FALLBACK_CASES = ("noise", "voronoi", "two_images", "unlit_noise")
 
 
 def check_cycles_fallback(repo, work) -> dict:
