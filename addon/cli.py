@@ -43,6 +43,7 @@ from ..hlod_core.export.formats import export_hlod
 from ..hlod_core.io import hlod_file
 from . import scene_mesh
 from .bake_job import BakeJob
+from .material_bake import bake_unreadable_materials, cycles_report
 from .material_texture import place_textures
 from .scene_objects import HIDDEN, Skipped
 
@@ -179,6 +180,9 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         objects = _objects(args)
         skipped = Skipped()  # a bake with nothing to take names what it skipped in its error
         mesh = scene_mesh.evaluated_mesh(bpy.context, objects, skipped=skipped, include_hidden=args.include_hidden)
+        mesh, cycles_baked = bake_unreadable_materials(bpy.context, mesh)  # node trees that cannot be read
+        if cycles_baked:
+            print(f"hlod: {blend}: {cycles_report(cycles_baked)}", file=sys.stderr)
         mesh = place_textures(mesh, target)  # textures made from node trees, packed images: beside the .hlod
         _print_skipped(blend, skipped)
         settings = bake_settings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=args.jobs,

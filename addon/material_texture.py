@@ -56,16 +56,28 @@ def base_colour_texture(material, reading) -> tuple[str, str, str, float] | None
         return None
     h, w, _ = pixels.shape
     out = reading.function(pixels.reshape(-1, 4)).reshape(h, w, 4)
+    mode, cutoff = alpha_mode(out[..., 3])
+    return written_texture(out), texture_image_name(material), mode, cutoff
+
+
+def written_texture(pixels: np.ndarray) -> str:
+    """The file of a texture of `pixels` ((h, w, 4) float32 linear RGBA, bottom row first): an RGBA
+    PNG (sRGB, alpha as it is) in the scratch folder, named by its content, written once."""
+    h, w, _ = pixels.shape
     rgba8 = np.empty((h, w, 4), np.uint8)
-    rgba8[..., :3] = np.round(srgb_from_linear(out[..., :3]) * 255.0)
-    rgba8[..., 3] = np.round(np.clip(out[..., 3], 0.0, 1.0) * 255.0)
+    rgba8[..., :3] = np.round(srgb_from_linear(pixels[..., :3]) * 255.0)
+    rgba8[..., 3] = np.round(np.clip(pixels[..., 3], 0.0, 1.0) * 255.0)
     data = png_bytes(rgba8[::-1])
     path = scratch_folder() / f"{hashlib.sha1(data).hexdigest()[:20]}.png"
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
         write_bytes_atomic(path, data)
-    mode, cutoff = alpha_mode(out[..., 3])
-    return str(path), f"{material.name_full} (base colour)", mode, cutoff
+    return str(path)
+
+
+def texture_image_name(material) -> str:
+    """The image name a written texture of `material` goes by in the preview."""
+    return f"{material.name_full} (base colour)"
 
 
 def alpha_mode(alpha: np.ndarray) -> tuple[str, float]:

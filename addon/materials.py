@@ -42,7 +42,9 @@ def material_row(material) -> Material:
     uses nodes, its viewport values otherwise. An image used as it is (a file on disk, sRGB, no
     colour node on the way) gives its own file; an image processed by colour nodes, packed or
     generated gives a PNG of the processed pixels (material_texture.base_colour_texture). Either way
-    `image` names what the preview draws and the base colour is white."""
+    `image` names what the preview draws and the base colour is white. A tree that cannot be read
+    gives the Base Color value here; the bake replaces it with Cycles' bake of the colour
+    (material_bake.bake_unreadable_materials)."""
     base, metallic, roughness = tuple(material.diffuse_color), material.metallic, material.roughness
     texture = image = None
     alpha_mode, alpha_cutoff = "OPAQUE", 0.5
@@ -52,8 +54,8 @@ def material_row(material) -> Material:
         metallic, roughness = principled.inputs["Metallic"].default_value, principled.inputs["Roughness"].default_value
     reading = read_base_colour(material) if _uses_nodes(material) else None
     if reading is not None and reading.unreadable:
-        log.warning("HLOD bake: material %r: its base colour cannot be read from its nodes (%s); baked with the "
-                    "Base Color value", material.name_full, reading.unreadable)
+        log.info("HLOD bake: material %r: its base colour cannot be read from its nodes (%s); Cycles bakes it "
+                 "where an object using it has a UV map", material.name_full, reading.unreadable)
     elif reading is not None and reading.source is None:
         base = reading.constant
         alpha_mode = "OPAQUE" if base[3] >= 1.0 else "BLEND"

@@ -18,6 +18,7 @@ from bpy.props import BoolProperty
 
 from ..addon import preview, scene_mesh, source_record
 from ..addon.bake_job import BakeJob
+from ..addon.material_bake import bake_unreadable_materials, cycles_report
 from ..addon.material_texture import place_textures
 from ..addon.properties import stored_path
 from ..addon.scene_objects import Skipped
@@ -70,6 +71,9 @@ class HLOD_OT_bake(bpy.types.Operator):
         attributes: dict = {}
         skipped = Skipped()
         mesh = scene_mesh.evaluated_mesh(context, objects, taken=taken, attributes=attributes, skipped=skipped)
+        mesh, cycles_baked = bake_unreadable_materials(context, mesh)  # node trees that cannot be read
+        if cycles_baked:
+            self.report({"INFO"}, f"HLOD bake: {cycles_report(cycles_baked)}")
         mesh = place_textures(mesh, out)  # textures made from node trees, packed images: beside the .hlod
         if skipped:  # kinds without triangles, hidden objects: named once (addon/scene_objects.py)
             self.report({"WARNING"}, f"HLOD bake: {skipped.text()}")

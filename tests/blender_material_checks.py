@@ -15,11 +15,16 @@ up at the same UVs (through the UV transform it carries) and compared as PSNR in
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
+import io
 import json
+import logging
 import math
+import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -162,6 +167,27 @@ def build_case(case: str, image):
         links.new(tex.outputs["Color"], a)
         links.new(noise.outputs["Color"], b)
         links.new(out, base)
+    elif case == "voronoi":  # a procedural texture alone, with sharp cell edges
+        nodes.remove(tex)
+        voronoi = nodes.new("ShaderNodeTexVoronoi")
+        voronoi.inputs["Scale"].default_value = 4.0
+        links.new(voronoi.outputs["Color"], base)
+    elif case == "two_images":  # two sources: the image through each UV map, mixed
+        uv = nodes.new("ShaderNodeUVMap")
+        uv.uv_map = "Flipped"
+        second = _image_node(nodes, image)
+        links.new(uv.outputs["UV"], second.inputs["Vector"])
+        _, a, b, out = _mix(nodes, "MIX", 0.5)
+        links.new(tex.outputs["Color"], a)
+        links.new(second.outputs["Color"], b)
+        links.new(out, base)
+    elif case == "unlit_noise":  # an Emission-only surface coloured by a procedural texture
+        nodes.remove(tex)
+        nodes.remove(principled)
+        emission, noise = nodes.new("ShaderNodeEmission"), nodes.new("ShaderNodeTexNoise")
+        noise.inputs["Scale"].default_value = 3.0
+        links.new(noise.outputs["Color"], emission.inputs["Color"])
+        links.new(emission.outputs[0], next(n for n in nodes if n.type == "OUTPUT_MATERIAL").inputs["Surface"])
     else:
         raise ValueError(case)
     return _plane(case, material)
@@ -423,6 +449,177 @@ def check_scene_reading(repo, work) -> dict:
                                              Path(work) / "out.hlod")
     out["placed"] = sorted(str(Path(m.texture).relative_to(Path(work).resolve())) for m in placed.materials)
     return out
+
+
+# --- materials whose tree cannot be read, baked by Cycles (addon/material_bake.py) -----------------
+
+FALLBACK_CASES = ("noise", "voronoi", "two_images", "unlit_noise")
+
+
+def check_cycles_fallback(repo, work) -> dict:
+    """Through the bake's path (scene_mesh.evaluated_mesh, material_bake.bake_unreadable_materials,
+    material_texture.place_textures): each unreadable case's baked texture looked up at the reference
+    bake's texel centres against Cycles' bake of its base colour (PSNR, dB; and the Base Color value's
+    PSNR, what the row held before); the scene's state before and after (render, Cycles and bake
+    settings, selection, active object, datablocks, node trees, the image's pixels); the names
+    returned; a material on a plane without UVs kept with its warning; a second bake's files."""
+    blender_preview.enable_from_repo(repo)
+    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    material_bake = importlib.import_module(NAME + ".addon.material_bake")
+    material_texture = importlib.import_module(NAME + ".addon.material_texture")
+    materials = importlib.import_module(NAME + ".addon.materials")
+    bpy.ops.wm.read_homefile(use_empty=True)
+    image = _source_image()
+    planes = [build_case(case, image) for case in FALLBACK_CASES]
+    for obj in planes:  # an artist's last click: an image node, which the bake must not write into
+        tree = obj.material_slots[0].material.node_tree
+        tree.nodes.active = next((n for n in tree.nodes if n.type == "TEX_IMAGE"), tree.nodes.active)
+    bare = _bare_plane(planes[0].material_slots[0].material)
+    bystander = _plane("bystander", bpy.data.materials.new("bystander"))
+    bystander.select_set(True)
+    bpy.context.view_layer.objects.active = bystander
+    bpy.context.scene.cycles.samples, bpy.context.scene.render.bake.margin = 37, 3  # not Cycles' defaults
+    warnings = _captured_warnings(NAME + ".addon")
+    before = _scene_state()
+    mesh = scene_mesh.evaluated_mesh(bpy.context, [*planes, bare])
+    started = time.perf_counter()
+    baked_mesh, names = material_bake.bake_unreadable_materials(bpy.context, mesh)
+    seconds = time.perf_counter() - started
+    after, warned = _scene_state(), list(warnings)
+    again = material_bake.bake_unreadable_materials(bpy.context, mesh)[0]
+    placed = material_texture.place_textures(baked_mesh, Path(work) / "out.hlod")
+    rows = {row.name: row for row in placed.materials}
+    bare_row = materials.material_row(bare.active_material)
+    out = {"names": names, "report": material_bake.cycles_report(names), "seconds": round(seconds, 2),
+           "state_changed": sorted(k for k in before if before[k] != after[k]),
+           "same_files": [m.texture for m in again.materials] == [m.texture for m in baked_mesh.materials],
+           "warnings": [w for w in warned if "no_uv" in w],
+           "no_uv": {"texture": rows["no_uv"].texture,
+                     "base_color_kept": rows["no_uv"].base_color == bare_row.base_color},
+           "cases": {}}
+    for obj in planes:
+        row, unread = rows[obj.name], materials.material_row(obj.material_slots[0].material)
+        reference = cycles_base_colour(obj)
+        out["cases"][obj.name] = {
+            "psnr_db": psnr_db(reader_base_colour(row, np.eye(3)[:2], False), reference),
+            "base_color_psnr_db": psnr_db(reader_base_colour(unread, np.eye(3)[:2], False), reference),
+            "texture": str(Path(row.texture).relative_to(Path(work).resolve())) if row.texture else None,
+            "base_color": list(row.base_color), "side_px": list(bpy.data.images.load(row.texture).size)}
+    out["cli"] = _cli_bake(importlib.import_module(NAME + ".addon.cli"), Path(work))
+    out["operator"] = _operator_bake([*planes, bare], Path(work))
+    out["chosen"] = _chosen_objects(material_bake, planes[0].material_slots[0].material)
+    return out
+
+
+def _chosen_objects(material_bake, material) -> list:
+    """The object bake_object picks for `material` as objects using it are added: the plane alone
+    (one face), then a strip of three faces without UVs (not taken), then one with UVs of which two
+    faces use it (taken: more faces of the material than the plane)."""
+    chosen = [material_bake.bake_object(material).name]
+    for name, uvs in (("strip without UVs", False), ("strip", True)):
+        mesh = bpy.data.meshes.new(name)
+        mesh.from_pydata([(x, 5, 0) for x in range(4)] + [(x, 6, 0) for x in range(4)], [],
+                         [(0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6)])
+        if uvs:
+            mesh.uv_layers.new(name="UVMap")
+        mesh.materials.append(material)
+        mesh.materials.append(None)
+        mesh.polygons[2].material_index = 1 if uvs else 0
+        bpy.context.scene.collection.objects.link(bpy.data.objects.new(name, mesh))
+        chosen.append(material_bake.bake_object(material).name)
+    return chosen
+
+
+def _operator_bake(objects, work: Path) -> dict:
+    """The Bake operator on `objects` (selected): its result, the lines Blender printed while it ran
+    (its reports among them) and the textures beside its output."""
+    props = bpy.context.scene.hlod
+    props.source, props.output_path, props.target_tris = "SELECTED", str(work / "op.hlod"), 64
+    for obj in bpy.context.view_layer.objects:
+        obj.select_set(obj in objects)
+    printed = work / "operator.txt"
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    with open(printed, "wb") as sink:
+        os.dup2(sink.fileno(), 1)
+        os.dup2(sink.fileno(), 2)
+        try:
+            result = sorted(bpy.ops.hlod.bake())
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+    return {"result": result, "printed": printed.read_text(errors="replace").splitlines(),
+            "textures": sorted(p.name for p in (work / "op.textures").glob("*.png"))}
+
+
+def _cli_bake(cli, work: Path) -> dict:
+    """The background command's bake of the open scene: its stderr lines and the textures beside
+    its output."""
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
+        status = cli.execute(["bake", "--target-tris", "64", "--max-depth", "1", "-o", str(work / "cli.hlod")])
+    return {"status": status, "stderr": err.getvalue().splitlines(),
+            "textures": sorted(p.name for p in (work / "cli.textures").glob("*.png"))}
+
+
+def _bare_plane(material):
+    """A plane without UV maps, with a copy (named no_uv) of `material`."""
+    mesh = bpy.data.meshes.new("no_uv")
+    mesh.from_pydata([(2, 0, 0), (3, 0, 0), (3, 1, 0), (2, 1, 0)], [], [(0, 1, 2, 3)])
+    copy = material.copy()
+    copy.name = "no_uv"
+    mesh.materials.append(copy)
+    obj = bpy.data.objects.new("no_uv", mesh)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def _captured_warnings(logger_name: str) -> list[str]:
+    """A list that receives the messages of every warning `logger_name` (and below) logs from now."""
+    messages: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            messages.append(record.getMessage())
+
+    handler = Keep(logging.WARNING)
+    logging.getLogger(logger_name).addHandler(handler)
+    return messages
+
+
+def _scene_state() -> dict:
+    """What the bake must leave as it found it, as comparable values."""
+    scene, layer = bpy.context.scene, bpy.context.view_layer
+    state = {f"{name} settings": _rna_values(owner) for name, owner in
+             (("render", scene.render), ("bake", scene.render.bake), ("cycles", scene.cycles))}
+    state["selected"] = sorted(o.name for o in layer.objects if o.select_get())
+    state["active"] = layer.objects.active.name if layer.objects.active else None
+    state["datablocks"] = {kind: sorted(x.name for x in getattr(bpy.data, kind))
+                           for kind in ("scenes", "objects", "meshes", "materials", "images", "node_groups")}
+    state["slots"] = {o.name: [(s.link, s.material.name if s.material else None) for s in o.material_slots]
+                      for o in bpy.data.objects}
+    state["trees"] = {m.name: _tree(m.node_tree) for m in bpy.data.materials if m.node_tree is not None}
+    state["pixels"] = {i.name: float(np.asarray(i.pixels[:], np.float64).sum()) for i in bpy.data.images}
+    return state
+
+
+def _rna_values(owner) -> dict:
+    return {p.identifier: repr(getattr(owner, p.identifier)) for p in owner.bl_rna.properties
+            if p.identifier != "rna_type" and p.type not in ("POINTER", "COLLECTION")}
+
+
+def _tree(tree) -> dict:
+    """A node tree's nodes (with their inputs' values), links and active node."""
+    def value(socket):
+        v = getattr(socket, "default_value", None)
+        return repr(tuple(v) if hasattr(v, "__len__") and not isinstance(v, str) else v)
+
+    return {"nodes": sorted((n.name, n.bl_idname, tuple(value(s) for s in n.inputs)) for n in tree.nodes),
+            "links": sorted((k.from_node.name, k.from_socket.identifier, k.to_node.name, k.to_socket.identifier)
+                            for k in tree.links),
+            "active": tree.nodes.active.name if tree.nodes.active else None}
 
 
 if __name__ == "__main__":

@@ -54,6 +54,55 @@ def test_scene_reading_carries_uv_maps_colour_attributes_and_alpha(versioned_rep
              placed=out["placed"] == ["out.textures/alpha_False.png", "out.textures/alpha_True.png"])
 
 
+# A material whose tree cannot be read, baked by Cycles (512 px, 4 samples per texel, 8-bit PNG)
+# and looked up bilinearly at the 32x32 reference bake's texel centres (1 sample each): PSNR in
+# sRGB (dB). Measured in bpy 4.2.23 / 5.0.1 / 5.2.3: a Noise texture times an image 53.2 / 53.2 /
+# 53.2, two images mixed 52.6 / 52.6 / 52.6, an unlit Noise 64.3 / 64.3 / 64.2 (smooth colours:
+# the PNG's rounding and the texels' box filter), a Voronoi texture 34.0 / 37.3 / 37.3 (its cells'
+# sharp edges: a reference point within a texel of an edge gets one cell's colour, the lookup a
+# blend of two). The Base Color value the rows held before gives 5.2 to 14.3 dB against the same
+# references. Limits: 7 dB below the lowest smooth measurement, 4 dB below the lowest Voronoi
+# one, both over 17 dB above the Base Color value.
+SMOOTH_PSNR_DB = 45.0
+EDGES_PSNR_DB = 30.0
+
+
+@pytest.mark.blender
+def test_unreadable_trees_baked_by_cycles(versioned_repo, tmp_path):
+    """A Noise texture times an image, a Voronoi texture alone, one image through two UV maps mixed
+    and an Emission-only surface coloured by a Noise texture, through the bake's path: each baked
+    into a 512 px texture placed in OUT.textures/ (base colour white) that matches Cycles' own bake
+    of its base colour, far closer than the Base Color value it held before; the scene's settings,
+    selection, datablocks and node trees as they were; the materials named once in the Bake
+    operator's report and in the background command's stderr line, their textures beside either's
+    output; a second bake gives the same files; a material on a plane without UVs keeps its Base
+    Color with a warning naming it; the object baked is the one with UVs and the most faces of the
+    material."""
+    out = blender(versioned_repo, "cycles_fallback", tmp_path, script="blender_material_checks.py")
+    print(json.dumps({case: (r["psnr_db"], r["base_color_psnr_db"]) for case, r in out["cases"].items()}),
+          out["seconds"])
+    cases = out["cases"]
+    textures = ["noise.png", "two_images.png", "unlit_noise.png", "voronoi.png"]
+    all_hold(out, names=out["names"] == ["noise", "two_images", "unlit_noise", "voronoi"],
+             report=out["report"] == "baked 4 materials with Cycles (their node trees cannot be read): "
+                                     "noise, two_images, unlit_noise, voronoi",
+             psnr={c: r["psnr_db"] for c, r in cases.items()
+                   if r["psnr_db"] < (EDGES_PSNR_DB if c == "voronoi" else SMOOTH_PSNR_DB)} == {},
+             better={c for c, r in cases.items() if r["psnr_db"] < r["base_color_psnr_db"] + 10} == set(),
+             placed=sorted(r["texture"] for r in cases.values()) == sorted(f"out.textures/{t}" for t in textures),
+             white={c for c, r in cases.items() if r["base_color"] != [1.0, 1.0, 1.0, 1.0]} == set(),
+             side={c for c, r in cases.items() if r["side_px"] != [512, 512]} == set(),
+             state=out["state_changed"] == [], same_files=out["same_files"],
+             no_uv=out["no_uv"] == {"texture": None, "base_color_kept": True},
+             warned=len(out["warnings"]) == 1 and "UV map" in out["warnings"][0],
+             cli=out["cli"]["status"] == 0 and "hlod: (unsaved): " + out["report"] in out["cli"]["stderr"]
+             and out["cli"]["textures"] == sorted(textures),
+             chosen=out["chosen"] == ["noise", "noise", "strip"],
+             operator=out["operator"]["result"] == ["FINISHED"]
+             and sum(out["report"] in line for line in out["operator"]["printed"]) == 1
+             and out["operator"]["textures"] == sorted(textures))
+
+
 def test_alpha_mode_round_trips_and_reaches_gltf():
     """A MASK material keeps its mode and cutoff through the table's JSON and gives glTF's alphaMode
     and alphaCutoff; an opaque one writes neither (files of opaque materials are as before)."""
