@@ -14,6 +14,9 @@ from ..hlod_core.core.colour import srgb_from_linear, srgb_to_linear
 
 log = logging.getLogger(__name__)
 
+#: Custom property of an image datablock loaded from a texture the bake wrote: the file it came from.
+WRITTEN_TEXTURE_KEY = "hlod_written_texture"
+
 
 def material_images(materials) -> dict[int, np.ndarray]:
     """material row -> its image (`Material.image`, a bpy.data.images name) as the renderer takes
@@ -25,7 +28,7 @@ def material_images(materials) -> dict[int, np.ndarray]:
         if not material.image:
             continue
         if material.image not in read:
-            image = bpy.data.images.get(material.image) or _load_texture(material)
+            image = _fresh(bpy.data.images.get(material.image), material) or _load_texture(material)
             read[material.image] = image_rgba8(image) if image is not None else None
             if read[material.image] is None:
                 log.warning("HLOD preview: material %r: image %r %s; drawn in its base colour", material.name,
@@ -54,6 +57,18 @@ def _load_texture(material):
         return None
     image = bpy.data.images.load(material.texture, check_existing=False)
     image.name = material.image
+    image[WRITTEN_TEXTURE_KEY] = material.texture
+    return image
+
+
+def _fresh(image, material):
+    """`image` as it is, or, for one loaded from a texture the bake wrote, read again from the
+    material's file (a re-bake writes new pixels under the same name)."""
+    if image is None or WRITTEN_TEXTURE_KEY not in image or not material.texture or not os.path.isfile(material.texture):
+        return image
+    image.filepath = material.texture
+    image[WRITTEN_TEXTURE_KEY] = material.texture
+    image.reload()
     return image
 
 
