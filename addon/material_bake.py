@@ -1,22 +1,12 @@
-"""Base colours that cannot be read from a node tree (a procedural texture, two images, a node the
-reader does not know: material_nodes' `unreadable`), baked by Cycles into a texture per material.
-
-For each such material, one mesh object using it is chosen (the one with the most faces in its
-slots, among those with a UV map). A temporary copy of that object (same mesh, modifiers, parent
-and transform) goes into a temporary scene of its own (Cycles, CPU, BAKE_SAMPLES samples, the
-current frame), with a temporary copy of the material in that material's slots (its other slots
-left empty, so nothing else is baked). In the material's copy, the socket the base colour is read
-from (Principled Base Color, or an unlit surface's Emission Color) is relinked into an Emission
-shader, and Cycles bakes the EMIT pass over the object's active render UV map: the colour reaching
-that socket, exactly. A DIFFUSE pass with only COLOR is not used: it gives the Principled BSDF's
-diffuse albedo, the base colour times the diffuse lobe's weight (darker where it is metallic,
-transmissive or under a specular layer). The bake syncs only the copy (seconds, whatever the
-scene's size); the artist's scene, its settings and selection, objects, materials and images are
-never touched, and the temporaries are removed whatever happens.
-
-The baked pixels become a written texture (material_texture.written_texture: a PNG in the scratch
-folder that place_textures moves beside the .hlod) and the material row gets it with a white base
-colour. A material no object with a UV map uses keeps its Base Color value, with a warning.
+"""Base colours that cannot be read from a node tree (material_nodes' `unreadable`: a procedural
+texture, two images, a node the reader does not know), baked by Cycles into a texture per material:
+a copy of one mesh object using it (with a UV map, the most faces of the material) in a temporary
+scene, with a copy of the material whose base colour socket feeds an Emission shader, baked as the
+EMIT pass over its active render UV map. The artist's scene is never touched and the temporaries
+are removed whatever happens. The pixels become a written texture (material_texture.written_texture,
+moved beside the .hlod by place_textures) and the row gets it with a white base colour; a material
+no object with a UV map uses keeps its Base Color value, with a warning.
+Why: docs/how-it-works.md#base-colours-baked-by-cycles
 
 Data form: in and out, a meshes.TriangleMesh whose `materials` rows are replaced by name;
 pixels (BAKE_SIDE_PX, BAKE_SIDE_PX, 4) float32 linear RGBA, bottom row first.
