@@ -46,6 +46,8 @@ def base_colour_texture(material, reading) -> tuple[str, str, str, float] | None
     from an image (`reading`: material_nodes.BaseColour); None, with a warning naming the image,
     when the image has no pixels (a missing file)."""
     image = reading.source.image
+    if image.source == "TILED":
+        _note_udim(material, image)
     file = _file_on_disk(image)
     if reading.identity and file is not None and not image.is_float and image.colorspace_settings.name == "sRGB":
         return file, image.name, "OPAQUE", 0.5
@@ -78,6 +80,15 @@ def written_texture(pixels: np.ndarray) -> str:
 def texture_image_name(material) -> str:
     """The image name a written texture of `material` goes by in the preview."""
     return f"{material.name_full} (base colour)"
+
+
+def _note_udim(material, image) -> None:
+    """The one note a UDIM image gets: the bake takes its tile 1001 (what Blender's pixels of a
+    tiled image are) as the material's one texture, looked up by every UV tile."""
+    numbers = [tile.number for tile in image.tiles]
+    log.warning("HLOD bake: material %r: image %r is a UDIM image of %d tile(s) (%s); the LODs carry one texture "
+                "per material, so tile 1001 stands for every tile", material.name_full, image.name, len(numbers),
+                ", ".join(map(str, numbers)))
 
 
 def alpha_mode(alpha: np.ndarray) -> tuple[str, float]:

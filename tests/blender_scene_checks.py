@@ -300,6 +300,39 @@ def _png_rgba(path: Path) -> np.ndarray:
         bpy.data.images.remove(image)
 
 
+def check_udim(repo, work) -> dict:
+    """A quad whose Image Texture is a UDIM image of two tiles (1001 red, 1002 green, files on
+    disk), baked by the background command: one warning naming the material, the image and its
+    tiles, and the texture written from tile 1001."""
+    work = Path(work)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blender_preview.enable_from_repo(repo)
+    cli = importlib.import_module(NAME + ".addon.cli")
+    hlod_file = importlib.import_module(NAME + ".hlod_core.io.hlod_file")
+    for number, colour in ((1001, (1.0, 0.0, 0.0, 1.0)), (1002, (0.0, 1.0, 0.0, 1.0))):
+        tile = bpy.data.images.new(f"tile {number}", 4, 4)
+        tile.pixels.foreach_set(np.tile(np.array(colour, np.float32), 16))
+        tile.filepath_raw, tile.file_format = str(work / f"paint.{number}.png"), "PNG"
+        tile.save()
+        bpy.data.images.remove(tile)
+    image = bpy.data.images.load(str(work / "paint.1001.png"))
+    image.source = "TILED"
+    quad = _link("Quad", _mesh("Quad", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)]))
+    quad.data.uv_layers.new(name="UVMap")
+    material = bpy.data.materials.new("Painted")
+    material.use_nodes = True
+    texture = material.node_tree.nodes.new("ShaderNodeTexImage")
+    texture.image = image
+    material.node_tree.links.new(texture.outputs["Color"], material.node_tree.nodes["Principled BSDF"].inputs["Base Color"])
+    quad.data.materials.append(material)
+    status, _, stderr = _cli(cli, "bake", "-o", str(work / "quad.hlod"))
+    baked = hlod_file.load(work / "quad.hlod") if status == 0 else None
+    texture_file = baked.materials[0].texture if baked is not None else None
+    return {"status": status, "stderr": stderr, "tiles": [t.number for t in image.tiles],
+            "texture": texture_file, "texture_rgba": np.unique(_png_rgba(Path(texture_file)).reshape(-1, 4), axis=0).tolist()
+            if texture_file else None}
+
+
 def check_batch(repo, work) -> dict:
     """A batch of files where some cannot bake: one stderr line each naming the file and the reason,
     no traceback, and the files after them still bake."""

@@ -78,6 +78,16 @@ def test_a_texture_made_from_nodes_is_written_beside_the_hlod(versioned_repo, tm
              preview_reads_the_new_texture=out["preview_changed"] and out["preview_again_equals_file"])
 
 
+def test_a_udim_image_gets_one_note_and_its_first_tile(versioned_repo, tmp_path):
+    """A UDIM image (tiles 1001 red, 1002 green): one warning naming the material, the image and its
+    tiles; the texture written beside the .hlod is tile 1001's."""
+    out = scene_check(versioned_repo, "udim", tmp_path)
+    notes = [line for line in out["stderr"] if "UDIM" in line]
+    all_hold(out, baked=out["status"] == 0, tiles=out["tiles"] == [1001, 1002],
+             one_note=len(notes) == 1 and "'Painted'" in notes[0] and "1001, 1002" in notes[0],
+             first_tile=out["texture_rgba"] == [[255, 0, 0, 255]])
+
+
 def test_a_batch_goes_on_past_files_that_cannot_bake(versioned_repo, tmp_path):
     """Four files: not a .blend, one with only a light, a missing one, a good one: three failures,
     each one stderr line naming its file and the reason (no traceback), and the good file is baked."""
