@@ -410,6 +410,56 @@ def _with_gpu_instances(gltf: dict, translations, rotations_i16, scales) -> dict
     return gltf
 
 
+BLENDER_TRIANGLES = r"""
+import json, sys
+import bpy
+import numpy as np
+
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.import_scene.gltf(filepath=sys.argv[1])
+depsgraph = bpy.context.evaluated_depsgraph_get()
+corners = []
+for inst in depsgraph.object_instances:
+    if inst.object.type != "MESH":
+        continue
+    me = inst.object.to_mesh()
+    co = np.empty(len(me.vertices) * 3); me.vertices.foreach_get("co", co)
+    world = np.array(inst.matrix_world)
+    co = co.reshape(-1, 3) @ world[:3, :3].T + world[:3, 3]
+    verts = np.empty(len(me.loop_triangles) * 3, np.int32); me.loop_triangles.foreach_get("vertices", verts)
+    corners += co[verts].tolist()
+    inst.object.to_mesh_clear()
+print(json.dumps(corners))
+"""
+
+
+@pytest.mark.blender
+def test_gpu_instances_are_where_blenders_importer_places_them(tmp_path):
+    """The instanced glTF read by Blender's own importer (the main environment's bpy, a subprocess):
+    the same triangles at the same places (Blender's axes both), the instances included."""
+    quarter = round(32767 * np.sqrt(0.5))
+    gltf = _with_gpu_instances(_hand_gltf(), translations=[[0, 0, 0], [0, 0, 3], [5, 0, 0]],
+                               rotations_i16=[[0, 0, 0, 32767], [0, 0, quarter, quarter], [0, 0, 0, 32767]],
+                               scales=[[1, 1, 1], [1, 1, 1], [2, 2, 2]])
+    gltf["scenes"], gltf["nodes"] = gltf["scenes"][:1], gltf["nodes"][:3]  # Blender 4.2 imports nodes of no scene too
+    path = tmp_path / "instanced.gltf"
+    _write_gltf(path, gltf)
+    run = subprocess.run([sys.executable, "-c", BLENDER_TRIANGLES, str(path)], capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    theirs = np.array(json.loads(run.stdout.strip().splitlines()[-1]), float).reshape(-1, 9)
+    mesh = meshes.load_mesh(path, texture_dir=tmp_path / "textures")
+    mine = mesh.positions[mesh.faces].reshape(-1, 9).astype(float)
+    assert mine.shape == theirs.shape == (4, 9)
+
+    def canonical(tris):  # each triangle's corners in a fixed order, then the triangles sorted
+        corners = np.round(tris.reshape(-1, 3, 3), 5)
+        corners = np.array([c[np.lexsort(c.T[::-1])] for c in corners]).reshape(-1, 9)
+        return corners[np.lexsort(corners.T[::-1])]
+
+    assert np.allclose(canonical(mine), canonical(theirs), atol=1e-4)
+
+
 @pytest.mark.parametrize("container", ["gltf", "glb"])
 def test_gpu_instances_are_placed_each(tmp_path, container, caplog):
     """EXT_mesh_gpu_instancing: node 0's triangle once per instance, at the node's matrix times the
