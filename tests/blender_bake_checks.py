@@ -387,7 +387,7 @@ def _mixed_statues(detail: int = 1) -> list:
     """Sixteen statues on a 4 x 4 grid, two meshes alternating: a UV sphere with UVs and a
     material, an ico sphere with neither (mixed attribute layouts: its rows get the default
     material and zero UVs). detail (a power of two) multiplies the sphere's segments and rings
-    and each statue's triangles by detail^2 (1: 1,520 and 5,120 triangles)."""
+    and each statue's triangles by detail^2 (1: 1,520 and 1,280 triangles)."""
     for obj in list(bpy.data.objects):
         bpy.data.objects.remove(obj)
     stone = bpy.data.materials.new("Stone")
@@ -464,7 +464,7 @@ def check_cache_mixed_scene(repo, work) -> dict:
             "materials": [m.name for m in a.materials], "inner_nodes": int(np.count_nonzero(a.child_count))}
 
 
-def check_mixed_rebake_speed(repo, work, detail: str = "4", jobs: str = "2") -> dict:
+def check_mixed_rebake_speed(repo, work, detail: str = "8", jobs: str = "2") -> dict:
     """Benchmark (benchmarks/bench_blender_mixed_rebake.py): `_mixed_statues(detail)` through the
     background command with the cache: a full bake, a re-bake after moving an interior statue by
     0.05 (the scene's box unchanged), and a bake of the moved scene from scratch, wall seconds of
