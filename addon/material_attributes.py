@@ -16,13 +16,20 @@ from .material_nodes import read_base_colour
 IDENTITY_AFFINE = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 
 
-def material_corners(mesh, materials: list, *, tri_slot, corner_uvs, colors, domain: str):
+def material_corners(mesh, materials: list, *, tri_slot, corner_uvs, colors, domain: str,
+                     readings: dict | None = None):
     """(corner_uvs, colors, domain) with each material's own UV map, UV transform and colour
     attribute applied to its triangles (module notes). materials: the object's slot materials
-    (None for an empty slot); tri_slot None: the object has no material (nothing changes)."""
+    (None for an empty slot); tri_slot None: the object has no material (nothing changes).
+    readings: material name_full -> its reading, filled here (one read of each tree for a whole
+    scene, not one per instance)."""
     if tri_slot is None:
         return corner_uvs, colors, domain
-    readings = [read_base_colour(m) if m is not None and m.node_tree is not None else None for m in materials]
+    readings = {} if readings is None else readings
+    for m in materials:
+        if m is not None and m.original.name_full not in readings:
+            readings[m.original.name_full] = read_base_colour(m) if m.node_tree is not None else None
+    readings = [readings[m.original.name_full] if m is not None else None for m in materials]
     sources = [(s, r) for s, r in enumerate(readings) if r is not None and r.source is not None]
     images = [(s, r.source) for s, r in sources if r.source.kind == "image"
               and (r.source.uv_map or r.source.uv_affine != IDENTITY_AFFINE)]

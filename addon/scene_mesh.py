@@ -107,12 +107,14 @@ def _evaluated_mesh(depsgraph, objects, *, taken: list | None, attributes: dict 
     with_materials = any(slot.material is not None for inst in drawn_instances(depsgraph, wanted)
                          for slot in inst.object.material_slots)
     rows: dict[str, Material] = {}  # material name_full -> its row, made once per datablock
+    readings: dict = {}  # material name_full -> its node tree's reading (material_nodes), once per datablock
     keyed, owners, uv_names, colour_names = [], set(), Counter(), Counter()
     for inst in drawn_instances(depsgraph, wanted, skipped):
         chosen = owner(inst)
         label = f"{chosen.name}" + (f" (instance of {inst.object.original.name})" if inst.is_instance else "")
         try:
-            part = _read_instance(inst, depsgraph, label, rows=rows, uv_names=uv_names if with_materials else None,
+            part = _read_instance(inst, depsgraph, label, rows=rows, readings=readings,
+                                  uv_names=uv_names if with_materials else None,
                                   colour_names=colour_names)
         except RuntimeError as exc:  # Blender could not give the object's mesh
             raise InputError(f"Bake: object {chosen.name!r}: Blender gives no mesh for it: {exc}") from exc
@@ -162,7 +164,7 @@ def _materials_by_name(mesh: meshes.TriangleMesh) -> meshes.TriangleMesh:
                                materials=tuple(mesh.materials[i] for i in order))
 
 
-def _read_instance(inst, depsgraph, label: str, *, rows: dict, uv_names: Counter | None,
+def _read_instance(inst, depsgraph, label: str, *, rows: dict, readings: dict, uv_names: Counter | None,
                    colour_names: Counter) -> _Part | None:
     """One instance's triangles, corner attributes and material rows (None: no triangles). The UV
     map is read only when `uv_names` is given (the selection has materials), material indices
@@ -184,7 +186,7 @@ def _read_instance(inst, depsgraph, label: str, *, rows: dict, uv_names: Counter
         corner_uvs, colors, domain = _corner_attributes(mesh, uv_names=uv_names, colour_names=colour_names)
         corner_uvs, colors, domain = material_corners(mesh, [s.material for s in obj.material_slots],
                                                       tri_slot=tri_slot, corner_uvs=corner_uvs, colors=colors,
-                                                      domain=domain)
+                                                      domain=domain, readings=readings)
     finally:
         obj.to_mesh_clear()
     matrix = np.array(inst.matrix_world, np.float64)
