@@ -333,6 +333,33 @@ def check_udim(repo, work) -> dict:
             if texture_file else None}
 
 
+def check_colour_attributes(repo, work) -> dict:
+    """Four quads, each with one colour attribute of another domain and type (POINT and CORNER, FLOAT
+    and BYTE colour), set from known linear colours: per quad, the colours the bake reads against
+    the set ones (a byte colour is stored as 8-bit sRGB, so it comes back within its step)."""
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blender_preview.enable_from_repo(repo)
+    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    rng = np.random.default_rng(7)
+    out = {}
+    for i, (domain, kind) in enumerate((("POINT", "FLOAT_COLOR"), ("POINT", "BYTE_COLOR"),
+                                        ("CORNER", "FLOAT_COLOR"), ("CORNER", "BYTE_COLOR"))):
+        quad = _link(f"{domain} {kind}", _mesh("Quad", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)]),
+                     (2.0 * i, 0.0, 0.0))
+        attribute = quad.data.color_attributes.new("Paint", kind, domain)
+        colours = np.ones((len(attribute.data), 4), np.float32)
+        colours[:, :3] = rng.uniform(0.05, 1.0, (len(attribute.data), 3))
+        attribute.data.foreach_set("color", colours.ravel())
+        quad.data.color_attributes.active_color = attribute
+        mesh = scene_mesh.evaluated_mesh(bpy.context, [quad])
+        # what the bake holds per triangle corner, against the set colour of that corner's loop / vertex
+        loops = np.empty(len(quad.data.loop_triangles) * 3, np.int64)
+        quad.data.loop_triangles.foreach_get("loops" if domain == "CORNER" else "vertices", loops)
+        got = mesh.colors[mesh.faces.ravel()]
+        out[f"{domain} {kind}"] = float(np.abs(got - colours[loops]).max()) if mesh.colors is not None else None
+    return out
+
+
 def check_batch(repo, work) -> dict:
     """A batch of files where some cannot bake: one stderr line each naming the file and the reason,
     no traceback, and the files after them still bake."""

@@ -88,6 +88,15 @@ def test_a_udim_image_gets_one_note_and_its_first_tile(versioned_repo, tmp_path)
              first_tile=out["texture_rgba"] == [[255, 0, 0, 255]])
 
 
+def test_colour_attributes_of_every_domain_and_type_are_read(versioned_repo, tmp_path):
+    """POINT and CORNER, float and byte colour attributes: the bake's colours are the set ones
+    (float exactly; byte within 0.01: an 8-bit sRGB step is at most 0.009 in linear)."""
+    out = scene_check(versioned_repo, "colour_attributes", tmp_path)
+    all_hold(out, point_float=out["POINT FLOAT_COLOR"] == 0.0, corner_float=out["CORNER FLOAT_COLOR"] == 0.0,
+             point_byte=out["POINT BYTE_COLOR"] is not None and out["POINT BYTE_COLOR"] < 0.01,
+             corner_byte=out["CORNER BYTE_COLOR"] is not None and out["CORNER BYTE_COLOR"] < 0.01)
+
+
 def test_a_batch_goes_on_past_files_that_cannot_bake(versioned_repo, tmp_path):
     """Four files: not a .blend, one with only a light, a missing one, a good one: three failures,
     each one stderr line naming its file and the reason (no traceback), and the good file is baked."""
