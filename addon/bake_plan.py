@@ -29,7 +29,7 @@ def schedule() -> None:
     if _pending or bpy.app.background:
         return
     _pending = True
-    bpy.app.timers.register(_refresh, first_interval=REFRESH_S)
+    bpy.app.timers.register(_refresh, first_interval=REFRESH_S, persistent=True)  # a file load would drop it
 
 
 def _refresh() -> None:
