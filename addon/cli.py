@@ -29,6 +29,7 @@ a port in use is one line on stderr and exit status 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -41,6 +42,7 @@ from ..hlod_core.bake.settings import ERROR_MEASURES, BakeSettings, bake_setting
 from ..hlod_core.core.errors import HlodError, InputError
 from ..hlod_core.export.formats import export_hlod
 from ..hlod_core.io import hlod_file
+from ..hlod_core.io.texture_folder import EmbeddedTextures
 from . import scene_mesh
 from .bake_job import BakeJob
 from .material_bake import bake_unreadable_materials, cycles_report
@@ -172,35 +174,40 @@ def _bake_file(args, blend: Path) -> dict:
 def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
     blend = bpy.data.filepath or "(unsaved)"
     started = time.perf_counter()
-    try:
-        if target.suffix != ".hlod":
-            raise InputError(f"-o {target}: give a .hlod file name when baking the open file")
-        if args.jobs < 0:
-            raise InputError(f"--jobs {args.jobs}: give 0 (all cores but one) or a number of worker processes")
-        objects = _objects(args)
-        skipped = Skipped()  # a bake with nothing to take names what it skipped in its error
-        mesh = scene_mesh.evaluated_mesh(bpy.context, objects, skipped=skipped, include_hidden=args.include_hidden)
-        mesh, cycles_baked = bake_unreadable_materials(bpy.context, mesh)  # node trees that cannot be read
-        if cycles_baked:
-            print(f"hlod: {blend}: {cycles_report(cycles_baked)}", file=sys.stderr)
-        mesh = place_textures(mesh, target)  # textures made from node trees, packed images: beside the .hlod
-        _print_skipped(blend, skipped)
-        settings = bake_settings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=args.jobs,
-                                 quality_threshold=args.quality_threshold, error=args.error)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        cache_dir = cache.folder_for(target, enabled=not args.no_cache)
-        job = BakeJob(mesh, settings, str(target), cache_dir=cache_dir)
-        job.join()
-        if job.error is not None:
-            raise job.error
-        outputs = {"hlod": str(target)}
-        if "3dtiles" in args.format:
-            tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
-            outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir, stem=target.stem)["output"]
-    except Exception as exc:  # noqa: BLE001 - one line per failed file, and the batch goes on
-        message = _one_line(exc)
-        print(f"hlod: {blend}: {message}", file=sys.stderr)
-        return {"blend": blend, "ok": False, "error": message}
+    with contextlib.ExitStack() as stack:
+        try:
+            if target.suffix != ".hlod":
+                raise InputError(f"-o {target}: give a .hlod file name when baking the open file")
+            if args.jobs < 0:
+                raise InputError(f"--jobs {args.jobs}: give 0 (all cores but one) or a number of worker processes")
+            objects = _objects(args)
+            skipped = Skipped()  # a bake with nothing to take names what it skipped in its error
+            mesh = scene_mesh.evaluated_mesh(bpy.context, objects, skipped=skipped, include_hidden=args.include_hidden)
+            mesh, cycles_baked = bake_unreadable_materials(bpy.context, mesh)  # node trees that cannot be read
+            if cycles_baked:
+                print(f"hlod: {blend}: {cycles_report(cycles_baked)}", file=sys.stderr)
+            _print_skipped(blend, skipped)
+            settings = bake_settings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=args.jobs,
+                                     quality_threshold=args.quality_threshold, error=args.error)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            # textures made from node trees, packed images: OUT.textures once the .hlod is written
+            textures = stack.enter_context(EmbeddedTextures(target))
+            mesh = place_textures(mesh, textures)
+            cache_dir = cache.folder_for(target, enabled=not args.no_cache)
+            job = BakeJob(mesh, settings, str(target), cache_dir=cache_dir)
+            job.join()
+            if job.error is not None:
+                raise job.error
+            textures.publish()
+            outputs = {"hlod": str(target)}
+            if "3dtiles" in args.format:
+                tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
+                outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir,
+                                                 stem=target.stem)["output"]
+        except Exception as exc:  # noqa: BLE001 - one line per failed file, and the batch goes on
+            message = _one_line(exc)
+            print(f"hlod: {blend}: {message}", file=sys.stderr)
+            return {"blend": blend, "ok": False, "error": message}
     return {"blend": blend, "ok": True, "outputs": outputs, "nodes": job.result.node_count,
             "input_tris": job.result.input_tris, "jobs": job.result.jobs, "cache": job.result.cache,
             "skipped": skipped.as_dict(), "seconds": time.perf_counter() - started}

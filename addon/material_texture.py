@@ -5,7 +5,8 @@ referred to where it lies. Any other image the base colour comes from (processed
 packed into the .blend, generated, a non-colour or float image) is evaluated through the
 material's node function (material_nodes) on all its pixels and written as an RGBA PNG (sRGB) into
 a scratch folder of this Blender process, named by its content; `place_textures` copies those
-into OUT.textures/ beside the .hlod when the bake's output is known, so nothing is dropped.
+into the bake's texture folder (published as OUT.textures/ beside the .hlod once it is written), so
+nothing is dropped.
 
 Data form: pixels (h, w, 4) float32 linear RGBA, Blender's row order (bottom row first) while
 evaluated; PNG rows top first.
@@ -16,7 +17,7 @@ import dataclasses
 import hashlib
 import logging
 import os
-import re
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -26,6 +27,7 @@ import numpy as np
 from ..hlod_core.core.atomic import write_bytes_atomic
 from ..hlod_core.core.colour import srgb_from_linear
 from ..hlod_core.core.png import png_bytes
+from ..hlod_core.io.texture_folder import EmbeddedTextures, unique_file_name
 from .material_images import image_linear
 
 log = logging.getLogger(__name__)
@@ -115,32 +117,21 @@ def _why_no_file(image) -> str:
     return "a packed image without data" if image.packed_file is not None else f"a {image.source.lower()} image"
 
 
-def textures_folder(output: str | os.PathLike) -> Path:
-    """OUT.textures beside OUT.hlod: where a bake's written textures go."""
-    output = Path(output)
-    folder = output.with_suffix(".textures")
-    return folder if folder != output else output.with_name(output.name + ".textures")
-
-
-def place_textures(mesh, output: str | os.PathLike):
-    """The mesh (meshes.TriangleMesh) with every texture written into the scratch folder copied to
-    OUT.textures/<material name>.png and its material rows referring to the copy there; a mesh
-    without such textures is returned as it is."""
+def place_textures(mesh, textures: EmbeddedTextures):
+    """The mesh (meshes.TriangleMesh) with every texture written into this process's scratch folder
+    copied into the bake's texture folder (`textures`: its private scratch, published as
+    OUT.textures once the .hlod is written) as <material name>.png, and its material rows referring
+    to where it is published; a mesh without such textures is returned as it is."""
     scratch = str(scratch_folder())
     written = [m for m in mesh.materials if m.texture is not None and os.path.dirname(m.texture) == scratch]
     if not written:
         return mesh
-    folder, names, moved = textures_folder(output), set(), {}
-    folder.mkdir(parents=True, exist_ok=True)
+    textures.scratch.mkdir(parents=True, exist_ok=True)
+    names, copied = set(), {}
     for material in written:
-        stem = re.sub(r"[^A-Za-z0-9_-]+", "_", material.name).strip("_") or "material"
-        name, k = f"{stem}.png", 1
-        while name.lower() in names:
-            k += 1
-            name = f"{stem}_{k}.png"
-        names.add(name.lower())
-        write_bytes_atomic(folder / name, Path(material.texture).read_bytes())
-        moved[material.name] = str((folder / name).resolve())
-    materials = tuple(dataclasses.replace(m, texture=moved[m.name]) if m.name in moved else m for m in mesh.materials)
-    log.info("HLOD bake: %d base-colour textures written into %s", len(moved), folder)
-    return dataclasses.replace(mesh, materials=materials)
+        name = unique_file_name(material.name, ".png", names)
+        shutil.copyfile(material.texture, textures.scratch / name)  # private until published
+        copied[material.name] = str((textures.scratch / name).resolve())
+    materials = tuple(dataclasses.replace(m, texture=copied[m.name]) if m.name in copied else m for m in mesh.materials)
+    log.info("HLOD bake: %d base-colour textures for %s", len(copied), textures.final)
+    return textures.relocate(dataclasses.replace(mesh, materials=materials))

@@ -12,6 +12,7 @@ no instances to read), then starts it again on the new file, or on the old one i
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import bpy
 from bpy.props import BoolProperty
@@ -25,6 +26,7 @@ from ..addon.scene_objects import Skipped
 from ..addon.settings import bake_settings
 from ..hlod_core.bake import cache
 from ..hlod_core.core.errors import BakeCancelled, HlodError, InputError
+from ..hlod_core.io.texture_folder import EmbeddedTextures
 
 #: Seconds between two looks at the running bake's progress.
 POLL_S = 0.1
@@ -74,10 +76,12 @@ class HLOD_OT_bake(bpy.types.Operator):
         mesh, cycles_baked = bake_unreadable_materials(context, mesh)  # node trees that cannot be read
         if cycles_baked:
             self.report({"INFO"}, f"HLOD bake: {cycles_report(cycles_baked)}")
-        mesh = place_textures(mesh, out)  # textures made from node trees, packed images: beside the .hlod
         if skipped:  # kinds without triangles, hidden objects: named once (addon/scene_objects.py)
             self.report({"WARNING"}, f"HLOD bake: {skipped.text()}")
         rows = source_record.record(taken, context.evaluated_depsgraph_get())
+        # textures made from node trees, packed images: OUT.textures once the .hlod is written (_end)
+        self._textures = EmbeddedTextures(Path(out))
+        mesh = place_textures(mesh, self._textures)
         return mesh, out, bake_settings(props), rows, attributes or None
 
     def _recorded_objects(self, context) -> list:
@@ -94,12 +98,24 @@ class HLOD_OT_bake(bpy.types.Operator):
         """Gather the mesh here, on Blender's main thread, and start the bake's child process (with
         the cache folder beside the output, unless the Bake Cache setting is off)."""
         mesh, out, settings, self._rows, extra_meta = self._prepare(context)
-        cache_dir = cache.default_folder(out) if context.scene.hlod.use_cache else None
-        cache.check_folder(cache_dir)
-        return BakeJob(mesh, settings, out, extra_meta=extra_meta, cache_dir=cache_dir)
+        try:
+            cache_dir = cache.default_folder(out) if context.scene.hlod.use_cache else None
+            cache.check_folder(cache_dir)
+            return BakeJob(mesh, settings, out, extra_meta=extra_meta, cache_dir=cache_dir)
+        except BaseException:
+            self._textures.discard()
+            raise
 
     def _end(self, context, job: BakeJob) -> set[str]:
-        """Report how the finished job went; the operator's return value."""
+        """Report how the finished job went; the operator's return value. The textures the bake made
+        are published as OUT.textures only when the .hlod was written, else dropped."""
+        try:
+            if job.error is None:
+                self._textures.publish()
+        except OSError as exc:
+            job.error = exc
+        finally:
+            self._textures.discard()
         if isinstance(job.error, BakeCancelled):
             self.report({"WARNING"}, "HLOD bake cancelled; nothing written")
         elif job.error is not None:

@@ -445,10 +445,20 @@ def check_scene_reading(repo, work) -> dict:
     rows = {clip: materials.material_row(_alpha_material(f"alpha {clip}", alpha_image, clip=clip))
             for clip in (True, False)}
     out["alpha_modes"] = {"clip": rows[True].alpha_mode, "blend": rows[False].alpha_mode}
-    placed = material_texture.place_textures(dataclasses.replace(mesh, materials=(rows[True], rows[False])),
-                                             Path(work) / "out.hlod")
+    placed = _placed(material_texture, dataclasses.replace(mesh, materials=(rows[True], rows[False])),
+                     Path(work) / "out.hlod")
     out["placed"] = sorted(str(Path(m.texture).relative_to(Path(work).resolve())) for m in placed.materials)
     return out
+
+
+def _placed(material_texture, mesh, output: Path):
+    """The mesh's written textures placed for a bake into `output` and published, as a bake does
+    once its .hlod is written (material_texture.place_textures, texture_folder.EmbeddedTextures)."""
+    texture_folder = importlib.import_module(NAME + ".hlod_core.io.texture_folder")
+    with texture_folder.EmbeddedTextures(output) as textures:
+        placed = material_texture.place_textures(mesh, textures)
+        textures.publish()
+    return placed
 
 
 # --- materials whose tree cannot be read, baked by Cycles (addon/material_bake.py) -----------------
@@ -487,7 +497,7 @@ def check_cycles_fallback(repo, work) -> dict:
     seconds = time.perf_counter() - started
     after, warned = _scene_state(), list(warnings)
     again = material_bake.bake_unreadable_materials(bpy.context, mesh)[0]
-    placed = material_texture.place_textures(baked_mesh, Path(work) / "out.hlod")
+    placed = _placed(material_texture, baked_mesh, Path(work) / "out.hlod")
     rows = {row.name: row for row in placed.materials}
     bare_row = materials.material_row(bare.active_material)
     out = {"names": names, "report": material_bake.cycles_report(names), "seconds": round(seconds, 2),

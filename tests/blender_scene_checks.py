@@ -280,22 +280,30 @@ def check_textures_beside(repo, work) -> dict:
     hue.inputs["Hue"].default_value = 0.7  # the same material re-baked: new pixels under the same name
     status_again = _cli(cli, "bake", "-o", str(work / "quad.hlod"))[0]
     again = material_images(hlod_file.load(work / "quad.hlod").materials)[0]
+    published = {p.name: p.read_bytes() for p in (work / "quad.textures").iterdir()} if textures else {}
+    # a bake that fails after its textures are made (its cache folder is a file) leaves OUT.textures as it was
+    hue.inputs["Hue"].default_value = 0.2
+    (work / "quad.hlod.cache").rename(work / "cache.moved")
+    (work / "quad.hlod.cache").write_text("not a folder")
+    failed = _cli(cli, "bake", "-o", str(work / "quad.hlod"))
     return {"status": status, "stderr": stderr, "textures": textures,
             "material_texture": baked.materials[0].texture if baked is not None else None,
             "tile_images": sorted(p.name for p in tiles.rglob("*.png")) if tiles.is_dir() else [],
             "status_again": status_again, "preview_changed": first is not None and not np.array_equal(first, again),
             "preview_again_equals_file": bool(np.array_equal(again, _png_rgba(work / "quad.textures" / textures[0])))
-            if textures else False}
+            if textures else False,
+            "failed_status": failed[0], "failed_error": failed[1]["files"][0].get("error"),
+            "textures_kept": published != {} and published == {p.name: p.read_bytes()
+                                                                for p in (work / "quad.textures").iterdir()},
+            "leftovers": sorted(p.name for p in work.iterdir() if p.name.startswith("."))}
 
 
 def _png_rgba(path: Path) -> np.ndarray:
-    """A PNG's pixels as (h, w, 4) uint8 RGBA, top row first, read by Blender."""
+    """A PNG's pixels as (h, w, 4) uint8 RGBA, top row first (the extension's own reader)."""
+    image_rgba8 = importlib.import_module(NAME + ".addon.material_images").image_rgba8
     image = bpy.data.images.load(str(path), check_existing=False)
     try:
-        w, h = image.size
-        values = np.empty(w * h * 4, np.float32)
-        image.pixels.foreach_get(values)
-        return np.round(values.reshape(h, w, 4)[::-1] * 255.0).astype(np.uint8)
+        return image_rgba8(image)
     finally:
         bpy.data.images.remove(image)
 

@@ -69,13 +69,16 @@ def test_the_active_render_uv_map_is_baked(versioned_repo, tmp_path):
 def test_a_texture_made_from_nodes_is_written_beside_the_hlod(versioned_repo, tmp_path):
     """A generated image through a Hue/Saturation node (no file of its own) comes out as a PNG in
     OUT.textures/ that the .hlod refers to, and in the 3D Tiles export; after the node changes and
-    the scene is baked again, the preview's image is the new file's, not the one it read before."""
+    the scene is baked again, the preview's image is the new file's, not the one it read before; a
+    bake that fails after making its textures leaves OUT.textures as it was and no scratch folder."""
     out = scene_check(versioned_repo, "textures_beside", tmp_path)
     texture = out["material_texture"] or ""
     all_hold(out, baked=out["status"] == 0, one_texture=len(out["textures"]) == 1,
              referred=texture.endswith("quad.textures/" + (out["textures"] or ["?"])[0]),
              in_tiles=len(out["tile_images"]) == 1, rebaked=out["status_again"] == 0,
-             preview_reads_the_new_texture=out["preview_changed"] and out["preview_again_equals_file"])
+             preview_reads_the_new_texture=out["preview_changed"] and out["preview_again_equals_file"],
+             failed_bake_keeps_textures=out["failed_status"] == 1 and "is a file" in (out["failed_error"] or "")
+             and out["textures_kept"] and out["leftovers"] == [])
 
 
 def test_a_udim_image_gets_one_note_and_its_first_tile(versioned_repo, tmp_path):

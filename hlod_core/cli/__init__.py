@@ -7,7 +7,7 @@ interrupted`, SIGTERM / SIGHUP exit 128 + n with `hlod_core: terminated by SIG..
 after removing scratch files and partial outputs. `-o` of a file refuses a name that ends in a
 path separator (it names a folder).
 
-    bake INPUT [INPUT ...] -o OUT.hlod [...]         bake.py (embedded images: texture_folder.py)
+    bake INPUT [INPUT ...] -o OUT.hlod [...]         bake.py (embedded images: io/texture_folder.py)
     scene low|middle|high|default -o OUT.hlod [...]  bake.py
     run FILE.hlod --method M [...]                   run.py
     evaluate FILE.hlod --out DIR [...]               run.py

@@ -15,7 +15,7 @@ from ..core.errors import InputError
 from ..export.formats import check_output_file
 from ..io import hlod_file, meshes, procedural
 from .options import bake_options, bake_settings_of, cluster_options, out_of_core_options, whole_number
-from .texture_folder import EmbeddedTextures
+from ..io.texture_folder import EmbeddedTextures
 
 log = logging.getLogger("hlod_core")
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -25,6 +24,7 @@ import numpy as np
 
 from ..core.atomic import umask_mode
 from ..core.errors import InputError
+from ..io.texture_folder import unique_file_name
 from ..model.hierarchy import Hlod, node_geometry
 from .glb import GENERATOR, TileImage, glb_bytes
 
@@ -90,12 +90,7 @@ def _copy_texture(path: str, folder: Path, *, names: set, warnings: list, materi
                         "exported without texture")
         return None
     mime_type, suffix = kind
-    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", Path(path).stem).strip("_") or "texture"
-    name, k = f"{stem}{suffix}", 1
-    while name.lower() in names:
-        k += 1
-        name = f"{stem}_{k}{suffix}"
-    names.add(name.lower())
+    name = unique_file_name(Path(path).stem, suffix, names)
     folder.mkdir(exist_ok=True)
     (folder / name).write_bytes(data)
     return TileImage(uri=f"../{TEXTURE_FOLDER}/{quote(name)}", mime_type=mime_type)

@@ -1,21 +1,37 @@
-"""The folder a bake writes its glTF inputs' embedded images into: OUT.textures/ beside OUT.hlod,
-published only once the .hlod is saved."""
+"""The folder a bake writes the images it makes into (a glTF input's embedded images, textures made
+from Blender materials): OUT.textures/ beside OUT.hlod, published only once the .hlod is saved;
+and the file names a texture gets in a folder of them."""
 from __future__ import annotations
 
 import dataclasses
 import logging
 import os
+import re
 import shutil
 from pathlib import Path
 
 from ..core.errors import InputError
-from ..io.meshes import TriangleMesh
+from .meshes import TriangleMesh
 
 log = logging.getLogger("hlod_core")
 
 
+def unique_file_name(stem: str, suffix: str, taken: set) -> str:
+    """`stem` (any text) made a portable file name with `suffix` (".png"), numbered (_2, _3...) past
+    the names in `taken` (lower case; the new one is added): one folder of textures, no clashes on
+    case-insensitive file systems."""
+    stem = re.sub(r"[^A-Za-z0-9_-]+", "_", stem).strip("_") or "texture"
+    name, k = f"{stem}{suffix}", 1
+    while name.lower() in taken:
+        k += 1
+        name = f"{stem}_{k}{suffix}"
+    taken.add(name.lower())
+    return name
+
+
 class EmbeddedTextures:
-    """Where a bake writes the images embedded in its glTF inputs: OUT.textures/ beside OUT.hlod
+    """Where a bake writes the images it makes (embedded in its glTF inputs, or made from Blender
+    materials): OUT.textures/ beside OUT.hlod
     (the .hlod refers to them by relative path). They are written into a hidden scratch folder
     beside it, made only when an image is written; `publish`, after the .hlod is saved, renames
     it to OUT.textures (replacing the one an earlier bake to OUT left). A failed or interrupted
@@ -32,6 +48,10 @@ class EmbeddedTextures:
         return self
 
     def __exit__(self, kind, exc, tb) -> None:
+        self.discard()
+
+    def discard(self) -> None:
+        """Remove the scratch folder (nothing of it published); OUT.textures stays as it was."""
         shutil.rmtree(self.scratch, ignore_errors=True)
 
     def relocate(self, mesh: TriangleMesh) -> TriangleMesh:
