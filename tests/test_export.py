@@ -93,15 +93,15 @@ def assert_matches(tiles_dir, hlod_file):
 def test_glb_layout_and_axes():
     positions = np.array([[0, 0, 0], [1, 0, 0], [0, 2, 0], [0, 0, 3]], np.float32)
     data = glb.glb_bytes(positions, np.array([[0, 1, 2], [0, 2, 3]]))
-    magic, version, total = struct.unpack("<III", data[:12])
-    assert (magic, version, total) == (glb.GLB_MAGIC, 2, len(data)) and total % 4 == 0
+    magic, version, total = struct.unpack("<4sII", data[:12])
+    assert (magic, version, total) == (b"glTF", 2, len(data)) and total % 4 == 0
     json_len, kind = struct.unpack("<II", data[12:20])
     doc = json.loads(data[20:20 + json_len])
-    assert kind == glb.ChunkType.JSON and json_len % 4 == 0
+    assert kind == 0x4E4F534A and json_len % 4 == 0  # "JSON", little-endian
     position = doc["accessors"][0]
     # Z up (x, y, z) is written Y up as (x, z, -y): model +y (2) becomes glTF -z, +z (3) glTF +y
     assert position["min"] == [0.0, 0.0, -2.0] and position["max"] == [1.0, 3.0, 0.0]
-    assert doc["accessors"][-1]["componentType"] == glb.ComponentType.UNSIGNED_SHORT and "NORMAL" not in doc["meshes"][0][
+    assert doc["accessors"][-1]["componentType"] == 5123 and "NORMAL" not in doc["meshes"][0][
         "primitives"][0]["attributes"]
 
 
@@ -307,8 +307,7 @@ def accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
     """An accessor's values as (count, components) (count,) for scalars, read from the BIN chunk."""
     acc = gltf["accessors"][index]
     view = gltf["bufferViews"][acc["bufferView"]]
-    dtype = {glb.ComponentType.FLOAT: np.float32, glb.ComponentType.UNSIGNED_SHORT: np.uint16, glb.ComponentType.UNSIGNED_INT: np.uint32}[
-        acc["componentType"]]
+    dtype = {5126: np.float32, 5123: np.uint16, 5125: np.uint32}[acc["componentType"]]  # FLOAT, USHORT, UINT
     width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[acc["type"]]
     values = np.frombuffer(binary, dtype, acc["count"] * width, view["byteOffset"] + acc.get("byteOffset", 0))
     return values.reshape(acc["count"], width) if width > 1 else values

@@ -12,47 +12,15 @@ face_material (t,) rows of a tuple of appearance.Material.
 from __future__ import annotations
 
 import json
-import struct
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 
+from ..io.gltf_codes import (GLB_CHUNK, GLB_HEADER, GLB_MAGIC, GLB_VERSION, Z_UP_TO_Y_UP, BufferViewTarget, ChunkType,
+                             ComponentType, PrimitiveMode, SamplerFilter, WrapMode)
 from ..model.appearance import Material
 
-GLB_MAGIC, GLB_VERSION = 0x46546C67, 2  # "glTF"
-GLB_HEADER_BYTES, CHUNK_HEADER_BYTES = 12, 8
-Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x, y, z) -> (x, z, -y)
 GENERATOR = "HLOD Bake & Preview"
-
-
-class ChunkType(IntEnum):
-    JSON = 0x4E4F534A
-    BIN = 0x004E4942
-
-
-class BufferViewTarget(IntEnum):
-    ARRAY_BUFFER = 34962
-    ELEMENT_ARRAY_BUFFER = 34963
-
-
-class ComponentType(IntEnum):
-    UNSIGNED_SHORT = 5123
-    UNSIGNED_INT = 5125
-    FLOAT = 5126
-
-
-class SamplerFilter(IntEnum):
-    LINEAR = 9729
-    LINEAR_MIPMAP_LINEAR = 9987
-
-
-class WrapMode(IntEnum):
-    REPEAT = 10497
-
-
-class PrimitiveMode(IntEnum):
-    TRIANGLES = 4
 
 
 @dataclass(frozen=True)
@@ -117,10 +85,10 @@ def glb_bytes(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | No
 def container(json_chunk: bytes, binary: bytes) -> bytes:
     """The GLB file of a JSON chunk (padded here with spaces) and a BIN chunk (4-byte aligned)."""
     json_chunk += b" " * (-len(json_chunk) % 4)
-    total = GLB_HEADER_BYTES + CHUNK_HEADER_BYTES + len(json_chunk) + CHUNK_HEADER_BYTES + len(binary)
-    return (struct.pack("<III", GLB_MAGIC, GLB_VERSION, total)
-            + struct.pack("<II", len(json_chunk), ChunkType.JSON) + json_chunk
-            + struct.pack("<II", len(binary), ChunkType.BIN) + binary)
+    total = GLB_HEADER.size + GLB_CHUNK.size + len(json_chunk) + GLB_CHUNK.size + len(binary)
+    return (GLB_HEADER.pack(GLB_MAGIC, GLB_VERSION, total)
+            + GLB_CHUNK.pack(len(json_chunk), ChunkType.JSON) + json_chunk
+            + GLB_CHUNK.pack(len(binary), ChunkType.BIN) + binary)
 
 
 def _vertex_attributes(buffer: _Buffer, positions: np.ndarray, *, normals, uvs, colors) -> dict[str, int]:

@@ -11,7 +11,7 @@ The default scene is `scene`, else the first; a file without scenes places every
 node's world matrix is its `matrix`, or T * R * S, times its parents'. Primitives of modes
 TRIANGLES and TRIANGLE_STRIP are read: POSITION, NORMAL, TEXCOORD_0 in Blender/OpenGL convention
 (trimesh already stores 1 - v), COLOR_0 (linear; normalized integers divided by their maximum;
-RGB gets alpha 1) and the material index. Every world matrix is preceded by GLTF_TO_BLENDER, glTF's
+RGB gets alpha 1) and the material index. Every world matrix is preceded by Y_UP_TO_Z_UP, glTF's
 +Y up to Blender's +Z up (why: docs/how-it-works.md#gltf-scenes-are-turned-z-up). A malformed file:
 InputError naming the file and the part at fault.
 
@@ -25,7 +25,6 @@ from __future__ import annotations
 import importlib.util
 import json
 import logging
-import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,21 +33,15 @@ import numpy as np
 from ..core.errors import InputError
 from ..model.appearance import Material
 from .gltf_accessors import read_accessor
+from .gltf_codes import (GLB_CHUNK, GLB_HEADER, GLB_MAGIC, GLB_VERSION, Y_UP_TO_Z_UP, ChunkType, ComponentType,
+                         PrimitiveMode)
 from .gltf_materials import read_materials
 
 log = logging.getLogger(__name__)
 
-# glTF 2.0 codes, named once.
-GLB_MAGIC = b"glTF"
-GLB_HEADER = struct.Struct("<4sII")  # magic, version, total length
-GLB_CHUNK = struct.Struct("<II")  # chunk length, chunk type
-GLB_JSON_CHUNK = 0x4E4F534A
-GLB_BIN_CHUNK = 0x004E4942
-MODE_POINTS, MODE_LINES, MODE_TRIANGLES, MODE_TRIANGLE_STRIP, MODE_TRIANGLE_FAN = 0, 1, 4, 5, 6
 #: Primitive modes trimesh keeps (in order with the others) and those that are triangles.
-TRIMESH_MODES = (MODE_POINTS, MODE_LINES, MODE_TRIANGLES, MODE_TRIANGLE_STRIP)
-TRIANGLE_MODES = (MODE_TRIANGLES, MODE_TRIANGLE_STRIP)
-FLOAT = 5126  # accessor componentType
+TRIMESH_MODES = (PrimitiveMode.POINTS, PrimitiveMode.LINES, PrimitiveMode.TRIANGLES, PrimitiveMode.TRIANGLE_STRIP)
+TRIANGLE_MODES = (PrimitiveMode.TRIANGLES, PrimitiveMode.TRIANGLE_STRIP)
 #: Deepest node hierarchy read (deeper is taken for a cycle).
 MAX_NODE_DEPTH = 1024
 #: Extensions that bear geometry and are read: instances (here), Draco (trimesh, with DracoPy).
@@ -88,10 +81,6 @@ class GltfScene:
     materials: tuple[Material, ...]
 
 
-#: glTF's +Y-up axes to Blender's +Z-up ones: (x, y, z) -> (x, -z, y), a rotation (no mirror).
-GLTF_TO_BLENDER = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
-
-
 def read_gltf(path: Path, *, texture_dir: Path | None) -> GltfScene:
     """Read a .gltf or .glb file as a scene (see the module docstring)."""
     header, binary = _gltf_json(path)
@@ -122,9 +111,9 @@ def read_gltf(path: Path, *, texture_dir: Path | None) -> GltfScene:
         name = str(header["nodes"][node].get("name", f"node {node}"))
         instances = _gpu_instances(path, header, binary, node)
         if instances is None:
-            placements.extend((index, GLTF_TO_BLENDER @ world, name) for index in mesh_primitives[mesh])
+            placements.extend((index, Y_UP_TO_Z_UP @ world, name) for index in mesh_primitives[mesh])
         else:
-            placements.extend((index, GLTF_TO_BLENDER @ world @ local, f"{name} #{k}")
+            placements.extend((index, Y_UP_TO_Z_UP @ world @ local, f"{name} #{k}")
                                for k, local in enumerate(instances) for index in mesh_primitives[mesh])
     if not placements:
         raise InputError(f"{path}: the default scene places no triangles")
@@ -208,7 +197,7 @@ def _gltf_json(path: Path) -> tuple[dict, bytes | None]:
         if len(data) < GLB_HEADER.size + GLB_CHUNK.size:
             raise InputError(f"{path}: not a GLB file ({len(data)} bytes)")
         magic, version, length = GLB_HEADER.unpack_from(data)
-        if magic != GLB_MAGIC or version != 2:
+        if magic != GLB_MAGIC or version != GLB_VERSION:
             raise InputError(f"{path}: not a glTF 2.0 GLB file (magic {magic!r}, version {version})")
         if length > len(data):
             raise InputError(f"{path}: truncated GLB file (header says {length} bytes, file has {len(data)})")
@@ -219,10 +208,10 @@ def _gltf_json(path: Path) -> tuple[dict, bytes | None]:
                 raise InputError(f"{path}: truncated GLB chunk at byte {at}")
             chunks.append((kind, data[at + GLB_CHUNK.size:at + GLB_CHUNK.size + size]))
             at += GLB_CHUNK.size + size
-        if not chunks or chunks[0][0] != GLB_JSON_CHUNK:
+        if not chunks or chunks[0][0] != ChunkType.JSON:
             raise InputError(f"{path}: a GLB file must start with a JSON chunk")
         text = chunks[0][1]
-        binary = next((c for kind, c in chunks[1:] if kind == GLB_BIN_CHUNK), None)
+        binary = next((c for kind, c in chunks[1:] if kind == ChunkType.BIN), None)
     else:
         text = data
     try:
@@ -253,8 +242,8 @@ def _primitives(path: Path, header: dict, decoded: list[dict]) -> tuple[list[lis
             raise InputError(f"{path}: meshes[{i}] has no \"primitives\" list")
         mine = []
         for j, prim in enumerate(prims):
-            mode = prim.get("mode", MODE_TRIANGLES) if isinstance(prim, dict) else None
-            if mode == MODE_TRIANGLE_FAN:
+            mode = prim.get("mode", PrimitiveMode.TRIANGLES) if isinstance(prim, dict) else None
+            if mode == PrimitiveMode.TRIANGLE_FAN:
                 raise InputError(f"{path}: meshes[{i}].primitives[{j}] is a triangle fan (mode 6), which is not read")
             if mode not in TRIMESH_MODES:
                 continue  # line loops and strips: no triangles, and trimesh keeps none
@@ -292,7 +281,7 @@ def _primitive(where: str, kwargs: dict, prim: dict, *, materials: int, texcoord
         normals = normals if normals.shape == positions.shape else None
     visual = kwargs.get("visual")
     uvs = getattr(visual, "uv", None)
-    if uvs is not None and texcoord_type not in (None, FLOAT):
+    if uvs is not None and texcoord_type not in (None, ComponentType.FLOAT):
         log.warning("%s: TEXCOORD_0 is quantized (component type %s), which is not read; no UVs", where,
                     texcoord_type)
         uvs = None

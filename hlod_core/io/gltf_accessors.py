@@ -17,12 +17,8 @@ from urllib.parse import unquote
 import numpy as np
 
 from ..core.errors import InputError
+from .gltf_codes import COMPONENT_DTYPES, ELEMENT_COMPONENTS
 
-#: accessor componentType -> numpy type (little-endian, as glTF stores them).
-COMPONENT_TYPES = {5120: np.dtype("<i1"), 5121: np.dtype("<u1"), 5122: np.dtype("<i2"), 5123: np.dtype("<u2"),
-                   5125: np.dtype("<u4"), 5126: np.dtype("<f4")}
-#: accessor type -> components per element.
-COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 
 
 def buffer_view(path: Path, header: dict, binary: bytes | None, *, view, what: str) -> bytes:
@@ -62,7 +58,7 @@ def read_accessor(path: Path, header: dict, binary: bytes | None, *, index, what
         raise InputError(f"{path}: {what} {index!r} is not one of the {len(accessors)} accessors")
     a = accessors[index]
     where = f"{path}: accessors[{index}]"
-    dtype, width, count = COMPONENT_TYPES.get(a.get("componentType")), COMPONENTS.get(a.get("type")), a.get("count")
+    dtype, width, count = COMPONENT_DTYPES.get(a.get("componentType")), ELEMENT_COMPONENTS.get(a.get("type")), a.get("count")
     if dtype is None or width is None or not isinstance(count, int) or count < 0:
         raise InputError(f"{where}: componentType {a.get('componentType')!r}, type {a.get('type')!r} and "
                          f"count {count!r} are not an accessor this reader knows")
