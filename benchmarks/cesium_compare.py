@@ -13,7 +13,7 @@ must equal what Cesium chose) and, for every tile in one set only, the term of T
 Both rules compute `SSE = geometricError * H / (d * 2 tan(fovy / 2))` and refine while SSE > tau;
 they differ in the distance (our node's sphere, Cesium's box), Cesium's culling with children
 bounds, Cesium keeping a tile with no visible child, the root's tileset error, and boxes touching a
-frustum plane. Why: docs/how-it-works.md#our-selection-against-cesiumjss
+frustum plane. Why: docs/how-it-works.md#vfcs-tile-choice-against-cesiumjss
 
 Data form: a baked `Hlod` and its export's tileset.json (one tile per node with triangles, content
 uri "tiles/<node>.glb", box = the node's subtree box, geometricError = the node's error), read as a
