@@ -45,8 +45,8 @@ from ..hlod_core.io import hlod_file
 from ..hlod_core.io.texture_folder import EmbeddedTextures
 from . import scene_mesh
 from .bake_job import BakeJob
-from .material_bake import bake_unreadable_materials, cycles_report
-from .material_texture import place_textures
+from .materials.cycles_bake import bake_unreadable_materials, cycles_report
+from .materials.textures import place_textures
 from .scene_objects import HIDDEN, Skipped
 
 _cli_command = None  # the handle of the registered command

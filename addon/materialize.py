@@ -1,5 +1,5 @@
 """Materialize: Blender mesh objects for a set of HLOD nodes, in a collection of their own, with the
-source materials in their slots (addon/materials.py), the UV map and the colour attribute by the
+source materials in their slots (addon/materials/rows.py), the UV map and the colour attribute by the
 names the bake recorded.
 
 Data form: in, an Hlod (positions float32 relative to its float64 origin) and node ids; out, one
@@ -11,7 +11,7 @@ import bpy
 import numpy as np
 
 from ..hlod_core.model.hierarchy import node_geometry
-from .materials import material_from_row
+from .materials.rows import material_from_row
 
 #: Names Materialize gives the UV map and the colour attribute when the bake did not record them.
 DEFAULT_UV_MAP, DEFAULT_COLOR_ATTRIBUTE = "UVMap", "Color"

@@ -28,7 +28,7 @@ from ..hlod_core.model.hierarchy import Hlod
 from ..hlod_core.model.view import View
 from ..hlod_core.traversal.stats import FrameStats
 from . import glcontext, source_hiding, source_record, viewport_text
-from .material_images import material_images
+from .materials.images import material_images
 from .preview_boxes import draw_boxes
 from .preview_contexts import GLContexts, blender_backend
 from .preview_gl import GLMode

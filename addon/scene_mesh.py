@@ -5,11 +5,11 @@ the depsgraph without touching the source objects, as one
 `meshes.TriangleMesh` in world units, with its appearance (hlod_core/model/appearance.py):
 - per triangle, the material: loop_triangles' material_index resolved through the evaluated
   object's material slots to the material datablock; one `Material` row per datablock (keyed by
-  name_full, shared by every object and instance using it; addon/materials.py), the default row
+  name_full, shared by every object and instance using it; addon/materials/rows.py), the default row
   for an empty slot;
 - per corner, the active render UV map and the active colour attribute (POINT or CORNER domain,
   linear `.color`), or for a material's triangles the UV map, UV transform and colour attribute its
-  nodes read (addon/material_attributes.py). Vertices are split where their corners' values
+  nodes read (addon/materials/corner_attributes.py). Vertices are split where their corners' values
   differ: one vertex per distinct (vertex, uv, colour) (`split_corners`).
 A selection with no material has no UVs either (nothing it draws uses them); one with no material,
 UV map or colour attribute gives a mesh without appearance. The way out, Blender objects for a set
@@ -26,8 +26,8 @@ import numpy as np
 from ..hlod_core.core.errors import InputError
 from ..hlod_core.io import meshes
 from ..hlod_core.model.appearance import Material
-from .material_attributes import material_corners
-from .materials import DEFAULT_MATERIAL, cached_material_row
+from .materials.corner_attributes import material_corners
+from .materials.rows import DEFAULT_MATERIAL, cached_material_row
 from .scene_objects import NOT_FINITE, Skipped, drawn_instances, note_hidden, owner, shown_hidden
 
 
@@ -107,7 +107,7 @@ def _evaluated_mesh(depsgraph, objects, *, taken: list | None, attributes: dict 
     with_materials = any(slot.material is not None for inst in drawn_instances(depsgraph, wanted)
                          for slot in inst.object.material_slots)
     rows: dict[str, Material] = {}  # material name_full -> its row, made once per datablock
-    readings: dict = {}  # material name_full -> its node tree's reading (material_nodes), once per datablock
+    readings: dict = {}  # material name_full -> its node tree's reading (materials/node_tree.py), once per datablock
     keyed, owners, uv_names, colour_names = [], set(), Counter(), Counter()
     for inst in drawn_instances(depsgraph, wanted, skipped):
         chosen = owner(inst)

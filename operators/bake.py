@@ -19,8 +19,8 @@ from bpy.props import BoolProperty
 
 from ..addon import preview, scene_mesh, source_record
 from ..addon.bake_job import BakeJob
-from ..addon.material_bake import bake_unreadable_materials, cycles_report
-from ..addon.material_texture import place_textures
+from ..addon.materials.cycles_bake import bake_unreadable_materials, cycles_report
+from ..addon.materials.textures import place_textures
 from ..addon.properties import stored_path
 from ..addon.scene_objects import Skipped
 from ..addon.settings import bake_settings

@@ -261,7 +261,7 @@ def check_extraction(repo, work) -> dict:
     out["split"] = {"vertex": vertex.tolist(), "faces": faces.tolist(), "uv": split_uv.tolist()}
     # images as the preview gives them to the renderer: top row first, a float image's linear 0.5
     # sRGB-encoded (188), a byte image's values as they are
-    material_images = importlib.import_module(NAME + ".addon.material_images")
+    material_images = importlib.import_module(NAME + ".addon.materials.images")
     rows = {}
     for name, float_buffer in (("byte", False), ("float", True)):
         image = bpy.data.images.new(name, 1, 2, float_buffer=float_buffer)

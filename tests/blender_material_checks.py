@@ -10,7 +10,7 @@ Each case is a plane with UVs over [0, 1] and a material whose Base Color is bui
 from a small packed image and colour nodes. The reference is Blender's own: Cycles bakes the colour
 reaching Base Color (the same upstream socket linked into an Emission shader, EMIT pass: the base
 colour itself, without the diffuse lobe's layering) into a float image over the plane's UVs. The
-add-on's reading (addon/materials.py material_row: the row's texture file or base colour) is looked
+add-on's reading (addon/materials/rows.py material_row: the row's texture file or base colour) is looked
 up at the same UVs (through the UV transform it carries) and compared as PSNR in sRGB.
 """
 from __future__ import annotations
@@ -316,8 +316,8 @@ def check_node_trees(repo, work) -> dict:
     """Every case's reading against Cycles' bake of its base colour (PSNR, dB), and a grey material's
     PSNR (what a material whose colour is not read gives) for scale."""
     blender_preview.enable_from_repo(repo)
-    materials = importlib.import_module(NAME + ".addon.materials")
-    material_nodes = importlib.import_module(NAME + ".addon.material_nodes")
+    materials = importlib.import_module(NAME + ".addon.materials.rows")
+    material_nodes = importlib.import_module(NAME + ".addon.materials.node_tree")
     bpy.ops.wm.read_homefile(use_empty=True)
     image = _source_image()
     out = {}
@@ -412,15 +412,15 @@ def check_scene_reading(repo, work) -> dict:
     the output."""
     blender_preview.enable_from_repo(repo)
     scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
-    materials = importlib.import_module(NAME + ".addon.materials")
-    material_texture = importlib.import_module(NAME + ".addon.material_texture")
+    materials = importlib.import_module(NAME + ".addon.materials.rows")
+    material_texture = importlib.import_module(NAME + ".addon.materials.textures")
     bpy.ops.wm.read_homefile(use_empty=True)
     image = _source_image()
     out = {}
     for case in ("mapping", "uv_map"):
         obj = build_case(case, image)
         mesh = scene_mesh.evaluated_mesh(bpy.context, [obj])
-        source = importlib.import_module(NAME + ".addon.material_nodes").read_base_colour(
+        source = importlib.import_module(NAME + ".addon.materials.node_tree").read_base_colour(
             obj.material_slots[0].material).source
         corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)  # the plane's UVMap, per vertex
         if source.uv_map == "Flipped":
@@ -461,7 +461,7 @@ def _placed(material_texture, mesh, output: Path):
     return placed
 
 
-# --- materials whose tree cannot be read, baked by Cycles (addon/material_bake.py) -----------------
+# --- materials whose tree cannot be read, baked by Cycles (addon/materials/cycles_bake.py) -----------------
 
 FALLBACK_CASES = ("noise", "voronoi", "two_images", "unlit_noise")
 
@@ -475,9 +475,9 @@ def check_cycles_fallback(repo, work) -> dict:
     returned; a material on a plane without UVs kept with its warning; a second bake's files."""
     blender_preview.enable_from_repo(repo)
     scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
-    material_bake = importlib.import_module(NAME + ".addon.material_bake")
-    material_texture = importlib.import_module(NAME + ".addon.material_texture")
-    materials = importlib.import_module(NAME + ".addon.materials")
+    material_bake = importlib.import_module(NAME + ".addon.materials.cycles_bake")
+    material_texture = importlib.import_module(NAME + ".addon.materials.textures")
+    materials = importlib.import_module(NAME + ".addon.materials.rows")
     bpy.ops.wm.read_homefile(use_empty=True)
     image = _source_image()
     planes = [build_case(case, image) for case in FALLBACK_CASES]

@@ -275,7 +275,7 @@ def check_textures_beside(repo, work) -> dict:
     textures = sorted(p.name for p in (work / "quad.textures").iterdir()) if (work / "quad.textures").is_dir() else []
     baked = hlod_file.load(work / "quad.hlod") if status == 0 else None
     tiles = work / "quad_3dtiles"
-    material_images = importlib.import_module(NAME + ".addon.material_images").material_images
+    material_images = importlib.import_module(NAME + ".addon.materials.images").material_images
     first = material_images(baked.materials)[0] if baked is not None else None
     hue.inputs["Hue"].default_value = 0.7  # the same material re-baked: new pixels under the same name
     status_again = _cli(cli, "bake", "-o", str(work / "quad.hlod"))[0]
@@ -300,7 +300,7 @@ def check_textures_beside(repo, work) -> dict:
 
 def _png_rgba(path: Path) -> np.ndarray:
     """A PNG's pixels as (h, w, 4) uint8 RGBA, top row first (the extension's own reader)."""
-    image_rgba8 = importlib.import_module(NAME + ".addon.material_images").image_rgba8
+    image_rgba8 = importlib.import_module(NAME + ".addon.materials.images").image_rgba8
     image = bpy.data.images.load(str(path), check_existing=False)
     try:
         return image_rgba8(image)

@@ -3,7 +3,7 @@
 An image used as it is (a file on disk in sRGB, its colour unchanged by nodes, alpha unused) is
 referred to where it lies. Any other image the base colour comes from (processed by colour nodes,
 packed into the .blend, generated, a non-colour or float image) is evaluated through the
-material's node function (material_nodes) on all its pixels and written as an RGBA PNG (sRGB) into
+material's node function (node_tree) on all its pixels and written as an RGBA PNG (sRGB) into
 a scratch folder of this Blender process, named by its content; `place_textures` copies those
 into the bake's texture folder (published as OUT.textures/ beside the .hlod once it is written), so
 nothing is dropped.
@@ -24,11 +24,11 @@ from pathlib import Path
 import bpy
 import numpy as np
 
-from ..hlod_core.core.atomic import write_bytes_atomic
-from ..hlod_core.core.colour import srgb_from_linear
-from ..hlod_core.core.png import png_bytes
-from ..hlod_core.io.texture_folder import EmbeddedTextures, unique_file_name
-from .material_images import image_linear
+from ...hlod_core.core.atomic import write_bytes_atomic
+from ...hlod_core.core.colour import srgb_from_linear
+from ...hlod_core.core.png import png_bytes
+from ...hlod_core.io.texture_folder import EmbeddedTextures, unique_file_name
+from .images import image_linear
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +45,7 @@ def scratch_folder() -> Path:
 
 def base_colour_texture(material, reading) -> tuple[str, str, str, float] | None:
     """(texture file, image name for the preview, alpha mode, alpha cutoff) of a base colour read
-    from an image (`reading`: material_nodes.BaseColour); None, with a warning naming the image,
+    from an image (`reading`: node_tree.BaseColour); None, with a warning naming the image,
     when the image has no pixels (a missing file)."""
     image = reading.source.image
     if image.source == "TILED":

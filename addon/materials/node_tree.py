@@ -7,7 +7,7 @@ upstream and turned into a function of the one varying source it holds: an image
 Texture node, with the UV map and the constant Mapping before it) or a colour attribute (Color
 Attribute or Attribute node). Colour nodes on the way (Mix / Mix RGB and their blend modes,
 Hue/Saturation/Value, Gamma, Brightness/Contrast, Invert, RGB Curves, RGB and Value nodes, reroutes,
-node groups such as the glTF importer's) become numpy functions (node_colour_math), so any mix of
+node groups such as the glTF importer's) become numpy functions (colour_formulas), so any mix of
 them is evaluated on all the image's pixels (or the attribute's values) at once.
 
 Data form: `BaseColour.function` maps the source's values (n,4) float32 linear RGBA to the base
@@ -24,7 +24,7 @@ from typing import Callable
 import mathutils
 import numpy as np
 
-from . import node_colour_math as cm
+from . import colour_formulas as cm
 
 #: Samples of an RGB Curves node's table over [0, 1].
 CURVE_TABLE_SIZE = 256

@@ -1,9 +1,9 @@
-"""Base colours that cannot be read from a node tree (material_nodes' `unreadable`: a procedural
+"""Base colours that cannot be read from a node tree (node_tree's `unreadable`: a procedural
 texture, two images, a node the reader does not know), baked by Cycles into a texture per material:
 a copy of one mesh object using it (with a UV map, the most faces of the material) in a temporary
 scene, with a copy of the material whose base colour socket feeds an Emission shader, baked as the
 EMIT pass over its active render UV map. The artist's scene is never touched and the temporaries
-are removed whatever happens. The pixels become a written texture (material_texture.written_texture,
+are removed whatever happens. The pixels become a written texture (textures.written_texture,
 moved beside the .hlod by place_textures) and the row gets it with a white base colour; a material
 no object with a UV map uses keeps its Base Color value, with a warning.
 Why: docs/how-it-works.md#base-colours-baked-by-cycles
@@ -20,9 +20,9 @@ import logging
 import bpy
 import numpy as np
 
-from ..hlod_core.io import meshes
-from .material_nodes import read_base_colour, surface_shader
-from .material_texture import texture_image_name, written_texture
+from ...hlod_core.io import meshes
+from .node_tree import read_base_colour, surface_shader
+from .textures import texture_image_name, written_texture
 
 log = logging.getLogger(__name__)
 

@@ -1,4 +1,4 @@
-"""Per-corner attributes as each material reads them (material_nodes): the UV map its image is
+"""Per-corner attributes as each material reads them (node_tree): the UV map its image is
 looked up through, with its constant Mapping applied, and the colour attribute its base colour
 comes from, through its colour nodes.
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .material_nodes import read_base_colour
+from .node_tree import read_base_colour
 
 IDENTITY_AFFINE = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
 

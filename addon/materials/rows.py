@@ -14,9 +14,9 @@ import os
 import bpy
 import numpy as np
 
-from ..hlod_core.model.appearance import DEFAULT_BASE_COLOR, Material
-from .material_nodes import read_base_colour, surface_shader
-from .material_texture import base_colour_texture
+from ...hlod_core.model.appearance import DEFAULT_BASE_COLOR, Material
+from .node_tree import read_base_colour, surface_shader
+from .textures import base_colour_texture
 
 log = logging.getLogger(__name__)
 
@@ -38,13 +38,13 @@ def cached_material_row(material, rows: dict) -> Material:
 
 def material_row(material) -> Material:
     """Base colour (linear RGBA), metallic, roughness, base-colour texture and alpha mode of a
-    material: its node tree's surface as the viewport draws it (material_nodes) when the material
+    material: its node tree's surface as the viewport draws it (node_tree) when the material
     uses nodes, its viewport values otherwise. An image used as it is (a file on disk, sRGB, no
     colour node on the way) gives its own file; an image processed by colour nodes, packed or
-    generated gives a PNG of the processed pixels (material_texture.base_colour_texture). Either way
+    generated gives a PNG of the processed pixels (textures.base_colour_texture). Either way
     `image` names what the preview draws and the base colour is white. A tree that cannot be read
     gives the Base Color value here; the bake replaces it with Cycles' bake of the colour
-    (material_bake.bake_unreadable_materials)."""
+    (cycles_bake.bake_unreadable_materials)."""
     base, metallic, roughness = tuple(material.diffuse_color), material.metallic, material.roughness
     texture = image = None
     alpha_mode, alpha_cutoff = "OPAQUE", 0.5

@@ -10,7 +10,7 @@ import os
 import bpy
 import numpy as np
 
-from ..hlod_core.core.colour import srgb_from_linear, srgb_to_linear
+from ...hlod_core.core.colour import srgb_from_linear, srgb_to_linear
 
 log = logging.getLogger(__name__)
 
