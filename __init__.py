@@ -43,25 +43,26 @@ def _on_load_pre(*_args) -> None:
 
 
 def _on_load_post(*_args) -> None:
-    from .addon import source_hiding
+    from .addon.scene import source_hiding
 
     source_hiding.restore_leftovers()
 
 
 def _on_save_pre(*_args) -> None:
-    from .addon import source_hiding
+    from .addon.scene import source_hiding
 
     source_hiding.suspend()
 
 
 def _on_save_post(*_args) -> None:
-    from .addon import source_hiding
+    from .addon.scene import source_hiding
 
     source_hiding.resume()
 
 
 def _on_undo_redo(*_args) -> None:
-    from .addon import preview, source_hiding, source_record
+    from .addon import preview
+    from .addon.scene import source_hiding, source_record
 
     source_hiding.on_undo()
     source_record.on_undo()
@@ -69,7 +70,8 @@ def _on_undo_redo(*_args) -> None:
 
 
 def _on_depsgraph_update(scene, depsgraph=None, *_args) -> None:
-    from .addon import bake_plan, preview, source_record
+    from .addon import bake_plan, preview
+    from .addon.scene import source_record
 
     bake_plan.schedule()  # the Bake section's count of what a bake would take
     if depsgraph is not None and source_record.on_depsgraph_update(scene, depsgraph):

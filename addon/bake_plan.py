@@ -1,6 +1,6 @@
 """What a bake of the current Source would take, for the Bake section before it starts: "Will bake
 12 objects, 1,234,567 triangles" (and what it would skip). Counted by
-scene_objects.planned_count (the bake's own instances, no mesh copied) on a timer at most every
+scene/objects.py planned_count (the bake's own instances, no mesh copied) on a timer at most every
 REFRESH_S after a depsgraph update, never in draw code; background mode (no panel) counts nothing.
 """
 from __future__ import annotations
@@ -8,8 +8,7 @@ from __future__ import annotations
 import bpy
 
 from ..hlod_core.core.errors import InputError
-from . import scene_mesh
-from .scene_objects import Skipped, note_hidden, planned_count
+from .scene.objects import Skipped, note_hidden, planned_count, source_objects
 
 #: Seconds between a depsgraph update and the recount (updates in between are counted once).
 REFRESH_S = 0.5
@@ -49,7 +48,7 @@ def count_line(context) -> str:
     """'Will bake N objects, T triangles' for the scene's Source setting, with what it would skip,
     or why it cannot bake."""
     try:
-        objects = scene_mesh.source_objects(context, context.scene.hlod)
+        objects = source_objects(context, context.scene.hlod)
     except InputError as exc:
         return str(exc)
     depsgraph = context.evaluated_depsgraph_get()

@@ -17,7 +17,7 @@ for that file. The bake keeps its cache (hlod_core/bake/cache.py) in OUT.hlod.ca
 folder and each file FILE.blend gives OUT/FILE.hlod and, with `--format 3dtiles`, OUT/FILE_3dtiles/.
 By default a bake takes what the view layer shows (the objects named, or every object of the
 scene); --include-hidden takes objects hidden in the viewport too. What it leaves out (hidden
-objects, kinds without triangles: addon/scene_objects.py) is named in one stderr line per file.
+objects, kinds without triangles: addon/scene/objects.py) is named in one stderr line per file.
 A file that fails is one stderr line naming it and the reason (never a traceback) and the others
 go on. The last stdout line is a JSON summary ({"files": [{"blend", "ok", "outputs", "skipped" |
 "error"}], "failed": N}); the exit status is 1 if any failed, 2 for bad arguments.
@@ -43,11 +43,11 @@ from ..hlod_core.core.errors import HlodError, InputError
 from ..hlod_core.export.formats import export_hlod
 from ..hlod_core.io import hlod_file
 from ..hlod_core.io.texture_folder import EmbeddedTextures
-from . import scene_mesh
+from .scene import gather as scene_mesh
 from .bake_job import BakeJob
 from .materials.cycles_bake import bake_unreadable_materials, cycles_report
 from .materials.textures import place_textures
-from .scene_objects import HIDDEN, Skipped
+from .scene.objects import HIDDEN, Skipped
 
 _cli_command = None  # the handle of the registered command
 

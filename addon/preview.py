@@ -27,7 +27,8 @@ from ..hlod_core.io import hlod_file
 from ..hlod_core.model.hierarchy import Hlod
 from ..hlod_core.model.view import View
 from ..hlod_core.traversal.stats import FrameStats
-from . import glcontext, source_hiding, source_record, viewport_text
+from . import glcontext, viewport_text
+from .scene import source_hiding, source_record
 from .materials.images import material_images
 from .preview_boxes import draw_boxes
 from .preview_contexts import GLContexts, blender_backend

@@ -3,15 +3,16 @@ processes, and `last_bake`, the line the panel shows about the last bake), runti
 settings, read-only live statistics (getters over the running preview; nothing is written from the
 draw handler), `psnr_target` and `last_tuning` (Tune to PSNR's target and its last result),
 `tiles_dir` (the last 3D Tiles export, which View in Browser serves), and two records: the objects
-the last bake took, with content keys (`source_objects`, `source_file`; addon/source_record.py) and
+the last bake took, with content keys (`source_objects`, `source_file`; addon/scene/source_record.py) and
 the objects the running preview hid (`hidden_objects`, `hidden_view_layer`;
-addon/source_hiding.py)."""
+addon/scene/source_hiding.py)."""
 import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
                        PointerProperty, StringProperty)
 
 from ..hlod_core.traversal.settings import RuntimeSettings
-from . import preview, source_record
+from . import preview
+from .scene import source_record
 
 # Path properties that may hold a path relative to the .blend ("//..."). Blender 5.0 and later (not
 # 4.2 LTS) have the PATH_SUPPORTS_BLEND_RELATIVE option and print a RuntimeWarning ("does not support

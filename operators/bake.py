@@ -4,7 +4,7 @@ them in a child process of Blender's Python with `scene.hlod.jobs` worker proces
 execute(), as in background mode). A bake that fails or dies is reported; Blender and an earlier
 .hlod stay as they were.
 
-Bake records the objects it took and their content keys on the scene (addon/source_record.py);
+Bake records the objects it took and their content keys on the scene (addon/scene/source_record.py);
 `hlod.bake(recorded=True)` is Re-bake: it bakes the recorded objects again. A bake while the
 preview runs stops the preview first (its sources are hidden, and hidden objects give the depsgraph
 no instances to read), then starts it again on the new file, or on the old one if the bake fails.
@@ -17,12 +17,13 @@ from pathlib import Path
 import bpy
 from bpy.props import BoolProperty
 
-from ..addon import preview, scene_mesh, source_record
+from ..addon import preview
+from ..addon.scene import gather as scene_mesh, objects as scene_objects, source_record
 from ..addon.bake_job import BakeJob
 from ..addon.materials.cycles_bake import bake_unreadable_materials, cycles_report
 from ..addon.materials.textures import place_textures
 from ..addon.properties import stored_path
-from ..addon.scene_objects import Skipped
+from ..addon.scene.objects import Skipped
 from ..addon.settings import bake_settings
 from ..hlod_core.bake import cache
 from ..hlod_core.core.errors import BakeCancelled, HlodError, InputError
@@ -68,7 +69,7 @@ class HLOD_OT_bake(bpy.types.Operator):
         folder = os.path.dirname(out) or "."
         if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
             raise InputError(f"Bake: cannot write {out}: folder {folder} is missing or not writable")
-        objects = self._recorded_objects(context) if self.recorded else scene_mesh.source_objects(context, props)
+        objects = self._recorded_objects(context) if self.recorded else scene_objects.source_objects(context, props)
         taken: list = []
         attributes: dict = {}
         skipped = Skipped()
@@ -76,7 +77,7 @@ class HLOD_OT_bake(bpy.types.Operator):
         mesh, cycles_baked = bake_unreadable_materials(context, mesh)  # node trees that cannot be read
         if cycles_baked:
             self.report({"INFO"}, f"HLOD bake: {cycles_report(cycles_baked)}")
-        if skipped:  # kinds without triangles, hidden objects: named once (addon/scene_objects.py)
+        if skipped:  # kinds without triangles, hidden objects: named once (addon/scene/objects.py)
             self.report({"WARNING"}, f"HLOD bake: {skipped.text()}")
         rows = source_record.record(taken, context.evaluated_depsgraph_get())
         # textures made from node trees, packed images: OUT.textures once the .hlod is written (_end)
@@ -86,7 +87,7 @@ class HLOD_OT_bake(bpy.types.Operator):
 
     def _recorded_objects(self, context) -> list:
         """Re-bake's objects: those of the scene's record still in the scene (a warning names the others)."""
-        objects, missing = scene_mesh.recorded_objects(context, context.scene.hlod)
+        objects, missing = scene_objects.recorded_objects(context, context.scene.hlod)
         if missing:
             shown = ", ".join(repr(name) for name in missing[:MISSING_SHOWN])
             shown += " ..." if len(missing) > MISSING_SHOWN else ""

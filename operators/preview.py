@@ -1,11 +1,12 @@
 """Toggle Preview and Materialize (docs/user-guide.md): the live preview in the 3D viewport (addon/preview.py),
-and Blender mesh objects of its current front or of every node at a depth (addon/materialize.py)."""
+and Blender mesh objects of its current front or of every node at a depth (addon/scene/node_objects.py)."""
 from __future__ import annotations
 
 import bpy
 from bpy.props import IntProperty
 
-from ..addon import materialize, preview
+from ..addon import preview
+from ..addon.scene import node_objects as materialize
 from ..hlod_core.core.errors import HlodError, InputError
 from ..hlod_core.io import hlod_file
 

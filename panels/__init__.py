@@ -2,10 +2,11 @@
 the last bake's summary), Preview (with Export and View in Browser, and the viewer's address and Stop
 while it serves; Benchmark and Tune to PSNR with its target and last result), Overlay, Statistics.
 Draw code reads state only: the count of changed sources is kept current by the depsgraph handler
-(addon/source_record.py), not computed here."""
+(addon/scene/source_record.py), not computed here."""
 import bpy
 
-from ..addon import bake_job, bake_plan, preview, source_record, viewport_text
+from ..addon import bake_job, bake_plan, preview, viewport_text
+from ..addon.scene import source_record
 from ..operators.view_tiles import viewer_url
 
 

@@ -242,7 +242,7 @@ def _vertices(obj) -> int:
 def check_extraction(repo, work) -> dict:
     """evaluated_mesh on the textured scene, on a scene without appearance, and on an empty slot."""
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
     names = textured_scene(Path(work))
     objects = [bpy.data.objects[name] for name in names["objects"]]
     attributes: dict = {}

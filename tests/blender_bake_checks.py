@@ -186,7 +186,7 @@ def _monkeys(count: int, levels: int, collection_name: str | None = None) -> int
 
 def _modules():
     return {name: importlib.import_module(f"{NAME}.{name}") for name in
-            ("addon.bake_job", "addon.scene_mesh", "hlod_core.bake.pipeline", "hlod_core.io.hlod_file", "hlod_core.core.errors")}
+            ("addon.bake_job", "addon.scene.gather", "hlod_core.bake.pipeline", "hlod_core.io.hlod_file", "hlod_core.core.errors")}
 
 
 def _leftovers(folder: Path) -> list[str]:
@@ -216,8 +216,8 @@ def check_child_bake(repo, work) -> dict:
     with Spy() as spy:
         result = sorted(bpy.ops.hlod.bake())
     attributes: dict = {}
-    objects = m["addon.scene_mesh"].source_objects(bpy.context, props)
-    mesh = m["addon.scene_mesh"].evaluated_mesh(bpy.context, objects, attributes=attributes)
+    objects = importlib.import_module(NAME + ".addon.scene.objects").source_objects(bpy.context, props)
+    mesh = m["addon.scene.gather"].evaluated_mesh(bpy.context, objects, attributes=attributes)
     bake = m["hlod_core.bake.pipeline"]
     settings = importlib.import_module(NAME + ".addon.settings").bake_settings(props)  # the panel's float32s
     here = bake.bake(mesh, dataclasses.replace(settings, jobs=1), extra_meta=attributes or None)
@@ -277,7 +277,7 @@ def check_cancel(repo, work) -> dict:
     tmp = _private_tmp(work)
     m = _modules()
     _monkeys(16, 2)
-    mesh = m["addon.scene_mesh"].evaluated_mesh(bpy.context, list(bpy.context.selected_objects))
+    mesh = m["addon.scene.gather"].evaluated_mesh(bpy.context, list(bpy.context.selected_objects))
     out_path = Path(work) / "monkeys.hlod"
     small = m["hlod_core.bake.pipeline"].bake(mesh, m["hlod_core.bake.pipeline"].BakeSettings(target_tris=1_000_000, max_depth=0))
     m["hlod_core.io.hlod_file"].save(small, out_path)  # the earlier file: the mesh as one node
@@ -349,7 +349,7 @@ def check_parent_dies(repo, work) -> dict:
     tmp = _private_tmp(work)
     m = _modules()
     _monkeys(16, 2)
-    mesh = m["addon.scene_mesh"].evaluated_mesh(bpy.context, list(bpy.context.selected_objects))
+    mesh = m["addon.scene.gather"].evaluated_mesh(bpy.context, list(bpy.context.selected_objects))
     job = m["addon.bake_job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(Path(work) / "x.hlod"))
     started = _wait_until(lambda: len(workers(job.pid)) >= 2 and job.progress[2] == "simplify", 120.0)
     out = {"child": job.pid, "group": group(job.pid), "workers_started_s": started, "tmp": str(tmp),
@@ -576,7 +576,7 @@ def check_bake_speed(repo, work, repeats: str = "1") -> dict:
     # the overhead of the child on a small scene
     blender_checks._box_row_scene()
     props.source, props.jobs, props.output_path, props.target_tris = "SELECTED", 1, str(Path(work) / "row.hlod"), 400
-    objects = m["addon.scene_mesh"].source_objects(bpy.context, props)
+    objects = importlib.import_module(NAME + ".addon.scene.objects").source_objects(bpy.context, props)
     bake = m["hlod_core.bake.pipeline"]
     child_s, here_s = [], []
     for _ in range(5):
@@ -584,7 +584,7 @@ def check_bake_speed(repo, work, repeats: str = "1") -> dict:
         assert sorted(bpy.ops.hlod.bake()) == ["FINISHED"]
         child_s.append(time.perf_counter() - started)
         started = time.perf_counter()
-        mesh = m["addon.scene_mesh"].evaluated_mesh(bpy.context, objects)
+        mesh = m["addon.scene.gather"].evaluated_mesh(bpy.context, objects)
         m["hlod_core.io.hlod_file"].save(bake.bake(mesh, bake.BakeSettings(target_tris=400, jobs=1)),
                                        Path(work) / "row_here.hlod")
         here_s.append(time.perf_counter() - started)

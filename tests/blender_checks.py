@@ -116,7 +116,7 @@ def _box_row_scene():
 
 
 def _box_row_mesh():
-    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
     return scene_mesh.evaluated_mesh(bpy.context, [o for o in bpy.context.scene.objects])
 
 

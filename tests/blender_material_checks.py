@@ -411,7 +411,7 @@ def check_scene_reading(repo, work) -> dict:
     the alpha mode of a clipped and of a blended image alpha; the written textures placed beside
     the output."""
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
     materials = importlib.import_module(NAME + ".addon.materials.rows")
     material_texture = importlib.import_module(NAME + ".addon.materials.textures")
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -474,7 +474,7 @@ def check_cycles_fallback(repo, work) -> dict:
     settings, selection, active object, datablocks, node trees, the image's pixels); the names
     returned; a material on a plane without UVs kept with its warning; a second bake's files."""
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
     material_bake = importlib.import_module(NAME + ".addon.materials.cycles_bake")
     material_texture = importlib.import_module(NAME + ".addon.materials.textures")
     materials = importlib.import_module(NAME + ".addon.materials.rows")

@@ -461,7 +461,7 @@ def check_stale(repo, work) -> dict:
     preview and the count is 0 again."""
     blender_preview.enable_from_repo(repo)
     preview = importlib.import_module(NAME + ".addon.preview")
-    source_record = importlib.import_module(NAME + ".addon.source_record")
+    source_record = importlib.import_module(NAME + ".addon.scene.source_record")
     names = row_scene()
     scene = bpy.context.scene
     animated = bpy.data.objects["cube 3"]  # still at frame 1, one unit up at frame 10

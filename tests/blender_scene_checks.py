@@ -196,8 +196,8 @@ def check_kinds(repo, work) -> dict:
     work = Path(work)
     known = _kinds_scene(work)  # factory settings first: they would disable the add-on
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
-    scene_objects = importlib.import_module(NAME + ".addon.scene_objects")
+    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
+    scene_objects = importlib.import_module(NAME + ".addon.scene.objects")
     bake_plan = importlib.import_module(NAME + ".addon.bake_plan")
     cli = importlib.import_module(NAME + ".addon.cli")
     drawn, converted = _blender_counts()
@@ -233,7 +233,7 @@ def check_uv_maps(repo, work) -> dict:
     meta's map name are the render map's."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
     quad = _link("Quad", _mesh("Quad", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)]))
     material = bpy.data.materials.new("Paint")
     quad.data.materials.append(material)
@@ -347,7 +347,7 @@ def check_colour_attributes(repo, work) -> dict:
     the set ones (a byte colour is stored as 8-bit sRGB, so it comes back within its step)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene_mesh")
+    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
     rng = np.random.default_rng(7)
     out = {}
     for i, (domain, kind) in enumerate((("POINT", "FLOAT_COLOR"), ("POINT", "BYTE_COLOR"),

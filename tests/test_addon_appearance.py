@@ -4,7 +4,7 @@ process (tests/blender_appearance_checks.py, on a textured scene it makes with b
 made in Blender, two materials, a UV map, corner and point colour attributes, a linked mirrored
 duplicate, collection instances).
 
-Extraction (addon/scene_mesh.py): materials resolved through the slots, one row per datablock, the
+Extraction (addon/scene/gather.py): materials resolved through the slots, one row per datablock, the
 active render UV map and colour attribute per corner, vertices split only where corners differ.
 The bake from Blender keeps them: every leaf corner equals a source corner in position, UV and
 colour, per material. The preview draws the texture (GL mode through the renderer, private mode

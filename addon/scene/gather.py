@@ -1,6 +1,6 @@
 """Blender meshes into hlod_core (docs/user-guide.md): the evaluated geometry of the chosen objects (modifiers
 applied, instances from collection instances, particles and geometry nodes realised, world
-transforms; which instances, and what is skipped and named: addon/scene_objects.py), read through
+transforms; which instances, and what is skipped and named: addon/scene/objects.py), read through
 the depsgraph without touching the source objects, as one
 `meshes.TriangleMesh` in world units, with its appearance (hlod_core/model/appearance.py):
 - per triangle, the material: loop_triangles' material_index resolved through the evaluated
@@ -13,7 +13,7 @@ the depsgraph without touching the source objects, as one
   differ: one vertex per distinct (vertex, uv, colour) (`split_corners`).
 A selection with no material has no UVs either (nothing it draws uses them); one with no material,
 UV map or colour attribute gives a mesh without appearance. The way out, Blender objects for a set
-of nodes, is addon/materialize.py.
+of nodes, is addon/scene/node_objects.py.
 """
 from __future__ import annotations
 
@@ -23,45 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..hlod_core.core.errors import InputError
-from ..hlod_core.io import meshes
-from ..hlod_core.model.appearance import Material
-from .materials.corner_attributes import material_corners
-from .materials.rows import DEFAULT_MATERIAL, cached_material_row
-from .scene_objects import NOT_FINITE, Skipped, drawn_instances, note_hidden, owner, shown_hidden
-
-
-def source_objects(context, props) -> list:
-    """The objects the Source setting names (`props`: scene.hlod): the selected objects, or every
-    object of the chosen collection with its children collections. InputError when there are none."""
-    if props.source == "COLLECTION":
-        if props.collection is None:
-            raise InputError("Bake: choose a collection (Source: Collection)")
-        objects = list(props.collection.all_objects)
-        where = f"collection {props.collection.name!r}"
-    else:
-        # a timer's context (the panel's count, addon/bake_plan.py) has the view layer, not selected_objects
-        selected = context.selected_objects if hasattr(context, "selected_objects") else context.view_layer.objects.selected
-        objects = list(selected)
-        where = "the selection"
-    if not objects:
-        raise InputError(f"Bake: {where} has no objects")
-    return objects
-
-
-def recorded_objects(context, props) -> tuple[list, list[str]]:
-    """The objects the scene's record names (the last bake's sources, addon/source_record.py) that
-    the scene still has, and the names it has no object for (renamed or deleted since)."""
-    names = [item.name for item in props.source_objects]
-    if not names:
-        raise InputError("Re-bake: the scene has no record of the objects a bake took; bake them first")
-    found = [context.scene.objects.get(name) for name in names]
-    missing = [name for name, obj in zip(names, found) if obj is None]
-    objects = [obj for obj in found if obj is not None]
-    if not objects:
-        raise InputError(f"Re-bake: none of the {len(names)} recorded objects is in the scene any more "
-                         "(renamed or deleted); choose the sources and Bake")
-    return objects, missing
+from ...hlod_core.core.errors import InputError
+from ...hlod_core.io import meshes
+from ...hlod_core.model.appearance import Material
+from ..materials.corner_attributes import material_corners
+from ..materials.rows import DEFAULT_MATERIAL, cached_material_row
+from .objects import NOT_FINITE, Skipped, drawn_instances, note_hidden, owner, shown_hidden
 
 
 @dataclass(eq=False)
@@ -85,7 +52,7 @@ class _Part:
 def evaluated_mesh(context, objects, *, taken: list | None = None, attributes: dict | None = None,
                    skipped: Skipped | None = None, include_hidden: bool = False) -> meshes.TriangleMesh:
     """Triangles of every object in `objects` and of every instance they make, world space, with
-    their appearance (module notes): each triangle Blender draws (addon/scene_objects.py).
+    their appearance (module notes): each triangle Blender draws (addon/scene/objects.py).
     taken: if given, receives the objects of `objects` that gave triangles, in `objects`' order.
     attributes: if given, receives the names of the UV map and the colour attribute carried
     ({"uv_map": ..., "color_attribute": ...}, each only when carried: the most used name when the

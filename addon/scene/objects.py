@@ -1,4 +1,7 @@
-"""Which instances a bake from Blender takes, and what it leaves out (docs/user-guide.md#what-a-bake-takes).
+"""Which objects and instances a bake from Blender takes, and what it leaves out (docs/user-guide.md#what-a-bake-takes).
+
+The objects: those the Source setting names (`source_objects`), or those the scene's record of the
+last bake names (`recorded_objects`, Re-bake).
 
 Blender draws a scene's triangles from the evaluated depsgraph's instances of type MESH: a mesh
 object's own geometry, and the evaluated mesh of a curve, text, surface or metaball (an instance
@@ -19,6 +22,8 @@ from dataclasses import dataclass, field
 
 import bpy
 
+from ...hlod_core.core.errors import InputError
+
 #: Object types that draw no triangles and are named when skipped: type -> (one, many).
 SKIPPED_KINDS = {
     "POINTCLOUD": ("point cloud", "point clouds"),
@@ -38,6 +43,39 @@ NOT_FINITE = ("object with vertex positions that are not finite numbers",
 NAMES_SHOWN = 8
 #: The view layer `shown_hidden` adds while it reads (removed after).
 TEMPORARY_VIEW_LAYER = "HLOD bake: hidden objects shown"
+
+
+def source_objects(context, props) -> list:
+    """The objects the Source setting names (`props`: scene.hlod): the selected objects, or every
+    object of the chosen collection with its children collections. InputError when there are none."""
+    if props.source == "COLLECTION":
+        if props.collection is None:
+            raise InputError("Bake: choose a collection (Source: Collection)")
+        objects = list(props.collection.all_objects)
+        where = f"collection {props.collection.name!r}"
+    else:
+        # a timer's context (the panel's count, addon/bake/plan.py) has the view layer, not selected_objects
+        selected = context.selected_objects if hasattr(context, "selected_objects") else context.view_layer.objects.selected
+        objects = list(selected)
+        where = "the selection"
+    if not objects:
+        raise InputError(f"Bake: {where} has no objects")
+    return objects
+
+
+def recorded_objects(context, props) -> tuple[list, list[str]]:
+    """The objects the scene's record names (the last bake's sources, addon/scene/source_record.py) that
+    the scene still has, and the names it has no object for (renamed or deleted since)."""
+    names = [item.name for item in props.source_objects]
+    if not names:
+        raise InputError("Re-bake: the scene has no record of the objects a bake took; bake them first")
+    found = [context.scene.objects.get(name) for name in names]
+    missing = [name for name, obj in zip(names, found) if obj is None]
+    objects = [obj for obj in found if obj is not None]
+    if not objects:
+        raise InputError(f"Re-bake: none of the {len(names)} recorded objects is in the scene any more "
+                         "(renamed or deleted); choose the sources and Bake")
+    return objects, missing
 
 
 @dataclass

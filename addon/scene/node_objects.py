@@ -10,8 +10,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..hlod_core.model.hierarchy import node_geometry
-from .materials.rows import material_from_row
+from ...hlod_core.model.hierarchy import node_geometry
+from ..materials.rows import material_from_row
 
 #: Names Materialize gives the UV map and the colour attribute when the bake did not record them.
 DEFAULT_UV_MAP, DEFAULT_COLOR_ATTRIBUTE = "UVMap", "Color"
