@@ -35,10 +35,10 @@ def _classes() -> list:
 
 
 def _on_load_pre(*_args) -> None:
-    from .addon import preview
+    from .addon.preview import live
     from .operators import viewer_stop
 
-    preview.stop(reason="a file was loaded")
+    live.PREVIEW.stop(reason="a file was loaded")
     viewer_stop()
 
 
@@ -61,21 +61,22 @@ def _on_save_post(*_args) -> None:
 
 
 def _on_undo_redo(*_args) -> None:
-    from .addon import preview
+    from .addon.preview import live
     from .addon.scene import source_hiding, source_record
 
     source_hiding.on_undo()
     source_record.on_undo()
-    preview.redraw()
+    live.redraw()
 
 
 def _on_depsgraph_update(scene, depsgraph=None, *_args) -> None:
-    from .addon import bake_plan, preview
+    from .addon import bake_plan
+    from .addon.preview import live
     from .addon.scene import source_record
 
     bake_plan.schedule()  # the Bake section's count of what a bake would take
     if depsgraph is not None and source_record.on_depsgraph_update(scene, depsgraph):
-        preview.redraw()  # the panel and the corner text show the new count
+        live.redraw()  # the panel and the corner text show the new count
 
 
 _HANDLERS = (("load_pre", _on_load_pre), ("load_post", _on_load_post), ("save_pre", _on_save_pre),
@@ -107,9 +108,10 @@ def unregister() -> None:
         return
     import bpy
 
-    from .addon import bake_plan, cli, preview, properties
+    from .addon import bake_plan, cli, properties
+    from .addon.preview.live import PREVIEW
 
-    preview.shutdown()  # stops the preview (the hidden sources are shown) and frees the private context too
+    PREVIEW.shutdown()  # stops the preview (the hidden sources are shown) and frees the private context too
     cli.unregister()
     for event, handler in reversed(_HANDLERS):
         handlers = getattr(bpy.app.handlers, event)

@@ -19,7 +19,8 @@ from ..hlod_core.core.errors import InputError
 from ..hlod_core.io import hlod_file
 from ..hlod_core.model.camera_path import CameraPath
 from ..hlod_core.report import evaluate, tuning
-from . import glcontext, preview
+from .preview import current_context
+from .preview.live import PREVIEW
 from .settings import runtime_settings
 
 
@@ -62,7 +63,7 @@ def _setup(context, what: str):
     props = scene.hlod
     if not props.file:
         raise InputError(f"{what}: no baked file; run Bake first")
-    hlod = preview.current_hlod() or hlod_file.load(bpy.path.abspath(props.file))
+    hlod = PREVIEW.current_hlod() or hlod_file.load(bpy.path.abspath(props.file))
     r = scene.render
     size = (max(1, r.resolution_x * r.resolution_percentage // 100), max(1, r.resolution_y * r.resolution_percentage // 100))
     return hlod, size, camera_path(scene, context.evaluated_depsgraph_get(), size, what=what)
@@ -72,7 +73,7 @@ def run(context, folder: str, repeat: int) -> tuple[dict, str]:
     """Benchmark: every method on the camera's animation; the report (evaluate's) and its folder."""
     hlod, size, path = _setup(context, "Benchmark")
     os.makedirs(folder, exist_ok=True)
-    with glcontext.keep_current():
+    with current_context.keep_current():
         report = evaluate.evaluate(hlod, path, size, methods=list(evaluate.METHOD_SPECS),
                                    settings=runtime_settings(context.scene.hlod), repeat=repeat, out_dir=folder,
                                    psnr_frames=min(20, len(path)), figures=figures_available())
@@ -87,7 +88,7 @@ def tune(context, folder: str, repeat: int) -> tuple[dict, str]:
     target = tuning.check_target(props.psnr_target)
     hlod, size, path = _setup(context, "Tune to PSNR")
     os.makedirs(folder, exist_ok=True)
-    with glcontext.keep_current():
+    with current_context.keep_current():
         report = tuning.tune(hlod, path, size, target_db=target, settings=runtime_settings(props), repeat=repeat,
                              out_dir=folder, psnr_frames=min(20, len(path)), figures=figures_available())
     return report, folder

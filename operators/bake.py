@@ -17,7 +17,7 @@ from pathlib import Path
 import bpy
 from bpy.props import BoolProperty
 
-from ..addon import preview
+from ..addon.preview.live import PREVIEW
 from ..addon.scene import gather as scene_mesh, objects as scene_objects, source_record
 from ..addon.bake_job import BakeJob
 from ..addon.materials.cycles_bake import bake_unreadable_materials, cycles_report
@@ -62,9 +62,9 @@ class HLOD_OT_bake(bpy.types.Operator):
         """(mesh, output path, settings, record rows, the bake's extra meta: the UV map's and colour
         attribute's names). Stops a running preview first (module notes)."""
         props = context.scene.hlod
-        self._restart = preview.running()
+        self._restart = PREVIEW.running()
         if self._restart:
-            preview.stop()
+            PREVIEW.stop()
         out = output_path(props)
         folder = os.path.dirname(out) or "."
         if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
@@ -144,7 +144,7 @@ class HLOD_OT_bake(bpy.types.Operator):
             return
         self._restart = False
         try:
-            preview.start(context.scene)
+            PREVIEW.start(context.scene)
         except (HlodError, OSError) as exc:
             self.report({"WARNING"}, f"HLOD preview not restarted: {exc}")
 
@@ -222,7 +222,7 @@ class HLOD_OT_clear(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
-        preview.stop()
+        PREVIEW.stop()
         props = context.scene.hlod
         props.file = ""
         source_record.store(props, [], "")  # the record belongs to the file

@@ -5,7 +5,9 @@ Draw code reads state only: the count of changed sources is kept current by the 
 (addon/scene/source_record.py), not computed here."""
 import bpy
 
-from ..addon import bake_job, bake_plan, preview, viewport_text
+from ..addon import bake_job, bake_plan
+from ..addon.preview import corner_text
+from ..addon.preview.live import PREVIEW
 from ..addon.scene import source_record
 from ..operators.view_tiles import viewer_url
 
@@ -80,7 +82,7 @@ class HLOD_PT_preview(_HlodSection, bpy.types.Panel):
 
     def draw(self, context):
         props, layout = context.scene.hlod, self.layout
-        on = preview.running()
+        on = PREVIEW.running()
         layout.operator("hlod.preview_toggle", text="Stop Preview" if on else "Start Preview",
                         icon="HIDE_OFF" if on else "HIDE_ON", depress=on)
         if on:
@@ -130,7 +132,7 @@ def _draw_viewer(layout) -> None:
 
 def _draw_sources(layout) -> None:
     """What the preview stands in for: hidden sources, and those changed since the bake (Re-bake)."""
-    recorded, hidden = preview.sources_in_place()
+    recorded, hidden = PREVIEW.sources_in_place()
     if not recorded:
         layout.label(text="Sources not recorded for this file: they stay visible", icon="INFO")
         layout.operator("hlod.bake", text="Bake to Record Them", icon="MOD_DECIM")
@@ -138,7 +140,7 @@ def _draw_sources(layout) -> None:
     layout.label(text=f"{hidden} of {recorded} baked objects hidden", icon="HIDE_ON")
     tracker = source_record.tracker()
     if tracker is not None and tracker.changed:
-        layout.label(text=viewport_text.stale_message(len(tracker.changed), recorded), icon="ERROR")
+        layout.label(text=corner_text.stale_message(len(tracker.changed), recorded), icon="ERROR")
         layout.operator("hlod.bake", text="Re-bake", icon="FILE_REFRESH").recorded = True
 
 

@@ -121,7 +121,7 @@ def draw_offscreen(package, scene, size, *, before=None, after=None) -> np.ndarr
     pixels (H, W, 4) uint8, bottom row first."""
     import gpu
 
-    preview = importlib.import_module(package.__name__ + ".addon.preview")
+    preview = importlib.import_module(package.__name__ + ".addon.preview.live").PREVIEW
     view, projection = camera_matrices(scene, size)
     offscreen = gpu.types.GPUOffScreen(*size)
     try:
@@ -156,7 +156,7 @@ def main() -> None:
     from hlod_core.core.png import write_png
 
     package = enable_from_source()
-    preview = importlib.import_module(package.__name__ + ".addon.preview")
+    preview = importlib.import_module(package.__name__ + ".addon.preview.live").PREVIEW
     init_gpu()
     scene = bpy.context.scene
     hlod = hlod_file.load(args.file)

@@ -248,7 +248,7 @@ def main() -> None:
     import gpu
 
     package = blender_preview.enable_from_source()
-    preview = importlib.import_module(package.__name__ + ".addon.preview")
+    preview = importlib.import_module(package.__name__ + ".addon.preview.live").PREVIEW
     blender_preview.init_gpu()
     bpy.context.preferences.system.viewport_aa = "OFF"  # one sample per frame (module notes)
     scene = bpy.context.scene

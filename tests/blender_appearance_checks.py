@@ -351,9 +351,9 @@ def check_appearance(repo, work) -> dict:
     blender_preview.init_gpu()
     props.method, props.show_modulation = "coh", False
     bpy.ops.hlod.preview_toggle()
-    preview = importlib.import_module(NAME + ".addon.preview")
+    preview = importlib.import_module(NAME + ".addon.preview.live").PREVIEW
     houses = [bpy.data.objects["house"], bpy.data.objects["house twin"]]
-    out["images"] = {str(k): list(v.shape) for k, v in preview.PREVIEW.session.images.items()}
+    out["images"] = {str(k): list(v.shape) for k, v in preview.session.images.items()}
     out["gl"] = _preview_picture(package, scene, houses)
     props.private_context = True
     out["private"] = _preview_picture(package, scene, houses)

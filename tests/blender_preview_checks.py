@@ -145,7 +145,7 @@ def draw_scene(package, *, preview: bool, text: bool = False, size=SIZE) -> np.n
     with `text` the corner text in pixel space. (H, W, 4) uint8, bottom row first."""
     import gpu
 
-    module = importlib.import_module(package.__name__ + ".addon.preview")
+    module = importlib.import_module(package.__name__ + ".addon.preview.live").PREVIEW
     scene = bpy.context.scene
     space, region = _view3d()
     view, projection = blender_preview.camera_matrices(scene, size)
@@ -200,7 +200,7 @@ def check_in_place(repo, work) -> dict:
     selection there were (an object the user had hidden stays hidden); loading another file leaves
     that file as it was saved, and the preview started there hides the objects its record names."""
     package = blender_preview.enable_from_repo(repo)
-    preview = importlib.import_module(NAME + ".addon.preview")
+    preview = importlib.import_module(NAME + ".addon.preview.live").PREVIEW
     blender_preview.init_gpu()
     names = row_scene()
     scene = bpy.context.scene
@@ -286,7 +286,7 @@ def check_streaming(repo, work) -> dict:
     drawn without a budget (SW, whose choice does not depend on query timing), the statistics and
     the corner text saying it."""
     package = blender_preview.enable_from_repo(repo)
-    preview = importlib.import_module(NAME + ".addon.preview")
+    preview = importlib.import_module(NAME + ".addon.preview.live").PREVIEW
     streamed = importlib.import_module(NAME + ".hlod_core.render.streamed_geometry")
     blender_preview.init_gpu()
     names = row_scene()
@@ -374,7 +374,7 @@ def check_restore_paths(repo, work) -> dict:
     without the save handlers (as an autosave or quit.blend before a crash): it holds the record,
     and opening it shows the objects again."""
     package = blender_preview.enable_from_repo(repo)
-    preview = importlib.import_module(NAME + ".addon.preview")
+    preview = importlib.import_module(NAME + ".addon.preview.live").PREVIEW
     names = row_scene()
     blend = Path(work) / "row.blend"
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
@@ -460,7 +460,7 @@ def check_stale(repo, work) -> dict:
     Re-bake (hlod.bake with recorded=True) bakes the recorded objects still there, restarts the
     preview and the count is 0 again."""
     blender_preview.enable_from_repo(repo)
-    preview = importlib.import_module(NAME + ".addon.preview")
+    preview = importlib.import_module(NAME + ".addon.preview.live").PREVIEW
     source_record = importlib.import_module(NAME + ".addon.scene.source_record")
     names = row_scene()
     scene = bpy.context.scene
@@ -505,7 +505,7 @@ def check_stale(repo, work) -> dict:
     out["renamed_hidden"] = objects["renamed"].hide_get()
     out["stat_changed"] = scene.hlod.stat_changed
     recorded, _ = preview.sources_in_place()
-    text = importlib.import_module(NAME + ".addon.viewport_text")
+    text = importlib.import_module(NAME + ".addon.preview.corner_text")
     out["message"] = text.stale_message(len(source_record.tracker().changed), recorded)
     out["corner_lines"] = _corner_lines(preview, scene)
     started = time.perf_counter()

@@ -12,7 +12,7 @@ from helpers import ROOT
 from blender_runs import blender
 
 sys.path.insert(0, str(ROOT))
-from addon import viewport_text  # noqa: E402 - formatting only; blf is imported when drawing
+from addon.preview import corner_text  # noqa: E402 - formatting only; blf is imported when drawing
 
 KEY = re.compile(r"^[0-9a-f]{32}$")  # source_record.KEY_DIGEST_BYTES = 16
 SOURCES = ["cube 0", "cube 1", "cube 2", "cube 3", "arrayed", "sphere instance 0", "sphere instance 1"]
@@ -164,26 +164,26 @@ class _Stats:
 def test_corner_text_lines():
     """Exact wording on literal inputs: the share of the sources' triangles (34,567 of 100,000 is
     34.6%), the private mode, and the warnings (changed sources; no record)."""
-    assert viewport_text.method_label("coh", "P") == "Coh(P)" and viewport_text.method_label("vfc", "mu") == "VFC"
-    lines = viewport_text.corner_lines(label="Coh(P)", stats=_Stats, source_tris=100_000, private=False,
+    assert corner_text.method_label("coh", "P") == "Coh(P)" and corner_text.method_label("vfc", "mu") == "VFC"
+    lines = corner_text.corner_lines(label="Coh(P)", stats=_Stats, source_tris=100_000, private=False,
                                        changed=0, recorded=144)
     assert lines == [("HLOD Coh(P): 12 nodes, 34,567 triangles (34.6% of 100,000)", False),
                      ("21 queries, 4.3 ms", False)]
-    lines = viewport_text.corner_lines(label="SW(mu)", stats=_Stats, source_tris=0, private=True, changed=3, recorded=144)
+    lines = corner_text.corner_lines(label="SW(mu)", stats=_Stats, source_tris=0, private=True, changed=3, recorded=144)
     assert lines == [("HLOD SW(mu): 12 nodes, 34,567 triangles", False), ("21 queries, 4.3 ms, private context", False),
                      ("3 of 144 baked objects changed since the bake", True)]
-    assert viewport_text.corner_lines(label="Full", stats=None, source_tris=10, private=False, changed=None,
+    assert corner_text.corner_lines(label="Full", stats=None, source_tris=10, private=False, changed=None,
                                       recorded=0) == [("HLOD Full: no frame drawn yet", False),
                                                       ("sources not recorded for this file: they stay visible (re-bake)", True)]
     # under a GPU budget (64 MB): resident MB, and the nodes waiting when there are any
-    lines = viewport_text.corner_lines(label="Coh(P)", stats=_Stats, source_tris=0, private=False, changed=0,
+    lines = corner_text.corner_lines(label="Coh(P)", stats=_Stats, source_tris=0, private=False, changed=0,
                                        recorded=144, budget_bytes=64 * 2**20)
     assert lines[-1] == ("GPU 3.5 of 64 MB", False)
 
     class Waiting(_Stats):
         waiting = 5
 
-    lines = viewport_text.corner_lines(label="Coh(P)", stats=Waiting, source_tris=0, private=False, changed=0,
+    lines = corner_text.corner_lines(label="Coh(P)", stats=Waiting, source_tris=0, private=False, changed=0,
                                        recorded=144, budget_bytes=64 * 2**20)
     assert lines[-1] == ("GPU 3.5 of 64 MB, 5 nodes waiting", False)
 

@@ -8,9 +8,9 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
-from ..hlod_core.model.hierarchy import Hlod, node_geometry
-from ..hlod_core.render.glsl import FLAT_LIGHT, SRGB_FROM_LINEAR
-from ..hlod_core.model.appearance import NO_MATERIAL_BASE_COLOR
+from ...hlod_core.model.hierarchy import Hlod, node_geometry
+from ...hlod_core.render.glsl import FLAT_LIGHT, SRGB_FROM_LINEAR
+from ...hlod_core.model.appearance import NO_MATERIAL_BASE_COLOR
 
 DEFAULT_COLOUR = (0.82, 0.80, 0.76)  # linear RGB of a node without appearance or overlay
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
-from . import glcontext
+from . import current_context
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ class GLContexts:
         if self._private is None:
             import moderngl
 
-            with glcontext.keep_current():  # a new context is current once made
+            with current_context.keep_current():  # a new context is current once made
                 self._private = moderngl.create_context(standalone=True, backend="egl", require=330)
         return self._private
 
@@ -108,6 +108,6 @@ class GLContexts:
                         len(self.orphans))
         self.orphans.clear()
         if self._private is not None:
-            with glcontext.keep_current():
+            with current_context.keep_current():
                 self._private.release()
             self._private = None

@@ -1,16 +1,15 @@
-"""The live viewport preview (docs/how-it-works.md#the-viewport-preview): the HLOD drawn in the 3D viewport in place of the objects
-it was baked from, by the chosen traversal, with Blender's objects occluding the nodes.
+"""The live viewport preview (docs/how-it-works.md#the-viewport-preview): the HLOD drawn in the 3D
+viewport in place of the objects it was baked from, by the chosen traversal, with Blender's objects
+occluding the nodes.
 
-`Preview` holds the running preview's state (`Session`: the file, what it hid, its two drawing
-modes, the last frame's statistics) and its lifecycle: start, a POST_VIEW draw handler that runs
-the traversal for the region's View (built once a frame), a POST_PIXEL handler for the corner
-text, stop and shutdown. The handlers never raise into Blender: an error turns the preview off and
-`status()` says why. The add-on owns one Preview, `PREVIEW`; this module's functions (`start`,
-`stop`, `running`, `safe_draw`, ...) are its bound methods, which the operators, the panels, the
-registration and the tests call. The parts: preview_gl and preview_private (the two drawing
-modes), preview_contexts (GL contexts; GL objects released in the context that made them),
-preview_gpu and preview_boxes (drawing with Blender's gpu module), material_images, viewport_text.
-Why: docs/how-it-works.md#the-viewport-preview
+`Preview` holds the running preview's state (`Session`: the file, what it hid, its drawing modes,
+the last frame's statistics) and its lifecycle: start, a POST_VIEW draw handler that runs the
+traversal for the region's View (built once a frame), a POST_PIXEL handler for the corner text,
+stop and shutdown. The handlers never raise into Blender: an error turns the preview off and
+`status()` says why. The add-on owns one Preview, `PREVIEW`, which the operators, the panels, the
+registration and the tests call. Each frame draws with one mode (mode.PreviewMode): in Blender's
+own context where it is OpenGL (blender_context_mode), else or when asked in a private one
+(private_context_mode).
 """
 from __future__ import annotations
 
@@ -22,30 +21,22 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from ..hlod_core.core.errors import HlodError
-from ..hlod_core.io import hlod_file
-from ..hlod_core.model.hierarchy import Hlod
-from ..hlod_core.model.view import View
-from ..hlod_core.traversal.stats import FrameStats
-from . import glcontext, viewport_text
-from .scene import source_hiding, source_record
-from .materials.images import material_images
-from .preview_boxes import draw_boxes
-from .preview_contexts import GLContexts, blender_backend
-from .preview_gl import GLMode
-from .preview_private import PrivateMode
-from .settings import runtime_settings, streaming_settings
+from ...hlod_core.core.errors import HlodError
+from ...hlod_core.io import hlod_file
+from ...hlod_core.model.hierarchy import Hlod
+from ...hlod_core.model.view import View
+from ...hlod_core.traversal.stats import FrameStats
+from ..materials.images import material_images
+from ..scene import source_hiding, source_record
+from ..settings import runtime_settings, streaming_settings
+from . import corner_text, current_context
+from .blender_context_mode import BlenderContextMode
+from .box_outlines import draw_boxes
+from .gl_contexts import GLContexts, blender_backend
+from .mode import PreviewMode
+from .private_context_mode import PrivateContextMode
 
 log = logging.getLogger(__name__)
-
-
-def view_from_matrices(view_matrix, window_matrix, size_px: tuple[int, int]) -> View:
-    """The View of a region (or a camera): its view and window (projection) matrices, 4x4
-    (mathutils or numpy, indexed [row][column], column vectors), and its (width, height) in pixels."""
-    view = np.array(view_matrix, np.float64).reshape(4, 4)
-    projection = np.array(window_matrix, np.float64).reshape(4, 4)
-    eye = np.linalg.inv(view)[:3, 3]
-    return View(eye=eye, view=view, projection=projection, width=int(size_px[0]), height=int(size_px[1]))
 
 
 def redraw() -> None:
@@ -58,20 +49,31 @@ def redraw() -> None:
                 area.tag_redraw()
 
 
+BLENDER_CONTEXT, PRIVATE_CONTEXT = "blender_context", "private_context"
+#: The preview's drawing modes by name: each session makes one of each, and draws with one a frame.
+MODES: dict[str, type[PreviewMode]] = {BLENDER_CONTEXT: BlenderContextMode, PRIVATE_CONTEXT: PrivateContextMode}
+
+
+def mode_name(props) -> str:
+    """The mode the next frame draws with: the private context when scene.hlod (`props`) asks for
+    it or Blender's backend is not OpenGL (moderngl attaches to OpenGL contexts only), else Blender's."""
+    return PRIVATE_CONTEXT if props.private_context or blender_backend() != "OPENGL" else BLENDER_CONTEXT
+
+
 @dataclass
 class Session:
-    """One running preview of `file`. images: material row -> (h, w, 4) uint8 RGBA (material_images)."""
+    """One running preview of `file`. images: material row -> (h, w, 4) uint8 RGBA
+    (materials.images); modes: its drawing modes by name (MODES), each made once and kept."""
 
     file: str
     hlod: Hlod
     images: dict[int, np.ndarray]
-    gl: GLMode
-    private: PrivateMode
+    modes: dict[str, PreviewMode]
     source_tris: int = 0  # triangles the bake took (the file's input_tris)
     recorded: int = 0  # objects the scene's record names for this file (0: none recorded)
     hidden: int = 0  # objects hidden for the preview
     stats: FrameStats | None = None  # the last frame's
-    gl_context: int | None = None  # the native context of the first draw (glcontext.current())
+    gl_context: int | None = None  # the native context of the first draw (current_context.current())
     context_known: bool = False  # gl_context was set (None is a valid "cannot tell")
 
 
@@ -122,8 +124,8 @@ class Preview:
         rows = source_record.stored(scene.hlod, path)
         view_layer, depsgraph = _view_layer_and_depsgraph(scene)
         images = material_images(hlod.materials)
-        self.session = Session(file=path, hlod=hlod, images=images, gl=GLMode(hlod, images=images),
-                               private=PrivateMode(hlod, images=images),
+        modes = {name: mode(hlod, images=images) for name, mode in MODES.items()}
+        self.session = Session(file=path, hlod=hlod, images=images, modes=modes,
                                source_tris=int(hlod.meta.get("input_tris", 0)), recorded=len(rows))
         self.session.hidden = len(source_hiding.hide(scene, view_layer, [name for name, _ in rows]).entries)
         source_record.track(scene, rows, depsgraph)
@@ -144,7 +146,7 @@ class Preview:
         session, self.session = self.session, None
         if session is not None:
             self._release(session)
-        self.contexts.release_orphans(glcontext.current())
+        self.contexts.release_orphans(current_context.current())
         if self.contexts.orphans:
             log.info("HLOD preview: %d stopped preview(s) made GL objects in a context that is not current; "
                      "they are released at the next draw in it", len(self.contexts.orphans))
@@ -160,7 +162,7 @@ class Preview:
     def _release(self, session: Session) -> None:
         """Free the session's GL objects: the private renderer's now (in its own context); those made
         in Blender's context when that context is current (`GLContexts.release_orphans`)."""
-        made_in_blender = session.gl.hand_over() + session.private.hand_over()
+        made_in_blender = [resource for mode in session.modes.values() for resource in mode.hand_over()]
         self.contexts.hand_over(session.gl_context, made_in_blender)
 
     def shutdown(self) -> None:
@@ -169,6 +171,15 @@ class Preview:
         self.contexts.shutdown()
 
     # --- drawing -----------------------------------------------------------------------------------
+
+    @staticmethod
+    def view_from_matrices(view_matrix, window_matrix, size_px: tuple[int, int]) -> View:
+        """The View of a region (or a camera): its view and window (projection) matrices, 4x4
+        (mathutils or numpy, indexed [row][column], column vectors), and its (width, height) in pixels."""
+        view = np.array(view_matrix, np.float64).reshape(4, 4)
+        projection = np.array(window_matrix, np.float64).reshape(4, 4)
+        eye = np.linalg.inv(view)[:3, 3]
+        return View(eye=eye, view=view, projection=projection, width=int(size_px[0]), height=int(size_px[1]))
 
     def safe_draw(self, scene, view: View, *, xray: bool = False) -> FrameStats | None:
         """draw_view() that never raises: on error the preview turns off and status() says why."""
@@ -181,7 +192,7 @@ class Preview:
         session = self.session
         if session is None or view.width < 1 or view.height < 1:
             return None
-        current = glcontext.current()
+        current = current_context.current()
         self.contexts.release_orphans(current)
         if not session.context_known:
             session.gl_context, session.context_known = current, True
@@ -189,44 +200,39 @@ class Preview:
             self._status = "on: drawing in the first window's context only"
             return None
         props = scene.hlod
-        settings, streaming = runtime_settings(props), streaming_settings(props)
-        name = bpy.path.basename(session.file)
-        if props.private_context or blender_backend() != "OPENGL":
-            session.gl.release()  # switched modes: free the other mode's objects (its context is current)
-            stats = session.private.draw(view, contexts=self.contexts, method=props.method, settings=settings,
-                                         modulation=bool(props.show_modulation), streaming=streaming)
-            status = f"on (private context): {name} - Blender's objects hide the nodes but do not occlude the queries"
-        else:
-            session.private.release()
-            stats = session.gl.draw(view, ctx=self.contexts.attach(current), method=props.method,
-                                    settings=settings, overlay=bool(props.show_modulation), streaming=streaming)
-            status = f"on: {name}" + (" - X-ray clears the depth: Blender's objects do not occlude the nodes"
-                                      if xray else "")
+        chosen = mode_name(props)
+        for name, mode in session.modes.items():
+            if name != chosen:
+                mode.release()  # switched modes: free the other modes' objects (Blender's context is current)
+        mode = session.modes[chosen]
+        stats = mode.draw(view, contexts=self.contexts, method=props.method, settings=runtime_settings(props),
+                          streaming=streaming_settings(props), overlay=bool(props.show_modulation))
+        status = mode.status_line(bpy.path.basename(session.file), xray=xray)
         session.stats = stats
         draw_boxes(props, session.hlod, stats)
         self._status = status
         return stats
 
     def corner_lines(self, scene) -> list[tuple[str, bool]]:
-        """The corner statistics' (text, is_warning) lines (viewport_text.corner_lines); [] when off."""
+        """The corner statistics' (text, is_warning) lines (corner_text.corner_lines); [] when off."""
         session, props = self.session, scene.hlod
         if session is None:
             return []
         tracker = source_record.tracker()
-        return viewport_text.corner_lines(
-            label=viewport_text.method_label(props.method, props.bias), stats=session.stats,
-            source_tris=session.source_tris, private=bool(props.private_context) or blender_backend() != "OPENGL",
+        return corner_text.corner_lines(
+            label=corner_text.method_label(props.method, props.bias), stats=session.stats,
+            source_tris=session.source_tris, private=mode_name(props) != BLENDER_CONTEXT,
             changed=len(tracker.changed) if tracker is not None else None, recorded=session.recorded,
             budget_bytes=streaming_settings(props).budget_bytes)
 
     def draw_corner_text(self, scene, *, left_px: float = 0.0) -> int:
-        """The corner statistics (viewport_text) drawn into the bound pixel-space projection
+        """The corner statistics (corner_text) drawn into the bound pixel-space projection
         (POST_PIXEL's: region pixels, origin bottom left). Returns the number of lines drawn: 0 when
         the preview is off or scene.hlod.show_corner_text is."""
         if self.session is None or not scene.hlod.show_corner_text:
             return 0
         lines = self.corner_lines(scene)
-        viewport_text.draw(lines, left_px=left_px, ui_scale=viewport_text.effective_ui_scale(bpy.context.preferences))
+        corner_text.draw(lines, left_px=left_px, ui_scale=corner_text.effective_ui_scale(bpy.context.preferences))
         return len(lines)
 
     def _on_post_view(self) -> None:
@@ -238,7 +244,7 @@ class Preview:
 
     def _draw_region(self, context) -> FrameStats | None:
         region, rv3d = context.region, context.region_data
-        view = view_from_matrices(rv3d.view_matrix, rv3d.window_matrix, (region.width, region.height))
+        view = self.view_from_matrices(rv3d.view_matrix, rv3d.window_matrix, (region.width, region.height))
         xray = bool(getattr(context.space_data.shading, "show_xray", False))
         return self.draw_view(context.scene, view, xray=xray)
 
@@ -247,7 +253,7 @@ class Preview:
         context = bpy.context
         if self.session is None or context.region is None:
             return
-        self._guarded(lambda: self.draw_corner_text(context.scene, left_px=viewport_text.toolbar_width_px(context)))
+        self._guarded(lambda: self.draw_corner_text(context.scene, left_px=corner_text.toolbar_width_px(context)))
 
     def _guarded(self, draw, *args, **kwargs):
         """draw(*args, **kwargs), or None after an error, which turns the preview off: nothing may
@@ -277,17 +283,3 @@ def _restore_later(hidden) -> None:
 
 
 PREVIEW = Preview()  # the add-on's one preview
-
-status = PREVIEW.status
-running = PREVIEW.running
-last_stats = PREVIEW.last_stats
-statistic = PREVIEW.statistic
-sources_in_place = PREVIEW.sources_in_place
-current_hlod = PREVIEW.current_hlod
-start = PREVIEW.start
-stop = PREVIEW.stop
-shutdown = PREVIEW.shutdown
-safe_draw = PREVIEW.safe_draw
-draw_view = PREVIEW.draw_view
-draw_corner_text = PREVIEW.draw_corner_text
-corner_lines = PREVIEW.corner_lines

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..hlod_core.model.hierarchy import Hlod
-from ..hlod_core.traversal import boxes
-from ..hlod_core.traversal.stats import FrameStats
+from ...hlod_core.model.hierarchy import Hlod
+from ...hlod_core.traversal import boxes
+from ...hlod_core.traversal.stats import FrameStats
 
 BOX_COLOURS = {"box": (0.9, 0.9, 0.9, 0.6), "delayed": (1.0, 0.85, 0.1, 1.0), "rarn": (0.1, 1.0, 0.2, 1.0)}
 
