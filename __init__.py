@@ -70,7 +70,7 @@ def _on_undo_redo(*_args) -> None:
 
 
 def _on_depsgraph_update(scene, depsgraph=None, *_args) -> None:
-    from .addon import bake_plan
+    from .addon.bake import plan as bake_plan
     from .addon.preview import live
     from .addon.scene import source_record
 
@@ -108,7 +108,8 @@ def unregister() -> None:
         return
     import bpy
 
-    from .addon import bake_plan, cli, properties
+    from .addon import cli, properties
+    from .addon.bake import plan as bake_plan
     from .addon.preview.live import PREVIEW
 
     PREVIEW.shutdown()  # stops the preview (the hidden sources are shown) and frees the private context too

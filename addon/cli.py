@@ -9,7 +9,7 @@ with `bpy.utils.register_cli_command`, and the same code through the bpy module
     hlod view DIR [--port N] [--no-browser] [--cesium CESIUM_DIR]
 
 `bake` gathers each file's meshes in Blender and bakes them in a child process of Blender's Python
-with N worker processes (addon/bake_job.py, as the Bake operator; default 0 = all cores but one,
+with N worker processes (addon/bake/job.py, as the Bake operator; default 0 = all cores but one,
 hlod_core.bake.settings.resolve_jobs); Ctrl-C stops the child and its workers and writes nothing
 for that file. The bake keeps its cache (hlod_core/bake/cache.py) in OUT.hlod.cache beside each
 .hlod, so a re-bake redoes only what changed; --no-cache bakes from scratch and keeps none.
@@ -44,7 +44,7 @@ from ..hlod_core.export.formats import export_hlod
 from ..hlod_core.io import hlod_file
 from ..hlod_core.io.texture_folder import EmbeddedTextures
 from .scene import gather as scene_mesh
-from .bake_job import BakeJob
+from .bake.job import BakeJob
 from .materials.cycles_bake import bake_unreadable_materials, cycles_report
 from .materials.textures import place_textures
 from .scene.objects import HIDDEN, Skipped

@@ -1,6 +1,6 @@
 """Bake and Clear (docs/user-guide.md). Bake gathers the evaluated meshes on Blender's main thread and bakes
 them in a child process of Blender's Python with `scene.hlod.jobs` worker processes
-(addon/bake_job.py; modal with progress in the status bar and the panel, Esc cancels; synchronous in
+(addon/bake/job.py; modal with progress in the status bar and the panel, Esc cancels; synchronous in
 execute(), as in background mode). A bake that fails or dies is reported; Blender and an earlier
 .hlod stay as they were.
 
@@ -19,7 +19,7 @@ from bpy.props import BoolProperty
 
 from ..addon.preview.live import PREVIEW
 from ..addon.scene import gather as scene_mesh, objects as scene_objects, source_record
-from ..addon.bake_job import BakeJob
+from ..addon.bake.job import BakeJob
 from ..addon.materials.cycles_bake import bake_unreadable_materials, cycles_report
 from ..addon.materials.textures import place_textures
 from ..addon.properties import stored_path

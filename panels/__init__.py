@@ -5,7 +5,7 @@ Draw code reads state only: the count of changed sources is kept current by the 
 (addon/scene/source_record.py), not computed here."""
 import bpy
 
-from ..addon import bake_job, bake_plan
+from ..addon.bake import job as bake_job, plan as bake_plan
 from ..addon.preview import corner_text
 from ..addon.preview.live import PREVIEW
 from ..addon.scene import source_record
@@ -63,7 +63,7 @@ class HLOD_PT_bake(_HlodSection, bpy.types.Panel):
 
 def _draw_bake_state(layout, context, props) -> None:
     """The running bake's progress (read from its child process's progress lines), else what a bake
-    would take (addon/bake_plan.py) and how the last bake went (time, jobs, and how much of it came
+    would take (addon/bake/plan.py) and how the last bake went (time, jobs, and how much of it came
     from the cache)."""
     job = bake_job.active()
     if job is not None:

@@ -186,7 +186,7 @@ def _monkeys(count: int, levels: int, collection_name: str | None = None) -> int
 
 def _modules():
     return {name: importlib.import_module(f"{NAME}.{name}") for name in
-            ("addon.bake_job", "addon.scene.gather", "hlod_core.bake.pipeline", "hlod_core.io.hlod_file", "hlod_core.core.errors")}
+            ("addon.bake.job", "addon.scene.gather", "hlod_core.bake.pipeline", "hlod_core.io.hlod_file", "hlod_core.core.errors")}
 
 
 def _leftovers(folder: Path) -> list[str]:
@@ -241,7 +241,7 @@ def check_child_bake(repo, work) -> dict:
     same_again = all(np.array_equal(getattr(rebaked, k), getattr(child, k)) for k in ("positions", "indices", "error"))
     children = {pid: {**seen, "group": sorted(seen["group"])} for pid, seen in spy.children.items()}
     # errors inside the child come back typed: the core's InputError, a failed write
-    job_cls, settings = m["addon.bake_job"].BakeJob, dataclasses.replace(settings, jobs=1)
+    job_cls, settings = m["addon.bake.job"].BakeJob, dataclasses.replace(settings, jobs=1)
     clash = job_cls(mesh, settings, str(Path(work) / "clash.hlod"), extra_meta={"generator": "me"})
     (Path(work) / "a_file").write_text("a file where the output's folder should be")
     unwritable = job_cls(mesh, settings, str(Path(work) / "a_file" / "x.hlod"))
@@ -282,7 +282,7 @@ def check_cancel(repo, work) -> dict:
     small = m["hlod_core.bake.pipeline"].bake(mesh, m["hlod_core.bake.pipeline"].BakeSettings(target_tris=1_000_000, max_depth=0))
     m["hlod_core.io.hlod_file"].save(small, out_path)  # the earlier file: the mesh as one node
     earlier = out_path.read_bytes()
-    job = m["addon.bake_job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(out_path))
+    job = m["addon.bake.job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(out_path))
     started = _wait_until(lambda: len(workers(job.pid)) >= 2 and job.progress[2] == "simplify", 120.0)
     time.sleep(0.3)  # the workers are decimating
     processes = group(job.pid)
@@ -350,7 +350,7 @@ def check_parent_dies(repo, work) -> dict:
     m = _modules()
     _monkeys(16, 2)
     mesh = m["addon.scene.gather"].evaluated_mesh(bpy.context, list(bpy.context.selected_objects))
-    job = m["addon.bake_job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(Path(work) / "x.hlod"))
+    job = m["addon.bake.job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(Path(work) / "x.hlod"))
     started = _wait_until(lambda: len(workers(job.pid)) >= 2 and job.progress[2] == "simplify", 120.0)
     out = {"child": job.pid, "group": group(job.pid), "workers_started_s": started, "tmp": str(tmp),
            "scratch": _leftovers(tmp)}

@@ -164,7 +164,7 @@ def check_bake(repo, work) -> dict:
     out["file_after_clear"] = props.file
     # the modal bake's worker (UI events cannot be made here, the job they drive can): Esc cancels
     # between tasks and writes nothing; a finished job has written its file
-    job_mod = importlib.import_module(NAME + ".addon.bake_job")
+    job_mod = importlib.import_module(NAME + ".addon.bake.job")
     scenes = importlib.import_module(NAME + ".hlod_core.io.procedural")
     settings_cls = importlib.import_module(NAME + ".hlod_core.bake.settings").BakeSettings
     city = scenes.default_scene(scale=0.5)

@@ -198,7 +198,7 @@ def check_kinds(repo, work) -> dict:
     blender_preview.enable_from_repo(repo)
     scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
     scene_objects = importlib.import_module(NAME + ".addon.scene.objects")
-    bake_plan = importlib.import_module(NAME + ".addon.bake_plan")
+    bake_plan = importlib.import_module(NAME + ".addon.bake.plan")
     cli = importlib.import_module(NAME + ".addon.cli")
     drawn, converted = _blender_counts()
     ours = {}

@@ -3,7 +3,7 @@ Blender's tool and installed as Blender installs it (conftest.py's fixtures), ea
 its own bpy process (tests/blender_bake_checks.py), watching the bake's processes through /proc.
 
 The operator and the background command gather the mesh in Blender, write it to a private scratch
-folder and bake in a child process of Blender's Python with worker processes (addon/bake_job.py,
+folder and bake in a child process of Blender's Python with worker processes (addon/bake/job.py,
 hlod_core/bake/child.py). Checked: the child is another process, run by Blender's interpreter with
 the extension's folder first on its path, and its file equals an in-process bake; cancel ends the
 child and its workers within 1 s and writes nothing; a child killed from outside is reported with

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import bpy
 
-from ..hlod_core.core.errors import InputError
-from .scene.objects import Skipped, note_hidden, planned_count, source_objects
+from ...hlod_core.core.errors import InputError
+from ..scene.objects import Skipped, note_hidden, planned_count, source_objects
 
 #: Seconds between a depsgraph update and the recount (updates in between are counted once).
 REFRESH_S = 0.5

@@ -34,10 +34,10 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..hlod_core.bake import child
-from ..hlod_core.bake.settings import BakeSettings
-from ..hlod_core.core.errors import BakeCancelled, HlodError
-from ..hlod_core.io.meshes import TriangleMesh
+from ...hlod_core.bake import child
+from ...hlod_core.bake.settings import BakeSettings
+from ...hlod_core.core.errors import BakeCancelled, HlodError
+from ...hlod_core.io.meshes import TriangleMesh
 
 log = logging.getLogger(__name__)
 
