@@ -224,7 +224,7 @@ def _farthest(x: np.ndarray, y: np.ndarray, chunk: int = 256) -> float:
 
 
 def mesh_corners(mesh) -> dict[str, np.ndarray]:
-    """The same rows of an extracted TriangleMesh (scene_mesh.evaluated_mesh's)."""
+    """The same rows of an extracted TriangleMesh (scene/gather.py gather's mesh)."""
     corners = np.concatenate([mesh.positions[mesh.faces], mesh.uvs[mesh.faces], mesh.colors[mesh.faces]], axis=2)
     return {m.name: corners[mesh.material_ids == i].reshape(-1, 9) for i, m in enumerate(mesh.materials)}
 
@@ -240,13 +240,13 @@ def _vertices(obj) -> int:
 # --- checks ---------------------------------------------------------------------------------------
 
 def check_extraction(repo, work) -> dict:
-    """evaluated_mesh on the textured scene, on a scene without appearance, and on an empty slot."""
+    """gather on the textured scene, on a scene without appearance, and on an empty slot."""
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
+    gather = importlib.import_module(NAME + ".addon.scene.gather").gather
     names = textured_scene(Path(work))
     objects = [bpy.data.objects[name] for name in names["objects"]]
-    attributes: dict = {}
-    mesh = scene_mesh.evaluated_mesh(bpy.context, objects, attributes=attributes)
+    gathered = gather(bpy.context, objects)
+    mesh, attributes = gathered.mesh, gathered.attributes
     out = {"names": names, "attributes": attributes, "tris": mesh.tri_count,
            "materials": [[m.name, list(m.base_color), m.metallic, m.roughness, m.texture, m.image]
                          for m in mesh.materials],
@@ -257,7 +257,7 @@ def check_extraction(repo, work) -> dict:
     # two triangles sharing the edge 0-2; vertex 0 has another UV in the second one (a seam), vertex 2
     # has (1, 0.0) and (1, -0.0), which count as one: 4 vertices + 1 for the seam
     uv = np.array([[0, 0], [1, 0], [1, 0.0], [0.5, 0], [1, -0.0], [0, 1]], np.float32)
-    vertex, faces, (split_uv,) = scene_mesh.split_corners(np.array([0, 1, 2, 0, 2, 3]), [uv])
+    vertex, faces, (split_uv,) = importlib.import_module(NAME + ".addon.scene.parts").split_corners(np.array([0, 1, 2, 0, 2, 3]), [uv])
     out["split"] = {"vertex": vertex.tolist(), "faces": faces.tolist(), "uv": split_uv.tolist()}
     # images as the preview gives them to the renderer: top row first, a float image's linear 0.5
     # sRGB-encoded (188), a byte image's values as they are
@@ -272,15 +272,15 @@ def check_extraction(repo, work) -> dict:
     bpy.ops.wm.read_homefile(use_empty=True)
     bpy.ops.mesh.primitive_cube_add()
     plain = bpy.context.active_object
-    attributes = {}
-    bare = scene_mesh.evaluated_mesh(bpy.context, [plain], attributes=attributes)
+    gathered = gather(bpy.context, [plain])
+    bare, attributes = gathered.mesh, gathered.attributes
     out["plain"] = {"appearance": bare.has_appearance, "attributes": attributes,
                     "vertices": int(bare.positions.shape[0]), "uv_layers": len(plain.data.uv_layers)}
     # one material slot empty: its triangles get the default row
     plain.data.materials.append(None)
     plain.data.materials.append(_principled_material("Only", base=(0.2, 0.3, 0.4, 1.0)))
     plain.data.polygons.foreach_set("material_index", np.array([0, 1, 0, 1, 0, 1], np.int32))
-    slotted = scene_mesh.evaluated_mesh(bpy.context, [plain])
+    slotted = gather(bpy.context, [plain]).mesh
     out["slotted"] = {"materials": [m.name for m in slotted.materials],
                       "tris_per_material": np.bincount(slotted.material_ids).tolist(),
                       "uvs": slotted.uvs is not None, "colors": slotted.colors is not None}

@@ -215,9 +215,9 @@ def check_child_bake(repo, work) -> dict:
     props.output_path, props.target_tris, props.jobs = str(out_path), 400, 2
     with Spy() as spy:
         result = sorted(bpy.ops.hlod.bake())
-    attributes: dict = {}
     objects = importlib.import_module(NAME + ".addon.scene.objects").source_objects(bpy.context, props)
-    mesh = m["addon.scene.gather"].evaluated_mesh(bpy.context, objects, attributes=attributes)
+    gathered = m["addon.scene.gather"].gather(bpy.context, objects)
+    mesh, attributes = gathered.mesh, gathered.attributes
     bake = m["hlod_core.bake.pipeline"]
     settings = importlib.import_module(NAME + ".addon.settings").bake_settings(props)  # the panel's float32s
     here = bake.bake(mesh, dataclasses.replace(settings, jobs=1), extra_meta=attributes or None)
@@ -277,7 +277,7 @@ def check_cancel(repo, work) -> dict:
     tmp = _private_tmp(work)
     m = _modules()
     _monkeys(16, 2)
-    mesh = m["addon.scene.gather"].evaluated_mesh(bpy.context, list(bpy.context.selected_objects))
+    mesh = m["addon.scene.gather"].gather(bpy.context, list(bpy.context.selected_objects)).mesh
     out_path = Path(work) / "monkeys.hlod"
     small = m["hlod_core.bake.pipeline"].bake(mesh, m["hlod_core.bake.pipeline"].BakeSettings(target_tris=1_000_000, max_depth=0))
     m["hlod_core.io.hlod_file"].save(small, out_path)  # the earlier file: the mesh as one node
@@ -349,7 +349,7 @@ def check_parent_dies(repo, work) -> dict:
     tmp = _private_tmp(work)
     m = _modules()
     _monkeys(16, 2)
-    mesh = m["addon.scene.gather"].evaluated_mesh(bpy.context, list(bpy.context.selected_objects))
+    mesh = m["addon.scene.gather"].gather(bpy.context, list(bpy.context.selected_objects)).mesh
     job = m["addon.bake.job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(Path(work) / "x.hlod"))
     started = _wait_until(lambda: len(workers(job.pid)) >= 2 and job.progress[2] == "simplify", 120.0)
     out = {"child": job.pid, "group": group(job.pid), "workers_started_s": started, "tmp": str(tmp),
@@ -361,7 +361,8 @@ def check_parent_dies(repo, work) -> dict:
 def check_cli_jobs(repo, work) -> dict:
     """The background command (`--command hlod bake`, the function Blender registers) with
     `--jobs 2 --error bound` on the open file: exit status 0, the summary says 2 jobs, a child with
-    2 workers baked it, and the file records jobs 2 and the bound; `--jobs -1` is refused in one line."""
+    2 workers baked it, and the file records jobs 2 and the bound; `--jobs -1` is refused as a bad
+    argument (the core command's option: exit status 2, one stderr line, no summary)."""
     blender_preview.enable_from_repo(repo)
     tmp = _private_tmp(work)
     cli = importlib.import_module(NAME + ".addon.cli")
@@ -372,14 +373,14 @@ def check_cli_jobs(repo, work) -> dict:
     with Spy() as spy, contextlib.redirect_stdout(stdout):
         status = cli.execute(["bake", "--jobs", "2", "--target-tris", "400", "--error", "bound", "-o", str(out_path)])
     summary = json.loads(stdout.getvalue().strip().splitlines()[-1])
-    bad = io.StringIO()
-    with contextlib.redirect_stdout(bad):
+    bad, bad_err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(bad), contextlib.redirect_stderr(bad_err):
         bad_status = cli.execute(["bake", "--jobs", "-1", "-o", str(Path(work) / "bad.hlod")])
     return {"status": status, "summary": summary,
             "children": [seen["max_workers"] for seen in spy.children.values()],
             "file_jobs": fileformat.load(out_path).meta["settings"]["jobs"] if out_path.is_file() else None,
             "file_error": fileformat.load(out_path).meta["settings"].get("error") if out_path.is_file() else None,
-            "bad_status": bad_status, "bad_summary": json.loads(bad.getvalue().strip().splitlines()[-1]),
+            "bad_status": bad_status, "bad_stdout": bad.getvalue(), "bad_stderr": bad_err.getvalue(),
             "tmp_left": _leftovers(tmp)}
 
 
@@ -431,7 +432,7 @@ def check_cache_mixed_scene(repo, work) -> dict:
         with contextlib.redirect_stdout(io.StringIO()) as stdout:
             status = cli.execute(["bake", "--target-tris", "300", *extra, "-o", str(path)])
         summary = json.loads(stdout.getvalue().strip().splitlines()[-1])["files"][0]
-        return {"status": status, "cache": summary.get("cache"), "error": summary.get("error")}
+        return {"status": status, "cache": summary.get("cache"), "error": summary.get("error"), "jobs": summary.get("jobs")}
 
     def order() -> list[str]:
         return [inst.object.name for inst in bpy.context.evaluated_depsgraph_get().object_instances][:4]
@@ -584,7 +585,7 @@ def check_bake_speed(repo, work, repeats: str = "1") -> dict:
         assert sorted(bpy.ops.hlod.bake()) == ["FINISHED"]
         child_s.append(time.perf_counter() - started)
         started = time.perf_counter()
-        mesh = m["addon.scene.gather"].evaluated_mesh(bpy.context, objects)
+        mesh = m["addon.scene.gather"].gather(bpy.context, objects).mesh
         m["hlod_core.io.hlod_file"].save(bake.bake(mesh, bake.BakeSettings(target_tris=400, jobs=1)),
                                        Path(work) / "row_here.hlod")
         here_s.append(time.perf_counter() - started)

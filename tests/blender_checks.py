@@ -116,8 +116,8 @@ def _box_row_scene():
 
 
 def _box_row_mesh():
-    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
-    return scene_mesh.evaluated_mesh(bpy.context, [o for o in bpy.context.scene.objects])
+    gather = importlib.import_module(NAME + ".addon.scene.gather").gather
+    return gather(bpy.context, [o for o in bpy.context.scene.objects]).mesh
 
 
 def check_bake(repo, work) -> dict:

@@ -405,13 +405,13 @@ def _attribute_plane(tint):
 
 
 def check_scene_reading(repo, work) -> dict:
-    """Through the bake's reading of the scene (scene_mesh.evaluated_mesh): the UV map and UV
+    """Through the bake's reading of the scene (scene/gather.py gather): the UV map and UV
     transform a material's image is looked up through, applied to its triangles' UVs; a colour
     attribute named by a Color Attribute node becoming the vertex colours through the colour nodes;
     the alpha mode of a clipped and of a blended image alpha; the written textures placed beside
     the output."""
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
+    gathering = importlib.import_module(NAME + ".addon.scene.gather")
     materials = importlib.import_module(NAME + ".addon.materials.rows")
     material_texture = importlib.import_module(NAME + ".addon.materials.textures")
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -419,7 +419,7 @@ def check_scene_reading(repo, work) -> dict:
     out = {}
     for case in ("mapping", "uv_map"):
         obj = build_case(case, image)
-        mesh = scene_mesh.evaluated_mesh(bpy.context, [obj])
+        mesh = gathering.gather(bpy.context, [obj]).mesh
         source = importlib.import_module(NAME + ".addon.materials.node_tree").read_base_colour(
             obj.material_slots[0].material).source
         corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float64)  # the plane's UVMap, per vertex
@@ -433,7 +433,7 @@ def check_scene_reading(repo, work) -> dict:
         bpy.data.objects.remove(obj)
     tint = (0.5, 0.25, 1.0, 1.0)
     obj, tint_values = _attribute_plane(tint)
-    mesh = scene_mesh.evaluated_mesh(bpy.context, [obj])
+    mesh = gathering.gather(bpy.context, [obj]).mesh
     order = np.argsort(mesh.positions[:, 0] * 2 + mesh.positions[:, 1])  # (0,0),(0,1),(1,0),(1,1)
     want = tint_values[[0, 3, 1, 2]] * np.array([*tint[:3], 1.0], np.float32)
     out["attribute"] = {"colour_error": float(np.abs(mesh.colors[order] - want).max()),
@@ -467,14 +467,14 @@ FALLBACK_CASES = ("noise", "voronoi", "two_images", "unlit_noise")
 
 
 def check_cycles_fallback(repo, work) -> dict:
-    """Through the bake's path (scene_mesh.evaluated_mesh, material_bake.bake_unreadable_materials,
-    material_texture.place_textures): each unreadable case's baked texture looked up at the reference
+    """Through the bake's path (scene/gather.py gather, materials/cycles_bake.py
+    bake_unreadable_materials, materials/textures.py place_textures): each unreadable case's baked texture looked up at the reference
     bake's texel centres against Cycles' bake of its base colour (PSNR, dB; and the Base Color value's
     PSNR, what the row held before); the scene's state before and after (render, Cycles and bake
     settings, selection, active object, datablocks, node trees, the image's pixels); the names
     returned; a material on a plane without UVs kept with its warning; a second bake's files."""
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
+    gathering = importlib.import_module(NAME + ".addon.scene.gather")
     material_bake = importlib.import_module(NAME + ".addon.materials.cycles_bake")
     material_texture = importlib.import_module(NAME + ".addon.materials.textures")
     materials = importlib.import_module(NAME + ".addon.materials.rows")
@@ -491,7 +491,7 @@ def check_cycles_fallback(repo, work) -> dict:
     bpy.context.scene.cycles.samples, bpy.context.scene.render.bake.margin = 37, 3  # not Cycles' defaults
     warnings = _captured_warnings(NAME + ".addon")
     before = _scene_state()
-    mesh = scene_mesh.evaluated_mesh(bpy.context, [*planes, bare])
+    mesh = gathering.gather(bpy.context, [*planes, bare]).mesh
     started = time.perf_counter()
     baked_mesh, names = material_bake.bake_unreadable_materials(bpy.context, mesh)
     seconds = time.perf_counter() - started

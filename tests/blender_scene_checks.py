@@ -190,26 +190,23 @@ def _cli(cli, *argv: str) -> tuple[int, dict, list[str]]:
 
 
 def check_kinds(repo, work) -> dict:
-    """Each kind against Blender's count (module notes), per object through evaluated_mesh and in
+    """Each kind against Blender's count (module notes), per object through gather and in
     all through the background command's bake (its input_tris), what it skips and names, hidden
     objects with and without --include-hidden, and the panel's count of what a bake would take."""
     work = Path(work)
     known = _kinds_scene(work)  # factory settings first: they would disable the add-on
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
-    scene_objects = importlib.import_module(NAME + ".addon.scene.objects")
+    gathering = importlib.import_module(NAME + ".addon.scene.gather")
     bake_plan = importlib.import_module(NAME + ".addon.bake.plan")
     cli = importlib.import_module(NAME + ".addon.cli")
     drawn, converted = _blender_counts()
     ours = {}
     for name in sorted(drawn):
-        skipped = scene_objects.Skipped()
         try:
-            ours[name] = int(scene_mesh.evaluated_mesh(bpy.context, [bpy.data.objects[name]], skipped=skipped).faces.shape[0])
+            ours[name] = int(gathering.gather(bpy.context, [bpy.data.objects[name]]).mesh.faces.shape[0])
         except Exception as exc:  # noqa: BLE001 - the message is part of the result
             ours[name] = f"{type(exc).__name__}: {exc}"
-    skipped = scene_objects.Skipped()
-    mirrored = scene_mesh.evaluated_mesh(bpy.context, [bpy.data.objects["MirroredCube"]], skipped=skipped)
+    mirrored = gathering.gather(bpy.context, [bpy.data.objects["MirroredCube"]]).mesh
     every = list(bpy.context.scene.objects)
     bpy.ops.object.select_all(action="SELECT")
     bpy.context.scene.hlod.source = "SELECTED"
@@ -233,7 +230,7 @@ def check_uv_maps(repo, work) -> dict:
     meta's map name are the render map's."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
+    gathering = importlib.import_module(NAME + ".addon.scene.gather")
     quad = _link("Quad", _mesh("Quad", [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)], [(0, 1, 2, 3)]))
     material = bpy.data.materials.new("Paint")
     quad.data.materials.append(material)
@@ -243,8 +240,8 @@ def check_uv_maps(repo, work) -> dict:
             loop.uv = uv
     quad.data.uv_layers["Edit"].active = True
     quad.data.uv_layers["Render"].active_render = True
-    attributes: dict = {}
-    mesh = scene_mesh.evaluated_mesh(bpy.context, [quad], attributes=attributes)
+    gathered = gathering.gather(bpy.context, [quad])
+    mesh, attributes = gathered.mesh, gathered.attributes
     return {"uvs": np.unique(mesh.uvs, axis=0).tolist(), "attributes": attributes,
             "active": quad.data.uv_layers.active.name}
 
@@ -347,7 +344,7 @@ def check_colour_attributes(repo, work) -> dict:
     the set ones (a byte colour is stored as 8-bit sRGB, so it comes back within its step)."""
     bpy.ops.wm.read_factory_settings(use_empty=True)
     blender_preview.enable_from_repo(repo)
-    scene_mesh = importlib.import_module(NAME + ".addon.scene.gather")
+    gathering = importlib.import_module(NAME + ".addon.scene.gather")
     rng = np.random.default_rng(7)
     out = {}
     for i, (domain, kind) in enumerate((("POINT", "FLOAT_COLOR"), ("POINT", "BYTE_COLOR"),
@@ -359,7 +356,7 @@ def check_colour_attributes(repo, work) -> dict:
         colours[:, :3] = rng.uniform(0.05, 1.0, (len(attribute.data), 3))
         attribute.data.foreach_set("color", colours.ravel())
         quad.data.color_attributes.active_color = attribute
-        mesh = scene_mesh.evaluated_mesh(bpy.context, [quad])
+        mesh = gathering.gather(bpy.context, [quad]).mesh
         # what the bake holds per triangle corner, against the set colour of that corner's loop / vertex
         loops = np.empty(len(quad.data.loop_triangles) * 3, np.int64)
         quad.data.loop_triangles.foreach_get("loops" if domain == "CORNER" else "vertices", loops)

@@ -35,7 +35,7 @@ def appearance_check(installed, check: str, tmp_path, *arguments: str, timeout_s
 
 
 def test_extraction_carries_materials_uvs_and_colours(versioned_repo, tmp_path):
-    """In each Blender: evaluated_mesh gives one material row per datablock (the textured one with its
+    """In each Blender: gathering the scene gives one material row per datablock (the textured one with its
     PNG and image name, white base colour; the plain one with its factors), every corner's position,
     UV and colour as the source has them (house and its mirrored linked duplicate: bevel modifier,
     corner byte colours; the instanced ball: point float colours), vertices split at UV seams and

@@ -42,7 +42,7 @@ def test_node_trees_read_as_cycles_draws_them(versioned_repo, tmp_path):
 
 @pytest.mark.blender
 def test_scene_reading_carries_uv_maps_colour_attributes_and_alpha(versioned_repo, tmp_path):
-    """Through scene_mesh.evaluated_mesh: a Mapping node's transform and a UV Map node's map become
+    """Through the scene's gathering (addon/scene/gather.py): a Mapping node's transform and a UV Map node's map become
     the triangles' UVs; a Color Attribute node naming a non-active attribute, multiplied by a tint,
     becomes the vertex colours (exactly attribute x tint, base colour white); a clipped image alpha
     gives MASK, a smooth one BLEND; the written textures are placed in OUT.textures/."""

@@ -21,7 +21,7 @@ def scene_check(installed, check: str, tmp_path) -> dict:
 
 
 def test_every_kind_of_geometry_bakes_as_blender_draws_it(versioned_repo, tmp_path):
-    """Per object, evaluated_mesh gives Blender's count (its MESH instances' loop triangles), which
+    """Per object, gathering the scene gives Blender's count (its MESH instances' loop triangles), which
     equals the count known by construction (modifiers with a shape key, a mirrored cube, loose
     edges, a zero-area face, an empty mesh, a mesh over 65,535 vertices, nested and linked
     collection instances, geometry-nodes instances and realised geometry); curves, text, surfaces

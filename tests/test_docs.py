@@ -105,10 +105,23 @@ def _core_options() -> tuple[dict[str, set[str]], set[str]]:
     return commands, top
 
 
+def _core_option_group(name: str) -> set[str]:
+    """The option strings the core's option group `name` (hlod_core.cli.options, e.g. bake_options)
+    adds to a parser."""
+    import argparse
+
+    from hlod_core.cli import options
+
+    parser = argparse.ArgumentParser(add_help=False)
+    getattr(options, name)(parser)
+    return {o for a in parser._actions for o in a.option_strings}
+
+
 def _addon_options() -> dict[str, set[str]]:
     """{subcommand: its option strings} of the Blender command, read from addon/cli.py's AST
     (importing it needs bpy): `X = sub.add_parser("name")`, groups made from X, and
-    `X.add_argument("--option", ...)`; a call on a name not traced to a subcommand counts under "*"."""
+    `X.add_argument("--option", ...)`, or the core's option group `bake_options(X)`; a call on a
+    name not traced to a subcommand counts under "*"."""
     tree = ast.parse(ADDON_CLI.read_text(encoding="utf-8"))
     commands: dict[str, set[str]] = {}
     for function in (n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)):
@@ -129,6 +142,9 @@ def _addon_options() -> dict[str, set[str]]:
                     node.func.attr == "add_argument" and isinstance(node.func.value, ast.Name):
                 strings = {a.value for a in node.args if isinstance(a, ast.Constant) and str(a.value).startswith("-")}
                 commands.setdefault(owner.get(node.func.value.id, "*"), set()).update(strings)
+            elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id.endswith("_options") \
+                    and node.args and isinstance(node.args[0], ast.Name):
+                commands.setdefault(owner.get(node.args[0].id, "*"), set()).update(_core_option_group(node.func.id))
     return commands
 
 

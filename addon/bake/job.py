@@ -41,8 +41,8 @@ from ...hlod_core.io.meshes import TriangleMesh
 
 log = logging.getLogger(__name__)
 
-#: The folder holding this extension's packages (hlod_core among them).
-EXTENSION_DIR = Path(__file__).resolve().parents[1]
+#: The folder holding this extension's packages: the one hlod_core is in (hlod_core/bake/child.py).
+EXTENSION_DIR = Path(child.__file__).resolve().parents[2]
 #: Modules the bake imports besides hlod_core and the standard library: their folders go on the
 #: child's path (in Blender, pymeshlab comes from the extension's wheels, numpy with Blender).
 CHILD_MODULES = ("pymeshlab", "numpy")

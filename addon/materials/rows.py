@@ -63,7 +63,7 @@ def material_row(material) -> Material:
         found = base_colour_texture(material, reading)
         if found is not None:
             base, (texture, image, alpha_mode, alpha_cutoff) = (1.0, 1.0, 1.0, 1.0), found
-    elif reading is not None:  # a colour attribute: the vertex colours carry it (scene_mesh)
+    elif reading is not None:  # a colour attribute: the vertex colours carry it (scene/parts.py)
         base = (1.0, 1.0, 1.0, 1.0)
     if reading is not None and reading.emissive:
         metallic, roughness = 0.0, 1.0

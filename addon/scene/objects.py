@@ -45,6 +45,8 @@ NAMES_SHOWN = 8
 TEMPORARY_VIEW_LAYER = "HLOD bake: hidden objects shown"
 
 
+# --- the objects ------------------------------------------------------------------------------------
+
 def source_objects(context, props) -> list:
     """The objects the Source setting names (`props`: scene.hlod): the selected objects, or every
     object of the chosen collection with its children collections. InputError when there are none."""
@@ -108,26 +110,20 @@ class Skipped:
         return "skipped " + "; ".join(parts) if parts else ""
 
 
-def owner(inst):
-    """The chosen object an instance belongs to: its instancer, else itself."""
-    return inst.parent.original if inst.is_instance and inst.parent is not None else inst.object.original
+# --- the depsgraph that evaluates them ------------------------------------------------------------
 
-
-def drawn_instances(depsgraph, wanted: set, skipped: Skipped | None = None):
-    """The depsgraph's MESH instances of the objects named in `wanted` (name_full), each valid only
-    until the next one is taken (module notes). Instances of a skipped kind are added to `skipped`
-    under their chosen object's name."""
-    for inst in depsgraph.object_instances:
-        kind = inst.object.type
-        if kind != "MESH" and kind not in SKIPPED_KINDS:
-            continue
-        chosen = owner(inst)
-        if chosen.name_full not in wanted:
-            continue
-        if kind == "MESH":
-            yield inst
-        elif skipped is not None:
-            skipped.add(SKIPPED_KINDS[kind], chosen.name)
+@contextlib.contextmanager
+def evaluated(context, objects, skipped: Skipped, *, include_hidden: bool = False):
+    """The depsgraph a bake of `objects` reads, for the block: the view layer's, with the objects
+    it does not evaluate (hidden) added to `skipped`; with include_hidden, one that evaluates the
+    hidden objects too (`shown_hidden`)."""
+    if include_hidden:
+        with shown_hidden(context) as depsgraph:
+            yield depsgraph
+        return
+    depsgraph = context.evaluated_depsgraph_get()
+    note_hidden(objects, depsgraph, skipped)
+    yield depsgraph
 
 
 def note_hidden(objects, depsgraph, skipped: Skipped) -> None:
@@ -162,6 +158,48 @@ def shown_hidden(context):
             item.hide_viewport = True
         scene.view_layers.remove(layer)
 
+
+# --- the instances they make -----------------------------------------------------------------------
+
+def owner(inst):
+    """The chosen object an instance belongs to: its instancer, else itself."""
+    return inst.parent.original if inst.is_instance and inst.parent is not None else inst.object.original
+
+
+def drawn_instances(depsgraph, wanted: set, skipped: Skipped | None = None):
+    """The depsgraph's MESH instances of the objects named in `wanted` (name_full), each valid only
+    until the next one is taken (module notes). Instances of a skipped kind are added to `skipped`
+    under their chosen object's name."""
+    for inst in depsgraph.object_instances:
+        kind = inst.object.type
+        if kind != "MESH" and kind not in SKIPPED_KINDS:
+            continue
+        chosen = owner(inst)
+        if chosen.name_full not in wanted:
+            continue
+        if kind == "MESH":
+            yield inst
+        elif skipped is not None:
+            skipped.add(SKIPPED_KINDS[kind], chosen.name)
+
+
+def have_materials(depsgraph, wanted: set) -> bool:
+    """Whether any MESH instance of the objects named in `wanted` has a material in a slot."""
+    return any(slot.material is not None for inst in drawn_instances(depsgraph, wanted)
+               for slot in inst.object.material_slots)
+
+
+def instance_key(inst) -> tuple:
+    """Where an instance goes in the bake's input: by its chosen object's name, then the
+    instanced object's name and the instance's place in its instancer (persistent_id). The
+    depsgraph lists instances in the view layer's order, which linking an object again or moving
+    it to another collection changes; this order does not, so neither do the triangles' order and
+    the bake cache's keys ([re-bakes](docs/how-it-works.md#re-bakes-and-the-cache-keys))."""
+    return (owner(inst).name_full, inst.object.original.name_full,
+            tuple(inst.persistent_id) if inst.is_instance else ())
+
+
+# --- the count before a bake ------------------------------------------------------------------------
 
 def planned_count(depsgraph, objects, skipped: Skipped | None = None) -> tuple[int, int]:
     """(objects that give triangles, triangles) a bake of `objects` would take: the same instances
