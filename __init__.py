@@ -35,11 +35,11 @@ def _classes() -> list:
 
 
 def _on_load_pre(*_args) -> None:
+    from .addon import tiles_server
     from .addon.preview import live
-    from .operators import viewer_stop
 
     live.PREVIEW.stop(reason="a file was loaded")
-    viewer_stop()
+    tiles_server.stop()
 
 
 def _on_load_post(*_args) -> None:

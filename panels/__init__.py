@@ -5,11 +5,11 @@ Draw code reads state only: the count of changed sources is kept current by the 
 (addon/scene/source_record.py), not computed here."""
 import bpy
 
+from ..addon import tiles_server
 from ..addon.bake import job as bake_job, plan as bake_plan
 from ..addon.preview import corner_text
 from ..addon.preview.live import PREVIEW
 from ..addon.scene import source_record
-from ..operators.view_tiles import viewer_url
 
 
 class _HlodPanel:
@@ -122,7 +122,7 @@ class HLOD_PT_preview(_HlodSection, bpy.types.Panel):
 
 def _draw_viewer(layout) -> None:
     """While the 3D Tiles viewer serves: its address, and Stop."""
-    url = viewer_url()
+    url = tiles_server.url()
     if url is None:
         return
     row = layout.row(align=True)

@@ -93,7 +93,7 @@ def check_operator(repo, work) -> dict:
     threads_before = threading.active_count()
     package = blender_preview.enable_from_repo(repo)
     out = {"viewer_modules_on_enable": sorted(m for m in sys.modules if m.startswith(NAME) and "viewer" in m)}
-    operators = importlib.import_module(NAME + ".operators")
+    tiles_server = importlib.import_module(NAME + ".addon.tiles_server")
     props = bpy.context.scene.hlod
     out["no_export_error"] = _error(lambda: bpy.ops.hlod.view_tiles())
     (work / "empty").mkdir()
@@ -115,32 +115,32 @@ def check_operator(repo, work) -> dict:
     finally:
         if moved.is_dir():
             moved.rename(bundled)
-    out["serving_after_errors"] = operators.viewer_url()
+    out["serving_after_errors"] = tiles_server.url()
     # serve
     out["view"] = sorted(bpy.ops.hlod.view_tiles())
-    url = operators.viewer_url()
+    url = tiles_server.url()
     out["url"] = url
     port = int(url.rsplit(":", 1)[1].strip("/")) if url else 0
-    out["bound"] = operators.view_tiles.running_server().socket.getsockname()[0] if url else None
+    out["bound"] = tiles_server.running_server().socket.getsockname()[0] if url else None
     out["statuses"] = {path: http_status(port, path) for path in PATHS_200 + PATHS_404}
     out["again"] = sorted(bpy.ops.hlod.view_tiles())  # a second press: the same server, the page again
-    out["url_again"] = operators.viewer_url()
+    out["url_again"] = tiles_server.url()
     out["opened"] = opened(work / "opened.txt")
     out["stop"] = sorted(bpy.ops.hlod.view_tiles(stop=True))
-    out["after_stop"] = {"url": operators.viewer_url(), "port_open": port_open(port)}
+    out["after_stop"] = {"url": tiles_server.url(), "port_open": port_open(port)}
     # file load closes it
     bpy.ops.hlod.view_tiles()
-    port = int(operators.viewer_url().rsplit(":", 1)[1].strip("/"))
+    port = int(tiles_server.url().rsplit(":", 1)[1].strip("/"))
     bpy.ops.wm.read_homefile(use_empty=True)
-    out["after_load"] = {"url": operators.viewer_url(), "port_open": port_open(port)}
+    out["after_load"] = {"url": tiles_server.url(), "port_open": port_open(port)}
     # a folder picked (the new file has no export recorded), then the add-on disabled
     out["picked"] = sorted(bpy.ops.hlod.view_tiles(directory=out["tiles_dir"]))
     out["picked_recorded"] = bpy.path.abspath(bpy.context.scene.hlod.tiles_dir) == out["tiles_dir"]
-    url = operators.viewer_url()
+    url = tiles_server.url()
     port = int(url.rsplit(":", 1)[1].strip("/"))
     out["picked_status"] = http_status(port, "/tiles/tileset.json")
     addon_utils.disable(NAME, default_set=True)
-    out["after_disable"] = {"url": operators.viewer_url(), "port_open": port_open(port),
+    out["after_disable"] = {"url": tiles_server.url(), "port_open": port_open(port),
                             "threads": threading.active_count() - threads_before}
     return out
 
