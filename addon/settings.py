@@ -1,6 +1,6 @@
-"""Property group to core settings: the one pair of converters (STYLE: one function converts the
-Blender PropertyGroup into core settings), over the core's builders (hlod_core.bake.settings
-.bake_settings, the one every front end calls; RuntimeSettings).
+"""Property group to core settings: the one place the Blender PropertyGroup (scene.hlod) becomes
+the core's settings, over the core's builders (hlod_core.bake.settings.bake_settings, the one every
+front end calls; RuntimeSettings). Imports no Blender module: it reads the property group's values.
 """
 from __future__ import annotations
 

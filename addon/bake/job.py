@@ -1,5 +1,6 @@
-"""A bake in a child process, for the Bake operator (modal or not) and the background command. No
-bpy here: the caller gathers the mesh on Blender's main thread first.
+"""A bake in a child process, for the Bake operator (modal or not) and the background command
+(bake/from_scene.py). Imports no Blender module: the caller gathers the mesh on Blender's main
+thread first.
 
 `BakeJob` writes the mesh into a private scratch folder (`hlod-blender-*` in the temp folder;
 hlod_core/bake/child.py says what is in it), then runs `python -m hlod_core.bake.child` with

@@ -3,7 +3,8 @@
 Data form: colours (n,3) float32 linear RGB, factors and scalars (n,1) or (1,1) float32 (they
 broadcast); every function returns (n,3). The formulas are Cycles' (intern/cycles/kernel/svm:
 svm_mix's blend modes, svm_node_hsv, svm_brightness_contrast, gamma, invert, and the RGB Curves
-table lookup), so a texture processed here matches what Cycles and EEVEE draw.
+table lookup), so a texture processed here matches what Cycles and EEVEE draw. Imports no Blender
+module: numpy only.
 """
 from __future__ import annotations
 
