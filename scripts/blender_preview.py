@@ -6,7 +6,7 @@ render, and draw the preview through the add-on's own draw path into a gpu.types
 
 draws FILE.hlod from a street-level camera with the modulation overlay (Coh(mu), so occlusion
 visibly changes the level of detail) and writes OUT.png; the last stdout line is a JSON summary.
-The functions are also what tests/test_addon.py runs in its Blender subprocesses.
+The functions are also what tests/blender/test_addon.py runs in its Blender subprocesses.
 """
 from __future__ import annotations
 

@@ -353,7 +353,7 @@ def test_modules_stay_under_the_size_bar():
 
 # --- the tests themselves -----------------------------------------------------------------------------
 
-#: Scripts in tests/ that run in their own (bpy) process, not in pytest's.
+#: Scripts in tests/blender/ that run in their own (bpy) process, not in pytest's.
 OWN_PROCESS = re.compile(r"blender_\w*checks\.py")
 #: Where the test run's GL context is made: the fixture and the function it calls.
 GL_CONTEXT_HOMES = {"conftest.py", "helpers.py"}
@@ -398,7 +398,7 @@ def _test_state_findings(path: Path, *, gl_contexts: bool = True) -> list[str]:
 def test_tests_share_fixtures_not_module_state():
     """Test modules and their helpers import no test module, keep no module-level cache, and make
     no GL context but conftest's gl_ctx; benchmarks/ (some run under pytest) import no test module."""
-    tests = [p for p in sorted((ROOT / "tests").glob("*.py")) if not OWN_PROCESS.fullmatch(p.name)]
+    tests = [p for p in sorted((ROOT / "tests").rglob("*.py")) if not OWN_PROCESS.fullmatch(p.name)]
     found = [f"{p.relative_to(ROOT)}: {finding}" for p in tests for finding in _test_state_findings(p)]
     found += [f"{p.relative_to(ROOT)}: {finding}" for p in sorted((ROOT / "benchmarks").glob("*.py"))
               for finding in _test_state_findings(p, gl_contexts=False) if "test module" in finding]

@@ -1,5 +1,5 @@
 """What a bake from Blender takes, in each Blender (4.2, 5.0, 5.2) with the real bpy module
-(tests/blender_scene_checks.py): each triangle Blender draws, no more and no fewer, for every kind
+(tests/blender/blender_scene_checks.py): each triangle Blender draws, no more and no fewer, for every kind
 of geometry a .blend holds; the kinds without triangles and hidden objects skipped and named once;
 --include-hidden; the panel's count before a bake; a batch that goes on past files that cannot bake.
 """

@@ -1,7 +1,7 @@
 """Checks of what a bake from Blender takes, in the real bpy module, one per subprocess
-(tests/test_addon_scenes.py runs them):
+(tests/blender/test_addon_scenes.py runs them):
 
-    python tests/blender_scene_checks.py REPO_DIR CHECK WORK_DIR
+    python tests/blender/blender_scene_checks.py REPO_DIR CHECK WORK_DIR
 
 REPO_DIR is an extension repository made by `blender_ext.py install-files` from the built zip; the
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 import blender_preview  # noqa: E402
 
 import bpy  # noqa: E402
@@ -384,7 +384,7 @@ def check_batch(repo, work) -> dict:
 
 if __name__ == "__main__":
     repo_dir, check, work_dir = sys.argv[1:4]
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
     result = globals()[f"check_{check}"](repo_dir, work_dir, *sys.argv[4:])
     print("\n" + json.dumps(result, default=str))  # on a line of its own: Blender may leave a report unterminated
     blender_preview.exit_process(0)  # bpy 4.2 can crash at exit (see blender_preview.exit_process)

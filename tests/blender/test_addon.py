@@ -1,6 +1,6 @@
 """The Blender extension with the real bpy module: built into a zip by Blender's own extension tool,
 installed into a temporary extension repository and enabled as Blender does (bl_ext.r.hlod).
-Each check runs in its own Python process (tests/blender_checks.py): bpy keeps global state, and
+Each check runs in its own Python process (tests/blender/blender_checks.py): bpy keeps global state, and
 the user's Blender configuration is kept out of it (BLENDER_USER_RESOURCES points at a temp dir).
 
 The fixtures are conftest.py's: the zip is built once per test run (the linux one: cp311 and cp313

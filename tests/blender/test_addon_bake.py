@@ -1,6 +1,6 @@
 """The bake outside Blender's process with the real bpy module: the extension built by
 Blender's tool and installed as Blender installs it (conftest.py's fixtures), each check in
-its own bpy process (tests/blender_bake_checks.py), watching the bake's processes through /proc.
+its own bpy process (tests/blender/blender_bake_checks.py), watching the bake's processes through /proc.
 
 The operator and the background command gather the mesh in Blender, write it to a private scratch
 folder and bake in a child process of Blender's Python with worker processes (addon/bake/job.py,
@@ -25,7 +25,7 @@ ORPHAN_EXIT_TIMEOUT_S = 30.0  # orphaned child and workers gone (about 1 s): a h
 
 
 def bake_check(installed, check: str, tmp_path, *arguments: str, timeout_s: float = 600) -> dict:
-    """tests/blender_bake_checks.py CHECK in `installed`'s Blender; its JSON result."""
+    """tests/blender/blender_bake_checks.py CHECK in `installed`'s Blender; its JSON result."""
     return blender(installed, check, tmp_path, *arguments, timeout_s=timeout_s, script="blender_bake_checks.py")
 
 
@@ -71,8 +71,8 @@ def test_cancel_ends_child_and_workers_within_a_second_and_writes_nothing(repo, 
     hlod-bake-* folder is gone (it existed while the bake ran)."""
     out = bake_check(repo, "cancel", tmp_path)
     all_hold(out,
-             was_baking=out["workers_started_s"] is not None and len(out["workers"]) == 2
-             and out["progress"][2] == "simplify",
+             was_baking=out["workers_started_s"] is not None and out["decimating_s"] is not None
+             and len(out["workers"]) == 2 and out["progress"][2] == "simplify",
              scratch_existed=len(out["scratch_seen"]) == 1 and out["scratch_seen"][0].startswith("hlod-blender-"),
              gone_within_1_s=out["gone_s"] is not None and out["gone_s"] < GONE_WITHIN_SECONDS,
              cancelled=out["error"] == "BakeCancelled" and not out["running"],

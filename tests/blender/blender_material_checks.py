@@ -1,7 +1,7 @@
 """Checks of materials read from their node trees inside the real bpy module, one per subprocess
-(tests/test_addon_materials.py runs them):
+(tests/blender/test_addon_materials.py runs them):
 
-    python tests/blender_material_checks.py REPO_DIR CHECK WORK_DIR
+    python tests/blender/blender_material_checks.py REPO_DIR CHECK WORK_DIR
 
 REPO_DIR is an extension repository made by `blender_ext.py install-files` from the built zip; the
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import blender_preview  # noqa: E402
 
 import bpy  # noqa: E402

@@ -1,7 +1,7 @@
 """Checks of appearance from Blender (materials, UVs, colours) inside the real bpy module, one per subprocess
-(tests/test_addon_appearance.py runs them):
+(tests/blender/test_addon_appearance.py runs them):
 
-    python tests/blender_appearance_checks.py REPO_DIR CHECK WORK_DIR [ARGUMENT]
+    python tests/blender/blender_appearance_checks.py REPO_DIR CHECK WORK_DIR [ARGUMENT]
 
 REPO_DIR is an extension repository made by `blender_ext.py install-files` from the built zip; the
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import blender_preview  # noqa: E402
 
 import bpy  # noqa: E402

@@ -1,4 +1,4 @@
-"""Materials as other people build them, read with the real bpy module (tests/blender_material_checks.py,
+"""Materials as other people build them, read with the real bpy module (tests/blender/blender_material_checks.py,
 in every Blender the extension supports): the base colour through colour nodes, node groups,
 Mapping and UV Map nodes, an Emission-only (unlit) surface, a colour attribute, alpha; and, without
 Blender, the alpha mode carried by the material table and the glTF export.

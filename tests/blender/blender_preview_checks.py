@@ -1,7 +1,7 @@
 """Checks of the preview in place of its sources, inside the real bpy module, one per subprocess
-(tests/test_preview_in_place.py runs them):
+(tests/blender/test_preview_in_place.py runs them):
 
-    python tests/blender_preview_checks.py REPO_DIR CHECK WORK_DIR
+    python tests/blender/blender_preview_checks.py REPO_DIR CHECK WORK_DIR
 
 REPO_DIR is an extension repository made by `blender_ext.py install-files` from the built zip; the
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import blender_preview  # noqa: E402
 
 import bpy  # noqa: E402

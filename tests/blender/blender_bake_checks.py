@@ -1,7 +1,7 @@
 """Checks of the bake outside Blender's process (a child process with workers) inside the real bpy
-module, one per subprocess (tests/test_addon_bake.py runs them):
+module, one per subprocess (tests/blender/test_addon_bake.py runs them):
 
-    python tests/blender_bake_checks.py REPO_DIR CHECK WORK_DIR [ARGUMENT ...]
+    python tests/blender/blender_bake_checks.py REPO_DIR CHECK WORK_DIR [ARGUMENT ...]
 
 REPO_DIR is an extension repository made by `blender_ext.py install-files` from the built zip; the
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import blender_preview  # noqa: E402
 
@@ -143,6 +143,19 @@ def _wait_until(predicate, timeout_s: float, step_s: float = 0.002) -> float | N
             return time.perf_counter() - started
         time.sleep(step_s)
     return None
+
+
+def _wait_decimating(job, timeout_s: float) -> float | None:
+    """Seconds until `job`'s workers decimate: its simplify phase has finished an inner node since
+    it was first seen (the next ones are then under way), None if not within timeout_s."""
+    started = time.perf_counter()
+    if _wait_until(lambda: job.progress[2] == "simplify" or not job.running, timeout_s) is None:
+        return None
+    first = job.progress[0]
+    left = timeout_s - (time.perf_counter() - started)
+    if _wait_until(lambda: job.progress[0] > first or not job.running, left) is None or not job.running:
+        return None
+    return time.perf_counter() - started
 
 
 # --- scenes and helpers ---------------------------------------------------------------------------
@@ -284,7 +297,7 @@ def check_cancel(repo, work) -> dict:
     earlier = out_path.read_bytes()
     job = m["addon.bake.job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(out_path))
     started = _wait_until(lambda: len(workers(job.pid)) >= 2 and job.progress[2] == "simplify", 120.0)
-    time.sleep(0.3)  # the workers are decimating
+    decimating = _wait_decimating(job, 120.0)
     processes = group(job.pid)
     worker_pids = workers(job.pid)
     scratch_seen = _leftovers(tmp)
@@ -293,7 +306,7 @@ def check_cancel(repo, work) -> dict:
     job.cancel()
     gone = _wait_until(lambda: not any(alive(pid) for pid in processes), 10.0)
     job.wait(30.0)
-    return {"tris": mesh.tri_count, "workers_started_s": started, "processes": processes,
+    return {"tris": mesh.tri_count, "workers_started_s": started, "decimating_s": decimating, "processes": processes,
             "workers": worker_pids, "progress": before_cancel,
             "scratch_seen": scratch_seen, "gone_s": gone, "finished_s": time.perf_counter() - t0,
             "error": type(job.error).__name__, "running": job.running, "earlier_kept": out_path.read_bytes() == earlier,
@@ -318,10 +331,9 @@ def check_kill(repo, work) -> dict:
     killed: dict = {}
 
     def kill(child, worker_pids):
-        # the workers start with the bake and import pymeshlab while it prepares; the leaves' arrays
-        # for the exact measure are written into the child's scratch once the first decimations run
-        _wait_until(lambda: any(tmp.glob("hlod-blender-*/hlod-bake-*/surface_vertex.npy")), 60.0)
-        time.sleep(0.1)
+        # the workers start with the bake and import pymeshlab while it prepares; kill once they
+        # decimate (the operator's job is the running one)
+        _wait_decimating(importlib.import_module(NAME + ".addon.bake.job").active(), 60.0)
         killed.update(child=child, group=group(child), workers=worker_pids)
         os.kill(child, signal.SIGKILL)
 
@@ -599,7 +611,7 @@ def check_bake_speed(repo, work, repeats: str = "1") -> dict:
 
 if __name__ == "__main__":
     repo_dir, check, work_dir = sys.argv[1:4]
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
     result = globals()[f"check_{check}"](repo_dir, work_dir, *sys.argv[4:])
     print("\n" + json.dumps(result))  # on a line of its own: Blender may leave a report unterminated
     blender_preview.exit_process(0)  # bpy 4.2 can crash at exit (see blender_preview.exit_process)

@@ -1,6 +1,6 @@
-"""Checks that run inside the real bpy module, one per subprocess (tests/test_addon.py runs them):
+"""Checks that run inside the real bpy module, one per subprocess (tests/blender/test_addon.py runs them):
 
-    python tests/blender_checks.py REPO_DIR CHECK WORK_DIR
+    python tests/blender/blender_checks.py REPO_DIR CHECK WORK_DIR
 
 REPO_DIR is an extension repository made by `blender_ext.py install-files` from the built zip; the
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 import blender_preview  # noqa: E402
 
 import bpy  # noqa: E402
@@ -171,7 +171,8 @@ def check_bake(repo, work) -> dict:
     target = Path(work) / "job" / "city.hlod"
     target.parent.mkdir()
     job = job_mod.BakeJob(city, settings_cls(jobs=1), str(target))
-    while job.running and job.progress[2] != "simplify":
+    deadline = time.monotonic() + 120.0  # a hang guard: the child reaches its simplify phase in seconds
+    while job.running and job.progress[2] != "simplify" and time.monotonic() < deadline:
         time.sleep(0.01)
     job.cancel()
     job.wait(120)
@@ -685,7 +686,7 @@ def check_long_session(repo, work) -> dict:
 
 if __name__ == "__main__":
     repo_dir, check, work_dir = sys.argv[1:4]
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
     result = globals()[f"check_{check}"](repo_dir, work_dir)
     print(json.dumps(result))
     blender_preview.exit_process(0)  # bpy 4.2 can crash at exit (see exit_process)

@@ -2,9 +2,9 @@
 built into its zip (CesiumJS bundled as viewer/cesium) and installed as Blender installs it
 (conftest.py's fixtures; the main .venv's bpy 5.0: nothing here depends on the version).
 
-This file is also the script its checks run in, one bpy process each (as tests/blender_checks.py):
+This file is also the script its checks run in, one bpy process each (as tests/blender/blender_checks.py):
 
-    python tests/test_addon_viewer.py REPO_DIR CHECK WORK_DIR
+    python tests/blender/test_addon_viewer.py REPO_DIR CHECK WORK_DIR
 
 prints one JSON object as its last line. The web browser is a recorder: $BROWSER is a shell script
 that appends the URL it is given to a file, so "the page was opened" is checked and nothing opens.
@@ -84,7 +84,7 @@ def check_operator(repo, work) -> dict:
 
     import addon_utils
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import blender_checks
     import blender_preview
@@ -146,7 +146,7 @@ def check_operator(repo, work) -> dict:
 
 
 def main(argv: list[str]) -> None:
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
     import blender_preview
 
     repo, check, work = argv[:3]

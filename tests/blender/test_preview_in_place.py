@@ -1,6 +1,6 @@
 """The preview as an artist uses it: the HLOD drawn in place of the objects it was baked from. The
 extension is built by Blender's tool and installed as Blender installs it (conftest.py's
-fixtures); each check runs in its own bpy process (tests/blender_preview_checks.py), where Blender's
+fixtures); each check runs in its own bpy process (tests/blender/blender_preview_checks.py), where Blender's
 own drawing is real (`GPUOffScreen.draw_view3d`). The corner text's wording is checked without Blender.
 """
 import re
@@ -21,7 +21,7 @@ NODES_COVER = 0.8  # share of the sources' pixels the nodes must cover (simplifi
 
 
 def preview_check(installed, check: str, tmp_path, *, timeout_s: float = 300) -> dict:
-    """tests/blender_preview_checks.py CHECK in `installed`'s Blender; its JSON result."""
+    """tests/blender/blender_preview_checks.py CHECK in `installed`'s Blender; its JSON result."""
     return blender(installed, check, tmp_path, timeout_s=timeout_s, script="blender_preview_checks.py")
 
 

@@ -1,6 +1,6 @@
 """Appearance from Blender (materials, UVs, colours) with the real bpy module: the extension built by Blender's tool
 and installed as Blender installs it (conftest.py's fixtures), each check in its own bpy
-process (tests/blender_appearance_checks.py, on a textured scene it makes with bpy: a checker PNG
+process (tests/blender/blender_appearance_checks.py, on a textured scene it makes with bpy: a checker PNG
 made in Blender, two materials, a UV map, corner and point colour attributes, a linked mirrored
 duplicate, collection instances).
 
@@ -30,7 +30,7 @@ FAR_VIEW_SSE_PX = 1.0
 
 
 def appearance_check(installed, check: str, tmp_path, *arguments: str, timeout_s: float = 600) -> dict:
-    """tests/blender_appearance_checks.py CHECK in `installed`'s Blender; its JSON result."""
+    """tests/blender/blender_appearance_checks.py CHECK in `installed`'s Blender; its JSON result."""
     return blender(installed, check, tmp_path, *arguments, timeout_s=timeout_s, script="blender_appearance_checks.py")
 
 
