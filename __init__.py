@@ -2,14 +2,13 @@
 (each UI module exports its classes in one list, registered here in order and unregistered in
 reverse; registration errors are not silenced; docs/development.md#layout).
 
-Imports run one way: hlod_core (no bpy) <- addon/ (adapters: properties, the preview and its modes,
-scene_mesh, materials, materialize, bake_job, benchmark, settings, cli) <- operators/, panels/ (UI)
-<- this module. Adapters never import
-UI code. Blender imports this package as bl_ext.<repo>.hlod and calls register()/unregister().
-Both are reversible and safe to run twice: register() on a registered add-on unregisters first;
-unregister() on an unregistered one does nothing. unregister() and loading a .blend stop the
-preview, which removes its draw handler and frees its GL objects. The imports are deferred so the
-package (and hlod_core below it) can be imported outside Blender.
+Imports run one way: hlod_core (no bpy) <- addon/ (the adapters, in rooms: addon/__init__.py) <-
+operators/, panels/ (UI) <- this module. Adapters never import UI code. Blender imports this
+package as bl_ext.<repo>.hlod and calls register()/unregister(). Both are reversible and safe to
+run twice: register() on a registered add-on unregisters first; unregister() on an unregistered one
+does nothing. unregister() and loading a .blend stop the preview, which removes its draw handler and
+frees its GL objects. The imports are deferred so the package (and hlod_core below it) can be
+imported outside Blender.
 
 Application handlers (all persistent, listed once in `_HANDLERS`, removed in unregister; the preview
 hides the objects the bake took, and no way out may leave them hidden):

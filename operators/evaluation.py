@@ -1,6 +1,6 @@
-"""Benchmark and Tune to PSNR (docs/user-guide.md, §9): the scene camera's animation replayed with every
-traversal method into an evaluation report, or searched for the (s, t) with the fewest drawn nodes
-that keeps the target PSNR against Bool (addon/evaluation.py). Tune sets scene.hlod.s, t and bias to
+"""Benchmark and Tune to PSNR (docs/user-guide.md, docs/evaluation.md): the scene camera's animation
+replayed with every traversal method into an evaluation report, or searched for the (s, t) with the
+fewest drawn nodes that keeps the target PSNR against Bool (addon/evaluation.py). Tune sets scene.hlod.s, t and bias to
 what it chose: an undo step like the other property edits."""
 from __future__ import annotations
 

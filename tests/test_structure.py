@@ -249,6 +249,24 @@ def test_addon_modules_that_say_they_import_no_blender_module_import_none(graph)
     assert not offending, offending
 
 
+#: Packages whose docstring indexes them: it names (in backticks) each of their modules and
+#: subpackages, and nothing of that form that is not there.
+INDEXED_PACKAGES = ("addon", "addon.materials", "addon.scene", "addon.preview", "addon.bake", "operators")
+
+
+def test_package_docstrings_name_every_module_they_hold():
+    problems = []
+    for package in INDEXED_PACKAGES:
+        folder = ROOT.joinpath(*package.split("."))
+        doc = ast.get_docstring(ast.parse((folder / "__init__.py").read_text(encoding="utf-8"))) or ""
+        named = set(re.findall(r"`([a-z_][a-z0-9_]*)`", doc))
+        held = {p.stem for p in folder.glob("*.py") if p.stem != "__init__"}
+        held |= {p.name for p in folder.iterdir() if (p / "__init__.py").is_file()}
+        problems += [f"{package}: holds {name}, its docstring does not name it" for name in sorted(held - named)]
+        problems += [f"{package}: its docstring names {name}, which it does not hold" for name in sorted(named - held)]
+    assert not problems, "\n".join(problems)
+
+
 # --- private names ------------------------------------------------------------------------------------
 
 def _project_modules() -> dict[str, Path]:
