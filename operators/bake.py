@@ -1,8 +1,8 @@
 """Bake and Clear (docs/user-guide.md). Bake gathers the evaluated meshes on Blender's main thread and bakes
 them in a child process of Blender's Python with `scene.hlod.jobs` worker processes, through the
 flow the background command shares (addon/bake/from_scene.py; modal with progress in the status bar
-and the panel, Esc cancels; synchronous in execute(), as in background mode). A bake that fails or dies is reported; Blender and an earlier
-.hlod stay as they were.
+and the panel, Esc cancels; synchronous in execute(), as in background mode). A bake that fails or
+dies is reported; Blender and an earlier .hlod stay as they were.
 
 Bake records the objects it took and their content keys on the scene (addon/scene/source_record.py);
 `hlod.bake(recorded=True)` is Re-bake: it bakes the recorded objects again. A bake while the

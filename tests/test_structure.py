@@ -245,7 +245,8 @@ def test_addon_modules_that_say_they_import_no_blender_module_import_none(graph)
     claiming = sorted(name for name in graph if name.startswith("addon.") and NO_BLENDER_CLAIM.search(
         ast.get_docstring(ast.parse(modules[name].read_text(encoding="utf-8"))) or ""))
     assert {"addon.bake.job", "addon.settings", "addon.materials.colour_formulas"} <= set(claiming), claiming
-    offending = {name: sorted(graph[name][1] & BLENDER_MODULES) for name in claiming if graph[name][1] & BLENDER_MODULES}
+    offending = {name: sorted(graph[name][1] & BLENDER_MODULES) for name in claiming
+                 if graph[name][1] & BLENDER_MODULES}
     assert not offending, offending
 
 

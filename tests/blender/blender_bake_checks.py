@@ -199,7 +199,8 @@ def _monkeys(count: int, levels: int, collection_name: str | None = None) -> int
 
 def _modules():
     return {name: importlib.import_module(f"{NAME}.{name}") for name in
-            ("addon.bake.job", "addon.scene.gather", "hlod_core.bake.pipeline", "hlod_core.io.hlod_file", "hlod_core.core.errors")}
+            ("addon.bake.job", "addon.scene.gather", "hlod_core.bake.pipeline", "hlod_core.io.hlod_file",
+             "hlod_core.core.errors")}
 
 
 def _leftovers(folder: Path) -> list[str]:
@@ -444,7 +445,8 @@ def check_cache_mixed_scene(repo, work) -> dict:
         with contextlib.redirect_stdout(io.StringIO()) as stdout:
             status = cli.execute(["bake", "--target-tris", "300", *extra, "-o", str(path)])
         summary = json.loads(stdout.getvalue().strip().splitlines()[-1])["files"][0]
-        return {"status": status, "cache": summary.get("cache"), "error": summary.get("error"), "jobs": summary.get("jobs")}
+        return {"status": status, "cache": summary.get("cache"), "error": summary.get("error"),
+                "jobs": summary.get("jobs")}
 
     def order() -> list[str]:
         return [inst.object.name for inst in bpy.context.evaluated_depsgraph_get().object_instances][:4]
