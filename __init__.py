@@ -2,14 +2,13 @@
 (each UI module exports its classes in one list, registered here in order and unregistered in
 reverse; registration errors are not silenced; docs/development.md#layout).
 
-Imports run one way: hlod_core (no bpy) <- addon/ (adapters: properties, the preview and its modes,
-scene_mesh, materials, materialize, bake_job, benchmark, settings, cli) <- operators/, panels/ (UI)
-<- this module. Adapters never import
-UI code. Blender imports this package as bl_ext.<repo>.hlod and calls register()/unregister().
-Both are reversible and safe to run twice: register() on a registered add-on unregisters first;
-unregister() on an unregistered one does nothing. unregister() and loading a .blend stop the
-preview, which removes its draw handler and frees its GL objects. The imports are deferred so the
-package (and hlod_core below it) can be imported outside Blender.
+Imports run one way: hlod_core (no bpy) <- addon/ (the adapters, in rooms: addon/__init__.py) <-
+operators/, panels/ (UI) <- this module. Adapters never import UI code. Blender imports this
+package as bl_ext.<repo>.hlod and calls register()/unregister(). Both are reversible and safe to
+run twice: register() on a registered add-on unregisters first; unregister() on an unregistered one
+does nothing. unregister() and loading a .blend stop the preview, which removes its draw handler and
+frees its GL objects. The imports are deferred so the package (and hlod_core below it) can be
+imported outside Blender.
 
 Application handlers (all persistent, listed once in `_HANDLERS`, removed in unregister; the preview
 hides the objects the bake took, and no way out may leave them hidden):
@@ -35,45 +34,48 @@ def _classes() -> list:
 
 
 def _on_load_pre(*_args) -> None:
-    from .addon import preview
-    from .operators import viewer_stop
+    from .addon import tiles_server
+    from .addon.preview import live
 
-    preview.stop(reason="a file was loaded")
-    viewer_stop()
+    live.PREVIEW.stop(reason="a file was loaded")
+    tiles_server.stop()
 
 
 def _on_load_post(*_args) -> None:
-    from .addon import source_hiding
+    from .addon.scene import source_hiding
 
     source_hiding.restore_leftovers()
 
 
 def _on_save_pre(*_args) -> None:
-    from .addon import source_hiding
+    from .addon.scene import source_hiding
 
     source_hiding.suspend()
 
 
 def _on_save_post(*_args) -> None:
-    from .addon import source_hiding
+    from .addon.scene import source_hiding
 
     source_hiding.resume()
 
 
 def _on_undo_redo(*_args) -> None:
-    from .addon import preview, source_hiding, source_record
+    from .addon.preview import live
+    from .addon.scene import source_hiding, source_record
 
     source_hiding.on_undo()
     source_record.on_undo()
-    preview.redraw()
+    live.redraw()
 
 
 def _on_depsgraph_update(scene, depsgraph=None, *_args) -> None:
-    from .addon import bake_plan, preview, source_record
+    from .addon.bake import plan as bake_plan
+    from .addon.preview import live
+    from .addon.scene import source_record
 
     bake_plan.schedule()  # the Bake section's count of what a bake would take
     if depsgraph is not None and source_record.on_depsgraph_update(scene, depsgraph):
-        preview.redraw()  # the panel and the corner text show the new count
+        live.redraw()  # the panel and the corner text show the new count
 
 
 _HANDLERS = (("load_pre", _on_load_pre), ("load_post", _on_load_post), ("save_pre", _on_save_pre),
@@ -105,9 +107,11 @@ def unregister() -> None:
         return
     import bpy
 
-    from .addon import bake_plan, cli, preview, properties
+    from .addon import cli, properties
+    from .addon.bake import plan as bake_plan
+    from .addon.preview.live import PREVIEW
 
-    preview.shutdown()  # stops the preview (the hidden sources are shown) and frees the private context too
+    PREVIEW.shutdown()  # stops the preview (the hidden sources are shown) and frees the private context too
     cli.unregister()
     for event, handler in reversed(_HANDLERS):
         handlers = getattr(bpy.app.handlers, event)

@@ -1,23 +1,24 @@
-"""Batch work from background mode (docs/user-guide.md): `blender -b [FILE.blend] --command hlod ...`, registered
-with `bpy.utils.register_cli_command`, and the same code through the bpy module
-(`python scripts/hlod_blender.py ...`, for machines with the bpy wheel and no Blender install).
+"""Batch work from background mode (docs/command-line.md#blender-blender--b---command-hlod): `blender -b
+[FILE.blend] --command hlod ...`, registered with `bpy.utils.register_cli_command`, and the same
+code through the bpy module (`python scripts/hlod_blender.py ...`, for machines with the bpy wheel
+and no Blender install).
 
     hlod bake [FILE.blend ...] [--collection NAME | --objects A,B] -o OUT [--format hlod 3dtiles]
-              [--target-tris 2000] [--max-depth 12] [--quality-threshold 0.3] [--error exact|bound] [--jobs N] [--no-cache]
-              [--include-hidden]
+              [--include-hidden] [the core's bake options: --target-tris N ... --jobs N --cache DIR | --no-cache]
     hlod export IN.hlod --format 3dtiles|hlod -o DIR
     hlod view DIR [--port N] [--no-browser] [--cesium CESIUM_DIR]
 
-`bake` gathers each file's meshes in Blender and bakes them in a child process of Blender's Python
-with N worker processes (addon/bake_job.py, as the Bake operator; default 0 = all cores but one,
-hlod_core.bake.settings.resolve_jobs); Ctrl-C stops the child and its workers and writes nothing
-for that file. The bake keeps its cache (hlod_core/bake/cache.py) in OUT.hlod.cache beside each
-.hlod, so a re-bake redoes only what changed; --no-cache bakes from scratch and keeps none.
+`bake` takes the core command's bake options (hlod_core/cli/options.py `bake_options`: the same
+names, defaults and checks; --jobs 1 by default, 0 = all cores but one) and runs, for each file, the
+flow the Bake operator runs (addon/bake/from_scene.py): the scene gathered in Blender, baked in a
+child process of Blender's Python; Ctrl-C stops the child and its workers and writes nothing for
+that file. The cache is OUT.hlod.cache beside each .hlod (or --cache DIR), so a re-bake redoes only
+what changed; --no-cache bakes from scratch and keeps none.
 `bake` without .blend files bakes the open file into OUT (a .hlod path); with files, OUT is a
 folder and each file FILE.blend gives OUT/FILE.hlod and, with `--format 3dtiles`, OUT/FILE_3dtiles/.
 By default a bake takes what the view layer shows (the objects named, or every object of the
 scene); --include-hidden takes objects hidden in the viewport too. What it leaves out (hidden
-objects, kinds without triangles: addon/scene_objects.py) is named in one stderr line per file.
+objects, kinds without triangles: addon/scene/objects.py) is named in one stderr line per file.
 A file that fails is one stderr line naming it and the reason (never a traceback) and the others
 go on. The last stdout line is a JSON summary ({"files": [{"blend", "ok", "outputs", "skipped" |
 "error"}], "failed": N}); the exit status is 1 if any failed, 2 for bad arguments.
@@ -29,7 +30,6 @@ a port in use is one line on stderr and exit status 2.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import sys
 import time
@@ -37,17 +37,13 @@ from pathlib import Path
 
 import bpy
 
-from ..hlod_core.bake import cache
-from ..hlod_core.bake.settings import ERROR_MEASURES, BakeSettings, bake_settings
+from ..hlod_core.cli.options import bake_options, bake_settings_of
 from ..hlod_core.core.errors import HlodError, InputError
 from ..hlod_core.export.formats import export_hlod
 from ..hlod_core.io import hlod_file
-from ..hlod_core.io.texture_folder import EmbeddedTextures
-from . import scene_mesh
-from .bake_job import BakeJob
-from .material_bake import bake_unreadable_materials, cycles_report
-from .material_texture import place_textures
-from .scene_objects import HIDDEN, Skipped
+from .bake.from_scene import start_bake
+from .materials.cycles_bake import cycles_report
+from .scene.objects import HIDDEN, Skipped
 
 _cli_command = None  # the handle of the registered command
 
@@ -70,14 +66,7 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("-o", "--output", required=True, help="OUT.hlod (open file) or a folder (with FILE.blend arguments)")
     b.add_argument("--format", nargs="+", choices=["hlod", "3dtiles"], default=["hlod"],
                    help="outputs per file: hlod (always written) and/or 3dtiles")
-    b.add_argument("--target-tris", type=int, default=BakeSettings.target_tris)
-    b.add_argument("--max-depth", type=int, default=BakeSettings.max_depth)
-    b.add_argument("--quality-threshold", type=float, default=BakeSettings.quality_threshold)
-    b.add_argument("--error", choices=list(ERROR_MEASURES), default=BakeSettings.error,
-                   help="inner nodes' error: exact (default) or bound (faster; looser, never smaller)")
-    b.add_argument("--jobs", type=int, default=0, metavar="N",
-                   help="worker processes of the bake (default 0: all cores but one)")
-    b.add_argument("--no-cache", action="store_true", help="bake from scratch and keep no cache beside the output")
+    bake_options(b)  # the core command's: --target-tris ... --jobs, --cache DIR | --no-cache
     b.add_argument("--include-hidden", action="store_true",
                    help="bake objects hidden in the viewport too (default: what the view layer shows)")
     e = sub.add_parser("export", help="export a baked .hlod")
@@ -172,45 +161,38 @@ def _bake_file(args, blend: Path) -> dict:
 
 
 def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
+    """Bake the open file into `target` (addon/bake/from_scene.py), then export it as 3D Tiles into
+    `tiles_dir` when asked; the file's summary entry (module notes)."""
     blend = bpy.data.filepath or "(unsaved)"
     started = time.perf_counter()
-    with contextlib.ExitStack() as stack:
+    try:
+        if target.suffix != ".hlod":
+            raise InputError(f"-o {target}: give a .hlod file name when baking the open file")
+        objects = _objects(args)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        bake = start_bake(bpy.context, objects, target, bake_settings_of(args), use_cache=not args.no_cache,
+                          cache_folder=args.cache, include_hidden=args.include_hidden)
+        if bake.cycles_baked:  # node trees that cannot be read
+            print(f"hlod: {blend}: {cycles_report(bake.cycles_baked)}", file=sys.stderr)
+        _print_skipped(blend, bake.gathered.skipped)
         try:
-            if target.suffix != ".hlod":
-                raise InputError(f"-o {target}: give a .hlod file name when baking the open file")
-            if args.jobs < 0:
-                raise InputError(f"--jobs {args.jobs}: give 0 (all cores but one) or a number of worker processes")
-            objects = _objects(args)
-            skipped = Skipped()  # a bake with nothing to take names what it skipped in its error
-            mesh = scene_mesh.evaluated_mesh(bpy.context, objects, skipped=skipped, include_hidden=args.include_hidden)
-            mesh, cycles_baked = bake_unreadable_materials(bpy.context, mesh)  # node trees that cannot be read
-            if cycles_baked:
-                print(f"hlod: {blend}: {cycles_report(cycles_baked)}", file=sys.stderr)
-            _print_skipped(blend, skipped)
-            settings = bake_settings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=args.jobs,
-                                     quality_threshold=args.quality_threshold, error=args.error)
-            target.parent.mkdir(parents=True, exist_ok=True)
-            # textures made from node trees, packed images: OUT.textures once the .hlod is written
-            textures = stack.enter_context(EmbeddedTextures(target))
-            mesh = place_textures(mesh, textures)
-            cache_dir = cache.folder_for(target, enabled=not args.no_cache)
-            job = BakeJob(mesh, settings, str(target), cache_dir=cache_dir)
-            job.join()
-            if job.error is not None:
-                raise job.error
-            textures.publish()
-            outputs = {"hlod": str(target)}
-            if "3dtiles" in args.format:
-                tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
-                outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir,
-                                                 stem=target.stem)["output"]
-        except Exception as exc:  # noqa: BLE001 - one line per failed file, and the batch goes on
-            message = _one_line(exc)
-            print(f"hlod: {blend}: {message}", file=sys.stderr)
-            return {"blend": blend, "ok": False, "error": message}
+            bake.job.join()
+        finally:
+            bake.finish()
+        job = bake.job
+        if job.error is not None:
+            raise job.error
+        outputs = {"hlod": str(target)}
+        if "3dtiles" in args.format:
+            tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
+            outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir, stem=target.stem)["output"]
+    except Exception as exc:  # noqa: BLE001 - one line per failed file, and the batch goes on
+        message = _one_line(exc)
+        print(f"hlod: {blend}: {message}", file=sys.stderr)
+        return {"blend": blend, "ok": False, "error": message}
     return {"blend": blend, "ok": True, "outputs": outputs, "nodes": job.result.node_count,
             "input_tris": job.result.input_tris, "jobs": job.result.jobs, "cache": job.result.cache,
-            "skipped": skipped.as_dict(), "seconds": time.perf_counter() - started}
+            "skipped": bake.gathered.skipped.as_dict(), "seconds": time.perf_counter() - started}
 
 
 def _one_line(exc: BaseException) -> str:

@@ -3,15 +3,16 @@ processes, and `last_bake`, the line the panel shows about the last bake), runti
 settings, read-only live statistics (getters over the running preview; nothing is written from the
 draw handler), `psnr_target` and `last_tuning` (Tune to PSNR's target and its last result),
 `tiles_dir` (the last 3D Tiles export, which View in Browser serves), and two records: the objects
-the last bake took, with content keys (`source_objects`, `source_file`; addon/source_record.py) and
+the last bake took, with content keys (`source_objects`, `source_file`; addon/scene/source_record.py) and
 the objects the running preview hid (`hidden_objects`, `hidden_view_layer`;
-addon/source_hiding.py)."""
+addon/scene/source_hiding.py)."""
 import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
                        PointerProperty, StringProperty)
 
 from ..hlod_core.traversal.settings import RuntimeSettings
-from . import preview, source_record
+from .preview.live import PREVIEW
+from .scene import source_record
 
 # Path properties that may hold a path relative to the .blend ("//..."). Blender 5.0 and later (not
 # 4.2 LTS) have the PATH_SUPPORTS_BLEND_RELATIVE option and print a RuntimeWarning ("does not support
@@ -42,7 +43,7 @@ METHOD_ITEMS = [
 
 
 def _stat(name):
-    return lambda self: preview.statistic(name)
+    return lambda self: PREVIEW.statistic(name)
 
 
 def _changed_sources(self) -> int:
@@ -162,13 +163,13 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     stat_d: IntProperty(name="Delayed (D)", get=_stat("d"))
     stat_stall_ms: FloatProperty(name="Stall ms", get=_stat("stall_ms"))
     stat_frame_ms: FloatProperty(name="Frame ms", get=_stat("frame_ms"))
-    stat_resident_mb: FloatProperty(name="GPU Memory (MB)", get=lambda self: preview.statistic("resident_bytes") / 2**20,
+    stat_resident_mb: FloatProperty(name="GPU Memory (MB)", get=lambda self: PREVIEW.statistic("resident_bytes") / 2**20,
                                     description="Node geometry on the GPU after the last frame")
     stat_waiting: IntProperty(name="Nodes Waiting", get=_stat("waiting"),
                               description="Nodes the view wants whose geometry is not on the GPU yet")
     stat_changed: IntProperty(name="Changed Since Bake", get=_changed_sources,
                               description="Baked objects that changed since the bake (while the preview runs)")
-    status: StringProperty(name="Status", get=lambda self: preview.status())
+    status: StringProperty(name="Status", get=lambda self: PREVIEW.status())
 
 
 CLASSES = [HLOD_PG_source_object, HLOD_PG_hidden_object, HLOD_PG_settings]

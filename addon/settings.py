@@ -1,6 +1,6 @@
-"""Property group to core settings: the one pair of converters (STYLE: one function converts the
-Blender PropertyGroup into core settings), over the core's builders (hlod_core.bake.settings
-.bake_settings, the one every front end calls; RuntimeSettings).
+"""Property group to core settings: the one place the Blender PropertyGroup (scene.hlod) becomes
+the core's settings, over the core's builders (hlod_core.bake.settings.bake_settings, the one every
+front end calls; RuntimeSettings). Imports no Blender module: it reads the property group's values.
 """
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from ..hlod_core.traversal.settings import RuntimeSettings
 
 def bake_settings(props) -> BakeSettings:
     """scene.hlod -> the bake's settings (jobs 0 = all cores but one: bake.settings.resolve_jobs).
-    The bake runs in a child process of Blender's Python (addon/bake_job.py), where worker
+    The bake runs in a child process of Blender's Python (addon/bake/job.py), where worker
     processes import hlod_core as from the command line."""
     return core_bake_settings(target_tris=props.target_tris, max_depth=props.max_depth, jobs=props.jobs,
                               quality_threshold=props.quality_threshold, error=props.error)

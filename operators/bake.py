@@ -1,10 +1,10 @@
 """Bake and Clear (docs/user-guide.md). Bake gathers the evaluated meshes on Blender's main thread and bakes
-them in a child process of Blender's Python with `scene.hlod.jobs` worker processes
-(addon/bake_job.py; modal with progress in the status bar and the panel, Esc cancels; synchronous in
-execute(), as in background mode). A bake that fails or dies is reported; Blender and an earlier
-.hlod stay as they were.
+them in a child process of Blender's Python with `scene.hlod.jobs` worker processes, through the
+flow the background command shares (addon/bake/from_scene.py; modal with progress in the status bar
+and the panel, Esc cancels; synchronous in execute(), as in background mode). A bake that fails or
+dies is reported; Blender and an earlier .hlod stay as they were.
 
-Bake records the objects it took and their content keys on the scene (addon/source_record.py);
+Bake records the objects it took and their content keys on the scene (addon/scene/source_record.py);
 `hlod.bake(recorded=True)` is Re-bake: it bakes the recorded objects again. A bake while the
 preview runs stops the preview first (its sources are hidden, and hidden objects give the depsgraph
 no instances to read), then starts it again on the new file, or on the old one if the bake fails.
@@ -17,16 +17,13 @@ from pathlib import Path
 import bpy
 from bpy.props import BoolProperty
 
-from ..addon import preview, scene_mesh, source_record
-from ..addon.bake_job import BakeJob
-from ..addon.material_bake import bake_unreadable_materials, cycles_report
-from ..addon.material_texture import place_textures
+from ..addon.bake.from_scene import SceneBake, start_bake
+from ..addon.materials.cycles_bake import cycles_report
+from ..addon.preview.live import PREVIEW
 from ..addon.properties import stored_path
-from ..addon.scene_objects import Skipped
+from ..addon.scene import objects as scene_objects, source_record
 from ..addon.settings import bake_settings
-from ..hlod_core.bake import cache
 from ..hlod_core.core.errors import BakeCancelled, HlodError, InputError
-from ..hlod_core.io.texture_folder import EmbeddedTextures
 
 #: Seconds between two looks at the running bake's progress.
 POLL_S = 0.1
@@ -57,36 +54,9 @@ class HLOD_OT_bake(bpy.types.Operator):
     recorded: BoolProperty(name="Recorded Sources", default=False, options={"SKIP_SAVE"},
                            description="Bake the objects the last bake took (Re-bake), not the Source setting")
 
-    def _prepare(self, context):
-        """(mesh, output path, settings, record rows, the bake's extra meta: the UV map's and colour
-        attribute's names). Stops a running preview first (module notes)."""
-        props = context.scene.hlod
-        self._restart = preview.running()
-        if self._restart:
-            preview.stop()
-        out = output_path(props)
-        folder = os.path.dirname(out) or "."
-        if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
-            raise InputError(f"Bake: cannot write {out}: folder {folder} is missing or not writable")
-        objects = self._recorded_objects(context) if self.recorded else scene_mesh.source_objects(context, props)
-        taken: list = []
-        attributes: dict = {}
-        skipped = Skipped()
-        mesh = scene_mesh.evaluated_mesh(context, objects, taken=taken, attributes=attributes, skipped=skipped)
-        mesh, cycles_baked = bake_unreadable_materials(context, mesh)  # node trees that cannot be read
-        if cycles_baked:
-            self.report({"INFO"}, f"HLOD bake: {cycles_report(cycles_baked)}")
-        if skipped:  # kinds without triangles, hidden objects: named once (addon/scene_objects.py)
-            self.report({"WARNING"}, f"HLOD bake: {skipped.text()}")
-        rows = source_record.record(taken, context.evaluated_depsgraph_get())
-        # textures made from node trees, packed images: OUT.textures once the .hlod is written (_end)
-        self._textures = EmbeddedTextures(Path(out))
-        mesh = place_textures(mesh, self._textures)
-        return mesh, out, bake_settings(props), rows, attributes or None
-
     def _recorded_objects(self, context) -> list:
         """Re-bake's objects: those of the scene's record still in the scene (a warning names the others)."""
-        objects, missing = scene_mesh.recorded_objects(context, context.scene.hlod)
+        objects, missing = scene_objects.recorded_objects(context, context.scene.hlod)
         if missing:
             shown = ", ".join(repr(name) for name in missing[:MISSING_SHOWN])
             shown += " ..." if len(missing) > MISSING_SHOWN else ""
@@ -94,28 +64,38 @@ class HLOD_OT_bake(bpy.types.Operator):
                                      f"left out: {shown}")
         return objects
 
-    def _start(self, context) -> BakeJob:
-        """Gather the mesh here, on Blender's main thread, and start the bake's child process (with
-        the cache folder beside the output, unless the Bake Cache setting is off)."""
-        mesh, out, settings, self._rows, extra_meta = self._prepare(context)
+    def _start(self, context) -> SceneBake:
+        """Stop a running preview (module notes), check the output's folder, and run the shared
+        flow on the chosen objects: the bake's child process runs when this returns. The objects
+        the bake took are recorded (their content keys) while it runs."""
+        props = context.scene.hlod
+        self._restart = PREVIEW.running()
+        if self._restart:
+            PREVIEW.stop()
+        out = output_path(props)
+        folder = os.path.dirname(out) or "."
+        if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+            raise InputError(f"Bake: cannot write {out}: folder {folder} is missing or not writable")
+        objects = self._recorded_objects(context) if self.recorded else scene_objects.source_objects(context, props)
+        bake = start_bake(context, objects, Path(out), bake_settings(props), use_cache=props.use_cache)
+        if bake.cycles_baked:  # node trees that cannot be read
+            self.report({"INFO"}, f"HLOD bake: {cycles_report(bake.cycles_baked)}")
+        if bake.gathered.skipped:  # kinds without triangles, hidden objects: named once (addon/scene/objects.py)
+            self.report({"WARNING"}, f"HLOD bake: {bake.gathered.skipped.text()}")
         try:
-            cache_dir = cache.default_folder(out) if context.scene.hlod.use_cache else None
-            cache.check_folder(cache_dir)
-            return BakeJob(mesh, settings, out, extra_meta=extra_meta, cache_dir=cache_dir)
+            self._rows = source_record.record(bake.gathered.taken, context.evaluated_depsgraph_get())
         except BaseException:
-            self._textures.discard()
+            bake.job.cancel()
+            bake.job.wait()
+            bake.finish()
             raise
+        return bake
 
-    def _end(self, context, job: BakeJob) -> set[str]:
-        """Report how the finished job went; the operator's return value. The textures the bake made
-        are published as OUT.textures only when the .hlod was written, else dropped."""
-        try:
-            if job.error is None:
-                self._textures.publish()
-        except OSError as exc:
-            job.error = exc
-        finally:
-            self._textures.discard()
+    def _end(self, context, bake: SceneBake) -> set[str]:
+        """Report how the finished bake went (its textures published or dropped: SceneBake.finish);
+        the operator's return value."""
+        bake.finish()
+        job = bake.job
         if isinstance(job.error, BakeCancelled):
             self.report({"WARNING"}, "HLOD bake cancelled; nothing written")
         elif job.error is not None:
@@ -127,7 +107,7 @@ class HLOD_OT_bake(bpy.types.Operator):
         self._restart_preview(context)
         return {"CANCELLED"}
 
-    def _finish(self, context, job: BakeJob) -> None:
+    def _finish(self, context, job) -> None:
         props = context.scene.hlod
         result = job.result
         props.file = stored_path(job.output)
@@ -143,27 +123,27 @@ class HLOD_OT_bake(bpy.types.Operator):
             return
         self._restart = False
         try:
-            preview.start(context.scene)
+            PREVIEW.start(context.scene)
         except (HlodError, OSError) as exc:
             self.report({"WARNING"}, f"HLOD preview not restarted: {exc}")
 
     def execute(self, context):
         """Synchronous (background mode, scripts): the same child process, waited for here."""
         try:
-            job = self._start(context)
+            bake = self._start(context)
         except HlodError as exc:
             self.report({"ERROR"}, str(exc))
             self._restart_preview(context)
             return {"CANCELLED"}
-        job.join()
-        return self._end(context, job)
+        bake.job.join()
+        return self._end(context, bake)
 
     def invoke(self, context, event):
         """Modal with progress in the status bar and the panel; Esc cancels; the UI stays responsive."""
         if bpy.app.background:
             return self.execute(context)
         try:
-            self._job = self._start(context)
+            self._bake = self._start(context)
         except HlodError as exc:
             self.report({"ERROR"}, str(exc))
             self._restart_preview(context)
@@ -175,7 +155,7 @@ class HLOD_OT_bake(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event):
-        job = self._job
+        job = self._bake.job
         if event.type == "ESC" and event.value == "PRESS":
             job.cancel()
         if event.type != "TIMER":
@@ -190,7 +170,7 @@ class HLOD_OT_bake(bpy.types.Operator):
         wm.event_timer_remove(self._timer)
         wm.progress_end()
         context.workspace.status_text_set(None)
-        return self._end(context, job)
+        return self._end(context, self._bake)
 
 
 def bake_summary(result, seconds: float) -> str:
@@ -221,7 +201,7 @@ class HLOD_OT_clear(bpy.types.Operator):
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
-        preview.stop()
+        PREVIEW.stop()
         props = context.scene.hlod
         props.file = ""
         source_record.store(props, [], "")  # the record belongs to the file

@@ -1,6 +1,6 @@
-"""Benchmark and Tune to PSNR (docs/user-guide.md, §9): the scene camera's animation replayed with every
-traversal method into an evaluation report, or searched for the (s, t) with the fewest drawn nodes
-that keeps the target PSNR against Bool (addon/benchmark.py). Tune sets scene.hlod.s, t and bias to
+"""Benchmark and Tune to PSNR (docs/user-guide.md, docs/evaluation.md): the scene camera's animation
+replayed with every traversal method into an evaluation report, or searched for the (s, t) with the
+fewest drawn nodes that keeps the target PSNR against Bool (addon/evaluation.py). Tune sets scene.hlod.s, t and bias to
 what it chose: an undo step like the other property edits."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import os
 import bpy
 from bpy.props import IntProperty, StringProperty
 
-from ..addon import benchmark
+from ..addon import evaluation
 from ..addon.properties import BLEND_RELATIVE_PATH
 from ..hlod_core.core.errors import HlodError
 
@@ -29,7 +29,7 @@ class HLOD_OT_benchmark(bpy.types.Operator):
 
     def execute(self, context):
         try:
-            report, folder = benchmark.run(context, bpy.path.abspath(self.directory), self.repeat)
+            report, folder = evaluation.run(context, bpy.path.abspath(self.directory), self.repeat)
         except (HlodError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -55,7 +55,7 @@ class HLOD_OT_tune_psnr(bpy.types.Operator):
     def execute(self, context):
         props = context.scene.hlod
         try:
-            report, folder = benchmark.tune(context, bpy.path.abspath(self.directory), self.repeat)
+            report, folder = evaluation.tune(context, bpy.path.abspath(self.directory), self.repeat)
         except (HlodError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}

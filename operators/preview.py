@@ -1,11 +1,12 @@
-"""Toggle Preview and Materialize (docs/user-guide.md): the live preview in the 3D viewport (addon/preview.py),
-and Blender mesh objects of its current front or of every node at a depth (addon/materialize.py)."""
+"""Toggle Preview and Materialize (docs/user-guide.md): the live preview in the 3D viewport (addon/preview/live.py),
+and Blender mesh objects of its current front or of every node at a depth (addon/scene/node_objects.py)."""
 from __future__ import annotations
 
 import bpy
 from bpy.props import IntProperty
 
-from ..addon import materialize, preview
+from ..addon.preview.live import PREVIEW
+from ..addon.scene import node_objects as materialize
 from ..hlod_core.core.errors import HlodError, InputError
 from ..hlod_core.io import hlod_file
 
@@ -17,15 +18,15 @@ class HLOD_OT_preview_toggle(bpy.types.Operator):
     bl_label = "Toggle HLOD Preview"
 
     def execute(self, context):
-        if preview.running():
-            preview.stop()
+        if PREVIEW.running():
+            PREVIEW.stop()
             return {"FINISHED"}
         try:
-            preview.start(context.scene)
+            PREVIEW.start(context.scene)
         except (HlodError, OSError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
-        recorded, hidden = preview.sources_in_place()
+        recorded, hidden = PREVIEW.sources_in_place()
         if not recorded:
             self.report({"WARNING"}, "HLOD preview: the scene has no record of the objects this file was baked "
                                      "from; they stay visible (bake or re-bake to record them)")
@@ -46,11 +47,11 @@ class HLOD_OT_materialize(bpy.types.Operator):
     def execute(self, context):
         props = context.scene.hlod
         try:
-            hlod = preview.current_hlod() or (hlod_file.load(bpy.path.abspath(props.file)) if props.file else None)
+            hlod = PREVIEW.current_hlod() or (hlod_file.load(bpy.path.abspath(props.file)) if props.file else None)
             if hlod is None:
                 raise InputError("Materialize: no baked file; run Bake first")
             if self.depth < 0:
-                stats = preview.last_stats()
+                stats = PREVIEW.last_stats()
                 if stats is None or not stats.drawn:
                     raise InputError("Materialize: the preview has not drawn a frame yet; start it or choose a depth")
                 nodes, label = stats.drawn, "front"

@@ -1,11 +1,7 @@
 """View in Browser (`hlod.view_tiles`): serves a 3D Tiles export (the last one Export wrote,
-`scene.hlod.tiles_dir`, or a folder picked) and a CesiumJS viewer page on 127.0.0.1 from a thread
-of Blender's process (hlod_core/export/viewer.py, imported only when the button is used), and opens
-the page with `webbrowser`; pressed again it opens the page again; `stop=True` closes the server.
-
-One server at a time, held here (`viewer_url`, `viewer_stop`); it is closed when the operator's
-class is unregistered (the add-on disabled) and on file load (the add-on's load_pre handler), so no
-thread or port outlives the add-on or the file.
+`scene.hlod.tiles_dir`, or a folder picked) and a CesiumJS viewer page on 127.0.0.1 through the
+add-on's one server (addon/tiles_server.py), and opens the page with `webbrowser`; pressed again it
+opens the page again; `stop=True` closes the server, as unregistering the class does.
 """
 from __future__ import annotations
 
@@ -14,32 +10,11 @@ import os
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
+from ..addon import tiles_server
 from ..addon.properties import BLEND_RELATIVE_PATH, stored_path
 from ..hlod_core.core.errors import HlodError, InputError
 
 ERROR_PREFIX = "View in browser: "
-
-_viewer = None  # the running hlod_core.export.viewer.ViewerServer, or None
-_viewer_folder = ""  # the absolute folder it serves
-
-
-def running_server():
-    """The running hlod_core.export.viewer.ViewerServer, or None."""
-    return _viewer
-
-
-def viewer_url() -> str | None:
-    """The running viewer's page ("http://localhost:N/"), None when none runs (the panel's line)."""
-    return _viewer.url if _viewer is not None else None
-
-
-def viewer_stop() -> None:
-    """Close the running viewer: its thread ends and its port is free when this returns. Nothing
-    when none runs; safe to call from handlers and unregister."""
-    global _viewer, _viewer_folder
-    server, _viewer, _viewer_folder = _viewer, None, ""
-    if server is not None:
-        server.close()
 
 
 def _tiles_folder(props, picked: str) -> str:
@@ -49,21 +24,6 @@ def _tiles_folder(props, picked: str) -> str:
         raise InputError(f"{ERROR_PREFIX}no 3D Tiles export yet; export with format 3D Tiles first, "
                          "or pick a folder holding tileset.json")
     return os.path.normpath(bpy.path.abspath(folder))
-
-
-def _serve(folder: str) -> str:
-    """Serve `folder` (the running server if it serves it already, else a new one, which replaces
-    the running one once it has started); its page's URL."""
-    global _viewer, _viewer_folder
-    if _viewer is not None and _viewer_folder == folder:
-        return _viewer.url
-    from ..hlod_core.export import viewer  # here, not above: enabling the add-on imports no viewer code
-
-    server = viewer.serve(folder)  # InputError: no tileset.json there, CesiumJS not found
-    server.start()
-    viewer_stop()
-    _viewer, _viewer_folder = server, folder
-    return server.url
 
 
 class HLOD_OT_view_tiles(bpy.types.Operator):
@@ -82,7 +42,7 @@ class HLOD_OT_view_tiles(bpy.types.Operator):
 
     @classmethod
     def unregister(cls):  # Blender calls it when the class is unregistered: the add-on is disabled
-        viewer_stop()
+        tiles_server.stop()
 
     def invoke(self, context, event):
         """Without a folder and with no 3D Tiles export yet: pick a folder first."""
@@ -93,12 +53,12 @@ class HLOD_OT_view_tiles(bpy.types.Operator):
 
     def execute(self, context):
         if self.stop:
-            viewer_stop()
+            tiles_server.stop()
             return {"FINISHED"}
         props = context.scene.hlod
         try:
             folder = _tiles_folder(props, self.directory)
-            url = _serve(folder)
+            url = tiles_server.serve(folder)
         except (HlodError, OSError) as exc:
             text = str(exc)
             self.report({"ERROR"}, text if text.startswith(ERROR_PREFIX) else ERROR_PREFIX + text)

@@ -2,11 +2,14 @@
 the last bake's summary), Preview (with Export and View in Browser, and the viewer's address and Stop
 while it serves; Benchmark and Tune to PSNR with its target and last result), Overlay, Statistics.
 Draw code reads state only: the count of changed sources is kept current by the depsgraph handler
-(addon/source_record.py), not computed here."""
+(addon/scene/source_record.py), not computed here."""
 import bpy
 
-from ..addon import bake_job, bake_plan, preview, source_record, viewport_text
-from ..operators.view_tiles import viewer_url
+from ..addon import tiles_server
+from ..addon.bake import job as bake_job, plan as bake_plan
+from ..addon.preview import corner_text
+from ..addon.preview.live import PREVIEW
+from ..addon.scene import source_record
 
 
 class _HlodPanel:
@@ -60,7 +63,7 @@ class HLOD_PT_bake(_HlodSection, bpy.types.Panel):
 
 def _draw_bake_state(layout, context, props) -> None:
     """The running bake's progress (read from its child process's progress lines), else what a bake
-    would take (addon/bake_plan.py) and how the last bake went (time, jobs, and how much of it came
+    would take (addon/bake/plan.py) and how the last bake went (time, jobs, and how much of it came
     from the cache)."""
     job = bake_job.active()
     if job is not None:
@@ -79,7 +82,7 @@ class HLOD_PT_preview(_HlodSection, bpy.types.Panel):
 
     def draw(self, context):
         props, layout = context.scene.hlod, self.layout
-        on = preview.running()
+        on = PREVIEW.running()
         layout.operator("hlod.preview_toggle", text="Stop Preview" if on else "Start Preview",
                         icon="HIDE_OFF" if on else "HIDE_ON", depress=on)
         if on:
@@ -119,7 +122,7 @@ class HLOD_PT_preview(_HlodSection, bpy.types.Panel):
 
 def _draw_viewer(layout) -> None:
     """While the 3D Tiles viewer serves: its address, and Stop."""
-    url = viewer_url()
+    url = tiles_server.url()
     if url is None:
         return
     row = layout.row(align=True)
@@ -129,7 +132,7 @@ def _draw_viewer(layout) -> None:
 
 def _draw_sources(layout) -> None:
     """What the preview stands in for: hidden sources, and those changed since the bake (Re-bake)."""
-    recorded, hidden = preview.sources_in_place()
+    recorded, hidden = PREVIEW.sources_in_place()
     if not recorded:
         layout.label(text="Sources not recorded for this file: they stay visible", icon="INFO")
         layout.operator("hlod.bake", text="Bake to Record Them", icon="MOD_DECIM")
@@ -137,7 +140,7 @@ def _draw_sources(layout) -> None:
     layout.label(text=f"{hidden} of {recorded} baked objects hidden", icon="HIDE_ON")
     tracker = source_record.tracker()
     if tracker is not None and tracker.changed:
-        layout.label(text=viewport_text.stale_message(len(tracker.changed), recorded), icon="ERROR")
+        layout.label(text=corner_text.stale_message(len(tracker.changed), recorded), icon="ERROR")
         layout.operator("hlod.bake", text="Re-bake", icon="FILE_REFRESH").recorded = True
 
 

@@ -6,7 +6,7 @@ render, and draw the preview through the add-on's own draw path into a gpu.types
 
 draws FILE.hlod from a street-level camera with the modulation overlay (Coh(mu), so occlusion
 visibly changes the level of detail) and writes OUT.png; the last stdout line is a JSON summary.
-The functions are also what tests/test_addon.py runs in its Blender subprocesses.
+The functions are also what tests/blender/test_addon.py runs in its Blender subprocesses.
 """
 from __future__ import annotations
 
@@ -121,7 +121,7 @@ def draw_offscreen(package, scene, size, *, before=None, after=None) -> np.ndarr
     pixels (H, W, 4) uint8, bottom row first."""
     import gpu
 
-    preview = importlib.import_module(package.__name__ + ".addon.preview")
+    preview = importlib.import_module(package.__name__ + ".addon.preview.live").PREVIEW
     view, projection = camera_matrices(scene, size)
     offscreen = gpu.types.GPUOffScreen(*size)
     try:
@@ -156,7 +156,7 @@ def main() -> None:
     from hlod_core.core.png import write_png
 
     package = enable_from_source()
-    preview = importlib.import_module(package.__name__ + ".addon.preview")
+    preview = importlib.import_module(package.__name__ + ".addon.preview.live").PREVIEW
     init_gpu()
     scene = bpy.context.scene
     hlod = hlod_file.load(args.file)

@@ -74,7 +74,7 @@ def _record_matches(package, scene, statues, *, baked: Path) -> bool:
     (crowd.record.json, written after each bake here) holds the same names and content keys."""
     import bpy
 
-    source_record = importlib.import_module(package.__name__ + ".addon.source_record")
+    source_record = importlib.import_module(package.__name__ + ".addon.scene.source_record")
     saved = baked.with_suffix(".record.json")
     rows = source_record.record(statues, bpy.context.evaluated_depsgraph_get())
     if not saved.is_file() or json.loads(saved.read_text()) != [list(row) for row in rows]:
@@ -187,7 +187,7 @@ def stale_costs(package, statues) -> dict:
     record of every object."""
     import bpy
 
-    source_record = importlib.import_module(package.__name__ + ".addon.source_record")
+    source_record = importlib.import_module(package.__name__ + ".addon.scene.source_record")
     depsgraph = bpy.context.evaluated_depsgraph_get()
     tracker = source_record.tracker()
     tracker.refresh(depsgraph, {statues[0].name_full})
@@ -248,7 +248,7 @@ def main() -> None:
     import gpu
 
     package = blender_preview.enable_from_source()
-    preview = importlib.import_module(package.__name__ + ".addon.preview")
+    preview = importlib.import_module(package.__name__ + ".addon.preview.live").PREVIEW
     blender_preview.init_gpu()
     bpy.context.preferences.system.viewport_aa = "OFF"  # one sample per frame (module notes)
     scene = bpy.context.scene

@@ -1,6 +1,6 @@
 """The extension in the real bpy module: the Blenders the checks run in, the zip built by
 scripts/build_extension.py and installed with each Blender's own extension tool, and one check
-script run in a Blender process (its JSON result). conftest.py's fixtures `extension_zips`, `repo`
+script of tests/blender/ run in a Blender process (its JSON result). conftest.py's fixtures `extension_zips`, `repo`
 and `versioned_repo` are made of these.
 
 BLENDERS: version "X.Y" -> that environment's Python interpreter (.venv-blender/bpy-X.Y, made by
@@ -20,6 +20,8 @@ from pathlib import Path
 from helpers import ROOT
 
 BLENDER_VENVS = ROOT / ".venv-blender"
+#: The check scripts, each run in a Blender process of its own (and the pytest modules that run them).
+CHECKS = ROOT / "tests" / "blender"
 
 
 def _blenders() -> dict[str, Path]:
@@ -109,7 +111,7 @@ def install_extension(zip_path: Path, python: Path, base: Path) -> Path:
 
 def blender(repo, check: str, tmp_path, *arguments: str, timeout_s: float = 600, quiet: bool = False,
             script: str = "blender_checks.py", env: dict[str, str] | None = None) -> dict:
-    """Run tests/SCRIPT CHECK TMP [ARGUMENTS] in `repo`'s Blender (an Installed; a plain folder is the
+    """Run tests/blender/SCRIPT CHECK TMP [ARGUMENTS] in `repo`'s Blender (an Installed; a plain folder is the
     main .venv's); its JSON result. quiet: the process must print nothing on stderr (no warnings).
     env: variables set for that process on top of this one's (read before its GPU starts).
     timeout_s guards against a hang only."""
@@ -118,8 +120,8 @@ def blender(repo, check: str, tmp_path, *arguments: str, timeout_s: float = 600,
     temp.mkdir(exist_ok=True)                # process that ends through os._exit leaves behind
     env = {**os.environ, **(env or {}), "BLENDER_USER_RESOURCES": str(base / "user"), "PYTHONPATH": str(ROOT),
            "TMPDIR": str(temp)}
-    proc = subprocess.run([str(python), str(ROOT / "tests" / script), str(base / "repo"), check, str(tmp_path),
-                           *arguments], capture_output=True, text=True, timeout=timeout_s, env=env, cwd=ROOT)
+    proc = subprocess.run([str(python), str(CHECKS / script), str(base / "repo"), check, str(tmp_path), *arguments],
+                          capture_output=True, text=True, timeout=timeout_s, env=env, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-4000:]
     assert not (quiet and proc.stderr), proc.stderr[-4000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])

@@ -5,6 +5,7 @@ product text speaks of the product, not of its making. Fast: no GL, no bpy."""
 from __future__ import annotations
 
 import ast
+import os
 import importlib.util
 import re
 import sys
@@ -105,10 +106,23 @@ def _core_options() -> tuple[dict[str, set[str]], set[str]]:
     return commands, top
 
 
+def _core_option_group(name: str) -> set[str]:
+    """The option strings the core's option group `name` (hlod_core.cli.options, e.g. bake_options)
+    adds to a parser."""
+    import argparse
+
+    from hlod_core.cli import options
+
+    parser = argparse.ArgumentParser(add_help=False)
+    getattr(options, name)(parser)
+    return {o for a in parser._actions for o in a.option_strings}
+
+
 def _addon_options() -> dict[str, set[str]]:
     """{subcommand: its option strings} of the Blender command, read from addon/cli.py's AST
     (importing it needs bpy): `X = sub.add_parser("name")`, groups made from X, and
-    `X.add_argument("--option", ...)`; a call on a name not traced to a subcommand counts under "*"."""
+    `X.add_argument("--option", ...)`, or the core's option group `bake_options(X)`; a call on a
+    name not traced to a subcommand counts under "*"."""
     tree = ast.parse(ADDON_CLI.read_text(encoding="utf-8"))
     commands: dict[str, set[str]] = {}
     for function in (n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)):
@@ -129,6 +143,9 @@ def _addon_options() -> dict[str, set[str]]:
                     node.func.attr == "add_argument" and isinstance(node.func.value, ast.Name):
                 strings = {a.value for a in node.args if isinstance(a, ast.Constant) and str(a.value).startswith("-")}
                 commands.setdefault(owner.get(node.func.value.id, "*"), set()).update(strings)
+            elif isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id.endswith("_options") \
+                    and node.args and isinstance(node.args[0], ast.Name):
+                commands.setdefault(owner.get(node.args[0].id, "*"), set()).update(_core_option_group(node.func.id))
     return commands
 
 
@@ -221,3 +238,64 @@ def test_every_docs_page_and_anchor_named_in_the_code_exists():
             elif anchor and anchor not in anchors(page):
                 broken.append(f"{path.relative_to(ROOT)}: docs/{match.group(1)}#{anchor}: no such heading")
     assert not broken, "\n".join(broken)
+
+
+# --- the developers' guide's layout against the tree -----------------------------------------------
+
+DEVELOPMENT = ROOT / "docs" / "development.md"
+#: Folders the layout check does not walk: environments, downloads, build outputs.
+NOT_CODE = {"node_modules", "wheels", "dist", "out", "__pycache__"}
+#: Where each room's line in the layout names every module of the room (the add-on's rooms; the
+#: core's lines describe their modules in words).
+ROOMS_NAMING_EVERY_MODULE = ("addon/",)
+
+
+def _layout_entries() -> dict[str, str]:
+    """{path: its description} of the Layout block of docs/development.md: a line that starts with
+    a name is a top-level entry (`addon/`, `__init__.py`), an indented `name/` a folder inside the
+    last top-level folder; continuation lines join their entry's description."""
+    text = DEVELOPMENT.read_text(encoding="utf-8")
+    block = FENCE.search(text, text.index("\n## Layout")).group(0)
+    entries: dict[str, str] = {}
+    top = path = None
+    for line in block.splitlines()[1:-1]:
+        head = re.match(r"(\S+)\s", line + " ")
+        nested = re.match(r"  (\S+/)\s", line + " ")
+        if head:
+            path = top = head.group(1)
+        elif nested and top and top.endswith("/"):
+            path = top + nested.group(1)
+        elif path is None:
+            continue
+        entries[path] = entries.get(path, "") + " " + line.strip()
+    return entries
+
+
+def _packages() -> set[str]:
+    """The repository's package folders (holding __init__.py), relative, with a trailing '/'."""
+    found = set()
+    for folder, dirs, files in os.walk(ROOT):
+        dirs[:] = [d for d in dirs if not d.startswith(".") and d not in NOT_CODE]
+        if "__init__.py" in files and Path(folder) != ROOT:
+            found.add(Path(folder).relative_to(ROOT).as_posix() + "/")
+    return found
+
+
+def test_the_layout_names_every_package_and_only_what_exists():
+    """The Layout block names every package folder of the repository, and every path it names
+    exists: its entries and the files (`name.py`) each entry names inside its folder; a room of
+    ROOMS_NAMING_EVERY_MODULE (an indented folder entry) names each of its modules."""
+    entries = _layout_entries()
+    assert {"addon/", "addon/preview/", "hlod_core/bake/", "__init__.py"} <= set(entries), sorted(entries)
+    problems = [f"{path}: named in the layout, not in the tree" for path in entries if not (ROOT / path).exists()]
+    problems += [f"{path}: a package the layout does not name" for path in sorted(_packages() - set(entries))]
+    for path, text in entries.items():
+        folder = ROOT / path if path.endswith("/") else ROOT
+        for name in re.findall(r"\b[\w-]+\.(?:py|sh)\b", text):
+            if not (folder / name).exists() and not any(folder.rglob(name)):
+                problems.append(f"{path}: names {name}, which is not there")
+        if path.count("/") == 2 and path.startswith(ROOMS_NAMING_EVERY_MODULE) and folder.is_dir():
+            words = set(re.findall(r"\w+", text))
+            problems += [f"{path}: its module {m.name} is not named" for m in sorted(folder.glob("*.py"))
+                         if m.stem != "__init__" and m.stem not in words]
+    assert not problems, "\n".join(problems)

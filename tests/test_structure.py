@@ -1,11 +1,14 @@
-"""The structure bar, read from the source (STYLE: imports run one way, core <- adapters <- UI <-
-registration; a cycle is a design question):
+"""The structure bar, read from the source (imports run one way, core <- adapters <- UI <-
+registration; a cycle is a design question; docs/development.md#layout):
   - hlod_core imports nothing of addon/, operators/, panels/ or Blender's modules, and outside itself
     only the standard library and its declared dependencies; addon/ (adapters) imports no UI;
   - no module-level or deferred import forms a cycle; the core's rooms (its subpackages) import only
-    rooms below them (ROOM_LAYERS);
+    rooms below them (ROOM_LAYERS), and so do the add-on's (ADDON_LAYERS);
+  - the UI (operators/, panels/) calls into the add-on: it imports neither the other UI package nor
+    the core's bake, traversal, renderer or reports (UI_CORE_ROOMS);
+  - an add-on module whose docstring says it imports no Blender module imports none;
   - no private name (leading underscore) of a project module is used from another package: another
-    room of the core, the extension, benchmarks/, scripts/ or tests/;
+    room of the core or of the add-on, operators/, panels/, benchmarks/, scripts/ or tests/;
   - no module of the core or the extension is longer than MAX_MODULE_LINES;
   - test modules share fixtures (conftest.py) and helper modules, never another test module, a
     module-level cache or a GL context of their own;
@@ -31,7 +34,20 @@ BLENDER_MODULES = {"bpy", "mathutils", "gpu", "gpu_extras", "bmesh", "addon_util
 #: above traversal; the reports drive renderer and traversal; the command line is the top.
 ROOM_LAYERS = {"core": 0, "model": 1, "io": 2, "traversal": 2, "render": 3, "bake": 3, "export": 4, "report": 4,
                "cli": 5, "__main__": 6}
-#: Lines a module may have (STYLE: modules of a few hundred lines, one topic each).
+#: The add-on's rooms (its subpackages, and its modules at the top of addon/), lowest first: a room
+#: imports only rooms of a lower layer (and itself). Materials, the settings converter and the 3D
+#: Tiles server read Blender data and the core only; the scene reads materials; the preview and
+#: the bake work on the scene; the property group (whose statistics read the preview), the
+#: background command (the bake) and the Benchmark's work (the preview's file and contexts) are the top.
+ADDON_LAYERS = {"settings": 0, "materials": 0, "tiles_server": 0, "scene": 1, "preview": 2, "bake": 2,
+                "properties": 3, "cli": 3, "evaluation": 3}
+#: The core's rooms the UI (operators/, panels/) imports: typed errors, files, exports. The bake, the
+#: traversal, the renderer and the reports are reached through the add-on's rooms.
+UI_CORE_ROOMS = {"core", "io", "export"}
+#: What an add-on module's docstring says when it imports no Blender module, not even inside a
+#: function (it runs, or is tested, outside Blender); the test holds it to that.
+NO_BLENDER_CLAIM = re.compile(r"imports\s+no\s+Blender\s+module", re.IGNORECASE)
+#: Lines a module may have (modules of a few hundred lines, one topic each).
 MAX_MODULE_LINES = 500
 #: Libraries of the command line only (requirements.txt): Blender ships none of them, nor does the
 #: extension's manifest, so no module the extension can reach may import them.
@@ -63,15 +79,17 @@ def _modules(folders=PACKAGES) -> dict[str, Path]:
 
 def _package_of(name: str) -> str:
     """The package whose private names a module may use: a room of the core (hlod_core.bake, ...;
-    hlod_core.cli for the command line), else the top folder (addon, benchmarks, tests, ...)."""
+    hlod_core.cli for the command line) or of the add-on (addon.preview, ...; addon.cli), else the
+    top folder (operators, benchmarks, tests, ...)."""
     parts = name.split(".")
-    return ".".join(parts[:2]) if parts[0] == "hlod_core" and len(parts) > 1 else parts[0]
+    return ".".join(parts[:2]) if parts[0] in ("hlod_core", "addon") and len(parts) > 1 else parts[0]
 
 
-def _room(name: str) -> str | None:
-    """The core's room of module `name` (core, model, ..., cli, __main__), None for hlod_core itself."""
+def _room(name: str, package: str = "hlod_core") -> str | None:
+    """The room of module `name` in `package`: the core's (core, model, ..., cli, __main__) or the
+    add-on's (materials, scene, ..., cli); None for the package itself or a module outside it."""
     parts = name.split(".")
-    return parts[1] if parts[0] == "hlod_core" and len(parts) > 1 else None
+    return parts[1] if parts[0] == package and len(parts) > 1 else None
 
 
 def _import_targets(name: str, path: Path, node: ast.AST) -> list[tuple[str, str | None]]:
@@ -122,12 +140,12 @@ def graph() -> dict[str, tuple[set[str], set[str]]]:
     return {name: _imports(name, path, set(modules)) for name, path in modules.items()}
 
 
-def _room_edges(graph) -> dict[tuple[str, str], list[str]]:
-    """{(importing room, imported room): ["a -> b", ...]} between different rooms of the core."""
+def _room_edges(graph, package: str = "hlod_core") -> dict[tuple[str, str], list[str]]:
+    """{(importing room, imported room): ["a -> b", ...]} between different rooms of `package`."""
     edges: dict[tuple[str, str], list[str]] = {}
     for name, (project, _) in graph.items():
         for target in project:
-            a, b = _room(name), _room(target)
+            a, b = _room(name, package), _room(target, package)
             if a and b and a != b:
                 edges.setdefault((a, b), []).append(f"{name} -> {target}")
     return edges
@@ -191,6 +209,63 @@ def test_the_core_has_no_back_imports(graph):
     back = {edge: importers for edge, importers in _room_edges(graph).items()
             if ROOM_LAYERS[edge[1]] >= ROOM_LAYERS[edge[0]]}
     assert not back, back
+
+
+def test_the_addon_rooms_import_only_rooms_below_them(graph):
+    """Every room of the add-on is in ADDON_LAYERS (and every room there exists) and imports only
+    rooms of lower layers (deferred imports included)."""
+    rooms = {_room(name, "addon") for name in graph} - {None}
+    assert rooms == set(ADDON_LAYERS), (rooms ^ set(ADDON_LAYERS))
+    back = {edge: importers for edge, importers in _room_edges(graph, "addon").items()
+            if ADDON_LAYERS[edge[1]] >= ADDON_LAYERS[edge[0]]}
+    assert not back, back
+
+
+def test_the_ui_calls_into_the_addon(graph):
+    """operators/ and panels/ import, of the project, only their own package, the add-on and the
+    core's UI_CORE_ROOMS: a panel does not reach into an operator (nor the other way), and the bake,
+    the traversal, the renderer and the reports are the add-on's to call."""
+    offending = {}
+    for name, (project, _) in graph.items():
+        ui = name.split(".")[0]
+        if ui not in ("operators", "panels"):
+            continue
+        wrong = sorted(p for p in project if p.split(".")[0] not in (ui, "addon", "hlod_core")
+                       or p.startswith("hlod_core") and _room(p) not in UI_CORE_ROOMS)
+        if wrong:
+            offending[name] = wrong
+    assert not offending, offending
+
+
+def test_addon_modules_that_say_they_import_no_blender_module_import_none(graph):
+    """An add-on module whose docstring claims NO_BLENDER_CLAIM imports no Blender module anywhere
+    (deferred imports included); the bake's job, the settings converter and the colour formulas
+    claim it."""
+    modules = _modules()
+    claiming = sorted(name for name in graph if name.startswith("addon.") and NO_BLENDER_CLAIM.search(
+        ast.get_docstring(ast.parse(modules[name].read_text(encoding="utf-8"))) or ""))
+    assert {"addon.bake.job", "addon.settings", "addon.materials.colour_formulas"} <= set(claiming), claiming
+    offending = {name: sorted(graph[name][1] & BLENDER_MODULES) for name in claiming
+                 if graph[name][1] & BLENDER_MODULES}
+    assert not offending, offending
+
+
+#: Packages whose docstring indexes them: it names (in backticks) each of their modules and
+#: subpackages, and nothing of that form that is not there.
+INDEXED_PACKAGES = ("addon", "addon.materials", "addon.scene", "addon.preview", "addon.bake", "operators")
+
+
+def test_package_docstrings_name_every_module_they_hold():
+    problems = []
+    for package in INDEXED_PACKAGES:
+        folder = ROOT.joinpath(*package.split("."))
+        doc = ast.get_docstring(ast.parse((folder / "__init__.py").read_text(encoding="utf-8"))) or ""
+        named = set(re.findall(r"`([a-z_][a-z0-9_]*)`", doc))
+        held = {p.stem for p in folder.glob("*.py") if p.stem != "__init__"}
+        held |= {p.name for p in folder.iterdir() if (p / "__init__.py").is_file()}
+        problems += [f"{package}: holds {name}, its docstring does not name it" for name in sorted(held - named)]
+        problems += [f"{package}: its docstring names {name}, which it does not hold" for name in sorted(named - held)]
+    assert not problems, "\n".join(problems)
 
 
 # --- private names ------------------------------------------------------------------------------------
@@ -297,7 +372,7 @@ def test_modules_stay_under_the_size_bar():
 
 # --- the tests themselves -----------------------------------------------------------------------------
 
-#: Scripts in tests/ that run in their own (bpy) process, not in pytest's.
+#: Scripts in tests/blender/ that run in their own (bpy) process, not in pytest's.
 OWN_PROCESS = re.compile(r"blender_\w*checks\.py")
 #: Where the test run's GL context is made: the fixture and the function it calls.
 GL_CONTEXT_HOMES = {"conftest.py", "helpers.py"}
@@ -342,7 +417,7 @@ def _test_state_findings(path: Path, *, gl_contexts: bool = True) -> list[str]:
 def test_tests_share_fixtures_not_module_state():
     """Test modules and their helpers import no test module, keep no module-level cache, and make
     no GL context but conftest's gl_ctx; benchmarks/ (some run under pytest) import no test module."""
-    tests = [p for p in sorted((ROOT / "tests").glob("*.py")) if not OWN_PROCESS.fullmatch(p.name)]
+    tests = [p for p in sorted((ROOT / "tests").rglob("*.py")) if not OWN_PROCESS.fullmatch(p.name)]
     found = [f"{p.relative_to(ROOT)}: {finding}" for p in tests for finding in _test_state_findings(p)]
     found += [f"{p.relative_to(ROOT)}: {finding}" for p in sorted((ROOT / "benchmarks").glob("*.py"))
               for finding in _test_state_findings(p, gl_contexts=False) if "test module" in finding]
@@ -410,6 +485,9 @@ def test_the_graph_sees_known_edges(graph):
     assert any(p.startswith("hlod_core.bake") for name, (project, _) in graph.items() if name.startswith("addon")
                for p in project)
     assert any(p.startswith("addon") for p in graph["panels"][0])
+    assert {("preview", "scene"), ("scene", "materials"), ("bake", "scene"), ("cli", "bake")} <= set(
+        _room_edges(graph, "addon")), _room_edges(graph, "addon")
+    assert any(_room(p) == "bake" for p in graph["addon.bake.from_scene"][0])
     assert any("bpy" in external for name, (_, external) in graph.items() if name.startswith("addon"))
     assert "numpy" in graph["hlod_core.model.hierarchy"][1]
     known = _project_modules()

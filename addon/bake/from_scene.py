@@ -1,0 +1,70 @@
+"""A bake of Blender objects, from gathering the scene to the started bake job: the one flow the
+Bake operator (operators/bake.py) and the background command (addon/cli.py) share, on Blender's
+main thread.
+
+`start_bake` runs, in order:
+1. the cache folder: OUT.hlod.cache beside the output, or the folder given, none when the cache is
+   off (hlod_core.bake.cache.folder_for, the rule every front end of the core asks too);
+2. the scene gathered in one pass (scene/gather.py);
+3. the base colours no node tree reading gives, baked by Cycles (materials/cycles_bake.py);
+4. the textures the materials need, copied into the bake's texture folder (materials/textures.py),
+   which `SceneBake.finish` publishes as OUT.textures once the .hlod is written;
+5. the bake job: a child process of Blender's Python (bake/job.py).
+What the caller reports (what was skipped, which materials Cycles baked) and records (the objects
+the bake took) comes back with the job.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ...hlod_core.bake import cache
+from ...hlod_core.bake.settings import BakeSettings
+from ...hlod_core.io.texture_folder import EmbeddedTextures
+from ..materials.cycles_bake import bake_unreadable_materials
+from ..materials.textures import place_textures
+from ..scene.gather import Gathered, gather
+from .job import BakeJob
+
+
+@dataclass
+class SceneBake:
+    """A started bake of Blender objects: its job, what gathering the scene found, the names of the
+    materials Cycles baked (sorted), and the bake's texture folder (published by `finish`)."""
+
+    job: BakeJob
+    gathered: Gathered
+    cycles_baked: list[str]
+    textures: EmbeddedTextures
+
+    def finish(self) -> None:
+        """Once the job has ended: the textures the bake made published as OUT.textures when the
+        .hlod was written (an OSError doing so becomes the job's error), else dropped, and the
+        texture folder's scratch removed either way."""
+        try:
+            if self.job.error is None:
+                self.textures.publish()
+        except OSError as exc:
+            self.job.error = exc
+        finally:
+            self.textures.discard()
+
+
+def start_bake(context, objects, output: Path, settings: BakeSettings, *, use_cache: bool = True,
+               cache_folder: str | None = None, include_hidden: bool = False) -> SceneBake:
+    """Gather `objects` (include_hidden: hidden ones too) and start their bake into `output` (a
+    .hlod path whose folder exists) with `settings` (module notes). use_cache / cache_folder: the
+    bake cache, kept in cache_folder or OUT.hlod.cache beside the output. InputError when the
+    cache folder names a file or nothing gives triangles; the scene is left as it was."""
+    output = Path(output)
+    cache_dir = cache.folder_for(output, folder=cache_folder, enabled=use_cache)
+    gathered = gather(context, objects, include_hidden=include_hidden)
+    mesh, cycles_baked = bake_unreadable_materials(context, gathered.mesh)
+    textures = EmbeddedTextures(output)
+    try:
+        mesh = place_textures(mesh, textures)
+        job = BakeJob(mesh, settings, output, extra_meta=gathered.attributes or None, cache_dir=cache_dir)
+    except BaseException:
+        textures.discard()
+        raise
+    return SceneBake(job=job, gathered=gathered, cycles_baked=cycles_baked, textures=textures)
