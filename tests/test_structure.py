@@ -299,8 +299,9 @@ def test_modules_stay_under_the_size_bar():
 
 #: Scripts in tests/ that run in their own (bpy) process, not in pytest's.
 OWN_PROCESS = re.compile(r"blender_\w*checks\.py")
-#: Where the test run's GL context is made: the fixture and the function it calls.
-GL_CONTEXT_HOMES = {"conftest.py", "helpers.py"}
+#: Where the test run's GL context is made: the fixture and the function it calls; and the tests of
+#: making contexts (hlod_core/render/gl_platform.py), whose subject it is.
+GL_CONTEXT_HOMES = {"conftest.py", "helpers.py", "test_gl_platform.py"}
 #: Old cached functions of helpers.py (replaced by the bakes / city_hlod fixtures).
 OLD_CACHES = {"baked", "baked_city"}
 CACHE_DECORATORS = {"lru_cache", "cache", "functools.lru_cache", "functools.cache"}
@@ -331,7 +332,7 @@ def _test_state_findings(path: Path, *, gl_contexts: bool = True) -> list[str]:
             found += [f"{node.name}: a module-level cache (@{_decorator_name(d)}): make it a fixture"
                       for d in node.decorator_list if _decorator_name(d) in CACHE_DECORATORS]
         elif isinstance(node, ast.Call) and gl_contexts and path.name not in GL_CONTEXT_HOMES \
-                and (_dotted(node.func) or "").rpartition(".")[2] in ("create_context", "standalone_gl"):
+                and (_dotted(node.func) or "").rpartition(".")[2] in ("create_context", "standalone_gl", "standalone_context"):
             found.append(f"line {node.lineno}: makes a GL context (use the gl_ctx fixture)")
     for node in tree.body:  # module-level mutable containers: state shared by every test of the module
         if isinstance(node, (ast.Assign, ast.AnnAssign)) and _empty_container(node.value):

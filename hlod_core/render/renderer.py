@@ -5,9 +5,10 @@ Data form: all node geometry in one vertex buffer (float32 positions relative to
 origin) and one index buffer (uint32); node i is the ranged draw of indices
 [3 tri_offset[i], 3 (tri_offset[i] + tri_count[i])). Under a GPU budget (`streaming`) node geometry
 is uploaded node by node instead, as the traversal wants it (streamed_geometry.py, residency.py):
-`residency` then says which nodes are resident and holds the traversal back where they are not. The renderer works on a standalone EGL context
-(`create_standalone`, headless: Mesa llvmpipe on machines without a GPU) or on a context handed in
-by the caller (Blender's, in the add-on), drawing into the caller's framebuffer.
+`residency` then says which nodes are resident and holds the traversal back where they are not.
+The renderer works on a standalone context (`create_standalone`, the platform's own GL:
+gl_platform.py; Mesa llvmpipe on machines without a GPU) or on a context handed in by the caller
+(Blender's, in the add-on), drawing into the caller's framebuffer.
 
 States (`set_mode`): "draw" (colour and depth writes, depth test), "query" and "alpha" (no writes,
 back faces culled, depth test on / off: both count the same rasterised pixels, clipping included).
@@ -31,7 +32,7 @@ from ..core.colour import DEFAULT_COLOUR, OVERLAY_RAMP_STEPS, overlay_ramp
 from ..model.hierarchy import Hlod
 from ..model.view import View
 from ..traversal.query_cost import CostModel
-from . import calibration
+from . import calibration, gl_platform
 from .gl_functions import GL, GLFunctions
 from .materials import MaterialParts
 from .queries import Query, QueryPool
@@ -142,10 +143,10 @@ class Renderer:
     @classmethod
     def create_standalone(cls, hlod: Hlod, size: tuple[int, int], *, images: dict[int, np.ndarray] | None = None,
                           streaming: StreamingSettings | None = None) -> "Renderer":
-        """A private headless EGL context (llvmpipe where there is no GPU) and an own framebuffer."""
-        import moderngl
-
-        ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
+        """A private headless context of the platform's own GL (gl_platform.standalone_context: EGL or
+        GLX on Linux, llvmpipe where there is no GPU; WGL on Windows; CGL on macOS) and an own
+        framebuffer. GLUnavailable when no context can be made."""
+        ctx = gl_platform.standalone_context()
         try:
             return cls(ctx, hlod, size=size, owns_context=True, images=images, streaming=streaming)
         except BaseException:
