@@ -25,6 +25,9 @@ class GL:
     # state queries (glGetIntegerv / glGetBooleanv)
     DEPTH_WRITEMASK = 0x0B72
     DEPTH_FUNC = 0x0B74
+    # depth functions (glDepthFunc)
+    LEQUAL = 0x0203
+    ALWAYS = 0x0207
     VIEWPORT = 0x0BA2
     SCISSOR_BOX = 0x0C10
     COLOR_WRITEMASK = 0x0C23
