@@ -332,7 +332,7 @@ def _test_state_findings(path: Path, *, gl_contexts: bool = True) -> list[str]:
             found += [f"{node.name}: a module-level cache (@{_decorator_name(d)}): make it a fixture"
                       for d in node.decorator_list if _decorator_name(d) in CACHE_DECORATORS]
         elif isinstance(node, ast.Call) and gl_contexts and path.name not in GL_CONTEXT_HOMES \
-                and (_dotted(node.func) or "").rpartition(".")[2] in ("create_context", "standalone_gl", "standalone_context"):
+                and (_dotted(node.func) or "").rpartition(".")[2] in ("create_context", "standalone_gl"):
             found.append(f"line {node.lineno}: makes a GL context (use the gl_ctx fixture)")
     for node in tree.body:  # module-level mutable containers: state shared by every test of the module
         if isinstance(node, (ast.Assign, ast.AnnAssign)) and _empty_container(node.value):
