@@ -62,8 +62,8 @@ class CpuOcclusion:
         self.query_box_pad = query_box_pad(hlod.box_min, hlod.box_max)  # as the GL renderer's query boxes
         self._box_lo = np.asarray(hlod.box_min, np.float64) - self.query_box_pad - hlod.origin
         self._box_hi = np.asarray(hlod.box_max, np.float64) + self.query_box_pad - hlod.origin
-        self._positions = np.asarray(hlod.positions, np.float64)
-        self._indices = np.asarray(hlod.indices, np.int64).reshape(-1, 3)
+        self._positions = hlod.positions  # (v, 3) float32 and (t, 3) uint32 as the file holds them (views:
+        self._indices = np.asarray(hlod.indices).reshape(-1, 3)  # the drawn triangles are gathered per flush)
         self._tri_offset = np.asarray(hlod.tri_offset, np.int64)
         self._tri_count = np.asarray(hlod.tri_count, np.int64)
         self._viewport = (self.size[0] / factor, self.size[1] / factor)
@@ -122,7 +122,7 @@ class CpuOcclusion:
         offsets, counts = self._tri_offset[self._pending], self._tri_count[self._pending]
         self._pending.clear()
         rows = np.repeat(offsets - np.cumsum(counts) + counts, counts) + np.arange(int(counts.sum()))
-        corners = self._positions[self._indices[rows]]  # (t, 3, 3)
+        corners = self._positions[self._indices[rows]].astype(np.float64)  # (t, 3, 3)
         clip = corners @ self._mvp[:3, :3].T + self._mvp[:3, 3]
         clip = np.concatenate([clip, (corners @ self._mvp[3, :3] + self._mvp[3, 3])[..., None]], axis=2)
         window = cpu_raster.to_window(cpu_raster.clip_near(clip), self._viewport)

@@ -4,11 +4,12 @@
 Data form: a depth image is (h, w) float32 window depth in [0, 1] (1: the far plane, the clear
 value), row 0 the bottom row: what glReadPixels(GL_DEPTH_COMPONENT, GL_FLOAT) and Blender's
 `GPUFrameBuffer.read_depth(0, 0, w, h)` give (checked in the bpy module: a triangle at NDC z 0.5
-over the lower left reads 0.75 in row 0, column 0). It is uploaded as an R32F texture, at the
-frame's size or reduced by an integer factor (`reduce_depth`: each reduced pixel is the farthest of
-its block, so a query never counts fewer pixels than at full resolution), and written into the
-bound framebuffer's depth by a full-screen triangle whose fragments set gl_FragDepth to the texel of
-their block (texelFetch; depth test ALWAYS, colour writes off).
+over the lower left reads 0.75 in row 0, column 0). It is uploaded at the frame's size or reduced
+by an integer factor (`reduce_depth`: each reduced pixel is the farthest of
+its block, so a query never counts fewer pixels than at full resolution), into a DEPTH_COMPONENT24
+texture, and blitted into the renderer's own framebuffer's depth (glBlitFramebuffer, nearest, each
+texel over its block). On llvmpipe the blit cost a quarter of a full-screen pass writing
+gl_FragDepth at 1920x1080 (12 against 48 ms; docs/performance.md#depth-import).
 """
 from __future__ import annotations
 
@@ -16,25 +17,6 @@ import numpy as np
 
 from ..core.errors import InputError
 from .gl_functions import GL, GLFunctions
-
-#: Full-screen triangle from gl_VertexID (no vertex buffer); the fragment reads the depth texel of
-#: its window pixel's block.
-DEPTH_VS = """
-#version 330
-void main() {
-    vec2 corner = vec2(float((gl_VertexID & 1) << 2) - 1.0, float((gl_VertexID & 2) << 1) - 1.0);
-    gl_Position = vec4(corner, 0.0, 1.0);
-}
-"""
-DEPTH_FS = """
-#version 330
-uniform sampler2D u_depth;
-uniform int u_factor;  // the reduction: texel (x, y) holds window pixels [x f, (x + 1) f) x [y f, (y + 1) f)
-void main() {
-    gl_FragDepth = texelFetch(u_depth, ivec2(gl_FragCoord.xy) / u_factor, 0).r;
-}
-"""
-
 
 def check_depth(depth, *, where: str = "depth") -> np.ndarray:
     """`depth` as a C-contiguous (h, w) float32 array; InputError naming `where` for another shape,
@@ -66,17 +48,15 @@ def reduce_depth(depth: np.ndarray, factor: int) -> np.ndarray:
 
 
 class DepthImport:
-    """The depth texture and the program that writes it into the bound framebuffer's depth. GL
-    objects go to `keep` (the owner releases them, with the texture `release` frees)."""
+    """The depth texture (DEPTH_COMPONENT24, the renderer's depth format) and the framebuffer it is
+    attached to, blitted into the renderer's depth. Made for the first image and remade when the
+    uploaded size changes; `release` frees both (idempotent)."""
 
-    def __init__(self, ctx, *, gl: GLFunctions, keep):
+    def __init__(self, ctx, *, gl: GLFunctions):
         self.ctx = ctx
         self._gl = gl
-        self.program = keep(ctx.program(vertex_shader=DEPTH_VS, fragment_shader=DEPTH_FS))
-        self.vao = keep(ctx.vertex_array(self.program, []))
-        self._u_factor = self.program["u_factor"]
+        self.texture = self.framebuffer = None
         self.factor = 1
-        self.texture = None  # R32F, made for the first image and remade when the size changes
 
     def upload(self, depth: np.ndarray, *, factor: int = 1) -> None:
         """Upload a checked (h, w) float32 depth image (check_depth), reduced by `factor` already
@@ -84,31 +64,28 @@ class DepthImport:
         self.factor = int(factor)
         h, w = depth.shape
         if self.texture is None or self.texture.size != (w, h):
-            self.release_texture()
-            self.texture = self.ctx.texture((w, h), 1, dtype="f4")
-            self.texture.filter = (self.ctx.NEAREST, self.ctx.NEAREST)
-            self.texture.repeat_x = self.texture.repeat_y = False
+            self.release()
+            self.texture = self.ctx.depth_texture((w, h))
+            self.framebuffer = self.ctx.framebuffer(depth_attachment=self.texture)
         self.texture.write(depth)
 
-    def write(self) -> None:
-        """Write the uploaded depth into the bound framebuffer over the viewport: depth writes on,
-        test ALWAYS, colour writes and culling off; the depth function is "<=" again after. The
-        caller sets its own state again afterwards."""
+    def write(self, target) -> None:
+        """Blit the uploaded depth into the depth of the moderngl framebuffer `target` (a
+        DEPTH_COMPONENT24 attachment, as the renderer's own), each texel over its factor x factor
+        block (nearest: pixel x of the target reads texel floor((x + 0.5) / factor) = x // factor);
+        `target` is bound again after."""
+        w, h = self.texture.size
         gl = self._gl
-        gl.color_mask(0, 0, 0, 0)
-        gl.depth_mask(1)
-        gl.disable(GL.CULL_FACE)
-        gl.enable(GL.DEPTH_TEST)
-        gl.depth_func(GL.ALWAYS)
-        self.texture.use(0)
-        self._u_factor.value = self.factor
-        self.vao.render(self.ctx.TRIANGLES, vertices=3)
-        gl.depth_func(GL.LEQUAL)
+        gl.bind_framebuffer(GL.READ_FRAMEBUFFER, self.framebuffer.glo)
+        gl.bind_framebuffer(GL.DRAW_FRAMEBUFFER, target.glo)
+        gl.blit_framebuffer(0, 0, w, h, 0, 0, w * self.factor, h * self.factor, GL.DEPTH_BUFFER_BIT, GL.NEAREST)
+        target.use()
 
-    def release_texture(self) -> None:
-        if self.texture is not None:
-            self.texture.release()
-            self.texture = None
+    def release(self) -> None:
+        for resource in (self.framebuffer, self.texture):
+            if resource is not None:
+                resource.release()
+        self.texture = self.framebuffer = None
 
 
 def wall_depth(view, *, distance: float, covered: float = 0.5) -> np.ndarray:

@@ -208,8 +208,8 @@ class Renderer:
     def set_scene_depth(self, depth: np.ndarray | None, *, reduce: int = 1) -> None:
         """The host's depth (h, w) float32 window depth, row 0 the bottom row (depth_import.py), for
         the next frame's queries and draws to test against: at its begin_frame it is uploaded
-        (reduced by the integer factor `reduce`, keeping each block's farthest depth) and written
-        into the framebuffer after the clear; `depth_import_ms` is then what both cost. It must have
+        (reduced by the integer factor `reduce`, keeping each block's farthest depth) and blitted
+        into the own framebuffer after the clear (InputError there for a renderer without one); `depth_import_ms` is then what both cost. It must have
         the frame's size. Kept for later frames until set again; None: none. InputError for another form."""
         if depth is None:
             self._scene_depth = None
@@ -229,12 +229,14 @@ class Renderer:
         if depth.shape != (view.height, view.width):
             raise InputError(f"scene depth: {depth.shape[1]}x{depth.shape[0]} pixels for a "
                              f"{view.width}x{view.height} frame")
+        if self.fbo is None:
+            raise InputError("scene depth: only a renderer with its own framebuffer imports a depth image")
         if self._depth_import is None:
-            self._depth_import = DepthImport(self.ctx, gl=self.gl, keep=self._gl_objects.keep)
+            self._depth_import = DepthImport(self.ctx, gl=self.gl)
         if not self._depth_uploaded:
             self._depth_import.upload(reduce_depth(depth, reduce), factor=reduce)
             self._depth_uploaded = True
-        self._depth_import.write()
+        self._depth_import.write(self.fbo)
         self.depth_import_ms = (time.perf_counter() - started) * 1e3
 
     def end_frame(self) -> float:
@@ -485,5 +487,5 @@ class Renderer:
         if self.streamed is not None:
             self.streamed.release()
         if getattr(self, "_depth_import", None) is not None:
-            self._depth_import.release_texture()
+            self._depth_import.release()
         self._gl_objects.release()
