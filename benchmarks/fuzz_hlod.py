@@ -376,9 +376,9 @@ def worker() -> int:
     import resource
 
     resource.setrlimit(resource.RLIMIT_AS, (WORKER_MEMORY_BYTES, WORKER_MEMORY_BYTES))
-    import moderngl
+    from hlod_core.render.gl_platform import standalone_context
 
-    ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
+    ctx = standalone_context()
     out = os.fdopen(os.dup(1), "w")  # answers only: anything else written to fd 1 (Python or C) goes to stderr
     os.dup2(2, 1)
     for line in sys.stdin:

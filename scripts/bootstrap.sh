@@ -147,6 +147,25 @@ ensure_viewer() {
     fi
 }
 
+ensure_x_server() {
+    # The GLX branch of the standalone GL context (hlod_core/render/gl_platform.py: EGL first, then
+    # GLX) is tested on a virtual X server: Debian's xvfb, and Mesa's GLX (libglx-mesa0).
+    local missing=""
+    command -v Xvfb >/dev/null 2>&1 || missing="xvfb"
+    if command -v dpkg-query >/dev/null 2>&1; then
+        dpkg-query -W -f='${Status}' libglx-mesa0 2>/dev/null | grep -q "install ok installed" || missing="$missing libglx-mesa0"
+    fi
+    [ -z "$missing" ] && return 0
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        say "installing$missing (a virtual X server for the GLX test)"
+        DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >&2
+    else
+        say "missing:$missing; run as root:  apt-get install -y$missing   (a virtual X server for the GLX test)"
+        exit 1
+    fi
+}
+
 ensure_gl_packages
 ensure_venv
 PY="$VENV/bin/python"

@@ -11,7 +11,8 @@ download the wheels the manifest lists for it into ./wheels/ (pip, from PyPI, on
 reuse them); for each line, stage the package files with a manifest narrowed to that platform, that
 line's wheels and versions, and run `blender_ext.py build` (shipped in the bpy wheel of the
 interpreter running this script, whichever Blender version that is) on the stage, then
-`blender_ext.py validate` on the zip, named hlod-VERSION-LINE-PLATFORM.zip (e.g.
+`blender_ext.py validate` on the zip, check that its glcontext wheel holds the modules the GL context
+imports on that platform (`gl_modules`), and name it hlod-VERSION-LINE-PLATFORM.zip (e.g.
 hlod-0.1.0-blender-4.2-5.0-linux_x64.zip). Prints one line per zip: its path.
 
 The 3D Tiles viewer: CesiumJS's built files (npm `cesium/Build/Cesium`, installed into
@@ -52,6 +53,9 @@ PIP_PLATFORMS = {
     "macos-arm64": ["macosx_11_0_arm64"],
 }
 WHEEL_PLATFORM = {"linux-x64": "linux", "windows-x64": "win_amd64", "macos-arm64": "macosx_11_0_arm64"}
+#: sys.platform on each platform: which branch of hlod_core.render.gl_platform runs there, and so which
+#: glcontext modules the zip's glcontext wheel must hold (`gl_modules`).
+SYS_PLATFORM = {"linux-x64": "linux", "windows-x64": "win32", "macos-arm64": "darwin"}
 # The Pythons of the Blenders we support, as wheel tags: 3.11 (Blender 4.2 LTS to 5.0), 3.13 (5.1 on).
 PYTHON_TAGS = {"cp311": "3.11", "cp313": "3.13"}
 
@@ -177,6 +181,41 @@ def check_zip(zip_path: Path, wheels: list[str]) -> None:
         sys.exit(f"build_extension: {zip_path}: holds wheels {held}, the manifest lists {want}")
 
 
+def gl_modules(platform: str) -> list[str]:
+    """The glcontext modules the standalone GL context imports on `platform`, in the order it tries
+    them (hlod_core.render.gl_platform.STANDALONE_BACKENDS): e.g. ["glcontext.egl", "glcontext.x11"]."""
+    from hlod_core.render.gl_platform import STANDALONE_BACKENDS, platform_family
+
+    return [f"glcontext.{name}" for name in STANDALONE_BACKENDS[platform_family(SYS_PLATFORM[platform])]]
+
+
+def compiled_modules(wheel: zipfile.ZipFile, python_tag: str) -> set[str]:
+    """The extension modules in a wheel built for `python_tag` ("cp311"), as dotted names: a
+    `pkg/name.cpython-311-....so` or `pkg/name.cp311-....pyd` file gives "pkg.name"."""
+    abi = (f"cpython-{python_tag[2:]}", python_tag)
+    found = set()
+    for name in wheel.namelist():
+        stem, _, suffix = name.rpartition("/")[2].partition(".")
+        if suffix.startswith(abi) and suffix.endswith((".so", ".pyd")):
+            found.add(name.rpartition("/")[0].replace("/", ".") + "." + stem)
+    return found
+
+
+def check_gl_modules(zip_path: Path, platform: str, python_tag: str) -> None:
+    """The zip's glcontext wheel holds every module `gl_modules(platform)` names, built for
+    `python_tag`: without them the preview, Benchmark and Tune to PSNR would have no GL context."""
+    with zipfile.ZipFile(zip_path) as z:
+        wheels = [n for n in z.namelist() if n.startswith("wheels/glcontext-") and n.endswith(".whl")]
+        if len(wheels) != 1:
+            sys.exit(f"build_extension: {zip_path}: expected one glcontext wheel, found {wheels}")
+        with zipfile.ZipFile(io.BytesIO(z.read(wheels[0]))) as wheel:
+            held = compiled_modules(wheel, python_tag)
+    missing = [m for m in gl_modules(platform) if m not in held]
+    if missing:
+        sys.exit(f"build_extension: {zip_path}: {wheels[0]} lacks {', '.join(missing)} ({python_tag}), which the GL "
+                 f"context imports on {platform} (it holds {', '.join(sorted(held)) or 'none'})")
+
+
 def cesium_build(mode: str, explicit: str | None) -> Path | None:
     """The CesiumJS folder to bundle (mode "auto", "bundle", "none"), found as the extension finds
     it at run time (hlod_core.export.viewer.find_cesium: --cesium, $HLOD_CESIUM_DIR, tools/viewer's npm
@@ -282,6 +321,7 @@ def build_zip(manifest_text: str, manifest: dict, platform: str, *, line: Blende
             sys.exit(f"build_extension: expected one zip for {platform} {line.label}, got {[b.name for b in built]}")
         subprocess.run([sys.executable, str(tool), "validate", str(built[0])], check=True, stdout=subprocess.DEVNULL)
         check_zip(built[0], line_wheels)
+        check_gl_modules(built[0], platform, line.python_tag)
         target = out / name
         shutil.move(built[0], target)
     return target

@@ -17,7 +17,7 @@ Fixtures
 The `gl` marker is enforced: a test without it that asks for gl_ctx fails at setup, and from its
 setup on (its fixtures of wider scope included), making a moderngl context in this
 process fails and child processes find no EGL device (__EGL_VENDOR_LIBRARY_FILENAMES names no vendor
-file), so a command-line or Blender check that draws fails too.
+file) and no libX11 for a GLX context, so a command-line or Blender check that draws fails too.
 """
 from __future__ import annotations
 
@@ -35,8 +35,11 @@ import blender_runs  # noqa: E402
 import helpers  # noqa: E402
 from processes import hlod  # noqa: E402
 
-#: Set for tests not marked gl: libglvnd then loads no EGL vendor, and a context cannot be made.
-NO_EGL_VENDOR = {"__EGL_VENDOR_LIBRARY_FILENAMES": "/nonexistent/no-gl-marker.json"}
+#: Set for tests not marked gl: libglvnd then loads no EGL vendor, and glcontext's GLX backend
+#: (gl_platform's second choice on Linux, which tries $DISPLAY and then ":0.0") finds no libX11, so
+#: a context cannot be made.
+NO_GL = {"__EGL_VENDOR_LIBRARY_FILENAMES": "/nonexistent/no-gl-marker.json",
+         "GLCONTEXT_LINUX_LIBX11": "/nonexistent/no-gl-marker-libX11.so"}
 #: Where the config keeps what _allow_gl changes, as it was before the tests ran (the environment's
 #: values, moderngl's create_context): restored for `gl` tests and at the end.
 GL_ORIGINALS = pytest.StashKey[dict]()
@@ -83,8 +86,8 @@ def _refuse_gl_context(*args, **kwargs):
 
 def _allow_gl(originals: dict, allowed: bool) -> None:
     """GL on or off for the test about to run, before any of its fixtures (of any scope) is made:
-    off, moderngl.create_context refuses in this process and children find no EGL vendor."""
-    for name, value in NO_EGL_VENDOR.items():
+    off, moderngl.create_context refuses in this process and children find no EGL vendor and no libX11 for GLX."""
+    for name, value in NO_GL.items():
         if allowed and originals[name] is None:
             os.environ.pop(name, None)
         else:
@@ -98,7 +101,7 @@ def _allow_gl(originals: dict, allowed: bool) -> None:
 
 
 def pytest_configure(config):
-    config.stash[GL_ORIGINALS] = {name: os.environ.get(name) for name in NO_EGL_VENDOR}
+    config.stash[GL_ORIGINALS] = {name: os.environ.get(name) for name in NO_GL}
     # A suite started in the background (nohup, `cmd &` in a script) inherits Ctrl-C's signal
     # ignored, and an ignored signal stays ignored in every process it starts: the bakes the tests
     # interrupt with SIGINT would run on to the end. The command line keeps an inherited ignore, as

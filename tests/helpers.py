@@ -159,11 +159,12 @@ def _stamped(folder: Path, stamp: str) -> bool:
 
 @contextlib.contextmanager
 def standalone_gl():
-    """A headless EGL context (Mesa llvmpipe where there is no GPU), garbage-collected only by its
-    own gc() and released at the end. Its one user is conftest's fixture `gl_ctx`."""
-    import moderngl
+    """A headless context as the renderer makes one (gl_platform.standalone_context: EGL here, Mesa
+    llvmpipe where there is no GPU), garbage-collected only by its own gc() and released at the
+    end. Its one user is conftest's fixture `gl_ctx`."""
+    from hlod_core.render.gl_platform import standalone_context
 
-    ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
+    ctx = standalone_context()
     ctx.gc_mode = "context_gc"
     try:
         yield ctx

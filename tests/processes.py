@@ -16,11 +16,12 @@ from helpers import ROOT
 POLL_S = 0.02
 
 
-def hlod(*args, check: bool = True, timeout_s: float = 600) -> subprocess.CompletedProcess:
+def hlod(*args, check: bool = True, timeout_s: float = 600, env: dict | None = None) -> subprocess.CompletedProcess:
     """`python -m hlod_core ARGS` from the repository root; with `check`, exit status 0 is asserted.
-    timeout_s guards against a hang only (it is not what a test measures)."""
+    timeout_s guards against a hang only (it is not what a test measures); env: variables added to
+    this process's environment."""
     proc = subprocess.run([sys.executable, "-m", "hlod_core", *map(str, args)], cwd=ROOT, capture_output=True,
-                          text=True, timeout=timeout_s, env={**os.environ, "PYTHONPATH": str(ROOT)})
+                          text=True, timeout=timeout_s, env={**os.environ, "PYTHONPATH": str(ROOT), **(env or {})})
     if check:
         assert proc.returncode == 0, proc.stderr
     return proc

@@ -1,10 +1,14 @@
 """scripts/build_extension.py on tiny literal inputs: the manifest's wheels per platform and Python,
-the extension tool found in any bpy version, and wheels rewritten for Blender 4.2's installer."""
+the extension tool found in any bpy version, and wheels rewritten for Blender 4.2's installer; and on
+every zip it builds: the glcontext modules the GL context imports on each platform are in its wheel."""
 import csv
 import io
+import subprocess
 import sys
 import tomllib
+import types
 import zipfile
+from pathlib import Path
 
 import pytest
 
@@ -72,3 +76,80 @@ def test_a_plain_wheel_is_used_as_it_is_and_other_data_folders_stop_the_build(tm
     scripts = _wheel(tmp_path / "demo-1.0-cp313-cp313-win_amd64.whl", {"demo-1.0.data/scripts/demo": b"#!"})
     with pytest.raises(SystemExit, match="demo-1.0-cp313-cp313-win_amd64.whl: .data folders scripts"):
         build_extension.blender_ready(scripts, tmp_path / "flat")
+
+
+# --- the GL context's glcontext modules in every zip ----------------------------------------------------
+
+@pytest.fixture(scope="module")
+def every_zip(tmp_path_factory) -> list:
+    """Every zip the build makes (each platform, each Blender line), built without CesiumJS (a few seconds)."""
+    out = tmp_path_factory.mktemp("dist-all")
+    build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--viewer", "none",
+                            "--output-dir", str(out)], capture_output=True, text=True, timeout=900)
+    assert build.returncode == 0, build.stderr
+    return [Path(line) for line in build.stdout.split()]
+
+
+def _imported_by_gl_context(platform: str, monkeypatch) -> list[str]:
+    """The glcontext modules hlod_core's standalone GL context imports on `platform` (a build
+    platform), in order: its branch run with a stand-in for every glcontext module, each refusing
+    to make a context so that the next one is tried."""
+    from hlod_core.core.errors import GLUnavailable
+    from hlod_core.render import gl_platform
+
+    imported = []
+
+    def stand_in(name):
+        def create_context(**kwargs):
+            imported.append(name)
+            raise Exception("a stand-in makes no context")
+        return types.SimpleNamespace(create_context=create_context)
+
+    for name in ("egl", "x11", "wgl", "darwin"):
+        monkeypatch.setitem(sys.modules, f"glcontext.{name}", stand_in(f"glcontext.{name}"))
+    with pytest.raises(GLUnavailable):
+        gl_platform.standalone_context(platform=build_extension.SYS_PLATFORM[platform])
+    return imported
+
+
+def test_every_zip_holds_the_glcontext_modules_its_platform_imports(every_zip, monkeypatch):
+    """For each zip the build makes (linux-x64, windows-x64, macos-arm64, each for both Blender lines):
+    the glcontext modules the GL context's branch for that platform imports (run, not read) are
+    compiled modules of that zip's glcontext wheel, for that line's Python."""
+    made = {(line.python_tag, platform) for line in build_extension.BLENDER_LINES
+            for platform in build_extension.PIP_PLATFORMS}
+    seen = set()
+    expected = {"linux-x64": ["glcontext.egl", "glcontext.x11"], "windows-x64": ["glcontext.wgl"],
+                "macos-arm64": ["glcontext.darwin"]}
+    for platform in build_extension.PIP_PLATFORMS:
+        imported = _imported_by_gl_context(platform, monkeypatch)
+        assert imported == expected[platform] == build_extension.gl_modules(platform), platform
+        for line in build_extension.BLENDER_LINES:
+            name = f"-{line.label}-{platform.replace('-', '_')}.zip"
+            zip_path = next(z for z in every_zip if z.name.endswith(name))
+            with zipfile.ZipFile(zip_path) as z:
+                [wheel_name] = [n for n in z.namelist() if n.startswith("wheels/glcontext-")]
+                with zipfile.ZipFile(io.BytesIO(z.read(wheel_name))) as wheel:
+                    files = wheel.namelist()
+            for module in imported:
+                stem = module.replace(".", "/") + "."
+                built = [f for f in files if f.startswith(stem) and f.endswith((".so", ".pyd"))]
+                assert len(built) == 1 and line.python_tag[2:] in built[0], (zip_path.name, module, files)
+            seen.add((line.python_tag, platform))
+    assert seen == made and len(every_zip) == len(made)
+
+
+def test_a_zip_whose_glcontext_lacks_the_platforms_module_stops_the_build(tmp_path):
+    """A glcontext wheel with only the Linux modules in a Windows zip: the build names what is missing."""
+    wheel = io.BytesIO()
+    with zipfile.ZipFile(wheel, "w") as w:
+        w.writestr("glcontext/__init__.py", b"")
+        w.writestr("glcontext/egl.cpython-311-x86_64-linux-gnu.so", b"\0")
+    zip_path = tmp_path / "hlod-windows.zip"
+    with zipfile.ZipFile(zip_path, "w") as z:
+        z.writestr("wheels/glcontext-3.1.0-cp311-cp311-win_amd64.whl", wheel.getvalue())
+    with pytest.raises(SystemExit) as stop:
+        build_extension.check_gl_modules(zip_path, "windows-x64", "cp311")
+    assert str(stop.value) == (f"build_extension: {zip_path}: wheels/glcontext-3.1.0-cp311-cp311-win_amd64.whl lacks "
+                               "glcontext.wgl (cp311), which the GL context imports on windows-x64 (it holds "
+                               "glcontext.egl)")

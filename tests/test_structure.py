@@ -374,8 +374,9 @@ def test_modules_stay_under_the_size_bar():
 
 #: Scripts in tests/blender/ that run in their own (bpy) process, not in pytest's.
 OWN_PROCESS = re.compile(r"blender_\w*checks\.py")
-#: Where the test run's GL context is made: the fixture and the function it calls.
-GL_CONTEXT_HOMES = {"conftest.py", "helpers.py"}
+#: Where the test run's GL context is made: the fixture and the function it calls; and the tests of
+#: making contexts (hlod_core/render/gl_platform.py), whose subject it is.
+GL_CONTEXT_HOMES = {"conftest.py", "helpers.py", "test_gl_platform.py"}
 #: Old cached functions of helpers.py (replaced by the bakes / city_hlod fixtures).
 OLD_CACHES = {"baked", "baked_city"}
 CACHE_DECORATORS = {"lru_cache", "cache", "functools.lru_cache", "functools.cache"}

@@ -33,7 +33,7 @@ from hlod_core.traversal.protocol import DELAY, MEASURE_RATIO, PREDICTED, REFINE
 from hlod_core.traversal.query_cost import CostModel, LinearCost
 from hlod_core.traversal.query_stream import keep_hidden, multiquery_groups
 from hlod_core.traversal.settings import RuntimeSettings
-from hlod_core.traversal.stats import COUNTERS, QUERY_COUNTERS, STREAM_COUNTERS, FrameStats
+from hlod_core.traversal.stats import COUNTERS, DEPTH_COUNTERS, QUERY_COUNTERS, STREAM_COUNTERS, FrameStats
 
 from helpers import ScriptedAvailability, load_model, street_path
 
@@ -605,7 +605,7 @@ def test_unknown_method_and_an_error_inside_a_constructor_are_told_apart(city_re
 
 def test_counters_are_the_numeric_fields_of_frame_stats_in_order():
     numeric = [f.name for f in dataclasses.fields(FrameStats) if f.type in ("int", "float")]
-    assert list(COUNTERS + QUERY_COUNTERS + STREAM_COUNTERS) == numeric
+    assert list(COUNTERS + QUERY_COUNTERS + STREAM_COUNTERS + DEPTH_COUNTERS) == numeric
     assert not hasattr(FrameStats, "counters")
 
 

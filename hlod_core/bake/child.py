@@ -25,8 +25,9 @@ SIGHUP: the bake stops, its worker pool and scratch files go, nothing is written
 (traceback on stderr).
 
 With `--parent-stdin` the parent keeps the child's stdin open and never writes to it: end of file
-there means the parent is gone (Blender quit or crashed), and the child then terminates its process
-group (itself and its workers) as if cancelled, and removes the job's files itself. Temporary
+there means the parent is gone (Blender quit or crashed) or, on Windows, that it cancels the bake
+(core.process_tree: Windows has no process groups to signal), and the child then stops itself and
+its workers as if cancelled (process_tree.stop_self), and removes the job's files itself. Temporary
 files of the bake (`hlod-bake-*`) go where TMPDIR says: the extension points it into its private
 folder, which it removes whatever happens to the child.
 """
@@ -51,6 +52,7 @@ from ..core.atomic import atomic_file, write_text_atomic
 from .pipeline import bake
 from .settings import BakeSettings
 from ..core.errors import FormatError, HlodError, InputError
+from ..core import process_tree
 from ..core.signals import Terminated, signals_as_exceptions
 
 log = logging.getLogger("hlod_core")
@@ -117,11 +119,8 @@ def _stop_when_parent_goes() -> None:
         while os.read(0, 65536):  # the raw descriptor: a buffered sys.stdin's lock would stall shutdown
             pass
     _parent_gone.set()
-    log.error("the parent process is gone; stopping the bake")
-    if hasattr(os, "killpg") and os.getpgrp() == os.getpid():  # the leader of its own group: workers too
-        os.killpg(os.getpgrp(), signal.SIGTERM)
-    else:
-        os.kill(os.getpid(), signal.SIGTERM)
+    log.error("the parent process is gone or asks the bake to stop; stopping the bake")
+    process_tree.stop_self()  # POSIX: SIGTERM to its group, workers too; Windows: Terminated in the main thread
 
 
 class _Events:

@@ -2,7 +2,7 @@
 
 A file is written to a temporary name in its target folder, flushed and fsynced, given the mode an
 ordinary `open(path, "w")` would give it (0o666 less the process umask; `tempfile` would leave
-0o600), then renamed over the target. A failure or an interrupt (Ctrl-C, SIGTERM turned into an
+0o600), then renamed over the target (`replace`: retried for a moment on Windows). A failure or an interrupt (Ctrl-C, SIGTERM turned into an
 exception by the command line) removes the temporary file and leaves any earlier file untouched.
 A write that fails names the target file in its OSError.
 """
@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import BinaryIO, Iterator
 
@@ -36,11 +38,35 @@ def atomic_file(path: str | os.PathLike) -> Iterator[BinaryIO]:
         except OSError as exc:
             raise _named(exc, path) from None
         os.chmod(tmp_name, umask_mode(0o666))
-        os.replace(tmp_name, path)
+        replace(tmp_name, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp_name)
         raise
+
+
+#: Windows: how long `replace` retries a target another process holds open, and how often.
+REPLACE_RETRY_SECONDS, REPLACE_RETRY_EVERY_SECONDS = 2.0, 0.05
+
+
+def replace(source: str | os.PathLike, target: str | os.PathLike, *, platform: str | None = None) -> None:
+    """os.replace(source, target). POSIX renames over a file others have open or mapped. Windows
+    refuses (PermissionError) while another process has the target open without sharing deletion,
+    which a reader's brief open, a virus scanner or the search indexer does for a moment: there the
+    rename is retried for REPLACE_RETRY_SECONDS before the error is raised. A file kept mapped
+    stays refused: the .hlod reader does not map files on Windows (io.hlod_file.maps_files)."""
+    if (sys.platform if platform is None else platform) != "win32":
+        os.replace(source, target)
+        return
+    deadline = time.monotonic() + REPLACE_RETRY_SECONDS
+    while True:
+        try:
+            os.replace(source, target)
+            return
+        except PermissionError:
+            if time.monotonic() >= deadline:
+                raise
+            time.sleep(REPLACE_RETRY_EVERY_SECONDS)
 
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:

@@ -18,3 +18,8 @@ class FormatError(HlodError):
 
 class BakeCancelled(HlodError):
     """The caller cancelled a bake; nothing was written."""
+
+
+class GLUnavailable(HlodError):
+    """No OpenGL context could be made on this machine (no driver, a driver that refuses, a
+    platform without OpenGL): the message says what was tried and what to do."""

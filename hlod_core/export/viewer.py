@@ -21,6 +21,8 @@ from __future__ import annotations
 import http.server
 import logging
 import os
+import socket
+import sys
 import threading
 import urllib.parse
 from pathlib import Path
@@ -45,6 +47,8 @@ MIME_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; char
               ".svg": "image/svg+xml", ".xml": "application/xml", ".txt": "text/plain; charset=utf-8",
               ".woff": "font/woff", ".woff2": "font/woff2", ".ttf": "font/ttf"}
 CHUNK_BYTES = 1 << 16
+#: Windows' SO_REUSEADDR (winsock2.h); SO_EXCLUSIVEADDRUSE is its complement, ~SO_REUSEADDR.
+SO_REUSEADDR_WINDOWS = 0x0004
 
 
 def find_cesium(explicit: str | os.PathLike | None = None) -> Path:
@@ -95,13 +99,29 @@ class _Handler(http.server.BaseHTTPRequestHandler):
         log.debug("viewer: " + format, *args)
 
 
+def port_options(platform: str | None = None) -> list[tuple[int, int, int]]:
+    """The (level, option, value) socket options set before the viewer binds its port, on `platform`
+    (a sys.platform string, default this machine's). POSIX (Linux, macOS): SO_REUSEADDR, so that a
+    port just closed (in TIME_WAIT) can be listened on again at once; there it never lets a second
+    socket listen on a port in use. Windows: SO_EXCLUSIVEADDRUSE and not SO_REUSEADDR, which there
+    would let another program bind the port while the viewer listens on it and take its requests."""
+    if (sys.platform if platform is None else platform) == "win32":
+        return [(socket.SOL_SOCKET, getattr(socket, "SO_EXCLUSIVEADDRUSE", ~SO_REUSEADDR_WINDOWS), 1)]
+    return [(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)]
+
+
 class ViewerServer(http.server.ThreadingHTTPServer):
     """The viewer's HTTP server on 127.0.0.1:`port` (0 = a free one). `url` is its page. `start()`
     serves from a daemon thread, `serve_forever()` from the caller's; `close()` (or leaving the
-    `with` block) stops serving and frees the port."""
+    `with` block) stops serving and frees the port. Its socket options are `port_options()`'s."""
 
     daemon_threads = True
-    allow_reuse_address = True
+    allow_reuse_address = False  # port_options decides, per platform
+
+    def server_bind(self) -> None:
+        for level, option, value in port_options():
+            self.socket.setsockopt(level, option, value)
+        super().server_bind()
 
     def __init__(self, tiles_dir: Path, cesium_dir: Path, *, port: int = 0):
         self.roots = {"viewer": PAGE_DIR, "cesium": cesium_dir.resolve(), "tiles": tiles_dir.resolve()}

@@ -11,8 +11,8 @@ Layout (all integers little-endian):
                          "materials": [...]}  (version 2; absent when the scene has none)
     then       arrays, raw C-order, each starting on a 64-byte boundary
 
-Arrays are memory-mapped on load (numpy.memmap, read-only): opening a file costs the header parse
-and the range checks, not a read of the geometry. What `load` accepts, the renderer can draw without
+Arrays are memory-mapped on load (numpy.memmap, read-only) except on Windows (`maps_files`): opening
+a file costs the header parse and the range checks, not a read of the geometry. What `load` accepts, the renderer can draw without
 reading outside its buffers. Why: docs/how-it-works.md#what-a-hlod-file-must-pass-to-load
 
 Versions: 2 adds appearance: the optional arrays `uvs` (v,2) <f4, `colors` (v,4) <f4 and
@@ -26,6 +26,7 @@ import json
 import math
 import os
 import struct
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -120,8 +121,19 @@ def save(hlod: Hlod, path: str | os.PathLike) -> Path:
     return path
 
 
-def load(path: str | os.PathLike, *, mmap: bool = True) -> Hlod:
-    """Open a .hlod file. Raises FormatError naming the file and what is wrong."""
+def maps_files(platform: str | None = None) -> bool:
+    """Whether `load` memory-maps a file's arrays by default on `platform` (a sys.platform string,
+    default this machine's). POSIX: yes, and a re-bake that replaces the file (an atomic rename)
+    leaves a loaded HLOD reading the old one's pages. Windows: no, the arrays are read into memory
+    and the file closed: Windows refuses to replace or delete a file while a view of it is mapped,
+    so a preview holding a mapped .hlod would make every re-bake of it fail."""
+    return (sys.platform if platform is None else platform) != "win32"
+
+
+def load(path: str | os.PathLike, *, mmap: bool | None = None) -> Hlod:
+    """Open a .hlod file, its arrays memory-mapped or read into memory (`mmap`; None: `maps_files()`).
+    Raises FormatError naming the file and what is wrong."""
+    mmap = maps_files() if mmap is None else mmap
     path = Path(path)
     size, header_end, raw = _read_header(path)
     meta, table, materials = _parse_header(path, raw)

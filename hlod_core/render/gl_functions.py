@@ -25,6 +25,12 @@ class GL:
     # state queries (glGetIntegerv / glGetBooleanv)
     DEPTH_WRITEMASK = 0x0B72
     DEPTH_FUNC = 0x0B74
+    # depth functions (glDepthFunc)
+    LEQUAL = 0x0203
+    ALWAYS = 0x0207
+    # glBlitFramebuffer's mask and filter
+    DEPTH_BUFFER_BIT = 0x0100
+    NEAREST = 0x2600
     VIEWPORT = 0x0BA2
     SCISSOR_BOX = 0x0C10
     COLOR_WRITEMASK = 0x0C23
@@ -97,6 +103,7 @@ class GLFunctions:
         self.get_integerv = fn("glGetIntegerv", None, u32, i32p)
         self.get_booleanv = fn("glGetBooleanv", None, u32, u8p)
         self.bind_framebuffer = fn("glBindFramebuffer", None, u32, u32)
+        self.blit_framebuffer = fn("glBlitFramebuffer", None, i32, i32, i32, i32, i32, i32, i32, i32, u32, u32)
         self.use_program = fn("glUseProgram", None, u32)
         self.bind_vertex_array = fn("glBindVertexArray", None, u32)
         self.bind_buffer = fn("glBindBuffer", None, u32, u32)

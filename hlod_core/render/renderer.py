@@ -5,15 +5,19 @@ Data form: all node geometry in one vertex buffer (float32 positions relative to
 origin) and one index buffer (uint32); node i is the ranged draw of indices
 [3 tri_offset[i], 3 (tri_offset[i] + tri_count[i])). Under a GPU budget (`streaming`) node geometry
 is uploaded node by node instead, as the traversal wants it (streamed_geometry.py, residency.py):
-`residency` then says which nodes are resident and holds the traversal back where they are not. The renderer works on a standalone EGL context
-(`create_standalone`, headless: Mesa llvmpipe on machines without a GPU) or on a context handed in
-by the caller (Blender's, in the add-on), drawing into the caller's framebuffer.
+`residency` then says which nodes are resident and holds the traversal back where they are not.
+The renderer works on a standalone context (`create_standalone`, the platform's own GL:
+gl_platform.py; Mesa llvmpipe on machines without a GPU) or on a context handed in by the caller
+(Blender's, in the add-on), drawing into the caller's framebuffer.
 
 States (`set_mode`): "draw" (colour and depth writes, depth test), "query" and "alpha" (no writes,
 back faces culled, depth test on / off: both count the same rasterised pixels, clipping included).
 `state_changes` counts the switches since the renderer was made. Batched queries (CHC++):
 `issue_queries` switches to each query state once for the whole batch; `issue_multiquery` is one
 q query around the boxes of several nodes.
+
+Scene depth (`set_scene_depth`): a host's depth image written into the frame's depth buffer after
+the clear (depth_import.py), so that the queries and draws are hidden by the host's objects.
 
 Colours: a node is drawn in DEFAULT_COLOUR or, with `overlay` on, in the modulation ramp's colour of
 the ratio P the traversal passes (a table of OVERLAY_RAMP_STEPS + 1 colours); an HLOD with an
@@ -24,14 +28,17 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import logging
+import time
 
 import numpy as np
 
 from ..core.colour import DEFAULT_COLOUR, OVERLAY_RAMP_STEPS, overlay_ramp
+from ..core.errors import InputError
 from ..model.hierarchy import Hlod
 from ..model.view import View
 from ..traversal.query_cost import CostModel
-from . import calibration
+from . import calibration, gl_platform
+from .depth_import import DepthImport, check_depth, reduce_depth
 from .gl_functions import GL, GLFunctions
 from .materials import MaterialParts
 from .queries import Query, QueryPool
@@ -91,6 +98,9 @@ class Renderer:
         self.state_changes = 0  # set_mode's switches so far
         self._timer = None
         self._cost_model: CostModel | None = None
+        self._depth_import: DepthImport | None = None
+        self._scene_depth: tuple[np.ndarray, int] | None = None  # (depth, reduction), uploaded at begin_frame
+        self.depth_import_ms = 0.0  # the last begin_frame's upload and write of the scene depth
 
     def _make_gl_objects(self, ctx, hlod: Hlod, *, size, images, streaming) -> None:
         """Programs, buffers, the query boxes, the own framebuffer, the appearance and (under a
@@ -142,10 +152,10 @@ class Renderer:
     @classmethod
     def create_standalone(cls, hlod: Hlod, size: tuple[int, int], *, images: dict[int, np.ndarray] | None = None,
                           streaming: StreamingSettings | None = None) -> "Renderer":
-        """A private headless EGL context (llvmpipe where there is no GPU) and an own framebuffer."""
-        import moderngl
-
-        ctx = moderngl.create_context(standalone=True, backend="egl", require=330)
+        """A private headless context of the platform's own GL (gl_platform.standalone_context: EGL or
+        GLX on Linux, llvmpipe where there is no GPU; WGL on Windows; CGL on macOS) and an own
+        framebuffer. GLUnavailable when no context can be made."""
+        ctx = gl_platform.standalone_context()
         try:
             return cls(ctx, hlod, size=size, owns_context=True, images=images, streaming=streaming)
         except BaseException:
@@ -188,11 +198,46 @@ class Renderer:
             self.clear_framebuffer(self.fbo)
         self.ctx.enable(self._depth_test)
         self.ctx.depth_func = "<="
+        self._import_depth(view)
         self._mode = None
         self._colour = None
         if self.time_gpu if time_gpu is None else time_gpu:
             self._timer = self.queries.acquire(GL.TIME_ELAPSED)
             self.gl.begin_query(GL.TIME_ELAPSED, self._timer)
+
+    def set_scene_depth(self, depth: np.ndarray | None, *, reduce: int = 1) -> None:
+        """The host's depth (h, w) float32 window depth, row 0 the bottom row (depth_import.py), for
+        the next frame's queries and draws to test against: at its begin_frame it is uploaded
+        (reduced by the integer factor `reduce`, keeping each block's farthest depth) and blitted
+        into the own framebuffer after the clear (InputError there for a renderer without one); `depth_import_ms` is then what both cost. It must have
+        the frame's size. Kept for later frames until set again; None: none. InputError for another form."""
+        if depth is None:
+            self._scene_depth = None
+            return
+        if type(reduce) is not int or reduce < 1:
+            raise InputError(f"scene depth: the reduction must be a whole number >= 1, got {reduce!r}")
+        self._scene_depth = (check_depth(depth, where="scene depth"), reduce)
+        self._depth_uploaded = False
+
+    def _import_depth(self, view: View) -> None:
+        """begin_frame's step: upload the scene depth if it is new, and write it (set_scene_depth)."""
+        self.depth_import_ms = 0.0
+        if self._scene_depth is None:
+            return
+        started = time.perf_counter()
+        depth, reduce = self._scene_depth
+        if depth.shape != (view.height, view.width):
+            raise InputError(f"scene depth: {depth.shape[1]}x{depth.shape[0]} pixels for a "
+                             f"{view.width}x{view.height} frame")
+        if self.fbo is None:
+            raise InputError("scene depth: only a renderer with its own framebuffer imports a depth image")
+        if self._depth_import is None:
+            self._depth_import = DepthImport(self.ctx, gl=self.gl)
+        if not self._depth_uploaded:
+            self._depth_import.upload(reduce_depth(depth, reduce), factor=reduce)
+            self._depth_uploaded = True
+        self._depth_import.write(self.fbo)
+        self.depth_import_ms = (time.perf_counter() - started) * 1e3
 
     def end_frame(self) -> float:
         """Finish the frame; GPU milliseconds from the timer query (0 if it was not started)."""
@@ -438,7 +483,9 @@ class Renderer:
             self.ctx.release()
 
     def _release_geometry(self) -> None:
-        """The streamed nodes' buffers, then every other GL object, newest first."""
+        """The streamed nodes' buffers and the depth texture, then every other GL object, newest first."""
         if self.streamed is not None:
             self.streamed.release()
+        if getattr(self, "_depth_import", None) is not None:
+            self._depth_import.release()
         self._gl_objects.release()

@@ -110,6 +110,7 @@ class Traversal(abc.ABC):
         self.prepare(view)
         state_changes = getattr(self.renderer, "state_changes", 0)
         self.renderer.begin_frame(view)
+        stats.depth_import_ms = getattr(self.renderer, "depth_import_ms", 0.0)
         self._traverse(stats)
         traversed_at = time.perf_counter()
         uploaded = 0 if self._residency is None else self._residency.uploaded_bytes

@@ -1,6 +1,6 @@
 """What one traversal frame did (docs/how-it-works.md#the-traversal-methods): `FrameStats`, its counters (`COUNTERS`, the columns of
-per-frame tables, then `QUERY_COUNTERS` and, under a GPU budget, `STREAM_COUNTERS`) and the node
-lists behind some of them."""
+per-frame tables, then `QUERY_COUNTERS`, under a GPU budget `STREAM_COUNTERS`, and with a host's
+depth `DEPTH_COUNTERS`) and the node lists behind some of them."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -14,6 +14,9 @@ COUNTERS = ("dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_
 QUERY_COUNTERS = ("multiqueries", "state_changes", "predicted")
 #: FrameStats' counters of streamed node geometry (render.residency), 0 without a GPU budget.
 STREAM_COUNTERS = ("substitutions", "waiting", "resident_bytes", "upload_bytes", "upload_ms")
+#: FrameStats' counter of a host's depth imported into the frame (the renderer's `depth_import_ms`;
+#: render.depth_import), 0 without one.
+DEPTH_COUNTERS = ("depth_import_ms",)
 
 
 @dataclass
@@ -38,6 +41,7 @@ class FrameStats:
     resident_bytes: int = 0  # node geometry on the GPU after the frame
     upload_bytes: int = 0    # node geometry uploaded after the frame
     upload_ms: float = 0.0   # of frame_ms, the evictions and uploads after the frame
+    depth_import_ms: float = 0.0  # of frame_ms, the host's depth uploaded and written at the frame's start
     drawn: list = field(default_factory=list)       # node ids in draw order (not counters)
     delayed: list = field(default_factory=list)     # the nodes counted in d
     refined_after_draw: list = field(default_factory=list)  # the nodes counted in rarn
