@@ -1,10 +1,13 @@
 """scripts/build_extension.py on tiny literal inputs: the manifest's wheels per platform and Python,
-the extension tool found in any bpy version, and wheels rewritten for Blender 4.2's installer."""
+the extension tool found in any bpy version, wheels rewritten for Blender 4.2's installer, and the
+licence in the zip (a file listed to ship and missing stops the build)."""
 import csv
 import io
 import sys
+import tempfile
 import tomllib
 import zipfile
+from pathlib import Path
 
 import pytest
 
@@ -72,3 +75,40 @@ def test_a_plain_wheel_is_used_as_it_is_and_other_data_folders_stop_the_build(tm
     scripts = _wheel(tmp_path / "demo-1.0-cp313-cp313-win_amd64.whl", {"demo-1.0.data/scripts/demo": b"#!"})
     with pytest.raises(SystemExit, match="demo-1.0-cp313-cp313-win_amd64.whl: .data folders scripts"):
         build_extension.blender_ready(scripts, tmp_path / "flat")
+
+
+def test_the_licence_ships_in_the_zip_blenders_tool_builds():
+    """LICENSE, the full GPL v3 text the manifest's GPL-3.0-or-later refers to, goes into the zip
+    that Blender's own tool builds (here without wheels, which need a download; check_zip holds
+    every release zip to the same list)."""
+    manifest_text = (ROOT / "blender_manifest.toml").read_text()
+    manifest = tomllib.loads(manifest_text)
+    assert manifest["license"] == ["SPDX:GPL-3.0-or-later"]
+    with tempfile.TemporaryDirectory() as out:
+        zip_path = build_extension.build_zip(manifest_text, manifest, "linux-x64", line=build_extension.BLENDER_LINES[0],
+                                             wheels=[], out=Path(out), tool=build_extension.blender_ext(), cesium=None)
+        with zipfile.ZipFile(zip_path) as z:
+            licence = z.read("LICENSE").decode()
+    assert licence == (ROOT / "LICENSE").read_text()
+    assert licence.lstrip().startswith("GNU GENERAL PUBLIC LICENSE\n                       Version 3, 29 June 2007")
+    assert "END OF TERMS AND CONDITIONS" in licence and "How to Apply These Terms to Your New Programs" in licence
+
+
+def test_a_listed_file_that_is_missing_stops_the_build(tmp_path, monkeypatch):
+    monkeypatch.setattr(build_extension, "PACKAGE", [*build_extension.PACKAGE, "NOTICE"])
+    with pytest.raises(SystemExit, match=r"build_extension: NOTICE: listed to ship \(PACKAGE\) but missing"):
+        build_extension.stage("", "linux-x64", [], where=tmp_path / "stage")
+    assert not (tmp_path / "stage").exists() or not any((tmp_path / "stage").iterdir())
+
+
+def test_a_zip_without_a_listed_file_is_refused(tmp_path):
+    zip_path = tmp_path / "hlod.zip"
+    with zipfile.ZipFile(zip_path, "w") as z:
+        for name in build_extension.PACKAGE:
+            if name != "LICENSE":
+                z.writestr(f"{name}/__init__.py" if "." not in name else name, "")
+    with pytest.raises(SystemExit, match=r"hlod\.zip: lacks LICENSE \(listed to ship in PACKAGE\)"):
+        build_extension.check_zip(zip_path, [])
+    with zipfile.ZipFile(zip_path, "a") as z:
+        z.writestr("LICENSE", "")
+    build_extension.check_zip(zip_path, [])
