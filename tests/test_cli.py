@@ -20,6 +20,21 @@ BAKE_KEYS = {"nodes", "leaves", "depth", "input_tris", "leaf_tris", "root_tris",
 ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}
 
 
+def test_help_names_the_program_as_it_was_run_and_the_docs_page(tmp_path):
+    """`python -m hlod_core --help` and the installed script (here a copy of pip's entry-point
+    script under its name) each say their own name in the usage; the help points to the page that
+    holds every option."""
+    module = subprocess.run([sys.executable, "-m", "hlod_core", "--help"], capture_output=True, text=True, check=True)
+    assert module.stdout.startswith("usage: python -m hlod_core [-h]")
+    assert "docs/command-line.md" in module.stdout and "README" not in module.stdout
+    script = write_text(tmp_path / "hlod-core", "import sys\nfrom hlod_core.cli.main import main\nsys.exit(main())\n")
+    run = subprocess.run([sys.executable, str(script), "evaluate", "--help"], capture_output=True, text=True, check=True)
+    assert run.stdout.startswith("usage: hlod-core evaluate [-h]")
+    assert "README" not in run.stdout and "docs/command-line.md#camera-paths" in run.stdout
+    bad = subprocess.run([sys.executable, str(script), "run"], capture_output=True, text=True)
+    assert bad.returncode == 2 and bad.stderr.strip().endswith("(see hlod-core run --help)")
+
+
 @pytest.mark.parametrize("cores, expected", [(1, 1), (2, 1), (8, 7)])
 def test_jobs_0_is_all_cores_but_one(monkeypatch, cores, expected):
     """One rule for every front end (bake.settings.resolve_jobs, which the extension's settings

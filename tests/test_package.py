@@ -77,6 +77,7 @@ def test_the_installed_core_bakes_on_a_cluster_started_as_the_docs_say(tmp_path)
     help_text = subprocess.run([str(bin_dir / "hlod-core"), "--help"], capture_output=True, text=True, check=True,
                                env=env, cwd=away).stdout
     assert "bake" in help_text and "evaluate" in help_text
+    assert help_text.startswith("usage: hlod-core [-h]")  # the name it was run by
 
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
