@@ -1,6 +1,6 @@
-"""Where Coh draws more nodes than SW (the DN targets: README): both traversals run on every frame of
-a path, one after the other on the same view and renderer, and each node Coh draws that SW does
-not is put in the first class that fits:
+"""Where Coh draws more nodes than SW (the DN targets: docs/evaluation.md#targets): both traversals
+run on every frame of a path, one after the other on the same view and renderer, and each node Coh
+draws that SW does not is put in the first class that fits:
 
     finer          SW drew one of its ancestors (Coh's front is deeper there);
     hidden         SW queried the node this frame and found it hidden (Coh drew it on last

@@ -1,4 +1,5 @@
-"""docs/how-it-works.md#the-runtime metrics and the §10 stability cases, on exact small inputs (no GL)."""
+"""docs/how-it-works.md#the-runtime metrics and the cases of docs/how-it-works.md#numerical-stability, on exact small
+inputs (no GL)."""
 import warnings
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""The structure bar, read from the source (STYLE: imports run one way, core <- adapters <- UI <-
+"""The structure bar, read from the source (docs/development.md#layout: imports run one way, core <- adapters <- UI <-
 registration; a cycle is a design question):
   - hlod_core imports nothing of addon/, operators/, panels/ or Blender's modules, and outside itself
     only the standard library and its declared dependencies; addon/ (adapters) imports no UI;
@@ -31,7 +31,7 @@ BLENDER_MODULES = {"bpy", "mathutils", "gpu", "gpu_extras", "bmesh", "addon_util
 #: above traversal; the reports drive renderer and traversal; the command line is the top.
 ROOM_LAYERS = {"core": 0, "model": 1, "io": 2, "traversal": 2, "render": 3, "bake": 3, "export": 4, "report": 4,
                "cli": 5, "__main__": 6}
-#: Lines a module may have (STYLE: modules of a few hundred lines, one topic each).
+#: Lines a module may have (docs/development.md#layout: modules of a few hundred lines, one topic each).
 MAX_MODULE_LINES = 500
 #: Libraries of the command line only (requirements.txt): Blender ships none of them, nor does the
 #: extension's manifest, so no module the extension can reach may import them.
@@ -392,7 +392,7 @@ def test_dask_is_imported_only_by_a_bake_given_a_scheduler(graph):
     assert cluster not in reached and not {name for name in reached if graph[name][1] & dask}
     script = ("import sys\nsys.path.insert(0, 'tests')\nfrom helpers import load_model\n"
               "from hlod_core.bake.pipeline import bake\nfrom hlod_core.bake.settings import BakeSettings\n"
-              "for jobs in (1, 2):\n    bake(load_model('cow.obj'), BakeSettings(target_tris=1000, jobs=jobs))\n"
+              "for jobs in (1, 2):\n    bake(load_model('cow'), BakeSettings(target_tris=1000, jobs=jobs))\n"
               "loaded = sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed'))\n"
               f"assert not loaded and {cluster!r} not in sys.modules, loaded\n")
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, timeout=300)

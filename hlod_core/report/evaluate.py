@@ -1,8 +1,8 @@
 """Evaluation (docs/evaluation.md): every method on one camera path, image error against run time, written as
 report.json, report.md, report.html and figures.
 
-Reproduces the measurements of Charalambos' dissertation, chapter 8
-(`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`): Table 8.1 (PSNR of
+Reproduces the measurements of chapter 8 of J. P. Charalambos, "HLOD Refinement Driven by Hardware
+Occlusion Queries", dissertation, 2007 (docs/how-it-works.md#papers): Table 8.1 (PSNR of
 luminance and chrominance over 20 random frames against Bool), Table 8.2 (FPS, DN, RARN, D per
 method), Tables 8.3/8.4 (speedup and node savings of Coh(P)/Coh(mu) over Bool, Simp and SW),
 Figures 8.1-8.3 (`showcase`) and 8.4/8.5 (`per_frame_figure`); plus the alpha estimators
