@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -45,6 +46,8 @@ from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+import models  # noqa: E402  (tests/models.py: the test models by role)
 
 
 def moved_spec(spec_path: Path, instance: int, offset: np.ndarray, *, folder: Path) -> Path:
@@ -114,7 +117,7 @@ def timed_bake(mesh, settings, cache_dir) -> tuple[float, object]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--spec", type=Path, default=ROOT / "tests" / "scenes" / "crowd_1m.json")
+    parser.add_argument("--spec", type=models.input_file, default=str(ROOT / "tests" / "scenes" / "crowd_1m.json"))
     parser.add_argument("--move", type=int, default=41, help="instance to move (file order)")
     parser.add_argument("--by", type=float, nargs=3, default=[1.5, 0.0, 0.0], help="translation, model units")
     parser.add_argument("--jobs", type=int, default=2)

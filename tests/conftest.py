@@ -7,9 +7,9 @@ Fixtures
     gl_ctx          the test run's one OpenGL context (standalone EGL; Mesa llvmpipe without a GPU),
                     current during each test that uses it; a GL error still pending after such a test
                     fails it. Only tests marked `gl` may use it.
-    bakes           helpers.SharedBakes: shared models baked once per test run (bakes.baked(name, ...))
+    bakes           helpers.SharedBakes: test models (models.py) baked once per test run (bakes.baked(role, ...))
     city_hlod       the default procedural city, baked once per test run
-    cow_file        cow.obj baked by the command line (target 400 triangles) into a folder of the test run
+    cow_file        the cow baked by the command line (target 400 triangles) into a folder of the test run
     extension_zips  the extension's linux-x64 zips, one per Blender line, built once per test run
     repo            that zip installed for the main .venv's bpy, once per test module
     versioned_repo  that zip installed in each Blender of blender_runs.BLENDERS, once per test run
@@ -143,7 +143,7 @@ def city_hlod(bakes):
 @pytest.fixture(scope="session")
 def cow_file(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("cow") / "cow.hlod"
-    hlod("-q", "bake", helpers.model("cow.obj"), "-o", out, "--target-tris", "400")
+    hlod("-q", "bake", helpers.model("cow"), "-o", out, "--target-tris", "400")
     return out
 
 

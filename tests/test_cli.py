@@ -8,7 +8,8 @@ import sys
 
 import pytest
 
-from helpers import ROOT, SCENES, model
+import models
+from helpers import ROOT, model
 from hlod_core.bake import settings as bake_settings_module
 from hlod_core.cli.main import build_parser
 from hlod_core.cli.options import bake_settings_of
@@ -50,11 +51,11 @@ def test_jobs_0_is_all_cores_but_one(monkeypatch, cores, expected):
 
 def test_bake_scene_spec_and_info(tmp_path):
     spec = tmp_path / "spec.json"
-    rel = os.path.relpath(model("cow.obj"), tmp_path)
+    rel = os.path.relpath(model("cow"), tmp_path)
     spec.write_text(json.dumps({"models": [
         {"path": rel, "transforms": [[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1],
                                      [-1, 0, 0, 5, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]]},
-        {"path": str(model("teapot.obj"))}]}))
+        {"path": str(model("teapot"))}]}))
     out = tmp_path / "scene.hlod"
     summary = last_json(hlod("bake", spec, "-o", out, "--target-tris", "1000", "--jobs", "2"))
     assert BAKE_KEYS <= summary.keys()
@@ -66,14 +67,14 @@ def test_bake_scene_spec_and_info(tmp_path):
 
 def test_several_inputs_merge_into_one_scene(tmp_path):
     out = tmp_path / "two.hlod"
-    summary = last_json(hlod("bake", model("cow.obj"), model("spot.obj"), "-o", out))
+    summary = last_json(hlod("bake", model("cow"), model("spot"), "-o", out))
     assert summary["input_tris"] == 5804 + 5856
 
 
 @pytest.mark.slow
 def test_million_triangle_instanced_spec_passes_every_check(tmp_path):
     out = tmp_path / "gallery.hlod"
-    summary = last_json(hlod("-q", "bake", SCENES / "gallery_1m.json", "-o", out, "--jobs", "2"))
+    summary = last_json(hlod("-q", "bake", models.scene("gallery_1m"), "-o", out, "--jobs", "2"))
     assert summary["input_tris"] >= 1_000_000
     info = last_json(hlod("info", out))
     assert info["checks"] == ALL_TRUE, info
@@ -93,7 +94,7 @@ def test_default_scene_command(tmp_path):
      r"inf\.obj: 1 of 4 vertices could not be read"),
     (lambda d: write_text(d / "bad.json", "{not json"), r"bad\.json: scene spec is not valid JSON"),
     (lambda d: write_text(d / "spec.json", json.dumps({"models": [{"path": "x.obj"}]})), r"x\.obj: no such file"),
-    (lambda d: write_text(d / "spec2.json", json.dumps({"models": [{"path": str(model("cow.obj")), "transforms": [[1, 2, 3]]}]})),
+    (lambda d: write_text(d / "spec2.json", json.dumps({"models": [{"path": str(model("cow")), "transforms": [[1, 2, 3]]}]})),
      r"spec2\.json: models\[0\]\.transforms\[0\] must have 16 numbers"),
     (lambda d: write_text(d / "notes.txt", "hello"), r"notes\.txt: unsupported file type"),
 ])
@@ -113,15 +114,15 @@ def test_info_on_foreign_file_is_one_line(tmp_path):
 
 def test_unwritable_output_is_one_line(tmp_path):
     blocker = write_text(tmp_path / "file", "")
-    proc = hlod("bake", model("cow.obj"), "-o", blocker / "out.hlod", check=False)
+    proc = hlod("bake", model("cow"), "-o", blocker / "out.hlod", check=False)
     assert f"{blocker} is a file" in one_line_error(proc)
     assert "bake" not in proc.stderr  # refused before baking
 
 
 def test_interrupted_bake_leaves_no_output_and_keeps_the_old_file(tmp_path):
-    out = tmp_path / "igea.hlod"
+    out = tmp_path / "statue.hlod"
     out.write_bytes(b"previous result")
-    proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "bake", str(model("igea.ply")), "-o", str(out),
+    proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "bake", str(model("statue")), "-o", str(out),
                              "--jobs", "2"], cwd=ROOT, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": str(tmp_path)})
     for line in proc.stderr:  # decimation is under way: the signal comes mid-bake (no sleep: any moment will do)
@@ -131,7 +132,7 @@ def test_interrupted_bake_leaves_no_output_and_keeps_the_old_file(tmp_path):
     proc.communicate(timeout=120)
     assert proc.returncode != 0
     assert out.read_bytes() == b"previous result"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["igea.hlod"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["statue.hlod"]
 
 
 RUN_KEYS = {"dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms", "frames"}

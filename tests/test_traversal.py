@@ -403,7 +403,7 @@ def test_orthographic_path(city_renderer):
 
 
 def test_scene_far_from_origin(gl_ctx):
-    mesh = load_model("cow.obj")
+    mesh = load_model("cow")
     m = np.eye(4)
     m[:3, :3] *= 10.0
     m[:3, 3] = 1e6
