@@ -22,6 +22,7 @@ from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.io import hlod_file, meshes
 from hlod_core.model.appearance import AttributeLayout
 
+import rebake_work
 from helpers import file_bytes, load_model, model
 from processes import hlod, last_json, one_line_error
 from sample_meshes import SPHERE_TARGET_TRIS, herd, textured_sphere
@@ -409,18 +410,17 @@ def test_every_module_that_computes_lods_or_errors_keys_the_cache():
     assert "bake.hausdorff" in seen
 
 
-def test_rebake_benchmark_times_every_rebuilt_task_and_restores_the_bake(tmp_path):
-    """benchmarks.rebake --work (the moved re-bake's lower bound): on the herd with a moved cow,
-    every rebuilt node is decimated and measured once and timed, the phases before the tasks are
-    counted, the result is still the scratch bake's file, and the bake's functions are restored."""
-    from benchmarks import rebake
-
+def test_rebuilt_work_times_every_rebuilt_task_and_restores_the_bake(tmp_path):
+    """rebake_work.rebuilt_work (benchmarks/rebake.py --work, the moved re-bake's lower bound): on the
+    herd with a moved cow, every rebuilt node is decimated and measured once and timed, the phases
+    before the tasks are counted, the result is still the scratch bake's file, and the bake's
+    functions are restored."""
     cows, _ = herd()
     moved, _ = herd(moved_by=(1.5, 0.0, 0.0))
     folder = tmp_path / "cache"
     bake(cows, HERD, cache_dir=folder)
     decimate, measure = simplify.decimate_node, tasks.measure_exact
-    work = rebake.rebuilt_work(moved, BakeSettings(**{**HERD.__dict__, "jobs": 2}), folder)
+    work = rebake_work.rebuilt_work(moved, BakeSettings(**{**HERD.__dict__, "jobs": 2}), folder)
     assert simplify.decimate_node is decimate and tasks.measure_exact is measure
     assert 0 < work["rebuilt_nodes"] == work["decimations"] == work["measurements"]
     assert work["decimate_s"] > 0 and work["measure_s"] > 0
@@ -432,6 +432,6 @@ def test_rebake_benchmark_times_every_rebuilt_task_and_restores_the_bake(tmp_pat
     bound = BakeSettings(**{**HERD.__dict__, "error": "bound"})  # its measure is another task function
     bake(cows, bound, cache_dir=tmp_path / "bound")
     to_children = hausdorff.measure_to_children
-    with_bound = rebake.rebuilt_work(moved, bound, tmp_path / "bound")
+    with_bound = rebake_work.rebuilt_work(moved, bound, tmp_path / "bound")
     assert hausdorff.measure_to_children is to_children
     assert 0 < with_bound["rebuilt_nodes"] == with_bound["decimations"] == with_bound["measurements"]

@@ -226,7 +226,7 @@ def test_sphere_distance_is_the_norm_bit_for_bit(order):
     assert np.array_equal(got, np.linalg.norm(centre - v.eye, axis=1) - radius)
 
 
-# --- alpha estimators (geometry only; compared with the query estimator in test_traversal) ------
+# --- alpha estimators (geometry only; compared with the query estimator in test_traversal_methods) ------
 
 def test_projected_alpha_of_a_face_on_square():
     v = _view(eye=(0, 0, 10), fovy=90.0, size=(480, 480))  # 1 unit at distance d covers 240/d px

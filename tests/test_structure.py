@@ -297,8 +297,8 @@ def test_modules_stay_under_the_size_bar():
 
 # --- the tests themselves -----------------------------------------------------------------------------
 
-#: Scripts in tests/ that run in their own (bpy) process, not in pytest's.
-OWN_PROCESS = re.compile(r"blender_\w*checks\.py")
+#: Scripts in tests/ that run in their own process (bpy; the fuzz run's worker), not in pytest's.
+OWN_PROCESS = re.compile(r"blender_\w*checks\.py|hlod_fuzz_worker\.py")
 #: Where the test run's GL context is made: the fixture and the function it calls.
 GL_CONTEXT_HOMES = {"conftest.py", "helpers.py"}
 #: Old cached functions of helpers.py (replaced by the bakes / city_hlod fixtures).

@@ -1,5 +1,5 @@
 """CesiumJS's tile selection re-implemented, formula for formula, to explain what Cesium chooses for
-a view (benchmarks/cesium_compare.py): its camera and culling volume, the tileset as it reads it,
+a view (tests/cesium_selection.py, benchmarks/cesium_compare.py): its camera and culling volume, the tileset as it reads it,
 its SSE and its base traversal at rest (Cesium 1.1xx: Cesium3DTile.getScreenSpaceError,
 Cesium3DTilesetBaseTraversal, Cesium3DTilesetTraversal, OrientedBoundingBox, CullingVolume).
 
