@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.unit_free", description=__doc__.splitlines()[0])
     parser.add_argument("--jitter-seeds", type=int, default=6)
     args = parser.parse_args(argv)
-    models = {name: target for name, target in MODELS}
+    targets = dict(MODELS)
     for name, target in MODELS:
         mesh = models.load(name)
         row = {"model": name, "target_tris": target}
@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> None:
         print(json.dumps(row), flush=True)
     for name in JITTERED:
         mesh = models.load(name)
-        errors = [float(bake(_jittered(mesh, seed), BakeSettings(target_tris=models[name])).error[0])
+        errors = [float(bake(_jittered(mesh, seed), BakeSettings(target_tris=targets[name])).error[0])
                   for seed in range(args.jitter_seeds)]
         print(json.dumps({"model": name, "jitter_one_step_root_errors": errors}), flush=True)
 
