@@ -10,9 +10,7 @@
 # checks may run: not when a marker expression leaves them out, i.e. -m EXPR where EXPR is
 # `not blender` or has `not blender` as one of its terms joined by `and`, without `or`
 # (bash test.sh -m "not slow and not blender", bash test.sh -m "gl and not blender").
-source "$(dirname "${BASH_SOURCE[0]}")/scripts/bootstrap.sh"
-ensure_validators
-ensure_viewer  # CesiumJS (npm) and chromium: the viewer page and its browser test
+HLOD_SETUP_TEST_TOOLS=1 source "$(dirname "${BASH_SOURCE[0]}")/scripts/bootstrap.sh"  # .venv and ensure_test_tools
 if blender_checks_may_run "$@"; then
     ensure_blender_venvs  # .venv-blender/bpy-4.2, bpy-5.0, bpy-5.2: the extension checks run in each
 else

@@ -171,8 +171,23 @@ ensure_viewer() {
     fi
 }
 
+ensure_test_tools() {
+    # What the tests need besides .venv (test.sh): the validators, CesiumJS and chromium.
+    ensure_validators
+    ensure_viewer  # CesiumJS (npm) and chromium: the viewer page and its browser test
+}
+
 ensure_gl_packages
-ensure_venv
+if [ "${HLOD_SETUP_TEST_TOOLS:-}" = 1 ]; then
+    # test.sh: the npm packages install while pip fills .venv (neither needs the other); a failure
+    # of either stops the setup
+    ensure_test_tools &
+    test_tools=$!
+    ensure_venv
+    wait "$test_tools"
+else
+    ensure_venv
+fi
 PY="$VENV/bin/python"
 export PYTHONPATH="$ROOT${PYTHONPATH:+:$PYTHONPATH}"
 cd "$ROOT"
