@@ -4,8 +4,9 @@ camera and the same screen-space-error threshold.
     PYTHONPATH=. .venv/bin/python -m benchmarks.cesium_compare [--scene terrain city] [--tau 16 2]
         [--size 800x600] [--json OUT.json]
 
-bakes a scene of `scene_setups` (tests/cesium_selection.py, which holds the comparison), exports it as 3D Tiles, serves it with hlod_core.export.viewer,
-opens the viewer page in Chromium (Playwright, /usr/bin/chromium, WebGL through SwiftShader), and
+bakes a scene of `scene_setups` (tests/cesium_selection.py, which holds the comparison), exports
+it as 3D Tiles, serves it with hlod_core.export.viewer, opens the viewer page in Chromium
+(Playwright, /usr/bin/chromium, WebGL through SwiftShader), and
 for each camera and each threshold prints |ours|, |Cesium's|, the intersection, the Jaccard index,
 Cesium's choice as predicted by `cesium_rule.cesium_select` (a re-implementation of Cesium's rule,
 must equal what Cesium chose) and, for every tile in one set only, the term of TERMS that decides it.
@@ -29,7 +30,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
-from cesium_selection import Browser, bake_and_export, cesium_choose, compare, scene_setups  # noqa: E402  (a test helper)
+from cesium_selection import Browser, bake_and_export, cesium_choose, compare, scene_setups  # noqa: E402
 
 
 def run(scene: str, taus: list[float], *, size: tuple[int, int] = (800, 600), folder: Path) -> list[dict]:

@@ -1,4 +1,5 @@
-"""Bakes with real pymeshlab on the test models (tests/models.py), and the degenerate inputs of docs/how-it-works.md#numerical-stability."""
+"""Bakes with real pymeshlab on the test models (tests/models.py), and the degenerate inputs of
+docs/how-it-works.md#numerical-stability."""
 import os
 import signal
 import threading

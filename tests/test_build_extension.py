@@ -85,8 +85,9 @@ def test_the_licence_ships_in_the_zip_blenders_tool_builds():
     manifest = tomllib.loads(manifest_text)
     assert manifest["license"] == ["SPDX:GPL-3.0-or-later"]
     with tempfile.TemporaryDirectory() as out:
-        zip_path = build_extension.build_zip(manifest_text, manifest, "linux-x64", line=build_extension.BLENDER_LINES[0],
-                                             wheels=[], out=Path(out), tool=build_extension.blender_ext(), cesium=None)
+        zip_path = build_extension.build_zip(manifest_text, manifest, "linux-x64",
+                                             line=build_extension.BLENDER_LINES[0], wheels=[], out=Path(out),
+                                             tool=build_extension.blender_ext(), cesium=None)
         with zipfile.ZipFile(zip_path) as z:
             licence = z.read("LICENSE").decode()
     assert licence == (ROOT / "LICENSE").read_text()

@@ -29,7 +29,8 @@ def test_help_names_the_program_as_it_was_run_and_the_docs_page(tmp_path):
     assert module.stdout.startswith("usage: python -m hlod_core [-h]")
     assert "docs/command-line.md" in module.stdout and "README" not in module.stdout
     script = write_text(tmp_path / "hlod-core", "import sys\nfrom hlod_core.cli.main import main\nsys.exit(main())\n")
-    run = subprocess.run([sys.executable, str(script), "evaluate", "--help"], capture_output=True, text=True, check=True)
+    run = subprocess.run([sys.executable, str(script), "evaluate", "--help"], capture_output=True, text=True,
+                         check=True)
     assert run.stdout.startswith("usage: hlod-core evaluate [-h]")
     assert "README" not in run.stdout and "docs/command-line.md#camera-paths" in run.stdout
     bad = subprocess.run([sys.executable, str(script), "run"], capture_output=True, text=True)

@@ -26,6 +26,7 @@ def test_fuzzed_files_open_cleanly_or_are_refused_in_one_line(tmp_path, capfd):
     # the traversals met hostile geometry and bounds (every accepted file rendered every frame).
     assert summary["refused"] >= FUZZ_CASES // 2 and summary["loaded"] >= FUZZ_CASES // 10
     assert summary["frames_rendered"] == len(RENDER_METHODS) * RENDER_FRAMES * summary["loaded"]
-    assert {k: v["cases"] for k, v in summary["by_kind"].items()} == {k: FUZZ_CASES // len(MUTATIONS) for k in MUTATIONS}
+    per_kind = FUZZ_CASES // len(MUTATIONS)
+    assert {k: v["cases"] for k, v in summary["by_kind"].items()} == {k: per_kind for k in MUTATIONS}
     # range pairs whose sum wraps (the `overflow` mutation) are all refused, none crashes
     assert summary["by_kind"]["overflow"]["refused"] == FUZZ_CASES // len(MUTATIONS)

@@ -17,9 +17,9 @@ pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context
 
 
 def test_dn_excess_classifies_each_extra_node_once():
-    """dn_classes.classify (benchmarks/dn_excess.py) puts each node Coh draws and SW does not in one class: finer (SW drew an
-    ancestor), hidden (SW found it hidden), under hidden (SW found an ancestor hidden), coarser
-    (SW refined it), other; and counts what SW drew that Coh did not."""
+    """dn_classes.classify (benchmarks/dn_excess.py) puts each node Coh draws and SW does not in one
+    class: finer (SW drew an ancestor), hidden (SW found it hidden), under hidden (SW found an
+    ancestor hidden), coarser (SW refined it), other; and counts what SW drew that Coh did not."""
     #        0
     #   1         2        8
     # 3   4     5   6
@@ -34,12 +34,13 @@ def test_dn_excess_classifies_each_extra_node_once():
 
 
 def test_traversal_cpu_benchmark_leaves_the_renderer_out(city_renderer):
-    """traversal_timing (benchmarks/traversal_cpu.py): the traversal's Python time per visited node excludes the time inside
-    the renderer. Its clock here is this thread's CPU time plus a scripted offset: every draw of a
-    slow renderer (real GL, then SCRIPTED_DRAW_S on that clock, no sleep) moves it on, so the
-    renderer's share grows by exactly that per draw, and the Python time per node stays far below
-    what one draw adds per node, whatever the machine's load. Results are fetched only when the
-    traversal runs out of other work (ScriptedLatency), so both runs visit the same nodes."""
+    """traversal_timing (benchmarks/traversal_cpu.py): the traversal's Python time per visited node
+    excludes the time inside the renderer. Its clock here is this thread's CPU time plus a scripted
+    offset: every draw of a slow renderer (real GL, then SCRIPTED_DRAW_S on that clock, no sleep)
+    moves it on, so the renderer's share grows by exactly that per draw, and the Python time per
+    node stays far below what one draw adds per node, whatever the machine's load. Results are
+    fetched only when the traversal runs out of other work (ScriptedLatency), so both runs visit the
+    same nodes."""
     scripted_draw_s = 10.0
     scripted_s = [0.0]
 
@@ -77,12 +78,13 @@ def test_traversal_cpu_benchmark_leaves_the_renderer_out(city_renderer):
 
 
 def test_traversal_cpu_null_renderer_leaves_the_python_alone(city_hlod):
-    """traversal_timing's NullRenderer (benchmarks/traversal_cpu.py --renderer null): the traversals run without GL (every query back at
-    once, a seeded visibility per node), so two runs visit the same nodes; and the time inside the
-    renderer is a small part of the traversal's (measured: about a sixth, asserted: below all of
-    it). Timing is the subject of the second part: it is measured on this thread's CPU clock, which
-    leaves out the time other processes hold the core, as the median of five repeats that
-    alternate the methods, so one pause (a garbage collection) inside a renderer call cannot decide."""
+    """traversal_timing's NullRenderer (benchmarks/traversal_cpu.py --renderer null): the traversals
+    run without GL (every query back at once, a seeded visibility per node), so two runs visit the
+    same nodes; and the time inside the renderer is a small part of the traversal's (measured: about
+    a sixth, asserted: below all of it). Timing is the subject of the second part: it is measured on
+    this thread's CPU clock, which leaves out the time other processes hold the core, as the median
+    of five repeats that alternate the methods, so one pause (a garbage collection) inside a
+    renderer call cannot decide."""
     timed = traversal_timing.run(city_hlod, street_path(8), SIZE, methods=["coh", "bool"], repeat=5,
                               settings=RuntimeSettings(), clock="thread", null_renderer=True)
     again = traversal_timing.run(city_hlod, street_path(8), SIZE, methods=["coh", "bool"], repeat=1,
@@ -95,9 +97,10 @@ def test_traversal_cpu_null_renderer_leaves_the_python_alone(city_hlod):
 
 
 def test_traversal_cpu_baseline_runs_another_version_side_by_side(city_hlod):
-    """traversal_timing.baseline_traversal (benchmarks/traversal_cpu.py --baseline DIR) imports DIR's hlod_core as a package of its own and
-    runs its traversal next to this one's on the same renderer: with this checkout as the
-    baseline, both rows visit the same nodes (null renderer: no timing in what is visited)."""
+    """traversal_timing.baseline_traversal (benchmarks/traversal_cpu.py --baseline DIR) imports DIR's
+    hlod_core as a package of its own and runs its traversal next to this one's on the same
+    renderer: with this checkout as the baseline, both rows visit the same nodes (null renderer: no
+    timing in what is visited)."""
     from pathlib import Path
 
     from hlod_core.traversal import methods
