@@ -39,10 +39,10 @@ from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+import models  # noqa: E402  (tests/models.py: the test models by role)
 #: The commit before the appearance contract (b4edc98^): the bake as it was without appearance.
 BEFORE = "fed64e9de7e20efcd316ea19c5ab79df4e2bd22a"
-GALLERY = ROOT / "tests" / "scenes" / "gallery_1m.json"
-MODELS = ROOT.parent / "shared" / "models"
 
 
 def old_code(folder: Path) -> Path:
@@ -103,7 +103,7 @@ def with_appearance(mesh: meshes.TriangleMesh, kind: str) -> meshes.TriangleMesh
 def error_ratios(names: list[str], target_tris: int) -> dict:
     out = {}
     for name in names:
-        mesh = meshes.load_mesh(MODELS / name)
+        mesh = models.load(name)
         plain = bake(mesh, BakeSettings(target_tris=target_tris))
         inner = np.flatnonzero(~plain.is_leaf)
         out[name] = {"input_tris": mesh.tri_count, "inner_nodes": int(inner.size), "root_error": float(plain.error[0])}
@@ -121,9 +121,10 @@ def error_ratios(names: list[str], target_tris: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3, help="timed bakes of each code (time mode)")
-    parser.add_argument("--input", type=Path, default=GALLERY, help="scene to bake (time mode)")
+    parser.add_argument("--input", type=Path, help="scene to bake (time mode; default tests/scenes/gallery_1m.json)")
     parser.add_argument("--errors", action="store_true", help="measure node errors instead of time")
-    parser.add_argument("--models", nargs="+", default=["stanford-bunny.obj", "igea.ply"], help="for --errors")
+    parser.add_argument("--models", nargs="+", default=["bunny", "statue"], choices=list(models.ROLES),
+                        help="test models (tests/models.py) for --errors")
     parser.add_argument("--target-tris", type=int, default=BakeSettings.target_tris, help="for --errors")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench")
     args = parser.parse_args()
@@ -131,7 +132,7 @@ def main() -> None:
         results = {"errors": error_ratios(args.models, args.target_tris), "target_tris": args.target_tris}
         name = "appearance_errors.json"
     else:
-        results = time_overhead(args.input.resolve(), args.repeat)
+        results = time_overhead((args.input or models.scene("gallery_1m")).resolve(), args.repeat)
         name = "appearance_overhead.json"
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / name).write_text(json.dumps(results, indent=2))

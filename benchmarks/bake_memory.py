@@ -8,8 +8,8 @@
 folder of this benchmark's temporary folder, `--chunk-tris` triangles at a time). With both, the
 two files of each size are compared without their volatile meta (meta.stable_meta): "same_file".
 
-For each size (millions of triangles) an instanced scene spec is written from the shared models
-(tests/scenes/generate_specs.py's crowd: its 144 statues, then copies of the whole crowd side by
+For each size (millions of triangles) an instanced scene spec is written from the test models
+(tests/models.py; tests/scenes/generate_specs.py's crowd: its 144 statues, then copies of the whole crowd side by
 side, until the triangle count is reached; each instance its own geometry), and baked by the command line in a
 fresh process (`python -m hlod_core bake SPEC -o OUT --jobs J --no-cache`), read from the file as a
 user would. Peak resident memory is read from the kernel: the bake process's VmHWM (its high-water

@@ -3,6 +3,8 @@ data movement, on one input.
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.bake_profile INPUT [INPUT ...] [--target-tris 2000]
 
+An INPUT is a mesh file, a scene spec, or the name of a test model (tests/models.py: statue, bunny, ...).
+
 Per input, two bakes in this process, reading excluded:
   jobs 1 under cProfile: every task runs here, so the profile splits the whole bake into the
     phases (meta.PhaseClock) and, inside the simplify phase, decimation (pymeshlab's quadric
@@ -25,6 +27,7 @@ import json
 import multiprocessing
 import pickle
 import pstats
+import sys
 import time
 from pathlib import Path
 
@@ -32,6 +35,10 @@ from hlod_core.bake import workers
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+import models  # noqa: E402  (tests/models.py: the test models by role)
 
 #: (label, function name, file the function is in): cumulative seconds of each in the jobs 1 profile.
 PARTS = (
@@ -128,7 +135,7 @@ def profile(path: Path, target_tris: int) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("inputs", type=Path, nargs="+")
+    parser.add_argument("inputs", nargs="+", type=models.input_file, metavar="INPUT")
     parser.add_argument("--target-tris", type=int, default=2000)
     args = parser.parse_args()
     results = [profile(p, args.target_tris) for p in args.inputs]

@@ -3,7 +3,7 @@ and the time to open a ten-million-triangle .hlod file.
 
     bash bench.sh [--repeat R] [--out DIR]
 
-Inputs: igea.ply and tests/scenes/gallery_1m.json (read from ../shared/models). Runs alternate
+Inputs: the statue test model and tests/scenes/gallery_1m.json (tests/models.py). Runs alternate
 the order of the job counts across repeats, so the ratio compares like with like. The machine's
 own two-process ceiling (pure-Python work in 1 vs 2 processes) is measured in the same run: on a
 2-core VM the second core may give much less than 2x, and the bake cannot beat that.
@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -26,8 +27,10 @@ from hlod_core.bake.settings import BakeSettings
 from hlod_core.model.hierarchy import Hlod, cube_sides
 
 ROOT = Path(__file__).resolve().parents[1]
-INPUTS = {"igea": ROOT.parent / "shared" / "models" / "igea.ply",
-          "gallery_1m": ROOT / "tests" / "scenes" / "gallery_1m.json"}
+sys.path.insert(0, str(ROOT / "tests"))
+import models  # noqa: E402  (tests/models.py: the test models by role)
+#: The inputs, by name: their files (written first where tests/models.py generates them).
+INPUTS = {"statue": lambda: models.path("statue"), "gallery_1m": lambda: models.scene("gallery_1m")}
 
 
 def _spin(n: int) -> int:
@@ -90,7 +93,7 @@ def main() -> None:
 
     results: dict = {"ceiling_2_processes": cpu_ceiling(), "bakes": {}}
     for name, path in INPUTS.items():
-        mesh = meshes.load_inputs([path])
+        mesh = meshes.load_inputs([path()])
         runs: dict[int, list[float]] = {1: [], 2: []}
         for rep in range(args.repeat):
             for jobs in ((1, 2) if rep % 2 == 0 else (2, 1)):

@@ -22,7 +22,8 @@ In one run, on this machine:
    dask_cluster.DaskExecutor, empty and carrying a typical decimation's arrays; wall time per task
    and the CPU time per task of the client (this process) and of the scheduler.
 4. The prediction for N = 100M triangles on M machines x 16 cores (P = 16 M worker threads), from
-   those measured costs (the model is written out in `predict` and in the README):
+   those measured costs (the model is written out in `predict` and in
+   docs/performance.md#baking-on-a-dask-cluster):
        W_d = decimation seconds x N / N_here                (inner nodes grow with N)
        W_m = measure seconds per original triangle per level x N x L(N),
              L(N) = L_here + log8(N / N_here)                (each octree level measures every original once)
@@ -66,13 +67,16 @@ from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+import models  # noqa: E402  (tests/models.py: the test models by role)
 #: The prediction's scene size, machines and cores per machine.
 PREDICT_TRIS = 100_000_000
 PREDICT_MACHINES = (1, 4, 16)
 CORES_PER_MACHINE = 16
 #: Network / shared-storage bandwidth the prediction compares the data movement with (bytes/s).
 ASSUMED_BANDWIDTH = 1e9
-#: Dask's setting of the workers' profiler, off for the cluster bakes here (README: the workers' environment).
+#: Dask's setting of the workers' profiler, off for the cluster bakes here
+#: (docs/command-line.md#baking-on-a-dask-cluster).
 WORKER_PROFILE = "distributed.worker.profile.enabled"
 #: The bake's phases that run in its own process, whatever executes the tasks (assemble includes
 #: the bounds); the simplify phase adds the leaf arrays (leaf_arrays.build), timed apart.
@@ -231,7 +235,7 @@ def _noop(payload=None) -> int:
 
 @contextlib.contextmanager
 def command_line_cluster(workers: int = 2):
-    """A scheduler and `workers` worker processes of one thread, started as the README says to start
+    """A scheduler and `workers` worker processes of one thread, started as docs/command-line.md says to start
     them on machines (`dask scheduler`, `dask worker ADDRESS --nworkers N --nthreads 1`), here on
     localhost: yields (scheduler address, the scheduler's process id)."""
     dask = Path(sys.executable).with_name("dask")
@@ -331,7 +335,7 @@ def predict(costs: dict, overhead: dict, *, tris: int = PREDICT_TRIS) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--spec", type=Path, default=ROOT / "tests" / "scenes" / "gallery_1m.json")
+    parser.add_argument("--spec", type=models.input_file, default=str(ROOT / "tests" / "scenes" / "gallery_1m.json"))
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--error", choices=["exact", "bound"], default="exact")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench")
@@ -341,7 +345,8 @@ def main() -> None:
     import distributed
 
     # The workers' statistical profiler samples every task's stack every 10 ms: about 4% of a
-    # bake's CPU here (igea, 7.6 against 7.4 s), for a profile the bake does not read (README).
+    # bake's CPU here (igea, 7.6 against 7.4 s), for a profile the bake does not read
+    # (docs/command-line.md#baking-on-a-dask-cluster).
     dask.config.set({WORKER_PROFILE: False})
     settings = BakeSettings(error=args.error)
     result: dict = {"spec": str(args.spec), "error": args.error, "load_before": os.getloadavg()}

@@ -1,16 +1,9 @@
-"""Where Coh draws more nodes than SW (the DN targets: README): both traversals run on every frame of
-a path, one after the other on the same view and renderer, and each node Coh draws that SW does
-not is put in the first class that fits:
-
-    finer          SW drew one of its ancestors (Coh's front is deeper there);
-    hidden         SW queried the node this frame and found it hidden (Coh drew it on last
-                   frame's visibility: CHC's one frame of lag, longer for a skipped query);
-    under hidden   SW found one of its ancestors hidden (so never reached it);
-    coarser        SW refined the node (its front is deeper there);
-    other          none of these.
-
-`missing` counts the nodes SW draws and Coh does not. Coh's extra nodes also count as `skipped`
-(drawn without their query this frame) and `predicted` (newly visited, drawn before their query).
+"""Where Coh draws more nodes than SW (the DN targets: docs/evaluation.md#targets): both traversals
+run on every frame of a path, one after the other on the same view and renderer, and each node Coh
+draws that SW does not is put in the first class that fits (tests/dn_classes.py: finer, hidden,
+under hidden, coarser, other; `missing` counts the nodes SW draws and Coh does not). Coh's extra
+nodes also count as `skipped` (drawn without their query this frame) and `predicted` (newly
+visited, drawn before their query).
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.dn_excess FILE.hlod --path PATH.json [--size 640x480]
         [--variants default skip_off predict_off both_off] [--out DIR]
@@ -23,10 +16,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from collections import Counter
 from pathlib import Path
-
-import numpy as np
 
 from hlod_core.io import hlod_file
 from hlod_core.model.camera_path import load_path
@@ -35,40 +27,12 @@ from hlod_core.io.textures import load_images
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from dn_classes import CLASSES, classify  # noqa: E402  (the classes, a test helper)
+
 #: Variants of Coh's settings by name (the rest are the defaults).
 VARIANTS = {"default": {}, "skip_off": {"skip_queries": "off"}, "predict_off": {"predict_new": "off"},
             "both_off": {"skip_queries": "off", "predict_new": "off"}}
-CLASSES = ("finer", "hidden", "under hidden", "coarser", "other")
-
-
-def _ancestors(parent: np.ndarray, node: int) -> list[int]:
-    out, node = [], int(parent[node])
-    while node >= 0:
-        out.append(node)
-        node = int(parent[node])
-    return out
-
-
-def classify(parent: np.ndarray, *, coh_drawn, sw_drawn, sw_visited: np.ndarray, sw_visible: np.ndarray) -> Counter:
-    """The classes (module docstring) of the nodes in coh_drawn but not sw_drawn; `missing` too.
-    sw_visited, sw_visible: (n,) bool, SW's visits this frame and their visibility."""
-    sw_set, coh_set = set(sw_drawn), set(coh_drawn)
-    refined_by_sw = {int(parent[node]) for node in sw_set if parent[node] >= 0}
-    out = Counter()
-    for node in coh_set - sw_set:
-        ancestors = _ancestors(parent, node)
-        if any(a in sw_set for a in ancestors):
-            out["finer"] += 1
-        elif sw_visited[node] and not sw_visible[node]:
-            out["hidden"] += 1
-        elif any(sw_visited[a] and not sw_visible[a] for a in ancestors):
-            out["under hidden"] += 1
-        elif node in refined_by_sw or (sw_visited[node] and sw_visible[node]):
-            out["coarser"] += 1
-        else:
-            out["other"] += 1
-    out["missing"] = len(sw_set - coh_set)
-    return out
 
 
 def run(hlod, path, size, *, variant: dict) -> dict:

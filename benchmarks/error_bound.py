@@ -1,9 +1,9 @@
 """The error bound against the exact error (`--error bound` beside `--error exact`).
 
-    PYTHONPATH=. .venv/bin/python -m benchmarks.error_bound [--models cow.obj ...] [--scenes gallery_1m]
+    PYTHONPATH=. .venv/bin/python -m benchmarks.error_bound [--models cow ...] [--scenes gallery_1m]
         [--jobs 1] [--scene-jobs 2] [--target-tris 2000] [--out DIR]
 
-For each input (the shared models in ../shared/models, then the scenes named), one run bakes it
+For each input (the test models of tests/models.py, then the scenes named), one run bakes it
 with the exact error and with the bound, interleaved (exact then bound, the same process, the same
 load), and reports:
     seconds, triangles/s   bake() alone (reading the input excluded), each measure;
@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -34,9 +35,11 @@ from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 
 ROOT = Path(__file__).resolve().parents[1]
-MODELS = ROOT.parent / "shared" / "models"
-SCENES = {"gallery_1m": (ROOT / "tests" / "scenes" / "gallery_1m.json", ROOT / "tests" / "scenes" / "gallery_row_path.json"),
-          "crowd_1m": (ROOT / "tests" / "scenes" / "crowd_1m.json", ROOT / "tests" / "scenes" / "crowd_inspection_path.json")}
+sys.path.insert(0, str(ROOT / "tests"))
+import models  # noqa: E402  (tests/models.py: the test models by role)
+#: The scenes and their camera paths.
+SCENES = {"gallery_1m": ROOT / "tests" / "scenes" / "gallery_row_path.json",
+          "crowd_1m": ROOT / "tests" / "scenes" / "crowd_inspection_path.json"}
 #: The evaluation's viewport (cli.py --size default) and SSE threshold (RuntimeSettings.tau default), pixels.
 VIEWPORT_PX = (640, 480)
 TAU_PX = 1.0
@@ -93,7 +96,7 @@ def compare(name: str, mesh, *, jobs: int, target_tris: int, path=None) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--models", nargs="*", default=sorted(p.name for p in MODELS.iterdir() if p.suffix != ".md"))
+    parser.add_argument("--models", nargs="*", default=list(models.ROLES), choices=list(models.ROLES))
     parser.add_argument("--scenes", nargs="*", default=[], choices=sorted(SCENES))
     parser.add_argument("--jobs", type=int, default=1, help="worker processes for the models")
     parser.add_argument("--scene-jobs", type=int, default=2, help="worker processes for the scenes")
@@ -102,8 +105,8 @@ def main() -> None:
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     report = {"load_before": os.getloadavg(), "inputs": []}
-    inputs = [(m, MODELS / m, args.jobs, None) for m in args.models]
-    inputs += [(s, SCENES[s][0], args.scene_jobs, camera_path.load_path(SCENES[s][1])) for s in args.scenes]
+    inputs = [(m, models.path(m), args.jobs, None) for m in args.models]
+    inputs += [(s, models.scene(s), args.scene_jobs, camera_path.load_path(SCENES[s])) for s in args.scenes]
     for name, source, jobs, path in inputs:
         mesh = meshes.load_inputs([source])
         row = compare(name, mesh, jobs=jobs, target_tris=args.target_tris, path=path)

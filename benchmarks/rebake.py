@@ -15,7 +15,7 @@ against its children's LODs, not every original below it); the figures go to reb
 (exact) or rebake-bound.json.
 --verify also bakes the modified spec from scratch (no cache) and checks that the re-bake gave the
 same arrays and the same meta but meta.VOLATILE_META (byte-identity).
---work also measures what the moved re-bake cannot do without (`rebuilt_work`): the cache is put
+--work also measures what the moved re-bake cannot do without (tests/rebake_work.py): the cache is put
 back to the spec's state (a bake of the spec), then the moved spec is re-baked with jobs 1, where
 every task runs in this process, each decimation and measurement timed (wall seconds of each call,
 perf_counter, on an otherwise idle process: what the task costs a worker), and the phases before
@@ -32,19 +32,20 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import tempfile
-import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from hlod_core.io import meshes
 from hlod_core.bake.meta import stable_meta
-from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+import models  # noqa: E402  (tests/models.py: the test models by role)
+from rebake_work import rebuilt_work, timed_bake  # noqa: E402  (the timed re-bake, a test helper)
 
 
 def moved_spec(spec_path: Path, instance: int, offset: np.ndarray, *, folder: Path) -> Path:
@@ -72,49 +73,9 @@ def identical(a, b) -> bool:
     return arrays and geometry and stable_meta(a.meta) == stable_meta(b.meta)
 
 
-def rebuilt_work(mesh, settings: BakeSettings, cache_dir) -> dict:
-    """The re-bake of `mesh` with `cache_dir` at jobs 1, its decimations and measurements timed
-    (module docstring, --work): {"seconds", "rebuilt_nodes", "decimations", "decimate_s",
-    "measurements", "measure_s", "before_tasks_s"}. The bake's own functions are wrapped in
-    place for the call (jobs 1 runs every task in this process) and restored after."""
-    from hlod_core.bake import hausdorff, simplify, tasks
-
-    spent = {"decimate": [], "measure": []}
-    decimate, measure = simplify.decimate_node, tasks.measure_exact  # the scheduler's task functions
-    to_children = hausdorff.measure_to_children  # the measure's task with --error bound
-
-    def timed(kind, fn):
-        def run(*args, **kwargs):
-            started = time.perf_counter()
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                spent[kind].append(time.perf_counter() - started)
-        return run
-
-    simplify.decimate_node, tasks.measure_exact = timed("decimate", decimate), timed("measure", measure)
-    hausdorff.measure_to_children = timed("measure", to_children)
-    try:
-        seconds, hlod = timed_bake(mesh, replace(settings, jobs=1), cache_dir)
-    finally:
-        simplify.decimate_node, tasks.measure_exact = decimate, measure
-        hausdorff.measure_to_children = to_children
-    phases = hlod.meta["phase_seconds"]
-    return {"seconds": seconds, "rebuilt_nodes": hlod.meta["cache"]["rebuilt_nodes"],
-            "decimations": len(spent["decimate"]), "decimate_s": sum(spent["decimate"]),
-            "measurements": len(spent["measure"]), "measure_s": sum(spent["measure"]),
-            "before_tasks_s": sum(phases.get(name, 0.0) for name in ("prepare", "octree", "leaves", "cache"))}
-
-
-def timed_bake(mesh, settings, cache_dir) -> tuple[float, object]:
-    started = time.perf_counter()
-    hlod = bake(mesh, settings, cache_dir=cache_dir)
-    return time.perf_counter() - started, hlod
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--spec", type=Path, default=ROOT / "tests" / "scenes" / "crowd_1m.json")
+    parser.add_argument("--spec", type=models.input_file, default=str(ROOT / "tests" / "scenes" / "crowd_1m.json"))
     parser.add_argument("--move", type=int, default=41, help="instance to move (file order)")
     parser.add_argument("--by", type=float, nargs=3, default=[1.5, 0.0, 0.0], help="translation, model units")
     parser.add_argument("--jobs", type=int, default=2)

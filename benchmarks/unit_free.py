@@ -1,15 +1,16 @@
-"""Is the bake unit-free? Root error / scale and node count of shared models baked at x1e-3, x1 and
+"""Is the bake unit-free? Root error / scale and node count of the test models baked at x1e-3, x1 and
 x1e3, and, for comparison, the spread of the root error at one scale when every float32 coordinate
 moves by at most one step (seeded): what rounding alone does to greedy decimation.
 
     python -m benchmarks.unit_free [--jitter-seeds 6]
 
-Prints one JSON line per model, then the jitter lines (README "Unit-free bakes").
+Prints one JSON line per model, then the jitter lines (docs/performance.md#unit-free-bakes).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 import numpy as np
 
@@ -19,11 +20,14 @@ from hlod_core.bake.settings import BakeSettings
 
 from .bake_throughput import ROOT
 
-MODELS = (("spot.obj", 200), ("cow.obj", 200), ("fandisk.obj", 500), ("rocker-arm.obj", 500),
-          ("teapot.obj", 200), ("homer.obj", 500), ("stanford-bunny.obj", 2000), ("nefertiti.obj", 200),
-          ("igea.ply", 200))
+sys.path.insert(0, str(ROOT / "tests"))
+import models  # noqa: E402  (tests/models.py: the test models by role)
+
+#: (role, target triangles) of the test models (tests/models.py).
+MODELS = (("spot", 200), ("cow", 200), ("creased", 500), ("ring", 500), ("teapot", 200), ("airplane", 500),
+          ("bunny", 2000), ("bust", 200), ("statue", 200))
 SCALES = (1e-3, 1.0, 1e3)
-JITTERED = ("spot.obj", "fandisk.obj")
+JITTERED = ("spot", "creased")
 
 
 def _scaled(mesh: meshes.TriangleMesh, scale: float) -> meshes.TriangleMesh:
@@ -45,9 +49,9 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.unit_free", description=__doc__.splitlines()[0])
     parser.add_argument("--jitter-seeds", type=int, default=6)
     args = parser.parse_args(argv)
-    models = {name: target for name, target in MODELS}
+    targets = dict(MODELS)
     for name, target in MODELS:
-        mesh = meshes.load_mesh(ROOT.parent / "shared" / "models" / name)
+        mesh = models.load(name)
         row = {"model": name, "target_tris": target}
         for scale in SCALES:
             hlod = bake(_scaled(mesh, scale), BakeSettings(target_tris=target))
@@ -56,8 +60,8 @@ def main(argv: list[str] | None = None) -> None:
         row["spread"] = max(errors) / min(errors) - 1.0
         print(json.dumps(row), flush=True)
     for name in JITTERED:
-        mesh = meshes.load_mesh(ROOT.parent / "shared" / "models" / name)
-        errors = [float(bake(_jittered(mesh, seed), BakeSettings(target_tris=models[name])).error[0])
+        mesh = models.load(name)
+        errors = [float(bake(_jittered(mesh, seed), BakeSettings(target_tris=targets[name])).error[0])
                   for seed in range(args.jitter_seeds)]
         print(json.dumps({"model": name, "jitter_one_step_root_errors": errors}), flush=True)
 

@@ -1,6 +1,7 @@
 """hlod_core: bake, store, inspect and traverse octree HLODs. Never imports bpy (docs/development.md#layout).
 
-Rooms (subpackages), each importing only the ones listed before it:
+Rooms (subpackages), each importing only the ones listed before it (tests/test_structure.py holds
+the layering; tests/test_indexes.py holds this list and each room's own index to the tree):
     core/       typed errors, array helpers, the one atomic write, JSON reading, PNG writing, colour
                 conversions and the overlay ramp, stop signals
     model/      the node table (hierarchy.Hlod), appearance (materials), view.View, camera paths
@@ -10,7 +11,7 @@ Rooms (subpackages), each importing only the ones listed before it:
     bake/       the bake pipeline (octree, simplification, Hausdorff error, cache, workers, Dask)
     report/     evaluation over camera paths, tuning, the report as JSON, Markdown, HTML, figures
     export/     3D Tiles 1.1 (tiles3d, glb), the localhost viewer, export in a chosen format
-    cli.py      the command line (`python -m hlod_core`)
+    cli/        the command line (`python -m hlod_core`, `hlod-core`)
 
 Public API:
     io.meshes.load_inputs / io.meshes.from_arrays -> TriangleMesh

@@ -98,6 +98,30 @@ ensure_blender_venvs() {
     done
 }
 
+blender_checks_may_run() {
+    # The test arguments "$@" may select Blender checks (marker `blender`) unless the marker
+    # expression leaves them out: the last -m EXPR (or -mEXPR, -m=EXPR; pytest takes the last one)
+    # whose terms joined by `and` include `not blender`, with no `or` (test.sh's header). Returns 1
+    # when they cannot run.
+    local args=("$@") i k expr="" words
+    for ((i = 0; i < ${#args[@]}; i++)); do
+        case "${args[i]}" in
+            -m) expr="${args[i + 1]:-}" ;;
+            -m*) expr="${args[i]#-m}"; expr="${expr#=}" ;;
+        esac
+    done
+    read -r -a words <<< "$expr"
+    [[ " ${words[*]} " == *" or "* ]] && return 0
+    for ((k = 0; k + 1 < ${#words[@]}; k++)); do
+        if [ "${words[k]}" = not ] && [ "${words[k + 1]}" = blender ] &&
+           { [ "$k" = 0 ] || [ "${words[k - 1]}" = and ]; } &&
+           { [ $((k + 2)) = ${#words[@]} ] || [ "${words[k + 2]}" = and ]; }; then
+            return 1
+        fi
+    done
+    return 0
+}
+
 ensure_npm() {
     # $1: what needs it (for the messages)
     command -v npm >/dev/null 2>&1 && return 0
@@ -166,8 +190,25 @@ ensure_x_server() {
     fi
 }
 
+ensure_test_tools() {
+    # What the tests need besides .venv (test.sh): the validators, CesiumJS, chromium and a virtual X server
+    # (system packages with apt in this one job, never beside another apt run).
+    ensure_validators
+    ensure_viewer  # CesiumJS (npm) and chromium: the viewer page and its browser test
+    ensure_x_server  # Xvfb and Mesa's GLX: the GLX branch of the GL context is tested on it
+}
+
 ensure_gl_packages
-ensure_venv
+if [ "${HLOD_SETUP_TEST_TOOLS:-}" = 1 ]; then
+    # test.sh: the npm packages install while pip fills .venv (neither needs the other); a failure
+    # of either stops the setup
+    ensure_test_tools &
+    test_tools=$!
+    ensure_venv
+    wait "$test_tools"
+else
+    ensure_venv
+fi
 PY="$VENV/bin/python"
 export PYTHONPATH="$ROOT${PYTHONPATH:+:$PYTHONPATH}"
 cd "$ROOT"

@@ -174,8 +174,13 @@ def blender_ready(wheel: Path, flat_dir: Path = FLAT_WHEELS) -> Path:
 
 
 def check_zip(zip_path: Path, wheels: list[str]) -> None:
-    """The zip holds exactly `wheels` (its platform's, of its Blender line's Python)."""
-    held = sorted(n for n in zipfile.ZipFile(zip_path).namelist() if n.startswith("wheels/") and n.endswith(".whl"))
+    """The zip holds every file and folder of PACKAGE (the licence among them) and exactly `wheels`
+    (its platform's, of its Blender line's Python)."""
+    names = zipfile.ZipFile(zip_path).namelist()
+    left_out = [p for p in PACKAGE if p not in names and not any(n.startswith(f"{p}/") for n in names)]
+    if left_out:
+        sys.exit(f"build_extension: {zip_path}: lacks {', '.join(left_out)} (listed to ship in PACKAGE)")
+    held = sorted(n for n in names if n.startswith("wheels/") and n.endswith(".whl"))
     want = sorted(f"wheels/{Path(w).name}" for w in wheels)
     if held != want:
         sys.exit(f"build_extension: {zip_path}: holds wheels {held}, the manifest lists {want}")
@@ -256,15 +261,18 @@ def stage(manifest_text: str, platform: str, wheels: list[str], *, where: Path, 
           line: BlenderLine | None = None) -> Path:
     """A fresh staging folder `where` of the package files, the wheels (as blender_ready gives them)
     and the manifest narrowed to that platform, those wheels and `line`'s Blender versions, with
-    CesiumJS when `cesium` is given; returns it."""
+    CesiumJS when `cesium` is given; returns it. Exits naming any file of PACKAGE that is missing."""
     if where.exists():
         shutil.rmtree(where)
     where.mkdir(parents=True)
+    missing = [name for name in PACKAGE if not (ROOT / name).exists()]
+    if missing:
+        sys.exit(f"build_extension: {', '.join(missing)}: listed to ship (PACKAGE) but missing in {ROOT}")
     for name in PACKAGE:
         src = ROOT / name
         if src.is_dir():
             shutil.copytree(src, where / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
-        elif src.is_file():
+        else:
             shutil.copy2(src, where / name)
     (where / "wheels").mkdir()
     for w in wheels:

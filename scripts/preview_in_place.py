@@ -26,7 +26,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT / "tests"))
 import blender_preview  # noqa: E402
+import models  # noqa: E402  (tests/models.py: the test models, which the scene specs read)
 
 EYE, TARGET, LENS_MM = (-25.0, -25.0, 18.0), (44.0, 44.0, 0.0), 35.0  # a three-quarter view over the crowd
 YAW_STEP_DEG = 0.5  # the camera's turn about the target per frame (navigation)
@@ -231,7 +233,7 @@ def picture(preview, scene, *, size, path: Path) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--spec", type=Path, default=ROOT / "tests/scenes/crowd_1m.json")
+    parser.add_argument("--spec", type=models.input_file, default=str(ROOT / "tests/scenes/crowd_1m.json"))
     parser.add_argument("--size", default="960x540")
     parser.add_argument("--blocks", type=int, default=3)
     parser.add_argument("--frames", type=int, default=8)

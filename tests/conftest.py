@@ -1,15 +1,16 @@
 """pytest configuration: the fixtures every test module shares, and the `gl` marker enforced.
 
-tests/ is on sys.path, so test modules import the helper modules (helpers, sample_meshes, processes,
-figure_checks, blender_runs) by name; a test module never imports another test module.
+tests/ is on sys.path, so test modules import the helper modules (helpers, models, sample_meshes,
+processes, figure_checks, blender_runs, traversal_runs, ...) by name; a test module never imports another test module.
 
 Fixtures
     gl_ctx          the test run's one OpenGL context (standalone EGL; Mesa llvmpipe without a GPU),
                     current during each test that uses it; a GL error still pending after such a test
                     fails it. Only tests marked `gl` may use it.
-    bakes           helpers.SharedBakes: shared models baked once per test run (bakes.baked(name, ...))
+    bakes           helpers.SharedBakes: test models (models.py) baked once per test run (bakes.baked(role, ...))
     city_hlod       the default procedural city, baked once per test run
-    cow_file        cow.obj baked by the command line (target 400 triangles) into a folder of the test run
+    city_renderer   a renderer of it (traversal_runs.SIZE), for one test (gl)
+    cow_file        the cow baked by the command line (target 400 triangles) into a folder of the test run
     extension_zips  the extension's linux-x64 zips, one per Blender line, built once per test run
     repo            that zip installed for the main .venv's bpy, once per test module
     versioned_repo  that zip installed in each Blender of blender_runs.BLENDERS, once per test run
@@ -143,10 +144,21 @@ def city_hlod(bakes):
     return bakes.city()
 
 
+@pytest.fixture
+def city_renderer(gl_ctx, city_hlod):
+    """A GL renderer of the default city at traversal_runs.SIZE, released after the test."""
+    from hlod_core.render.renderer import Renderer
+    from traversal_runs import SIZE
+
+    renderer = Renderer(gl_ctx, city_hlod, size=SIZE)
+    yield renderer
+    renderer.release()
+
+
 @pytest.fixture(scope="session")
 def cow_file(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("cow") / "cow.hlod"
-    hlod("-q", "bake", helpers.model("cow.obj"), "-o", out, "--target-tris", "400")
+    hlod("-q", "bake", helpers.model("cow"), "-o", out, "--target-tris", "400")
     return out
 
 

@@ -1,5 +1,5 @@
-"""Test inputs shared by the test modules: where things are, the real meshes in ../shared/models and
-their bakes, the street walk through the default city, the textured scene made with bpy, the
+"""Test inputs shared by the test modules: where things are, the test models (models.py: by role)
+and their bakes, the street walk through the default city, the textured scene made with bpy, the
 comparable bytes of a .hlod file, and a scripted query-availability double.
 
 Nothing is cached at module level: what a test run shares (the bakes, the GL context) is a fixture in
@@ -21,30 +21,27 @@ from pathlib import Path
 
 import numpy as np
 
+import models
+
 ROOT = Path(__file__).resolve().parents[1]
-MODELS = ROOT.parent / "shared" / "models"
 SCENES = ROOT / "tests" / "scenes"
 CACHE = ROOT / ".cache"
-#: The target of a shared model's bake unless a test asks for another (SharedBakes.baked, bake_model).
+#: The target of a test model's bake unless a test asks for another (SharedBakes.baked, bake_model).
 DEFAULT_TARGET_TRIS = 2000
 
 
 def model(name: str) -> Path:
-    """The path of a shared test model (../shared/models/NAME); a missing one is an error."""
-    path = MODELS / name
-    assert path.is_file(), f"test model missing: {path} (tests read ../shared/models)"
-    return path
+    """The file of the test model of role `name` (models.ROLES: "cow", "bunny", "statue", ...)."""
+    return models.path(name)
 
 
 def load_model(name: str):
-    """A shared model read from its file as a TriangleMesh (a fresh mesh each call: 20-300 ms)."""
-    from hlod_core.io import meshes
-
-    return meshes.load_mesh(model(name))
+    """The test model of role `name` read as a TriangleMesh (a fresh mesh each call: 20-300 ms)."""
+    return models.load(name)
 
 
 def bake_model(name: str, *, jobs: int = 1, offset: float = 0.0, target_tris: int = DEFAULT_TARGET_TRIS):
-    """(TriangleMesh, Hlod) of a shared model, optionally translated by `offset` model units on every axis."""
+    """(TriangleMesh, Hlod) of a test model, optionally translated by `offset` model units on every axis."""
     from hlod_core.bake.pipeline import bake
     from hlod_core.bake.settings import BakeSettings
     from hlod_core.io import meshes

@@ -7,7 +7,7 @@ position, so what a LOD vertex should carry is known from its position alone:
     z (a UV seam: the vertices there are split in two, one per side), expected_uv;
   - colour = (p / 2 + 0.5, 1), inverted (1 - c) on the faces above y = 0.35 (a colour jump, split the
     same way), expected_rgb.
-The herd: nine copies of the shared cow model on a 3 x 3 grid, the middle one optionally moved.
+The herd: nine copies of the cow test model on a 3 x 3 grid, the middle one optionally moved.
 """
 from __future__ import annotations
 
@@ -92,10 +92,22 @@ def textured_sphere(*, uvs: bool = True, colors: bool = True, materials: bool = 
                               materials=SPHERE_MATERIALS if materials else ())
 
 
+#: The herd's cow: the test model (its length along z) turned to lie along x and scaled to 10 units long.
+HERD_COW = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 1.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+HERD_COW_LENGTH = 10.0
+
+
+def herd_cow() -> meshes.TriangleMesh:
+    """The cow test model turned and scaled as HERD_COW and HERD_COW_LENGTH say (a new mesh each call)."""
+    cow = load_model("cow")
+    length = float(np.ptp(cow.positions[:, 2]))
+    return meshes.transform_mesh(cow, np.diag([HERD_COW_LENGTH / length] * 3 + [1.0]) @ HERD_COW, name="cow")
+
+
 def herd(moved_by=(0.0, 0.0, 0.0)) -> tuple[meshes.TriangleMesh, np.ndarray]:
-    """Nine cows on a grid HERD_SPACING apart, the middle one moved by `moved_by` (model units);
-    and the (f,) bool mask of the moved cow's triangles."""
-    cow = load_model("cow.obj")
+    """Nine cows (herd_cow) on a grid HERD_SPACING apart, the middle one moved by `moved_by` (model
+    units); and the (f,) bool mask of the moved cow's triangles."""
+    cow = herd_cow()
     parts = []
     for k in range(9):
         offset = np.array([HERD_SPACING * (k % 3), HERD_SPACING * (k // 3), 0.0])

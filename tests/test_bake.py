@@ -1,4 +1,5 @@
-"""Bakes with real pymeshlab on the shared models, and the degenerate inputs of docs/how-it-works.md#numerical-stability."""
+"""Bakes with real pymeshlab on the test models (tests/models.py), and the degenerate inputs of
+docs/how-it-works.md#numerical-stability."""
 import os
 import signal
 import threading
@@ -33,9 +34,9 @@ def _input_triangles(mesh, origin) -> np.ndarray:
     return world[np.lexsort(world.T[::-1])]
 
 
-@pytest.mark.parametrize("name, jobs", [("stanford-bunny.obj", 1), pytest.param("igea.ply", 2, marks=pytest.mark.slow),
-                                        ("nefertiti.obj", 1)])
-def test_shared_models_bake_with_every_invariant(bakes, name, jobs):
+@pytest.mark.parametrize("name, jobs", [("bunny", 1), pytest.param("statue", 2, marks=pytest.mark.slow),
+                                        ("bust", 1)])
+def test_test_models_bake_with_every_invariant(bakes, name, jobs):
     mesh, hlod = bakes.baked(name, jobs=jobs)
     assert checks.check(hlod)["checks"] == ALL_TRUE
     assert hlod.meta["input_tris"] == mesh.tri_count
@@ -52,16 +53,23 @@ def test_shared_models_bake_with_every_invariant(bakes, name, jobs):
     assert hlod.normals is None  # files carry no normals into the bake: none invented
 
 
-def test_igea_triangle_strips_are_read_as_triangles():
-    mesh = load_model("igea.ply")
-    assert mesh.tri_count == 268686  # SOURCES.md: binary PLY stored as triangle strips
+def test_triangle_strips_are_read_as_triangles():
+    """The statue is a binary PLY of triangle strips (tests/models.py): 300 strips of its six
+    150 x 150 grids, 270,000 triangles, wound alike (a closed surface of positive volume)."""
+    mesh = load_model("statue")
+    assert mesh.tri_count == 270_000
+    p = mesh.positions[mesh.faces]
+    volume = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6.0
+    edges = np.sort(mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    assert np.all(np.unique(edges, axis=0, return_counts=True)[1] == 2)  # closed: every edge twice
+    assert volume > 0.25 * np.prod(mesh.positions.max(axis=0) - mesh.positions.min(axis=0))  # 0.48 of its box
 
 
 @pytest.mark.slow
 def test_model_far_from_origin_keeps_its_precision(bakes):
-    """nefertiti (coordinates in the hundreds) and a copy 1e6 away bake to the same hierarchy."""
-    mesh, near = bakes.baked("nefertiti.obj")
-    _, far = bakes.baked("nefertiti.obj", offset=1e6)
+    """The bust (coordinates in the hundreds) and a copy 1e6 away bake to the same hierarchy."""
+    mesh, near = bakes.baked("bust")
+    _, far = bakes.baked("bust", offset=1e6)
     assert checks.check(far)["checks"] == ALL_TRUE
     assert np.array_equal(near.tri_count, far.tri_count) and np.array_equal(near.child_count, far.child_count)
     np.testing.assert_allclose(far.box_min - 1e6, near.box_min, atol=1e-6)
@@ -76,8 +84,8 @@ def test_model_far_from_origin_keeps_its_precision(bakes):
 
 
 def test_parallel_and_serial_bakes_are_identical(bakes):
-    _, serial = bakes.baked("stanford-bunny.obj", jobs=1)
-    _, parallel = bakes.baked("stanford-bunny.obj", jobs=2)
+    _, serial = bakes.baked("bunny", jobs=1)
+    _, parallel = bakes.baked("bunny", jobs=2)
     for name, arr in serial.node_arrays().items():
         assert np.array_equal(arr, getattr(parallel, name)), name
     assert np.array_equal(serial.positions, parallel.positions)
@@ -85,7 +93,7 @@ def test_parallel_and_serial_bakes_are_identical(bakes):
 
 
 def test_normals_are_carried_only_when_given():
-    mesh = load_model("cow.obj")
+    mesh = load_model("cow")
     n = np.zeros_like(mesh.positions)
     n[:, 2] = 1.0
     with_normals = bake(meshes.from_arrays(mesh.positions, mesh.faces, n, name="cow"), BakeSettings(target_tris=500))
@@ -159,7 +167,7 @@ def test_zero_area_duplicate_and_non_manifold_faces_bake_to_finite_results():
     """bunny plus a zero-area copy of every fifth face, every vertex duplicated (half the faces use
     the copies), and a fin of three triangles sharing one edge: finite, every invariant holds, and
     the duplicates weld back into one surface that decimates to the budget."""
-    mesh = load_model("stanford-bunny.obj")
+    mesh = load_model("bunny")
     v = mesh.positions.shape[0]
     f = mesh.faces.copy()
     f[1::2] += v  # half the faces use the duplicated vertices
@@ -190,7 +198,7 @@ def test_cancelled_bake_raises_and_leaves_no_scratch_files(jobs, tmp_path, monke
     monkeypatch.setenv("TMPDIR", str(tmp_path))
     import tempfile
     monkeypatch.setattr(tempfile, "tempdir", None)  # re-read TMPDIR
-    mesh = load_model("stanford-bunny.obj")
+    mesh = load_model("bunny")
     calls = []
 
     def progress(done, total, phase):
@@ -239,12 +247,12 @@ def test_a_sigterm_during_a_bake_surfaces_at_its_next_check():
             phases.append("callback returned")
 
     with signals_as_exceptions(), pytest.raises(Terminated):
-        bake(load_model("cow.obj"), BakeSettings(target_tris=300), progress=progress)
+        bake(load_model("cow"), BakeSettings(target_tris=300), progress=progress)
     assert phases == ["octree", "callback returned"]
 
 
 def test_progress_reaches_every_node():
-    mesh = load_model("cow.obj")
+    mesh = load_model("cow")
     seen = []
     hlod = bake(mesh, BakeSettings(target_tris=300), progress=lambda d, t, p: seen.append((d, t, p)))
     assert seen[-1] == (hlod.node_count, hlod.node_count, "done")
@@ -261,7 +269,7 @@ def test_power_of_two_units_bake_to_bit_identical_hierarchies():
     """spot scaled by 2^-10 and 2^10 is the same float32 model up to an exact scale, so the bake must
     be the same up to that scale, bit for bit. Before decimation ran in each node's unit frame the
     root error / scale was 0.068 at x1, 0.354 at x2^-10, 0.081 at x2^10 (pymeshlab's absolute thresholds)."""
-    spot = load_model("spot.obj")
+    spot = load_model("spot")
     one = bake(spot, BakeSettings(target_tris=200))
     for k in (-10, 10):
         scaled = bake(_scaled(spot, 2.0 ** k), BakeSettings(target_tris=200))
@@ -275,7 +283,7 @@ def test_millimetres_metres_and_kilometres_bake_alike():
     """cow at x1e-3, x1, x1e3 (not powers of two: float32 rounds each differently): the same
     hierarchy, root error / scale within 10%, and nearly every node's error the same. Before: the
     root error / scale was 2.20 at x1e-3 against 0.86 at x1, and no node's error agreed."""
-    cow = load_model("cow.obj")
+    cow = load_model("cow")
     one = bake(cow, BakeSettings(target_tris=200))
     inner = ~one.is_leaf
     for factor in (1e-3, 1e3):
@@ -292,7 +300,7 @@ def test_decimated_node_returns_its_fixed_vertices_bit_identical():
     near 0 in a node centred away from 0: the unit frame's inverse transform rounds them to other
     float32 values). Every border vertex, fixed by boundary preservation, still comes back
     bit-identical, so the exact weld one level up works."""
-    cow = load_model("cow.obj")
+    cow = load_model("cow")
     p = (cow.positions * 1e-3).astype(np.float32)
     half = cow.faces[np.all(p[cow.faces, 0] < 0, axis=1)]
     edges = np.sort(half[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
@@ -313,7 +321,7 @@ def test_decimated_node_returns_its_fixed_vertices_bit_identical():
 def test_hausdorff_error_is_unit_free():
     """measure() in a power-of-two scaled frame gives the error scaled exactly, and in
     millimetres the same error up to rounding."""
-    spot = load_model("spot.obj")
+    spot = load_model("spot")
     p, f = spot.positions.astype(np.float32), spot.faces.astype(np.int32)
     lod = simplify.decimate_node([(p, f)], meshlab.DecimationSettings(target_tris=300), with_normals=False)
     error = hausdorff.measure((lod.positions, lod.faces), (p, f))

@@ -22,6 +22,7 @@ from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.io import hlod_file, meshes
 from hlod_core.model.appearance import AttributeLayout
 
+import rebake_work
 from helpers import file_bytes, load_model, model
 from processes import hlod, last_json, one_line_error
 from sample_meshes import SPHERE_TARGET_TRIS, herd, textured_sphere
@@ -80,7 +81,7 @@ def _remove_results(folder) -> None:
 
 @pytest.mark.parametrize("which, jobs", [("cow", 1), ("textured sphere", 1), ("textured sphere", 2)])
 def test_warm_and_cold_bakes_write_the_file_a_bake_from_scratch_writes(which, jobs, tmp_path, monkeypatch):
-    mesh, settings = (load_model("cow.obj"), COW) if which == "cow" else \
+    mesh, settings = (load_model("cow"), COW) if which == "cow" else \
         (textured_sphere(), BakeSettings(target_tris=SPHERE_TARGET_TRIS))
     settings = BakeSettings(**{**settings.__dict__, "jobs": jobs})
     scratch = bake(mesh, settings)
@@ -196,7 +197,7 @@ def test_moving_one_object_rebuilds_only_the_cells_it_overlaps_and_their_ancesto
 @pytest.mark.parametrize("change", ["quality_threshold", "preserve_normals", "boundary_weight", "target_tris",
                                     "format version", "cache version"])
 def test_changed_settings_or_versions_miss(change, tmp_path, monkeypatch):
-    cow = load_model("cow.obj")
+    cow = load_model("cow")
     folder = tmp_path / "cache"
     bake(cow, COW, cache_dir=folder)
     settings = COW
@@ -216,7 +217,7 @@ def test_changed_settings_or_versions_miss(change, tmp_path, monkeypatch):
 def test_jobs_and_an_unreached_max_depth_reuse_everything(tmp_path):
     """Neither changes a LOD or an error: jobs never does, max_depth only through the subtree's shape,
     which the key holds (here the tree stops above both depths)."""
-    cow = load_model("cow.obj")
+    cow = load_model("cow")
     folder = tmp_path / "cache"
     first = bake(cow, COW, cache_dir=folder)
     assert int(first.depth.max()) < 10
@@ -265,7 +266,7 @@ def _corrupt(folder) -> dict[str, str]:
 
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_corrupt_entries_are_ignored_logged_once_and_rebuilt(jobs, tmp_path, caplog):
-    cow = load_model("cow.obj")
+    cow = load_model("cow")
     settings = BakeSettings(**{**COW.__dict__, "jobs": jobs})
     scratch = bake(cow, settings)
     folder = tmp_path / "cache"
@@ -314,7 +315,7 @@ def test_a_spoiled_entry_is_a_miss_with_its_reason(spoil, why, tmp_path):
 def test_two_bakes_sharing_a_folder_evict_each_others_entries_and_stay_correct(tmp_path):
     """After a bake the folder holds its inner nodes only (the size bound): a bake of another mesh
     in the same folder leaves the first mesh a cold bake, which is still the file from scratch."""
-    cow, spot = load_model("cow.obj"), load_model("spot.obj")
+    cow, spot = load_model("cow"), load_model("spot")
     folder = tmp_path / "shared"
     cow_first = bake(cow, COW, cache_dir=folder)
     assert len(_entries(folder)) == _inner(cow_first) and len(_results(folder)) == 1
@@ -328,7 +329,7 @@ def test_two_bakes_sharing_a_folder_evict_each_others_entries_and_stay_correct(t
 
 
 def test_a_removed_cache_folder_is_a_cold_bake(tmp_path):
-    cow = load_model("cow.obj")
+    cow = load_model("cow")
     folder = tmp_path / "cache"
     first = bake(cow, COW, cache_dir=folder)
     shutil.rmtree(folder)
@@ -344,7 +345,7 @@ def test_a_cancelled_bake_writes_no_cache(tmp_path):
         return len(calls) >= 3
 
     with pytest.raises(BakeCancelled):
-        bake(load_model("cow.obj"), COW, cache_dir=tmp_path / "cache", cancel=cancel,
+        bake(load_model("cow"), COW, cache_dir=tmp_path / "cache", cancel=cancel,
              progress=lambda done, total, phase: calls.append(phase))
     assert not (tmp_path / "cache").exists()
 
@@ -352,25 +353,25 @@ def test_a_cancelled_bake_writes_no_cache(tmp_path):
 def test_a_file_where_the_cache_folder_goes_is_a_clear_error(tmp_path):
     (tmp_path / "cache").write_bytes(b"not a folder")
     with pytest.raises(InputError, match="cache: is a file; the bake cache is a folder"):
-        bake(load_model("cow.obj"), COW, cache_dir=tmp_path / "cache")
+        bake(load_model("cow"), COW, cache_dir=tmp_path / "cache")
 
 
 def test_command_line_keeps_the_cache_beside_the_output(tmp_path):
     out = tmp_path / "cow.hlod"
-    first = last_json(hlod("-q", "bake", model("cow.obj"), "-o", out, "--target-tris", "300"))
+    first = last_json(hlod("-q", "bake", model("cow"), "-o", out, "--target-tris", "300"))
     folder = tmp_path / "cow.hlod.cache"
     assert first["cache"]["folder"] == str(folder) and first["cache"]["reused_nodes"] == 0
     assert len(_entries(folder)) == first["cache"]["nodes"] > 0
-    second = last_json(hlod("-q", "bake", model("cow.obj"), "-o", out, "--target-tris", "300"))
+    second = last_json(hlod("-q", "bake", model("cow"), "-o", out, "--target-tris", "300"))
     assert second["cache"]["reused_nodes"] == second["cache"]["nodes"] == first["cache"]["nodes"]
     other = tmp_path / "elsewhere"
-    third = last_json(hlod("-q", "bake", model("cow.obj"), "-o", tmp_path / "b.hlod", "--target-tris",
+    third = last_json(hlod("-q", "bake", model("cow"), "-o", tmp_path / "b.hlod", "--target-tris",
                            "300", "--cache", other))
     assert third["cache"]["folder"] == str(other) and _entries(other) == _entries(folder)
-    none = last_json(hlod("-q", "bake", model("cow.obj"), "-o", tmp_path / "c.hlod", "--no-cache"))
+    none = last_json(hlod("-q", "bake", model("cow"), "-o", tmp_path / "c.hlod", "--no-cache"))
     assert none["cache"] is None and not (tmp_path / "c.hlod.cache").exists()
     (tmp_path / "d.hlod.cache").write_bytes(b"x")
-    line = one_line_error(hlod("bake", model("cow.obj"), "-o", tmp_path / "d.hlod", check=False))
+    line = one_line_error(hlod("bake", model("cow"), "-o", tmp_path / "d.hlod", check=False))
     assert f"{tmp_path / 'd.hlod.cache'}: is a file; the bake cache is a folder" in line
 
 
@@ -409,18 +410,17 @@ def test_every_module_that_computes_lods_or_errors_keys_the_cache():
     assert "bake.hausdorff" in seen
 
 
-def test_rebake_benchmark_times_every_rebuilt_task_and_restores_the_bake(tmp_path):
-    """benchmarks.rebake --work (the moved re-bake's lower bound): on the herd with a moved cow,
-    every rebuilt node is decimated and measured once and timed, the phases before the tasks are
-    counted, the result is still the scratch bake's file, and the bake's functions are restored."""
-    from benchmarks import rebake
-
+def test_rebuilt_work_times_every_rebuilt_task_and_restores_the_bake(tmp_path):
+    """rebake_work.rebuilt_work (benchmarks/rebake.py --work, the moved re-bake's lower bound): on the
+    herd with a moved cow, every rebuilt node is decimated and measured once and timed, the phases
+    before the tasks are counted, the result is still the scratch bake's file, and the bake's
+    functions are restored."""
     cows, _ = herd()
     moved, _ = herd(moved_by=(1.5, 0.0, 0.0))
     folder = tmp_path / "cache"
     bake(cows, HERD, cache_dir=folder)
     decimate, measure = simplify.decimate_node, tasks.measure_exact
-    work = rebake.rebuilt_work(moved, BakeSettings(**{**HERD.__dict__, "jobs": 2}), folder)
+    work = rebake_work.rebuilt_work(moved, BakeSettings(**{**HERD.__dict__, "jobs": 2}), folder)
     assert simplify.decimate_node is decimate and tasks.measure_exact is measure
     assert 0 < work["rebuilt_nodes"] == work["decimations"] == work["measurements"]
     assert work["decimate_s"] > 0 and work["measure_s"] > 0
@@ -432,6 +432,6 @@ def test_rebake_benchmark_times_every_rebuilt_task_and_restores_the_bake(tmp_pat
     bound = BakeSettings(**{**HERD.__dict__, "error": "bound"})  # its measure is another task function
     bake(cows, bound, cache_dir=tmp_path / "bound")
     to_children = hausdorff.measure_to_children
-    with_bound = rebake.rebuilt_work(moved, bound, tmp_path / "bound")
+    with_bound = rebake_work.rebuilt_work(moved, bound, tmp_path / "bound")
     assert hausdorff.measure_to_children is to_children
     assert 0 < with_bound["rebuilt_nodes"] == with_bound["decimations"] == with_bound["measurements"]

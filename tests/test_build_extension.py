@@ -1,6 +1,7 @@
 """scripts/build_extension.py on tiny literal inputs: the manifest's wheels per platform and Python,
-the extension tool found in any bpy version, and wheels rewritten for Blender 4.2's installer; and on
-every zip it builds: the glcontext modules the GL context imports on each platform are in its wheel."""
+the extension tool found in any bpy version, wheels rewritten for Blender 4.2's installer, and the
+licence in the zip (a file listed to ship and missing stops the build); and on every zip it builds:
+the glcontext modules the GL context imports on each platform are in its wheel."""
 import csv
 import io
 import subprocess
@@ -153,3 +154,36 @@ def test_a_zip_whose_glcontext_lacks_the_platforms_module_stops_the_build(tmp_pa
     assert str(stop.value) == (f"build_extension: {zip_path}: wheels/glcontext-3.1.0-cp311-cp311-win_amd64.whl lacks "
                                "glcontext.wgl (cp311), which the GL context imports on windows-x64 (it holds "
                                "glcontext.egl)")
+
+
+def test_the_licence_ships_in_every_zip_the_build_makes(every_zip):
+    """LICENSE, the full GPL v3 text the manifest's GPL-3.0-or-later refers to, is in every zip the
+    build makes with Blender's own tool (check_zip holds every release zip to the same list)."""
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
+    assert manifest["license"] == ["SPDX:GPL-3.0-or-later"]
+    for zip_path in every_zip:
+        with zipfile.ZipFile(zip_path) as z:
+            licence = z.read("LICENSE").decode()
+        assert licence == (ROOT / "LICENSE").read_text(), zip_path.name
+    assert licence.lstrip().startswith("GNU GENERAL PUBLIC LICENSE\n                       Version 3, 29 June 2007")
+    assert "END OF TERMS AND CONDITIONS" in licence and "How to Apply These Terms to Your New Programs" in licence
+
+
+def test_a_listed_file_that_is_missing_stops_the_build(tmp_path, monkeypatch):
+    monkeypatch.setattr(build_extension, "PACKAGE", [*build_extension.PACKAGE, "NOTICE"])
+    with pytest.raises(SystemExit, match=r"build_extension: NOTICE: listed to ship \(PACKAGE\) but missing"):
+        build_extension.stage("", "linux-x64", [], where=tmp_path / "stage")
+    assert not (tmp_path / "stage").exists() or not any((tmp_path / "stage").iterdir())
+
+
+def test_a_zip_without_a_listed_file_is_refused(tmp_path):
+    zip_path = tmp_path / "hlod.zip"
+    with zipfile.ZipFile(zip_path, "w") as z:
+        for name in build_extension.PACKAGE:
+            if name != "LICENSE":
+                z.writestr(f"{name}/__init__.py" if "." not in name else name, "")
+    with pytest.raises(SystemExit, match=r"hlod\.zip: lacks LICENSE \(listed to ship in PACKAGE\)"):
+        build_extension.check_zip(zip_path, [])
+    with zipfile.ZipFile(zip_path, "a") as z:
+        z.writestr("LICENSE", "")
+    build_extension.check_zip(zip_path, [])

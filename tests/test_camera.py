@@ -107,7 +107,7 @@ def test_inspection_path_is_scale_free(gl_ctx, bakes, factor):
     """A model scaled by 1e-9 or 1e9 gives the same nodes per frame as at scale 1, for VFC (no
     queries) and Coh(P) (queries). The old path clamped its radius at 1e-6 model units: at 1e-9 the
     camera orbited a thousand model sizes away and Coh drew almost nothing."""
-    _, hlod = bakes.baked("cow.obj", target_tris=400)
+    _, hlod = bakes.baked("cow", target_tris=400)
     other = _scaled(hlod, factor)
     base_path, path = inspection_path(hlod, seed=4, frames=12), inspection_path(other, seed=4, frames=12)
     assert np.allclose(path.frames[:, :2], base_path.frames[:, :2] * factor, rtol=1e-9, atol=0)  # eye, target

@@ -8,7 +8,8 @@ import sys
 
 import pytest
 
-from helpers import ROOT, SCENES, model
+import models
+from helpers import ROOT, model
 from hlod_core.bake import settings as bake_settings_module
 from hlod_core.cli.main import build_parser
 from hlod_core.cli.options import bake_settings_of
@@ -18,6 +19,22 @@ from processes import hlod, last_json, one_line_error, write_text
 BAKE_KEYS = {"nodes", "leaves", "depth", "input_tris", "leaf_tris", "root_tris", "max_error", "seconds",
              "tris_per_second"}
 ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}
+
+
+def test_help_names_the_program_as_it_was_run_and_the_docs_page(tmp_path):
+    """`python -m hlod_core --help` and the installed script (here a copy of pip's entry-point
+    script under its name) each say their own name in the usage; the help points to the page that
+    holds every option."""
+    module = subprocess.run([sys.executable, "-m", "hlod_core", "--help"], capture_output=True, text=True, check=True)
+    assert module.stdout.startswith("usage: python -m hlod_core [-h]")
+    assert "docs/command-line.md" in module.stdout and "README" not in module.stdout
+    script = write_text(tmp_path / "hlod-core", "import sys\nfrom hlod_core.cli.main import main\nsys.exit(main())\n")
+    run = subprocess.run([sys.executable, str(script), "evaluate", "--help"], capture_output=True, text=True,
+                         check=True)
+    assert run.stdout.startswith("usage: hlod-core evaluate [-h]")
+    assert "README" not in run.stdout and "docs/command-line.md#camera-paths" in run.stdout
+    bad = subprocess.run([sys.executable, str(script), "run"], capture_output=True, text=True)
+    assert bad.returncode == 2 and bad.stderr.strip().endswith("(see hlod-core run --help)")
 
 
 @pytest.mark.parametrize("cores, expected", [(1, 1), (2, 1), (8, 7)])
@@ -35,11 +52,11 @@ def test_jobs_0_is_all_cores_but_one(monkeypatch, cores, expected):
 
 def test_bake_scene_spec_and_info(tmp_path):
     spec = tmp_path / "spec.json"
-    rel = os.path.relpath(model("cow.obj"), tmp_path)
+    rel = os.path.relpath(model("cow"), tmp_path)
     spec.write_text(json.dumps({"models": [
         {"path": rel, "transforms": [[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1],
                                      [-1, 0, 0, 5, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]]},
-        {"path": str(model("teapot.obj"))}]}))
+        {"path": str(model("teapot"))}]}))
     out = tmp_path / "scene.hlod"
     summary = last_json(hlod("bake", spec, "-o", out, "--target-tris", "1000", "--jobs", "2"))
     assert BAKE_KEYS <= summary.keys()
@@ -51,14 +68,14 @@ def test_bake_scene_spec_and_info(tmp_path):
 
 def test_several_inputs_merge_into_one_scene(tmp_path):
     out = tmp_path / "two.hlod"
-    summary = last_json(hlod("bake", model("cow.obj"), model("spot.obj"), "-o", out))
+    summary = last_json(hlod("bake", model("cow"), model("spot"), "-o", out))
     assert summary["input_tris"] == 5804 + 5856
 
 
 @pytest.mark.slow
 def test_million_triangle_instanced_spec_passes_every_check(tmp_path):
     out = tmp_path / "gallery.hlod"
-    summary = last_json(hlod("-q", "bake", SCENES / "gallery_1m.json", "-o", out, "--jobs", "2"))
+    summary = last_json(hlod("-q", "bake", models.scene("gallery_1m"), "-o", out, "--jobs", "2"))
     assert summary["input_tris"] >= 1_000_000
     info = last_json(hlod("info", out))
     assert info["checks"] == ALL_TRUE, info
@@ -78,7 +95,7 @@ def test_default_scene_command(tmp_path):
      r"inf\.obj: 1 of 4 vertices could not be read"),
     (lambda d: write_text(d / "bad.json", "{not json"), r"bad\.json: scene spec is not valid JSON"),
     (lambda d: write_text(d / "spec.json", json.dumps({"models": [{"path": "x.obj"}]})), r"x\.obj: no such file"),
-    (lambda d: write_text(d / "spec2.json", json.dumps({"models": [{"path": str(model("cow.obj")), "transforms": [[1, 2, 3]]}]})),
+    (lambda d: write_text(d / "spec2.json", json.dumps({"models": [{"path": str(model("cow")), "transforms": [[1, 2, 3]]}]})),
      r"spec2\.json: models\[0\]\.transforms\[0\] must have 16 numbers"),
     (lambda d: write_text(d / "notes.txt", "hello"), r"notes\.txt: unsupported file type"),
 ])
@@ -98,15 +115,15 @@ def test_info_on_foreign_file_is_one_line(tmp_path):
 
 def test_unwritable_output_is_one_line(tmp_path):
     blocker = write_text(tmp_path / "file", "")
-    proc = hlod("bake", model("cow.obj"), "-o", blocker / "out.hlod", check=False)
+    proc = hlod("bake", model("cow"), "-o", blocker / "out.hlod", check=False)
     assert f"{blocker} is a file" in one_line_error(proc)
     assert "bake" not in proc.stderr  # refused before baking
 
 
 def test_interrupted_bake_leaves_no_output_and_keeps_the_old_file(tmp_path):
-    out = tmp_path / "igea.hlod"
+    out = tmp_path / "statue.hlod"
     out.write_bytes(b"previous result")
-    proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "bake", str(model("igea.ply")), "-o", str(out),
+    proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "bake", str(model("statue")), "-o", str(out),
                              "--jobs", "2"], cwd=ROOT, stderr=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": str(tmp_path)})
     for line in proc.stderr:  # decimation is under way: the signal comes mid-bake (no sleep: any moment will do)
@@ -116,7 +133,7 @@ def test_interrupted_bake_leaves_no_output_and_keeps_the_old_file(tmp_path):
     proc.communicate(timeout=120)
     assert proc.returncode != 0
     assert out.read_bytes() == b"previous result"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["igea.hlod"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["statue.hlod"]
 
 
 RUN_KEYS = {"dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms", "frames"}

@@ -25,10 +25,10 @@ def test_signal_mid_bake_removes_scratch_and_output(tmp_path, sig, status, last_
     used to kill the process outright: the hlod-bake-* folder stayed in TMPDIR and the workers
     lived on as orphans; Ctrl-C printed a KeyboardInterrupt traceback. The bake runs in its own
     process group so that the test can check no worker outlives it (and reap any that would)."""
-    scratch, out, log = tmp_path / "tmp", tmp_path / "igea.hlod", tmp_path / "stderr.txt"
+    scratch, out, log = tmp_path / "tmp", tmp_path / "statue.hlod", tmp_path / "stderr.txt"
     scratch.mkdir()
     with open(log, "w") as stderr:
-        proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "bake", str(model("igea.ply")), "-o", str(out),
+        proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "bake", str(model("statue")), "-o", str(out),
                                  "--jobs", "2"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=stderr,
                                 start_new_session=True,
                                 env={**os.environ, "PYTHONPATH": str(ROOT), "TMPDIR": str(scratch)})
@@ -74,9 +74,9 @@ def test_output_with_a_trailing_slash_is_refused(tmp_path):
     drops the slash. Both name a folder and are refused before baking; nothing is written."""
     old = tmp_path / "old.hlod"
     old.write_bytes(b"previous result")
-    line = one_line_error(hlod("bake", model("cow.obj"), "-o", f"{old}/", check=False))
+    line = one_line_error(hlod("bake", model("cow"), "-o", f"{old}/", check=False))
     assert f"-o {old}/: names a folder, but {old} is a file" in line
-    line = one_line_error(hlod("bake", model("cow.obj"), "-o", f"{tmp_path}/new/", check=False))
+    line = one_line_error(hlod("bake", model("cow"), "-o", f"{tmp_path}/new/", check=False))
     assert f"-o {tmp_path}/new/: names a folder; give a file name such as {tmp_path}/new/scene.hlod" in line
     line = one_line_error(hlod("run", old, "--method", "vfc", "--save-path", f"{tmp_path}/p.json/", check=False))
     assert "--save-path" in line and "names a folder" in line
@@ -93,8 +93,8 @@ def _file_size_limit(limit_bytes: int):
 def test_failed_write_names_the_output(tmp_path):
     """A write error carries no file name: the line said `output: File too large`."""
     src = tmp_path / "cow.hlod"
-    hlod("-q", "bake", model("cow.obj"), "-o", src, "--target-tris", "400")
-    for args, named in ((["bake", model("cow.obj"), "-o", tmp_path / "big.hlod"], tmp_path / "big.hlod"),
+    hlod("-q", "bake", model("cow"), "-o", src, "--target-tris", "400")
+    for args, named in ((["bake", model("cow"), "-o", tmp_path / "big.hlod"], tmp_path / "big.hlod"),
                         (["export", src, "-o", tmp_path / "tiles"], tmp_path / "tiles")):
         proc = subprocess.run([sys.executable, "-m", "hlod_core", "-q", *map(str, args)], cwd=ROOT,
                               capture_output=True, text=True, timeout=300, preexec_fn=_file_size_limit(4000),

@@ -115,7 +115,7 @@ def test_the_command_line_bakes_on_a_cluster(cluster, tmp_path):
     spec = tmp_path / "herd.json"
     translations = [[1, 0, 0, HERD_SPACING * (k % 3), 0, 1, 0, HERD_SPACING * (k // 3), 0, 0, 1, 0, 0, 0, 0, 1]
                     for k in range(9)]
-    spec.write_text(json.dumps({"models": [{"path": str(model("cow.obj")), "transforms": translations}]}))
+    spec.write_text(json.dumps({"models": [{"path": str(model("cow")), "transforms": translations}]}))
     scratch = tmp_path / "scratch"
     scratch.mkdir()
     common = ("-q", "bake", spec, "--target-tris", HERD_TRIS, "--no-cache")
@@ -132,10 +132,10 @@ def test_the_command_line_bakes_on_a_cluster(cluster, tmp_path):
 def test_sigterm_mid_bake_cancels_and_removes_the_scratch_subfolder(cluster, tmp_path):
     """As a local bake (test_cli_hostile): exit 143 with one line, no output, and here the bake's
     folder in --scratch removed; the cluster goes on working."""
-    scratch, out, log = tmp_path / "scratch", tmp_path / "igea.hlod", tmp_path / "stderr.txt"
+    scratch, out, log = tmp_path / "scratch", tmp_path / "statue.hlod", tmp_path / "stderr.txt"
     scratch.mkdir()
     with open(log, "w") as stderr:
-        proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "bake", str(model("igea.ply")), "-o", str(out),
+        proc = subprocess.Popen([sys.executable, "-m", "hlod_core", "bake", str(model("statue")), "-o", str(out),
                                  "--no-cache", "--scheduler", cluster.scheduler.address, "--scratch", str(scratch)],
                                 cwd=ROOT, stdout=subprocess.DEVNULL, stderr=stderr, start_new_session=True,
                                 env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -164,11 +164,11 @@ def empty_scheduler():
 
 
 def _refused(tmp_path, *args, prelude: str = "") -> str:
-    """Run a bake of cow.obj with `args` (prelude: Python run first, in the same process); returns
+    """Run a bake of the cow with `args` (prelude: Python run first, in the same process); returns
     its one error line after checking exit 2 and that nothing was written next to the output."""
     before = sorted(p.name for p in tmp_path.iterdir())
     code = f"{prelude}\nimport sys\nfrom hlod_core.cli.main import main\nsys.exit(main(sys.argv[1:]))"
-    proc = subprocess.run([sys.executable, "-c", code, "bake", str(model("cow.obj")), "-o", str(tmp_path / "x.hlod"),
+    proc = subprocess.run([sys.executable, "-c", code, "bake", str(model("cow")), "-o", str(tmp_path / "x.hlod"),
                            *map(str, args)], cwd=ROOT, capture_output=True, text=True, timeout=120,
                           env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert proc.returncode == 2 and proc.stdout == "", proc.stderr

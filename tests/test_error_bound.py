@@ -9,8 +9,8 @@ bound's chain passes through the point z of a child's LOD nearest a sample, whic
 itself, so the sampled bound may fall short of the sampled exact error by up to the distance from
 z to the child's nearest sample: at most its triangle's longest edge / sqrt(3) (the covering radius
 of a triangle by its corners), once per level below (`sampling_slack`). That slack is the
-tolerance of the guaranteed inequality; on the shared models the bound does not even use it
-(bound >= exact with no slack on every node; benchmarks/error_bound.py runs every shared model).
+tolerance of the guaranteed inequality; on the test models the bound does not even use it
+(bound >= exact with no slack on every node; benchmarks/error_bound.py runs every test model).
 """
 from __future__ import annotations
 
@@ -30,21 +30,21 @@ from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import InputError
 from hlod_core.io import hlod_file, meshes
 
-from helpers import load_model, numeric_library_env
+from helpers import load_model, model, numeric_library_env
 
 ROOT = Path(__file__).resolve().parents[1]
-#: Small shared models and node budgets giving trees three to four levels deep in about a second.
-MODELS = [("cow.obj", 300), ("fandisk.obj", 300)]
+#: Small test models (tests/models.py) and node budgets giving trees three to four levels deep in about a second.
+MODELS = [("cow", 300), ("creased", 300)]
 #: float32 rounding of pymeshlab's distances (relative), the only slack the no-slack check allows.
 F32_RELATIVE = 1e-6
 #: The last commit that changed what an exact bake writes (the bake's lattice,
 #: hlod_core/bake/lattice.py; until then the commit before the error bound, b1e28ff, whose files
 #: the exact bake kept writing): an exact bake must write the bytes it wrote there.
 BEFORE_BOUND = "103ebcb"
-#: SHA-256 of cow.obj baked exactly at target_tris 300 (timings zeroed) at BEFORE_BOUND, pinned
+#: SHA-256 of the cow (tests/models.py) baked exactly at target_tris 300 (timings zeroed) at BEFORE_BOUND, pinned
 #: pymeshlab, on an AMD EPYC machine), for checkouts without that commit; where the
 #: commit is there, the old code's own file is compared instead (the digest of floats is per CPU).
-FILE_BEFORE_BOUND = "5e5a6e6162a3886afdecdf9260b5a5ea37d963fdf97022a2037eb7aabd38e982"
+FILE_BEFORE_BOUND = "f9ae1f267995bb8efef6f07b6d7ef2834ce83cb14d885f19c5b6a42336d2e34d"
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +126,7 @@ def test_bound_is_h_plus_the_largest_child_bound_zero_at_leaves(bakes, name):
 def test_error_setting_is_validated_and_recorded():
     with pytest.raises(InputError, match="error must be one of exact, bound, got 'loose'"):
         BakeSettings(error="loose")
-    cow = load_model("cow.obj")
+    cow = load_model("cow")
     assert bake(cow, BakeSettings(target_tris=1000, error="bound")).meta["settings"]["error"] == "bound"
     assert "error" not in bake(cow, BakeSettings(target_tris=1000)).meta["settings"]  # absent: exact
 
@@ -137,7 +137,7 @@ HERD_TARGET = 600
 
 def _herd(scale_middle: float = 1.0):
     """Three cows in a row, 12 units apart; the middle one scaled about its centre (the box stays)."""
-    cow, parts = load_model("cow.obj"), []
+    cow, parts = load_model("cow"), []
     for k in range(3):
         m = np.eye(4)
         m[:3, 3] = [12.0 * k, 0.0, 0.0]
@@ -175,16 +175,16 @@ def test_cache_never_serves_one_measure_for_the_other_and_rebakes_bounds_exactly
 
 def _exact_file(hlod, path: Path) -> bytes:
     """The file's bytes with the timings zeroed and the sources named by file name only (the path
-    of the shared models depends on where the checkout is)."""
+    of the test models depends on where the checkout is)."""
     hlod = hlod.replace(meta={**hlod.meta, "bake_seconds": 0.0, "sources": [Path(s).name for s in hlod.meta["sources"]],
                               "phase_seconds": {k: 0.0 for k in hlod.meta["phase_seconds"]}})
     return hlod_file.save(hlod, path).read_bytes()
 
 
 def test_exact_bake_writes_the_bytes_it_wrote_before_the_bound(tmp_path):
-    """cow.obj baked exactly: the same .hlod bytes as the bake at BEFORE_BOUND (taken from git into a
+    """The cow baked exactly: the same .hlod bytes as the bake at BEFORE_BOUND (taken from git into a
     temporary folder, run in its own process, its file re-saved by today's writer)."""
-    source = ROOT.parent / "shared" / "models" / "cow.obj"
+    source = model("cow")
     new = _exact_file(bake(meshes.load_mesh(source), BakeSettings(target_tris=300)), tmp_path / "new.hlod")
     archive = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", BEFORE_BOUND, "hlod_core"],
                              capture_output=True)

@@ -11,7 +11,6 @@ import moderngl
 import numpy as np
 import pytest
 
-from benchmarks import evaluation_targets
 from hlod_core.report import evaluate, image_error, per_frame_file
 from hlod_core.io import procedural
 from hlod_core.model.camera_path import inspection_path
@@ -23,6 +22,7 @@ from hlod_core.traversal.stats import COUNTERS
 from hlod_core.model.view import look_at, perspective
 
 from helpers import ROOT
+import report_targets
 from figure_checks import PNG_SIGNATURE, legible
 from processes import hlod, last_json, one_line_error
 
@@ -147,15 +147,12 @@ def test_evaluate_writes_the_report_and_its_last_line(short_run):
     assert f"measure_every = {defaults.measure_every}" in (out_dir / "report.md").read_text()
     rel = report["relative"]["coh_p"]["bool"]
     assert rel["node_savings_pct"] == pytest.approx(100 * (1 - m["coh_p"]["dn"] / m["bool"]["dn"]))
-    # the report holds measured figures; the targets are the benchmark script's (benchmarks/evaluation_targets.py)
+    # the report holds measured figures; the targets are the acceptance thresholds of tests/report_targets.py
     assert "targets" not in report and "targets_hold" not in line
-    targets = subprocess.run([sys.executable, "-m", "benchmarks.evaluation_targets", out_dir],
-                             capture_output=True, text=True, cwd=ROOT, check=True).stdout.splitlines()
-    rows = [json.loads(t) for t in targets if t.startswith('{"target"')]
-    assert len(rows) == len(evaluation_targets.TARGETS) and all(r["value"] is not None for r in rows)
+    rows = report_targets.targets(report_targets.read_report(out_dir)["methods"])
+    assert len(rows) == len(report_targets.TARGETS) and all(r["value"] is not None for r in rows)
     assert rows[0] == {"target": "DN Coh(P) / SW(P) <= 1.02", "value": m["coh_p"]["dn"] / m["sw_p"]["dn"],
                        "holds": m["coh_p"]["dn"] / m["sw_p"]["dn"] <= 1.02}
-    assert json.loads(targets[-1]) == {"targets_hold": all(r["holds"] for r in rows)}
     a = report["alpha_estimators"]
     assert a["nodes"] > 0 and a["query"]["cost_us_per_node"] > 0
     assert a["projected"]["median_rel_error_pct"] < 5.0 < a["cube"]["median_rel_error_pct"]
@@ -287,7 +284,7 @@ def test_evaluation_targets_on_literal_figures():
     row = {"dn": 0.0, "rarn": 0.0, "frame_ms": 0.0, "stall_ms": 0.0, "psnr_y_vs_bool": None}
     methods = {"coh_p": row | {"dn": 102.0, "rarn": 1.0, "frame_ms": 9.0, "psnr_y_vs_bool": 40.0},
                "sw_p": row | {"dn": 100.0, "frame_ms": 9.0}, "bool": row | {"dn": 120.0, "frame_ms": 10.0}}
-    rows = evaluation_targets.targets(methods)
+    rows = report_targets.targets(methods)
     assert [(r["target"], r["holds"]) for r in rows] == [
         ("DN Coh(P) / SW(P) <= 1.02", True), ("DN Coh(P) / Bool <= 0.85", True),
         ("RARN / DN of Coh(P) <= 0.5%", False), ("PSNR-Y Coh(P) vs Bool >= 34 dB", True),
@@ -295,15 +292,18 @@ def test_evaluation_targets_on_literal_figures():
         ("stall ms Coh(P) / SW(P) <= 0.2", True)]
     assert rows[2]["value"] == pytest.approx(100 / 102) and rows[6]["value"] == 0.0
     with pytest.raises(ValueError, match="lacks method.s. sw_p"):
-        evaluation_targets.targets({"coh_p": row, "bool": row})
+        report_targets.targets({"coh_p": row, "bool": row})
 
 
 def test_evaluation_targets_bad_report_is_one_line(tmp_path):
     (tmp_path / "report.json").write_text("[1, 2")
-    proc = subprocess.run([sys.executable, "-m", "benchmarks.evaluation_targets", tmp_path], capture_output=True,
-                          text=True, cwd=ROOT)
-    assert proc.returncode == 2 and proc.stderr.count("\n") == 1
-    assert f"{tmp_path / 'report.json'}: the evaluation report is not valid JSON" in proc.stderr
+    with pytest.raises(ValueError) as bad:
+        report_targets.read_report(tmp_path)
+    assert str(bad.value).startswith(f"{tmp_path / 'report.json'}: the evaluation report is not valid JSON")
+    assert "\n" not in str(bad.value)
+    (tmp_path / "report.json").write_text("[1, 2]")
+    with pytest.raises(ValueError, match=r"report\.json: not an evaluation report"):
+        report_targets.read_report(tmp_path / "report.json")
 
 
 def test_evaluate_bad_arguments_raise_input_error(tmp_path):

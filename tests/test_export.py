@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import ROOT, textured_scene
+from helpers import ROOT, model, textured_scene
 from hlod_core.io import hlod_file as fileformat, meshes
 from hlod_core.export import glb, tiles3d
 from hlod_core.model.appearance import Material
@@ -106,7 +106,7 @@ def test_glb_layout_and_axes():
 
 
 def test_export_command_on_shared_model_passes_the_validators(bakes, tmp_path):
-    _, h = bakes.baked("cow.obj", target_tris=500)
+    _, h = bakes.baked("cow", target_tris=500)
     src = fileformat.save(h, tmp_path / "cow.hlod")
     out = last_json(hlod("-q", "export", src, "--format", "3dtiles", "-o", tmp_path / "cow_tiles"))
     assert out["tiles"] == out["glb_files"] == h.node_count and out["triangles"] == int(h.tri_count.sum())
@@ -119,7 +119,7 @@ def test_export_command_on_shared_model_passes_the_validators(bakes, tmp_path):
 
 
 def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_precision(tmp_path):
-    mesh = meshes.load_mesh(ROOT.parent / "shared/models/spot.obj")
+    mesh = meshes.load_mesh(model("spot"))
     p, f = mesh.positions + 1e6, mesh.faces  # a scene placed a million metres away
     e1, e2 = p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]]
     normals = np.zeros_like(p)
@@ -137,7 +137,7 @@ def test_normals_are_written_only_when_baked_with_them_and_far_origins_keep_prec
 
 
 def test_export_refuses_to_replace_a_foreign_folder(bakes, tmp_path):
-    _, h = bakes.baked("cow.obj", target_tris=500)
+    _, h = bakes.baked("cow", target_tris=500)
     src = fileformat.save(h, tmp_path / "cow.hlod")
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("keep me")
@@ -192,7 +192,7 @@ def test_background_command_names_a_missing_extension_repository(tmp_path):
 
 
 def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_children(bakes):
-    _, h = bakes.baked("cow.obj", target_tris=500)
+    _, h = bakes.baked("cow", target_tris=500)
     leaves = np.flatnonzero(h.child_count == 0)
     counts = np.asarray(h.tri_count).copy()
     counts[leaves[0]] = 0  # an empty leaf: no tile at all
@@ -215,7 +215,7 @@ def test_export_modes_follow_the_umask(bakes, tmp_path, umask):
     """Folders are 0777 and files 0666 less the umask, like any other tool's output, also when
     replacing (a tileset folder made by mkdtemp is 0700 whatever the umask); the copied textures
     too, whatever the modes of their sources."""
-    _, h = bakes.baked("cow.obj", target_tris=500)
+    _, h = bakes.baked("cow", target_tris=500)
     png, jpeg = write_textures(tmp_path)
     os.chmod(png, 0o600)
     os.chmod(jpeg, 0o755)

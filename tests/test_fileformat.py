@@ -22,7 +22,7 @@ from helpers import ROOT
 
 @pytest.fixture(scope="module")
 def bunny(bakes):
-    return bakes.baked("stanford-bunny.obj")[1]
+    return bakes.baked("bunny")[1]
 
 
 @pytest.fixture

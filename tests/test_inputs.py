@@ -2,6 +2,7 @@
 read wrongly without a word, scene specs nested too deep or placing a model with a singular
 transform, and settings or geometry that made a bake crash inside pymeshlab. Each is refused in
 one line naming the file (and line or transform), or bakes."""
+import importlib.util
 import json
 import os
 import subprocess
@@ -16,7 +17,9 @@ from hlod_core.io import meshes, obj
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.core.errors import InputError
 
-from helpers import MODELS, ROOT, load_model
+import models
+from helpers import ROOT, SCENES, load_model, model
+from models import OBJ_ROLES
 
 ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}
 
@@ -58,7 +61,7 @@ def test_zero_filled_and_lying_stl_files_are_refused_at_once(tmp_path):
     files = [_write(tmp_path / f"zero{n}.stl", bytes(n)) for n in (0, 50, 134, 150, 199, 200)]
     files += [_write(tmp_path / f"claims{n}.stl", bytes(80) + np.uint32(n).tobytes() + bytes(116))
               for n in (2, 3, 1000, 10**9)]
-    cow = load_model("cow.obj")
+    cow = load_model("cow")
     whole = _binary_stl(cow.positions[cow.faces].astype(np.float32), header=b"solid cow (binary)")
     files.append(_write(tmp_path / "truncated.stl", whole[:-7]))
     script = ("import sys\nfrom hlod_core.io import meshes\nfrom hlod_core.core.errors import InputError\n"
@@ -84,7 +87,7 @@ def test_stl_whose_size_matches_its_header_is_read_even_if_all_zero(tmp_path):
 
 @pytest.mark.parametrize("form", ["binary", "ascii"])
 def test_valid_stl_reads_the_triangles_pymeshlab_reads(tmp_path, form):
-    cow = load_model("cow.obj")
+    cow = load_model("cow")
     tris = cow.positions[cow.faces].astype(np.float32)
     path = _write(tmp_path / f"cow_{form}.stl", _binary_stl(tris) if form == "binary" else _ascii_stl(tris))
     mesh = meshes.load_mesh(path)
@@ -156,9 +159,9 @@ def test_relative_indices_slashes_polygons_and_comments_read_as_pymeshlab_reads_
     assert np.array_equal(plain.positions, fancy.positions) and np.array_equal(plain.faces, fancy.faces)
 
 
-@pytest.mark.parametrize("name", sorted(p.name for p in MODELS.glob("*.obj")))
-def test_every_shared_obj_passes_the_check_and_declares_what_pymeshlab_reads(name):
-    path = MODELS / name
+@pytest.mark.parametrize("name", OBJ_ROLES)
+def test_every_test_obj_passes_the_check_and_declares_what_pymeshlab_reads(name):
+    path = model(name)
     vertices, tris = obj.check_obj(path, path.read_bytes())
     mesh = load_model(name)
     assert (vertices, tris) == (mesh.positions.shape[0], mesh.tri_count)
@@ -169,8 +172,22 @@ def test_every_shared_obj_passes_the_check_and_declares_what_pymeshlab_reads(nam
 IDENTITY = np.eye(4).ravel().tolist()
 
 
+def test_the_scene_specs_are_what_generate_specs_writes(tmp_path):
+    """tests/scenes/gallery_1m.json and crowd_1m.json are generate_specs.py's output from today's test
+    models (a placement follows its model's box: a changed model comes with regenerated specs), and
+    every model they name is found where they name it."""
+    spec = importlib.util.spec_from_file_location("generate_specs", SCENES / "generate_specs.py")
+    generate_specs = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(generate_specs)
+    for name, make in (("gallery_1m", generate_specs.gallery), ("crowd_1m", generate_specs.crowd)):
+        generate_specs.write_spec(tmp_path / f"{name}.json", make())
+        assert (tmp_path / f"{name}.json").read_text() == (SCENES / f"{name}.json").read_text(), name
+        mesh = meshes.load_inputs([models.scene(name)])
+        assert mesh.tri_count == {"gallery_1m": 1_004_268, "crowd_1m": 1_535_020}[name]
+
+
 def _spec(tmp_path, transforms, name="spec.json"):
-    spec = {"models": [{"path": str(MODELS / "cow.obj"), "transforms": transforms}]}
+    spec = {"models": [{"path": str(model("cow")), "transforms": transforms}]}
     return _write(tmp_path / name, json.dumps(spec))
 
 

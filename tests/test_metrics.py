@@ -1,4 +1,5 @@
-"""docs/how-it-works.md#the-runtime metrics and the §10 stability cases, on exact small inputs (no GL)."""
+"""docs/how-it-works.md#the-runtime metrics and the cases of docs/how-it-works.md#numerical-stability, on exact small
+inputs (no GL)."""
 import warnings
 
 import numpy as np
@@ -225,7 +226,7 @@ def test_sphere_distance_is_the_norm_bit_for_bit(order):
     assert np.array_equal(got, np.linalg.norm(centre - v.eye, axis=1) - radius)
 
 
-# --- alpha estimators (geometry only; compared with the query estimator in test_traversal) ------
+# --- alpha estimators (geometry only; compared with the query estimator in test_traversal_methods) ------
 
 def test_projected_alpha_of_a_face_on_square():
     v = _view(eye=(0, 0, 10), fovy=90.0, size=(480, 480))  # 1 unit at distance d covers 240/d px

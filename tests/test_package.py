@@ -77,6 +77,7 @@ def test_the_installed_core_bakes_on_a_cluster_started_as_the_docs_say(tmp_path)
     help_text = subprocess.run([str(bin_dir / "hlod-core"), "--help"], capture_output=True, text=True, check=True,
                                env=env, cwd=away).stdout
     assert "bake" in help_text and "evaluate" in help_text
+    assert help_text.startswith("usage: hlod-core [-h]")  # the name it was run by
 
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
@@ -92,7 +93,7 @@ def test_the_installed_core_bakes_on_a_cluster_started_as_the_docs_say(tmp_path)
         scratch = tmp_path / "scratch"
         scratch.mkdir()
         on_cluster, local = tmp_path / "cluster.hlod", tmp_path / "local.hlod"
-        baked = subprocess.run([str(bin_dir / "hlod-core"), "-q", "bake", str(model("cow.obj")), "-o", str(on_cluster),
+        baked = subprocess.run([str(bin_dir / "hlod-core"), "-q", "bake", str(model("cow")), "-o", str(on_cluster),
                                 "--target-tris", "400", "--no-cache", "--scheduler", address, "--scratch", str(scratch)],
                                capture_output=True, text=True, env=env, cwd=away, timeout=600)
         assert baked.returncode == 0, baked.stderr[-3000:]
@@ -106,7 +107,7 @@ def test_the_installed_core_bakes_on_a_cluster_started_as_the_docs_say(tmp_path)
                 proc.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 proc.kill()
-    subprocess.run([str(bin_dir / "hlod-core"), "-q", "bake", str(model("cow.obj")), "-o", str(local),
+    subprocess.run([str(bin_dir / "hlod-core"), "-q", "bake", str(model("cow")), "-o", str(local),
                     "--target-tris", "400", "--no-cache"], check=True, capture_output=True, env=env, cwd=away)
     from hlod_core.io import hlod_file
 

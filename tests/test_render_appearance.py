@@ -46,7 +46,7 @@ TOP_LEFT, TOP_RIGHT, BOTTOM_LEFT, BOTTOM_RIGHT = (200, 30, 40), (20, 180, 60), (
 #: SHA-256 of the frames the renderer at BEFORE_COMMIT drew in the two tests below (llvmpipe, this
 #: project's pinned moderngl), for checkouts without that commit; with it, the frames are compared.
 FRAMES_BEFORE = {"overlay": "e485d44211be50b763d4ea2af7969d07bd4fc6813dc9ef2732f474cf2bb19e86",
-                 "untextured": "fbce1fc04ebe57cfef4b160daf67cd6f2def3afea334bc750ddedc8c3ee4c022"}
+                 "untextured": "f5a3690f97f819423d27266983ab65a090e8852550545892342cdd8421cf9c5a"}
 
 
 def _digest(frames) -> str:
@@ -264,7 +264,7 @@ def test_untextured_hlod_draws_the_same_pixels_as_before(gl_ctx, bakes):
     its queries, a cow baked into several levels, from three views). Both answer Coh's queries
     after the same scripted lag, every query asked, so what Coh draws does not depend on when
     llvmpipe's results are ready."""
-    _, hlod = bakes.baked("cow.obj", target_tris=400)
+    _, hlod = bakes.baked("cow", target_tris=400)
     assert not hlod.has_appearance and hlod.node_count > 1
     centre = (hlod.box_min[0] + hlod.box_max[0]) / 2
     radius = float(np.linalg.norm(hlod.box_max[0] - hlod.box_min[0]))
@@ -468,7 +468,7 @@ def test_load_images_without_pillow_draws_base_colours(checker, monkeypatch, cap
 
 
 def test_load_images_of_an_untextured_hlod_is_empty_and_imports_nothing(bakes, monkeypatch):
-    _, hlod = bakes.baked("cow.obj", target_tris=400)
+    _, hlod = bakes.baked("cow", target_tris=400)
     monkeypatch.setitem(sys.modules, "PIL", None)
     assert textures.load_images(hlod) == {}
 

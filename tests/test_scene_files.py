@@ -27,7 +27,7 @@ from hlod_core.io import hlod_file, meshes
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.core.errors import InputError
 
-from helpers import MODELS, ROOT, textured_scene
+from helpers import ROOT, model, textured_scene
 
 #: Positions agree to float32 precision of the files (coordinates up to 40 units).
 POSITION_TOL = 1e-4
@@ -584,13 +584,13 @@ def test_obj_missing_texture_or_mtl_warns_and_reads(tmp_path, caplog):
     assert [m.name for m in mesh.materials] == ["Brick", "Paint"] and mesh.tri_count == 2
 
 
-@pytest.mark.parametrize("name", ["cow.obj", "spot.obj"])
+@pytest.mark.parametrize("name", ["cow", "spot"])
 def test_obj_with_mtllib_reads_the_geometry_pymeshlab_reads(tmp_path, name):
-    """A shared model with an `mtllib` line added goes through our OBJ reader: the triangles
+    """A test model with an `mtllib` line added goes through our OBJ reader: the triangles
     pymeshlab reads from the original (as sets of corner positions; spot's UV seams split
     vertices, so the vertex count may grow, never the geometry)."""
-    original = MODELS / name
-    path = tmp_path / name
+    original = model(name)
+    path = tmp_path / original.name
     path.write_bytes(b"mtllib none.mtl\n" + original.read_bytes())
     ours_mesh, theirs = meshes.load_mesh(path), meshes.load_mesh(original)
     assert ours_mesh.tri_count == theirs.tri_count
@@ -602,7 +602,7 @@ def test_obj_with_mtllib_reads_the_geometry_pymeshlab_reads(tmp_path, name):
         return np.sort(corners.view(np.float64).reshape(-1, 9), axis=0)
 
     np.testing.assert_array_equal(triangles(ours_mesh), triangles(theirs))
-    assert (ours_mesh.uvs is not None) == (name == "spot.obj")
+    assert (ours_mesh.uvs is not None) == (name == "spot")
 
 
 def test_obj_polygons_relative_indices_and_bad_numbers(tmp_path):
@@ -632,7 +632,7 @@ def test_malformed_mtl_is_one_clear_error(tmp_path):
 
 def test_obj_without_mtllib_reads_as_before(tmp_path):
     """No mtllib: pymeshlab's path as before, no appearance at all, even with texture
-    coordinates (like the shared spot.obj: no texture for them to map)."""
+    coordinates (like the test model spot.obj: no texture for them to map)."""
     path = tmp_path / "plain.obj"
     path.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvt 1 1\nf 1/1 2/2 3/1 4/2\n")
     mesh = meshes.load_mesh(path)

@@ -22,7 +22,7 @@ from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.io import hlod_file, meshes
 
-from helpers import MODELS, ROOT, file_bytes
+from helpers import ROOT, file_bytes, model
 
 
 def _transform(scale, x, y, *, z=0.0, turn_deg=0.0, mirror=False) -> list[float]:
@@ -37,14 +37,14 @@ def _transform(scale, x, y, *, z=0.0, turn_deg=0.0, mirror=False) -> list[float]
 
 @pytest.fixture(scope="module")
 def spec(tmp_path_factory):
-    """42,052 triangles: three models, six instances (one mirrored, one far smaller than the rest)."""
+    """40,848 triangles: three models, six instances (one mirrored, one far smaller than the rest)."""
     path = tmp_path_factory.mktemp("spec") / "scene.json"
     path.write_text(json.dumps({"models": [
-        {"path": str(MODELS / "cow.obj"), "transforms": [_transform(1, 0, 0), _transform(1.5, 3, 0, turn_deg=40),
+        {"path": str(model("cow")), "transforms": [_transform(1, 0, 0), _transform(1.5, 3, 0, turn_deg=40),
                                                          _transform(1, 0, 3, z=0.5, mirror=True)]},
-        {"path": str(MODELS / "teapot.obj"),
+        {"path": str(model("teapot")),
          "transforms": [_transform(0.1, -3, -2, turn_deg=10), _transform(0.05, 2, -3)]},
-        {"path": str(MODELS / "homer.obj"), "transforms": [_transform(1, -2, 2, turn_deg=90)]}]}))
+        {"path": str(model("airplane")), "transforms": [_transform(1, -2, 2, turn_deg=90)]}]}))
     return path
 
 
@@ -136,7 +136,7 @@ def _with_normals(mesh, *, unused: int = 0) -> meshes.TriangleMesh:
 def test_normals_unused_vertices_and_chunks_cut_in_pieces(tmp_path):
     """Chunks with normals and unused vertices, each cut into pieces that share vertices (chunk_tris
     far below a chunk): the same file as the merged mesh baked in memory, normals included."""
-    cow, teapot = (meshes.load_mesh(MODELS / name) for name in ("cow.obj", "teapot.obj"))
+    cow, teapot = (meshes.load_mesh(model(name)) for name in ("cow", "teapot"))
     parts = [_with_normals(cow, unused=3),
              _with_normals(meshes.transform_mesh(teapot, np.array(_transform(0.1, 1.5, 0)).reshape(4, 4), name="t")),
              _with_normals(meshes.transform_mesh(
@@ -193,7 +193,7 @@ def test_the_partition_holds_no_array_of_every_triangle(tmp_path):
     file, exactly its triangles, and together the leaves read every triangle once. Measured in a
     process of its own (PARTITION_MEMORY): a third of the bound (120 cows, 4,096 at a time: 0.6)."""
     spec = tmp_path / "herd.json"
-    spec.write_text(json.dumps({"models": [{"path": str(MODELS / "cow.obj"),
+    spec.write_text(json.dumps({"models": [{"path": str(model("cow")),
                                             "transforms": [_transform(1, 1.2 * (k % 12), 1.2 * (k // 12), turn_deg=17 * k)
                                                            for k in range(60)]}]}))
     chunk = 2048
@@ -231,7 +231,7 @@ def test_scratch_is_removed_after_a_cancel_and_an_error(spec, tmp_path):
                     raise OSError("disk gone")
                 yield chunk
 
-    cow = meshes.load_mesh(MODELS / "cow.obj")
+    cow = meshes.load_mesh(model("cow"))
     with pytest.raises(OSError, match="disk gone"):
         bake_stream(Failing([cow, cow]), BakeSettings(target_tris=300), chunk_tris=1000, scratch_dir=tmp_path)
     assert list(tmp_path.iterdir()) == []
@@ -266,7 +266,7 @@ def test_command_line_out_of_core_writes_the_same_file(spec, tmp_path, capsys):
 @pytest.mark.parametrize("target_tris, max_depth", [(10_000, 12), (100, 0)])
 def test_one_leaf_inputs(tmp_path, target_tris, max_depth):
     """An input within one leaf's budget, and max_depth 0: the root is the only node, in both ways."""
-    cow = meshes.load_mesh(MODELS / "cow.obj")
+    cow = meshes.load_mesh(model("cow"))
     settings = BakeSettings(target_tris=target_tris, max_depth=max_depth)
     in_memory = bake(cow, settings)
     streamed = bake_stream(partition.MeshSource(cow), settings, chunk_tris=1000, scratch_dir=tmp_path)
@@ -296,7 +296,7 @@ def test_a_bad_transform_is_named_as_the_in_memory_reader_names_it(tmp_path):
     naming the spec, the model entry and the transform."""
     spec = tmp_path / "far.json"
     spec.write_text(json.dumps({"models": [
-        {"path": str(MODELS / "cow.obj"), "transforms": [_transform(1, 0, 0), _transform(1e308, 0, 0)]}]}))
+        {"path": str(model("cow")), "transforms": [_transform(1, 0, 0), _transform(1e308, 0, 0, z=1e308)]}]}))
     with pytest.raises(InputError) as in_memory:
         meshes.load_inputs([spec])
     with pytest.raises(InputError) as streamed:

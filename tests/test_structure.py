@@ -372,8 +372,9 @@ def test_modules_stay_under_the_size_bar():
 
 # --- the tests themselves -----------------------------------------------------------------------------
 
-#: Scripts in tests/blender/ that run in their own (bpy) process, not in pytest's.
-OWN_PROCESS = re.compile(r"blender_\w*checks\.py")
+#: Scripts in tests/ that run in their own process (bpy, in tests/blender/; the fuzz run's worker),
+#: not in pytest's.
+OWN_PROCESS = re.compile(r"blender_\w*checks\.py|hlod_fuzz_worker\.py")
 #: Where the test run's GL context is made: the fixture and the function it calls; and the tests of
 #: making contexts (hlod_core/render/gl_platform.py), whose subject it is.
 GL_CONTEXT_HOMES = {"conftest.py", "helpers.py", "test_gl_platform.py"}
@@ -468,7 +469,7 @@ def test_dask_is_imported_only_by_a_bake_given_a_scheduler(graph):
     assert cluster not in reached and not {name for name in reached if graph[name][1] & dask}
     script = ("import sys\nsys.path.insert(0, 'tests')\nfrom helpers import load_model\n"
               "from hlod_core.bake.pipeline import bake\nfrom hlod_core.bake.settings import BakeSettings\n"
-              "for jobs in (1, 2):\n    bake(load_model('cow.obj'), BakeSettings(target_tris=1000, jobs=jobs))\n"
+              "for jobs in (1, 2):\n    bake(load_model('cow'), BakeSettings(target_tris=1000, jobs=jobs))\n"
               "loaded = sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed'))\n"
               f"assert not loaded and {cluster!r} not in sys.modules, loaded\n")
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, cwd=ROOT, timeout=300)

@@ -54,16 +54,20 @@ def test_unique_by_first_numbers_keys_by_first_appearance():
     assert first.tolist() == [0, 1, 3] and inverse.tolist() == [0, 1, 0, 2, 1]
 
 
-@pytest.mark.parametrize("name, target", [("spot.obj", 200), ("fandisk.obj", 500), ("fandisk.obj", 200),
-                                          ("cow.obj", 200), ("teapot.obj", 200), ("stanford-bunny.obj", 2000)])
+@pytest.mark.parametrize("name, target", [("spot", 200), ("creased", 500), ("creased", 200),
+                                          ("cow", 200), ("teapot", 200), ("bunny", 2000)])
 def test_root_error_over_scale_is_the_same_at_every_scale(name, target):
     # Before the lattice: spot 0.108 / 0.081 / 0.050 and fandisk (500) 0.030 / 0.024 / 0.024 at
-    # x1e-3 / x1 / x1e3. Wanted within 10%; the lattice gives the same LODs, so within 1e-5.
+    # x1e-3 / x1 / x1e3. Wanted within 10%; the lattice gives the same LODs, so within 1e-5, or
+    # within float32 rounding at the model's size (2^-23 of its box diagonal) where the error is
+    # that small: the creased part's flat faces leave its root error at 200 triangles at 7e-4 of
+    # its diagonal, and the same LODs measure 0.0055874, 0.0055875, 0.0055875 (1.4e-7 apart).
     mesh = load_model(name)
     scaled = {s: _scaled(mesh, s) for s in SCALES}
     hlods = {s: bake(scaled[s], BakeSettings(target_tris=target)) for s in SCALES}
     errors = np.array([hlods[s].error[0] / s for s in SCALES])
-    assert errors.max() / errors.min() - 1.0 < 1e-5, errors
+    diagonal = float(np.linalg.norm(np.ptp(mesh.positions, axis=0)))
+    assert errors.max() - errors.min() <= max(1e-5 * errors.min(), 2.0 ** -23 * diagonal), errors
     base = hlods[1.0]
     inner = np.flatnonzero(~base.is_leaf)
     for s in (1e-3, 1e3):

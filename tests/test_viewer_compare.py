@@ -1,5 +1,5 @@
 """The tiles CesiumJS chooses against the nodes our VFC traversal draws for the same camera
-and threshold (benchmarks/cesium_compare.py holds the comparison and the explanation of each term).
+and threshold (tests/cesium_selection.py holds the comparison and the explanation of each term).
 
 Cesium runs for real: the viewer page (hlod_core/export/viewer_page) served by hlod_core.export.viewer, in
 Chromium from the system packages driven by Playwright, WebGL through SwiftShader."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks import cesium_compare as cc
+import cesium_selection as cc
 
 TAUS_PX = (16.0, 2.0)
 #: The mean Jaccard index of ours and Cesium's sets over the terrain's cameras and thresholds,
@@ -84,7 +84,7 @@ def test_ours_and_cesiums_sets_overlap_as_measured(rows):
 
 @pytest.mark.gl
 def test_the_vfc_nodes_compared_are_those_the_gl_renderer_draws(terrain):
-    """cesium_compare runs VFC with a renderer that draws nothing; the GL renderer gives the same nodes."""
+    """cesium_selection runs VFC with a renderer that draws nothing; the GL renderer gives the same nodes."""
     from hlod_core.render.renderer import Renderer
 
     hlod, _, _ = terrain

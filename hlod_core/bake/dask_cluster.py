@@ -19,8 +19,8 @@ TASKS_PER_THREAD x the cluster's threads in flight (its `limit`: one running and
 thread) and passes its own order as the Dask priority, so the tasks the scheduler and the workers
 queue (the waiting ones; a lost worker's, retried) run in the loop's order. Tasks are
 deterministic, so a task retried on another worker returns the same result. Measured costs (one
-Dask task costs about 7 ms of CPU here beside its 30-45 ms of work) are in the README, "Baking on
-a Dask cluster".
+Dask task costs about 7 ms of CPU here beside its 30-45 ms of work) are in
+docs/performance.md#baking-on-a-dask-cluster.
 
 Before a bake uses a cluster, `check_cluster` asks every worker for the versions and sources that
 decide LODs and errors (cache.context_digest) and reads a probe file in the scratch folder:

@@ -13,8 +13,9 @@ source (sources.py: a mesh in memory, or a stream bigger than memory):
     assemble -> one vertex and one index buffer, node ranges, appearance arrays, nested bounds
                 and monotone errors (assemble.py)
 
-After Charalambos' dissertation (`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`
-§3.3, §8: octree, one LOD of ~2000 triangles per node, offline bottom-up simplification).
+After J. P. Charalambos, "HLOD Refinement Driven by Hardware Occlusion Queries", dissertation, 2007
+(sections 3.3 and 8: octree, one LOD of ~2000 triangles per node, offline bottom-up simplification;
+docs/how-it-works.md#papers, docs/how-it-works.md#the-bake).
 A node's LOD and error depend on its subtree's input triangles and the settings only, so a bake
 from the cache, a streamed bake and a Dask bake all write the file a bake from scratch writes,
 byte for byte except meta.VOLATILE_META.

@@ -47,16 +47,31 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The parser of `python -m hlod_core`: every command and option (docs/command-line.md lists them).
-    Each command's `run` default is the function that carries it out (args -> the JSON summary)."""
-    parser = Parser(prog="python -m hlod_core", description="Bake and inspect octree HLODs.")
+#: Where every command and option is described (the parsers' help is the short form).
+DOCS = "docs/command-line.md"
+
+
+def build_parser(prog: str | None = None) -> argparse.ArgumentParser:
+    """The parser of the command line: every command and option (docs/command-line.md lists them),
+    named `prog` in its usage and errors (None: the name it was run by, program_name()). Each
+    command's `run` default is the function that carries it out (args -> the JSON summary)."""
+    parser = Parser(prog=prog or program_name(), description="Bake and inspect octree HLODs.",
+                    epilog=f"Every command, option and input file format: {DOCS} in the source repository.")
     parser.add_argument("-q", "--quiet", action="store_true", help="only errors on stderr")
     sub = parser.add_subparsers(dest="command", required=True)
     for add_command in (bake.add_bake, files.add_info, run.add_run, run.add_evaluate, files.add_export,
                         files.add_view, bake.add_scene):  # the order of `--help`
         add_command(sub)
     return parser
+
+
+def program_name(argv0: str | None = None) -> str:
+    """The name the command line was run by, from `argv0` (default sys.argv[0]): `python -m
+    hlod_core` for the module (argv0 is then its __main__.py), else the file name of the script
+    (`hlod-core`, pip's entry point)."""
+    argv0 = sys.argv[0] if argv0 is None else argv0
+    name = os.path.basename(argv0)
+    return "python -m hlod_core" if name in ("", "__main__.py") or name.startswith("-") else name
 
 
 def _log_warning(message, category, filename, lineno, file=None, line=None) -> None:

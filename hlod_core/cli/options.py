@@ -112,7 +112,8 @@ def cluster_options(p: argparse.ArgumentParser) -> None:
     """`bake --scheduler ADDRESS [--scratch DIR] [--scheduler-timeout S]` (--scratch serves --out-of-core too)."""
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="a Dask scheduler (tcp://HOST:8786): the decimations and measurements run on its workers "
-                        "instead of --jobs local processes, for the same file (needs dask[distributed]; see README)")
+                        "instead of --jobs local processes, for the same file (needs dask[distributed]; "
+                        "docs/command-line.md#baking-on-a-dask-cluster)")
     p.add_argument("--scratch", metavar="DIR",
                    help="with --scheduler: an existing folder every worker can read (shared storage on a cluster), "
                         "for the bake's shared arrays (default: the temporary folder, enough for workers on this "

@@ -25,7 +25,7 @@ def add_run(sub) -> None:
     p.add_argument("--method", required=True, choices=METHODS)
     p.add_argument("--bias", choices=["P", "mu"], default="P", help="P = P_{s,t}(mu); mu = the visibility itself (s = 0)")
     runtime_options(p)
-    p.add_argument("--path", metavar="PATH.json", help="camera path file (see README)")
+    p.add_argument("--path", metavar="PATH.json", help="camera path file (docs/command-line.md#camera-paths)")
     p.add_argument("--seed", type=whole_number(0), default=1,
                    help="seed of a generated inspection path (without --path)")
     p.add_argument("--frames", type=whole_number(1), default=60, help="frames of a generated path")
@@ -44,7 +44,7 @@ def add_evaluate(sub) -> None:
     p = sub.add_parser("evaluate", help="all methods on one camera path: report.json, report.md, figures")
     p.add_argument("file", metavar="FILE.hlod")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for report.json, report.md and PNGs")
-    p.add_argument("--path", metavar="PATH.json", help="camera path file (see README)")
+    p.add_argument("--path", metavar="PATH.json", help="camera path file (docs/command-line.md#camera-paths)")
     p.add_argument("--seed", type=whole_number(0), default=1,
                    help="seed of a generated inspection path and of the PSNR frames")
     p.add_argument("--frames", type=whole_number(1), default=60, help="frames of a generated path")
@@ -57,7 +57,8 @@ def add_evaluate(sub) -> None:
     p.add_argument("--psnr-frames", type=whole_number(1), default=20, help="seeded random frames compared by PSNR")
     p.add_argument("--psnr-target", type=psnr_db, metavar="DB",
                    help="instead of the methods: find the (s, t) with the fewest drawn nodes whose PSNR-Y against Bool "
-                        "stays >= DB at every PSNR frame (Bool and Coh(P) candidates only; see README)")
+                        "stays >= DB at every PSNR frame (Bool and Coh(P) candidates only; "
+                        "docs/how-it-works.md#tuning-s-and-t-to-a-psnr-target)")
     gpu_budget_option(p)
     p.set_defaults(run=evaluate_command)
 

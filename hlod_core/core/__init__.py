@@ -1,3 +1,4 @@
-"""Shared helpers every room of the core uses: typed errors, array helpers, the one atomic write,
-nesting-limited JSON, PNG writing, colour conversions and the overlay's colour ramp, stop signals.
-Imports nothing else of the core."""
+"""Shared helpers every room of the core uses: typed errors (`errors`), array helpers (`arrays`),
+the one atomic write (`atomic`), nesting-limited JSON (`jsonutil`), PNG writing (`png`), colour
+conversions and the overlay's colour ramp (`colour`), stop signals (`signals`), the bake's process
+tree on each platform (`process_tree`). Imports nothing else of the core."""

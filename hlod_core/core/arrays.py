@@ -1,4 +1,4 @@
-"""Small array helpers shared by the core (STYLE: one helper per job).
+"""Small array helpers shared by the core, one helper per job.
 
 Data form: numpy arrays; index arrays are rows into a vertex array of the same part.
 """

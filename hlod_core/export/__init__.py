@@ -1,2 +1,3 @@
-"""Outputs for other tools: 3D Tiles 1.1 (one tile and GLB per node), the native .hlod copy, and the
-localhost viewer page for a 3D Tiles export."""
+"""Outputs for other tools: 3D Tiles 1.1 (`tiles3d`: one tile and GLB per node, `glb`), the native
+.hlod copy, the choice between them (`formats`), and the localhost viewer page for a 3D Tiles
+export (`viewer`)."""

@@ -1,5 +1,5 @@
 """Outputs of the core: where a file may be written, and the export of a baked hierarchy in a
-chosen format (3D Tiles 1.1 or the native .hlod). Used by the command line (hlod_core/cli.py) and
+chosen format (3D Tiles 1.1 or the native .hlod). Used by the command line (hlod_core/cli/files.py) and
 by the Blender background command (addon/cli.py).
 """
 from __future__ import annotations

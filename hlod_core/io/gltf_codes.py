@@ -1,5 +1,5 @@
-"""glTF 2.0 codes, named once (Khronos glTF 2.0 specification; as glTF-Blender-IO's
-`io/com/gltf2_io_constants.py` names them): the GLB container, accessor component types and element
+"""glTF 2.0 codes, named once (Khronos glTF 2.0 specification; as Blender's glTF add-on names
+them in its constants module): the GLB container, accessor component types and element
 types, buffer view targets, primitive modes, sampler codes, and the axis change between glTF (+Y up)
 and Blender and the bake (+Z up). The reader (io.gltf, io.gltf_accessors) and the writer
 (export.glb) both take them from here.

@@ -1,7 +1,7 @@
 """Bake input: triangle meshes as numpy arrays, read from mesh files or scene specs, merged into one.
 
 Data form: `TriangleMesh` = positions (v,3) float64 model units, faces (f,3) int64 rows of
-positions, optional normals (v,3) float32, and optional appearance (appearance.py): uvs (v,2)
+positions, optional normals (v,3) float32, and optional appearance (model/appearance.py): uvs (v,2)
 float32, colors (v,4) float32 linear RGBA, material_ids (f,) int32 rows of `materials`. Several
 meshes merge into one scene by concatenation (material tables appended, ids shifted).
 
@@ -47,7 +47,7 @@ SINGULAR_TRANSFORM_RATIO = 1e-12
 @dataclass(frozen=True, eq=False)
 class TriangleMesh:
     """positions (v,3) float64; faces (f,3) int64; normals (v,3) float32 or None; name for messages;
-    appearance (all optional, see appearance.py): uvs (v,2) float32, colors (v,4) float32,
+    appearance (all optional, see model/appearance.py): uvs (v,2) float32, colors (v,4) float32,
     material_ids (f,) int32 into `materials` (a tuple of appearance.Material)."""
 
     positions: np.ndarray

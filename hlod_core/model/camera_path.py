@@ -12,9 +12,10 @@ number (not null, a string, a list or true/false), finite and at most MAX_MAGNIT
 unknown keys are refused; any far/near ratio is accepted (traversal.boxes.frustum_planes keeps a
 far plane beyond float64's reach at infinity).
 
-Seeded sequences (after the dissertation's inspection sequences, §8.1: rotations and changes from
-overall views to extreme close-ups): an orbit around the scene, a fly-through across it, a dolly
-from the overview down to an extreme close-up of a surface point, and a rotation in place there;
+Seeded sequences (after the inspection sequences of section 8.1 of J. P. Charalambos' dissertation,
+2007, docs/how-it-works.md#papers: rotations and changes from overall views to extreme close-ups):
+an orbit around the scene, a fly-through across it, a dolly from the overview down to an extreme
+close-up of a surface point, and a rotation in place there;
 the parts are recorded as such.
 """
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """The HLOD node table: structure of arrays, one row per node, root = row 0.
 
-Implements the data model of docs/how-it-works.md#the-node-table (after the octree HLODs of Charalambos' dissertation,
-`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`, §3.3: one discrete LOD of
-about `target_tris` triangles per node, a model-space error per node, nested bounding volumes).
+Implements the data model of docs/how-it-works.md#the-node-table (after the octree HLODs of J. P.
+Charalambos, "HLOD Refinement Driven by Hardware Occlusion Queries", dissertation, 2007, section
+3.3: one discrete LOD of about `target_tris` triangles per node, a model-space error per node,
+nested bounding volumes; docs/how-it-works.md#papers).
 
 Nodes are numbered breadth first, so the children of a node are contiguous:
 `child_offset[i] .. child_offset[i] + child_count[i] - 1` (`child_offset = -1` for a leaf).

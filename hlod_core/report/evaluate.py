@@ -1,15 +1,15 @@
 """Evaluation (docs/evaluation.md): every method on one camera path, image error against run time, written as
 report.json, report.md, report.html and figures.
 
-Reproduces the measurements of Charalambos' dissertation, chapter 8
-(`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`): Table 8.1 (PSNR of
+Reproduces the measurements of chapter 8 of J. P. Charalambos, "HLOD Refinement Driven by Hardware
+Occlusion Queries", dissertation, 2007 (docs/how-it-works.md#papers): Table 8.1 (PSNR of
 luminance and chrominance over 20 random frames against Bool), Table 8.2 (FPS, DN, RARN, D per
 method), Tables 8.3/8.4 (speedup and node savings of Coh(P)/Coh(mu) over Bool, Simp and SW),
 Figures 8.1-8.3 (`showcase`) and 8.4/8.5 (`per_frame_figure`); plus the alpha estimators
 (docs/how-it-works.md#alpha-three-ways, `alpha_study`) and sweeps over tau, (s, t) and alpha. The variants run interleaved on one
 renderer (`interleaved`); their rows are `rows`, image error `image_error`, the Markdown
-`markdown`, the page `html_page`. Pass/fail targets are not the product's: benchmarks/
-evaluation_targets.py reads a report.json and says which hold. `tuning` runs its candidates
+`markdown`, the page `html_page`. Pass/fail targets are not the product's:
+benchmarks/evaluation_targets.py reads a report.json and says which hold. `tuning` runs its candidates
 through the same loop and rows and writes its report with `write_report`.
 
 Data form: per_frame[key] (repeat, frames, len(COUNTERS)) float64 counters per report key (see

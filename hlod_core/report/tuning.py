@@ -2,13 +2,15 @@
 luminance PSNR against Bool stays at or above a target on a camera path, and the curve of drawn
 nodes against PSNR over the (s, t) tried.
 
-Papers: VMSSE = P_{s,t}(mu) SSE and the bias P_{s,t} = (1 - s) mu + s S_t(mu) come from
-Charalambos, Bittner, Wimmer, Romero (ISVC 2007,
-`../shared/papers/charalambos-bittner-wimmer-romero2007-optimized-hlod-refinement.txt` §3) and
-Charalambos' dissertation (`charalambos2007-dissertation-hlod-refinement-hoq.txt`, chapter 8),
-which chose (s, t) per scene by hand and judged image quality by the PSNR of luminance against Bool
-(Table 8.1). docs/how-it-works.md#vmsse-and-the-bias-p_st defines P_{s,t}, §9 the evaluation whose loop (`interleaved`), rows
-(`rows`) and report writing (`evaluate.write_report`) this reuses.
+Papers (docs/how-it-works.md#papers): VMSSE = P_{s,t}(mu) SSE and the bias P_{s,t} = (1 - s) mu +
+s S_t(mu) come from J. P. Charalambos, J. Bittner, M. Wimmer, E. Romero, "Optimized HLOD
+Refinement Driven by Hardware Occlusion Queries", ISVC 2007 (section 3), and Charalambos'
+dissertation ("HLOD Refinement Driven by Hardware Occlusion Queries", 2007, chapter 8), which
+chose (s, t) per scene by hand and judged image quality by the PSNR of luminance against Bool
+(Table 8.1). docs/how-it-works.md#vmsse-and-the-bias-p_st defines P_{s,t},
+docs/how-it-works.md#tuning-s-and-t-to-a-psnr-target the search, and docs/evaluation.md the
+evaluation whose loop (`interleaved`), rows (`rows`) and report writing (`evaluate.write_report`)
+this reuses.
 
 The search: a bisection over T_LADDER along each s of S_LINES, all lines advancing together, one
 round a pass of Bool and each line's next candidate; the chosen candidate has the fewest drawn

@@ -8,7 +8,7 @@ preview) is passed in through the `protocol.NodeRenderer` protocol.
 - metrics, boxes, alpha_estimators: per-frame SSE, bias P_{s,t}, box tests and alpha, vectorised
   over the node table;
 - base: the state and helpers every method shares, and `frame(view)`;
-- methods: Full, VFC, SW, Ideal, the METHODS table and `make`;
+- methods: Full, VFC, SW, Ideal, the METHODS table and `methods.make`;
 - coherent: the coherent loop and Bool, Simp, Coh;
 - query_stream: CHC++'s multiqueries and query batches;
 - skipping, query_cost: skipped queries, and the renderer's cost model they read.

@@ -3,11 +3,11 @@ the exact `query` count that the renderer measures: `cube` (the 2006 paper's cub
 vectorised over nodes) and `projected` (the box's silhouette clipped to the viewport: the summed
 area of its back faces' projections, vectorised over nodes).
 
-Papers: the VMSSE `SSE * P(q/alpha)` and the cube estimate of alpha come from Charalambos,
-"Coherent hierarchical level-of-detail (HLOD) refinement through hardware occlusion queries"
-(SIACG 2006, `../shared/papers/charalambos2006-coherent-hlod-refinement-hoq.txt` §4); the bias
-`P_{s,t}` from Charalambos, Bittner, Wimmer, Romero, "Optimized HLOD refinement driven by hardware
-occlusion queries" (ISVC 2007, `...2007-optimized-hlod-refinement.txt` §3).
+Papers (docs/how-it-works.md#papers): the VMSSE `SSE * P(q/alpha)` and the cube estimate of alpha
+come from J. P. Charalambos, "Coherent Hierarchical Level-of-Detail (HLOD) Refinement Through
+Hardware Occlusion Queries", SIACG 2006 (section 4); the bias `P_{s,t}` from J. P. Charalambos,
+J. Bittner, M. Wimmer, E. Romero, "Optimized HLOD Refinement Driven by Hardware Occlusion
+Queries", ISVC 2007 (section 3).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Axis-aligned boxes against a view, vectorised over the node table (docs/how-it-works.md#query-boxes, §6): frustum
+"""Axis-aligned boxes against a view, vectorised over the node table (docs/how-it-works.md#query-boxes): frustum
 planes, the frustum test, boxes crossing the near plane (not queryable), the eye-to-box distance
 (the traversal's priority key), the eye inside a box, and box corners and edges.
 

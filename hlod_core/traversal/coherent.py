@@ -1,9 +1,10 @@
-"""The coherent traversals (docs/how-it-works.md#the-traversal-methods): Algorithm 2's loop of Charalambos' dissertation
-(`charalambos2007-dissertation-hlod-refinement-hoq.txt`), after CHC (Bittner, Wimmer, Piringer,
-Purgathofer 2004: the front-to-back priority queue, the FIFO query queue, visibility pulled up,
-queries never stalling while work remains), and its three predictors: Bool (Algorithm 1, after
-Gobbetti & Marton), Simp (Algorithm 3, the 2006 predictor) and Coh (Algorithm 4: refine / stop /
-delay from the previous frame's cached ratio).
+"""The coherent traversals (docs/how-it-works.md#the-traversal-methods): Algorithm 2's loop of J. P.
+Charalambos' dissertation ("HLOD Refinement Driven by Hardware Occlusion Queries", 2007;
+docs/how-it-works.md#papers), after CHC (Bittner, Wimmer, Piringer, Purgathofer 2004: the
+front-to-back priority queue, the FIFO query queue, visibility pulled up, queries never stalling
+while work remains), and its three predictors: Bool (Algorithm 1, after Gobbetti & Marton), Simp
+(Algorithm 3, the 2006 predictor) and Coh (Algorithm 4: refine / stop / delay from the previous
+frame's cached ratio).
 
 Decisions on points the pseudocode leaves open (docs/how-it-works.md#the-traversal-methods): a node drawn this frame is never drawn
 again; if its query later says "refine" it counts in RARN and its children are traversed. A query

@@ -2,9 +2,11 @@
 counters (`stats.FrameStats`): Full, VFC, SW and Ideal here; Bool, Simp and Coh, the coherent
 loop's, in `coherent`. `make` builds one by name.
 
-Papers: Charalambos' dissertation (`../shared/papers/charalambos2007-dissertation-hlod-refinement-hoq.txt`):
-stop-and-wait (SW, the ideal node count) and Algorithms 1-4; Bittner, Wimmer, Piringer, Purgathofer,
-"Coherent hierarchical culling" (2004) for the front-to-back priority queue all of them share.
+Papers (docs/how-it-works.md#papers): J. P. Charalambos, "HLOD Refinement Driven by Hardware
+Occlusion Queries", dissertation, 2007: stop-and-wait (SW, the ideal node count) and Algorithms
+1-4; J. Bittner, M. Wimmer, H. Piringer, W. Purgathofer, "Coherent Hierarchical Culling: Hardware
+Occlusion Queries Made Useful", Eurographics 2004, for the front-to-back priority queue all of
+them share.
 """
 from __future__ import annotations
 

@@ -1,11 +1,11 @@
 """Runtime metrics of docs/how-it-works.md#the-runtime, vectorised over the node table: the screen-space error (SSE),
 the bias P_{s,t} of VMSSE = P(mu) SSE, and the modulation m = 1 - P the overlay shows.
 
-Papers: the VMSSE `SSE * P(q/alpha)` and the cube estimate of alpha come from Charalambos,
-"Coherent hierarchical level-of-detail (HLOD) refinement through hardware occlusion queries"
-(SIACG 2006, `../shared/papers/charalambos2006-coherent-hlod-refinement-hoq.txt` §4); the bias
-`P_{s,t}` from Charalambos, Bittner, Wimmer, Romero, "Optimized HLOD refinement driven by hardware
-occlusion queries" (ISVC 2007, `...2007-optimized-hlod-refinement.txt` §3).
+Papers (docs/how-it-works.md#papers): the VMSSE `SSE * P(q/alpha)` and the cube estimate of alpha
+come from J. P. Charalambos, "Coherent Hierarchical Level-of-Detail (HLOD) Refinement Through
+Hardware Occlusion Queries", SIACG 2006 (section 4); the bias `P_{s,t}` from J. P. Charalambos,
+J. Bittner, M. Wimmer, E. Romero, "Optimized HLOD Refinement Driven by Hardware Occlusion
+Queries", ISVC 2007 (section 3).
 
 Data form: a `view.View` and per-node arrays of the `hierarchy.Hlod` table; every function returns
 (n,) arrays (`bias_function`: P of one float, for the traversal's per-node path).

@@ -1,4 +1,4 @@
-"""What a traversal and its drawing side exchange (docs/how-it-works.md#the-traversal-methods, §7): the `NodeRenderer` protocol it
+"""What a traversal and its drawing side exchange (docs/how-it-works.md#the-traversal-methods): the `NodeRenderer` protocol it
 draws and queries through (`render.renderer.Renderer` is one, Blender's preview another, tests wrap
 them), the `QueryHandle` a query comes back as, and a query in flight (`Pending`) with its mode,
 the prediction it was issued for."""

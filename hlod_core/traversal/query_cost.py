@@ -122,8 +122,8 @@ class BoxAreas:
 
 
 #: Nodes up to which `draw_is_cheaper` tests them in plain Python, one by one (above: numpy): on
-#: small fronts a numpy call costs more than the arithmetic (README "The skip test's start and its
-#: small fronts" gives the measured crossover).
+#: small fronts a numpy call costs more than the arithmetic (the measured crossover:
+#: docs/performance.md#the-skip-tests-start-and-small-fronts).
 PYTHON_TEST_NODES = 64
 
 

@@ -1,4 +1,4 @@
-"""The traversal's runtime settings (docs/how-it-works.md#vmsse-and-the-bias-p_st, §6): one frozen `RuntimeSettings`, validated on
+"""The traversal's runtime settings (docs/how-it-works.md#vmsse-and-the-bias-p_st): one frozen `RuntimeSettings`, validated on
 construction, and the tuples of the values each mode setting accepts."""
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ class RuntimeSettings:
     CHC++'s multiqueries and query batching;
     predict_new (Coh): one of PREDICT_NEW_MODES;
     measure_every (Coh, shift_up "measured"): frames between two queries of a refined node.
-    The defaults are the fastest measured on every scene (README)."""
+    The defaults are the fastest measured on every scene (docs/performance.md#traversal-and-preview)."""
 
     tau: float = 1.0
     s: float = 0.9
@@ -48,7 +48,8 @@ class RuntimeSettings:
     skip_queries: str = "expected"
     multiquery: str = "on"
     batch_queries: str = "on"
-    predict_new: str = "on"  # node counts within 0.5% of "off" (README)
+    # node counts within 0.5% of "off" (docs/performance.md#newly-visited-nodes-predicted-visible)
+    predict_new: str = "on"
     measure_every: int = 4
 
     def __post_init__(self):

@@ -1,64 +1,86 @@
-"""Writes the scene specs in this folder from the shared models (run: python tests/scenes/generate_specs.py).
+"""Writes the scene specs in this folder from the test models (run: python tests/scenes/generate_specs.py).
 
-gallery_1m.json: 8 statues (igea x2, nefertiti x3, bunny x3; 1,045,227 triangles) each scaled to
+The specs name their models relative to this folder: tests/meshes/ for the models kept in the
+repository, .cache/models/ for the rest (tests/models.py writes them there on first use:
+`models.scene(NAME)` before a spec is read, or `python tests/models.py` once by hand).
+
+gallery_1m.json: 8 statues (statue x2, bust x3, bunny x3; 1,004,268 triangles) each scaled to
 10 units and centred, in one row along +x, 8 units apart: looking down the row, each statue hides
 most of the next (high depth complexity).
 
-crowd_1m.json: 144 statues (cow, homer, spot, teapot, rocker-arm, fandisk; 1.5M triangles) each scaled
-to 10 units and turned about +z, packed on a 12 x 12 grid 8 units apart (neighbours nearly touch):
-from inside or beside the crowd the nearest statues hide most of the others, which show only as
-slivers through the gaps: the README's high-depth-complexity evaluation scene. crowd_walk_path.json
-is a fast 320-frame tour of it (orbit at ground level, aisle walk, turn in place, dolly to close-up;
-up to 4.5 degrees or 1.35 units per frame), crowd_inspection_path.json the README's evaluation path:
-the same four parts at interactive speeds sampled at 60 frames per second (1,020 frames). Both
-paths name their parts ("parts": orbit, walk, turn, dolly with their start frames), which the
-evaluation report marks on its frame axis.
+crowd_1m.json: 144 statues (cow, airplane, spot, teapot, ring, creased; 1,535,020 triangles) each
+scaled to 10 units and turned about +z, packed on a 12 x 12 grid 8 units apart (neighbours nearly
+touch): from inside or beside the crowd the nearest statues hide most of the others, which show
+only as slivers through the gaps: the README's high-depth-complexity evaluation scene.
+crowd_walk_path.json is a fast 320-frame tour of it (orbit at ground level, aisle walk, turn in
+place, dolly to close-up; up to 4.5 degrees or 1.35 units per frame), crowd_inspection_path.json
+the README's evaluation path: the same four parts at interactive speeds sampled at 60 frames per
+second (1,020 frames). Both paths name their parts ("parts": orbit, walk, turn, dolly with their
+start frames), which the evaluation report marks on its frame axis.
 """
 import json
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
 import pymeshlab
 
 HERE = Path(__file__).resolve().parent
-MODELS = Path("../../../shared/models")  # relative to this folder, as the spec format wants
+sys.path.insert(0, str(HERE.parent))
+import models  # noqa: E402  (tests/models.py: the test models by role)
+
+def model_path(role: str) -> str:
+    """The role's file relative to this folder, as the spec format wants (written when missing)."""
+    return Path(os.path.relpath(models.path(role), HERE)).as_posix()
 
 
-def placement(model: str, position: np.ndarray, size: float = 10.0, turn_deg: float = 0.0) -> list[float]:
-    """Scale the model's box to `size` along its longest side, turn it about +z, centre it at `position`."""
+def box(role: str) -> tuple[np.ndarray, np.ndarray]:
+    """The role's box (low, high) as pymeshlab reads the file."""
     ms = pymeshlab.MeshSet()
-    ms.load_new_mesh(str((HERE / MODELS / model).resolve()))
-    box = ms.current_mesh().bounding_box()
-    scale = size / float(np.max(box.max() - box.min()))
+    ms.load_new_mesh(str(models.path(role)))
+    bounds = ms.current_mesh().bounding_box()
+    return bounds.min(), bounds.max()
+
+
+def placement(role: str, position: np.ndarray, size: float = 10.0, turn_deg: float = 0.0, *,
+              boxes: dict | None = None) -> list[float]:
+    """Scale the model's box to `size` along its longest side, turn it about +z, centre it at
+    `position`; `boxes` keeps the boxes read (role -> box) for the next call."""
+    boxes = {} if boxes is None else boxes
+    if role not in boxes:
+        boxes[role] = box(role)
+    low, high = boxes[role]
+    scale = size / float(np.max(high - low))
     c, s = np.cos(np.radians(turn_deg)), np.sin(np.radians(turn_deg))
     m = np.eye(4)
     m[:3, :3] = scale * np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    m[:3, 3] = position - m[:3, :3] @ (0.5 * (box.min() + box.max()))
+    m[:3, 3] = position - m[:3, :3] @ (0.5 * (low + high))
     return [float(x) for x in m.ravel()]
 
 
 def gallery() -> dict:
-    row = ["igea.ply", "nefertiti.obj", "stanford-bunny.obj", "igea.ply",
-           "nefertiti.obj", "stanford-bunny.obj", "nefertiti.obj", "stanford-bunny.obj"]
-    models: dict[str, list] = {}
+    row = ["statue", "bust", "bunny", "statue", "bust", "bunny", "bust", "bunny"]
+    placed: dict[str, list] = {}
+    boxes: dict[str, tuple] = {}
     for i, name in enumerate(row):
-        models.setdefault(name, []).append(placement(name, np.array([8.0 * i, 0.0, 0.0])))
-    return {"models": [{"path": str(MODELS / name), "transforms": t} for name, t in models.items()]}
+        placed.setdefault(name, []).append(placement(name, np.array([8.0 * i, 0.0, 0.0]), boxes=boxes))
+    return {"models": [{"path": model_path(name), "transforms": t} for name, t in placed.items()]}
 
 
 CROWD_SIDE, CROWD_SPACING = 12, 8.0
 
 
 def crowd() -> dict:
-    kinds = ["cow.obj", "homer.obj", "spot.obj", "teapot.obj", "rocker-arm.obj", "fandisk.obj",
-             "homer.obj", "cow.obj", "spot.obj", "rocker-arm.obj", "fandisk.obj"]
-    models: dict[str, list] = {}
+    kinds = ["cow", "airplane", "spot", "teapot", "ring", "creased", "airplane", "cow", "spot", "ring", "creased"]
+    placed: dict[str, list] = {}
+    boxes: dict[str, tuple] = {}
     for k in range(CROWD_SIDE * CROWD_SIDE):
         i, j = k % CROWD_SIDE, k // CROWD_SIDE
         name = kinds[(k + j) % len(kinds)]
         position = np.array([CROWD_SPACING * i, CROWD_SPACING * j, 0.0])
-        models.setdefault(name, []).append(placement(name, position, turn_deg=37.0 * k))
-    return {"models": [{"path": str(MODELS / name), "transforms": t} for name, t in models.items()]}
+        placed.setdefault(name, []).append(placement(name, position, turn_deg=37.0 * k, boxes=boxes))
+    return {"models": [{"path": model_path(name), "transforms": t} for name, t in placed.items()]}
 
 
 def _dolly(centre: np.ndarray, side: float, n: int) -> list:

@@ -1,7 +1,8 @@
-"""CesiumJS's tile selection re-implemented, formula for formula, to explain what Cesium chooses for
-a view (benchmarks/cesium_compare.py): its camera and culling volume, the tileset as it reads it,
-its SSE and its base traversal at rest (Cesium 1.1xx: Cesium3DTile.getScreenSpaceError,
-Cesium3DTilesetBaseTraversal, Cesium3DTilesetTraversal, OrientedBoundingBox, CullingVolume).
+"""CesiumJS's tile selection re-implemented, formula for formula, to explain what Cesium chooses for a
+view (tests/cesium_selection.py, benchmarks/cesium_compare.py): its camera and culling volume, the
+tileset as it reads it, its SSE and its base traversal at rest (Cesium 1.1xx:
+Cesium3DTile.getScreenSpaceError, Cesium3DTilesetBaseTraversal, Cesium3DTilesetTraversal,
+OrientedBoundingBox, CullingVolume).
 
 Data form: a `Camera` in the tileset's frame, which is our model space (Blender's Z up, metres; the
 viewer page maps it to Cesium's frame with the rigid transform it places the tileset with, which
