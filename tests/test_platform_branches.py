@@ -164,8 +164,8 @@ def test_windows_reads_the_hlod_into_memory_so_a_rebake_can_replace_it(bakes, tm
     no mapping or handle of the file is left (what lets Windows replace it), and a re-bake saved
     over it leaves them as they were. The POSIX branch maps it, and the replaced file's old pages
     stay readable through the mapping."""
-    _, first = bakes.baked("cow.obj", target_tris=400)
-    _, second = bakes.baked("cow.obj", target_tris=400, offset=1.0)
+    _, first = bakes.baked("cow", target_tris=400)
+    _, second = bakes.baked("cow", target_tris=400, offset=1.0)
     path = hlod_file.save(first, tmp_path / "scene.hlod")
     assert hlod_file.maps_files("win32") is False and hlod_file.maps_files("linux") is True
     assert hlod_file.maps_files("darwin") is True
@@ -262,7 +262,7 @@ def test_paths_with_spaces_and_non_ascii_letters_through_bake_export_and_view(tm
     folder = tmp_path / "dossier été" / "ünï cødé 模型"
     folder.mkdir(parents=True)
     cow = folder / "vache à lait.obj"
-    cow.write_bytes(model("cow.obj").read_bytes())
+    cow.write_bytes(model("cow").read_bytes())
     ascii_env = {"PYTHONIOENCODING": "ascii"}
     for source in (_textured_obj(folder), cow):
         out = folder / f"{source.stem} résultat.hlod"
