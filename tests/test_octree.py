@@ -2,7 +2,7 @@
 import numpy as np
 
 from hlod_core.bake import cache
-from hlod_core.bake.octree import build_octree, tight_cube
+from hlod_core.bake.octree import RootCube, build_octree, tight_cube
 
 
 def _corner_centroids():
@@ -113,3 +113,53 @@ def test_moving_an_object_leaves_another_objects_cells_and_keys_unchanged():
     assert _keys_of(old, before, owner=owner, which=0) == _keys_of(new, after, owner=owner, which=0)
     # and B's did change: the keys are not blind
     assert _keys_of(old, before, owner=owner, which=1) != _keys_of(new, after, owner=owner, which=1)
+
+
+def _cells_by_key(layout) -> dict[tuple, np.ndarray]:
+    """{(cell centre, half side): the node's sorted triangle ids} (levels left out: they shift when
+    the root cube grows)."""
+    return {(tuple(layout.cell_center[n]), float(layout.cell_half[n])):
+            np.sort(layout.tri_order[layout.tri_begin[n]:layout.tri_end[n]]) for n in range(layout.node_count)}
+
+
+def test_a_grown_root_keeps_every_cell_one_level_down_bit_for_bit():
+    """A cloud's octree, then the same cloud and a few centroids beyond its cube's +x and -y faces:
+    the root cube doubles (root_cube.RootCube.grown_to) and every cell of the first octree is a cell
+    of the second with the same float centre and half side and the same triangles, one level down.
+    Without the growth chain the old cube's octant would be computed from the grown cube's centre,
+    which rounds: its centre would differ in the last bits and no cell would be shared."""
+    rng = np.random.default_rng(3)
+    cloud = rng.random((20000, 3)) * [3.0, 2.0, 1.0] + [0.1, -5.0, 7.0]
+    base = tight_cube(cloud.min(0), cloud.max(0))
+    old = build_octree(cloud, target_tris=100, max_depth=12, root=base)
+    assert np.allclose(base.corner, [0.1, -5.5, 6.0], atol=1e-3) and abs(base.side - 3.0) < 1e-3
+    extra = np.array([[3.6, -5.9, 7.5]]) + rng.random((300, 3)) * 0.2  # past +x and -y
+    both = np.concatenate([cloud, extra])
+    grown = base.grown_to(both.min(0), both.max(0), most=2)
+    assert grown.growths == (0b101,)  # toward +x, -y and (where nothing left it) +z
+    new = build_octree(both, target_tris=100, max_depth=12, root=grown)
+    old_cells, new_cells = _cells_by_key(old), _cells_by_key(new)
+    assert old_cells.keys() <= new_cells.keys()
+    touched = {cell for cell, tris in old_cells.items() if not np.array_equal(new_cells[cell], tris)}
+    assert len(touched) <= 0.05 * len(old_cells)  # only the cells on the way to the new centroids changed
+    shared = [n for n in range(new.node_count) if (tuple(new.cell_center[n]), float(new.cell_half[n])) in old_cells]
+    assert np.all(new.cell_level[shared] >= 1)
+    top = grown.top  # the same cube, its octants computed: not one cell in common
+    plain = build_octree(both, target_tris=100, max_depth=12, root=RootCube(top.corner, top.side))
+    assert not old_cells.keys() & _cells_by_key(plain).keys()
+    # the old cloud alone in the grown root: the root shrinks into the base cube, the same octree
+    undone = build_octree(cloud, target_tris=100, max_depth=12, root=grown)
+    assert undone.node_count == old.node_count and np.array_equal(undone.tri_order, old.tri_order)
+    assert np.array_equal(undone.cell_center[1:], old.cell_center[1:])
+    assert np.array_equal(undone.cell_level[1:], old.cell_level[1:] + 1)
+
+
+def test_a_root_grows_toward_the_side_the_centroids_leave_it_on():
+    base = tight_cube(np.zeros(3), np.ones(3))
+    assert base.grown_to(np.zeros(3), np.ones(3), most=2) is base  # inside: kept
+    assert base.grown_to(np.array([-0.1, 0.0, 0.0]), np.ones(3), most=2).growths == (0b110,)
+    grown = base.grown_to(np.array([-0.1, 0.0, 0.0]), np.array([1.2, 1.0, 1.0]), most=2)
+    assert grown.growths == (0b110, 0b111)  # -x first, then +x: the cube is 4 sides wide
+    assert base.grown_to(np.array([-5.0, 0.0, 0.0]), np.ones(3), most=2) is None  # beyond two doublings
+    top = grown.top
+    assert top.side == 4.0 and top.contains(np.array([-0.1, 0.0, 0.0]), np.array([1.2, 1.0, 1.0]))

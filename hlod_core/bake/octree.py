@@ -5,11 +5,14 @@ out: `OctreeLayout`, a node table in breadth-first order (children contiguous) w
 cell, plus a permutation of the triangles in which every subtree's triangles form one contiguous
 range (leaves in depth-first order; input order within a leaf).
 
-Cells: the root cell (`tight_cube`) is the cube around the centroids' box (centred on it, side its
-longest extent); a cell splits at its centre into octants, so every cell is fixed by the root cell
-and its path. A node's cell (`cell_center`, `cell_half`, `cell_level`) is the octant it was made as
-(the root: the root cube). An edit that keeps the centroids' box keeps every cell it does not
-overlap, which is what the bake cache (cache.py) reuses.
+Cells: the root cell is a `root_cube.RootCube`: in a bake from scratch the cube around the
+centroids' box (`tight_cube`: centred on it, side its longest extent), in a re-bake the earlier
+bake's while the centroids fit it (frame.py), possibly grown by doublings that keep the earlier
+cube as an octant; a cell splits at its centre into octants (a grown cube at the earlier cube's
+face, its octant there being exactly the earlier cube: root_cube.GrowthChain), so every cell is
+fixed by the root cell and its path. A node's cell (`cell_center`, `cell_half`, `cell_level`) is
+the octant it was made as (the root: the root cube). An edit keeps every cell it does not overlap,
+which is what the bake cache (cache.py) reuses.
 Why: docs/how-it-works.md#octree-cells-that-stay-put
 
 Rules: a cell splits into its 8 octants while it holds more than `target_tris` (counted) triangles
@@ -34,6 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .root_cube import GrowthChain, RootCube, tight_cube
+
 # A cell may shrink this many times in a row while all centroids stay in one octant; float64 has a
 # 52-bit mantissa, so distinct centroids always separate well before this.
 _MAX_SHRINKS = 128
@@ -41,27 +46,6 @@ _MAX_SHRINKS = 128
 _OCTANT_SIGNS = np.array([[(o >> a) & 1 for a in range(3)] for o in range(8)], np.float64) * 2.0 - 1.0
 # A stable sort of keys of at most 16 bits is numpy's radix sort (linear); wider keys sort by timsort.
 _RADIX_KEYS = 2**16
-
-
-@dataclass(frozen=True)
-class RootCube:
-    """corner (3,) float64 and side, model units, in the frame of the centroids."""
-
-    corner: np.ndarray
-    side: float
-
-    @property
-    def center(self) -> np.ndarray:
-        """(3,) float64."""
-        return self.corner + 0.5 * self.side
-
-
-def tight_cube(lo: np.ndarray, hi: np.ndarray) -> RootCube:
-    """The cube centred on the box [lo, hi] ((3,) float64, finite) with its longest extent as side
-    (0 for a box of one point)."""
-    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    side = float(np.max(hi - lo))
-    return RootCube(corner=0.5 * (lo + hi) - 0.5 * side, side=side)
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,7 +93,7 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
         root = tight_cube(centroids.min(axis=0), centroids.max(axis=0))
     counted_ids = np.ones(f, bool) if counted is None else np.asarray(counted, bool)
 
-    rows = _LevelRows.of(root)
+    rows, chain = _LevelRows.of(root), GrowthChain.of(root)
     node_of = np.zeros(f, np.int64)  # each triangle's node; its leaf at the end
     # the triangles in splitting nodes of the current depth, ascending, with their centroids by axis
     tris = np.arange(f, dtype=np.int64)
@@ -129,13 +113,13 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
             keep = w >= 0
             tris, w, axes = tris[keep], w[keep], [a[keep] for a in axes]
         counts, split_center, split_half, shrinks, code = _split_cells(axes, w, center=rows.center[-1][splitting],
-                                                                        half=rows.half[-1][splitting])
+                                                                        half=rows.half[-1][splitting], chain=chain)
         split = np.flatnonzero(counts.any(axis=1))  # (k,) split nodes; the others stay leaves
         occupied = counts[split] > 0
         ids = first + splitting[split]
         offsets, m = rows.add_children(ids, occupied, d=d, first=first, n=n, cell_center=split_center[split],
                                        cell_half=split_half[split],
-                                       child_level=rows.level[-1][splitting[split]] + shrinks[split] + 1)
+                                       child_level=rows.level[-1][splitting[split]] + shrinks[split] + 1, chain=chain)
         child_local = np.full((splitting.size, 8), -1, np.int64)  # child id - n
         child_local[split] = np.where(occupied, offsets[:, None] - n + np.cumsum(occupied, axis=1) - 1, -1)
         where = child_local[w, code]
@@ -161,17 +145,20 @@ class _LevelRows:
     def of(root: RootCube) -> "_LevelRows":
         rows = _LevelRows()
         rows.parent, rows.depth = [np.array([-1], np.int32)], [np.array([0], np.int32)]
-        rows.center, rows.half = [root.center[None, :].astype(np.float64)], [np.array([0.5 * root.side])]
+        top = root.top  # the base cube, or the cube it grew to
+        rows.center, rows.half = [top.center[None, :].astype(np.float64)], [np.array([0.5 * top.side])]
         rows.level = [np.array([0], np.int32)]
         rows.child_offset, rows.child_count = [np.array([-1], np.int32)], [np.array([0], np.int32)]
         return rows
 
     def add_children(self, ids: np.ndarray, occupied: np.ndarray, *, d: int, first: int, n: int,
-                     cell_center: np.ndarray, cell_half: np.ndarray, child_level: np.ndarray) -> tuple[np.ndarray, int]:
+                     cell_center: np.ndarray, cell_half: np.ndarray, child_level: np.ndarray,
+                     chain: GrowthChain | None = None) -> tuple[np.ndarray, int]:
         """The children of the nodes `ids` (k,) of depth d (ids first..n-1, n nodes so far): one
         per occupied (k,8) octant of the node's cell (cell_center (k,3), cell_half (k,), shrunk as
         it split), level child_level (k,), in row-major order (parents in id order, octants
-        ascending). Returns (k,) the first child id of each, and m, the children added."""
+        ascending); the child of a grown root cube in the octant it grew from is that cube
+        (root_cube.GrowthChain). Returns (k,) the first child id of each, and m, the children added."""
         kids = occupied.sum(axis=1)
         offsets = n + np.concatenate([[0], np.cumsum(kids)[:-1]]).astype(np.int64)
         self.child_offset[-1][ids - first] = offsets
@@ -179,9 +166,12 @@ class _LevelRows:
         kid_parent, kid_octant = np.nonzero(occupied)
         m = kid_parent.shape[0]
         kid_half = 0.5 * cell_half[kid_parent]
+        kid_center = cell_center[kid_parent] + _OCTANT_SIGNS[kid_octant] * kid_half[:, None]
+        if chain is not None:
+            chain.enter_inner(chain.index(cell_center, cell_half)[kid_parent], kid_octant, kid_center, kid_half)
         self.parent.append(ids[kid_parent].astype(np.int32))
         self.depth.append(np.full(m, d + 1, np.int32))
-        self.center.append(cell_center[kid_parent] + _OCTANT_SIGNS[kid_octant] * kid_half[:, None])
+        self.center.append(kid_center)
         self.half.append(kid_half)
         self.level.append(child_level[kid_parent].astype(np.int32))
         self.child_offset.append(np.full(m, -1, np.int32))
@@ -200,10 +190,12 @@ class _LevelRows:
                             cell_level=np.concatenate(self.level))
 
 
-def _split_cells(axes: list[np.ndarray], w: np.ndarray, *, center: np.ndarray, half: np.ndarray):
+def _split_cells(axes: list[np.ndarray], w: np.ndarray, *, center: np.ndarray, half: np.ndarray,
+                 chain: GrowthChain | None = None):
     """Split k cells at once. axes: three (t,) float64, the x, y, z of their triangles' centroids;
     w (t,) int64: each triangle's cell in 0..k-1; center (k,3), half (k,): the cells. A cell whose
-    centroids share one octant shrinks into it and tries again (at most _MAX_SHRINKS times).
+    centroids share one octant shrinks into it and tries again (at most _MAX_SHRINKS times). A grown
+    root cube (chain) splits at its plane, and shrinks into the cube it grew from exactly.
 
     Returns counts (k,8) int64 per octant of the cell that split (all zero: it could not),
     split_center (k,3) and split_half (k,): that (shrunk) cell, shrinks (k,) int32: how often it
@@ -220,10 +212,11 @@ def _split_cells(axes: list[np.ndarray], w: np.ndarray, *, center: np.ndarray, h
         if pending.size == 0:
             break
         cell = w if rows is None else w[rows]
+        plane = center if chain is None else chain.planes(center, half)
         octant = np.zeros(cell.shape[0], np.uint8)
         for a in range(3):  # bit a: on the + side of axis a
             coordinate = axes[a] if rows is None else axes[a][rows]
-            octant |= (coordinate >= center[cell, a]).view(np.uint8) << np.uint8(a)
+            octant |= (coordinate >= plane[cell, a]).view(np.uint8) << np.uint8(a)
         per = np.bincount(local * 8 + octant, minlength=8 * pending.size).reshape(-1, 8)
         splits_now = np.count_nonzero(per, axis=1) > 1
         counts[pending[splits_now]] = per[splits_now]
@@ -235,8 +228,13 @@ def _split_cells(axes: list[np.ndarray], w: np.ndarray, *, center: np.ndarray, h
         if shrink.size == 0:
             break
         first_octant = np.argmax(per[~splits_now] > 0, axis=1)
+        grown = None if chain is None else chain.index(center[shrink], half[shrink])
         half[shrink] *= 0.5
         center[shrink] += _OCTANT_SIGNS[first_octant] * half[shrink, None]
+        if grown is not None:
+            shrunk_center, shrunk_half = center[shrink], half[shrink]
+            chain.enter_inner(grown, first_octant, shrunk_center, shrunk_half)
+            center[shrink], half[shrink] = shrunk_center, shrunk_half
         shrinks[shrink] += 1
         still = ~splits_now[local]
         rows = np.flatnonzero(still) if rows is None else rows[still]
@@ -387,6 +385,8 @@ def build_octree_counted(count_pass, *, root: RootCube, tri_count: int, counted_
     pass, plus one per COUNT_LEVELS shrinks its cells take in a row (rare)."""
     if target_tris < 1 or max_depth < 0:
         raise ValueError("target_tris must be >= 1 and max_depth >= 0")
+    if root.growths:
+        raise ValueError("the octree from counts splits cells at their centres: a root cube that never grew")
     rows = _LevelRows.of(root)
     n_all, n_counted = [np.array([tri_count], np.int64)], [np.array([counted_count], np.int64)]
     split_center, child = np.full((1, 3), np.nan), np.full((1, 8), -1, np.int64)
