@@ -171,7 +171,8 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         objects = _objects(args)
         target.parent.mkdir(parents=True, exist_ok=True)
         bake = start_bake(bpy.context, objects, target, bake_settings_of(args), use_cache=not args.no_cache,
-                          cache_folder=args.cache, include_hidden=args.include_hidden)
+                          cache_folder=args.cache, include_hidden=args.include_hidden,
+                          cache_budget_mb=args.cache_budget, frame_from=args.frame_from)
         if bake.cycles_baked:  # node trees that cannot be read
             print(f"hlod: {blend}: {cycles_report(bake.cycles_baked)}", file=sys.stderr)
         _print_skipped(blend, bake.gathered.skipped)

@@ -98,6 +98,12 @@ def street_path(frames: int = 30, *, static: bool = False):
     return CameraPath(frames=np.array(out, float), near=0.05, far=400.0, fovy_deg=60.0)
 
 
+def without_frame_meta(hlod):
+    """`hlod` without the meta entries that record its frame ("frame", "frame_source"): what a bake
+    wrote before the frame was recorded, for the tests that compare with an older commit's file."""
+    return hlod.replace(meta={k: v for k, v in hlod.meta.items() if k not in ("frame", "frame_source")})
+
+
 def file_bytes(hlod, path: Path) -> bytes:
     """The .hlod file of `hlod` saved at `path`, with the volatile meta (timings, cache statistics)
     removed: the bytes two equal bakes must share."""

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from hlod_core.bake import cache, cache_files, checks, hausdorff, meshlab, prepare, simplify, tasks
+from hlod_core.bake.frame import Frame, Prior
 from hlod_core.bake.meta import VOLATILE_META
 from hlod_core.bake.octree import build_octree
 from hlod_core.bake.pipeline import bake
@@ -56,8 +57,18 @@ class _Counted:
 
 
 def _assert_same_file(a, b, tmp_path):
-    assert set(VOLATILE_META) >= {"bake_seconds", "phase_seconds", "cache"}
+    assert set(VOLATILE_META) >= {"bake_seconds", "phase_seconds", "cache", "frame_source"}
     assert file_bytes(a, tmp_path / "a.hlod") == file_bytes(b, tmp_path / "b.hlod")
+
+
+#: meta["cache"]'s entries about the folder rather than the nodes (cache.BakeCache.prune).
+_FOLDER_STATS = ("budget_mb", "size_mb", "evicted_entries")
+
+
+def _nodes_stats(meta_cache: dict) -> dict:
+    """meta["cache"] without the folder's size entries, which are checked on their own."""
+    assert meta_cache["budget_mb"] == cache.DEFAULT_BUDGET_MB and meta_cache["size_mb"] > 0
+    return {k: v for k, v in meta_cache.items() if k not in _FOLDER_STATS}
 
 
 def _inner(hlod) -> int:
@@ -88,8 +99,10 @@ def test_warm_and_cold_bakes_write_the_file_a_bake_from_scratch_writes(which, jo
     assert "cache" not in scratch.meta and _inner(scratch) >= 3
     folder = tmp_path / "cache"
     cold = bake(mesh, settings, cache_dir=folder)
-    assert cold.meta["cache"] == {"nodes": _inner(cold), "reused_nodes": 0, "rebuilt_nodes": _inner(cold),
-                                  "reused_tris": 0, "rejected_entries": 0, "reused_result": False}
+    assert _nodes_stats(cold.meta["cache"]) == {"nodes": _inner(cold), "reused_nodes": 0,
+                                                "rebuilt_nodes": _inner(cold), "reused_tris": 0,
+                                                "rejected_entries": 0, "reused_result": False}
+    assert cold.meta["cache"]["evicted_entries"] == 0
     assert len(_entries(folder)) == _inner(cold) and len(_results(folder)) == 1
     assert (folder / "CACHEDIR.TAG").is_file()
     counted = _Counted(monkeypatch)
@@ -99,8 +112,8 @@ def test_warm_and_cold_bakes_write_the_file_a_bake_from_scratch_writes(which, jo
     inner = ~warm.is_leaf
     everything = {"nodes": int(inner.sum()), "reused_nodes": int(inner.sum()), "rebuilt_nodes": 0,
                   "reused_tris": int(warm.tri_count[inner].sum()), "rejected_entries": 0}
-    assert warm.meta["cache"] == {**everything, "reused_result": True}
-    assert from_nodes.meta["cache"] == {**everything, "reused_result": False}
+    assert _nodes_stats(warm.meta["cache"]) == {**everything, "reused_result": True}
+    assert _nodes_stats(from_nodes.meta["cache"]) == {**everything, "reused_result": False}
     if jobs == 1:
         assert counted.decimations == 0 and counted.measured == []
     for other in (cold, warm, from_nodes):
@@ -199,7 +212,7 @@ def test_moving_one_object_rebuilds_only_the_cells_it_overlaps_and_their_ancesto
 def test_changed_settings_or_versions_miss(change, tmp_path, monkeypatch):
     cow = load_model("cow")
     folder = tmp_path / "cache"
-    bake(cow, COW, cache_dir=folder)
+    first = bake(cow, COW, cache_dir=folder)
     settings = COW
     if change == "format version":
         monkeypatch.setattr(hlod_file, "FORMAT_VERSION", hlod_file.FORMAT_VERSION + 1)
@@ -209,9 +222,9 @@ def test_changed_settings_or_versions_miss(change, tmp_path, monkeypatch):
         value = {"quality_threshold": 0.5, "preserve_normals": True, "boundary_weight": 2.0, "target_tris": 299}[change]
         settings = BakeSettings(**{**COW.__dict__, change: value})
     hlod = bake(cow, settings, cache_dir=folder)
-    # a miss, not a rejection: the old entries sit under other keys (and are pruned after the bake)
+    # a miss, not a rejection: the old entries sit under other keys (and stay, within the budget)
     assert hlod.meta["cache"]["reused_nodes"] == 0 and hlod.meta["cache"]["rebuilt_nodes"] == _inner(hlod)
-    assert hlod.meta["cache"]["rejected_entries"] == 0 and len(_entries(folder)) == _inner(hlod)
+    assert hlod.meta["cache"]["rejected_entries"] == 0 and len(_entries(folder)) == _inner(first) + _inner(hlod)
 
 
 def test_jobs_and_an_unreached_max_depth_reuse_everything(tmp_path):
@@ -312,20 +325,83 @@ def test_a_spoiled_entry_is_a_miss_with_its_reason(spoil, why, tmp_path):
 
 # --- the folder -----------------------------------------------------------------------------------
 
-def test_two_bakes_sharing_a_folder_evict_each_others_entries_and_stay_correct(tmp_path):
-    """After a bake the folder holds its inner nodes only (the size bound): a bake of another mesh
-    in the same folder leaves the first mesh a cold bake, which is still the file from scratch."""
+def test_two_bakes_sharing_a_folder_keep_each_others_entries_within_the_budget(tmp_path):
+    """A bake of another mesh in the same folder leaves the first mesh's entries there (the budget
+    holds both): baking the first again takes its whole result, in the frame it was baked in, and
+    is still the file from scratch. The second mesh fits the first one's frame (both are about a
+    unit across, at the origin) and is baked in it: the file from scratch in that frame."""
     cow, spot = load_model("cow"), load_model("spot")
     folder = tmp_path / "shared"
     cow_first = bake(cow, COW, cache_dir=folder)
     assert len(_entries(folder)) == _inner(cow_first) and len(_results(folder)) == 1
     spot_first = bake(spot, COW, cache_dir=folder)
-    assert len(_entries(folder)) == _inner(spot_first) and spot_first.meta["cache"]["reused_nodes"] == 0
-    assert len(_results(folder)) == 1
+    assert len(_entries(folder)) == _inner(cow_first) + _inner(spot_first) and len(_results(folder)) == 2
+    assert spot_first.meta["cache"]["reused_nodes"] == 0 and spot_first.meta["cache"]["evicted_entries"] == 0
     cow_again = bake(cow, COW, cache_dir=folder)
-    assert cow_again.meta["cache"]["reused_nodes"] == 0
+    assert cow_again.meta["cache"]["reused_result"]
+    assert cow_again.meta["frame_source"]["reason"] == "the input is unchanged: its whole result in an earlier " \
+                                                      "cache frame"
     _assert_same_file(cow_first, cow_again, tmp_path)
-    assert bake(cow, COW, cache_dir=folder).meta["cache"]["reused_nodes"] == _inner(cow_first)
+    assert spot_first.meta["frame"]["origin"] == cow_first.meta["frame"]["origin"]  # the cow's lattice
+    cow_frame = Frame.from_meta(cow_first.meta["frame"], where="cow")
+    _assert_same_file(spot_first, bake(spot, COW, frame_from=cow_frame), tmp_path)
+
+
+def _translation(x: float) -> np.ndarray:
+    m = np.eye(4)
+    m[0, 3] = x
+    return m
+
+
+def _entry_files(folder) -> dict[str, int]:
+    """{entry file name: modification time (ns)} of the node and result entries."""
+    return {p.name: p.stat().st_mtime_ns for p in folder.iterdir() if p.suffix in (cache.ENTRY_SUFFIX,
+                                                                                   cache.RESULT_SUFFIX)}
+
+
+def test_the_budget_evicts_the_least_recently_used_entries_never_the_bakes_own(tmp_path):
+    """Three meshes (far apart: each bakes in its own frame) baked into one folder under a budget
+    that holds about two bakes: the third bake evicts the first bake's entries, oldest first, and
+    keeps every entry it used; a budget of 0 keeps only the last bake's. The first mesh baked again
+    then starts cold, and is still the file from scratch."""
+    folder = tmp_path / "cache"
+    meshes_ = {name: meshes.transform_mesh(load_model(name), _translation(100.0 * i), name=name)
+               for i, name in enumerate(("cow", "spot", "teapot"))}
+    sizes, files = {}, {}
+    for name, mesh in meshes_.items():  # measure each bake's entries alone
+        alone = tmp_path / f"alone-{name}"
+        bake(mesh, COW, cache_dir=alone)
+        files[name] = set(_entry_files(alone))
+        sizes[name] = sum((alone / f).stat().st_size for f in files[name])
+    budget_mb = (sizes["spot"] + sizes["teapot"] + 0.5 * sizes["cow"]) / 2**20
+    for name in ("cow", "spot"):
+        bake(meshes_[name], COW, cache_dir=folder, cache_budget_mb=budget_mb)
+    before = _entry_files(folder)
+    assert set(before) == files["cow"] | files["spot"]
+    third = bake(meshes_["teapot"], COW, cache_dir=folder, cache_budget_mb=budget_mb)
+    after = _entry_files(folder)
+    evicted = set(before) - set(after)
+    assert files["teapot"] <= set(after) and files["spot"] <= set(after)  # the bake's own, and the newer
+    assert evicted and evicted <= files["cow"] and third.meta["cache"]["evicted_entries"] == len(evicted)
+    # oldest first: every evicted cow entry is at least as old as every cow entry kept
+    kept_cow = files["cow"] & set(after)
+    assert all(before[e] <= before[k] for e in evicted for k in kept_cow)
+    assert third.meta["cache"]["size_mb"] <= budget_mb and third.meta["cache"]["budget_mb"] == budget_mb
+    # a budget of 0 keeps only the entries the bake used
+    last = bake(meshes_["spot"], COW, cache_dir=folder, cache_budget_mb=0)
+    assert last.meta["cache"]["reused_result"] and set(_entry_files(folder)) == set(before) & files["spot"]
+    cold = bake(meshes_["cow"], COW, cache_dir=folder, cache_budget_mb=0)
+    assert cold.meta["cache"]["reused_nodes"] == 0 and set(_entry_files(folder)) == files["cow"]
+    _assert_same_file(bake(meshes_["cow"], COW), cold, tmp_path)
+
+
+def test_a_budget_smaller_than_the_bake_keeps_the_bakes_entries(tmp_path):
+    cow = load_model("cow")
+    folder = tmp_path / "cache"
+    first = bake(cow, COW, cache_dir=folder, cache_budget_mb=0.001)
+    assert first.meta["cache"]["size_mb"] > 0.001 and first.meta["cache"]["evicted_entries"] == 0
+    assert len(_entries(folder)) == _inner(first)
+    assert bake(cow, COW, cache_dir=folder, cache_budget_mb=0.001).meta["cache"]["reused_result"]
 
 
 def test_a_removed_cache_folder_is_a_cold_bake(tmp_path):
@@ -376,7 +452,7 @@ def test_command_line_keeps_the_cache_beside_the_output(tmp_path):
 
 
 #: hlod_core modules the bake's code imports that compute nothing a LOD or an error depends on.
-_NOT_RESULT_MODULES = {"core.errors", "core.signals", "io.meshes", "io.hlod_file",
+_NOT_RESULT_MODULES = {"core.errors", "core.signals", "core.jsonutil", "io.meshes", "io.hlod_file",
                        "bake.workers", "bake.dask_cluster"}  # workers, dask_cluster: where tasks run
 
 

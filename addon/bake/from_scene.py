@@ -4,7 +4,9 @@ main thread.
 
 `start_bake` runs, in order:
 1. the cache folder: OUT.hlod.cache beside the output, or the folder given, none when the cache is
-   off (hlod_core.bake.cache.folder_for, the rule every front end of the core asks too);
+   off (hlod_core.bake.cache.folder_for, the rule every front end of the core asks too); the bake
+   keeps the frame the last bake left there while the scene fits it (hlod_core/bake/frame.py), or
+   an earlier .hlod file's when one is given;
 2. the scene gathered in one pass (scene/gather.py);
 3. the base colours no node tree reading gives, baked by Cycles (materials/cycles_bake.py);
 4. the textures the materials need, copied into the bake's texture folder (materials/textures.py),
@@ -19,7 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ...hlod_core.bake import cache
+from ...hlod_core.bake import frame as frames
 from ...hlod_core.bake.settings import BakeSettings
+from ...hlod_core.core.errors import InputError
 from ...hlod_core.io.texture_folder import EmbeddedTextures
 from ..materials.cycles_bake import bake_unreadable_materials
 from ..materials.textures import place_textures
@@ -51,19 +55,28 @@ class SceneBake:
 
 
 def start_bake(context, objects, output: Path, settings: BakeSettings, *, use_cache: bool = True,
-               cache_folder: str | None = None, include_hidden: bool = False) -> SceneBake:
+               cache_folder: str | None = None, include_hidden: bool = False, cache_budget_mb: float | None = None,
+               frame_from: str | None = None) -> SceneBake:
     """Gather `objects` (include_hidden: hidden ones too) and start their bake into `output` (a
     .hlod path whose folder exists) with `settings` (module notes). use_cache / cache_folder: the
-    bake cache, kept in cache_folder or OUT.hlod.cache beside the output. InputError when the
-    cache folder names a file or nothing gives triangles; the scene is left as it was."""
+    bake cache, kept in cache_folder or OUT.hlod.cache beside the output, within cache_budget_mb
+    (None: the cache's default); frame_from: an earlier bake's .hlod whose frame the bake keeps while
+    the scene fits it. InputError when the cache folder names a file, a budget comes without a cache,
+    frame_from has no frame or nothing gives triangles; the scene is left as it was."""
     output = Path(output)
     cache_dir = cache.folder_for(output, folder=cache_folder, enabled=use_cache)
+    if cache_dir is None and cache_budget_mb is not None:
+        raise InputError("cache budget: a budget of the bake cache, which is off")
+    options = {"cache_budget_mb": cache.DEFAULT_BUDGET_MB if cache_budget_mb is None else cache_budget_mb}
+    if frame_from is not None:
+        options["frame_from"] = frames.of_file(frame_from, where=f"frame from {frame_from}")
     gathered = gather(context, objects, include_hidden=include_hidden)
     mesh, cycles_baked = bake_unreadable_materials(context, gathered.mesh)
     textures = EmbeddedTextures(output)
     try:
         mesh = place_textures(mesh, textures)
-        job = BakeJob(mesh, settings, output, extra_meta=gathered.attributes or None, cache_dir=cache_dir)
+        job = BakeJob(mesh, settings, output, extra_meta=gathered.attributes or None, cache_dir=cache_dir,
+                      job_options=options)
     except BaseException:
         textures.discard()
         raise

@@ -104,10 +104,12 @@ def child_environment(scratch: str) -> dict[str, str]:
 
 class BakeJob:
     def __init__(self, mesh: TriangleMesh, settings: BakeSettings, output: str | os.PathLike, *,
-                 extra_meta: dict | None = None, cache_dir: str | os.PathLike | None = None):
+                 extra_meta: dict | None = None, cache_dir: str | os.PathLike | None = None,
+                 job_options: dict | None = None):
         """Start the bake of `mesh` into `output` (module notes). extra_meta: entries for the file's
         meta (the UV map's and colour attribute's names of a bake from Blender); cache_dir: the
-        bake's cache folder (None: no cache)."""
+        bake's cache folder (None: no cache); job_options: more of child.write_job's keywords
+        (cache_budget_mb, frame_from)."""
         self.output = os.path.abspath(output)
         self.progress: tuple[int, int, str] = (0, 1, "starting")
         self.result: BakeResult | None = None
@@ -125,7 +127,7 @@ class BakeJob:
         self._scratch = tempfile.mkdtemp(prefix=SCRATCH_PREFIX)
         try:
             job_file = child.write_job(self._scratch, mesh, settings, output=self.output, extra_meta=extra_meta,
-                                            cache_dir=cache_dir)
+                                            cache_dir=cache_dir, **(job_options or {}))
             self._proc = subprocess.Popen(
                 [sys.executable, "-m", child.MODULE, str(job_file), child.PARENT_STDIN],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=self._scratch,

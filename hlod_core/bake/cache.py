@@ -1,7 +1,8 @@
-"""The bake cache: inner nodes' LODs and errors, keyed by what they were made from, and the
-whole result of the last bake. The cache owns its policy: `BakeCache.open` (no folder: no cache),
-`whole_result` (an unchanged input skips the bake), `reuse` (the inner nodes whose subtree is
-unchanged), `finish` (writing, pruning, meta["cache"]); `folder_for` says where it lives.
+"""The bake cache: inner nodes' LODs and errors, keyed by what they were made from, the whole
+results of earlier bakes and the last bake's frame. The cache owns its policy: `BakeCache.open` (no
+folder: no cache), `prior` (the frame a re-bake starts from, frame.py), `whole_result` (an unchanged
+input skips the bake), `reuse` (the inner nodes whose subtree is unchanged), `finish` (writing,
+evicting, meta["cache"]); `folder_for` says where it lives.
 
 Data form: a folder (by default `OUT.hlod.cache/` beside the output; safe to delete at any time:
 the next bake is then a bake from scratch) holding a CACHEDIR.TAG and
@@ -9,13 +10,18 @@ the next bake is then a bake from scratch) holding a CACHEDIR.TAG and
   faces (m,3) int32, normals (k,3) float32 and attribute rows (k,A) float32 when the bake has
   them), its error (float64, model units: the Hausdorff error, or its bound) and what the bake log
   says of it (`SUMMARY_FIELDS`);
-- one file for the whole result of the last bake, `<input key>.hlodr`: every array of its Hlod and
-  the meta entries the bake derives (meta.DERIVED_META), keyed by the whole input (`input_key`).
+- one file per whole result, `<result key>.hlodr`: every array of a bake's Hlod, the meta entries
+  the bake derives (meta.DERIVED_META) and the keys of the node entries it used, keyed by the whole
+  input and the bake's frame (`input_key`, `result_key`);
+- `frame.json`: the frames of the last bakes (frame.Frame.to_meta), the latest first: the next
+  bake starts from the latest, and takes a whole result baked in any of them.
 
 Keys (blake2b, 32 bytes) are a Merkle tree over the octree (`node_keys`): a leaf's key hashes its
-triangles as the bake sees them and its cell; an inner node's, its cell and its children's keys;
-both hash `context_digest` (the formats, every setting that changes a LOD or an error, the
-versions of pymeshlab and numpy, and the source of RESULT_MODULES). Equal keys mean equal results.
+triangles as the bake sees them (origin-relative lattice points); an inner node's, its children's
+keys; both hash the lattice (origin and unit) and `context_digest` (the formats, every setting that
+changes a LOD or an error, the versions of pymeshlab and numpy, and the source of RESULT_MODULES).
+Equal keys mean equal results. No key holds a cell or its level: a root cube that grew puts the
+same subtrees one level down.
 Why: docs/how-it-works.md#re-bakes-and-the-cache-keys
 
 Integrity: a file starts with magic, CACHE_VERSION, the payload's length and its blake2b digest;
@@ -26,9 +32,11 @@ the bake, and rebuilt; nothing is read with pickle. Entries are written once a b
 (a cancelled bake writes none), each to a temporary name and renamed into place; they are not
 fsynced: a file torn by a crash fails its digest and is rebuilt.
 
-Size: after a complete bake, entries it did not use are removed (`prune`), so the folder holds the
-last bake's inner nodes and its result: about 1.5 times its .hlod. Bakes of different scenes that
-share one folder evict each other's entries (still correct, only slower).
+Size: entries are kept across bakes within a budget (`DEFAULT_BUDGET_MB`, settable): after a
+complete bake the least recently used entries (file modification times: a bake touches every entry
+it reads) are removed until the folder fits, never one the bake used (`prune`). So an undo re-bakes
+from the cache, and bakes of different scenes sharing one folder keep each other's entries while
+they fit. One bake's entries take about 1.5 times its .hlod.
 """
 from __future__ import annotations
 
@@ -49,9 +57,11 @@ from ..core.errors import InputError
 from ..io import hlod_file
 from ..io.meshes import TriangleMesh
 from ..model.appearance import AttributeLayout
+from ..core.jsonutil import JsonError, loads
 from ..model.hierarchy import Hlod
 from . import cache_files
 from .cache_files import KEY_BYTES, CorruptEntry
+from .frame import Frame, Prior
 from .meshlab import DecimationSettings
 from .octree import OctreeLayout
 from .settings import BakeSettings
@@ -61,12 +71,19 @@ log = logging.getLogger(__name__)
 
 ENTRY_SUFFIX = ".hlodc"
 RESULT_SUFFIX = ".hlodr"
+FRAME_FILE = "frame.json"
+#: Frames frame.json keeps (an undo finds the whole result of an input baked in any of them).
+RECENT_FRAMES = 8
+#: The folder's size budget (MB, 2^20 bytes) unless the bake sets one: about 25 bakes of a
+#: 1.5M-triangle scene.
+DEFAULT_BUDGET_MB = 1024.0
 #: Modules whose code computes LODs, errors or the result's arrays and meta (their source is part
 #: of every key: editing one retires every entry).
 RESULT_MODULES = ("bake.simplify", "bake.meshlab", "bake.seams", "bake.hausdorff", "model.appearance",
                   "model.hierarchy", "core.arrays", "bake.octree", "bake.settings", "bake.prepare", "bake.sources",
                   "bake.partition", "bake.leaf_arrays", "bake.tasks", "bake.schedule", "bake.assemble", "bake.meta",
-                  "bake.pipeline", "bake.cache", "bake.cache_files", "bake.lattice")
+                  "bake.pipeline", "bake.cache", "bake.cache_files", "bake.lattice", "bake.frame",
+                  "bake.root_cube")
 #: Temporary files older than this (seconds) are a crashed writer's: prune removes them.
 _STALE_TEMP_SECONDS = 3600.0
 _CACHEDIR_TAG = (b"Signature: 8a477f597d28d172789f06886806bc55\n"
@@ -141,13 +158,20 @@ def _hash_array(h, part: np.ndarray | None) -> None:
 
 
 def input_key(mesh, *, max_depth: int, context: bytes) -> bytes:
-    """32 bytes keying a bake's whole result: the mesh's arrays and materials, max_depth and
-    `context` (the settings and versions)."""
+    """32 bytes keying a bake's whole input: the mesh's arrays and materials, max_depth and
+    `context` (the settings and versions); `result_key` adds the frame."""
     h = hashlib.blake2b(context, digest_size=KEY_BYTES, person=b"hlod input")
     h.update(np.asarray([max_depth], "<i8").tobytes())
     for part in (mesh.positions, mesh.faces, mesh.normals, mesh.uvs, mesh.colors, mesh.material_ids):
         _hash_array(h, part)
     h.update(json.dumps([m.to_json() for m in mesh.materials], sort_keys=True).encode())
+    return h.digest()
+
+
+def result_key(input_digest: bytes, frame: Frame) -> bytes:
+    """32 bytes keying a whole result: the input (`input_key`) baked in `frame`."""
+    h = hashlib.blake2b(input_digest, digest_size=KEY_BYTES, person=b"hlod result")
+    h.update(json.dumps(frame.to_meta(), sort_keys=True).encode())
     return h.digest()
 
 
@@ -158,19 +182,18 @@ def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: 
     the positions are points of (lattice.py), which the decimations snap to."""
     n = layout.node_count
     keys: list[bytes] = [b""] * n
-    cells = np.zeros(n, [("origin", "<f8", 3), ("unit", "<f8"), ("center", "<f8", 3), ("half", "<f8"),
-                         ("level", "<i8")])
-    cells["origin"], cells["unit"], cells["center"] = origin, unit_length, layout.cell_center
-    cells["half"], cells["level"] = layout.cell_half, layout.cell_level
+    # the stored positions' frame; not the cells: a LOD is made from the leaves' positions and the
+    # tree's shape below it, whatever cell holds them (a grown root cube puts them one level down)
+    lattice = np.array([*np.asarray(origin, np.float64).reshape(3), unit_length], "<f8").tobytes()
     for node in range(n - 1, -1, -1):  # children have larger ids than their parent
         if layout.child_count[node] == 0:
             h = hashlib.blake2b(context, digest_size=KEY_BYTES, person=b"hlod leaf")
-            h.update(cells[node].tobytes())
+            h.update(lattice)
             for part in lods[node]:
                 _hash_array(h, part)
         else:
             h = hashlib.blake2b(context, digest_size=KEY_BYTES, person=b"hlod node")
-            h.update(cells[node].tobytes())
+            h.update(lattice)
             first = int(layout.child_offset[node])
             h.update(b"".join(keys[first:first + int(layout.child_count[node])]))
         keys[node] = h.digest()
@@ -178,55 +201,88 @@ def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: 
 
 
 class BakeCache:
-    """One bake's view of a cache folder. The pipeline's entry points: `open`, `whole_result`,
-    `reuse`, `finish` (module docstring). Below them: `load` node entries and `store` the bake's
-    new ones, `load_result` / `store_result` the whole result, `prune`. with_normals / row_layout:
-    what the bake carries (part of the keys; every entry must match it); error: the error measure
-    (part of the keys). Statistics for the bake's meta: reused_nodes, reused_tris, rejected
-    (entries ignored: (file name, why))."""
+    """One bake's view of a cache folder. The pipeline's entry points: `open`, `prior`,
+    `whole_result`, `reuse`, `finish` (module docstring). Below them: `load` node entries and `store`
+    the bake's new ones, `load_result` / `store_result` whole results, `prune`. with_normals /
+    row_layout: what the bake carries (part of the keys; every entry must match it); error: the error
+    measure (part of the keys); budget_mb: the folder's size budget (MB). Statistics for the bake's
+    meta: reused_nodes, reused_tris, rejected (entries ignored: (file name, why))."""
 
     def __init__(self, folder: str | os.PathLike, *, decimation: DecimationSettings, with_normals: bool,
-                 row_layout: AttributeLayout, error: str = "exact"):
+                 row_layout: AttributeLayout, error: str = "exact", budget_mb: float = DEFAULT_BUDGET_MB):
         check_folder(folder)
+        if not (budget_mb >= 0 and np.isfinite(budget_mb)):
+            raise InputError(f"bake cache budget {budget_mb} MB: expected a number of MB >= 0")
         self.folder = Path(folder)
         self.with_normals = with_normals
         self.row_width = row_layout.width
+        self.budget_mb = float(budget_mb)
         self.context = context_digest(decimation, with_normals=with_normals, row_layout=row_layout, error=error)
         self.reused_nodes = 0
         self.reused_tris = 0
         self.rejected: list[tuple[str, str]] = []
-        # one bake's state (open, reuse): the input's key and materials, the nodes' keys, the reused nodes
-        self._result_key, self._materials = b"", ()
+        # one bake's state (open, reuse): the input's digest and materials, the nodes' keys, the reused nodes
+        self._input_digest, self._materials = b"", ()
+        self._recent: list[Frame] = []  # frame.json's frames, the latest first
         self._keys: list[bytes] = []
         self._inner = np.zeros(0, np.int64)
         self._reused: set[int] = set()
 
     @classmethod
-    def open(cls, folder: str | os.PathLike | None, *, mesh: TriangleMesh,
-             settings: BakeSettings) -> "BakeCache | None":
+    def open(cls, folder: str | os.PathLike | None, *, mesh: TriangleMesh, settings: BakeSettings,
+             budget_mb: float = DEFAULT_BUDGET_MB) -> "BakeCache | None":
         """The cache of a bake of `mesh` at `settings` in `folder`; None without a folder.
-        InputError when `folder` is a file."""
+        InputError when `folder` is a file or the budget is not a number of MB >= 0."""
         if folder is None:
             return None
         row_layout = AttributeLayout(material=mesh.material_ids is not None, uv=mesh.uvs is not None,
                                      color=mesh.colors is not None)
         cache = cls(folder, decimation=settings.decimation(), with_normals=mesh.normals is not None,
-                    row_layout=row_layout, error=settings.error)
-        cache._result_key = input_key(mesh, max_depth=settings.max_depth, context=cache.context)
+                    row_layout=row_layout, error=settings.error, budget_mb=budget_mb)
+        cache._input_digest = input_key(mesh, max_depth=settings.max_depth, context=cache.context)
         cache._materials = tuple(mesh.materials) if mesh.has_appearance else ()
         return cache
 
-    def whole_result(self) -> tuple[Hlod, dict, dict] | None:
-        """The whole result of an unchanged input (the bake is then skipped): (Hlod without meta,
-        its derived meta entries, meta["cache"]); None when the folder holds none."""
-        found = self.load_result(self._result_key, self._materials)
-        if found is None:
+    def prior(self) -> Prior | None:
+        """The last bake's frame (frame.json), which this bake starts from; None when the folder
+        holds none (an unreadable one is logged and ignored: the bake takes the input's frame)."""
+        path = self.folder / FRAME_FILE
+        try:
+            text = path.read_bytes()
+        except FileNotFoundError:
             return None
-        hlod, derived = found
+        except OSError as exc:
+            log.warning("bake cache %s: cannot read %s (%s); the bake takes the input's frame", self.folder,
+                        FRAME_FILE, exc.strerror or exc)
+            return None
+        try:
+            entries = loads(text)["frames"]
+            self._recent = [Frame.from_meta(e, where=str(path)) for e in entries[:RECENT_FRAMES]]
+        except (JsonError, KeyError, TypeError, InputError) as exc:
+            log.warning("bake cache %s: %s ignored (%s); the bake takes the input's frame", self.folder, FRAME_FILE,
+                        exc)
+            self._recent = []
+        return Prior(self._recent[0], "cache") if self._recent else None
+
+    def whole_result(self, prior: Prior | None) -> tuple[Hlod, dict, dict, Frame] | None:
+        """The whole result of an unchanged input (the bake is then skipped): in the `prior` frame of
+        a file, or in any recent frame of the folder's (`prior`). (Hlod without meta, its derived
+        meta entries, meta["cache"], its frame); None when the folder holds none."""
+        frames = [] if prior is None else [prior.frame] if prior.source != "cache" else self._recent
+        for frame in frames:
+            key = result_key(self._input_digest, frame)
+            found = self.load_result(key, self._materials)
+            if found is not None:
+                break
+        else:
+            return None
+        hlod, derived, used = found
+        self._touch([self.path(k) for k in used])
+        self._record_frame(frame)
         inner = int((~hlod.is_leaf).sum())
-        stats = self._stats(nodes=inner, reused=inner, whole=True)
+        stats = self._stats(nodes=inner, reused=inner, whole=True, folder=self.prune(set(used), key))
         stats["reused_tris"] = int(hlod.tri_count[~hlod.is_leaf].sum())
-        return hlod, derived, stats
+        return hlod, derived, stats, frame
 
     def reuse(self, layout: OctreeLayout, lods: list, *, origin: np.ndarray,
               unit_length: float) -> dict[int, tuple[NodeLod, float]]:
@@ -243,26 +299,38 @@ class BakeCache:
         self._reused = set(hits)
         return hits
 
-    def finish(self, hlod: Hlod, derived: dict, *, made: dict[int, NodeLod], hausdorff_error: np.ndarray) -> dict:
+    def finish(self, hlod: Hlod, derived: dict, *, made: dict[int, NodeLod], hausdorff_error: np.ndarray,
+               frame: Frame) -> dict:
         """Once the bake is complete: write the inner nodes it made (made: node -> LOD, with
-        hausdorff_error (n,) float64) and its whole result (hlod, derived meta entries), remove the
-        entries it did not use; returns meta["cache"]."""
+        hausdorff_error (n,) float64), its whole result (hlod, derived meta entries) and its frame,
+        evict the least recently used entries over the budget; returns meta["cache"]."""
         self.store({self._keys[node]: (made[int(node)], float(hausdorff_error[node])) for node in self._inner
                     if int(node) not in self._reused})
-        self.store_result(self._result_key, hlod, derived)
-        self.prune({self._keys[node] for node in self._inner}, self._result_key)
-        return self._stats(nodes=int(self._inner.size), reused=len(self._reused), whole=False)
+        used = [self._keys[node] for node in self._inner]
+        key = result_key(self._input_digest, frame)
+        self.store_result(key, hlod, derived, node_keys=used)
+        self._record_frame(frame)
+        folder = self.prune(set(used), key)
+        return self._stats(nodes=int(self._inner.size), reused=len(self._reused), whole=False, folder=folder)
 
-    def _stats(self, *, nodes: int, reused: int, whole: bool) -> dict:
+    def _stats(self, *, nodes: int, reused: int, whole: bool, folder: dict) -> dict:
         """meta["cache"]: nodes (inner nodes: leaves keep their triangles and are never cached),
         reused_nodes / rebuilt_nodes (decimated and measured in this bake), reused_tris (LOD triangles
         of the reused nodes), rejected_entries (corrupt ones, rebuilt), reused_result (the whole
-        result came from the cache: the input had not changed)."""
+        result came from the cache: the input had not changed), and the folder's budget_mb,
+        size_mb and evicted_entries (`prune`)."""
         self.report()
         log.info("bake cache %s: %d of %d inner nodes reused%s", self.folder, reused, nodes,
                  " (the whole result: the input is unchanged)" if whole else "")
         return {"nodes": nodes, "reused_nodes": reused, "rebuilt_nodes": nodes - reused,
-                "reused_tris": self.reused_tris, "rejected_entries": len(self.rejected), "reused_result": whole}
+                "reused_tris": self.reused_tris, "rejected_entries": len(self.rejected), "reused_result": whole,
+                **folder}
+
+    def _record_frame(self, frame: Frame) -> None:
+        """frame.json: `frame` first (the next bake starts from it), then the other recent ones."""
+        entry = frame.to_meta()
+        frames = [entry] + [f.to_meta() for f in self._recent if f.to_meta() != entry][:RECENT_FRAMES - 1]
+        self._write([(self.folder / FRAME_FILE, json.dumps({"frames": frames}).encode())])
 
     def path(self, key: bytes, suffix: str = ENTRY_SUFFIX) -> Path:
         return self.folder / f"{key.hex()}{suffix}"
@@ -277,21 +345,25 @@ class BakeCache:
         except CorruptEntry as exc:
             self.rejected.append((self.path(key).name, str(exc)))
             return None
+        self._touch([self.path(key)])
         self.reused_nodes += 1
         self.reused_tris += int(lod.faces.shape[0])
         return lod, error
 
-    def load_result(self, key: bytes, materials: tuple) -> tuple[Hlod, dict] | None:
-        """A result entry's (Hlod with `materials`, empty meta; the DERIVED_META it keeps), or None."""
+    def load_result(self, key: bytes, materials: tuple) -> tuple[Hlod, dict, list[bytes]] | None:
+        """A result entry's (Hlod with `materials`, empty meta; the DERIVED_META it keeps; the keys
+        of the node entries its bake used), or None. A result read is touched (`prune`)."""
         found = self._read(key, RESULT_SUFFIX, "result")
         if found is None:
             return None
         try:
-            return cache_files.result_entry(*found, materials=materials, with_normals=self.with_normals,
-                                            has_rows=self.row_width > 0)
+            result = cache_files.result_entry(*found, materials=materials, with_normals=self.with_normals,
+                                              has_rows=self.row_width > 0)
         except CorruptEntry as exc:
             self.rejected.append((self.path(key, RESULT_SUFFIX).name, str(exc)))
             return None
+        self._touch([self.path(key, RESULT_SUFFIX)])
+        return result
 
     def _read(self, key: bytes, suffix: str, kind: str):
         path = self.path(key, suffix)
@@ -313,9 +385,19 @@ class BakeCache:
         self._write((self.path(key), cache_files.node_entry_bytes(key, lod, error))
                     for key, (lod, error) in entries.items())
 
-    def store_result(self, key: bytes, hlod: Hlod, meta: dict) -> None:
-        """Write the result entry of a bake: its arrays and its DERIVED_META entries found in `meta`."""
-        self._write([(self.path(key, RESULT_SUFFIX), cache_files.result_entry_bytes(key, hlod, meta))])
+    def store_result(self, key: bytes, hlod: Hlod, meta: dict, *, node_keys: list[bytes]) -> None:
+        """Write the result entry of a bake: its arrays, its DERIVED_META entries found in `meta` and
+        the keys of the node entries it used."""
+        self._write([(self.path(key, RESULT_SUFFIX), cache_files.result_entry_bytes(key, hlod, meta,
+                                                                                    node_keys=node_keys))])
+
+    @staticmethod
+    def _touch(paths: list[Path]) -> None:
+        """Mark entries as used now (their modification time: `prune` evicts the oldest first)."""
+        now = time.time_ns()
+        for path in paths:
+            with contextlib.suppress(OSError):
+                os.utime(path, ns=(now, now))
 
     def _write(self, files) -> None:
         """Write (path, bytes) pairs. A failed write (disk full, no permission) is logged once and
@@ -331,25 +413,43 @@ class BakeCache:
             log.warning("bake cache %s: cannot write entries (%s: %s); this bake is not cached", self.folder,
                         exc.filename or self.folder, exc.strerror or exc)
 
-    def prune(self, used: set[bytes], result: bytes) -> int:
-        """Remove the node entries whose key is not in `used`, result entries but `result`'s, and
-        temporary files of writers that died; returns how many files were removed."""
+    def prune(self, used: set[bytes], result: bytes) -> dict:
+        """Remove temporary files of writers that died, then the least recently used entries (oldest
+        modification time first, then by name) until the folder fits the budget, never a node entry
+        whose key is in `used` nor `result`'s entry. Returns {"budget_mb", "size_mb" (after),
+        "evicted_entries"}."""
         keep = {f"{key.hex()}{ENTRY_SUFFIX}" for key in used} | {f"{result.hex()}{RESULT_SUFFIX}"}
-        removed = 0
         now = time.time()
         try:
             listing = list(os.scandir(self.folder))
         except OSError:
-            return 0
+            return self._folder_stats(0, 0)
+        entries, size = [], 0
         for entry in listing:
-            stale_entry = entry.name.endswith((ENTRY_SUFFIX, RESULT_SUFFIX)) and entry.name not in keep
-            stale_temp = entry.name.startswith(".") and entry.name.endswith(".tmp") \
-                and _age(entry, now) > _STALE_TEMP_SECONDS
-            if stale_entry or stale_temp:
+            if entry.name.startswith(".") and entry.name.endswith(".tmp") and _age(entry, now) > _STALE_TEMP_SECONDS:
                 with contextlib.suppress(OSError):
                     os.unlink(entry.path)
-                    removed += 1
-        return removed
+                continue
+            try:
+                stat = entry.stat()
+            except OSError:
+                continue
+            size += stat.st_size
+            if entry.name.endswith((ENTRY_SUFFIX, RESULT_SUFFIX)) and entry.name not in keep:
+                entries.append((stat.st_mtime_ns, entry.name, stat.st_size, entry.path))
+        evicted = 0
+        budget = self.budget_mb * 2**20
+        for _, _, bytes_, path in sorted(entries):
+            if size <= budget:
+                break
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+                size -= bytes_
+                evicted += 1
+        return self._folder_stats(size, evicted)
+
+    def _folder_stats(self, size: int, evicted: int) -> dict:
+        return {"budget_mb": self.budget_mb, "size_mb": round(size / 2**20, 3), "evicted_entries": evicted}
 
     def report(self) -> None:
         """Log the rejected entries once (at the end of a bake)."""

@@ -22,7 +22,7 @@ from .meta import DERIVED_META
 from .simplify import NodeLod
 
 #: Version of the entry format and of the keys' recipe; any change to either bumps it.
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 MAGIC = b"HLODCACH"
 #: Bytes of a key and of a digest (blake2b).
 KEY_BYTES = 32
@@ -148,16 +148,19 @@ def node_entry(extra: dict, arrays: dict, *, with_normals: bool, row_width: int)
 
 # --- result entries -------------------------------------------------------------------------------
 
-def result_entry_bytes(key: bytes, hlod: Hlod, meta: dict) -> bytes:
-    """The bytes of a result entry under `key`: the Hlod's arrays and meta's DERIVED_META entries."""
+def result_entry_bytes(key: bytes, hlod: Hlod, meta: dict, *, node_keys: list[bytes]) -> bytes:
+    """The bytes of a result entry under `key`: the Hlod's arrays, meta's DERIVED_META entries and
+    the keys of the node entries the bake used (a whole result taken from the cache keeps them)."""
     arrays = {name: getattr(hlod, name) for name in _RESULT_ARRAYS if getattr(hlod, name) is not None}
-    return _pack(key, "result", arrays, extra={name: meta[name] for name in DERIVED_META if name in meta})
+    extra = {name: meta[name] for name in DERIVED_META if name in meta}
+    extra["node_keys"] = [k.hex() for k in node_keys]
+    return _pack(key, "result", arrays, extra=extra)
 
 
 def result_entry(extra: dict, arrays: dict, *, materials: tuple, with_normals: bool,
-                 has_rows: bool) -> tuple[Hlod, dict]:
-    """(Hlod with `materials`, its DERIVED_META entries) of an unpacked result entry, validated as a
-    .hlod file is; CorruptEntry otherwise."""
+                 has_rows: bool) -> tuple[Hlod, dict, list[bytes]]:
+    """(Hlod with `materials`, its DERIVED_META entries, the node entries' keys) of an unpacked
+    result entry, validated as a .hlod file is; CorruptEntry otherwise."""
     required = set(NODE_ARRAYS) | {"origin", "positions", "indices"} | ({"normals"} if with_normals else set())
     if not required <= set(arrays) <= set(_RESULT_ARRAYS) or (not has_rows and set(arrays) - required):
         raise CorruptEntry(f"arrays {sorted(arrays)}")
@@ -173,4 +176,10 @@ def result_entry(extra: dict, arrays: dict, *, materials: tuple, with_normals: b
         if not isinstance(value, kind) or (kind is int and value < 0) \
                 or (kind is list and not all(isinstance(line, str) for line in value)):
             raise CorruptEntry(f"meta entry {name!r} is {value!r}")
-    return hlod, {name: extra[name] for name in DERIVED_META if name in extra}
+    try:
+        node_keys = [bytes.fromhex(k) for k in extra["node_keys"]]
+    except (KeyError, TypeError, ValueError):
+        raise CorruptEntry("node_keys: absent or not hex") from None
+    if any(len(k) != KEY_BYTES for k in node_keys):
+        raise CorruptEntry("node_keys: a key of the wrong length")
+    return hlod, {name: extra[name] for name in DERIVED_META if name in extra}, node_keys

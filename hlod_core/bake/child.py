@@ -11,13 +11,15 @@ Data form of a job (one folder, written by `write_job`, read by `read_job`):
 - `job.json`: {"version", "mesh" (the npz's name), "name" (the mesh's, for messages and meta),
   "materials" (appearance.Material.to_json rows, textures absolute), "settings" (BakeSettings
   fields), "output" (the .hlod path), "extra_meta", "cache_dir" (the bake's cache folder,
-  cache.py; null: no cache)}.
+  cache.py; null: no cache), "cache_budget_mb" (its size budget), "frame_from" (an earlier bake's
+  frame, frame.Frame.to_meta, to bake in while the input fits it; null: the cache's or the input's)}.
 Both are written atomically (hlod_core.core.atomic), the npz first, so a job.json always names a whole npz.
 
 Protocol: stdout carries JSON lines only, one object per event, flushed at once:
     {"event": "progress", "done": d, "total": t, "phase": p}   one per bake progress update
     {"event": "done", "output", "nodes", "input_tris", "bake_seconds", "jobs",
-     "cache": the file's meta["cache"] (inner nodes, reused_nodes, ...) or null without a cache}
+     "cache": the file's meta["cache"] (inner nodes, reused_nodes, ...) or null without a cache,
+     "frame": the file's meta["frame_source"] (where its frame came from, and why)}
     {"event": "error", "type": "InputError" | "FormatError" | "HlodError" | "OSError", "message"}
 Everything else (logging, anything a library prints on fd 1) goes to stderr. Exit status: 0 done,
 2 a typed error or a failed write (the error event says which), 128 + n for signal n (SIGTERM,
@@ -49,6 +51,8 @@ import numpy as np
 from ..io import hlod_file, meshes
 from ..model.appearance import materials_from_json
 from ..core.atomic import atomic_file, write_text_atomic
+from .cache import DEFAULT_BUDGET_MB
+from .frame import Frame
 from .pipeline import bake
 from .settings import BakeSettings
 from ..core.errors import FormatError, HlodError, InputError
@@ -71,7 +75,8 @@ ERROR_TYPES = {cls.__name__: cls for cls in (InputError, FormatError, HlodError)
 
 def write_job(folder: str | os.PathLike, mesh: meshes.TriangleMesh, settings: BakeSettings, *,
               output: str | os.PathLike, extra_meta: dict | None = None,
-              cache_dir: str | os.PathLike | None = None) -> Path:
+              cache_dir: str | os.PathLike | None = None, cache_budget_mb: float = DEFAULT_BUDGET_MB,
+              frame_from: Frame | None = None) -> Path:
     """Write `mesh` and what to do with it into `folder` (module notes); returns the job.json path."""
     folder = Path(folder)
     arrays = {"positions": np.ascontiguousarray(mesh.positions, np.float64),
@@ -83,7 +88,8 @@ def write_job(folder: str | os.PathLike, mesh: meshes.TriangleMesh, settings: Ba
     job = {"version": JOB_VERSION, "mesh": MESH_FILE, "name": mesh.name,
            "materials": [m.to_json() for m in mesh.materials], "settings": asdict(settings),
            "output": os.fspath(Path(output).absolute()), "extra_meta": extra_meta or {},
-           "cache_dir": None if cache_dir is None else os.fspath(cache_dir)}
+           "cache_dir": None if cache_dir is None else os.fspath(cache_dir), "cache_budget_mb": float(cache_budget_mb),
+           "frame_from": None if frame_from is None else frame_from.to_meta()}
     return write_text_atomic(folder / JOB_FILE, json.dumps(job))
 
 
@@ -144,7 +150,9 @@ def run(job_path: str, events: _Events) -> int:
     try:
         mesh, settings, job = read_job(job_path)
         started = time.perf_counter()
+        frame_from = None if job.get("frame_from") is None else Frame.from_meta(job["frame_from"], where=job_path)
         hlod = bake(mesh, settings, extra_meta=job["extra_meta"] or None, cache_dir=job["cache_dir"],
+                    cache_budget_mb=job.get("cache_budget_mb", DEFAULT_BUDGET_MB), frame_from=frame_from,
                     progress=lambda done, total, phase: events.send("progress", done=done, total=total, phase=phase))
         hlod_file.save(hlod, job["output"])
         log.info("saved %s (%d nodes) in %.2f s", job["output"], hlod.node_count, time.perf_counter() - started)
@@ -158,7 +166,8 @@ def run(job_path: str, events: _Events) -> int:
         return 2
     meta = hlod.meta
     events.send("done", output=job["output"], nodes=hlod.node_count, input_tris=int(meta.get("input_tris", 0)),
-                bake_seconds=float(meta.get("bake_seconds", 0.0)), jobs=settings.jobs, cache=meta.get("cache"))
+                bake_seconds=float(meta.get("bake_seconds", 0.0)), jobs=settings.jobs, cache=meta.get("cache"),
+                frame=meta.get("frame_source"))
     return 0
 
 

@@ -20,16 +20,19 @@ from .simplify import NodeLod
 #: Lines the bake log keeps (the others are counted in "log_lines_dropped").
 MAX_LOG_LINES = 200
 
-#: meta entries that differ between two bakes of the same input at the same settings: timings, and
-#: what the cache did ("cache": {"nodes", "reused_nodes", "rebuilt_nodes", "reused_tris",
-#: "rejected_entries", "reused_result"}, present when the bake had a cache folder). Everything else
-#: in the file is the same whether a bake came from scratch or from the cache (`stable_meta`).
-VOLATILE_META = ("bake_seconds", "phase_seconds", "cache")
+#: meta entries that differ between two bakes of the same input at the same settings: timings, what
+#: the cache did ("cache": {"nodes", "reused_nodes", "rebuilt_nodes", "reused_tris",
+#: "rejected_entries", "reused_result", "budget_mb", "size_mb", "evicted_entries"}, present when
+#: the bake had a cache folder) and where the frame came from ("frame_source": {"from", "reason"},
+#: frame.FrameChoice). Everything else in the file is the same whether a bake came from scratch or
+#: from the cache, given the same frame (`stable_meta`).
+VOLATILE_META = ("bake_seconds", "phase_seconds", "cache", "frame_source")
 
 #: The meta entries the bake derives from its nodes (`derived_meta`), with their JSON types: what a
-#: cached whole result keeps (cache.py); uv_seams_crossed_nodes only with appearance.
+#: cached whole result keeps (cache.py); uv_seams_crossed_nodes only with appearance; frame: the
+#: bake's frame (frame.Frame.to_meta).
 DERIVED_META = {"leaves_over_budget": int, "collapsed_input_tris": int, "log": list, "log_lines_dropped": int,
-                "uv_seams_crossed_nodes": int}
+                "uv_seams_crossed_nodes": int, "frame": dict}
 
 #: The meta entries a bake writes itself (extra_meta may not replace them).
 OWN_META = frozenset({"generator", "input_tris", "input_vertices", "settings", "target_tris", "max_depth", "sources",
@@ -83,10 +86,12 @@ def counted_per_node(layout: OctreeLayout, counted) -> np.ndarray:
 
 
 def derived_meta(layout: OctreeLayout, made: dict[int, NodeLod], hausdorff: np.ndarray, *,
-                 counted_per_node: np.ndarray, settings: BakeSettings, collapsed_tris: int, with_rows: bool) -> dict:
+                 counted_per_node: np.ndarray, settings: BakeSettings, collapsed_tris: int, with_rows: bool,
+                 frame: dict) -> dict:
     """The meta entries the bake derives from its nodes (DERIVED_META). made: inner node ->
     its LOD; hausdorff (n,) float64; counted_per_node (n,) int64; collapsed_tris: the input's
-    triangles that are not counted. The log lists inner nodes in id order, however their LODs came."""
+    triangles that are not counted; frame: the bake's frame (frame.Frame.to_meta). The log lists
+    inner nodes in id order, however their LODs came."""
     bake_log: list[str] = []
     inner = np.flatnonzero(~layout.is_leaf)
     for node in inner:
@@ -96,6 +101,7 @@ def derived_meta(layout: OctreeLayout, made: dict[int, NodeLod], hausdorff: np.n
         "collapsed_input_tris": int(collapsed_tris),
         "log": bake_log[:MAX_LOG_LINES],
         "log_lines_dropped": max(0, len(bake_log) - MAX_LOG_LINES),
+        "frame": frame,
     }
     if with_rows:
         derived["uv_seams_crossed_nodes"] = sum(int(made[int(node)].uv_seams_crossed) for node in inner)
@@ -137,10 +143,11 @@ def settings_meta(settings: BakeSettings) -> dict:
 
 
 def bake_meta(size: InputSize, settings: BakeSettings, derived: dict, *, cache_stats: dict | None,
-              sources: list[str] | None, extra_meta: dict | None, clock: PhaseClock) -> dict:
+              sources: list[str] | None, extra_meta: dict | None, clock: PhaseClock, frame_source: dict) -> dict:
     """The HLOD's meta, in one order whichever way the bake went (the file's bytes depend on it).
     derived: `derived_meta`'s entries; cache_stats: meta["cache"] (None: no cache); sources: the
-    input files (default the input's name); extra_meta: the caller's entries (`check_extra_meta`)."""
+    input files (default the input's name); extra_meta: the caller's entries (`check_extra_meta`);
+    frame_source: where the frame came from (frame.FrameChoice.to_meta)."""
     meta = {
         "generator": "hlod_core",
         "input_tris": size.tris,
@@ -151,6 +158,8 @@ def bake_meta(size: InputSize, settings: BakeSettings, derived: dict, *, cache_s
         "sources": list(sources or [size.name]),
         "leaves_over_budget": derived["leaves_over_budget"],
         "collapsed_input_tris": derived["collapsed_input_tris"],
+        "frame": derived["frame"],
+        "frame_source": frame_source,
         "bake_seconds": clock.total(),
         "phase_seconds": clock.seconds,
         "log": derived["log"],

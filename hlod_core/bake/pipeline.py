@@ -1,10 +1,11 @@
 """Bake an octree HLOD from triangles (docs/how-it-works.md#the-bake), as one pipeline of named phases over an input
 source (sources.py: a mesh in memory, or a stream bigger than memory):
 
-    cache    -> with a cache folder (cache.py): an input it holds the whole result of comes back
-                from it at once
-    prepare  -> the origin, file-relative float32 positions, triangle centroids, the root cell
-                (a streamed input: the "scan" passes; partition.py)
+    cache    -> with a cache folder (cache.py): an input it holds the whole result of, in the frame
+                the last bake left there, comes back from it at once
+    prepare  -> the frame (frame.py: an earlier bake's while the input fits it, else the input's
+                own), file-relative float32 positions, triangle centroids, the root cell (a
+                streamed input: the "scan" passes; partition.py)
     octree   -> top-down partition of the root cell, split at cell centres (octree.py)
     leaves   -> each leaf keeps its original triangles (and their exact attribute rows)
     cache    -> the inner nodes whose subtree the cache holds take their LODs and errors from it
@@ -16,9 +17,9 @@ source (sources.py: a mesh in memory, or a stream bigger than memory):
 After J. P. Charalambos, "HLOD Refinement Driven by Hardware Occlusion Queries", dissertation, 2007
 (sections 3.3 and 8: octree, one LOD of ~2000 triangles per node, offline bottom-up simplification;
 docs/how-it-works.md#papers, docs/how-it-works.md#the-bake).
-A node's LOD and error depend on its subtree's input triangles and the settings only, so a bake
-from the cache, a streamed bake and a Dask bake all write the file a bake from scratch writes,
-byte for byte except meta.VOLATILE_META.
+A node's LOD and error depend on its subtree's input triangles, the frame and the settings only, so
+a bake from the cache, a streamed bake and a Dask bake all write the file a bake from scratch in the
+same frame writes, byte for byte except meta.VOLATILE_META.
 Why: docs/how-it-works.md#re-bakes-and-the-cache-keys
 
 Stop signals: the whole bake runs inside core.signals.stop_signals_held; a SIGTERM, SIGHUP or
@@ -37,7 +38,8 @@ from ..core.signals import deliver_held, stop_signals_held
 from ..io.meshes import TriangleMesh
 from ..model.hierarchy import Hlod
 from .assemble import assemble
-from .cache import BakeCache
+from .cache import DEFAULT_BUDGET_MB, BakeCache
+from .frame import Frame, FrameChoice, Prior
 from .meta import VOLATILE_META, PhaseClock, bake_meta, check_extra_meta, derived_meta, stable_meta
 from .partition import CHUNK_TRIS, Partition, PartitionStats, TriangleSource
 from .schedule import CancelFn, ProgressFn, SimplifyInput, simplify_phase
@@ -56,11 +58,16 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
          progress: ProgressFn | None = None, cancel: CancelFn | None = None,
          sources: list[str] | None = None, extra_meta: dict | None = None,
          cache_dir: str | os.PathLike | None = None, scheduler=None,
-         scratch_dir: str | os.PathLike | None = None) -> Hlod:
+         scratch_dir: str | os.PathLike | None = None, frame_from: Frame | None = None,
+         cache_budget_mb: float = DEFAULT_BUDGET_MB) -> Hlod:
     """Bake `mesh` into an Hlod. Raises InputError for unusable input, BakeCancelled if `cancel()`
     turns true (checked between nodes). Writes nothing to disk except worker scratch files and,
     with `cache_dir`, once the bake is complete, the cache folder (cache.py: what it did not
-    hold is added, the entries this bake did not use are removed).
+    hold is added, with the bake's frame; the least recently used entries over `cache_budget_mb`
+    are removed).
+    The frame (frame.py): `frame_from`'s (an earlier bake's, frame.Frame.from_meta of its file's
+    meta["frame"]) while the input fits it, else the cache folder's last one while the input fits
+    it, else the input's own; meta["frame"] records it and meta["frame_source"] says which and why.
     extra_meta: JSON-serialisable entries added to the HLOD's meta (the Blender side records the
     UV map and colour attribute names, "uv_map" and "color_attribute"); they may not replace the
     bake's own entries. The HLOD carries uvs / colors / tri_material and mesh.materials exactly
@@ -72,9 +79,10 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     own, removed at the end. Neither is a setting: they change where the work runs, not the file."""
     with stop_signals_held():
         check_extra_meta(extra_meta)
-        cache = BakeCache.open(cache_dir, mesh=mesh, settings=settings)
-        return _bake(InMemorySource(mesh), settings, _Callbacks(progress, cancel), cache=cache, scheduler=scheduler,
-                     scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta)
+        cache = BakeCache.open(cache_dir, mesh=mesh, settings=settings, budget_mb=cache_budget_mb)
+        prior = Prior(frame_from, "file") if frame_from is not None else cache.prior() if cache is not None else None
+        return _bake(InMemorySource(mesh, prior), settings, _Callbacks(progress, cancel), cache=cache,
+                     scheduler=scheduler, scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta, prior=prior)
 
 
 def bake_stream(source: TriangleSource, settings: BakeSettings = BakeSettings(), *,
@@ -111,16 +119,20 @@ class _Callbacks:
 
 
 def _bake(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache: BakeCache | None, scheduler,
-          scratch_dir: str | os.PathLike | None, sources: list[str] | None, extra_meta: dict | None) -> Hlod:
-    """The phases (module docstring), once for every source; scheduler, scratch_dir: as for `bake`."""
+          scratch_dir: str | os.PathLike | None, sources: list[str] | None, extra_meta: dict | None,
+          prior: Prior | None = None) -> Hlod:
+    """The phases (module docstring), once for every source; scheduler, scratch_dir: as for `bake`;
+    prior: the frame the bake starts from (None: the input's own)."""
     clock = run.clock
-    found = cache.whole_result() if cache is not None else None
-    if found is not None:  # the input is unchanged: the cache holds the whole result
+    found = cache.whole_result(prior) if cache is not None else None
+    if found is not None:  # the input is unchanged: the cache holds the whole result in the prior frame
         clock.lap("cache")
-        hlod, derived, stats = found
+        hlod, derived, stats, frame = found
         run.progress(hlod.node_count, hlod.node_count, "done")
+        which = "that" if frame is prior.frame else "an earlier"
+        choice = FrameChoice(prior.source, f"the input is unchanged: its whole result in {which} {prior.source} frame")
         return hlod.replace(meta=bake_meta(source.size, settings, derived, cache_stats=stats, sources=sources,
-                                           extra_meta=extra_meta, clock=clock))
+                                           extra_meta=extra_meta, clock=clock, frame_source=choice.to_meta()))
     nodes = _baked_nodes(source, settings, run, cache=cache, scheduler=scheduler, scratch_dir=scratch_dir)
     layout, n = nodes.tree.layout, nodes.tree.layout.node_count
     hlod = assemble(layout, nodes.lods, nodes.tree.origin, hausdorff_error=nodes.hausdorff_error,
@@ -131,14 +143,17 @@ def _bake(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache:
     clock.lap("assemble")
     derived = derived_meta(layout, nodes.made, nodes.hausdorff_error, counted_per_node=nodes.tree.counted_per_node,
                            settings=settings, collapsed_tris=nodes.tree.collapsed_tris,
-                           with_rows=not source.row_layout.empty)
+                           with_rows=not source.row_layout.empty, frame=nodes.tree.frame.to_meta())
     stats = None
     if cache is not None:
-        stats = cache.finish(hlod, derived, made=nodes.made, hausdorff_error=nodes.hausdorff_error)
+        stats = cache.finish(hlod, derived, made=nodes.made, hausdorff_error=nodes.hausdorff_error,
+                             frame=nodes.tree.frame)
         clock.lap("cache_write")
     run.progress(n, n, "done")
+    log.info("frame from %s: %s", nodes.tree.frame_choice.source, nodes.tree.frame_choice.reason)
     return hlod.replace(meta=bake_meta(source.size, settings, derived, cache_stats=stats, sources=sources,
-                                       extra_meta=extra_meta, clock=clock))
+                                       extra_meta=extra_meta, clock=clock,
+                                       frame_source=nodes.tree.frame_choice.to_meta()))
 
 
 @dataclass(eq=False)

@@ -1,12 +1,13 @@
-"""The bake's input as the octree and the leaves see it (an in-memory TriangleMesh): the origin,
-file-relative float32 positions, triangle centroids and counted (not collapsed) triangles, and
-with appearance the vertices turned into attribute rows; then each leaf's triangles.
+"""The bake's input as the octree and the leaves see it (an in-memory TriangleMesh): the frame
+(frame.py: the origin, the lattice, the root cube), file-relative float32 positions, triangle
+centroids and counted (not collapsed) triangles, and with appearance the vertices turned into
+attribute rows; then each leaf's triangles.
 
-Data form: positions (r,3) float32 relative to the origin (3,) float64, the centre of the used
-vertices' box, each a point of the bake's lattice (lattice.py, unit_length: the box's longest
-extent); faces (f,3) int64; centroids (f,3) float64 of the float32 corners (what is stored
-is what is split); counted (f,) bool. The streamed input (partition.py) computes the same floats
-piece by piece with `triangle_centroids`.
+Data form: positions (r,3) float32 relative to the origin (3,) float64 (from scratch the centre of
+the used vertices' box), each a point of the bake's lattice (lattice.py, unit_length: from scratch
+the box's longest extent); faces (f,3) int64; centroids (f,3) float64 of the float32 corners
+(what is stored is what is split); counted (f,) bool. The streamed input (partition.py) computes
+the same floats piece by piece with `triangle_centroids`.
 """
 from __future__ import annotations
 
@@ -19,8 +20,9 @@ from ..core.arrays import compact
 from ..core.errors import InputError
 from ..io.meshes import TriangleMesh
 from ..model import appearance
+from . import frame as frames
 from . import lattice
-from .octree import OctreeLayout, RootCube, tight_cube
+from .octree import OctreeLayout, RootCube
 from .simplify import collapsed_corners
 
 log = logging.getLogger(__name__)
@@ -29,7 +31,8 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True, eq=False)
 class Prepared:
     """root_cell (octree.RootCube, model units, origin-relative) and origin (3,) f64; unit_length
-    (model units) of the lattice the positions are points of (lattice.py); positions
+    (model units) of the lattice the positions are points of (lattice.py); frame_choice: where
+    that frame came from (frame.FrameChoice); positions
     (r,3) f32 relative to the origin, faces (f,3) int64, normals (r,3) f32 or None and attribute
     rows (r,A) f32 or None (with appearance the rows of appearance.pack, else the vertices);
     row_layout: the rows' columns (empty without); centroids (f,3) f64 origin-relative (None once
@@ -45,6 +48,11 @@ class Prepared:
     row_layout: appearance.AttributeLayout
     centroids: np.ndarray | None
     counted: np.ndarray
+    frame_choice: frames.FrameChoice
+
+    @property
+    def frame(self) -> frames.Frame:
+        return frames.Frame(origin=self.origin, unit_length=self.unit_length, root=self.root_cell)
 
 
 def triangle_centroids(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -58,10 +66,11 @@ def triangle_centroids(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.
     return centroids, ~collapsed_corners(a, b, c)
 
 
-def prepare(mesh: TriangleMesh) -> Prepared:
-    """The origin (centre of the used vertices' box); float32 positions relative to it, points of
-    the lattice of the box's longest extent (lattice.py); triangle centroids of those positions;
-    with appearance, the vertices become attribute rows
+def prepare(mesh: TriangleMesh, prior: frames.Prior | None = None) -> Prepared:
+    """The frame (frame.py: `prior`'s while the input fits it, else the input's own: the origin
+    the centre of the used vertices' box, the lattice its longest extent, the root cube around the
+    centroids); float32 positions relative to the origin, points of the lattice (lattice.py);
+    triangle centroids of those positions; with appearance, the vertices become attribute rows
     (`pack_rows`). InputError for a mesh without triangles or with non-finite coordinates."""
     if mesh.tri_count == 0:
         raise InputError(f"{mesh.name}: the mesh has no triangles")
@@ -72,7 +81,7 @@ def prepare(mesh: TriangleMesh) -> Prepared:
         raise InputError(f"{mesh.name}: vertices used by faces have NaN or infinite coordinates")
     lo, hi = p_used.min(axis=0), p_used.max(axis=0)
     del p_used
-    origin, length = 0.5 * (lo + hi), lattice.unit_length(lo, hi)
+    origin, length, lattice_why = frames.choose_lattice(prior, lo, hi)
     rel = mesh.positions - origin
     rel[~used] = 0.0  # unused vertices may hold anything (even NaN); they are never stored
     positions = lattice.stored(rel, length)
@@ -80,13 +89,16 @@ def prepare(mesh: TriangleMesh) -> Prepared:
         raise InputError(f"{mesh.name}: coordinates exceed the float32 range after centring")
     faces = mesh.faces
     centroids, counted = triangle_centroids(*(positions[faces[:, k]] for k in range(3)))
-    root_cell = tight_cube(centroids.min(axis=0), centroids.max(axis=0))
+    root_prior = prior if lattice_why is None else None
+    root_cell, root_why = frames.choose_root(root_prior, centroids.min(axis=0), centroids.max(axis=0))
+    choice = frames.choice_of(prior, lattice_why=lattice_why, root_why=root_why,
+                              grew=len(root_cell.growths) - len(prior.frame.root.growths) if root_prior else 0)
     normals, rows, row_layout = mesh.normals, None, appearance.AttributeLayout(False, False, False)
     if mesh.has_appearance:
         row_layout, positions, faces, normals, rows = pack_rows(mesh, positions, normals)
     return Prepared(origin=origin, unit_length=length, root_cell=root_cell, positions=positions, faces=faces,
                     normals=normals, rows=rows,
-                    row_layout=row_layout, centroids=centroids, counted=counted)
+                    row_layout=row_layout, centroids=centroids, counted=counted, frame_choice=choice)
 
 
 def pack_rows(mesh: TriangleMesh, positions: np.ndarray, normals: np.ndarray | None):

@@ -20,6 +20,7 @@ import numpy as np
 from ..io.meshes import TriangleMesh
 from ..model.appearance import AttributeLayout
 from . import prepare
+from .frame import FROM_SCRATCH, Frame, FrameChoice, Prior
 from .meta import InputSize, PhaseClock, counted_per_node
 from .octree import OctreeLayout, build_octree
 from .partition import Partition
@@ -33,16 +34,25 @@ NO_ROWS = AttributeLayout(False, False, False)
 
 @dataclass(frozen=True, eq=False)
 class SourceOctree:
-    """A source's octree: layout, origin (3,) float64 (model units; positions are stored relative
-    to it), unit_length (model units: the stored positions are points of its lattice, lattice.py),
-    counted_per_node (n,) int64 (each node's triangles that are not collapsed) and
+    """A source's octree: layout; frame (frame.Frame: its origin (3,) float64, model units, which
+    positions are stored relative to, its unit_length, model units, whose lattice the stored
+    positions are points of (lattice.py), its root cube) and frame_choice (where the frame came
+    from); counted_per_node (n,) int64 (each node's triangles that are not collapsed) and
     collapsed_tris (the input's collapsed triangles)."""
 
     layout: OctreeLayout
-    origin: np.ndarray
-    unit_length: float
+    frame: Frame
+    frame_choice: FrameChoice
     counted_per_node: np.ndarray
     collapsed_tris: int
+
+    @property
+    def origin(self) -> np.ndarray:
+        return self.frame.origin
+
+    @property
+    def unit_length(self) -> float:
+        return self.frame.unit_length
 
 
 class BakeSource(Protocol):
@@ -72,13 +82,15 @@ class BakeSource(Protocol):
 
 
 class InMemorySource:
-    """A TriangleMesh (prepare.py): phases "prepare" and "octree"; the leaves from its arrays."""
+    """A TriangleMesh (prepare.py), in the frame of `prior` while it fits (frame.py): phases
+    "prepare" and "octree"; the leaves from its arrays."""
 
     log_note = ""
     leaf_folder = None
 
-    def __init__(self, mesh: TriangleMesh):
+    def __init__(self, mesh: TriangleMesh, prior: Prior | None = None):
         self.mesh = mesh
+        self.prior = prior
         self.size = InputSize(tris=mesh.tri_count, vertices=int(mesh.positions.shape[0]), name=mesh.name)
         self.with_normals = mesh.normals is not None
         self.materials = tuple(mesh.materials) if mesh.has_appearance else ()
@@ -92,13 +104,13 @@ class InMemorySource:
         return self.mesh.tri_count
 
     def octree(self, settings: BakeSettings, clock: PhaseClock) -> SourceOctree:
-        prepared = prepare.prepare(self.mesh)
+        prepared = prepare.prepare(self.mesh, self.prior)
         clock.lap("prepare")
         layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
                               counted=prepared.counted, root=prepared.root_cell)
         self._prepared = replace(prepared, centroids=None)  # only the octree reads them: 24 bytes a triangle
         clock.lap("octree")
-        return SourceOctree(layout=layout, origin=prepared.origin, unit_length=prepared.unit_length,
+        return SourceOctree(layout=layout, frame=prepared.frame, frame_choice=prepared.frame_choice,
                             counted_per_node=counted_per_node(layout, prepared.counted),
                             collapsed_tris=int((~prepared.counted).sum()))
 
@@ -134,7 +146,8 @@ class StreamedSource:
         tree = self.partition.build_octree(target_tris=settings.target_tris, max_depth=settings.max_depth)
         clock.lap("octree")
         scan = self.partition.scan_result
-        return SourceOctree(layout=tree.layout, origin=scan.origin, unit_length=scan.unit_length,
+        frame = Frame(origin=scan.origin, unit_length=scan.unit_length, root=scan.root)
+        return SourceOctree(layout=tree.layout, frame=frame, frame_choice=FROM_SCRATCH,
                             counted_per_node=tree.counted,
                             collapsed_tris=scan.tri_count - scan.counted_count)
 

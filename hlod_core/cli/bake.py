@@ -10,6 +10,8 @@ import time
 from pathlib import Path
 
 from ..bake import cache, partition
+from ..bake import frame as frames
+from ..bake.frame import Frame
 from ..bake.pipeline import bake, bake_stream
 from ..core.errors import InputError
 from ..export.formats import check_output_file
@@ -51,14 +53,14 @@ def bake_command(args: argparse.Namespace) -> dict:
         return _bake_out_of_core(args)
     if args.chunk_tris is not None:
         raise InputError("--chunk-tris: only with --out-of-core")
-    cache_dir = _cache_dir(args)
+    cache_dir, frame_from = _cache_dir(args), _frame_from(args)
     with _cluster(args) as client:
         started = time.perf_counter()
         with EmbeddedTextures(Path(args.output)) as textures:
             mesh = textures.relocate(meshes.load_inputs(args.inputs, texture_dir=textures.scratch))
             load_seconds = time.perf_counter() - started
             summary = _bake_and_save(mesh, args, sources=[str(p) for p in args.inputs], cache_dir=cache_dir,
-                                     scheduler=client)
+                                     scheduler=client, frame_from=frame_from)
             summary["texture_folder"] = textures.publish()
     summary["load_seconds"] = load_seconds
     return summary
@@ -66,8 +68,11 @@ def bake_command(args: argparse.Namespace) -> dict:
 
 def _bake_out_of_core(args: argparse.Namespace) -> dict:
     """bake --out-of-core: the inputs streamed (partition.SceneSource), never loaded whole; no cache."""
-    if args.cache is not None:
-        raise InputError("--cache: out-of-core bakes keep no bake cache (leave out --cache, or bake in memory)")
+    for name, value in (("--cache", args.cache), ("--cache-budget", args.cache_budget),
+                        ("--frame-from", args.frame_from)):
+        if value is not None:
+            raise InputError(f"{name}: out-of-core bakes keep no bake cache and bake in the input's frame "
+                             f"(leave out {name}, or bake in memory)")
     if args.scratch is not None and not Path(args.scratch).is_dir():
         raise InputError(f"--scratch {args.scratch}: no such folder")
     with _cluster(args) as client:
@@ -82,26 +87,35 @@ def _bake_out_of_core(args: argparse.Namespace) -> dict:
 def scene_command(args: argparse.Namespace) -> dict:
     """`scene`: the summary line of the bake of a procedural scene (procedural.SCENES)."""
     check_output_file(args.output)
-    cache_dir = _cache_dir(args)
+    cache_dir, frame_from = _cache_dir(args), _frame_from(args)
     if not 0 < args.scale <= 64:
         raise InputError(f"--scale {args.scale}: expected a factor in (0, 64]")
     mesh = procedural.SCENES[args.name](seed=args.seed, scale=args.scale)
-    summary = _bake_and_save(mesh, args, sources=[mesh.name], cache_dir=cache_dir)
+    summary = _bake_and_save(mesh, args, sources=[mesh.name], cache_dir=cache_dir, frame_from=frame_from)
     summary["scene"] = args.name
     return summary
 
 
 def _cache_dir(args: argparse.Namespace) -> Path | None:
     """The bake's cache folder: --cache, else OUT.hlod.cache beside the output; None with --no-cache.
-    InputError when it names a file (cache.folder_for)."""
+    InputError when it names a file (cache.folder_for), or for --cache-budget with --no-cache."""
+    if args.no_cache and args.cache_budget is not None:
+        raise InputError("--cache-budget: a budget of the bake cache, which --no-cache turns off")
     return cache.folder_for(args.output, folder=args.cache, enabled=not args.no_cache)
 
 
+def _frame_from(args: argparse.Namespace) -> Frame | None:
+    """The frame of --frame-from's file (its meta["frame"]); InputError naming it when it has none."""
+    if args.frame_from is None:
+        return None
+    return frames.of_file(args.frame_from, where=f"--frame-from {args.frame_from}")
+
+
 def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_dir: Path | None = None,
-                   scheduler=None) -> dict:
+                   scheduler=None, frame_from: Frame | None = None) -> dict:
     """Bake, save to --output and summarise. mesh: a TriangleMesh, or a partition.TriangleSource
     (--out-of-core: bake_stream, no cache); scheduler: the distributed.Client of `_cluster` (None:
-    local workers)."""
+    local workers); frame_from: --frame-from's frame."""
     settings = bake_settings_of(args)
     streamed = not isinstance(mesh, meshes.TriangleMesh)
     started = time.perf_counter()
@@ -109,8 +123,9 @@ def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_
         hlod = bake_stream(mesh, settings, progress=_Progress(), sources=sources, scheduler=scheduler,
                            scratch_dir=args.scratch, chunk_tris=args.chunk_tris or partition.CHUNK_TRIS)
     else:
+        budget = cache.DEFAULT_BUDGET_MB if args.cache_budget is None else args.cache_budget
         hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
-                    scratch_dir=getattr(args, "scratch", None))
+                    scratch_dir=getattr(args, "scratch", None), frame_from=frame_from, cache_budget_mb=budget)
     hlod_file.save(hlod, args.output)
     seconds = time.perf_counter() - started
     for line in hlod.meta["log"]:
@@ -119,7 +134,8 @@ def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_
     summary.update(output=str(args.output), jobs=settings.jobs, seconds=seconds,
                    phase_seconds=hlod.meta["phase_seconds"],
                    tris_per_second=summary["input_tris"] / seconds if seconds > 0 else None,
-                   cache=None if cache_dir is None else {"folder": str(cache_dir), **hlod.meta["cache"]})
+                   cache=None if cache_dir is None else {"folder": str(cache_dir), **hlod.meta["cache"]},
+                   frame=hlod.meta["frame_source"])
     if scheduler is not None:
         summary["scheduler"] = {"address": args.scheduler, "worker_threads": sum(scheduler.nthreads().values())}
     return summary

@@ -6,6 +6,7 @@ import argparse
 import math
 
 from ..bake import partition
+from ..bake.cache import DEFAULT_BUDGET_MB
 from ..bake.settings import ERROR_MEASURES, BakeSettings, bake_settings
 from ..core.errors import InputError
 from ..render.residency import StreamingSettings
@@ -86,8 +87,17 @@ def bake_options(p: argparse.ArgumentParser) -> None:
                         "more nodes drawn)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--cache", metavar="DIR", help="bake cache folder (default OUT.hlod.cache beside the output): "
-                                                      "a re-bake takes the unchanged subtrees from it; safe to delete")
+                                                      "a re-bake takes the unchanged subtrees from it, and keeps the "
+                                                      "last bake's frame while the input fits it; safe to delete")
     where.add_argument("--no-cache", action="store_true", help="bake from scratch and keep no cache")
+    p.add_argument("--cache-budget", type=megabytes, default=None, metavar="MB",
+                   help="the cache folder's size (MB, 2^20 bytes): entries of earlier bakes are kept, the least "
+                        "recently used removed past it, never one the bake used; 0 keeps only the last bake's "
+                        f"(default {DEFAULT_BUDGET_MB:g})")
+    p.add_argument("--frame-from", metavar="EARLIER.hlod",
+                   help="bake in the frame of an earlier bake's file (its origin, lattice and root cube) while the "
+                        "input fits it, as a re-bake from that bake's cache would, instead of the cache folder's "
+                        "last frame; with --no-cache a bake from scratch to compare a re-bake with")
 
 
 def bake_settings_of(args: argparse.Namespace) -> BakeSettings:
