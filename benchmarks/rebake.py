@@ -1,20 +1,26 @@
-"""Re-bake times with the bake cache: a full bake, a re-bake after moving one object,
-a re-bake after changing nothing, in one run.
+"""Re-bake times with the bake cache: a full bake, a re-bake after changing nothing, a re-bake after
+moving one object, and the undo (the spec again), in one run.
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.rebake [--spec tests/scenes/crowd_1m.json]
         [--move 77] [--by 1.5 0 0] [--jobs 2] [--error exact|bound] [--verify] [--work] [--out DIR]
+        [--repeat N]
 
 The spec's instances are numbered in file order (models, then transforms); --move picks one and
 --by translates it (model units), written as a modified spec in a temporary folder (model paths
 made absolute). Times are bake() alone, as in bake_throughput.py (reading the input excluded):
     full       the spec, into an empty cache folder (it writes the cache);
     unchanged  the same mesh again with that cache;
-    moved      the modified spec with that cache.
+    moved      the modified spec with that cache (in the full bake's frame while it fits:
+               tests/scenes/yard_1m.json --move 0 --by -3.6 0 0 moves the corner statue outward by a
+               tenth of the scene's extent, which grows the root cube);
+    undo       the spec again with that cache.
+--repeat N runs the whole sequence N times, each into a new cache folder (medians in the summary).
 --error picks the inner nodes' error measure (BakeSettings.error: the bound measures a node
 against its children's LODs, not every original below it); the figures go to rebake.json
 (exact) or rebake-bound.json.
---verify also bakes the modified spec from scratch (no cache) and checks that the re-bake gave the
-same arrays and the same meta but meta.VOLATILE_META (byte-identity).
+--verify also bakes the modified spec from scratch (no cache) in the full bake's frame (as
+`--frame-from` does) and checks that the re-bake gave the same arrays and the same meta but
+meta.VOLATILE_META (byte-identity).
 --work also measures what the moved re-bake cannot do without (tests/rebake_work.py): the cache is put
 back to the spec's state (a bake of the spec), then the moved spec is re-baked with jobs 1, where
 every task runs in this process, each decimation and measurement timed (wall seconds of each call,
@@ -34,12 +40,15 @@ import json
 import os
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
 
 from hlod_core.io import meshes
+from hlod_core.bake.frame import Frame
 from hlod_core.bake.meta import stable_meta
+from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -84,40 +93,62 @@ def main() -> None:
     parser.add_argument("--work", action="store_true",
                         help="also time the moved re-bake's decimations and measurements (jobs 1) and its lower bound")
     parser.add_argument("--out", type=Path, default=ROOT / "out" / "bench")
+    parser.add_argument("--repeat", type=int, default=1, help="runs of the whole sequence (fresh cache each)")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     settings = BakeSettings(jobs=args.jobs, error=args.error)
-    result: dict = {"spec": str(args.spec), "jobs": args.jobs, "error": args.error, "moved_instance": args.move, "by": args.by,
-                    "load_before": os.getloadavg()}
+    result: dict = {"spec": str(args.spec), "jobs": args.jobs, "error": args.error, "moved_instance": args.move,
+                    "by": args.by, "load_before": os.getloadavg(), "repeats": []}
     with tempfile.TemporaryDirectory(prefix="rebake-") as scratch:
-        cache = Path(scratch) / "crowd.hlod.cache"
         mesh = meshes.load_inputs([args.spec])
         moved_mesh = meshes.load_inputs([moved_spec(args.spec, args.move, np.asarray(args.by), folder=Path(scratch))])
-        runs = {}
-        for name, m in (("full", mesh), ("unchanged", mesh), ("moved", moved_mesh)):
-            seconds, hlod = timed_bake(m, settings, cache)
-            runs[name] = {"seconds": seconds, "nodes": hlod.node_count, "cache": hlod.meta["cache"],
-                          "phase_seconds": hlod.meta["phase_seconds"]}
-            print(json.dumps({name: runs[name]}), flush=True)
-            if name == "moved":
-                moved_hlod = hlod
         result["input_tris"] = mesh.tri_count
-        result["runs"] = runs
-        result["speedup_unchanged"] = runs["full"]["seconds"] / runs["unchanged"]["seconds"]
-        result["speedup_moved"] = runs["full"]["seconds"] / runs["moved"]["seconds"]
+        for repeat in range(args.repeat):
+            cache = Path(scratch) / f"run{repeat}.hlod.cache"
+            runs, kept = {}, {}
+            for name, m in (("full", mesh), ("unchanged", mesh), ("moved", moved_mesh), ("undo", mesh)):
+                seconds, hlod = timed_bake(m, settings, cache)
+                runs[name] = {"seconds": seconds, "nodes": hlod.node_count, "cache": hlod.meta["cache"],
+                              "frame_source": hlod.meta["frame_source"], "phase_seconds": hlod.meta["phase_seconds"]}
+                kept[name] = hlod
+                print(json.dumps({name: runs[name]}), flush=True)
+            row = {"runs": runs, "load": os.getloadavg()[0],
+                   "speedup_unchanged": runs["full"]["seconds"] / runs["unchanged"]["seconds"],
+                   "speedup_moved": runs["full"]["seconds"] / runs["moved"]["seconds"],
+                   "speedup_undo": runs["full"]["seconds"] / runs["undo"]["seconds"]}
+            if args.verify:
+                frame = Frame.from_meta(kept["full"].meta["frame"], where="the full bake")
+                seconds, scratch_hlod = timed(lambda: bake(moved_mesh, settings, frame_from=frame))
+                row["moved_from_scratch_seconds"] = seconds
+                row["moved_rebake_identical_to_scratch"] = identical(kept["moved"], scratch_hlod)
+                row["undo_identical_to_full"] = identical(kept["undo"], kept["full"])
+            result["repeats"].append(row)
+            print(json.dumps({k: v for k, v in row.items() if k != "runs"}), flush=True)
+        rows = result["repeats"]
+        for key in ("speedup_unchanged", "speedup_moved", "speedup_undo"):
+            result[key] = float(np.median([r[key] for r in rows]))
+        result["full_seconds"] = [r["runs"]["full"]["seconds"] for r in rows]
+        result["moved_seconds"] = [r["runs"]["moved"]["seconds"] for r in rows]
         if args.verify:
-            seconds, scratch_hlod = timed_bake(moved_mesh, settings, None)
-            result["moved_from_scratch_seconds"] = seconds
-            result["moved_rebake_identical_to_scratch"] = identical(moved_hlod, scratch_hlod)
+            result["identical"] = all(r["moved_rebake_identical_to_scratch"] and r["undo_identical_to_full"]
+                                      for r in rows)
         if args.work:
-            timed_bake(mesh, settings, cache)  # the cache back to the spec's state
+            cache = Path(scratch) / "work.hlod.cache"
+            timed_bake(mesh, settings, cache)  # the cache in the spec's state
             work = rebuilt_work(moved_mesh, settings, cache)
             bound = work["before_tasks_s"] + (work["decimate_s"] + work["measure_s"]) / args.jobs
             result["moved_work"] = {**work, "lower_bound_s": bound,
-                                    "max_speedup_moved": runs["full"]["seconds"] / bound}
+                                    "max_speedup_moved": float(np.median(result["full_seconds"])) / bound}
     result["load_after"] = os.getloadavg()
-    (args.out / ("rebake.json" if args.error == "exact" else f"rebake-{args.error}.json")).write_text(json.dumps(result, indent=2))
-    print(json.dumps({k: v for k, v in result.items() if k != "runs"}))
+    (args.out / ("rebake.json" if args.error == "exact" else f"rebake-{args.error}.json")).write_text(
+        json.dumps(result, indent=2))
+    print(json.dumps({k: v for k, v in result.items() if k != "repeats"}))
+
+
+def timed(fn):
+    started = time.perf_counter()
+    out = fn()
+    return time.perf_counter() - started, out
 
 
 if __name__ == "__main__":

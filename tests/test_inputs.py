@@ -173,17 +173,18 @@ IDENTITY = np.eye(4).ravel().tolist()
 
 
 def test_the_scene_specs_are_what_generate_specs_writes(tmp_path):
-    """tests/scenes/gallery_1m.json and crowd_1m.json are generate_specs.py's output from today's test
+    """tests/scenes/gallery_1m.json, crowd_1m.json and yard_1m.json are generate_specs.py's output from today's test
     models (a placement follows its model's box: a changed model comes with regenerated specs), and
     every model they name is found where they name it."""
     spec = importlib.util.spec_from_file_location("generate_specs", SCENES / "generate_specs.py")
     generate_specs = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(generate_specs)
-    for name, make in (("gallery_1m", generate_specs.gallery), ("crowd_1m", generate_specs.crowd)):
+    for name, make in (("gallery_1m", generate_specs.gallery), ("crowd_1m", generate_specs.crowd),
+                       ("yard_1m", generate_specs.yard)):
         generate_specs.write_spec(tmp_path / f"{name}.json", make())
         assert (tmp_path / f"{name}.json").read_text() == (SCENES / f"{name}.json").read_text(), name
         mesh = meshes.load_inputs([models.scene(name)])
-        assert mesh.tri_count == {"gallery_1m": 1_004_268, "crowd_1m": 1_535_020}[name]
+        assert mesh.tri_count == {"gallery_1m": 1_004_268, "crowd_1m": 1_535_020, "yard_1m": 1_589_952}[name]
 
 
 def _spec(tmp_path, transforms, name="spec.json"):

@@ -8,6 +8,11 @@ gallery_1m.json: 8 statues (statue x2, bust x3, bunny x3; 1,004,268 triangles) e
 10 units and centred, in one row along +x, 8 units apart: looking down the row, each statue hides
 most of the next (high depth complexity).
 
+yard_1m.json: 16 statues (the bust; 1,589,952 triangles) each scaled to 10 units, centred and
+turned about +z, on a 4 x 4 grid 12 units apart: the re-bake benchmark's scene
+(benchmarks/rebake.py --spec tests/scenes/yard_1m.json --move 0 moves the statue at the (0, 0)
+corner, at the scene's edge).
+
 crowd_1m.json: 144 statues (cow, airplane, spot, teapot, ring, creased; 1,535,020 triangles) each
 scaled to 10 units and turned about +z, packed on a 12 x 12 grid 8 units apart (neighbours nearly
 touch): from inside or beside the crowd the nearest statues hide most of the others, which show
@@ -66,6 +71,17 @@ def gallery() -> dict:
     for i, name in enumerate(row):
         placed.setdefault(name, []).append(placement(name, np.array([8.0 * i, 0.0, 0.0]), boxes=boxes))
     return {"models": [{"path": model_path(name), "transforms": t} for name, t in placed.items()]}
+
+
+YARD_SIDE, YARD_SPACING = 4, 12.0
+
+
+def yard() -> dict:
+    """Instance k (file order) stands at grid cell (k % 4, k // 4): instance 0 at the (0, 0) corner."""
+    boxes: dict[str, tuple] = {}
+    transforms = [placement("bust", np.array([YARD_SPACING * (k % YARD_SIDE), YARD_SPACING * (k // YARD_SIDE), 0.0]),
+                            turn_deg=90.0 * k, boxes=boxes) for k in range(YARD_SIDE * YARD_SIDE)]
+    return {"models": [{"path": model_path("bust"), "transforms": transforms}]}
 
 
 CROWD_SIDE, CROWD_SPACING = 12, 8.0
@@ -170,5 +186,6 @@ def write_spec(path: Path, spec: dict) -> None:
 if __name__ == "__main__":
     write_spec(HERE / "gallery_1m.json", gallery())
     write_spec(HERE / "crowd_1m.json", crowd())
+    write_spec(HERE / "yard_1m.json", yard())
     (HERE / "crowd_walk_path.json").write_text(json.dumps(crowd_walk()) + "\n")
     (HERE / "crowd_inspection_path.json").write_text(json.dumps(crowd_inspection()) + "\n")
