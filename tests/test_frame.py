@@ -185,3 +185,66 @@ def _write_obj(path, mesh) -> None:
     with open(path, "w") as f:
         f.writelines(f"v {x!r} {y!r} {z!r}\n" for x, y, z in mesh.positions)
         f.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.faces)
+
+
+def _with_stiff_triangles(yard: meshes.TriangleMesh, at: np.ndarray) -> meshes.TriangleMesh:
+    """The yard and, near `at`, 40 zero-area triangles (three corners at one point), 40 slivers (three
+    collinear corners) and 40 needles (one edge 1e-7 long)."""
+    rng = np.random.default_rng(11)
+    points = at + rng.random((40, 3))
+    direction = rng.normal(size=(40, 3))
+    zero = np.repeat(points, 3, axis=0)
+    sliver = np.stack([points, points + direction, points + 2.5 * direction], axis=1).reshape(-1, 3)
+    needle = np.stack([points, points + 1e-7 * direction, points + np.cross(direction, [0, 0, 1])], axis=1)
+    stiff = np.concatenate([zero, sliver, needle.reshape(-1, 3)])
+    faces = np.arange(stiff.shape[0]).reshape(-1, 3)
+    return meshes.merge([yard, meshes.from_arrays(stiff, faces, name="stiff")], name="yard and stiff triangles")
+
+
+def test_stiff_triangles_at_the_edge_keep_the_frames_promises(tmp_path):
+    """Degenerate, sliver and needle triangles beside the corner cow that moves: the re-bake still
+    equals the bake from scratch in the same frame, and the file passes the bake's checks."""
+    from hlod_core.bake import checks
+
+    corner = np.array([-6.0, -3.0, 0.0])
+    folder = tmp_path / "cache"
+    first = bake(_with_stiff_triangles(_yard(GRID), corner), YARD, cache_dir=folder)
+    edited = _with_stiff_triangles(_yard(_edit("move")[0]), corner - [0.1 * EXTENT, 0.0, 0.0])
+    again = bake(edited, YARD, cache_dir=folder)
+    assert again.meta["frame_source"]["from"] == "cache" and again.meta["cache"]["reused_nodes"] > 0
+    scratch = bake(edited, YARD, frame_from=Frame.from_meta(first.meta["frame"], where="first"))
+    assert file_bytes(again, tmp_path / "a.hlod") == file_bytes(scratch, tmp_path / "b.hlod")
+    assert all(checks.check(again)["checks"].values())
+
+
+def test_a_scene_of_one_point_bakes_and_rebakes():
+    """Every triangle at one point: the root cube has no side, cannot grow, and a point moved away
+    gets a root cube of its own within the kept lattice."""
+    one = meshes.from_arrays(np.zeros((6, 3)), np.arange(6).reshape(2, 3), name="point")
+    first = bake(one, YARD)
+    prior = Prior(Frame.from_meta(first.meta["frame"], where="first"), "file")
+    assert bake(one, YARD, frame_from=prior.frame).meta["frame_source"]["reason"] == "the input fits the file frame"
+    moved = meshes.from_arrays(np.full((6, 3), 0.1), np.arange(6).reshape(2, 3), name="point")
+    again = bake(moved, YARD, frame_from=prior.frame)
+    assert "a new root cube" in again.meta["frame_source"]["reason"] and again.node_count == 1
+
+
+def test_the_cache_folder_keeps_the_last_frames_and_ignores_a_spoiled_list(tmp_path, caplog):
+    """frame.json lists the last frames, the latest first (at most RECENT_FRAMES); a bake with
+    --frame-from records its frame first and keeps the others; a spoiled frame.json is named in the
+    log and the bake takes the input's frame."""
+    from hlod_core.bake import cache
+
+    folder = tmp_path / "cache"
+    first = bake(_yard(GRID), YARD, cache_dir=folder)
+    far = bake(_yard([g + [0.0, 0.0, 40.0] for g in GRID]), YARD, cache_dir=folder)  # another frame
+    listed = json.loads((folder / cache.FRAME_FILE).read_text())["frames"]
+    assert listed == [far.meta["frame"], first.meta["frame"]]
+    again = bake(_yard(GRID), YARD, cache_dir=folder, frame_from=Frame.from_meta(first.meta["frame"], where="x"))
+    assert again.meta["cache"]["reused_result"] and again.meta["frame_source"]["from"] == "file"
+    assert json.loads((folder / cache.FRAME_FILE).read_text())["frames"] == [first.meta["frame"], far.meta["frame"]]
+    (folder / cache.FRAME_FILE).write_text('{"frames": [{"origin": "x"}]}')
+    with caplog.at_level("WARNING", logger="hlod_core.bake.cache"):
+        fresh = bake(_yard(_edit("move")[0]), YARD, cache_dir=folder)
+    assert fresh.meta["frame_source"] == frames.FROM_SCRATCH.to_meta()
+    assert any("frame.json ignored" in r.getMessage() for r in caplog.records)

@@ -241,28 +241,32 @@ class BakeCache:
                     row_layout=row_layout, error=settings.error, budget_mb=budget_mb)
         cache._input_digest = input_key(mesh, max_depth=settings.max_depth, context=cache.context)
         cache._materials = tuple(mesh.materials) if mesh.has_appearance else ()
+        cache._recent = cache._read_frames()
         return cache
 
     def prior(self) -> Prior | None:
         """The last bake's frame (frame.json), which this bake starts from; None when the folder
-        holds none (an unreadable one is logged and ignored: the bake takes the input's frame)."""
+        holds none."""
+        return Prior(self._recent[0], "cache") if self._recent else None
+
+    def _read_frames(self) -> list[Frame]:
+        """frame.json's frames, the latest first; none when it is absent (an unreadable one is
+        logged and ignored: the bake then takes the input's frame)."""
         path = self.folder / FRAME_FILE
         try:
             text = path.read_bytes()
         except FileNotFoundError:
-            return None
+            return []
         except OSError as exc:
             log.warning("bake cache %s: cannot read %s (%s); the bake takes the input's frame", self.folder,
                         FRAME_FILE, exc.strerror or exc)
-            return None
+            return []
         try:
-            entries = loads(text)["frames"]
-            self._recent = [Frame.from_meta(e, where=str(path)) for e in entries[:RECENT_FRAMES]]
+            return [Frame.from_meta(e, where=str(path)) for e in loads(text)["frames"][:RECENT_FRAMES]]
         except (JsonError, KeyError, TypeError, InputError) as exc:
             log.warning("bake cache %s: %s ignored (%s); the bake takes the input's frame", self.folder, FRAME_FILE,
                         exc)
-            self._recent = []
-        return Prior(self._recent[0], "cache") if self._recent else None
+            return []
 
     def whole_result(self, prior: Prior | None) -> tuple[Hlod, dict, dict, Frame] | None:
         """The whole result of an unchanged input (the bake is then skipped): in the `prior` frame of
