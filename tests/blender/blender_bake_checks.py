@@ -433,7 +433,9 @@ def check_cache_mixed_scene(repo, work) -> dict:
     through the background command: a re-bake after linking a statue again (the depsgraph then
     lists the objects in another order; the geometry is the same) takes the whole result from the
     cache; after moving an interior statue by 0.05 it rebuilds only the inner nodes above it and
-    the file equals a bake from scratch (--no-cache)."""
+    the file equals a bake from scratch (--no-cache); after moving the corner statue outward by a
+    tenth of the scene's extent it keeps the frame the cache holds, and the file equals a bake from
+    scratch in the first file's frame (--no-cache --frame-from)."""
     blender_preview.enable_from_repo(repo)
     _private_tmp(work)
     cli = importlib.import_module(NAME + ".addon.cli")
@@ -472,11 +474,21 @@ def check_cache_mixed_scene(repo, work) -> dict:
     bpy.context.view_layer.update()
     moved = bake(out_path)
     fresh = bake(fresh_path, "--no-cache")
+    moved_differ = arrays_differ(out_path, fresh_path)
     a = fileformat.load(out_path)
+    statues[0].location.x -= 0.76  # statue 0 0, at the corner: a tenth of the scene's 7.6 units, outward
+    bpy.context.view_layer.update()
+    edge = bake(out_path)
+    edge_fresh = bake(fresh_path, "--no-cache", "--frame-from", str(first_path))
+    edge_meta, edge_fresh_meta = fileformat.load(out_path).meta, fileformat.load(fresh_path).meta
     return {"first": first, "relinked": relinked, "moved": moved, "fresh": fresh, "order_before": order_before,
             "order_after": order_after, "relinked_arrays_differ": relinked_differ,
-            "moved_arrays_differ": arrays_differ(out_path, fresh_path),
-            "materials": [m.name for m in a.materials], "inner_nodes": int(np.count_nonzero(a.child_count))}
+            "moved_arrays_differ": moved_differ,
+            "materials": [m.name for m in a.materials], "inner_nodes": int(np.count_nonzero(a.child_count)),
+            "edge": edge, "edge_fresh": edge_fresh, "edge_frame_source": edge_meta.get("frame_source"),
+            "edge_fresh_frame_source": edge_fresh_meta.get("frame_source"),
+            "edge_same_frame": edge_meta.get("frame") == edge_fresh_meta.get("frame"),
+            "edge_arrays_differ": arrays_differ(out_path, fresh_path)}
 
 
 def check_mixed_rebake_speed(repo, work, detail: str = "8", jobs: str = "2") -> dict:

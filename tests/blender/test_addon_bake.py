@@ -140,9 +140,12 @@ def test_the_cache_on_a_mixed_scene_reuses_what_did_not_change(versioned_repo, t
     """In each Blender, a scene of two meshes, one with UVs and a material, one with neither: after
     the objects' order changes (a statue linked again) the re-bake takes the whole result from the
     cache and writes the same arrays; after an interior statue moves it rebuilds at most a quarter of
-    the inner nodes and its file equals a bake from scratch, array by array."""
+    the inner nodes and its file equals a bake from scratch, array by array; after the corner statue
+    moves outward by a tenth of the scene's extent the re-bake keeps the cache's frame, reuses most
+    inner nodes, and equals a bake from scratch given the first file's frame (--frame-from)."""
     out = bake_check(versioned_repo, "cache_mixed_scene", tmp_path)
     cache = out["moved"]["cache"] or {}
+    edge = out["edge"]["cache"] or {}
     all_hold(out,
              baked=all(out[k]["status"] == 0 for k in ("first", "relinked", "moved", "fresh")),
              core_default_jobs=out["first"]["jobs"] == 1,  # the core command's default (docs/command-line.md)
@@ -152,7 +155,12 @@ def test_the_cache_on_a_mixed_scene_reuses_what_did_not_change(versioned_repo, t
              and out["relinked_arrays_differ"] == [],
              moved_rebuilds_few=0 < cache.get("rebuilt_nodes", 0) and 4 * cache.get("rebuilt_nodes", 0) <= cache.get("nodes", 0),
              moved_reuses=cache.get("reused_nodes", 0) >= 3 * cache.get("nodes", 1) // 4,
-             moved_equals_fresh=out["moved_arrays_differ"] == [])
+             moved_equals_fresh=out["moved_arrays_differ"] == [],
+             edge_baked=out["edge"]["status"] == 0 and out["edge_fresh"]["status"] == 0,
+             edge_keeps_the_cache_frame=(out["edge_frame_source"] or {}).get("from") == "cache"
+             and (out["edge_fresh_frame_source"] or {}).get("from") == "file" and out["edge_same_frame"],
+             edge_reuses=edge.get("reused_nodes", 0) >= edge.get("nodes", 1) // 2,
+             edge_equals_fresh_in_the_frame=out["edge_arrays_differ"] == [])
 
 
 @pytest.mark.gl  # the Benchmark and Tune to PSNR operators draw in a private EGL context
