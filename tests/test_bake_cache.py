@@ -5,7 +5,6 @@ the real functions (jobs = 1 runs them in this process)."""
 from __future__ import annotations
 
 import ast
-import hashlib
 import logging
 import shutil
 from pathlib import Path
@@ -14,7 +13,7 @@ import numpy as np
 import pytest
 
 from hlod_core.bake import cache, cache_files, checks, hausdorff, meshlab, prepare, simplify, tasks
-from hlod_core.bake.frame import Frame, Prior
+from hlod_core.bake.frame import Frame
 from hlod_core.bake.meta import VOLATILE_META
 from hlod_core.bake.octree import build_octree
 from hlod_core.bake.pipeline import bake
@@ -24,6 +23,7 @@ from hlod_core.io import hlod_file, meshes
 from hlod_core.model.appearance import AttributeLayout
 
 import rebake_work
+from rebuilt_nodes import Counted, dfs_ranges, inner_count, subtree_signatures
 from helpers import file_bytes, load_model, model
 from processes import hlod, last_json, one_line_error
 from sample_meshes import SPHERE_TARGET_TRIS, herd, textured_sphere
@@ -32,28 +32,6 @@ CORE = Path(cache.__file__).resolve().parent.parent
 
 COW = BakeSettings(target_tris=300)
 HERD = BakeSettings(target_tris=600)
-
-
-class _Counted:
-    """Counts the real decimations and measurements of a jobs = 1 bake, and the nodes measured (by
-    their range in the bake's triangle order)."""
-
-    def __init__(self, monkeypatch):
-        self.decimations = 0
-        self.measured: list[tuple[int, int]] = []
-        decimate, measure = simplify.decimate_node, tasks.measure_exact
-
-        def counting_decimate(*args, **kwargs):
-            self.decimations += 1
-            return decimate(*args, **kwargs)
-
-        def counting_measure(folder, lod, ranges):
-            cluster_start = tasks.shared(folder)["start"]  # the node's clusters' face range
-            self.measured.append((int(cluster_start[ranges[2]]), int(cluster_start[ranges[3]])))
-            return measure(folder, lod, ranges)
-
-        monkeypatch.setattr(simplify, "decimate_node", counting_decimate)
-        monkeypatch.setattr(tasks, "measure_exact", counting_measure)
 
 
 def _assert_same_file(a, b, tmp_path):
@@ -69,10 +47,6 @@ def _nodes_stats(meta_cache: dict) -> dict:
     """meta["cache"] without the folder's size entries, which are checked on their own."""
     assert meta_cache["budget_mb"] == cache.DEFAULT_BUDGET_MB and meta_cache["size_mb"] > 0
     return {k: v for k, v in meta_cache.items() if k not in _FOLDER_STATS}
-
-
-def _inner(hlod) -> int:
-    return int((~hlod.is_leaf).sum())
 
 
 def _entries(folder) -> set[str]:
@@ -96,16 +70,16 @@ def test_warm_and_cold_bakes_write_the_file_a_bake_from_scratch_writes(which, jo
         (textured_sphere(), BakeSettings(target_tris=SPHERE_TARGET_TRIS))
     settings = BakeSettings(**{**settings.__dict__, "jobs": jobs})
     scratch = bake(mesh, settings)
-    assert "cache" not in scratch.meta and _inner(scratch) >= 3
+    assert "cache" not in scratch.meta and inner_count(scratch) >= 3
     folder = tmp_path / "cache"
     cold = bake(mesh, settings, cache_dir=folder)
-    assert _nodes_stats(cold.meta["cache"]) == {"nodes": _inner(cold), "reused_nodes": 0,
-                                                "rebuilt_nodes": _inner(cold), "reused_tris": 0,
+    assert _nodes_stats(cold.meta["cache"]) == {"nodes": inner_count(cold), "reused_nodes": 0,
+                                                "rebuilt_nodes": inner_count(cold), "reused_tris": 0,
                                                 "rejected_entries": 0, "reused_result": False}
     assert cold.meta["cache"]["evicted_entries"] == 0
-    assert len(_entries(folder)) == _inner(cold) and len(_results(folder)) == 1
+    assert len(_entries(folder)) == inner_count(cold) and len(_results(folder)) == 1
     assert (folder / "CACHEDIR.TAG").is_file()
-    counted = _Counted(monkeypatch)
+    counted = Counted(monkeypatch)
     warm = bake(mesh, settings, cache_dir=folder)  # the input is unchanged: the whole result
     _remove_results(folder)
     from_nodes = bake(mesh, settings, cache_dir=folder)  # every inner node from its own entry
@@ -127,39 +101,6 @@ def test_warm_and_cold_bakes_write_the_file_a_bake_from_scratch_writes(which, jo
 
 # --- an edit rebuilds what it touches -------------------------------------------------------------
 
-def _dfs_ranges(hlod) -> dict[tuple[int, int], int]:
-    """{(first, end) range of the node's leaf triangles in depth-first leaf order: node}, the ranges
-    the bake measures nodes by."""
-    ranges, cursor = {}, 0
-
-    def visit(node):
-        nonlocal cursor
-        begin = cursor
-        if hlod.child_count[node] == 0:
-            cursor += int(hlod.tri_count[node])
-        for child in range(hlod.child_offset[node], hlod.child_offset[node] + hlod.child_count[node]):
-            visit(child)
-        ranges[(begin, cursor)] = node
-
-    visit(0)
-    return ranges
-
-
-def _subtree_signatures(hlod) -> list[bytes]:
-    """Per node, a digest of its subtree's shape and leaf triangles (world coordinates as stored),
-    computed from the file alone: equal signatures = the same subtree."""
-    sig = [b""] * hlod.node_count
-    for node in range(hlod.node_count - 1, -1, -1):
-        if hlod.child_count[node] == 0:
-            tris = hlod.indices[hlod.tri_offset[node]:hlod.tri_offset[node] + hlod.tri_count[node]]
-            world = hlod.positions[tris.ravel()].astype(np.float64) + hlod.origin
-            sig[node] = hashlib.sha256(b"leaf" + world.tobytes()).digest()
-        else:
-            kids = range(hlod.child_offset[node], hlod.child_offset[node] + hlod.child_count[node])
-            sig[node] = hashlib.sha256(b"node" + b"".join(sig[k] for k in kids)).digest()
-    return sig
-
-
 def _cells(mesh):
     """The octree the bake builds for `mesh` at HERD's settings (its cells, origin-relative)."""
     prepared = prepare.prepare(mesh)
@@ -177,19 +118,19 @@ def test_moving_one_object_rebuilds_only_the_cells_it_overlaps_and_their_ancesto
     moved, _ = herd(moved_by=(1.5, 0.0, 0.0))
     folder = tmp_path / "cache"
     first = bake(cows, HERD, cache_dir=folder)
-    counted = _Counted(monkeypatch)
+    counted = Counted(monkeypatch)
     again = bake(moved, HERD, cache_dir=folder)
     monkeypatch.undo()
     scratch = bake(moved, HERD)
     _assert_same_file(scratch, again, tmp_path)
 
-    old = set(_subtree_signatures(first))
-    new_sig = _subtree_signatures(again)
+    old = set(subtree_signatures(first))
+    new_sig = subtree_signatures(again)
     changed = {node for node in np.flatnonzero(~again.is_leaf) if new_sig[node] not in old}
-    measured = {_dfs_ranges(again)[r] for r in counted.measured}
+    measured = {dfs_ranges(again)[r] for r in counted.measured}
     assert measured == changed and counted.decimations == len(changed) == again.meta["cache"]["rebuilt_nodes"]
-    assert again.meta["cache"]["reused_nodes"] == _inner(again) - len(changed)
-    assert 0 < len(changed) <= _inner(again) // 3, (len(changed), _inner(again))
+    assert again.meta["cache"]["reused_nodes"] == inner_count(again) - len(changed)
+    assert 0 < len(changed) <= inner_count(again) // 3, (len(changed), inner_count(again))
     # the edit touches only the cells it overlaps: every rebuilt node's cell meets the cow's old or new box
     assert np.array_equal(first.origin, again.origin)
     cells = _cells(moved)
@@ -201,7 +142,7 @@ def test_moving_one_object_rebuilds_only_the_cells_it_overlaps_and_their_ancesto
     for node in changed:
         assert any(np.all(lo_cell[node] <= hi) and np.all(hi_cell[node] >= lo) for lo, hi in cow_boxes), node
     # most leaves (the other cows') are stored bit for bit as before, relative to the same origin
-    kept = set(new_sig) & {s for s, leaf in zip(_subtree_signatures(first), first.is_leaf) if leaf}
+    kept = set(new_sig) & {s for s, leaf in zip(subtree_signatures(first), first.is_leaf) if leaf}
     assert len(kept) >= first.is_leaf.sum() // 2
 
 
@@ -223,8 +164,8 @@ def test_changed_settings_or_versions_miss(change, tmp_path, monkeypatch):
         settings = BakeSettings(**{**COW.__dict__, change: value})
     hlod = bake(cow, settings, cache_dir=folder)
     # a miss, not a rejection: the old entries sit under other keys (and stay, within the budget)
-    assert hlod.meta["cache"]["reused_nodes"] == 0 and hlod.meta["cache"]["rebuilt_nodes"] == _inner(hlod)
-    assert hlod.meta["cache"]["rejected_entries"] == 0 and len(_entries(folder)) == _inner(first) + _inner(hlod)
+    assert hlod.meta["cache"]["reused_nodes"] == 0 and hlod.meta["cache"]["rebuilt_nodes"] == inner_count(hlod)
+    assert hlod.meta["cache"]["rejected_entries"] == 0 and len(_entries(folder)) == inner_count(first) + inner_count(hlod)
 
 
 def test_jobs_and_an_unreached_max_depth_reuse_everything(tmp_path):
@@ -238,7 +179,7 @@ def test_jobs_and_an_unreached_max_depth_reuse_everything(tmp_path):
     assert jobs.meta["cache"]["reused_result"]  # jobs is not in the input's key
     depth = bake(cow, BakeSettings(**{**COW.__dict__, "max_depth": 10}), cache_dir=folder)
     assert not depth.meta["cache"]["reused_result"]  # max_depth is, but no node's key has it
-    assert depth.meta["cache"]["reused_nodes"] == _inner(depth) == _inner(first)
+    assert depth.meta["cache"]["reused_nodes"] == inner_count(depth) == inner_count(first)
 
 
 # --- corrupt entries ------------------------------------------------------------------------------
@@ -294,7 +235,7 @@ def test_corrupt_entries_are_ignored_logged_once_and_rebuilt(jobs, tmp_path, cap
     _assert_same_file(scratch, warm, tmp_path)
     _remove_results(folder)
     again = bake(cow, settings, cache_dir=folder)  # the rebuilt entries were written back
-    assert again.meta["cache"]["reused_nodes"] == _inner(again) and again.meta["cache"]["rejected_entries"] == 0
+    assert again.meta["cache"]["reused_nodes"] == inner_count(again) and again.meta["cache"]["rejected_entries"] == 0
 
 
 def _cache(folder) -> cache.BakeCache:
@@ -333,9 +274,9 @@ def test_two_bakes_sharing_a_folder_keep_each_others_entries_within_the_budget(t
     cow, spot = load_model("cow"), load_model("spot")
     folder = tmp_path / "shared"
     cow_first = bake(cow, COW, cache_dir=folder)
-    assert len(_entries(folder)) == _inner(cow_first) and len(_results(folder)) == 1
+    assert len(_entries(folder)) == inner_count(cow_first) and len(_results(folder)) == 1
     spot_first = bake(spot, COW, cache_dir=folder)
-    assert len(_entries(folder)) == _inner(cow_first) + _inner(spot_first) and len(_results(folder)) == 2
+    assert len(_entries(folder)) == inner_count(cow_first) + inner_count(spot_first) and len(_results(folder)) == 2
     assert spot_first.meta["cache"]["reused_nodes"] == 0 and spot_first.meta["cache"]["evicted_entries"] == 0
     cow_again = bake(cow, COW, cache_dir=folder)
     assert cow_again.meta["cache"]["reused_result"]
@@ -400,7 +341,7 @@ def test_a_budget_smaller_than_the_bake_keeps_the_bakes_entries(tmp_path):
     folder = tmp_path / "cache"
     first = bake(cow, COW, cache_dir=folder, cache_budget_mb=0.001)
     assert first.meta["cache"]["size_mb"] > 0.001 and first.meta["cache"]["evicted_entries"] == 0
-    assert len(_entries(folder)) == _inner(first)
+    assert len(_entries(folder)) == inner_count(first)
     assert bake(cow, COW, cache_dir=folder, cache_budget_mb=0.001).meta["cache"]["reused_result"]
 
 
@@ -410,7 +351,7 @@ def test_a_removed_cache_folder_is_a_cold_bake(tmp_path):
     first = bake(cow, COW, cache_dir=folder)
     shutil.rmtree(folder)
     again = bake(cow, COW, cache_dir=folder)
-    assert again.meta["cache"]["reused_nodes"] == 0 and len(_entries(folder)) == _inner(again)
+    assert again.meta["cache"]["reused_nodes"] == 0 and len(_entries(folder)) == inner_count(again)
     _assert_same_file(first, again, tmp_path)
 
 

@@ -21,7 +21,7 @@ from hlod_core.io import hlod_file, meshes
 from helpers import file_bytes
 from processes import hlod, last_json, one_line_error
 from sample_meshes import HERD_SPACING, herd_cow
-from test_bake_cache import _Counted, _dfs_ranges, _inner, _subtree_signatures
+from rebuilt_nodes import Counted, dfs_ranges, inner_count, subtree_signatures
 
 YARD = BakeSettings(target_tris=600)
 GRID = [np.array([HERD_SPACING * (k % 3), HERD_SPACING * (k // 3), 0.0]) for k in range(9)]
@@ -71,7 +71,7 @@ def test_an_edit_at_the_yards_edge_rebuilds_only_what_it_touches(kind, scale, sh
     edited = _yard(offsets, scale=scale, shift=shift)
     folder = tmp_path / "cache"
     first = bake(original, YARD, cache_dir=folder)
-    counted = _Counted(monkeypatch)
+    counted = Counted(monkeypatch)
     again = bake(edited, YARD, cache_dir=folder)
     monkeypatch.undo()
     assert again.meta["frame_source"]["from"] == "cache", again.meta["frame_source"]
@@ -80,12 +80,12 @@ def test_an_edit_at_the_yards_edge_rebuilds_only_what_it_touches(kind, scale, sh
     grew = kind != "remove"  # the box grew past the root cube: one doubling; a removal keeps it
     assert len(again.meta["frame"]["root_growths"]) == int(grew)
 
-    old = set(_subtree_signatures(first))
-    new_sig = _subtree_signatures(again)
+    old = set(subtree_signatures(first))
+    new_sig = subtree_signatures(again)
     rebuilt = {node for node in np.flatnonzero(~again.is_leaf) if new_sig[node] not in old}
-    assert {_dfs_ranges(again)[r] for r in counted.measured} == rebuilt
+    assert {dfs_ranges(again)[r] for r in counted.measured} == rebuilt
     assert counted.decimations == len(rebuilt) == again.meta["cache"]["rebuilt_nodes"]
-    assert 0 < len(rebuilt) <= _inner(again) // 4, (len(rebuilt), _inner(again))
+    assert 0 < len(rebuilt) <= inner_count(again) // 4, (len(rebuilt), inner_count(again))
     # every rebuilt node's cell meets the edited cow's box (old or new): what the edit touches
     prepared = prepare.prepare(edited, Prior(Frame.from_meta(first.meta["frame"], where="first"), "file"))
     cells = build_octree(prepared.centroids, target_tris=YARD.target_tris, max_depth=YARD.max_depth,
@@ -118,7 +118,7 @@ def test_without_the_whole_result_an_undo_reuses_every_node(tmp_path):
         result.unlink()
     undone = bake(_yard(GRID), YARD, cache_dir=folder)
     assert undone.meta["frame_source"] == {"from": "cache", "reason": "the input fits the cache frame"}
-    assert undone.meta["cache"]["reused_nodes"] == undone.meta["cache"]["nodes"] == _inner(undone)
+    assert undone.meta["cache"]["reused_nodes"] == undone.meta["cache"]["nodes"] == inner_count(undone)
 
 
 def test_an_input_that_leaves_the_frame_gets_its_own(tmp_path):
