@@ -107,14 +107,15 @@ class PartReader:
         material whose colour Cycles bakes (its evaluated mesh noted in `surfaces`), else (None, None)."""
         if self.surfaces is None or tri_slot is None:
             return None, None
-        slots = inst.object.material_slots
         readings = {}
-        for slot in np.unique(tri_slot).tolist():
-            material = slots[slot].material
-            reading = self.readings.get(material.original.name_full) if material is not None and uses_nodes(
-                material) else None
-            if reading is not None and reading.unreadable:
+        for slot, held in enumerate(inst.object.material_slots):
+            material = held.material
+            reading = self.readings.get(material.original.name_full) if material is not None else None
+            if reading is not None and reading.unreadable and uses_nodes(material):
                 readings[slot] = reading
+        if readings:  # only the slots its triangles use
+            used = np.unique(tri_slot).tolist()
+            readings = {slot: reading for slot, reading in readings.items() if slot in used}
         if not readings:
             return None, None
         uv_layer = next((layer for layer in mesh.uv_layers if layer.active_render), None) if self.read_uvs else None
