@@ -34,6 +34,8 @@ log = logging.getLogger(__name__)
 
 #: How a baked object's result reaches its triangles, for the report.
 TEXTURE, CORNER_COLOURS = "texture", "corner colours"
+#: What a material that cannot be baked keeps (materials/rows.py material_row).
+KEPT = "its Base Color value (without a Principled BSDF, its viewport display colour)"
 
 
 @dataclass(eq=False)
@@ -87,7 +89,7 @@ class SurfaceBakes:
             for name in sorted({m.name_full for _, s in sources for slot, m in enumerate(s.bake.materials)
                                 if slot in s.bake.readings}):
                 log.warning("HLOD bake: material %r: its node tree cannot be read and Cycles, which would bake it, "
-                            "is not enabled; baked with the Base Color value", name)
+                            "is not enabled; baked with %s", name, KEPT)
             return []
         done = []
         for key, source in sources:
@@ -95,9 +97,9 @@ class SurfaceBakes:
             try:
                 source.baked = bake_surface(context, source.bake)
             except RuntimeError as exc:  # the bake refused (Blender's message)
-                log.warning("HLOD bake: materials %s: their colour cannot be read and Cycles could not bake it on "
-                            "object %r: %s; baked with the Base Color value", ", ".join(map(repr, names)),
-                            source.bake.label, " ".join(str(exc).split()))
+                log.warning("HLOD bake: material(s) %s: the node tree cannot be read and Cycles could not bake it "
+                            "on object %r: %s; baked with %s", ", ".join(map(repr, names)), source.bake.label,
+                            " ".join(str(exc).split()), KEPT)
                 continue
             target = TEXTURE if source.bake.uv_map is not None else CORNER_COLOURS
             done.append(CyclesBake(label=source.bake.label, materials=tuple(sorted(names)), target=target,

@@ -406,10 +406,11 @@ def check_surfaces(repo, work) -> dict:
     return out
 
 
-def check_no_surfaces(repo, work) -> dict:
+def check_without_cycles_bakes(repo, work) -> dict:
     """A scene whose materials are all read from their trees (a Principled BSDF with an image, one
     with a constant colour, an unlit Emission): gathering it starts no Cycles bake and makes no
-    datablock."""
+    datablock. Then, with the Cycles add-on disabled, a Diffuse BSDF's plane: what the bake says
+    and the row it keeps."""
     blender_preview.enable_from_repo(repo)
     gathering = importlib.import_module(NAME + ".addon.scene.gather")
     bpy.ops.wm.read_homefile(use_empty=True)
@@ -424,9 +425,32 @@ def check_no_surfaces(repo, work) -> dict:
         objects.append(_plane(kind, k, material))
     before, scenes = _datablocks(), _updated_scenes()
     gathered = gathering.gather(bpy.context, objects)
-    return {"cycles_bakes": len(gathered.cycles_bakes), "datablocks_kept": _datablocks() == before,
-            "scenes_updated": sorted(scenes),
-            "textures": sorted(m.name for m in gathered.mesh.materials if m.texture)}
+    out = {"cycles_bakes": len(gathered.cycles_bakes), "datablocks_kept": _datablocks() == before,
+           "scenes_updated": sorted(scenes), "textures": sorted(m.name for m in gathered.mesh.materials if m.texture)}
+    import addon_utils
+
+    addon_utils.disable("cycles", default_set=True)
+    warnings = _captured_warnings(NAME + ".addon")
+    plane = _plane("diffuse", 5, _bsdf_material("diffuse", "ShaderNodeBsdfDiffuse", image))
+    gathered = gathering.gather(bpy.context, [plane])
+    row = gathered.mesh.materials[0]
+    out["cycles_disabled"] = {"cycles": hasattr(bpy.context.scene, "cycles"), "warnings": warnings,
+                              "bakes": len(gathered.cycles_bakes), "row": [row.name, list(row.base_color), row.texture]}
+    return out
+
+
+def _captured_warnings(logger_name: str) -> list[str]:
+    """A list that receives the messages of every warning `logger_name` (and below) logs from now."""
+    import logging
+
+    messages: list[str] = []
+
+    class Keep(logging.Handler):
+        def emit(self, record):
+            messages.append(record.getMessage())
+
+    logging.getLogger(logger_name).addHandler(Keep(logging.WARNING))
+    return messages
 
 
 if __name__ == "__main__":
