@@ -11,10 +11,10 @@ most of the next (high depth complexity).
 crowd_1m.json: 144 statues (cow, airplane, spot, teapot, ring, creased; 1,535,020 triangles) each
 scaled to 10 units and turned about +z, packed on a 12 x 12 grid 8 units apart (neighbours nearly
 touch): from inside or beside the crowd the nearest statues hide most of the others, which show
-only as slivers through the gaps: the README's high-depth-complexity evaluation scene.
+only as slivers through the gaps: the high-depth-complexity scene of docs/evaluation.md.
 crowd_walk_path.json is a fast 320-frame tour of it (orbit at ground level, aisle walk, turn in
 place, dolly to close-up; up to 4.5 degrees or 1.35 units per frame), crowd_inspection_path.json
-the README's evaluation path: the same four parts at interactive speeds sampled at 60 frames per
+the evaluation's path (docs/evaluation.md): the same four parts at interactive speeds sampled at 60 frames per
 second (1,020 frames). Both paths name their parts ("parts": orbit, walk, turn, dolly with their
 start frames), which the evaluation report marks on its frame axis.
 """
