@@ -501,12 +501,12 @@ def _monkey_scene():
     bpy.ops.object.select_all(action="SELECT")
 
 
-def _toggle_in_another_context(current_context, other) -> bool:
+def _toggle_in_another_context(gl_platform, other) -> bool:
     """Turn the preview off while the moderngl context `other` is current (in Blender: a second
     window's), where the preview's GL objects cannot be released; returns whether it was current."""
-    blender = current_context.current()
-    with current_context.keep_current(), other:
-        was_other = current_context.current() not in (None, blender)
+    blender = gl_platform.current_id()
+    with gl_platform.keep_current(), other:
+        was_other = gl_platform.current_id() not in (None, blender)
         bpy.ops.hlod.preview_toggle()
     return was_other
 
@@ -575,7 +575,7 @@ def _long_session_files(work: Path) -> list[Path]:
     return files
 
 
-def _session(out: dict, *, session: int, blend: Path, preview, current_context, other, census, methods) -> None:
+def _session(out: dict, *, session: int, blend: Path, preview, gl_platform, other, census, methods) -> None:
     """One session of the long session: load `blend` (load_pre stops a preview left on), census of
     Blender's context, re-bake, then REDRAWS_PER_SESSION redraws with the configuration of
     `session % 6`; the census again (preview on), RSS and Python's allocated blocks."""
@@ -605,7 +605,7 @@ def _session(out: dict, *, session: int, blend: Path, preview, current_context, 
             props.private_context = not props.private_context
         if redraw == 150:
             if session % 3 == 1:
-                out["other_context_current"].append(_toggle_in_another_context(current_context, other))
+                out["other_context_current"].append(_toggle_in_another_context(gl_platform, other))
             else:
                 bpy.ops.hlod.preview_toggle()
             bpy.ops.hlod.preview_toggle()
@@ -640,16 +640,15 @@ def check_long_session(repo, work) -> dict:
     start and at the end. test_addon runs it with LP_NUM_THREADS=0 (llvmpipe's rasteriser threads
     make a one-time RSS jump at a random session): it measures leaks, not speed."""
     import gpu
-    import moderngl
 
     started = time.perf_counter()
     package = blender_preview.enable_from_repo(repo)
     preview = importlib.import_module(NAME + ".addon.preview.live").PREVIEW
-    current_context = importlib.import_module(NAME + ".addon.preview.current_context")
+    gl_platform = importlib.import_module(NAME + ".hlod_core.render.gl_platform")
     blender_preview.init_gpu()
     census = GLCensus()
-    with current_context.keep_current():  # "another window's" context, made once (each costs moderngl ~40 KB)
-        other = moderngl.create_context(standalone=True, backend="egl")
+    with gl_platform.keep_current():  # "another window's" context, made once (each costs moderngl ~40 KB)
+        other = gl_platform.standalone_context()
     methods = [item.identifier for item in bpy.context.scene.hlod.bl_rna.properties["method"].enum_items]
     files = _long_session_files(Path(work))
     bpy.ops.wm.open_mainfile(filepath=str(files[0]))
@@ -660,7 +659,7 @@ def check_long_session(repo, work) -> dict:
            "private_redraws": 0}
     sessions_started = time.perf_counter()
     for session in range(SESSIONS):
-        _session(out, session=session, blend=files[session % 2], preview=preview, current_context=current_context,
+        _session(out, session=session, blend=files[session % 2], preview=preview, gl_platform=gl_platform,
                  other=other, census=census, methods=methods)
     out["seconds"] = {"redraws_and_loads": round(time.perf_counter() - sessions_started - out["bake_seconds"], 1),
                       "bakes": round(out.pop("bake_seconds"), 1)}
@@ -672,7 +671,7 @@ def check_long_session(repo, work) -> dict:
     out["reference_same"] = bool(np.array_equal(first["reference"], last["reference"]))
     out["preview_same"] = bool(np.array_equal(first["with_preview"], last["with_preview"]))
     preview.shutdown()  # stop() and free private mode's context (for unregister)
-    with current_context.keep_current():
+    with gl_platform.keep_current():
         other.release()
     offscreen = gpu.types.GPUOffScreen(*LONG_SIZE)
     with offscreen.bind():
