@@ -10,6 +10,7 @@ ensure_validators
 ensure_viewer  # CesiumJS (npm) and chromium: the viewer page and its browser test
 ensure_blender_venvs  # .venv-blender/bpy-4.2, bpy-5.0, bpy-5.2: the extension checks run in each
 ensure_x_server  # Xvfb and Mesa's GLX: the GLX branch of the GL context is tested on it
+ensure_vulkan  # lavapipe: the Blender checks also run under Blender's Vulkan backend
 if [ $# -gt 0 ] || [ "${HLOD_TEST_PROCESSES:-2}" = 1 ]; then
     exec "$PY" -m pytest -q --durations=10 "$@"
 fi

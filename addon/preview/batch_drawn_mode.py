@@ -35,13 +35,18 @@ def read_blender_depth(size: tuple[int, int]) -> np.ndarray:
     (module notes). Read into a one-dimensional gpu Buffer, which numpy takes as it is: the
     two-dimensional Buffer read_depth makes by itself states column-major strides over row-major
     data in Blender 4.2 and 5.0 (fixed by 5.2), so numpy would read it transposed. Raises what
-    Blender's gpu module raises when it cannot read it."""
+    Blender's gpu module raises when it cannot read it. Values outside [0, 1] or NaN (a depth
+    buffer nobody cleared: Vulkan leaves a new one undefined) are taken as the far plane or clamped:
+    they must not turn the preview off, and the far plane hides nothing."""
     import gpu
 
     w, h = size
     buffer = gpu.types.Buffer("FLOAT", w * h)
     gpu.state.active_framebuffer_get().read_depth(0, 0, w, h, data=buffer)
-    return np.asarray(buffer, np.float32).reshape(h, w)
+    depth = np.asarray(buffer, np.float32).reshape(h, w)
+    if not (depth.min() >= 0.0 and depth.max() <= 1.0):  # NaN fails both
+        depth = np.clip(np.nan_to_num(depth, nan=1.0, posinf=1.0, neginf=0.0), 0.0, 1.0)
+    return depth
 
 
 class BatchDrawnMode(PreviewMode):

@@ -6,7 +6,9 @@ REPO_DIR is an extension repository made by `blender_ext.py install-files` from 
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
 The same checks run in every Blender of tests/helpers.py BLENDERS (4.2 LTS, 5.0.1, 5.2.3), each with
 its own interpreter; what differs between them is handled in the add-on and in
-scripts/blender_preview.py (exit_process: bpy 4.2's crash at exit), not here.
+scripts/blender_preview.py (exit_process: bpy 4.2's crash at exit), not here. With $HLOD_GPU_BACKEND
+set (tests/blender_runs.py VULKAN) the bpy module starts with that GPU backend
+(scripts/blender_gpu_backend.py, before `import bpy`), and the checks that draw check it is the one.
 """
 from __future__ import annotations
 
@@ -20,8 +22,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-import blender_preview  # noqa: E402
+import blender_gpu_backend  # noqa: E402
 
+FORCED_BACKEND = blender_gpu_backend.force_from_environment()  # before `import bpy` (module notes)
+
+import blender_preview  # noqa: E402
 import bpy  # noqa: E402
 from hlod_core.model.view import look_at, perspective  # noqa: E402
 
@@ -272,6 +277,8 @@ def check_preview(repo, work) -> dict:
     package = blender_preview.enable_from_repo(repo)
     preview = importlib.import_module(NAME + ".addon.preview.live").PREVIEW
     blender_preview.init_gpu()
+    if FORCED_BACKEND:
+        blender_gpu_backend.check(FORCED_BACKEND)
     _box_row_scene()
     scene = bpy.context.scene
     props = scene.hlod
@@ -280,12 +287,12 @@ def check_preview(repo, work) -> dict:
     blender_preview.camera(scene, eye=(1.5, -8.0, 1.5), target=(0.0, 6.0, 1.0), lens_mm=30.0)
     props.method, props.bias, props.show_modulation = "coh", "mu", True
     bpy.ops.hlod.preview_toggle()
-    # the backend moderngl attaches to: OpenGL, Blender's default on Linux in 4.2, 5.0 and 5.2
+    # the backend: OpenGL, Blender's default on Linux in 4.2, 5.0 and 5.2, or the one forced (Vulkan)
     out = {"running": preview.running(), "status_on": props.status, "backend": gpu.platform.backend_type_get()}
     size = (320, 240)
     for _ in range(3):
         frame = _draw_checks(package, scene, size, occlude=True)
-    out["occluded"] = frame
+    out["occluded"], out["mode"], out["status_drawn"] = frame, preview.session.mode, props.status
     out["materialize_front"] = sorted(bpy.ops.hlod.materialize(depth=-1))
     out["front_objects"] = len(bpy.data.collections["HLOD front"].objects)
     out["stats"] = {"drawn": props.stat_drawn, "queries": props.stat_queries, "tris": props.stat_tris,
