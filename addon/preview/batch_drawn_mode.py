@@ -101,11 +101,15 @@ class BatchDrawnMode(PreviewMode):
         return depth
 
     def status_line(self, file_name: str, *, xray: bool) -> str:
-        line = f"on ({self.where}): {file_name}"
+        line = f"on ({self.where}): {file_name}" + "".join(f" - {why}" for why in self._why())
         if self.depth_unreadable is not None:
             return line + (" - Blender's objects hide the nodes but do not occlude them: its depth could not be "
                            f"read ({self.depth_unreadable})")
         return line + (XRAY_NOTE if xray else "")
+
+    def _why(self) -> list[str]:
+        """Why the preview draws with this mode, when it was not asked for (status_line)."""
+        return []
 
     def _draw_nodes(self, nodes, *, colours: np.ndarray | None, view: View) -> None:
         """The nodes with the gpu module, depth-tested and written; colours (n, 3) or None."""

@@ -104,6 +104,5 @@ class CpuContextMode(BatchDrawnMode):
         stats.frame_ms += handed_ms
         return stats, traversal
 
-    def status_line(self, file_name: str, *, xray: bool) -> str:
-        line = super().status_line(file_name, xray=xray)
-        return line if self.reason is None else f"{line} - {self.reason}"
+    def _why(self) -> list[str]:
+        return [] if self.reason is None else [self.reason]
