@@ -200,13 +200,13 @@ def test_corner_text_lines():
 @pytest.mark.blender
 @pytest.mark.gl
 def test_preview_streams_under_a_gpu_budget_and_converges(repo, tmp_path):
-    """A budget below the file's node geometry, in both drawing modes, camera held: the
+    """A budget below the file's node geometry, in the three drawing modes, camera held: the
     first frame already draws (coarser nodes stand in), resident bytes never exceed the budget, and
     the picture becomes the one drawn without a budget; the statistics and the corner text show the
     GPU memory."""
     out = preview_check(repo, "streaming", tmp_path)
     assert out["bake"] == ["FINISHED"] and out["toggle_on"] == ["FINISHED"] and out["sources_hidden"]
-    for mode in ("gl", "private"):
+    for mode in ("gl", "private", "cpu"):
         run = out[mode]
         frames = run["frames"]
         assert 0 < run["budget"] < run["whole"], mode
