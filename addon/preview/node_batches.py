@@ -115,7 +115,14 @@ class NodeBatches:
                 del cache[node]
 
     def release(self) -> None:
-        """Drop every gpu object, the latest made first. Idempotent."""
+        """Drop every gpu object, the latest made first. Idempotent. Blender's builtin shader is
+        bound first when one of ours was made: with OpenGL a program deleted while it is in use
+        lives on until another is used (glDeleteProgram), and Blender leaves the last shader drawn
+        with in use (gpu.shader.unbind() changes nothing in release builds)."""
+        if self._flat_shader is not None or self._look is not None:
+            import gpu
+
+            gpu.shader.from_builtin("UNIFORM_COLOR").bind()
         self._looks.clear()
         self._look = None
         self._flat.clear()
