@@ -4,6 +4,10 @@ gallery_1m.json: 8 statues (igea x2, nefertiti x3, bunny x3; 1,045,227 triangles
 10 units and centred, in one row along +x, 8 units apart: looking down the row, each statue hides
 most of the next (high depth complexity).
 
+open_statues_6m.json: 100 statues with open boundaries (bunny x50, teapot x30, nefertiti x20; 5.7M
+triangles) on a 10 x 10 grid 12 units apart; open_statues_far_path.json orbits it from afar (the
+coarse levels' benchmark: benchmarks/coarse_levels.py).
+
 crowd_1m.json: 144 statues (cow, homer, spot, teapot, rocker-arm, fandisk; 1.5M triangles) each scaled
 to 10 units and turned about +z, packed on a 12 x 12 grid 8 units apart (neighbours nearly touch):
 from inside or beside the crowd the nearest statues hide most of the others, which show only as
@@ -59,6 +63,37 @@ def crowd() -> dict:
         position = np.array([CROWD_SPACING * i, CROWD_SPACING * j, 0.0])
         models.setdefault(name, []).append(placement(name, position, turn_deg=37.0 * k))
     return {"models": [{"path": str(MODELS / name), "transforms": t} for name, t in models.items()]}
+
+
+OPEN_SIDE, OPEN_SPACING = 10, 12.0
+
+
+def open_statues() -> dict:
+    """100 statues with open boundaries, 5.7M triangles: 50 bunnies (a range scan with holes in its
+    base), 30 teapots (open surfaces in 4 pieces) and 20 Nefertiti busts (closed), each scaled to 10
+    units and turned about +z, on a 10 x 10 grid 12 units apart (2 units between neighbours)."""
+    kinds = ["stanford-bunny.obj", "teapot.obj", "stanford-bunny.obj", "nefertiti.obj", "stanford-bunny.obj",
+             "teapot.obj", "stanford-bunny.obj", "teapot.obj", "stanford-bunny.obj", "nefertiti.obj"]
+    models: dict[str, list] = {}
+    for k in range(OPEN_SIDE * OPEN_SIDE):
+        i, j = k % OPEN_SIDE, k // OPEN_SIDE
+        name = kinds[(k + 3 * j) % len(kinds)]
+        models.setdefault(name, []).append(placement(name, np.array([OPEN_SPACING * i, OPEN_SPACING * j, 0.0]),
+                                                     turn_deg=29.0 * k))
+    return {"models": [{"path": str(MODELS / name), "transforms": t} for name, t in models.items()]}
+
+
+def open_statues_far(frames: int = 120) -> dict:
+    """A far view of open_statues: a full orbit at 3 times the grid's side from its centre, 1.5 sides
+    up, looking at the centre: every statue spans a few pixels to a few tens of pixels."""
+    side = OPEN_SPACING * (OPEN_SIDE - 1)
+    centre = np.array([side / 2, side / 2, 0.0])
+    out = []
+    for i in range(frames):
+        a = 2 * np.pi * i / frames
+        out.append({"eye": [round(float(c), 6) for c in centre + [3 * side * np.cos(a), 3 * side * np.sin(a), 1.5 * side]],
+                    "target": [round(float(c), 6) for c in centre], "up": [0, 0, 1]})
+    return {"fovy_deg": 60, "near": 0.5, "far": 2000, "frames": out}
 
 
 def _dolly(centre: np.ndarray, side: float, n: int) -> list:
@@ -150,3 +185,5 @@ if __name__ == "__main__":
     write_spec(HERE / "crowd_1m.json", crowd())
     (HERE / "crowd_walk_path.json").write_text(json.dumps(crowd_walk()) + "\n")
     (HERE / "crowd_inspection_path.json").write_text(json.dumps(crowd_inspection()) + "\n")
+    write_spec(HERE / "open_statues_6m.json", open_statues())
+    (HERE / "open_statues_far_path.json").write_text(json.dumps(open_statues_far()) + "\n")
