@@ -37,14 +37,16 @@ ROOT = Path(__file__).resolve().parents[1]
 MODELS = [("cow.obj", 300), ("fandisk.obj", 300)]
 #: float32 rounding of pymeshlab's distances (relative), the only slack the no-slack check allows.
 F32_RELATIVE = 1e-6
-#: The last commit that changed what an exact bake writes (the bake's lattice,
-#: hlod_core/bake/lattice.py; until then the commit before the error bound, b1e28ff, whose files
-#: the exact bake kept writing): an exact bake must write the bytes it wrote there.
-BEFORE_BOUND = "103ebcb"
+#: The last commit that changed what an exact bake writes (eba7dec: the coarse levels' locks and
+#: pruning; cow.obj's nodes, LODs and errors are the ones 103ebcb wrote, the bake's lattice, but the
+#: meta gained nodes_over_budget, pruned_pieces, pruned_tris and the "seams" phase; before that,
+#: 103ebcb, and the commit before the error bound, b1e28ff): an exact bake must write the bytes it
+#: wrote there.
+BEFORE_BOUND = "eba7dec"
 #: SHA-256 of cow.obj baked exactly at target_tris 300 (timings zeroed) at BEFORE_BOUND, pinned
 #: pymeshlab, on an AMD EPYC machine), for checkouts without that commit; where the
 #: commit is there, the old code's own file is compared instead (the digest of floats is per CPU).
-FILE_BEFORE_BOUND = "5e5a6e6162a3886afdecdf9260b5a5ea37d963fdf97022a2037eb7aabd38e982"
+FILE_BEFORE_BOUND = "b45e2751d8d74b91a75ba4697e4cf34b3df13d1e0c29f0f6df1f97d0ce22e116"
 
 
 @pytest.fixture(scope="module")
