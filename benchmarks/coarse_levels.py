@@ -13,10 +13,10 @@ reports per bake:
                         largest and how many are above 1.25 x target_tris;
     total               triangles stored (every node's LOD, leaves included);
     pruned              pieces the bake dropped (meta; 0 before it could);
-    drawn               Coh(P) over the far camera path with this checkout's renderer
-                        (`python -m hlod_core run FILE --method coh --path PATH`, 640x480, tau 1):
-                        the mean triangles and nodes drawn per frame; the same renderer for both
-                        files, so only the bakes differ.
+    drawn               Coh(P) over the far camera path (an orbit pulling back from 2 to 45 times
+                        the grid's side) with this checkout's renderer (`python -m hlod_core run
+                        FILE --method coh --path PATH`, 640x480, tau 1): the mean triangles and nodes
+                        drawn per frame; the same renderer for both files, so only the bakes differ.
 The load average is recorded before and after (a 2-core VM shared with other work skews times).
 """
 from __future__ import annotations

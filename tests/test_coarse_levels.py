@@ -210,3 +210,34 @@ def test_nodes_of_one_level_meet_bit_for_bit_along_their_seams(which, pieces_bak
             assert np.isin(mine, _node_edges(hlod, node, position_id)).all(), (depth, node)
             checked += mine.size
     assert checked > 100
+
+
+def _keys_of(mesh, *, with_seams: bool) -> list[bytes]:
+    """The bake cache's node keys of `mesh` at 4 triangles per leaf (cache.node_keys)."""
+    from hlod_core.bake import cache
+
+    prepared = prepare.prepare(mesh)
+    layout = build_octree(prepared.centroids, target_tris=4, max_depth=12, counted=prepared.counted,
+                          root=prepared.root_cell)
+    lods = prepare.leaf_lods(layout, prepared)
+    seams = cell_seams.build(layout, lods) if with_seams else None
+    return cache.node_keys(layout, lods, origin=prepared.origin, context=bytes(32), unit_length=prepared.unit_length,
+                           seams=seams)
+
+
+def test_the_cache_keys_an_inner_node_by_its_seams_too():
+    """Two strips of 8 x 2 quads, the same but for one vertex on x = 4, where the halves meet: in the
+    second, the right half's triangles use a copy of it moved by 1e-3 along x. The left half's
+    nodes keep their cells and triangles, and lose a seam: their keys must change (a node's LOD
+    depends on the seams it keeps), and they do only because the keys hash the seams."""
+    p, f = procedural.grid_patch([0.0, 0.0, 0.0], [8.0, 0.0, 0.0], [0.0, 2.0, 0.5], nu=8, nv=2)
+    meeting = int(np.flatnonzero((p[:, 0] == 4.0) & (p[:, 1] == 0.0))[0])  # on the strip's edge: one left node has it
+    right = p[f].mean(axis=1)[:, 0] > 4.0
+    moved_p = np.concatenate([p, p[meeting:meeting + 1] + [1e-3, 0.0, 0.0]])
+    moved_f = f.copy()
+    moved_f[right] = np.where(f[right] == meeting, p.shape[0], f[right])
+    a, b = meshes.from_arrays(p, f, name="strip"), meshes.from_arrays(moved_p, moved_f, name="strip")
+    plain = [x == y for x, y in zip(_keys_of(a, with_seams=False), _keys_of(b, with_seams=False))]
+    seamed = [x == y for x, y in zip(_keys_of(a, with_seams=True), _keys_of(b, with_seams=True))]
+    assert len(plain) == len(seamed) and sum(plain) >= 3
+    assert sum(seamed) < sum(plain) and all(p_ or not s for p_, s in zip(plain, seamed))

@@ -68,14 +68,14 @@ def collapse_node(positions: np.ndarray, local: np.ndarray, faces: np.ndarray, s
         position_ids = unique_by_first(row_keys(np.asarray(positions, np.float64)))[1]
     locked, rim, border = node_borders(positions, faces, seams, position_ids=position_ids)
     found = pieces_of(local, faces, locked, position_ids=position_ids)
-    track = found.count >= 2 and bool(found.free.any())
+    track = found.with_faces >= 2 and bool(found.free.any())
     ids = vertex_ids if vertex_ids is not None else (np.arange(local.shape[0], dtype=np.float64) if track else None)
     rows = vertex_ids is not None
     ms, kept_in_place, freed = _within_budget(local, faces, settings, locked=locked, rim=rim, border=border,
                                               vertex_ids=ids, rows=rows)
     if not track:
         return ms, kept_in_place, Cut(locked_vertices=int(locked.sum()), open_boundaries_freed=freed,
-                                      pieces=found.count), faces
+                                      pieces=found.with_faces), faces
     lod_piece = _lod_pieces(ms, found.of_vertex)
     lod = ms.current_mesh()
     pruned = choose(found, local=local, faces=faces, lod_local=lod.vertex_matrix(),
@@ -92,7 +92,7 @@ def collapse_node(positions: np.ndarray, local: np.ndarray, faces: np.ndarray, s
     present[lod_piece[lod_piece >= 0]] = True
     gone = ~present & (found.input_tris > 0)
     return ms, kept_in_place, Cut(locked_vertices=int(locked.sum()), open_boundaries_freed=freed,
-                                  pieces=found.count, pruned_pieces=int(gone.sum()),
+                                  pieces=found.with_faces, pruned_pieces=int(gone.sum()),
                                   pruned_tris=int(found.input_tris[gone].sum())), faces[kept]
 
 

@@ -54,6 +54,11 @@ class Pieces:
         return int(self.free.shape[0])
 
     @property
+    def with_faces(self) -> int:
+        """Pieces with at least one face (a vertex no face uses is a piece of its own)."""
+        return int((self.input_tris > 0).sum())
+
+    @property
     def extent(self) -> np.ndarray:
         """(p,) float64: each piece's box diagonal, unit frame."""
         return np.linalg.norm(self.box_max - self.box_min, axis=1)
@@ -88,6 +93,7 @@ def pieces_of(local: np.ndarray, faces: np.ndarray, locked: np.ndarray, *,
     np.minimum.at(box_min, of_vertex, local)
     np.maximum.at(box_max, of_vertex, local)
     input_tris = np.bincount(of_vertex[faces[:, 0]], minlength=p).astype(np.int64)
+    free &= input_tris > 0  # a vertex no face uses is a piece of its own, and nothing to drop
     return Pieces(of_vertex=of_vertex, free=free, box_min=box_min, box_max=box_max, input_tris=input_tris)
 
 
@@ -121,7 +127,7 @@ def choose(pieces: Pieces, *, local: np.ndarray, faces: np.ndarray, lod_local: n
     welded input, unit frame; lod_local (j,3) / lod_faces (n0,3): L0; lod_piece (j,) int64: the
     piece of each L0 vertex (-1: unknown, counted with no piece)."""
     dropped = np.zeros(pieces.count, bool)
-    if pieces.count < 2 or not pieces.free.any() or lod_faces.shape[0] == 0:
+    if pieces.with_faces < 2 or not pieces.free.any() or lod_faces.shape[0] == 0:
         return Pruned(dropped)
     face_piece = lod_piece[lod_faces[:, 0]]
     lod_tris = np.bincount(face_piece[face_piece >= 0], minlength=pieces.count).astype(np.int64)

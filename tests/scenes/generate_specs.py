@@ -5,8 +5,8 @@ gallery_1m.json: 8 statues (igea x2, nefertiti x3, bunny x3; 1,045,227 triangles
 most of the next (high depth complexity).
 
 open_statues_6m.json: 100 statues with open boundaries (bunny x50, teapot x30, nefertiti x20; 5.7M
-triangles) on a 10 x 10 grid 12 units apart; open_statues_far_path.json orbits it from afar (the
-coarse levels' benchmark: benchmarks/coarse_levels.py).
+triangles) on a 10 x 10 grid 12 units apart; open_statues_far_path.json orbits it while pulling back
+from 2 to 45 times its side (the coarse levels' benchmark: benchmarks/coarse_levels.py).
 
 crowd_1m.json: 144 statues (cow, homer, spot, teapot, rocker-arm, fandisk; 1.5M triangles) each scaled
 to 10 units and turned about +z, packed on a 12 x 12 grid 8 units apart (neighbours nearly touch):
@@ -84,16 +84,18 @@ def open_statues() -> dict:
 
 
 def open_statues_far(frames: int = 120) -> dict:
-    """A far view of open_statues: a full orbit at 3 times the grid's side from its centre, 1.5 sides
-    up, looking at the centre: every statue spans a few pixels to a few tens of pixels."""
+    """Far views of open_statues: one orbit around the grid's centre while pulling back from 2 to 45
+    times the grid's side (log-spaced), half as high as far, looking at the centre: the coarse
+    levels' range (at 640x480 and tau 1 px a node of error e is drawn from about 416 e units away)."""
     side = OPEN_SPACING * (OPEN_SIDE - 1)
     centre = np.array([side / 2, side / 2, 0.0])
     out = []
     for i in range(frames):
         a = 2 * np.pi * i / frames
-        out.append({"eye": [round(float(c), 6) for c in centre + [3 * side * np.cos(a), 3 * side * np.sin(a), 1.5 * side]],
+        r = side * 2.0 * (45.0 / 2.0) ** (i / (frames - 1))
+        out.append({"eye": [round(float(c), 6) for c in centre + [r * np.cos(a), r * np.sin(a), 0.5 * r]],
                     "target": [round(float(c), 6) for c in centre], "up": [0, 0, 1]})
-    return {"fovy_deg": 60, "near": 0.5, "far": 2000, "frames": out}
+    return {"fovy_deg": 60, "near": 1.0, "far": 20000, "frames": out}
 
 
 def _dolly(centre: np.ndarray, side: float, n: int) -> list:
