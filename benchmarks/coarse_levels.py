@@ -2,8 +2,12 @@
 earlier one (`--before DIR`, e.g. `git worktree add /tmp/before COMMIT`), in one run.
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.coarse_levels --before /tmp/before
-        [--spec tests/scenes/open_statues_6m.json] [--path tests/scenes/open_statues_far_path.json]
+        [--spec tests/scenes/open_statues_6m.json | --procedural pieces [--scale 1]]
+        [--path tests/scenes/open_statues_far_path.json | --no-path]
         [--jobs 2] [--repeat 1] [--target-tris 2000] [--out DIR]
+
+`--procedural NAME` bakes a procedural scene of this checkout (hlod_core.io.procedural.SCENES),
+written once as an OBJ that both checkouts read (the earlier one may not have the scene).
 
 Each repeat bakes the spec with both checkouts' command line (`python -m hlod_core bake SPEC
 --no-cache --jobs N`, each in its own folder and PYTHONPATH), alternating which goes first, and
@@ -79,11 +83,25 @@ def drawn(path: Path, camera: Path) -> dict:
     return {"tris": float(result["tris"]), "dn": float(result["dn"]), "frames": int(result["frames"])}
 
 
+def write_obj(path: Path, name: str, *, scale: float) -> Path:
+    """The procedural scene `name` at `scale` as an OBJ (float64 coordinates written exactly)."""
+    from hlod_core.io import procedural
+
+    mesh = procedural.SCENES[name](seed=1, scale=scale)
+    with open(path, "w", encoding="ascii") as f:
+        np.savetxt(f, mesh.positions, fmt="v %.17g %.17g %.17g")
+        np.savetxt(f, mesh.faces + 1, fmt="f %d %d %d")
+    return path
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--before", type=Path, required=True, help="a checkout of the earlier commit")
     parser.add_argument("--spec", type=Path, default=SPEC)
+    parser.add_argument("--procedural", default=None, help="a procedural scene's name instead of --spec")
+    parser.add_argument("--scale", type=float, default=1.0, help="with --procedural: its scale")
     parser.add_argument("--path", type=Path, default=FAR_PATH)
+    parser.add_argument("--no-path", action="store_true", help="skip the drawn triangles")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--repeat", type=int, default=1)
     parser.add_argument("--target-tris", type=int, default=2000)
@@ -92,18 +110,23 @@ def main(argv=None) -> int:
     out = args.out or Path(tempfile.mkdtemp(prefix="coarse-levels-"))
     out.mkdir(parents=True, exist_ok=True)
     checkouts = {"before": args.before.resolve(), "after": ROOT}
+    spec = args.spec.resolve()
+    if args.procedural:
+        spec = write_obj(out / f"{args.procedural}.obj", args.procedural, scale=args.scale)
     load = [os.getloadavg()]
     seconds: dict[str, list[float]] = {name: [] for name in checkouts}
     for r in range(args.repeat):
         for name in (("before", "after") if r % 2 == 0 else ("after", "before")):
-            summary = bake_with(checkouts[name], args.spec.resolve(), out / f"{name}.hlod", jobs=args.jobs,
+            summary = bake_with(checkouts[name], spec, out / f"{name}.hlod", jobs=args.jobs,
                                 target_tris=args.target_tris)
             seconds[name].append(float(summary["seconds"]))
             print(f"{name}: bake {summary['seconds']:.1f} s, root {summary['root_tris']}", flush=True)
-    report = {"spec": str(args.spec), "path": str(args.path), "jobs": args.jobs, "target_tris": args.target_tris}
+    report = {"spec": str(spec), "path": None if args.no_path else str(args.path), "jobs": args.jobs,
+              "target_tris": args.target_tris}
     for name in checkouts:
         report[name] = {"bake_seconds": float(np.median(seconds[name])), "bake_seconds_all": seconds[name],
-                        **levels(out / f"{name}.hlod", args.target_tris), "drawn": drawn(out / f"{name}.hlod", args.path)}
+                        **levels(out / f"{name}.hlod", args.target_tris),
+                        "drawn": None if args.no_path else drawn(out / f"{name}.hlod", args.path)}
     load.append(os.getloadavg())
     report["load_average"] = [list(x) for x in load]
     (out / "report.json").write_text(json.dumps(report, indent=1))
@@ -113,8 +136,9 @@ def main(argv=None) -> int:
                            for d, v in r["per_depth"].items())
         print(f"{name}: bake {r['bake_seconds']:.1f} s; root {r['root_tris']} (error {r['root_error']:.4g}); "
               f"total {r['total_tris']}; nodes over {OVER_FACTOR} x target {r['nodes_over_budget']}; pruned "
-              f"{r['pruned_pieces']} pieces ({r['pruned_tris']} tris); Coh(P) far path {r['drawn']['tris']:.0f} tris, "
-              f"{r['drawn']['dn']:.1f} nodes per frame\n  {depths}")
+              f"{r['pruned_pieces']} pieces ({r['pruned_tris']} tris)"
+              + ("" if r["drawn"] is None else f"; Coh(P) far path {r['drawn']['tris']:.0f} tris, "
+                                               f"{r['drawn']['dn']:.1f} nodes per frame") + f"\n  {depths}")
     print(f"load average before/after: {load[0]} / {load[1]}; report: {out / 'report.json'}")
     return 0
 

@@ -123,7 +123,7 @@ def _shared_in_bucket(lods: list, leaves: np.ndarray, counts: np.ndarray, *, buc
         start += int(count)
     xy, z, row = np.concatenate(xs), np.concatenate(zs), np.concatenate(row_ids)
     del xs, zs, row_ids
-    order = np.lexsort((row, z, xy))  # by position, then row (depth first)
+    order = np.lexsort((z, xy))  # by position; stable, so rows (depth first) stay ascending within one
     xy, z, row = xy[order], z[order], row[order]
     new = np.ones(row.size, bool)
     new[1:] = (xy[1:] != xy[:-1]) | (z[1:] != z[:-1])
@@ -139,11 +139,12 @@ def _shared_in_bucket(lods: list, leaves: np.ndarray, counts: np.ndarray, *, buc
 def _rows(lods: list, leaves: np.ndarray, counts: np.ndarray, rows: np.ndarray) -> np.ndarray:
     """(r,3) float32: the positions of the given global leaf-vertex rows (ascending)."""
     ends = np.cumsum(counts)
-    leaf_index = np.searchsorted(ends, rows, side="right")
+    cut = np.searchsorted(rows, ends, side="left")  # rows[cut[j-1]:cut[j]] lie in leaf j
     out = np.empty((rows.size, 3), np.float32)
-    for j in np.unique(leaf_index):
-        mine = leaf_index == j
-        out[mine] = np.asarray(lods[leaves[j]][0])[rows[mine] - (ends[j] - counts[j])]
+    start = 0
+    for j in np.flatnonzero(np.diff(np.concatenate([[0], cut])) > 0):
+        out[start:cut[j]] = np.asarray(lods[leaves[j]][0])[rows[start:cut[j]] - (ends[j] - counts[j])]
+        start = cut[j]
     return out
 
 

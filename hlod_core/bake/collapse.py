@@ -16,7 +16,7 @@ What stays in place, bit-identical, with its edges:
   OVER_BUDGET_FACTOR x target_tris triangles does it run again with them free to collapse, their
   edges weighted by DecimationSettings.boundary_weight in the quadrics.
 Then pieces.choose may drop pieces below the error or over the budget, and the node is collapsed
-again, by the same rules, without them.
+again without them (with its rims free at once where the first collapse needed that).
 """
 from __future__ import annotations
 
@@ -85,7 +85,7 @@ def collapse_node(positions: np.ndarray, local: np.ndarray, faces: np.ndarray, s
     if pruned.dropped.any():
         kept = ~pruned.dropped[found.of_vertex[faces[:, 0]]]
         ms, kept_in_place, freed = _within_budget(local, faces[kept], settings, locked=locked, rim=rim, border=border,
-                                                  vertex_ids=ids, rows=rows)
+                                                  vertex_ids=ids, rows=rows, free_at_once=freed)
         lod_piece = _lod_pieces(ms, found.of_vertex)
     # dropped: by pieces.choose, or by the collapse itself (a free piece collapsed to nothing)
     present = np.zeros(found.count, bool)
@@ -105,14 +105,19 @@ def _lod_pieces(ms, piece_of_input: np.ndarray) -> np.ndarray:
 
 
 def _within_budget(local: np.ndarray, faces: np.ndarray, settings: DecimationSettings, *, locked: np.ndarray,
-                   rim: np.ndarray, border: np.ndarray, vertex_ids: np.ndarray | None, rows: bool):
+                   rim: np.ndarray, border: np.ndarray, vertex_ids: np.ndarray | None, rows: bool,
+                   free_at_once: bool = False):
     """(MeshSet, kept_in_place, freed): the collapse with the models' open boundaries (rim (k,)
     bool) in place, or where that LOD is over OVER_BUDGET_FACTOR x target_tris, free (freed True).
     border (k,) bool: the vertices on open edges of the node's whole input (faces may be a part of
     it: whole pieces dropped); where the vertices kept are just those, pymeshlab's boundary
-    preservation keeps them (meshlab.quadric_collapse)."""
+    preservation keeps them (meshlab.quadric_collapse). free_at_once: the rims are free from the
+    start (the node's collapse with all its pieces needed that)."""
     used = np.zeros(local.shape[0], bool)
     used[faces.ravel()] = True
+    if free_at_once and (rim & used).any():
+        ms, kept_in_place = _collapse(local, faces, settings, locked=locked & used, vertex_ids=vertex_ids, rows=rows)
+        return ms, kept_in_place, True
     kept = (locked | rim) & used
     ms, kept_in_place = _collapse(local, faces, settings, vertex_ids=vertex_ids, rows=rows,
                                   locked=None if np.array_equal(kept, border & used) else kept)

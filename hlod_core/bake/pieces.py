@@ -16,8 +16,9 @@ each piece), and its error e0 = the largest distance of an input vertex to L0:
    a piece spans at most tau pixels (the papers' tau is 1) and the rest of the LOD stands in for
    it within the error.
 2. Over the budget: where what is left would keep more than target_tris triangles (L0 stopped
-   above the target: each piece is at the fewest triangles the collapse gives it), the free
-   pieces are binned on a grid of cell side h, from e0 up in steps of 2^(1/4), and each cell
+   above the target: each piece is at the fewest triangles the collapse gives it) and dropping
+   free pieces can bring it down to the target (not where the cell seams alone hold it over), the
+   free pieces are binned on a grid of cell side h, from e0 up in steps of 2^(1/4), and each cell
    keeps its piece of most input triangles (then the lowest id): at the first h whose binned-out
    pieces would free enough triangles (or where one cell holds the node), just enough of them go,
    those nearest their cell's kept piece first.
@@ -165,8 +166,8 @@ def _over_budget(pieces: Pieces, *, dropped: np.ndarray, lod_tris: np.ndarray, l
     none = np.zeros(pieces.count, bool)
     excess = lod_total - int(lod_tris[dropped].sum()) - target_tris
     candidates = np.flatnonzero(pieces.free & ~dropped)
-    if excess <= 0 or candidates.size < 2:
-        return none, 0.0
+    if excess <= 0 or candidates.size < 2 or int(lod_tris[candidates].sum()) - int(lod_tris[candidates].max()) < excess:
+        return none, 0.0  # within budget, or held over it by what no drop can free (its cell seams)
     centre = 0.5 * (pieces.box_min[candidates] + pieces.box_max[candidates])
     centre -= centre.min(axis=0)  # cells from the lowest centre: at a side of 2 x UNIT_DIAGONAL, one cell
     # largest first (then lowest id): the first piece of each cell in this order is the one kept
