@@ -12,9 +12,16 @@ Ways (meshlab.quadric_collapse is the last):
                     freezes every vertex with an unselected face: the seam's whole one-ring)
     zero-area face  selected=True, every real face selected and one unselected zero-area face per
                     seam vertex (meshlab.lock_by_selection): exactly the seam vertices stay
+    ... every edge  the same with every vertex on an open edge: boundary's vertex set, to compare
+                    the LOD (the same, bit for bit) and the cost of the selected mode
 Per way: the triangles reached, the seam vertices found bit-identical in the LOD, the open edges
 left off the seam (the model's rims), the symmetric Hausdorff error against the half
 (hausdorff.measure, relative to the half's box diagonal) and the collapse's seconds (median).
+
+Then the cost of freeing a model's rims where the budget does not need it: the model baked at
+--target-tris, its root's input (the children's LODs, welded) collapsed to the target with its
+rims in place (what the bake does) and free at boundary weights 1, 10 and 1000; the error against
+that input (hausdorff.measure, model units).
 """
 from __future__ import annotations
 
@@ -67,6 +74,9 @@ def collapse(way: str, local, faces, seam, settings):
             targetfacenum=settings.target_tris, qualitythr=settings.quality_threshold, preserveboundary=False,
             boundaryweight=1.0, optimalplacement=True, planarquadric=True, autoclean=True, selected=True)
         return ms
+    if way == "... every edge":
+        return meshlab.quadric_collapse(local, faces, settings, optimal_placement=True,
+                                        locked=node_borders(local.astype(np.float32), faces, None)[0])
     return meshlab.quadric_collapse(local, faces, settings, optimal_placement=True, locked=seam)
 
 
@@ -84,7 +94,8 @@ def main(argv=None) -> int:
         local = frame.to_local(positions)
         print(f"{name}: half of {faces.shape[0]} triangles, {int(seam.sum())} seam vertices, "
               f"{int(rim.sum())} rim vertices; target {args.target_tris}")
-        for way in ("boundary", "nothing", "ring", "zero-area face"):
+        lods = {}
+        for way in ("boundary", "nothing", "ring", "zero-area face", "... every edge"):
             seconds = []
             for _ in range(args.repeat):
                 started = time.perf_counter()
@@ -94,12 +105,47 @@ def main(argv=None) -> int:
             out = frame.to_model(lod.vertex_matrix(), local, positions)
             kept = np.isin(_keys(positions[seam]), _keys(out))
             lod_f = lod.face_matrix().astype(np.int32)
+            lods[way] = (out, lod_f)
             _, lod_rim, _ = node_borders(out, lod_f, positions[seam])
             error = hausdorff.measure((out, lod_f), (positions, faces)) / float(np.linalg.norm(np.ptp(positions, axis=0)))
             print(f"  {way:15s} {lod.face_number():5d} triangles, seam vertices kept {int(kept.sum())}/{kept.size}, "
                   f"rim vertices left {int(lod_rim.sum()):4d}, error {error:.5f} of the diagonal, "
                   f"{np.median(seconds):.3f} s")
+        same = all(np.array_equal(a, b) for a, b in zip(lods["boundary"], lods["... every edge"]))
+        print(f"  the selected mode over every open edge gives boundary's LOD bit for bit: {same}")
+    for name in args.models:
+        rims_at_the_root(name, args.target_tris * 4)
     return 0
+
+
+def rims_at_the_root(name: str, target_tris: int) -> None:
+    """The root of `name` baked at target_tris, collapsed again from its children with its rims in
+    place and free (module docstring)."""
+    from hlod_core.bake.pipeline import bake
+    from hlod_core.bake.settings import BakeSettings
+    from hlod_core.core.arrays import concat_indexed
+
+    hlod = bake(meshes.load_mesh(MODELS / name), BakeSettings(target_tris=target_tris))
+    children = []
+    for node in range(int(hlod.child_offset[0]), int(hlod.child_offset[0] + hlod.child_count[0])):
+        v0, t0 = int(hlod.vertex_offset[node]), int(hlod.tri_offset[node])
+        faces = hlod.indices[t0:t0 + int(hlod.tri_count[node])].astype(np.int64) - v0
+        children.append((hlod.positions[v0:v0 + int(hlod.vertex_count[node])], faces))
+    positions, faces = simplify.weld(*concat_indexed(children))
+    frame = meshlab.NodeFrame.of(positions)
+    local = frame.to_local(positions)
+    _, rim, _ = node_borders(positions, faces, np.zeros((0, 3), np.float32))
+    results = []
+    for weight, locked in ((1.0, None), (1.0, np.zeros(rim.size, bool)), (10.0, np.zeros(rim.size, bool)),
+                           (1000.0, np.zeros(rim.size, bool))):
+        settings = meshlab.DecimationSettings(target_tris=target_tris, boundary_weight=weight)
+        ms = meshlab.quadric_collapse(local, faces.astype(np.int32), settings, optimal_placement=True, locked=locked)
+        lod = ms.current_mesh()  # the MeshSet must outlive its mesh
+        out = frame.to_model(lod.vertex_matrix(), local, positions)
+        error = hausdorff.measure((out, lod.face_matrix().astype(np.int32)), (positions, faces.astype(np.int32)))
+        results.append(f"{'rims in place' if locked is None else f'rims free, weight {weight:g}'}: "
+                       f"{lod.face_number()} triangles, error {error:.5f}")
+    print(f"{name} root at {target_tris} ({int(rim.sum())} rim vertices): " + "; ".join(results))
 
 
 if __name__ == "__main__":

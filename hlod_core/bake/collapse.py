@@ -11,8 +11,9 @@ What stays in place, bit-identical, with its edges:
   and UV seams, which must stay closed;
 - while the budget allows: the models' own open boundaries (holes of a scan, the rim of an open
   surface, a card's edges). The collapse runs with them in place first, which keeps their
-  silhouette exactly (freeing them raised the bunny's root error from 0.0012 to 0.0026-0.0039 at
-  the same 2,000 triangles, whatever the boundary weight); only where that LOD keeps more than
+  silhouette exactly and gives the LOD the bake gave before (freeing them everywhere raised the
+  bunny's root error from 0.0013 to 0.0045-0.0052 at the same 2,000 triangles, whatever the
+  boundary weight: benchmarks/seam_locks.py); only where that LOD keeps more than
   OVER_BUDGET_FACTOR x target_tris triangles does it run again with them free to collapse, their
   edges weighted by DecimationSettings.boundary_weight in the quadrics.
 Then pieces.choose may drop pieces below the error or over the budget, and the node is collapsed
