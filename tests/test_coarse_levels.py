@@ -241,3 +241,18 @@ def test_the_cache_keys_an_inner_node_by_its_seams_too():
     seamed = [x == y for x, y in zip(_keys_of(a, with_seams=True), _keys_of(b, with_seams=True))]
     assert len(plain) == len(seamed) and sum(plain) >= 3
     assert sum(seamed) < sum(plain) and all(p_ or not s for p_, s in zip(plain, seamed))
+
+
+def test_the_log_names_a_node_over_the_budget_and_what_held_it():
+    """A LOD of 3,000 triangles at a target of 2,000, held by 2,900 seam vertices: named with them."""
+    from hlod_core.bake.meta import lod_notes
+
+    lod = simplify.NodeLod(positions=np.zeros((3, 3), np.float32), faces=np.zeros((3000, 3), np.int32), normals=None,
+                           decimated=True, input_tris=12000, locked_vertices=2900, open_boundaries_freed=True,
+                           pieces=3, pruned_pieces=1)
+    assert lod_notes(7, lod, error=1.0, target_tris=2000) == [
+        "node 7: decimation stopped at 3000 triangles, over 1.25 x the target 2000: its 2900 seam vertices "
+        "(shared with neighbouring cells) stay in place, and 2 separate pieces remain"]
+    within = simplify.NodeLod(positions=np.zeros((3, 3), np.float32), faces=np.zeros((2500, 3), np.int32),
+                              normals=None, decimated=True, input_tris=12000)
+    assert lod_notes(7, within, error=1.0, target_tris=2000) == []

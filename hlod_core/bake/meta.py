@@ -124,10 +124,12 @@ def lod_notes(node: int, lod: NodeLod, *, error: float, target_tris: int) -> lis
     elif tris >= lod.input_tris:
         notes.append(f"node {node}: LOD has {tris} triangles, not smaller than its children's {lod.input_tris}")
     elif tris > OVER_BUDGET_FACTOR * target_tris:
+        kept = ("seam vertices (shared with neighbouring cells)" if lod.attributes is None
+                else "seam, material-border and UV-seam vertices")
         notes.append(f"node {node}: decimation stopped at {tris} triangles, over {OVER_BUDGET_FACTOR:g} x the target "
-                     f"{target_tris}: {lod.locked_vertices} vertices stay in place (seams with neighbouring cells, "
-                     f"material borders, UV seams) and {lod.pieces - lod.pruned_pieces} separate pieces remain"
-                     + ("" if lod.open_boundaries_freed else "; open boundaries kept"))
+                     f"{target_tris}: its {lod.locked_vertices} {kept} stay in place"
+                     f"{'' if lod.open_boundaries_freed else ' with its open boundaries'}, and "
+                     f"{lod.pieces - lod.pruned_pieces} separate pieces remain")
     if lod.uv_seams_crossed:
         notes.append(f"node {node}: UV seams crossed to reach {tris} triangles ({lod.seam_kept_tris} keeping "
                      f"them); {lod.island_spanning_faces} faces span two UV islands")
