@@ -173,8 +173,8 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         bake = start_bake(bpy.context, objects, target, bake_settings_of(args), use_cache=not args.no_cache,
                           cache_folder=args.cache, include_hidden=args.include_hidden,
                           cache_budget_mb=args.cache_budget, frame_from=args.frame_from)
-        if bake.cycles_baked:  # node trees that cannot be read
-            print(f"hlod: {blend}: {cycles_report(bake.cycles_baked)}", file=sys.stderr)
+        if bake.cycles_bakes:  # colours no node tree reading gives
+            print(f"hlod: {blend}: {cycles_report(bake.cycles_bakes)}", file=sys.stderr)
         _print_skipped(blend, bake.gathered.skipped)
         try:
             bake.job.join()
@@ -193,7 +193,8 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         return {"blend": blend, "ok": False, "error": message}
     return {"blend": blend, "ok": True, "outputs": outputs, "nodes": job.result.node_count,
             "input_tris": job.result.input_tris, "jobs": job.result.jobs, "cache": job.result.cache,
-            "skipped": bake.gathered.skipped.as_dict(), "seconds": time.perf_counter() - started}
+            "skipped": bake.gathered.skipped.as_dict(), "cycles_bakes": [b.as_dict() for b in bake.cycles_bakes],
+            "seconds": time.perf_counter() - started}
 
 
 def _one_line(exc: BaseException) -> str:

@@ -1,7 +1,10 @@
 """The Benchmark and Tune to PSNR operators' work: the scene camera's animation as a camera path,
 evaluated with every method (hlod_core.report.evaluate, docs/evaluation.md), or searched for the (s, t) with the
 fewest drawn nodes that keeps PSNR-Y against Bool at the scene's target (hlod_core.report.tuning), in
-a private headless EGL context; Blender's own context is made current again afterwards (docs/how-it-works.md#gl-queries).
+a standalone context of the platform's own GL (hlod_core.render.gl_platform: EGL or GLX, WGL, CGL);
+Blender's own context, if any, is made current again afterwards
+(docs/how-it-works.md#gl-contexts-on-every-platform). Where no context can be made the core raises
+GLUnavailable, whose sentence the operators report.
 
 The report's figures need matplotlib, which no Blender ships (4.2 to 5.2) and the extension does not
 bundle (about 10 MB of wheels per Python and platform for four PNGs): without it the report is
@@ -18,8 +21,8 @@ import numpy as np
 from ..hlod_core.core.errors import InputError
 from ..hlod_core.io import hlod_file
 from ..hlod_core.model.camera_path import CameraPath
+from ..hlod_core.render import gl_platform
 from ..hlod_core.report import evaluate, tuning
-from .preview import current_context
 from .preview.live import PREVIEW
 from .settings import runtime_settings
 
@@ -73,7 +76,7 @@ def run(context, folder: str, repeat: int) -> tuple[dict, str]:
     """Benchmark: every method on the camera's animation; the report (evaluate's) and its folder."""
     hlod, size, path = _setup(context, "Benchmark")
     os.makedirs(folder, exist_ok=True)
-    with current_context.keep_current():
+    with gl_platform.keep_current():
         report = evaluate.evaluate(hlod, path, size, methods=list(evaluate.METHOD_SPECS),
                                    settings=runtime_settings(context.scene.hlod), repeat=repeat, out_dir=folder,
                                    psnr_frames=min(20, len(path)), figures=figures_available())
@@ -88,7 +91,7 @@ def tune(context, folder: str, repeat: int) -> tuple[dict, str]:
     target = tuning.check_target(props.psnr_target)
     hlod, size, path = _setup(context, "Tune to PSNR")
     os.makedirs(folder, exist_ok=True)
-    with current_context.keep_current():
+    with gl_platform.keep_current():
         report = tuning.tune(hlod, path, size, target_db=target, settings=runtime_settings(props), repeat=repeat,
                              out_dir=folder, psnr_frames=min(20, len(path)), figures=figures_available())
     return report, folder

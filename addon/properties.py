@@ -131,8 +131,10 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     last_tuning: StringProperty(name="Last Tuning", default="",
                                 description="What the last Tune to PSNR chose: s, t, drawn nodes, PSNR")
     private_context: BoolProperty(name="Private Context", default=False,
-                                  description="Run the traversal in a private GL context and draw with Blender's gpu module "
-                                              "(automatic on Metal/Vulkan; Blender's objects then do not occlude the queries)")
+                                  description="Run the occlusion queries in a GL context of the extension's own, with "
+                                              "Blender's depth imported each frame so its objects occlude them, and draw "
+                                              "with Blender's gpu module (automatic on Metal and Vulkan; without any GL "
+                                              "context the queries run on the CPU)")
     gpu_budget_mb: FloatProperty(name="GPU Memory (MB)", default=512.0, min=0.0, max=1e6, precision=0,
                                  description="GPU memory the preview's node geometry may take: nodes are uploaded "
                                              "as the view wants them and the least recently used freed; a coarser "

@@ -9,7 +9,7 @@
    (reduce_depth, upload, the full-screen write) and glFinish, less the same frame start without a
    depth image; the median over --repeat rounds, the factors interleaved (order alternating).
 2. Read-back in Blender (unless --no-blender, or bpy does not import): GPUFrameBuffer.read_depth of
-   a GPUOffScreen of each size and its numpy view (np.asarray), in a bpy process; the median of
+   a GPUOffScreen of each size into a 1-D gpu Buffer and its numpy view, in a bpy process; the median of
    --repeat reads.
 3. Effect: Coh on the street walk (`street_path`, the tests' walk down the default city's first
    street) with a wall over the left half of the view at 5 m (depth_import.wall_depth), each factor:
@@ -94,8 +94,10 @@ for w, h in json.loads(sys.argv[1]):
         fb.clear(color=(1.0, 1.0, 1.0, 1.0), depth=0.5)
         times = []
         for _ in range(int(sys.argv[2]) + 1):
-            started = time.perf_counter()
-            depth = np.asarray(fb.read_depth(0, 0, w, h), np.float32)
+            started = time.perf_counter()  # as the preview reads it (addon/preview/batch_drawn_mode.py)
+            buffer = gpu.types.Buffer("FLOAT", w * h)
+            fb.read_depth(0, 0, w, h, data=buffer)
+            depth = np.asarray(buffer, np.float32).reshape(h, w)
             times.append((time.perf_counter() - started) * 1e3)
         assert depth.shape == (h, w) and float(depth[0, 0]) == 0.5
     offscreen.free()
@@ -105,7 +107,8 @@ print(json.dumps({"backend": gpu.platform.backend_type_get(), "read_depth_ms": o
 
 
 def blender_read_cost(sizes: list[tuple[int, int]], repeat: int) -> dict | None:
-    """Blender's read_depth and numpy view at each size, in a bpy process; None without bpy."""
+    """Blender's read_depth into a one-dimensional gpu Buffer and its numpy view (as the preview
+    reads it) at each size, in a bpy process; None without bpy."""
     if subprocess.run([sys.executable, "-c", "import bpy"], capture_output=True).returncode != 0:
         return None
     proc = subprocess.run([sys.executable, "-c", BLENDER_READ, json.dumps(sizes), str(repeat)],

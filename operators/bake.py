@@ -78,8 +78,8 @@ class HLOD_OT_bake(bpy.types.Operator):
             raise InputError(f"Bake: cannot write {out}: folder {folder} is missing or not writable")
         objects = self._recorded_objects(context) if self.recorded else scene_objects.source_objects(context, props)
         bake = start_bake(context, objects, Path(out), bake_settings(props), use_cache=props.use_cache)
-        if bake.cycles_baked:  # node trees that cannot be read
-            self.report({"INFO"}, f"HLOD bake: {cycles_report(bake.cycles_baked)}")
+        if bake.cycles_bakes:  # colours no node tree reading gives
+            self.report({"INFO"}, f"HLOD bake: {cycles_report(bake.cycles_bakes)}")
         if bake.gathered.skipped:  # kinds without triangles, hidden objects: named once (addon/scene/objects.py)
             self.report({"WARNING"}, f"HLOD bake: {bake.gathered.skipped.text()}")
         try:

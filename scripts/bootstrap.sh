@@ -198,6 +198,24 @@ ensure_test_tools() {
     ensure_x_server  # Xvfb and Mesa's GLX: the GLX branch of the GL context is tested on it
 }
 
+ensure_vulkan() {
+    # The Blender checks also run under Blender's Vulkan backend (tests/blender_runs.py VULKAN_BLENDERS):
+    # Mesa's lavapipe, a Vulkan on the CPU (Debian's mesa-vulkan-drivers).
+    if command -v dpkg-query >/dev/null 2>&1; then
+        dpkg-query -W -f='${Status}' mesa-vulkan-drivers 2>/dev/null | grep -q "install ok installed" && return 0
+    elif [ -f /usr/share/vulkan/icd.d/lvp_icd.x86_64.json ]; then
+        return 0
+    fi
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+        say "installing mesa-vulkan-drivers (lavapipe: the Blender checks under Vulkan)"
+        DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2
+        DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mesa-vulkan-drivers >&2
+    else
+        say "missing: mesa-vulkan-drivers; run as root:  apt-get install -y mesa-vulkan-drivers   (lavapipe, a CPU Vulkan for the Blender checks under Vulkan)"
+        exit 1
+    fi
+}
+
 ensure_gl_packages
 if [ "${HLOD_SETUP_TEST_TOOLS:-}" = 1 ]; then
     # test.sh: the npm packages install while pip fills .venv (neither needs the other); a failure

@@ -1,4 +1,4 @@
-"""The README's picture of the 3D Tiles viewer: the default scene baked, exported as 3D Tiles, served
+"""The user guide's pictures of the 3D Tiles viewer: the default scene baked, exported as 3D Tiles, served
 with hlod_core.export.viewer and shot in Chromium (Playwright, /usr/bin/chromium, WebGL through SwiftShader)
 once all tiles are loaded, at the page's own first view, plain and coloured by depth.
 

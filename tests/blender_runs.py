@@ -36,6 +36,15 @@ def _blenders() -> dict[str, Path]:
 
 
 BLENDERS = _blenders()  # {"4.2": .venv-blender/bpy-4.2/bin/python, "5.0": ..., "5.2": ...}
+#: The Blenders whose checks also run under Blender's Vulkan backend, on Mesa's lavapipe (a CPU
+#: Vulkan): 5.0 and 5.2. 4.2's Vulkan backend was experimental (Blender offers Vulkan in its
+#: Preferences from 4.5) and crashes in its first render there.
+VULKAN_BLENDERS = ("5.0", "5.2")
+#: The environment of a check under Vulkan: scripts/blender_gpu_backend.py forces the backend
+#: before `import bpy` (blender_gpu_backend.VARIABLE).
+VULKAN = {"HLOD_GPU_BACKEND": "vulkan"}
+#: Where Debian's mesa-vulkan-drivers puts lavapipe's loader manifest.
+LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
 
 
 def blender_python(version: str) -> Path:
@@ -45,6 +54,12 @@ def blender_python(version: str) -> Path:
     assert python.is_file(), (f"Blender {version}'s environment is missing ({python}): run `bash test.sh`, "
                               f"which makes it (scripts/bootstrap.sh ensure_blender_venvs)")
     return python
+
+
+def require_lavapipe() -> None:
+    """A missing lavapipe is an error, never a skip: the Vulkan checks must run."""
+    assert LAVAPIPE_ICD.is_file(), (f"lavapipe is not installed ({LAVAPIPE_ICD} is missing): run `bash test.sh`, "
+                                    "which installs mesa-vulkan-drivers (scripts/bootstrap.sh ensure_vulkan)")
 
 
 @dataclass(frozen=True)

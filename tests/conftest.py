@@ -14,6 +14,8 @@ Fixtures
     extension_zips  the extension's linux-x64 zips, one per Blender line, built once per test run
     repo            that zip installed for the main .venv's bpy, once per test module
     versioned_repo  that zip installed in each Blender of blender_runs.BLENDERS, once per test run
+    vulkan_repo     the same installs, for the Blenders of blender_runs.VULKAN_BLENDERS, whose checks
+                    run under Blender's Vulkan backend (lavapipe)
 
 The `gl` marker is enforced: a test without it that asks for gl_ctx fails at setup, and from its
 setup on (its fixtures of wider scope included), making a moderngl context in this
@@ -177,11 +179,31 @@ def repo(extension_zips, tmp_path_factory) -> Path:
     return blender_runs.install_extension(zip_path, Path(sys.executable), tmp_path_factory.mktemp("extension"))
 
 
+@pytest.fixture(scope="session")
+def installed_blenders(extension_zips, tmp_path_factory):
+    """version "X.Y" -> blender_runs.Installed: the extension installed in that Blender's own
+    environment from its line's zip, on first use, once per test run."""
+    installed: dict[str, blender_runs.Installed] = {}
+
+    def get(version: str) -> blender_runs.Installed:
+        if version not in installed:
+            python = blender_runs.blender_python(version)
+            zip_path = extension_zips[blender_runs.line_of(version).python_tag]
+            base = blender_runs.install_extension(zip_path, python, tmp_path_factory.mktemp(f"extension-{version}"))
+            installed[version] = blender_runs.Installed(version, python, base)
+        return installed[version]
+    return get
+
+
 @pytest.fixture(scope="session", params=sorted(blender_runs.BLENDERS), ids=lambda version: f"blender-{version}")
-def versioned_repo(request, extension_zips, tmp_path_factory) -> blender_runs.Installed:
+def versioned_repo(request, installed_blenders) -> blender_runs.Installed:
     """The extension installed in Blender `request.param`'s own environment, from its line's zip."""
-    version = request.param
-    python = blender_runs.blender_python(version)
-    zip_path = extension_zips[blender_runs.line_of(version).python_tag]
-    base = blender_runs.install_extension(zip_path, python, tmp_path_factory.mktemp(f"extension-{version}"))
-    return blender_runs.Installed(version, python, base)
+    return installed_blenders(request.param)
+
+
+@pytest.fixture(scope="session", params=blender_runs.VULKAN_BLENDERS, ids=lambda version: f"blender-{version}-vulkan")
+def vulkan_repo(request, installed_blenders) -> blender_runs.Installed:
+    """The extension installed in Blender `request.param`, for checks under its Vulkan backend
+    (blender_runs.VULKAN); lavapipe must be installed (scripts/bootstrap.sh ensure_vulkan)."""
+    blender_runs.require_lavapipe()
+    return installed_blenders(request.param)

@@ -50,6 +50,7 @@ def test_test_models_bake_with_every_invariant(bakes, name, jobs):
         kids = slice(hlod.child_offset[node], hlod.child_offset[node] + hlod.child_count[node])
         assert hlod.tri_count[node] < hlod.tri_count[kids].sum()
     assert hlod.tri_count[0] <= 2000 and hlod.error[0] > 0
+    assert hlod.tri_count[inner].max() <= 1.25 * 2000 and hlod.meta["nodes_over_budget"] == 0  # every inner node
     assert hlod.normals is None  # files carry no normals into the bake: none invented
 
 

@@ -36,15 +36,17 @@ from sample_meshes import expected_rgb, expected_uv, sphere as _sphere, textured
 
 ROOT = Path(__file__).resolve().parents[1]
 
-#: The last commit that changed what an untextured bake writes (the bake's lattice,
-#: hlod_core/bake/lattice.py; until then the commit before appearance, 6d77cb6, whose files the
-#: untextured bake kept writing): a mesh without appearance must bake to the same file as it did there.
-BEFORE_APPEARANCE = "103ebcb"
+#: The last commit that changed what an untextured bake writes (eba7dec: the coarse levels' locks
+#: and pruning; the sphere's nodes, LODs and errors are the ones 103ebcb wrote, the bake's lattice,
+#: but the meta gained nodes_over_budget, pruned_pieces, pruned_tris and the "seams" phase; until
+#: 103ebcb the commit before appearance, 6d77cb6, whose files the untextured bake kept writing): a
+#: mesh without appearance must bake to the same file as it did there.
+BEFORE_APPEARANCE = "eba7dec"
 #: SHA-256 of that file as the bake at BEFORE_APPEARANCE wrote it (re-saved, timings zeroed; pinned
 #: pymeshlab, on an AMD EPYC machine), for checkouts without the commit; where the
 #: commit is there, the old code's own file is compared instead (a digest of floats is per CPU: on an
 #: Intel Xeon both bakes agree with each other, not with this digest).
-FILE_BEFORE_APPEARANCE = "e253fd685e42d4e31746c92c07f60ae1cf846101f9473886a63070a3df871286"
+FILE_BEFORE_APPEARANCE = "999cc7a06a48f5c77ad22a6ed214bad524f06514a9aba473b65825e12758b773"
 
 #: float32 rounding of a unit-sized position or attribute (a few ulps of 1.0).
 F32_TOLERANCE = 1e-6

@@ -299,3 +299,14 @@ def test_the_layout_names_every_package_and_only_what_exists():
             problems += [f"{path}: its module {m.name} is not named" for m in sorted(folder.glob("*.py"))
                          if m.stem != "__init__" and m.stem not in words]
     assert not problems, "\n".join(problems)
+
+
+def test_how_it_works_contents_lists_every_section_once():
+    """The grouped contents at the top of how-it-works.md (between its contents markers) links every
+    "## " section of the page exactly once, so a new section cannot be left out of it."""
+    page = ROOT / "docs" / "how-it-works.md"
+    text = page.read_text(encoding="utf-8")
+    contents = text[text.index("<!-- contents -->"):text.index("<!-- /contents -->")]
+    listed = re.findall(r"\]\(#([^)]+)\)", contents)
+    sections = [github_anchor(h) for h in re.findall(r"^## (.+)$", _prose(text), re.MULTILINE)]
+    assert sorted(listed) == sorted(sections) and len(set(listed)) == len(listed)

@@ -23,6 +23,25 @@ import pytest
 from helpers import ROOT, file_bytes, model
 
 
+def _version_in_one_place() -> str:
+    """hlod_core.__version__, the one version: pyproject.toml takes it from there (dynamic), and
+    blender_manifest.toml, which Blender reads as it is, repeats it."""
+    import tomllib
+
+    import hlod_core
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert "version" not in project["project"] and project["project"]["dynamic"] == ["version"]
+    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "hlod_core.__version__"}
+    manifest = tomllib.loads((ROOT / "blender_manifest.toml").read_text())
+    assert manifest["version"] == hlod_core.__version__, "blender_manifest.toml repeats hlod_core.__version__"
+    return hlod_core.__version__
+
+
+def test_the_version_lives_in_one_place():
+    assert _version_in_one_place().count(".") == 2
+
+
 def _source_copy(where: Path) -> Path:
     """What `pip install .` reads (pyproject.toml, hlod_core/, the readme it names), copied to `where`:
     setuptools builds in the source folder (build/, *.egg-info), which must not be the checkout."""
@@ -68,6 +87,9 @@ def _wait_for_workers(python: Path, address: str, workers: int, *, env: dict, cw
 @pytest.mark.slow
 def test_the_installed_core_bakes_on_a_cluster_started_as_the_docs_say(tmp_path):
     bin_dir = _venv_with_the_package(tmp_path / "venv")
+    installed = subprocess.run([str(bin_dir / "python"), "-c", "import importlib.metadata as m; print(m.version('hlod-core'))"],
+                               capture_output=True, text=True, check=True, env=_outside_env(), cwd=tmp_path)
+    assert installed.stdout.strip() == _version_in_one_place()
     python, env, away = bin_dir / "python", _outside_env(), tmp_path / "elsewhere"
     away.mkdir()
     where = subprocess.run([str(python), "-c", "import hlod_core; print(hlod_core.__file__)"], capture_output=True,

@@ -7,11 +7,11 @@ main thread.
    off (hlod_core.bake.cache.folder_for, the rule every front end of the core asks too); the bake
    keeps the frame the last bake left there while the scene fits it (hlod_core/bake/frame.py), or
    an earlier .hlod file's when one is given;
-2. the scene gathered in one pass (scene/gather.py);
-3. the base colours no node tree reading gives, baked by Cycles (materials/cycles_bake.py);
-4. the textures the materials need, copied into the bake's texture folder (materials/textures.py),
+2. the scene gathered in one pass (scene/gather.py), the colours no node tree reading gives
+   baked by Cycles on each object that draws them on the way (scene/surface_bakes.py);
+3. the textures the materials need, copied into the bake's texture folder (materials/textures.py),
    which `SceneBake.finish` publishes as OUT.textures once the .hlod is written;
-5. the bake job: a child process of Blender's Python (bake/job.py).
+4. the bake job: a child process of Blender's Python (bake/job.py).
 What the caller reports (what was skipped, which materials Cycles baked) and records (the objects
 the bake took) comes back with the job.
 """
@@ -25,7 +25,7 @@ from ...hlod_core.bake import frame as frames
 from ...hlod_core.bake.settings import BakeSettings
 from ...hlod_core.core.errors import InputError
 from ...hlod_core.io.texture_folder import EmbeddedTextures
-from ..materials.cycles_bake import bake_unreadable_materials
+from ..materials.cycles_bake import CyclesBake
 from ..materials.textures import place_textures
 from ..scene.gather import Gathered, gather
 from .job import BakeJob
@@ -33,13 +33,17 @@ from .job import BakeJob
 
 @dataclass
 class SceneBake:
-    """A started bake of Blender objects: its job, what gathering the scene found, the names of the
-    materials Cycles baked (sorted), and the bake's texture folder (published by `finish`)."""
+    """A started bake of Blender objects: its job, what gathering the scene found (the Cycles bakes
+    among it), and the bake's texture folder (published by `finish`)."""
 
     job: BakeJob
     gathered: Gathered
-    cycles_baked: list[str]
     textures: EmbeddedTextures
+
+    @property
+    def cycles_bakes(self) -> list[CyclesBake]:
+        """The Cycles bakes of colours no node tree reading gives, one per object (the report's line)."""
+        return self.gathered.cycles_bakes
 
     def finish(self) -> None:
         """Once the job has ended: the textures the bake made published as OUT.textures when the
@@ -71,13 +75,12 @@ def start_bake(context, objects, output: Path, settings: BakeSettings, *, use_ca
     if frame_from is not None:
         options["frame_from"] = frames.of_file(frame_from, where=f"frame from {frame_from}")
     gathered = gather(context, objects, include_hidden=include_hidden)
-    mesh, cycles_baked = bake_unreadable_materials(context, gathered.mesh)
     textures = EmbeddedTextures(output)
     try:
-        mesh = place_textures(mesh, textures)
+        mesh = place_textures(gathered.mesh, textures)
         job = BakeJob(mesh, settings, output, extra_meta=gathered.attributes or None, cache_dir=cache_dir,
                       job_options=options)
     except BaseException:
         textures.discard()
         raise
-    return SceneBake(job=job, gathered=gathered, cycles_baked=cycles_baked, textures=textures)
+    return SceneBake(job=job, gathered=gathered, textures=textures)

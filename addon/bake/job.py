@@ -4,7 +4,9 @@ thread first.
 
 `BakeJob` writes the mesh into a private scratch folder (`hlod-blender-*` in the temp folder;
 hlod_core/bake/child.py says what is in it), then runs `python -m hlod_core.bake.child` with
-Blender's own Python, which bakes with `settings.jobs` worker processes in its own process group.
+Blender's own Python, which bakes with `settings.jobs` worker processes, started as the root of
+a process tree that can be stopped on every platform (hlod_core.core.process_tree: its own process
+group on POSIX; a new process group without a console on Windows, where stdin is the stop).
 
 State, read from the main thread: `progress` (done, total, phase), from the child's progress lines
 (read by a thread, never blocking the caller); once `running` is false, `result` (a BakeResult) or
@@ -12,10 +14,12 @@ State, read from the main thread: `progress` (done, total, phase), from the chil
 reported, or BakeProcessError for a child that died (killed, crashed, out of memory) with its exit
 signal or status and the last lines it wrote on stderr.
 
-`cancel()` sends SIGTERM to the child's process group, SIGKILL after STOP_GRACE_SECONDS. Whatever
-ends the child, what is left of its group, the scratch folder and the temporary files of its atomic
-write go before the job reports itself finished: an earlier .hlod stays as it was unless the child
-renamed a complete new one over it. If Blender dies, the child stops itself (its stdin closes).
+`cancel()` asks the child and its workers to stop (process_tree.ask_to_stop: SIGTERM to the group,
+or on Windows its stdin closed), and kills the tree after STOP_GRACE_SECONDS (kill_tree: SIGKILL to
+the group, or taskkill /T /F). Whatever ends the child, what is left of its tree, the scratch folder
+and the temporary files of its atomic write go before the job reports itself finished: an earlier
+.hlod stays as it was unless the child renamed a complete new one over it. If Blender dies, the
+child stops itself (its stdin closes).
 Why: docs/how-it-works.md#the-bakes-child-process-and-its-cleanup
 """
 from __future__ import annotations
@@ -37,6 +41,7 @@ from pathlib import Path
 
 from ...hlod_core.bake import child
 from ...hlod_core.bake.settings import BakeSettings
+from ...hlod_core.core import process_tree
 from ...hlod_core.core.errors import BakeCancelled, HlodError
 from ...hlod_core.io.meshes import TriangleMesh
 
@@ -48,15 +53,13 @@ EXTENSION_DIR = Path(child.__file__).resolve().parents[2]
 #: child's path (in Blender, pymeshlab comes from the extension's wheels, numpy with Blender).
 CHILD_MODULES = ("pymeshlab", "numpy")
 SCRATCH_PREFIX = "hlod-blender-"
-#: Between SIGTERM and SIGKILL of the child's process group after a cancel.
+#: Between asking the child's tree to stop and killing it after a cancel.
 STOP_GRACE_SECONDS = 0.5
 #: How often the watcher looks at the child (and the cancel deadline).
 POLL_SECONDS = 0.02
 #: stderr lines kept, and how many of them an error message quotes.
 STDERR_TAIL_LINES, REPORTED_TAIL_LINES = 40, 6
 
-_POSIX = hasattr(os, "killpg")
-_KILL = getattr(signal, "SIGKILL", signal.SIGTERM)  # Windows has no SIGKILL: terminate() is its kill
 _active: list["BakeJob"] = []  # running jobs, for the panel
 
 
@@ -131,8 +134,7 @@ class BakeJob:
             self._proc = subprocess.Popen(
                 [sys.executable, "-m", child.MODULE, str(job_file), child.PARENT_STDIN],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=self._scratch,
-                env=child_environment(self._scratch), start_new_session=_POSIX,
-                creationflags=0 if _POSIX else subprocess.CREATE_NEW_PROCESS_GROUP | subprocess.CREATE_NO_WINDOW)
+                env=child_environment(self._scratch), **process_tree.child_options())
         except BaseException:
             shutil.rmtree(self._scratch, ignore_errors=True)
             raise
@@ -148,11 +150,11 @@ class BakeJob:
     # --- the caller's side --------------------------------------------------------------------
 
     def cancel(self) -> None:
-        """Stop the bake: SIGTERM to the child's group now, SIGKILL after the grace (module notes)."""
+        """Stop the bake: the child's tree asked to stop now, killed after the grace (module notes)."""
         with self._lock:
             if self._stop_at is None and not self._reaped:
                 self._stop_at = time.monotonic()
-                self._signal_group(signal.SIGTERM)
+                process_tree.ask_to_stop(self._proc)
 
     @property
     def cancelled(self) -> bool:
@@ -229,17 +231,18 @@ class BakeJob:
             self._finished.set()
 
     def _wait_child(self) -> int:
-        """Wait for the child to end, escalating a cancel to SIGKILL after the grace; then kill what
-        is left of its group (orphaned workers) while the child's pid still names the group, and reap it."""
+        """Wait for the child to end, escalating a cancel to a kill of its tree after the grace;
+        then kill what is left of its tree (orphaned workers) while the child's pid still names it
+        (POSIX: the child is not reaped yet, `_exited`), and reap it."""
         while not self._exited():
             time.sleep(POLL_SECONDS)
             stop_at = self._stop_at
             if stop_at is not None and not self._killed and time.monotonic() - stop_at >= STOP_GRACE_SECONDS:
                 with self._lock:
-                    self._signal_group(_KILL)
+                    process_tree.kill_tree(self.pid)
                     self._killed = True
         with self._lock:
-            self._signal_group(_KILL)
+            process_tree.kill_tree(self.pid)
             returncode = self._proc.wait()
             self._reaped = True
         self._proc.stdin.close()
@@ -248,24 +251,12 @@ class BakeJob:
     def _exited(self) -> bool:
         """Whether the child has ended. POSIX: without reaping it (waitid WNOWAIT), so that its pid
         keeps naming its process group until the group is killed."""
-        if _POSIX and hasattr(os, "waitid") and hasattr(os, "WNOWAIT"):
+        if hasattr(os, "waitid") and hasattr(os, "WNOWAIT"):
             try:
                 return os.waitid(os.P_PID, self.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
             except ChildProcessError:
                 return True
         return self._proc.poll() is not None
-
-    def _signal_group(self, signum: int) -> None:
-        """Signal the child's process group (POSIX) or the child (Windows). Call with the lock held."""
-        if self._reaped:
-            return
-        if not _POSIX:
-            (self._proc.terminate if signum == signal.SIGTERM else self._proc.kill)()
-            return
-        try:
-            os.killpg(self.pid, signum)
-        except (ProcessLookupError, PermissionError):
-            pass
 
     def _collect(self, returncode: int) -> None:
         done, failed = self._events.get("done"), self._events.get("error")
@@ -291,7 +282,7 @@ class BakeJob:
             except ValueError:
                 name = "?"
             how = f"was killed by signal {name} ({-returncode})"
-            if -returncode == _KILL:
+            if -returncode == getattr(signal, "SIGKILL", None):
                 how += ": out of memory, or killed from outside"
         else:
             how = f"exited with status {returncode}"

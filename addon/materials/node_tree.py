@@ -1,8 +1,13 @@
 """A material's base colour read from its node tree, as the viewport's Material Preview draws it.
 
-The surface shader is found from the active output (through Mix/Add Shader nodes): a Principled
-BSDF gives its Base Color and Alpha, an Emission or Background shader alone (an unlit material, as
-the glTF importer builds for KHR_materials_unlit) its Color. From that socket the tree is followed
+The surface shaders are found from the active output (through Mix/Add Shader nodes): one Principled
+BSDF (beside Transparent, Holdout or Emission shaders) gives its Base Color and Alpha, an Emission
+or Background shader alone (an unlit material, as the glTF importer builds for
+KHR_materials_unlit) its Color. Any other surface (a Diffuse, Toon or Glossy BSDF, a node group
+such as the Diffuse and Glossy groups glTF exporters shipped before the Principled BSDF existed,
+two Principled BSDFs mixed, Emission mixed with a Diffuse BSDF) has no Base Color to read: it is
+`unreadable` with `whole_surface` set, and Cycles bakes its diffuse albedo (cycles_bake). From the
+colour socket the tree is followed
 upstream and turned into a function of the one varying source it holds: an image (an Image
 Texture node, with the UV map and the constant Mapping before it) or a colour attribute (Color
 Attribute or Attribute node). Colour nodes on the way (Mix / Mix RGB and their blend modes,
@@ -14,7 +19,7 @@ Data form: `BaseColour.function` maps the source's values (n,4) float32 linear R
 colour (n,4) float32 linear RGBA (alpha: the surface's alpha); `uv_affine` (2,3) float64 maps a
 UV (u, v, 1) to the image coordinate the texture is looked up at. A tree with two sources, or a
 node this reader does not know (a procedural texture, a Math node) on the way, is `unreadable`
-with the reason.
+with the reason (Cycles bakes that socket's colour).
 """
 from __future__ import annotations
 
@@ -32,6 +37,9 @@ CURVE_TABLE_SIZE = 256
 _EMISSIVE = {"EMISSION", "BACKGROUND"}
 #: Shader nodes a surface passes through to find its BSDF.
 _SHADER_MIXES = {"MIX_SHADER", "ADD_SHADER"}
+#: Shader nodes beside one Principled BSDF that leave its Base Color the surface's colour (an alpha
+#: mix, a glow added).
+_PRINCIPLED_COMPANIONS = {"BSDF_TRANSPARENT", "HOLDOUT", "EMISSION"}
 
 Function = Callable[[np.ndarray], np.ndarray]
 
@@ -67,6 +75,7 @@ class BaseColour:
     identity: bool = False
     emissive: bool = False
     unreadable: str = ""
+    whole_surface: bool = False  # unreadable: no Base Color to bake, Cycles bakes the surface's albedo
 
 
 @dataclass
@@ -83,8 +92,9 @@ def _constant(value) -> _Value:
     return _Value(lambda x, a=array: a)
 
 
-def surface_shader(material):
-    """(the node whose colour the material draws, True when it is emissive) or (None, False)."""
+def surface_nodes(material) -> list:
+    """The shader nodes the active output's Surface draws, reached through Mix/Add Shader nodes and
+    reroutes, in link order (a node group is one of them; its inside is not entered)."""
     tree = material.node_tree
     output = tree.get_output_node("ALL") if tree is not None else None
     found = []
@@ -99,23 +109,47 @@ def surface_shader(material):
             for s in node.inputs:
                 if s.type == "SHADER":
                     visit(s, depth + 1)
-        else:
+        elif node not in found:
             found.append(node)
 
     if output is not None:
         visit(output.inputs["Surface"])
+    return found
+
+
+def surface_shader(material):
+    """(the node whose colour the material draws, True when it is emissive) or (None, False)."""
+    found = surface_nodes(material)
     principled = next((n for n in found if n.type == "BSDF_PRINCIPLED"), None)
     if principled is not None:
         return principled, False
     emissive = next((n for n in found if n.type in _EMISSIVE), None)
     if emissive is not None and all(n.type in _EMISSIVE | {"BSDF_TRANSPARENT"} for n in found):
         return emissive, True
+    tree = material.node_tree
     return next((n for n in tree.nodes if n.type == "BSDF_PRINCIPLED"), None) if tree else None, False
+
+
+def other_surface(material) -> str:
+    """Why the material's surface has no one Base Color to read ("" when it has): the shaders it
+    draws that are not one Principled BSDF with its companions, nor an emission alone (module notes)."""
+    found = surface_nodes(material)
+    principled = [n for n in found if n.type == "BSDF_PRINCIPLED"]
+    if not found or all(n.type in _EMISSIVE | {"BSDF_TRANSPARENT"} for n in found):
+        return ""
+    others = [n for n in found if n.type not in _PRINCIPLED_COMPANIONS | {"BSDF_PRINCIPLED", "BACKGROUND"}]
+    if len(principled) <= 1 and not others:
+        return ""
+    named = ", ".join(f"{n.name!r} ({n.bl_idname})" for n in (others or principled))
+    return f"its surface is drawn by {named}, not one Principled BSDF"
 
 
 def read_base_colour(material) -> BaseColour | None:
     """The material's base colour from its nodes (module notes); None when it has no surface node
     this reader takes (then the material's viewport colour stands)."""
+    whole = other_surface(material)
+    if whole:
+        return BaseColour(unreadable=whole, whole_surface=True)
     node, emissive = surface_shader(material)
     if node is None:
         return None

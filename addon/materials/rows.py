@@ -43,8 +43,9 @@ def material_row(material) -> Material:
     colour node on the way) gives its own file; an image processed by colour nodes, packed or
     generated gives a PNG of the processed pixels (textures.base_colour_texture). Either way
     `image` names what the preview draws and the base colour is white. A tree that cannot be read
-    gives the Base Color value here; the bake replaces it with Cycles' bake of the colour
-    (cycles_bake.bake_unreadable_materials)."""
+    gives the Base Color value here (metallic 0 for a surface without one Principled BSDF, whose
+    albedo Cycles bakes); gathering the scene replaces it with Cycles' bake on each object that
+    uses it (scene/surface_bakes.py)."""
     base, metallic, roughness = tuple(material.diffuse_color), material.metallic, material.roughness
     texture = image = None
     alpha_mode, alpha_cutoff = "OPAQUE", 0.5
@@ -52,10 +53,12 @@ def material_row(material) -> Material:
     if principled is not None:
         base = tuple(principled.inputs["Base Color"].default_value)
         metallic, roughness = principled.inputs["Metallic"].default_value, principled.inputs["Roughness"].default_value
-    reading = read_base_colour(material) if _uses_nodes(material) else None
+    reading = read_base_colour(material) if uses_nodes(material) else None
     if reading is not None and reading.unreadable:
         log.info("HLOD bake: material %r: its base colour cannot be read from its nodes (%s); Cycles bakes it "
-                 "where an object using it has a UV map", material.name_full, reading.unreadable)
+                 "on the objects that use it", material.name_full, reading.unreadable)
+        if reading.whole_surface:  # the baked albedo is the colour drawn; nothing metallic stays
+            metallic = 0.0
     elif reading is not None and reading.source is None:
         base = reading.constant
         alpha_mode = "OPAQUE" if base[3] >= 1.0 else "BLEND"
@@ -72,7 +75,7 @@ def material_row(material) -> Material:
                     texture=texture, image=image, alpha_mode=alpha_mode, alpha_cutoff=float(alpha_cutoff))
 
 
-def _uses_nodes(material) -> bool:
+def uses_nodes(material) -> bool:
     """Blender 5 always draws a material's node tree (use_nodes is deprecated there)."""
     return material.node_tree is not None and (bpy.app.version >= (5, 0, 0) or material.use_nodes)
 
@@ -80,7 +83,7 @@ def _uses_nodes(material) -> bool:
 def principled_node(material):
     """The Principled BSDF the active output's Surface draws (through Mix/Add Shader nodes), else the
     tree's first one, else None."""
-    if not _uses_nodes(material):
+    if not uses_nodes(material):
         return None
     node, emissive = surface_shader(material)
     if node is not None and not emissive:

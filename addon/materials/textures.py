@@ -61,7 +61,7 @@ def base_colour_texture(material, reading) -> tuple[str, str, str, float] | None
     h, w, _ = pixels.shape
     out = reading.function(pixels.reshape(-1, 4)).reshape(h, w, 4)
     mode, cutoff = alpha_mode(out[..., 3])
-    return written_texture(out), texture_image_name(material), mode, cutoff
+    return written_texture(out), texture_image_name(material.name_full), mode, cutoff
 
 
 def written_texture(pixels: np.ndarray) -> str:
@@ -79,9 +79,9 @@ def written_texture(pixels: np.ndarray) -> str:
     return str(path)
 
 
-def texture_image_name(material) -> str:
-    """The image name a written texture of `material` goes by in the preview."""
-    return f"{material.name_full} (base colour)"
+def texture_image_name(name: str) -> str:
+    """The image name a written texture of the material row `name` goes by in the preview."""
+    return f"{name} (base colour)"
 
 
 def _note_udim(material, image) -> None:

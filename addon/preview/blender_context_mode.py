@@ -6,14 +6,14 @@ Blender caches GL state: everything the pass changes is saved before and restore
 from __future__ import annotations
 
 from ...hlod_core.model.view import View
+from ...hlod_core.render import gl_platform
 from ...hlod_core.render.gl_state import GLState
 from ...hlod_core.render.renderer import Renderer
 from ...hlod_core.render.residency import StreamingSettings
 from ...hlod_core.traversal.settings import RuntimeSettings
 from ...hlod_core.traversal.stats import FrameStats
-from . import current_context
 from .gl_contexts import GLContexts
-from .mode import PreviewMode
+from .mode import XRAY_NOTE, PreviewMode
 
 
 class BlenderContextMode(PreviewMode):
@@ -27,7 +27,7 @@ class BlenderContextMode(PreviewMode):
         import gpu
 
         self.keep_renderer_for(streaming)  # Blender's context, which made it, is current
-        ctx = contexts.attach(current_context.current())
+        ctx = contexts.attach(gl_platform.current_id())
         traversal = self.traversal(method=method, settings=settings, make_renderer=lambda: Renderer(
             ctx, self.hlod, time_gpu=False, images=self.images, streaming=streaming))
         self.renderer.overlay = overlay  # colour is the drawing side's choice
@@ -39,5 +39,4 @@ class BlenderContextMode(PreviewMode):
             gpu.shader.unbind()
 
     def status_line(self, file_name: str, *, xray: bool) -> str:
-        return f"on: {file_name}" + (" - X-ray clears the depth: Blender's objects do not occlude the nodes"
-                                     if xray else "")
+        return f"on: {file_name}" + (XRAY_NOTE if xray else "")

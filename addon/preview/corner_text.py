@@ -3,7 +3,9 @@ POST_PIXEL draw handler, in region pixels (origin bottom left), bottom left of t
 its margin and right of an overlapping toolbar.
 
 Lines (top to bottom): the method and what it drew (nodes, triangles and their share of the
-sources' triangles), the queries and the last frame's milliseconds, under a GPU budget the node
+sources' triangles), the queries and the last frame's milliseconds (of which reading and importing
+Blender's depth, in the modes that import it) and where the queries ran when not in Blender's
+context, under a GPU budget the node
 geometry on the GPU and the nodes waiting for theirs, then a warning when sources changed since
 the bake or the file has no record of them.
 """
@@ -33,17 +35,19 @@ def stale_message(changed: int, total: int) -> str:
     return f"{changed} of {total} baked objects changed since the bake"
 
 
-def corner_lines(*, label: str, stats, source_tris: int, private: bool,
+def corner_lines(*, label: str, stats, source_tris: int, where: str,
                  changed: int | None, recorded: int, budget_bytes: int = 0) -> list[tuple[str, bool]]:
     """(text, is_warning) per line. stats: the last FrameStats or None; source_tris: triangles
-    the bake took; changed: baked objects changed since the bake (None: not tracked);
+    the bake took; where: where the queries ran ("" in Blender's context, else the mode's words:
+    "private context", "CPU occlusion test"); changed: baked objects changed since the bake (None: not tracked);
     recorded: baked objects on record (0: the file's sources are not recorded); budget_bytes: the
     GPU budget for node geometry (0: unlimited, no line about it)."""
     if stats is None:
         lines = [(f"HLOD {label}: no frame drawn yet", False)]
     else:
         share = f" ({stats.tris / source_tris:.1%} of {source_tris:,})" if source_tris > 0 else ""
-        timing = f"{stats.queries:,} queries, {stats.frame_ms:.1f} ms" + (", private context" if private else "")
+        depth = f" (depth {stats.depth_import_ms:.1f} ms)" if stats.depth_import_ms else ""
+        timing = f"{stats.queries:,} queries, {stats.frame_ms:.1f} ms{depth}" + (f", {where}" if where else "")
         lines = [(f"HLOD {label}: {stats.dn:,} nodes, {stats.tris:,} triangles{share}", False), (timing, False)]
         if budget_bytes:
             waiting = f", {stats.waiting:,} nodes waiting" if stats.waiting else ""

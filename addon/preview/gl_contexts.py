@@ -4,8 +4,10 @@ that made them (a GL delete acts on the current context's names).
 - Blender's contexts: moderngl attaches once per native context (`attach`), and the attachment is
   reused across file loads and previews, with `gc_mode="context_gc"` so that the garbage collector
   makes no GL call;
-- private mode's standalone EGL context (`private`), made once and reused: moderngl keeps about
-  40 KB of every context it creates;
+- the private context (`private`): a standalone context of the platform's own GL (EGL or GLX on
+  Linux, WGL on Windows, CGL on macOS: hlod_core.render.gl_platform), made once and reused, since
+  moderngl keeps about 40 KB of every context it creates; when none can be made, GLUnavailable's
+  sentence is kept (`private_unavailable`) and not tried again until `retry_private`;
 - orphans: GL objects a stopped preview made in a Blender context that was not current when it
   stopped, released at the next draw in that context.
 Why: docs/how-it-works.md#gl-contexts-and-releasing-gl-objects
@@ -15,7 +17,8 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
-from . import current_context
+from ...hlod_core.core.errors import GLUnavailable
+from ...hlod_core.render import gl_platform
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +48,7 @@ class GLContexts:
     def __init__(self):
         self._attached: dict = {}  # native GL context id -> the moderngl context attached to it
         self._private = None
+        self.private_unavailable: str | None = None  # why no private context could be made (GLUnavailable)
         self.orphans: list[Orphan] = []
 
     def attach(self, current: int | None):
@@ -65,13 +69,25 @@ class GLContexts:
         return ctx
 
     def private(self):
-        """Private mode's standalone context (as Renderer.create_standalone makes it), made once."""
+        """The private standalone context (gl_platform.standalone_context, as Renderer.create_standalone
+        makes one), made once; the context current before is current again after. GLUnavailable when
+        none can be made, at once while `private_unavailable` holds the first failure's sentence."""
         if self._private is None:
-            import moderngl
-
-            with current_context.keep_current():  # a new context is current once made
-                self._private = moderngl.create_context(standalone=True, backend="egl", require=330)
+            if self.private_unavailable is not None:
+                raise GLUnavailable(self.private_unavailable)
+            try:
+                with gl_platform.keep_current():  # a new context is current once made
+                    self._private = gl_platform.standalone_context()
+            except GLUnavailable as exc:
+                self.private_unavailable = str(exc)
+                log.warning("HLOD preview: %s", exc)
+                raise
         return self._private
+
+    def retry_private(self) -> None:
+        """Forget a failure to make the private context: the next `private()` tries again (a new
+        preview does, after a driver was installed or a setting changed)."""
+        self.private_unavailable = None
 
     def hand_over(self, gl_context: int | None, resources: list) -> None:
         """Release `resources`, made in `gl_context`, once that context is current
@@ -108,6 +124,6 @@ class GLContexts:
                         len(self.orphans))
         self.orphans.clear()
         if self._private is not None:
-            with current_context.keep_current():
+            with gl_platform.keep_current():
                 self._private.release()
             self._private = None

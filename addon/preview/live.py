@@ -7,9 +7,11 @@ the last frame's statistics) and its lifecycle: start, a POST_VIEW draw handler 
 traversal for the region's View (built once a frame), a POST_PIXEL handler for the corner text,
 stop and shutdown. The handlers never raise into Blender: an error turns the preview off and
 `status()` says why. The add-on owns one Preview, `PREVIEW`, which the operators, the panels, the
-registration and the tests call. Each frame draws with one mode (mode.PreviewMode): in Blender's
-own context where it is OpenGL (blender_context_mode), else or when asked in a private one
-(private_context_mode).
+registration and the tests call. Each frame draws with one mode (mode.PreviewMode;
+docs/how-it-works.md#the-previews-modes): in Blender's own context where Blender draws with OpenGL
+(blender_context_mode), else or when asked in a private GL context with Blender's depth imported
+(private_context_mode), and where no such context can be made with the occlusion test on the CPU
+(cpu_context_mode). The status line says which.
 """
 from __future__ import annotations
 
@@ -21,17 +23,19 @@ from dataclasses import dataclass
 import bpy
 import numpy as np
 
-from ...hlod_core.core.errors import HlodError
+from ...hlod_core.core.errors import GLUnavailable, HlodError
 from ...hlod_core.io import hlod_file
 from ...hlod_core.model.hierarchy import Hlod
 from ...hlod_core.model.view import View
+from ...hlod_core.render import gl_platform
 from ...hlod_core.traversal.stats import FrameStats
 from ..materials.images import material_images
 from ..scene import source_hiding, source_record
 from ..settings import runtime_settings, streaming_settings
-from . import corner_text, current_context
+from . import corner_text
 from .blender_context_mode import BlenderContextMode
 from .box_outlines import draw_boxes
+from .cpu_context_mode import CpuContextMode
 from .gl_contexts import GLContexts, blender_backend
 from .mode import PreviewMode
 from .private_context_mode import PrivateContextMode
@@ -49,15 +53,20 @@ def redraw() -> None:
                 area.tag_redraw()
 
 
-BLENDER_CONTEXT, PRIVATE_CONTEXT = "blender_context", "private_context"
+BLENDER_CONTEXT, PRIVATE_CONTEXT, CPU_TEST = "blender_context", "private_context", "cpu"
 #: The preview's drawing modes by name: each session makes one of each, and draws with one a frame.
-MODES: dict[str, type[PreviewMode]] = {BLENDER_CONTEXT: BlenderContextMode, PRIVATE_CONTEXT: PrivateContextMode}
+MODES: dict[str, type[PreviewMode]] = {BLENDER_CONTEXT: BlenderContextMode, PRIVATE_CONTEXT: PrivateContextMode,
+                                       CPU_TEST: CpuContextMode}
 
 
-def mode_name(props) -> str:
-    """The mode the next frame draws with: the private context when scene.hlod (`props`) asks for
-    it or Blender's backend is not OpenGL (moderngl attaches to OpenGL contexts only), else Blender's."""
-    return PRIVATE_CONTEXT if props.private_context or blender_backend() != "OPENGL" else BLENDER_CONTEXT
+def mode_name(props, *, backend: str, private_unavailable: bool) -> str:
+    """The mode the next frame draws with, for scene.hlod (`props`) and Blender's GPU `backend`
+    (gl_contexts.blender_backend): Blender's context where it is OpenGL, unless Private Context is
+    set (moderngl attaches to OpenGL contexts only); else the private context; the CPU occlusion
+    test instead when no private context can be made (`private_unavailable`)."""
+    if backend == "OPENGL" and not props.private_context:
+        return BLENDER_CONTEXT
+    return CPU_TEST if private_unavailable else PRIVATE_CONTEXT
 
 
 @dataclass
@@ -73,17 +82,21 @@ class Session:
     recorded: int = 0  # objects the scene's record names for this file (0: none recorded)
     hidden: int = 0  # objects hidden for the preview
     stats: FrameStats | None = None  # the last frame's
-    gl_context: int | None = None  # the native context of the first draw (current_context.current())
+    mode: str = ""  # the name of the mode that drew the last frame (MODES)
+    gl_context: int | None = None  # the native context of the first draw (gl_platform.current_id())
     context_known: bool = False  # gl_context was set (None is a valid "cannot tell")
 
 
 class Preview:
     """The add-on's one preview: `session` while it runs (else None), the GL contexts it draws with
-    (kept across previews) and the draw handlers it installed."""
+    (kept across previews) and the draw handlers it installed. forced_mode: a name of MODES every
+    frame draws with, whatever the backend and the settings, for measurements and checks
+    (scripts/blender_preview.py --context); None: chosen per frame (mode_name)."""
 
     def __init__(self):
         self.session: Session | None = None
         self.contexts = GLContexts()
+        self.forced_mode: str | None = None
         self._status = "off"
         self._handlers: list = []
 
@@ -121,6 +134,7 @@ class Preview:
         if not scene.hlod.file:
             raise HlodError("no baked file: run Bake first or set Baked File")
         hlod = hlod_file.load(path)
+        self.contexts.retry_private()  # a new preview tries again to make the private context
         rows = source_record.stored(scene.hlod, path)
         view_layer, depsgraph = _view_layer_and_depsgraph(scene)
         images = material_images(hlod.materials)
@@ -146,7 +160,7 @@ class Preview:
         session, self.session = self.session, None
         if session is not None:
             self._release(session)
-        self.contexts.release_orphans(current_context.current())
+        self.contexts.release_orphans(gl_platform.current_id())
         if self.contexts.orphans:
             log.info("HLOD preview: %d stopped preview(s) made GL objects in a context that is not current; "
                      "they are released at the next draw in it", len(self.contexts.orphans))
@@ -192,7 +206,7 @@ class Preview:
         session = self.session
         if session is None or view.width < 1 or view.height < 1:
             return None
-        current = current_context.current()
+        current = gl_platform.current_id()
         self.contexts.release_orphans(current)
         if not session.context_known:
             session.gl_context, session.context_known = current, True
@@ -200,18 +214,34 @@ class Preview:
             self._status = "on: drawing in the first window's context only"
             return None
         props = scene.hlod
-        chosen = mode_name(props)
-        for name, mode in session.modes.items():
-            if name != chosen:
-                mode.release()  # switched modes: free the other modes' objects (Blender's context is current)
-        mode = session.modes[chosen]
-        stats = mode.draw(view, contexts=self.contexts, method=props.method, settings=runtime_settings(props),
-                          streaming=streaming_settings(props), overlay=bool(props.show_modulation))
-        status = mode.status_line(bpy.path.basename(session.file), xray=xray)
-        session.stats = stats
+        chosen = self.forced_mode or mode_name(props, backend=blender_backend(),
+                                               private_unavailable=self.contexts.private_unavailable is not None)
+        try:
+            stats = self._draw_with(chosen, view, props)
+        except GLUnavailable:
+            if chosen != PRIVATE_CONTEXT or self.forced_mode is not None:
+                raise
+            chosen = CPU_TEST  # no private context can be made: the CPU occlusion test from now on
+            stats = self._draw_with(chosen, view, props)
+        status = session.modes[chosen].status_line(bpy.path.basename(session.file), xray=xray)
+        session.stats, session.mode = stats, chosen
         draw_boxes(props, session.hlod, stats)
         self._status = status
         return stats
+
+    def _draw_with(self, chosen: str, view: View, props) -> FrameStats:
+        """One frame with the mode named `chosen`; the other modes' objects freed first (a switch of
+        modes; Blender's context is current). The CPU mode is told why it draws (the private
+        context's failure), unless it was asked for."""
+        session = self.session
+        for name, mode in session.modes.items():
+            if name != chosen:
+                mode.release()
+        mode = session.modes[chosen]
+        if isinstance(mode, CpuContextMode):
+            mode.reason = None if self.forced_mode is not None else self.contexts.private_unavailable
+        return mode.draw(view, contexts=self.contexts, method=props.method, settings=runtime_settings(props),
+                         streaming=streaming_settings(props), overlay=bool(props.show_modulation))
 
     def corner_lines(self, scene) -> list[tuple[str, bool]]:
         """The corner statistics' (text, is_warning) lines (corner_text.corner_lines); [] when off."""
@@ -221,7 +251,7 @@ class Preview:
         tracker = source_record.tracker()
         return corner_text.corner_lines(
             label=corner_text.method_label(props.method, props.bias), stats=session.stats,
-            source_tris=session.source_tris, private=mode_name(props) != BLENDER_CONTEXT,
+            source_tris=session.source_tris, where=getattr(session.modes.get(session.mode), "where", ""),
             changed=len(tracker.changed) if tracker is not None else None, recorded=session.recorded,
             budget_bytes=streaming_settings(props).budget_bytes)
 
@@ -260,6 +290,10 @@ class Preview:
         escape into Blender's draw loop, and the sources are shown again from a timer."""
         try:
             return draw(*args, **kwargs)
+        except HlodError as exc:  # a sentence for the artist: no OpenGL context, a bad file, ...
+            log.error("HLOD preview turned off:\n%s", traceback.format_exc())
+            self.stop(reason=str(exc), defer_restore=True)
+            return None
         except Exception as exc:  # noqa: BLE001 - nothing may escape into Blender's draw loop
             log.error("HLOD preview turned off:\n%s", traceback.format_exc())
             self.stop(reason=f"{type(exc).__name__}: {exc}", defer_restore=True)

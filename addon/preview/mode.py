@@ -22,6 +22,9 @@ from ...hlod_core.traversal.settings import RuntimeSettings
 from ...hlod_core.traversal.stats import FrameStats
 from .gl_contexts import GLContexts
 
+#: Said in the status line while X-ray is on (it clears the depth Blender's objects leave).
+XRAY_NOTE = " - X-ray clears the depth: Blender's objects do not occlude the nodes"
+
 
 class PreviewMode:
     """A renderer and the traversal over it for `hlod` (module notes). images: material row ->

@@ -1,6 +1,7 @@
-"""HLOD nodes drawn with Blender's gpu module (private mode): per node, one batch in one colour
-(the modulation overlay, or the default grey), or one batch per material in base colour x vertex
-colour x texture, lit as the renderer lights. Positions are float32, relative to the HLOD's
+"""HLOD nodes drawn with Blender's gpu module (the private-context and CPU modes): per node, one
+batch in one colour (the modulation overlay, or the default grey), or one batch per material in
+base colour x vertex colour x texture, both lit as the renderer lights, so that these modes draw
+what the Blender-context mode's renderer draws. Positions are float32, relative to the HLOD's
 origin: the caller translates by it.
 """
 from __future__ import annotations
@@ -8,11 +9,29 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from ...hlod_core.core.colour import DEFAULT_COLOUR
+from ...hlod_core.model.appearance import NO_MATERIAL_BASE_COLOR
 from ...hlod_core.model.hierarchy import Hlod, node_geometry
 from ...hlod_core.render.glsl import FLAT_LIGHT, SRGB_FROM_LINEAR
-from ...hlod_core.model.appearance import NO_MATERIAL_BASE_COLOR
 
-DEFAULT_COLOUR = (0.82, 0.80, 0.76)  # linear RGB of a node without appearance or overlay
+# The one-colour shader: u_colour lit by the renderer's flat term (shaders.NODE_FS), the colour
+# written as the renderer writes it (and Blender's UNIFORM_COLOR shader), as is into a framebuffer
+# that does not encode, decoded from sRGB into one that encodes (srgbTarget), which encodes it back.
+_FLAT_VS = """
+void main() {
+    v_pos = pos;
+    gl_Position = ModelViewProjectionMatrix * vec4(pos, 1.0);
+}
+"""
+_FLAT_FS = FLAT_LIGHT + """
+vec3 linear_from_srgb(vec3 c) {  // IEC 61966-2-1 decoding
+    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(0.04045, c));
+}
+void main() {
+    vec3 lit = clamp(u_colour.rgb * flat_light(v_pos, u_view_z), 0.0, 1.0);
+    FragColor = vec4(srgbTarget ? linear_from_srgb(lit) : lit, 1.0);
+}
+"""
 
 # The appearance shader: colour = base colour x vertex colour (per vertex, linear) x the material's
 # texture (a white texel without one), lit by the renderer's flat term 0.25 + 0.75 |n_z| (n in view
@@ -43,23 +62,27 @@ class NodeBatches:
     def __init__(self, hlod: Hlod, *, images: dict[int, np.ndarray]):
         self.hlod = hlod
         self.images = images
-        self._flat: dict[int, object] = {}  # node -> batch (UNIFORM_COLOR)
+        self._flat: dict[int, object] = {}  # node -> batch (the one-colour shader)
+        self._flat_shader = None
         self._looks: dict[int, list] = {}  # node -> [(material row or -1, batch)]
         self._look = None  # (shader, white texture, {material row: texture})
 
     @property
     def empty(self) -> bool:
-        return not self._flat and not self._looks and self._look is None
+        return not self._flat and self._flat_shader is None and not self._looks and self._look is None
 
-    def draw_flat(self, nodes, colours: np.ndarray | None) -> None:
-        """`nodes` in one colour each: colours (n, 3) float linear RGB, or None for DEFAULT_COLOUR."""
-        import gpu
-
-        shader = gpu.shader.from_builtin("UNIFORM_COLOR")
+    def draw_flat(self, nodes, colours: np.ndarray | None, view_z: tuple[float, float, float]) -> None:
+        """`nodes` in one colour each, lit: colours (n, 3) float RGB as the renderer takes them, or
+        None for DEFAULT_COLOUR; view_z: the view matrix's third row (x, y, z), as draw_looks."""
+        if self._flat_shader is None:
+            self._flat_shader = _flat_shader()
+        shader = self._flat_shader
+        shader.bind()
+        shader.uniform_float("u_view_z", view_z)
         for i, node in enumerate(nodes):
             batch = self._flat.get(node) or self._flat.setdefault(node, _flat_batch(shader, self.hlod, node))
-            colour = tuple(colours[i]) if colours is not None else DEFAULT_COLOUR
-            shader.uniform_float("color", (*colour, 1.0))
+            colour = tuple(float(c) for c in colours[i]) if colours is not None else DEFAULT_COLOUR
+            shader.uniform_float("u_colour", (*colour, 1.0))
             batch.draw(shader)
 
     def draw_looks(self, nodes, view_z: tuple[float, float, float]) -> None:
@@ -92,10 +115,18 @@ class NodeBatches:
                 del cache[node]
 
     def release(self) -> None:
-        """Drop every gpu object, the latest made first. Idempotent."""
+        """Drop every gpu object, the latest made first. Idempotent. Blender's builtin shader is
+        bound first when one of ours was made: with OpenGL a program deleted while it is in use
+        lives on until another is used (glDeleteProgram), and Blender leaves the last shader drawn
+        with in use (gpu.shader.unbind() changes nothing in release builds)."""
+        if self._flat_shader is not None or self._look is not None:
+            import gpu
+
+            gpu.shader.from_builtin("UNIFORM_COLOR").bind()
         self._looks.clear()
         self._look = None
         self._flat.clear()
+        self._flat_shader = None
 
 
 def _flat_batch(shader, hlod: Hlod, node: int):
@@ -103,6 +134,25 @@ def _flat_batch(shader, hlod: Hlod, node: int):
 
     geometry = node_geometry(hlod, node)
     return batch_for_shader(shader, "TRIS", {"pos": geometry.positions}, indices=geometry.faces.astype(np.int32))
+
+
+def _flat_shader():
+    """The one-colour shader (the notes above)."""
+    import gpu
+
+    info = gpu.types.GPUShaderCreateInfo()
+    info.push_constant("MAT4", "ModelViewProjectionMatrix")
+    info.push_constant("VEC3", "u_view_z")
+    info.push_constant("VEC4", "u_colour")
+    info.push_constant("BOOL", "srgbTarget")
+    info.vertex_in(0, "VEC3", "pos")
+    varyings = gpu.types.GPUStageInterfaceInfo("hlod_flat")
+    varyings.smooth("VEC3", "v_pos")
+    info.vertex_out(varyings)
+    info.fragment_out(0, "VEC4", "FragColor")
+    info.vertex_source(_FLAT_VS)
+    info.fragment_source(_FLAT_FS)
+    return gpu.shader.create_from_info(info)
 
 
 def _look_shader():

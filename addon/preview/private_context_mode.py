@@ -1,87 +1,54 @@
 """The preview with a private GL context, for Blender backends moderngl cannot attach to (Metal,
-Vulkan) or when "Private Context" is set: the traversal and its queries run in a private headless
-EGL context with its own framebuffer and depth pass (Blender's objects then do not occlude the
-queries), and the chosen nodes are drawn into the viewport with Blender's gpu module,
-depth-tested against Blender's scene.
+Vulkan) or when "Private Context" is set: the traversal and its occlusion queries run in a
+standalone context of the platform's own GL (gl_contexts.GLContexts.private: EGL or GLX, WGL,
+CGL) with its own framebuffer, into whose depth Blender's depth is imported at each frame's start
+(Renderer.set_scene_depth, at full size), so Blender's objects occlude the queries; the chosen
+nodes are drawn into the viewport with Blender's gpu module (batch_drawn_mode).
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
-from ...hlod_core.core.colour import modulation_colour
-from ...hlod_core.model.hierarchy import Hlod
 from ...hlod_core.model.view import View
+from ...hlod_core.render import gl_platform
 from ...hlod_core.render.renderer import Renderer
 from ...hlod_core.render.residency import StreamingSettings
 from ...hlod_core.traversal.settings import RuntimeSettings
-from ...hlod_core.traversal.stats import FrameStats
-from . import current_context
+from ...hlod_core.traversal.stats import MS_PER_S
+from .batch_drawn_mode import BatchDrawnMode
 from .gl_contexts import GLContexts
-from .mode import PreviewMode
-from .node_batches import NodeBatches
 
 
-class PrivateContextMode(PreviewMode):
+class PrivateContextMode(BatchDrawnMode):
     """The private renderer (on the private context, a framebuffer of the view's size, kept while
-    size and GPU budget stay), the traversal over it (mode.PreviewMode), and the gpu batches that
-    draw its nodes in Blender's context."""
+    size and GPU budget stay), the traversal over it, and the gpu batches that draw its nodes in
+    Blender's context (batch_drawn_mode.BatchDrawnMode)."""
 
-    def __init__(self, hlod: Hlod, *, images: dict[int, np.ndarray]):
-        super().__init__(hlod, images=images)
-        self.batches = NodeBatches(hlod, images=images)
+    where = "private context"
 
-    def draw(self, view: View, *, contexts: GLContexts, method: str, settings: RuntimeSettings,
-             streaming: StreamingSettings | None, overlay: bool) -> FrameStats:
-        """One frame traversed in the private context, the drawn nodes then drawn with the gpu
-        module into the bound framebuffer (in modulation colours with `overlay`, else in their
-        appearance or the default colour). The GPU budget holds in the private renderer and for
-        the gpu batches alike: a batch is kept only while its node is resident there."""
+    def _frame(self, view: View, *, depth: np.ndarray | None, contexts: GLContexts, method: str,
+               settings: RuntimeSettings, streaming: StreamingSettings | None):
+        """The frame in the private context, Blender's depth its scene depth; Blender's context is
+        current again after it. GLUnavailable when no private context can be made."""
         size = (view.width, view.height)
         self.keep_renderer_for((size, streaming))
-        with current_context.keep_current(), contexts.private() as ctx:  # Blender's is current again after it
+        ctx = contexts.private()
+        with gl_platform.keep_current(), ctx:
             traversal = self.traversal(method=method, settings=settings, make_renderer=lambda: Renderer(
                 ctx, self.hlod, size=size, streaming=streaming))
+            started = time.perf_counter()
+            self.renderer.set_scene_depth(depth)  # checked here, uploaded and written at the frame's start
+            handed_ms = (time.perf_counter() - started) * MS_PER_S
             stats = traversal.frame(view)
-        colours = modulation_colour(traversal.modulation(stats.drawn)) if overlay else None
-        self._draw_nodes(stats.drawn, colours=colours, view=view)
-        if self.renderer.residency is not None:
-            self.batches.keep_only(self.renderer.residency.resident)
-        return stats
-
-    def status_line(self, file_name: str, *, xray: bool) -> str:
-        return f"on (private context): {file_name} - Blender's objects hide the nodes but do not occlude the queries"
-
-    def _draw_nodes(self, nodes, *, colours: np.ndarray | None, view: View) -> None:
-        """The nodes with the gpu module, depth-tested and written; colours (n, 3) or None."""
-        import gpu
-
-        gpu.state.depth_test_set("LESS_EQUAL")
-        gpu.state.depth_mask_set(True)
-        with gpu.matrix.push_pop():
-            gpu.matrix.translate(tuple(float(c) for c in self.hlod.origin))  # float32 positions are origin-relative
-            if colours is None and self.hlod.has_appearance:
-                self.batches.draw_looks(nodes, tuple(float(v) for v in view.view[2, :3]))
-            else:
-                self.batches.draw_flat(nodes, colours)
-        gpu.state.depth_mask_set(False)
-        gpu.state.depth_test_set("NONE")
+        stats.depth_import_ms += handed_ms
+        stats.frame_ms += handed_ms
+        return stats, traversal
 
     def _release_renderer(self, renderer) -> None:
         """With the private context current: Renderer.release() deletes names in whichever context
         is current, and in Blender's those names are Blender's objects. Blender's context is
         current again afterwards."""
-        with current_context.keep_current(), renderer.ctx:
+        with gl_platform.keep_current(), renderer.ctx:
             renderer.release()
-
-    def release(self) -> None:
-        """Free everything: the renderer in its own context, then the gpu batches (Blender's
-        context must be current). Idempotent."""
-        self.release_renderer()
-        self.batches.release()
-
-    def hand_over(self) -> list:
-        """The renderer released now (its context is the mode's own); the gpu batches, made in
-        Blender's context, handed over (a fresh, empty set stays here)."""
-        self.release_renderer()
-        batches, self.batches = self.batches, NodeBatches(self.hlod, images=self.batches.images)
-        return [] if batches.empty else [batches]

@@ -9,7 +9,9 @@ without touching the objects, as one `meshes.TriangleMesh` in world units with i
 2. instances: the MESH instances they make, each kind without triangles noted
    (objects.drawn_instances), in an order the view layer's order does not change (objects.instance_key);
 3. parts: each instance's triangles, corner attributes and material rows (parts.PartReader);
-4. one mesh: the parts merged (meshes.merge), the material table sorted by name, and the names of
+4. surfaces: the colours no node tree reading gives, baked by Cycles on each object that draws them
+   (surface_bakes.SurfaceBakes; nothing is copied or baked in a scene without such surfaces);
+5. one mesh: the parts merged (meshes.merge), the material table sorted by name, and the names of
    the UV map and colour attribute carried, for the bake's meta.
 A selection with no material has no UVs either (nothing it draws uses them); one with no material,
 UV map or colour attribute gives a mesh without appearance. The way out, Blender objects for a set
@@ -25,8 +27,10 @@ import numpy as np
 
 from ...hlod_core.core.errors import InputError
 from ...hlod_core.io import meshes
+from ..materials.cycles_bake import CyclesBake
 from .objects import NOT_FINITE, Skipped, drawn_instances, evaluated, have_materials, instance_key, owner
 from .parts import Part, PartReader, part_mesh
+from .surface_bakes import SurfaceBakes
 
 #: Part names joined into the mesh's name; the rest are "...".
 NAMES_IN_MESH_NAME = 3
@@ -38,12 +42,19 @@ class Gathered:
     appearance; taken: the chosen objects that gave triangles, in the order chosen; skipped: what
     was left out and why; attributes: the names of the UV map and the colour attribute carried
     ({"uv_map": ..., "color_attribute": ...}, each only when carried: the most used name when the
-    objects name them differently), for the bake's meta."""
+    objects name them differently), for the bake's meta; cycles_bakes: the Cycles bakes of colours
+    no node tree reading gives, one per object, in order."""
 
     mesh: meshes.TriangleMesh
     taken: list
     skipped: Skipped
     attributes: dict[str, str] = field(default_factory=dict)
+    cycles_bakes: list[CyclesBake] = field(default_factory=list)
+
+    @property
+    def cycles_baked(self) -> list[str]:
+        """The names of the materials Cycles baked, sorted."""
+        return sorted({name for bake in self.cycles_bakes for name in bake.materials})
 
 
 def gather(context, objects, *, include_hidden: bool = False) -> Gathered:
@@ -51,11 +62,30 @@ def gather(context, objects, *, include_hidden: bool = False) -> Gathered:
     Blender draws, with their appearance (module notes). include_hidden: take objects hidden in
     the viewport too. InputError when nothing gives triangles, or Blender gives no mesh for one."""
     skipped = Skipped()
+    surfaces = SurfaceBakes()
+    try:
+        keyed, owners, reader = _parts(context, objects, skipped, surfaces, include_hidden=include_hidden)
+        if not keyed:
+            left_out = f" ({skipped.text()})" if skipped else ""
+            raise InputError("Bake: the chosen objects have no triangles (meshes, curves or text with faces)"
+                             f"{left_out}")
+        keyed.sort(key=lambda item: item[0])
+        parts = [part for _, part in keyed]
+        cycles_bakes = surfaces.bake_into(context, parts)  # 4. surfaces
+    finally:
+        surfaces.release()
+    return Gathered(mesh=one_mesh(parts), taken=[o for o in objects if o.name_full in owners], skipped=skipped,
+                    attributes=_most_used(uv_map=reader.uv_names, color_attribute=reader.colour_names),
+                    cycles_bakes=cycles_bakes)
+
+
+def _parts(context, objects, skipped: Skipped, surfaces: SurfaceBakes, *, include_hidden: bool):
+    """1.-3.: ([(instance key, part)], the names of the chosen objects that gave triangles, the reader)."""
     wanted = {o.name_full for o in objects}
     keyed: list[tuple[tuple, Part]] = []
     owners: set[str] = set()
     with evaluated(context, objects, skipped, include_hidden=include_hidden) as depsgraph:  # 1. objects
-        reader = PartReader(read_uvs=have_materials(depsgraph, wanted))
+        reader = PartReader(read_uvs=have_materials(depsgraph, wanted), surfaces=surfaces)
         for inst in drawn_instances(depsgraph, wanted, skipped):  # 2. instances
             chosen = owner(inst)
             label = chosen.name + (f" (instance of {inst.object.original.name})" if inst.is_instance else "")
@@ -70,16 +100,11 @@ def gather(context, objects, *, include_hidden: bool = False) -> Gathered:
                 continue
             keyed.append((instance_key(inst), part))
             owners.add(chosen.name_full)
-    if not keyed:
-        left_out = f" ({skipped.text()})" if skipped else ""
-        raise InputError(f"Bake: the chosen objects have no triangles (meshes, curves or text with faces){left_out}")
-    keyed.sort(key=lambda item: item[0])
-    return Gathered(mesh=one_mesh([part for _, part in keyed]), taken=[o for o in objects if o.name_full in owners],
-                    skipped=skipped, attributes=_most_used(uv_map=reader.uv_names, color_attribute=reader.colour_names))
+    return keyed, owners, reader
 
 
 def one_mesh(parts: list[Part]) -> meshes.TriangleMesh:
-    """4. The parts, in their order, as one mesh whose material table is sorted by name."""
+    """5. The parts, in their order, as one mesh whose material table is sorted by name."""
     names = [part.label for part in parts]
     name = ", ".join(names[:NAMES_IN_MESH_NAME]) + (" ..." if len(names) > NAMES_IN_MESH_NAME else "")
     return _materials_by_name(meshes.merge([part_mesh(part) for part in parts], name=name))

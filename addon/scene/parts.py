@@ -9,7 +9,9 @@ evaluated mesh of a depsgraph instance in world units, with its appearance (hlod
   nodes read (addon/materials/corner_attributes.py). Vertices are split where their corners' values
   differ: one vertex per distinct (vertex, uv, colour) (`split_corners`).
 A mirroring transform keeps faces facing out. `PartReader` reads each material's row and node tree
-once for a whole scene, not once per instance.
+once for a whole scene, not once per instance. A part drawn with a material whose colour Cycles
+bakes (node_tree's `unreadable`) notes its evaluated mesh for the bake (scene/surface_bakes.py)
+and keeps the mesh loop of each triangle corner.
 """
 from __future__ import annotations
 
@@ -21,7 +23,9 @@ import numpy as np
 from ...hlod_core.io import meshes
 from ...hlod_core.model.appearance import Material
 from ..materials.corner_attributes import material_corners
-from ..materials.rows import DEFAULT_MATERIAL, cached_material_row
+from ..materials.rows import DEFAULT_MATERIAL, cached_material_row, uses_nodes
+from .objects import instance_key
+from .surface_bakes import SurfaceBakes
 
 
 @dataclass(eq=False)
@@ -30,7 +34,9 @@ class Part:
     positions (v,3) float64 world; corners (t*3,) int64 vertex per triangle corner; corner_uvs
     (t*3,2) float32 or None; colors (v,4) or (t*3,4) float32 linear or None (`color_domain` says
     which); tri_slot (t,) int64 rows of `slots` (the object's material rows, None for an empty
-    slot), None when the object has no material."""
+    slot), None when the object has no material. bake_key: its evaluated mesh's key in the
+    gathering's SurfaceBakes when Cycles bakes a material it draws, with corner_loops (t*3,) int64
+    the mesh loop of each triangle corner; None otherwise."""
 
     label: str
     positions: np.ndarray
@@ -40,6 +46,8 @@ class Part:
     color_domain: str
     tri_slot: np.ndarray | None
     slots: list
+    bake_key: tuple | None = None
+    corner_loops: np.ndarray | None = None
 
 
 @dataclass
@@ -47,9 +55,11 @@ class PartReader:
     """Reads the parts of one gathering. read_uvs: read the active render UV map (the selection has
     materials: nothing else uses UVs); rows: material name_full -> its row, and readings: material
     name_full -> its node tree's reading (materials/node_tree.py), each made once per datablock;
-    uv_names / colour_names: how many parts carried each UV map's / colour attribute's name."""
+    uv_names / colour_names: how many parts carried each UV map's / colour attribute's name;
+    surfaces: where the evaluated meshes Cycles bakes are noted (None: nothing is noted)."""
 
     read_uvs: bool
+    surfaces: SurfaceBakes | None = None
     rows: dict[str, Material] = field(default_factory=dict)
     readings: dict = field(default_factory=dict)
     uv_names: Counter = field(default_factory=Counter)
@@ -78,17 +88,40 @@ class PartReader:
             corner_uvs, colors, domain = material_corners(mesh, [s.material for s in obj.material_slots],
                                                           tri_slot=tri_slot, corner_uvs=corner_uvs, colors=colors,
                                                           domain=domain, readings=self.readings)
+            bake_key, corner_loops = self._note_bake(inst, depsgraph, mesh, tri_slot)
         finally:
             obj.to_mesh_clear()
         matrix = np.array(inst.matrix_world, np.float64)
         positions = positions @ matrix[:3, :3].T + matrix[:3, 3]
         if np.linalg.det(matrix[:3, :3]) < 0:  # a mirroring transform keeps faces facing out
             corners = corners.reshape(-1, 3)[:, ::-1].ravel()
+            corner_loops = None if corner_loops is None else corner_loops.reshape(-1, 3)[:, ::-1].ravel()
             corner_uvs = None if corner_uvs is None else corner_uvs.reshape(tris, 3, 2)[:, ::-1].reshape(-1, 2)
             if domain == "CORNER":
                 colors = colors.reshape(tris, 3, 4)[:, ::-1].reshape(-1, 4)
         return Part(label=label, positions=positions, corners=corners, corner_uvs=corner_uvs, colors=colors,
-                    color_domain=domain, tri_slot=tri_slot, slots=slots)
+                    color_domain=domain, tri_slot=tri_slot, slots=slots, bake_key=bake_key, corner_loops=corner_loops)
+
+    def _note_bake(self, inst, depsgraph, mesh, tri_slot) -> tuple:
+        """(bake key, corner loops (t*3,) int64) when a slot the instance's triangles use has a
+        material whose colour Cycles bakes (its evaluated mesh noted in `surfaces`), else (None, None)."""
+        if self.surfaces is None or tri_slot is None:
+            return None, None
+        readings = {}
+        for slot, held in enumerate(inst.object.material_slots):
+            material = held.material
+            reading = self.readings.get(material.original.name_full) if material is not None else None
+            if reading is not None and reading.unreadable and uses_nodes(material):
+                readings[slot] = reading
+        if readings:  # only the slots its triangles use
+            used = np.unique(tri_slot).tolist()
+            readings = {slot: reading for slot, reading in readings.items() if slot in used}
+        if not readings:
+            return None, None
+        uv_layer = next((layer for layer in mesh.uv_layers if layer.active_render), None) if self.read_uvs else None
+        key = self.surfaces.take(inst, depsgraph, readings=readings, order=instance_key(inst),
+                                 uv_map=uv_layer.name if uv_layer is not None else None)
+        return key, _get(mesh.loop_triangles, "loops", dtype=np.int64, width=3).ravel()
 
 
 def _corner_attributes(mesh, *, uv_names: Counter | None, colour_names: Counter):

@@ -79,11 +79,11 @@ RECENT_FRAMES = 8
 DEFAULT_BUDGET_MB = 1024.0
 #: Modules whose code computes LODs, errors or the result's arrays and meta (their source is part
 #: of every key: editing one retires every entry).
-RESULT_MODULES = ("bake.simplify", "bake.meshlab", "bake.seams", "bake.hausdorff", "model.appearance",
-                  "model.hierarchy", "core.arrays", "bake.octree", "bake.settings", "bake.prepare", "bake.sources",
-                  "bake.partition", "bake.leaf_arrays", "bake.tasks", "bake.schedule", "bake.assemble", "bake.meta",
-                  "bake.pipeline", "bake.cache", "bake.cache_files", "bake.lattice", "bake.frame",
-                  "bake.root_cube")
+RESULT_MODULES = ("bake.simplify", "bake.collapse", "bake.meshlab", "bake.seams", "bake.cell_seams", "bake.pieces",
+                  "bake.hausdorff", "model.appearance", "model.hierarchy", "core.arrays", "bake.octree", "bake.settings",
+                  "bake.prepare", "bake.sources", "bake.partition", "bake.leaf_arrays", "bake.tasks", "bake.schedule",
+                  "bake.assemble", "bake.meta", "bake.pipeline", "bake.cache", "bake.cache_files", "bake.lattice",
+                  "bake.frame", "bake.root_cube")
 #: Temporary files older than this (seconds) are a crashed writer's: prune removes them.
 _STALE_TEMP_SECONDS = 3600.0
 _CACHEDIR_TAG = (b"Signature: 8a477f597d28d172789f06886806bc55\n"
@@ -176,10 +176,12 @@ def result_key(input_digest: bytes, frame: Frame) -> bytes:
 
 
 def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: bytes,
-              unit_length: float = 0.0) -> list[bytes]:
+              unit_length: float = 0.0, seams=None) -> list[bytes]:
     """(n,) 32-byte keys, one per node (module docstring). lods: per node (positions, faces,
     normals or None, attribute rows or None); only the leaves' are read; unit_length: the lattice
-    the positions are points of (lattice.py), which the decimations snap to."""
+    the positions are points of (lattice.py), which the decimations snap to; seams
+    (cell_seams.CellSeams or None): an inner node's key hashes the positions it shares with the
+    cells around it too, which its decimation keeps in place."""
     n = layout.node_count
     keys: list[bytes] = [b""] * n
     # the stored positions' frame; not the cells: a LOD is made from the leaves' positions and the
@@ -196,6 +198,8 @@ def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: 
             h.update(lattice)
             first = int(layout.child_offset[node])
             h.update(b"".join(keys[first:first + int(layout.child_count[node])]))
+            if seams is not None:
+                h.update(seams.digest(node))
         keys[node] = h.digest()
     return keys
 
@@ -289,11 +293,12 @@ class BakeCache:
         return hlod, derived, stats, frame
 
     def reuse(self, layout: OctreeLayout, lods: list, *, origin: np.ndarray,
-              unit_length: float) -> dict[int, tuple[NodeLod, float]]:
+              unit_length: float, seams=None) -> dict[int, tuple[NodeLod, float]]:
         """The inner nodes whose subtree the folder holds: node -> (LOD, error). lods: per node, the
         leaves' (positions, faces, normals, rows) (the keys hash them); origin (3,) float64;
-        unit_length: the lattice's (lattice.py)."""
-        self._keys = node_keys(layout, lods, origin=origin, context=self.context, unit_length=unit_length)
+        unit_length: the lattice's (lattice.py); seams: cell_seams.CellSeams (node_keys)."""
+        self._keys = node_keys(layout, lods, origin=origin, context=self.context, unit_length=unit_length,
+                               seams=seams)
         self._inner = np.flatnonzero(~layout.is_leaf)
         hits = {}
         for node in self._inner:

@@ -33,8 +33,9 @@ _MAX_HEADER_BYTES = 1024 * 1024
 
 #: NodeLod fields the bake log reads, stored per entry as one int64 each.
 SUMMARY_FIELDS = ("decimated", "input_tris", "kept_in_place", "zero_area", "uv_seams_crossed", "seam_kept_tris",
-                  "island_spanning_faces")
-_FLAG_FIELDS = ("decimated", "kept_in_place", "zero_area", "uv_seams_crossed")
+                  "island_spanning_faces", "locked_vertices", "open_boundaries_freed", "pieces", "pruned_pieces",
+                  "pruned_tris")
+_FLAG_FIELDS = ("decimated", "kept_in_place", "zero_area", "uv_seams_crossed", "open_boundaries_freed")
 #: The Hlod arrays of a result entry (the appearance ones only when the bake has them).
 _RESULT_ARRAYS = (*NODE_ARRAYS, "origin", "positions", "indices", "normals", "uvs", "colors", "tri_material")
 

@@ -28,7 +28,9 @@ UNIT_DIAGONAL = 1.0
 class DecimationSettings:
     """target_tris: triangles per LOD; quality_threshold: pymeshlab `qualitythr` (0..1, penalises
     thin triangles); preserve_normals: pymeshlab `preservenormal` (no face flips);
-    boundary_weight: pymeshlab `boundaryweight` (only with boundary preservation, always on here)."""
+    boundary_weight: pymeshlab `boundaryweight`, the weight of the planes along open boundary edges
+    in the quadrics (1: as much as the surface; more keeps a model's open boundaries, its
+    silhouette there, longer)."""
 
     target_tris: int = 2000
     quality_threshold: float = 0.3
@@ -111,24 +113,65 @@ def mesh_set(positions: np.ndarray, faces: np.ndarray, vertex_ids: np.ndarray | 
 
 
 def quadric_collapse(positions, faces, settings: DecimationSettings, *, optimal_placement: bool,
-                     vertex_ids: np.ndarray | None = None):
+                     vertex_ids: np.ndarray | None = None, locked: np.ndarray | None = None,
+                     coincident: bool = False):
     """The MeshSet of positions (unit frame) and faces after a quadric edge collapse to
-    settings.target_tris, with boundary preservation and planar quadrics (they keep a flat cell's
-    singular quadric from placing a vertex far outside it). With vertex_ids (a node with attribute
-    rows) vertices may share positions (seams), which pymeshlab's autoclean would merge: only the
-    rest of its clean-up, null faces and unreferenced vertices, runs."""
-    ms = mesh_set(positions, faces, vertex_ids)
-    seams = vertex_ids is not None
+    settings.target_tris, with planar quadrics (they keep a flat cell's singular quadric from
+    placing a vertex far outside it). locked (k,) bool: vertices that stay where they are,
+    bit-identical, and keep their edges; every other vertex may collapse, open boundaries
+    included, whose edges add planes weighted by settings.boundary_weight to the quadrics
+    (`lock_by_selection` says how). None: the vertices on open edges, with pymeshlab's boundary
+    preservation (the same LOD, bit for bit, and about 3% faster than a selection:
+    benchmarks/seam_locks.py). vertex_ids (k,) float64:
+    carried through the collapse as the vertex scalar. coincident: vertices may share positions
+    (a node with attribute rows: its seams), which pymeshlab's autoclean would merge: only the rest
+    of its clean-up, null faces and unreferenced vertices, runs."""
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    if locked is None:
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(positions, np.float64), face_matrix=faces,
+                                   v_scalar_array=np.zeros(0) if vertex_ids is None else vertex_ids))
+    else:
+        positions, faces, face_flag, vertex_ids = lock_by_selection(positions, faces, np.asarray(locked, bool),
+                                                                    vertex_ids=vertex_ids)
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=positions, face_matrix=faces, v_scalar_array=vertex_ids,
+                                   f_scalar_array=face_flag))
+        ms.compute_selection_by_condition_per_face(condselect="fq > 0.5")
     ms.meshing_decimation_quadric_edge_collapse(
         targetfacenum=max(int(settings.target_tris), MIN_DECIMATION_TRIS),
-        qualitythr=float(settings.quality_threshold), preserveboundary=True,
+        qualitythr=float(settings.quality_threshold), preserveboundary=locked is None,
         boundaryweight=float(settings.boundary_weight), preservenormal=bool(settings.preserve_normals),
-        preservetopology=False,
-        optimalplacement=optimal_placement, planarquadric=True, autoclean=not seams)
-    if seams:
+        preservetopology=False, optimalplacement=optimal_placement, planarquadric=True, autoclean=not coincident,
+        selected=locked is not None)
+    if coincident:
         ms.meshing_remove_null_faces()
         ms.meshing_remove_unreferenced_vertices()
     return ms
+
+
+def lock_by_selection(positions: np.ndarray, faces: np.ndarray, locked: np.ndarray, *,
+                      vertex_ids: np.ndarray | None) -> tuple:
+    """The mesh pymeshlab collapses with `selected=True` so that exactly the `locked` (k,) bool
+    vertices stay put. pymeshlab has no per-vertex lock: with `selected` it moves only vertices
+    whose faces are all selected (and collapses only edges between such vertices), and counts the
+    target in selected faces. Each locked vertex gets one unselected face of zero area (the vertex
+    and two copies of it, which nothing else uses); every real face is selected. The collapse
+    cannot touch a locked vertex or its edges, their neighbours stay free (unselecting the real
+    faces around a seam would freeze its whole one-ring), and the clean-up after it removes the
+    zero-area faces and the copies. Returns (positions (k+2s,3), faces (m+s,3) int32, face flags
+    (m+s,) float64: 1 selected, 0 not, vertex ids (k+2s,) float64 with -1 for the copies, or an
+    empty array without vertex_ids)."""
+    k = positions.shape[0]
+    ids = np.flatnonzero(locked)
+    copies = k + np.arange(2 * ids.size, dtype=np.int64).reshape(-1, 2)
+    out_p = np.concatenate([np.asarray(positions, np.float64), np.repeat(np.asarray(positions, np.float64)[ids], 2,
+                                                                          axis=0)])
+    out_f = np.concatenate([np.asarray(faces, np.int64), np.column_stack([ids, copies])]).astype(np.int32)
+    flags = np.concatenate([np.ones(faces.shape[0]), np.zeros(ids.size)])
+    out_ids = np.zeros(0) if vertex_ids is None else np.concatenate([np.asarray(vertex_ids, np.float64),
+                                                                      np.full(2 * ids.size, -1.0)])
+    return out_p, out_f, flags, out_ids
 
 
 def unit_normals(normals: np.ndarray, positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -155,3 +198,22 @@ def unit_normals(normals: np.ndarray, positions: np.ndarray, faces: np.ndarray) 
         length[lost] = 1.0
     return (normals / length[:, None]).astype(np.float32)
 
+
+
+def point_distances(points: np.ndarray, positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(q,) float64: each of points (q,3)'s distance to the surface of (positions (k,3), faces
+    (m,3)), all in one unit frame (distances of 2 x UNIT_DIAGONAL or more are not found: inf)."""
+    import pymeshlab
+
+    if points.shape[0] == 0:
+        return np.zeros(0)
+    if faces.shape[0] == 0:
+        return np.full(points.shape[0], np.inf)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(positions, np.float64), face_matrix=faces.astype(np.int32)))
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(points, np.float64)))
+    reach = 2.0 * UNIT_DIAGONAL
+    ms.get_hausdorff_distance(sampledmesh=1, targetmesh=0, samplevert=True, sampleface=False,
+                              samplenum=int(points.shape[0]), maxdist=pymeshlab.PureValue(reach), savesample=True)
+    found = np.asarray(ms.mesh(1).vertex_scalar_array(), np.float64)
+    return np.where(found < reach, found, np.inf)

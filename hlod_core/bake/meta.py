@@ -14,6 +14,7 @@ import numpy as np
 from ..core.errors import InputError
 from .octree import OctreeLayout
 from .settings import BakeSettings
+from .collapse import OVER_BUDGET_FACTOR
 from .simplify import NodeLod
 
 
@@ -31,8 +32,9 @@ VOLATILE_META = ("bake_seconds", "phase_seconds", "cache", "frame_source")
 #: The meta entries the bake derives from its nodes (`derived_meta`), with their JSON types: what a
 #: cached whole result keeps (cache.py); uv_seams_crossed_nodes only with appearance; frame: the
 #: bake's frame (frame.Frame.to_meta).
-DERIVED_META = {"leaves_over_budget": int, "collapsed_input_tris": int, "log": list, "log_lines_dropped": int,
-                "uv_seams_crossed_nodes": int, "frame": dict}
+DERIVED_META = {"leaves_over_budget": int, "collapsed_input_tris": int, "nodes_over_budget": int, "pruned_pieces": int,
+                "pruned_tris": int, "log": list, "log_lines_dropped": int, "uv_seams_crossed_nodes": int,
+                "frame": dict}
 
 #: The meta entries a bake writes itself (extra_meta may not replace them).
 OWN_META = frozenset({"generator", "input_tris", "input_vertices", "settings", "target_tris", "max_depth", "sources",
@@ -96,9 +98,21 @@ def derived_meta(layout: OctreeLayout, made: dict[int, NodeLod], hausdorff: np.n
     inner = np.flatnonzero(~layout.is_leaf)
     for node in inner:
         bake_log.extend(lod_notes(int(node), made[int(node)], error=hausdorff[node], target_tris=settings.target_tris))
+    lods = [made[int(node)] for node in inner]
+    pruned_pieces = sum(lod.pruned_pieces for lod in lods)
+    pruned_tris = sum(lod.pruned_tris for lod in lods)
+    freed = sum(int(lod.open_boundaries_freed) for lod in lods)
+    if freed:
+        bake_log.append(f"open boundaries collapsed to reach the target in {freed} nodes")
+    if pruned_pieces:
+        bake_log.append(f"pruned {pruned_pieces} pieces ({pruned_tris} input triangles) below their node's error "
+                        f"or over its budget, in {sum(lod.pruned_pieces > 0 for lod in lods)} nodes")
     derived = {
         "leaves_over_budget": int((layout.is_leaf & (counted_per_node > settings.target_tris)).sum()),
         "collapsed_input_tris": int(collapsed_tris),
+        "nodes_over_budget": sum(int(lod.faces.shape[0] > OVER_BUDGET_FACTOR * settings.target_tris) for lod in lods),
+        "pruned_pieces": int(pruned_pieces),
+        "pruned_tris": int(pruned_tris),
         "log": bake_log[:MAX_LOG_LINES],
         "log_lines_dropped": max(0, len(bake_log) - MAX_LOG_LINES),
         "frame": frame,
@@ -116,9 +130,13 @@ def lod_notes(node: int, lod: NodeLod, *, error: float, target_tris: int) -> lis
         notes.append(f"node {node}: children hold {lod.input_tris} <= {target_tris} triangles; kept undecimated")
     elif tris >= lod.input_tris:
         notes.append(f"node {node}: LOD has {tris} triangles, not smaller than its children's {lod.input_tris}")
-    elif tris > 2 * target_tris:
-        notes.append(f"node {node}: decimation stopped at {tris} triangles (target {target_tris}); "
-                     "boundary preservation keeps the cell's border")
+    elif tris > OVER_BUDGET_FACTOR * target_tris:
+        kept = ("seam vertices (shared with neighbouring cells)" if lod.attributes is None
+                else "seam, material-border and UV-seam vertices")
+        notes.append(f"node {node}: decimation stopped at {tris} triangles, over {OVER_BUDGET_FACTOR:g} x the target "
+                     f"{target_tris}: its {lod.locked_vertices} {kept} stay in place"
+                     f"{'' if lod.open_boundaries_freed else ' with its open boundaries'}, and "
+                     f"{lod.pieces - lod.pruned_pieces} separate pieces remain")
     if lod.uv_seams_crossed:
         notes.append(f"node {node}: UV seams crossed to reach {tris} triangles ({lod.seam_kept_tris} keeping "
                      f"them); {lod.island_spanning_faces} faces span two UV islands")
@@ -158,6 +176,9 @@ def bake_meta(size: InputSize, settings: BakeSettings, derived: dict, *, cache_s
         "sources": list(sources or [size.name]),
         "leaves_over_budget": derived["leaves_over_budget"],
         "collapsed_input_tris": derived["collapsed_input_tris"],
+        "nodes_over_budget": derived["nodes_over_budget"],
+        "pruned_pieces": derived["pruned_pieces"],
+        "pruned_tris": derived["pruned_tris"],
         "frame": derived["frame"],
         "frame_source": frame_source,
         "bake_seconds": clock.total(),

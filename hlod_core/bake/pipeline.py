@@ -8,6 +8,8 @@ source (sources.py: a mesh in memory, or a stream bigger than memory):
                 streamed input: the "scan" passes; partition.py)
     octree   -> top-down partition of the root cell, split at cell centres (octree.py)
     leaves   -> each leaf keeps its original triangles (and their exact attribute rows)
+    seams    -> the positions each node shares with the cells around it (cell_seams.py), which
+                its decimation keeps in place
     cache    -> the inner nodes whose subtree the cache holds take their LODs and errors from it
     simplify -> the other inner nodes bottom-up: weld, quadric decimation, error (schedule.py), as
                 tasks on worker processes or a Dask cluster (workers.py)
@@ -37,6 +39,7 @@ import numpy as np
 from ..core.signals import deliver_held, stop_signals_held
 from ..io.meshes import TriangleMesh
 from ..model.hierarchy import Hlod
+from . import cell_seams
 from .assemble import assemble
 from .cache import DEFAULT_BUDGET_MB, BakeCache
 from .frame import Frame, FrameChoice, Prior
@@ -184,15 +187,17 @@ def _baked_nodes(source: BakeSource, settings: BakeSettings, run: _Callbacks, *,
         nodes = _Nodes(tree=tree, lods=source.leaf_lods(layout, clock), hausdorff_error=np.zeros(n, np.float64),
                        made={})
         clock.lap("leaves")
+        seams = cell_seams.build(layout, nodes.lods)
+        clock.lap("seams")
         if cache is not None:
             for node, (lod, error) in cache.reuse(layout, nodes.lods, origin=tree.origin,
-                                                  unit_length=tree.unit_length).items():
+                                                  unit_length=tree.unit_length, seams=seams).items():
                 nodes.made[node], nodes.hausdorff_error[node] = lod, error
                 nodes.lods[node] = (lod.positions, lod.faces, lod.normals, lod.attributes)
             clock.lap("cache")
         what = SimplifyInput(with_normals=source.with_normals,
                              row_layout=None if source.row_layout.empty else source.row_layout,
-                             leaf_folder=source.leaf_folder, unit_length=tree.unit_length)
+                             leaf_folder=source.leaf_folder, unit_length=tree.unit_length, seams=seams)
         simplify_phase(layout, nodes.lods, hausdorff_error=nodes.hausdorff_error, made=nodes.made, settings=settings,
                        source=what, workers=workers, cancel=run.cancel, progress=run.progress)
         clock.lap("simplify")

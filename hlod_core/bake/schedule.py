@@ -32,6 +32,7 @@ from ..core.errors import BakeCancelled
 from ..core.signals import deliver_held
 from ..model.appearance import AttributeLayout
 from . import hausdorff, leaf_arrays, simplify, tasks
+from .cell_seams import CellSeams
 from .leaf_arrays import LeafArrays
 from .octree import OctreeLayout
 from .settings import BakeSettings
@@ -52,13 +53,15 @@ POLL_SECONDS = 0.25
 class SimplifyInput:
     """What the phase decimates: with_normals (the LODs carry normals), row_layout (the attribute
     rows' columns; None without rows), leaf_folder (a folder for the exact measure's leaf
-    arrays, memory-mapped: an out-of-core bake; None: in memory) and unit_length (the lattice the
-    positions are points of, lattice.py; 0: none)."""
+    arrays, memory-mapped: an out-of-core bake; None: in memory), unit_length (the lattice the
+    positions are points of, lattice.py; 0: none) and seams (what each node shares with the cells
+    around it, kept in place; None: every open boundary is kept)."""
 
     with_normals: bool
     row_layout: AttributeLayout | None
     leaf_folder: str | os.PathLike | None = None
     unit_length: float = 0.0
+    seams: CellSeams | None = None
 
 
 def simplify_phase(layout: OctreeLayout, lods: list, *, hausdorff_error: np.ndarray, made: dict,
@@ -184,9 +187,10 @@ class _Scheduler:
         order = (kind, size)
         if kind == TASK_DECIMATE:
             children = [(lods[k][0], lods[k][1], lods[k][3]) for k in kids]
+            seams = None if self.source.seams is None else self.source.seams.locked(node)
             return self.workers.submit(order, simplify.decimate_node, children, self.decimation,
                                        with_normals=self.source.with_normals, layout=self.source.row_layout,
-                                       unit_length=self.source.unit_length)
+                                       unit_length=self.source.unit_length, seams=seams)
         if self.bound:
             return self.workers.submit(order, hausdorff.measure_to_children, (lods[node][0], lods[node][1]),
                                        [(lods[k][0], lods[k][1]) for k in kids])

@@ -13,12 +13,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.arrays import distinct_corners, segment_ranges
+from .cell_seams import node_borders
 from .lattice import unique_by_first
 from .meshlab import DecimationSettings, quadric_collapse, row_keys
 
 
 def decimate_across_uv_seams(positions: np.ndarray, local: np.ndarray, rows: np.ndarray, *, faces: np.ndarray,
-                             settings: DecimationSettings, material: slice | None, uv: slice):
+                             settings: DecimationSettings, material: slice | None, uv: slice,
+                             seams: np.ndarray | None = None):
     """The LOD of a node welded by (position, material) only: UV seams become interior edges that
     the collapse crosses, material borders stay open boundaries and stay put. Vertices stay in
     place, so each LOD vertex sits on a (position, material) of the input, where one input row per
@@ -26,7 +28,8 @@ def decimate_across_uv_seams(positions: np.ndarray, local: np.ndarray, rows: np.
     a LOD vertex is split once per row its faces take.
 
     positions (k,3) float32, local (k,3) float64 (the same in the unit frame), rows (k,A), faces
-    (f,3): the node's input welded by (position, material, UV). Returns (local_out (j,3) float64,
+    (f,3): the node's input welded by (position, material, UV); seams: the node's cell seams
+    (cell_seams.node_borders), kept in place as material borders and open boundaries are. Returns (local_out (j,3) float64,
     faces_out (m,3) int32, source (j,) int64 input rows, island_spanning_faces), or None where
     there is no UV seam or the collapse leaves no triangle."""
     keyed = np.ascontiguousarray(positions, np.float32).view(np.uint8).reshape(-1, 12)
@@ -40,7 +43,11 @@ def decimate_across_uv_seams(positions: np.ndarray, local: np.ndarray, rows: np.
     coarse_faces = coarse_of[faces]
     coarse_faces = coarse_faces[distinct_corners(coarse_faces)].astype(np.int32)
     coarse_ids = np.arange(first.shape[0], dtype=np.float64)
-    ms = quadric_collapse(local[first], coarse_faces, settings, optimal_placement=False, vertex_ids=coarse_ids)
+    position_ids = unique_by_first(row_keys(positions[first].astype(np.float64)))[1]
+    locked, rim, border = node_borders(positions[first], coarse_faces, seams, position_ids=position_ids)
+    kept = locked | rim  # the models' open boundaries stay too, as in the LOD that kept the UV seams
+    ms = quadric_collapse(local[first], coarse_faces, settings, optimal_placement=False, vertex_ids=coarse_ids,
+                          locked=None if np.array_equal(kept, border) else kept, coincident=True)
     lod = ms.current_mesh()
     if lod.face_number() == 0:
         return None

@@ -1,19 +1,21 @@
 """One inner node's LOD (docs/how-it-works.md#decimating-a-node), with pymeshlab: the children's LODs concatenated, welded
-and decimated by quadric edge collapse (meshlab.py) to `target_tris`.
+and decimated by quadric edge collapse (collapse.py, meshlab.py) to `target_tris`.
 
 Data form: node geometry as positions (k,3) float32, in the bake's file-relative frame, faces
 (m,3) int32 local to those positions and, when the scene has appearance, attribute rows (k,A)
 float32 (appearance.pack: [material, u, v, r, g, b, a], the columns the scene has), one per
 vertex. pymeshlab only ever sees a node in its own unit frame (meshlab.NodeFrame).
 
-- The weld is by exact float32 position, so seams between siblings become interior edges; seams
-  with the rest of the scene stay boundary edges, which boundary preservation keeps in place, and
-  they come back bit-identical (NodeFrame.to_model), so neighbouring nodes do not crack and the
-  weld one level up still works.
+- The weld is by exact float32 position, so seams between siblings become interior edges; the
+  node's seams with the rest of the scene (cell_seams.py) stay in place and come back
+  bit-identical (NodeFrame.to_model), so neighbouring nodes do not crack and the weld one level
+  up still works. The models' own open boundaries stay while the budget allows, and pieces below
+  the error go (collapse.py, pieces.py).
 - With attribute rows the weld is by (position, material, UV): material borders and UV seams stay
-  open boundaries; colours are averaged. Such nodes collapse with vertices kept in place and each
-  LOD vertex takes the row of the input vertex it sits on (seams.row_sources). A LOD whose seams
-  keep it above SEAM_CROSSING_FACTOR x target_tris is made again across its UV seams (seams.py).
+  open boundaries, kept in place; colours are averaged. Such nodes collapse with vertices kept in
+  place and each LOD vertex takes the row of the input vertex it sits on (seams.row_sources). A
+  LOD whose seams keep it above SEAM_CROSSING_FACTOR x target_tris is made again across its UV
+  seams (seams.py).
 - The error (MSE, and the bound's h) is hausdorff.py's, in the same unit frame.
 Why: docs/how-it-works.md#decimating-a-node
 """
@@ -26,12 +28,9 @@ import numpy as np
 from ..core.arrays import compact, concat_indexed, distinct_corners
 from ..model.appearance import AttributeLayout
 from .lattice import unique_by_first
-from .meshlab import DecimationSettings, NodeFrame, mesh_set, quadric_collapse, row_keys, unit_normals
+from .collapse import Cut, collapse_node
+from .meshlab import DecimationSettings, NodeFrame, mesh_set, row_keys, unit_normals
 from .seams import decimate_across_uv_seams, row_sources
-
-#: A LOD vertex this far (fraction of the node's diagonal) outside its input's box means the
-#: quadric placement extrapolated; see decimate_node.
-ESCAPE_FRACTION = 0.01
 
 #: A node with attribute rows whose LOD, keeping its UV seams, has more than this many times
 #: target_tris triangles is decimated again across them (decimate_node).
@@ -48,7 +47,10 @@ class NodeLod:
     of the welded union's triangles (see decimate_node); uv_seams_crossed: the LOD keeping its UV
     seams had seam_kept_tris > SEAM_CROSSING_FACTOR x target_tris triangles, so it was decimated
     again across them, and island_spanning_faces of its faces span two UV islands (their texture
-    is stretched; see seams.decimate_across_uv_seams)."""
+    is stretched; see seams.decimate_across_uv_seams); locked_vertices: input vertices kept in
+    place (cell seams, attribute borders); open_boundaries_freed: the models' open boundaries
+    collapsed to reach the budget (collapse.py); pieces: connected pieces of the input;
+    pruned_pieces, pruned_tris: the pieces the LOD dropped and their input triangles (pieces.py)."""
 
     positions: np.ndarray
     faces: np.ndarray
@@ -61,6 +63,11 @@ class NodeLod:
     uv_seams_crossed: bool = False
     seam_kept_tris: int = 0
     island_spanning_faces: int = 0
+    locked_vertices: int = 0
+    open_boundaries_freed: bool = False
+    pieces: int = 0
+    pruned_pieces: int = 0
+    pruned_tris: int = 0
 
 
 def weld(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -108,17 +115,21 @@ def collapsed_corners(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray
 
 
 def decimate_node(child_lods: list[tuple], settings: DecimationSettings, *, with_normals: bool,
-                  layout: AttributeLayout | None = None, unit_length: float = 0.0) -> NodeLod:
+                  layout: AttributeLayout | None = None, unit_length: float = 0.0,
+                  seams: np.ndarray | None = None) -> NodeLod:
     """child_lods: [(positions f32, faces)] or [(positions f32, faces, attribute rows (k,A) f32 or
     None)] of the children, all with rows or all without; layout: the rows' columns (None: every
     column is kept exact, as a UV); unit_length: the bake's lattice unit (lattice.py; the children's
-    positions are its points and so is the LOD's every vertex), 0 for positions off any lattice.
+    positions are its points and so is the LOD's every vertex), 0 for positions off any lattice;
+    seams (s,3) float32: the positions the node shares with the cells around it
+    (cell_seams.CellSeams.locked), kept in place; None: its neighbours are unknown, and every
+    vertex on an open edge is kept.
     The node's error is `measure`'s job: it needs the original
     triangles, the decimation does not, so the two run as separate tasks."""
     rows = _child_rows(child_lods)
     if rows is not None:
         return _decimate_with_rows(child_lods, rows, settings, with_normals=with_normals, layout=layout,
-                                   unit_length=unit_length)
+                                   unit_length=unit_length, seams=seams)
     positions, faces = concat_indexed((child[0], child[1]) for child in child_lods)
     positions, faces = weld(positions, faces)
 
@@ -126,20 +137,12 @@ def decimate_node(child_lods: list[tuple], settings: DecimationSettings, *, with
     decimated = welded_tris > settings.target_tris
     frame = NodeFrame.of(positions, unit_length=unit_length)
     local = frame.to_local(positions)
+    cut = Cut()
     if not decimated:
         ms = mesh_set(local, faces)
+        kept_in_place = False
     else:
-        ms = quadric_collapse(local, faces, settings, optimal_placement=True)
-    lo, hi = local.min(axis=0), local.max(axis=0)
-    lod_box = ms.current_mesh().bounding_box()
-    # Optimal placement may move a vertex slightly outward on curved surfaces (that lowers the
-    # error); leaving the input's box by more than ESCAPE_FRACTION of its diagonal is the
-    # singular-quadric extrapolation instead, so decimate again with vertices kept in place.
-    slack = ESCAPE_FRACTION * float(np.linalg.norm(hi - lo))
-    kept_in_place = bool(ms.current_mesh().face_number() > 0
-                         and (np.any(lod_box.min() < lo - slack) or np.any(lod_box.max() > hi + slack)))
-    if kept_in_place:
-        ms = quadric_collapse(local, faces, settings, optimal_placement=False)
+        ms, kept_in_place, cut, _ = collapse_node(positions, local, faces, settings, seams=seams)
     zero_area = ms.current_mesh().face_number() == 0
     if zero_area:
         # Every triangle had zero area, and pymeshlab's clean-up removes such triangles: keep
@@ -153,7 +156,7 @@ def decimate_node(child_lods: list[tuple], settings: DecimationSettings, *, with
         normals = unit_normals(ms.current_mesh().vertex_normal_matrix(), lod.vertex_matrix(), lod.face_matrix())
     return NodeLod(positions=frame.to_model(lod.vertex_matrix(), local, positions),
                    faces=lod.face_matrix().astype(np.int32), normals=normals, decimated=decimated,
-                   input_tris=welded_tris, kept_in_place=kept_in_place, zero_area=zero_area)
+                   input_tris=welded_tris, kept_in_place=kept_in_place, zero_area=zero_area, **cut.fields())
 
 
 def _child_rows(child_lods: list[tuple]) -> np.ndarray | None:
@@ -172,7 +175,8 @@ def _evenly_spaced(count: int, wanted: int) -> np.ndarray:
 
 
 def _decimate_with_rows(child_lods: list[tuple], rows: np.ndarray, settings: DecimationSettings, *,
-                        with_normals: bool, layout: AttributeLayout | None, unit_length: float) -> NodeLod:
+                        with_normals: bool, layout: AttributeLayout | None, unit_length: float,
+                        seams: np.ndarray | None) -> NodeLod:
     """decimate_node for children with attribute rows (module docstring): weld by (position,
     material, UV), colours averaged, collapse with vertices kept in place, and give every LOD
     vertex the row of the input vertex it sits on. pymeshlab carries each input vertex's id
@@ -187,8 +191,9 @@ def _decimate_with_rows(child_lods: list[tuple], rows: np.ndarray, settings: Dec
     frame = NodeFrame.of(positions, unit_length=unit_length)
     local = frame.to_local(positions)
     ids = np.arange(local.shape[0], dtype=np.float64)  # exact: far fewer than 2**53 vertices
+    cut, kept = Cut(), faces
     if decimated:
-        ms = quadric_collapse(local, faces, settings, optimal_placement=False, vertex_ids=ids)
+        ms, _, cut, kept = collapse_node(positions, local, faces, settings, seams=seams, vertex_ids=ids)
     else:
         ms = mesh_set(local, faces, vertex_ids=ids)
     zero_area = ms.current_mesh().face_number() == 0
@@ -202,8 +207,8 @@ def _decimate_with_rows(child_lods: list[tuple], rows: np.ndarray, settings: Dec
     seam_kept_tris, spanning = int(faces_out.shape[0]), 0
     too_many = seam_kept_tris > SEAM_CROSSING_FACTOR * settings.target_tris
     if decimated and not zero_area and "uv" in columns and too_many:
-        crossed = decimate_across_uv_seams(positions, local, rows, faces=faces, settings=settings,
-                                           material=columns.get("material"), uv=columns["uv"])
+        crossed = decimate_across_uv_seams(positions, local, rows, faces=kept, settings=settings,
+                                           material=columns.get("material"), uv=columns["uv"], seams=seams)
         if crossed is not None and crossed[1].shape[0] < seam_kept_tris:
             local_out, faces_out, source, spanning = crossed
     normals = _normals_by_position(local_out, faces_out) if with_normals else None
@@ -211,7 +216,7 @@ def _decimate_with_rows(child_lods: list[tuple], rows: np.ndarray, settings: Dec
                    decimated=decimated, input_tris=welded_tris, zero_area=zero_area,
                    attributes=np.ascontiguousarray(rows[source], np.float32),
                    uv_seams_crossed=faces_out.shape[0] < seam_kept_tris, seam_kept_tris=seam_kept_tris,
-                   island_spanning_faces=spanning)
+                   island_spanning_faces=spanning, **cut.fields())
 
 
 def _normals_by_position(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -38,7 +38,8 @@ def add_scene(sub) -> None:
     p = sub.add_parser("scene", help="bake a procedural scene made by the project (no input files)")
     p.add_argument("name", choices=list(procedural.SCENES),
                    help="low / middle / high depth complexity (terrain / sparse town / dense downtown), "
-                        "or default (the city block of the main job)")
+                        "default (the city block of the main job), or pieces (open scans, foliage cards, "
+                        "a model in many parts)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.hlod")
     p.add_argument("--seed", type=whole_number(0), default=1)
     p.add_argument("--scale", type=float, default=1.0, help="size factor (1 = CI-sized)")

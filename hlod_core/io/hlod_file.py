@@ -50,7 +50,8 @@ _MAX_HEADER_DEPTH = 16  # ours nests 4 deep (header, arrays, entry, shape); meta
 
 #: meta fields read as numbers (Hlod.summary, checks, the CLI): when present, integers in 0..2**63-1.
 META_COUNTS = ("input_tris", "input_vertices", "target_tris", "max_depth", "leaves_over_budget",
-               "collapsed_input_tris", "log_lines_dropped", "uv_seams_crossed_nodes")
+               "collapsed_input_tris", "log_lines_dropped", "uv_seams_crossed_nodes", "nodes_over_budget",
+               "pruned_pieces", "pruned_tris")
 #: meta fields read as seconds: when present, finite numbers >= 0 (phase_seconds: an object of them).
 META_SECONDS = ("bake_seconds",)
 _INT64_MAX = 2**63 - 1

@@ -1,4 +1,5 @@
-"""Procedural scenes made by the project itself, with no input files (the main job's `default`).
+"""Procedural scenes made by the project itself, with no input files (the main job's `default`,
+and `pieces`: open boundaries and many small pieces).
 
 Data form: `meshes.TriangleMesh` (positions float64 model units, metres by convention; Z up).
 The default scene is a seeded city block: a tessellated ground, a grid of finely tessellated
@@ -113,4 +114,84 @@ def _city(*, seed: int, per_side: int, spacing: float, footprint: float, heights
     return TriangleMesh(positions=positions, faces=faces, name=name)
 
 
-SCENES = {"low": low_scene, "middle": middle_scene, "high": high_scene, "default": default_scene}
+def pieces_scene(*, seed: int = 1, scale: float = 1.0) -> TriangleMesh:
+    """Open boundaries and many small pieces, about 81k triangles: a row of 6 scanned statues (noisy
+    blobs with an open base and holes, as a range scan leaves them; 8k triangles each), a field of
+    10,000 foliage cards (one quad each) and a machine made of many parts (a shell of 60 separate
+    patches that touch without sharing vertices, and 400 small boxes bolted onto it). scale
+    multiplies the statues, the cards and the bolts."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    for i in range(max(1, int(round(6 * scale)))):
+        parts.append(open_scan([6.0 * i, 0.0, 2.0], 2.0, rng=rng, segments=96, rings=64, holes=6))
+    parts.append(foliage_cards([-2.0, 6.0, 0.0], [34.0, 24.0], count=max(1, int(round(10_000 * scale))),
+                               card=0.3, rng=rng))
+    parts.extend(machine([16.0, -8.0, 2.5], 2.5, patches=(6, 10), bolts=max(1, int(round(400 * scale))), rng=rng))
+    positions, faces = concat_indexed(parts)
+    return TriangleMesh(positions=positions, faces=faces, name=f"pieces scene (seed {seed})")
+
+
+def open_scan(center, radius: float, *, rng: np.random.Generator, segments: int, rings: int,
+              holes: int) -> tuple[np.ndarray, np.ndarray]:
+    """A scanned statue: a UV sphere displaced by seeded bumps, its lowest rings cut off (the
+    open base a scan on a turntable leaves) and `holes` round holes punched where the scanner did
+    not see (faces whose centroid lies within 0.2 radius of a random surface point go)."""
+    p, f = uv_sphere([0.0, 0.0, 0.0], 1.0, segments=segments, rings=rings)
+    direction = p / np.maximum(np.linalg.norm(p, axis=1, keepdims=True), 1e-12)
+    bumps = np.zeros(p.shape[0])
+    for _ in range(8):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        bumps += rng.uniform(0.03, 0.12) * np.exp(-np.sum((direction - axis) ** 2, axis=1) / rng.uniform(0.05, 0.4))
+    p = direction * (1.0 + bumps[:, None])
+    centroid = p[f].mean(axis=1)
+    keep = centroid[:, 2] > -0.6  # the base
+    for _ in range(holes):
+        spot = rng.normal(size=3)
+        spot /= np.linalg.norm(spot)
+        keep &= np.linalg.norm(centroid - spot, axis=1) > 0.2
+    return p * radius + np.asarray(center, float), f[keep]
+
+
+def foliage_cards(corner, size, *, count: int, card: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """`count` foliage cards: single quads of side `card`, each its own piece, on a jittered grid
+    over the rectangle corner (3,) + [0, size[0]] x [0, size[1]], at heights up to 1.5 m, turned
+    and tilted at random."""
+    side = int(np.ceil(np.sqrt(count * size[0] / size[1])))
+    grid = np.stack(np.meshgrid(np.arange(side), np.arange(int(np.ceil(count / side))), indexing="ij"), -1)
+    cell = np.array([size[0] / side, size[1] / grid.shape[1]])
+    xy = (grid.reshape(-1, 2)[:count] + rng.uniform(0.1, 0.9, (count, 2))) * cell
+    centre = np.column_stack([xy, rng.uniform(0.2, 1.5, count)]) + np.asarray(corner, float)
+    turn, tilt = rng.uniform(0, 2 * np.pi, count), rng.uniform(-0.5, 0.5, count)
+    u = np.column_stack([np.cos(turn), np.sin(turn), np.zeros(count)]) * card / 2
+    v = np.column_stack([-np.sin(turn) * np.sin(tilt), np.cos(turn) * np.sin(tilt), np.cos(tilt)]) * card / 2
+    corners = np.stack([centre - u - v, centre + u - v, centre + u + v, centre - u + v], axis=1)
+    quads = np.arange(4 * count).reshape(-1, 4)
+    faces = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    return corners.reshape(-1, 3), faces
+
+
+def machine(center, radius: float, *, patches: tuple[int, int], bolts: int,
+            rng: np.random.Generator) -> list[tuple[np.ndarray, np.ndarray]]:
+    """A model in many parts: a sphere's shell cut into patches (rings x segments of them, each
+    with its own vertices, so neighbouring patches touch along open boundaries) and `bolts`
+    closed boxes of 4 cm to 12 cm on its surface."""
+    rows, columns = patches
+    out = []
+    for i in range(rows):
+        for j in range(columns):
+            theta = np.linspace(np.pi * i / rows, np.pi * (i + 1) / rows, 9)
+            phi = np.linspace(2 * np.pi * j / columns, 2 * np.pi * (j + 1) / columns, 9)
+            t, q = np.meshgrid(theta, phi, indexing="ij")
+            p = np.stack([np.sin(t) * np.cos(q), np.sin(t) * np.sin(q), np.cos(t)], -1).reshape(-1, 3)
+            out.append((p * radius + np.asarray(center, float), _grid_faces(9, 9)))
+    normal = rng.normal(size=(bolts, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    for n, half in zip(normal, rng.uniform(0.02, 0.06, bolts)):
+        lo = np.asarray(center, float) + n * radius - half
+        out.append(box(lo, lo + 2 * half, 1))
+    return out
+
+
+SCENES = {"low": low_scene, "middle": middle_scene, "high": high_scene, "default": default_scene,
+          "pieces": pieces_scene}

@@ -154,6 +154,9 @@ class Hlod:
             "root_tris": int(self.tri_count[0]),
             "total_tris": int(self.indices.shape[0]),
             "max_error": float(self.error.max()),
+            "nodes_over_budget": int(self.meta.get("nodes_over_budget", 0)),
+            "pruned_pieces": int(self.meta.get("pruned_pieces", 0)),
+            "pruned_tris": int(self.meta.get("pruned_tris", 0)),
         }
 
 

@@ -6,7 +6,9 @@ REPO_DIR is an extension repository made by `blender_ext.py install-files` from 
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
 The same checks run in every Blender of tests/helpers.py BLENDERS (4.2 LTS, 5.0.1, 5.2.3), each with
 its own interpreter; what differs between them is handled in the add-on and in
-scripts/blender_preview.py (exit_process: bpy 4.2's crash at exit), not here.
+scripts/blender_preview.py (exit_process: bpy 4.2's crash at exit), not here. With $HLOD_GPU_BACKEND
+set (tests/blender_runs.py VULKAN) the bpy module starts with that GPU backend
+(scripts/blender_gpu_backend.py, before `import bpy`), and the checks that draw check it is the one.
 """
 from __future__ import annotations
 
@@ -20,8 +22,11 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-import blender_preview  # noqa: E402
+import blender_gpu_backend  # noqa: E402
 
+FORCED_BACKEND = blender_gpu_backend.force_from_environment()  # before `import bpy` (module notes)
+
+import blender_preview  # noqa: E402
 import bpy  # noqa: E402
 from hlod_core.model.view import look_at, perspective  # noqa: E402
 
@@ -272,6 +277,8 @@ def check_preview(repo, work) -> dict:
     package = blender_preview.enable_from_repo(repo)
     preview = importlib.import_module(NAME + ".addon.preview.live").PREVIEW
     blender_preview.init_gpu()
+    if FORCED_BACKEND:
+        blender_gpu_backend.check(FORCED_BACKEND)
     _box_row_scene()
     scene = bpy.context.scene
     props = scene.hlod
@@ -280,12 +287,12 @@ def check_preview(repo, work) -> dict:
     blender_preview.camera(scene, eye=(1.5, -8.0, 1.5), target=(0.0, 6.0, 1.0), lens_mm=30.0)
     props.method, props.bias, props.show_modulation = "coh", "mu", True
     bpy.ops.hlod.preview_toggle()
-    # the backend moderngl attaches to: OpenGL, Blender's default on Linux in 4.2, 5.0 and 5.2
+    # the backend: OpenGL, Blender's default on Linux in 4.2, 5.0 and 5.2, or the one forced (Vulkan)
     out = {"running": preview.running(), "status_on": props.status, "backend": gpu.platform.backend_type_get()}
     size = (320, 240)
     for _ in range(3):
         frame = _draw_checks(package, scene, size, occlude=True)
-    out["occluded"] = frame
+    out["occluded"], out["mode"], out["status_drawn"] = frame, preview.session.mode, props.status
     out["materialize_front"] = sorted(bpy.ops.hlod.materialize(depth=-1))
     out["front_objects"] = len(bpy.data.collections["HLOD front"].objects)
     out["stats"] = {"drawn": props.stat_drawn, "queries": props.stat_queries, "tris": props.stat_tris,
@@ -501,12 +508,12 @@ def _monkey_scene():
     bpy.ops.object.select_all(action="SELECT")
 
 
-def _toggle_in_another_context(current_context, other) -> bool:
+def _toggle_in_another_context(gl_platform, other) -> bool:
     """Turn the preview off while the moderngl context `other` is current (in Blender: a second
     window's), where the preview's GL objects cannot be released; returns whether it was current."""
-    blender = current_context.current()
-    with current_context.keep_current(), other:
-        was_other = current_context.current() not in (None, blender)
+    blender = gl_platform.current_id()
+    with gl_platform.keep_current(), other:
+        was_other = gl_platform.current_id() not in (None, blender)
         bpy.ops.hlod.preview_toggle()
     return was_other
 
@@ -575,7 +582,7 @@ def _long_session_files(work: Path) -> list[Path]:
     return files
 
 
-def _session(out: dict, *, session: int, blend: Path, preview, current_context, other, census, methods) -> None:
+def _session(out: dict, *, session: int, blend: Path, preview, gl_platform, other, census, methods) -> None:
     """One session of the long session: load `blend` (load_pre stops a preview left on), census of
     Blender's context, re-bake, then REDRAWS_PER_SESSION redraws with the configuration of
     `session % 6`; the census again (preview on), RSS and Python's allocated blocks."""
@@ -605,7 +612,7 @@ def _session(out: dict, *, session: int, blend: Path, preview, current_context, 
             props.private_context = not props.private_context
         if redraw == 150:
             if session % 3 == 1:
-                out["other_context_current"].append(_toggle_in_another_context(current_context, other))
+                out["other_context_current"].append(_toggle_in_another_context(gl_platform, other))
             else:
                 bpy.ops.hlod.preview_toggle()
             bpy.ops.hlod.preview_toggle()
@@ -640,16 +647,15 @@ def check_long_session(repo, work) -> dict:
     start and at the end. test_addon runs it with LP_NUM_THREADS=0 (llvmpipe's rasteriser threads
     make a one-time RSS jump at a random session): it measures leaks, not speed."""
     import gpu
-    import moderngl
 
     started = time.perf_counter()
     package = blender_preview.enable_from_repo(repo)
     preview = importlib.import_module(NAME + ".addon.preview.live").PREVIEW
-    current_context = importlib.import_module(NAME + ".addon.preview.current_context")
+    gl_platform = importlib.import_module(NAME + ".hlod_core.render.gl_platform")
     blender_preview.init_gpu()
     census = GLCensus()
-    with current_context.keep_current():  # "another window's" context, made once (each costs moderngl ~40 KB)
-        other = moderngl.create_context(standalone=True, backend="egl")
+    with gl_platform.keep_current():  # "another window's" context, made once (each costs moderngl ~40 KB)
+        other = gl_platform.standalone_context()
     methods = [item.identifier for item in bpy.context.scene.hlod.bl_rna.properties["method"].enum_items]
     files = _long_session_files(Path(work))
     bpy.ops.wm.open_mainfile(filepath=str(files[0]))
@@ -660,7 +666,7 @@ def check_long_session(repo, work) -> dict:
            "private_redraws": 0}
     sessions_started = time.perf_counter()
     for session in range(SESSIONS):
-        _session(out, session=session, blend=files[session % 2], preview=preview, current_context=current_context,
+        _session(out, session=session, blend=files[session % 2], preview=preview, gl_platform=gl_platform,
                  other=other, census=census, methods=methods)
     out["seconds"] = {"redraws_and_loads": round(time.perf_counter() - sessions_started - out["bake_seconds"], 1),
                       "bakes": round(out.pop("bake_seconds"), 1)}
@@ -672,7 +678,7 @@ def check_long_session(repo, work) -> dict:
     out["reference_same"] = bool(np.array_equal(first["reference"], last["reference"]))
     out["preview_same"] = bool(np.array_equal(first["with_preview"], last["with_preview"]))
     preview.shutdown()  # stop() and free private mode's context (for unregister)
-    with current_context.keep_current():
+    with gl_platform.keep_current():
         other.release()
     offscreen = gpu.types.GPUOffScreen(*LONG_SIZE)
     with offscreen.bind():

@@ -461,18 +461,20 @@ def _placed(material_texture, mesh, output: Path):
     return placed
 
 
-# --- materials whose tree cannot be read, baked by Cycles (addon/materials/cycles_bake.py) -----------------
+# --- materials whose tree cannot be read, baked by Cycles (addon/scene/surface_bakes.py) -------------
 
 FALLBACK_CASES = ("noise", "voronoi", "two_images", "unlit_noise")
 
 
 def check_cycles_fallback(repo, work) -> dict:
-    """Through the bake's path (scene/gather.py gather, materials/cycles_bake.py
-    bake_unreadable_materials, materials/textures.py place_textures): each unreadable case's baked texture looked up at the reference
-    bake's texel centres against Cycles' bake of its base colour (PSNR, dB; and the Base Color value's
-    PSNR, what the row held before); the scene's state before and after (render, Cycles and bake
-    settings, selection, active object, datablocks, node trees, the image's pixels); the names
-    returned; a material on a plane without UVs kept with its warning; a second bake's files."""
+    """Through the bake's path (scene/gather.py gather, which has Cycles bake what the trees do not
+    give: scene/surface_bakes.py, materials/cycles_bake.py; materials/textures.py place_textures):
+    each unreadable case's baked texture looked up at the reference bake's texel centres against
+    Cycles' bake of its base colour (PSNR, dB; and the Base Color value's PSNR, what the row held
+    before); the scene's state before and after (render, Cycles and bake settings, selection, active
+    object, datablocks, node trees, the image's pixels); the bakes made; a plane without UVs (its
+    corner colours); a second gathering's files; the background command's bake and 3D Tiles export
+    and the Bake operator's bake of the same objects."""
     blender_preview.enable_from_repo(repo)
     gathering = importlib.import_module(NAME + ".addon.scene.gather")
     material_bake = importlib.import_module(NAME + ".addon.materials.cycles_bake")
@@ -491,21 +493,22 @@ def check_cycles_fallback(repo, work) -> dict:
     bpy.context.scene.cycles.samples, bpy.context.scene.render.bake.margin = 37, 3  # not Cycles' defaults
     warnings = _captured_warnings(NAME + ".addon")
     before = _scene_state()
-    mesh = gathering.gather(bpy.context, [*planes, bare]).mesh
     started = time.perf_counter()
-    baked_mesh, names = material_bake.bake_unreadable_materials(bpy.context, mesh)
+    gathered = gathering.gather(bpy.context, [*planes, bare])
     seconds = time.perf_counter() - started
     after, warned = _scene_state(), list(warnings)
-    again = material_bake.bake_unreadable_materials(bpy.context, mesh)[0]
+    again = gathering.gather(bpy.context, [*planes, bare]).mesh
+    baked_mesh = gathered.mesh
     placed = _placed(material_texture, baked_mesh, Path(work) / "out.hlod")
     rows = {row.name: row for row in placed.materials}
-    bare_row = materials.material_row(bare.active_material)
-    out = {"names": names, "report": material_bake.cycles_report(names), "seconds": round(seconds, 2),
+    bare_faces = baked_mesh.faces[baked_mesh.positions[baked_mesh.faces].mean(axis=1)[:, 0] > 1.5]
+    out = {"names": gathered.cycles_baked, "bakes": [b.as_dict() for b in gathered.cycles_bakes],
+           "report": material_bake.cycles_report(gathered.cycles_bakes), "seconds": round(seconds, 2),
            "state_changed": sorted(k for k in before if before[k] != after[k]),
            "same_files": [m.texture for m in again.materials] == [m.texture for m in baked_mesh.materials],
-           "warnings": [w for w in warned if "no_uv" in w],
-           "no_uv": {"texture": rows["no_uv"].texture,
-                     "base_color_kept": rows["no_uv"].base_color == bare_row.base_color},
+           "warnings": warned,
+           "no_uv": {"texture": rows["no_uv"].texture, "base_color": list(rows["no_uv"].base_color),
+                     "colour_spread": float(np.ptp(baked_mesh.colors[np.unique(bare_faces)][:, :3]))},
            "cases": {}}
     for obj in planes:
         row, unread = rows[obj.name], materials.material_row(obj.material_slots[0].material)
@@ -517,27 +520,7 @@ def check_cycles_fallback(repo, work) -> dict:
             "base_color": list(row.base_color), "side_px": list(bpy.data.images.load(row.texture).size)}
     out["cli"] = _cli_bake(importlib.import_module(NAME + ".addon.cli"), Path(work))
     out["operator"] = _operator_bake([*planes, bare], Path(work))
-    out["chosen"] = _chosen_objects(material_bake, planes[0].material_slots[0].material)
     return out
-
-
-def _chosen_objects(material_bake, material) -> list:
-    """The object bake_object picks for `material` as objects using it are added: the plane alone
-    (one face), then a strip of three faces without UVs (not taken), then one with UVs of which two
-    faces use it (taken: more faces of the material than the plane)."""
-    chosen = [material_bake.bake_object(material).name]
-    for name, uvs in (("strip without UVs", False), ("strip", True)):
-        mesh = bpy.data.meshes.new(name)
-        mesh.from_pydata([(x, 5, 0) for x in range(4)] + [(x, 6, 0) for x in range(4)], [],
-                         [(0, 1, 5, 4), (1, 2, 6, 5), (2, 3, 7, 6)])
-        if uvs:
-            mesh.uv_layers.new(name="UVMap")
-        mesh.materials.append(material)
-        mesh.materials.append(None)
-        mesh.polygons[2].material_index = 1 if uvs else 0
-        bpy.context.scene.collection.objects.link(bpy.data.objects.new(name, mesh))
-        chosen.append(material_bake.bake_object(material).name)
-    return chosen
 
 
 def _operator_bake(objects, work: Path) -> dict:
@@ -566,12 +549,27 @@ def _operator_bake(objects, work: Path) -> dict:
 
 
 def _cli_bake(cli, work: Path) -> dict:
-    """The background command's bake of the open scene: its stderr lines and the textures beside
-    its output."""
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as err:
-        status = cli.execute(["bake", "--target-tris", "64", "--max-depth", "1", "-o", str(work / "cli.hlod")])
-    return {"status": status, "stderr": err.getvalue().splitlines(),
-            "textures": sorted(p.name for p in (work / "cli.textures").glob("*.png"))}
+    """The background command's bake of the open scene into .hlod and 3D Tiles: its status, its
+    JSON summary's Cycles bakes, its stderr lines, the textures beside its output, and per material
+    whose texture the bake wrote, whether a tile's GLB material of that name refers to those very
+    bytes."""
+    with contextlib.redirect_stdout(io.StringIO()) as printed, contextlib.redirect_stderr(io.StringIO()) as err:
+        status = cli.execute(["bake", "--target-tris", "64", "--max-depth", "1", "-o", str(work / "cli.hlod"),
+                              "--format", "hlod", "3dtiles"])
+    summary = json.loads(printed.getvalue().strip().splitlines()[-1]) if status == 0 else {}
+    textures = {p.stem: p.read_bytes() for p in (work / "cli.textures").glob("*.png")}
+    in_tiles = {}
+    for glb in sorted((work / "cli_3dtiles" / "tiles").glob("*.glb")):
+        data = glb.read_bytes()
+        document = json.loads(data[20:20 + int.from_bytes(data[12:16], "little")])
+        for material in document.get("materials", []):
+            texture = material["pbrMetallicRoughness"].get("baseColorTexture")
+            if texture is not None and material["name"] in textures:
+                uri = document["images"][document["textures"][texture["index"]]["source"]]["uri"]
+                same = (glb.parent / uri).read_bytes() == textures[material["name"]]
+                in_tiles[material["name"]] = in_tiles.get(material["name"], True) and same
+    return {"status": status, "stderr": err.getvalue().splitlines(), "textures": sorted(f"{n}.png" for n in textures),
+            "in_tiles": in_tiles, "cycles_bakes": summary.get("files", [{}])[0].get("cycles_bakes")}
 
 
 def _bare_plane(material):

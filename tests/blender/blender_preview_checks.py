@@ -281,7 +281,8 @@ def check_in_place(repo, work) -> dict:
 
 def check_streaming(repo, work) -> dict:
     """The preview under a GPU budget smaller than the file's node geometry (room for the unlimited
-    frame's nodes, 1.5 times), in the GL mode and the private-context mode, the sources hidden, the
+    frame's nodes, 1.5 times), in the GL mode, the private-context mode and the CPU mode (the
+    batches' bookkeeping under the budget), the sources hidden, the
     camera held: resident bytes within the budget every frame, the picture converging to the one
     drawn without a budget (SW, whose choice does not depend on query timing), the statistics and
     the corner text saying it."""
@@ -298,8 +299,9 @@ def check_streaming(repo, work) -> dict:
     out["nodes"] = int(hlod.node_count)
     whole = int(streamed.node_bytes(hlod, with_uv=False, with_colour=False).sum())
     out["sources_hidden"] = all(bpy.data.objects[n].hide_get() for n in names["sources"] if n != "arrayed")
-    for private in (False, True):
-        props.private_context = private
+    for mode in ("gl", "private", "cpu"):
+        props.private_context = mode == "private"
+        preview.forced_mode = "cpu" if mode == "cpu" else None
         props.gpu_budget_mb = 0.0
         for _ in range(3):
             reference = draw_scene(package, preview=True)
@@ -320,11 +322,11 @@ def check_streaming(repo, work) -> dict:
             frames.append({"differing": int(np.any(image != reference, axis=-1).sum()), "dn": stats.dn,
                            "resident": stats.resident_bytes, "waiting": stats.waiting,
                            "substitutions": stats.substitutions})
-        out["private" if private else "gl"] = {
+        out[mode] = {
             "budget": budget, "whole": whole, "frames": frames,
             "stat_resident_mb": props.stat_resident_mb, "stat_waiting": props.stat_waiting,
             "corner": _corner_lines(preview, scene)}
-    props.private_context = False
+    props.private_context, preview.forced_mode = False, None
     out["toggle_off"] = sorted(bpy.ops.hlod.preview_toggle())
     return out
 

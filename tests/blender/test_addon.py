@@ -20,7 +20,7 @@ import pytest
 from hlod_core.report.evaluate import METHOD_SPECS
 from hlod_core.traversal.settings import RuntimeSettings
 
-from blender_runs import BLENDERS, all_hold, blender, blender_python
+from blender_runs import BLENDERS, VULKAN, all_hold, blender, blender_python
 from helpers import ROOT
 
 sys.path.insert(0, str(ROOT / "scripts"))
@@ -134,20 +134,35 @@ def test_bake_operator_on_modifiers_and_instances(versioned_repo, tmp_path):
              collection_baked=out["collection_result"] == ["FINISHED"] and out["collection_tris"] == 6 * 64 * 2,
              collection_output_next_to_blend=Path(out["collection_file"]) == tmp_path / "project" / "city.hlod")
 
-@pytest.mark.gl  # the preview draws in a GPUOffScreen; the benchmark in a private EGL context
+@pytest.mark.gl  # the preview draws in a GPUOffScreen; the benchmark in a standalone EGL context
 def test_preview_draw_path_in_an_offscreen(versioned_repo, tmp_path):
     """The add-on's draw path inside a GPUOffScreen with a scene camera's matrices: nodes drawn in
     modulation colours, none over Blender's own occluder (its depth hides them), strongly modulated
     (red) nodes where occlusion lowered their LOD, Blender's gpu drawing after the pass still shows,
     its GL state is as before, statistics are updated; the private-context fallback draws through
-    Blender's gpu module; the benchmark's private EGL context leaves
+    Blender's gpu module; the benchmark's standalone EGL context leaves
     Blender's drawing working; an exception in the draw path turns the preview off, not raised.
-    In each Blender, on its default GPU backend (OpenGL in all three)."""
+    In each Blender, on its default GPU backend (OpenGL in all three): the preview draws in
+    Blender's context."""
     out = blender(versioned_repo, "preview", tmp_path)
+    _draw_path_holds(out, backend="OPENGL", mode="blender_context", status="on: ")
+
+
+@pytest.mark.gl  # the private context and the benchmark draw with EGL beside Blender's Vulkan
+def test_preview_draw_path_under_vulkan(vulkan_repo, tmp_path):
+    """The same draw path with Blender's Vulkan backend (lavapipe), to which moderngl cannot attach:
+    the preview takes the private context by itself and says so, and the same checks hold there,
+    the occluder's depth imported (no node over it) and the benchmark's EGL context beside Vulkan."""
+    out = blender(vulkan_repo, "preview", tmp_path, env=VULKAN)
+    _draw_path_holds(out, backend="VULKAN", mode="private_context", status="on (private context): ")
+
+
+def _draw_path_holds(out: dict, *, backend: str, mode: str, status: str) -> None:
+    """check_preview's result: drawn by `mode` on `backend`, its status line starting with `status`."""
     frames = {"occluded": out["occluded"], "after_benchmark": out["after_benchmark"]}
-    private = out["private"]  # fallback: traversal in a private context, nodes drawn with the gpu module
-    checks = {"opengl_backend": out["backend"] == "OPENGL",
-              "running": out["running"] and out["status_on"].startswith("on:")}
+    private = out["private"]  # Private Context ticked: traversal in a private context, nodes drawn with the gpu module
+    checks = {"backend": out["backend"] == backend, "mode": out["mode"] == mode,
+              "running": out["running"] and out["status_on"].startswith("on:") and out["status_drawn"].startswith(status)}
     for name, frame in frames.items():
         checks |= {f"{name}_modulation_colours": frame["ramp_pixels"] > 1000 and frame["red_pixels"] > 50,
                    f"{name}_occluder_hides_nodes": frame["ramp_in_occluder"] == 0
@@ -156,7 +171,7 @@ def test_preview_draw_path_in_an_offscreen(versioned_repo, tmp_path):
                    f"{name}_gl_state_restored": frame["state_after"] == frame["state_before"]}
     all_hold(out, **checks,
              private_draws=private["ramp_pixels"] > 1000 and private["ramp_in_occluder"] == 0
-             and private["green_pixels"] > 100,
+             and private["green_pixels"] > 100 and private["red_pixels"] > 50,
              private_gl_state_restored=private["state_after"] == private["state_before"] and out["private_drawn"] > 0,
              private_status=out["status_private"].startswith("on (private context)"),
              orthographic_and_xray=out["ortho"] > 1000 and "X-ray clears the depth" in out["status_xray"],

@@ -75,17 +75,22 @@ def test_unreadable_trees_baked_by_cycles(versioned_repo, tmp_path):
     of its base colour, far closer than the Base Color value it held before; the scene's settings,
     selection, datablocks and node trees as they were; the materials named once in the Bake
     operator's report and in the background command's stderr line, their textures beside either's
-    output; a second bake gives the same files; a material on a plane without UVs keeps its Base
-    Color with a warning naming it; the object baked is the one with UVs and the most faces of the
-    material."""
+    output and in the 3D Tiles' GLB materials; a second bake gives the same files; a plane without
+    UVs gets the colours Cycles bakes at its face corners (no texture, white base colour); nothing
+    is warned."""
     out = blender(versioned_repo, "cycles_fallback", tmp_path, script="blender_material_checks.py")
     print(json.dumps({case: (r["psnr_db"], r["base_color_psnr_db"]) for case, r in out["cases"].items()}),
           out["seconds"])
     cases = out["cases"]
     textures = ["noise.png", "two_images.png", "unlit_noise.png", "voronoi.png"]
-    all_hold(out, names=out["names"] == ["noise", "two_images", "unlit_noise", "voronoi"],
-             report=out["report"] == "baked 4 materials with Cycles (their node trees cannot be read): "
-                                     "noise, two_images, unlit_noise, voronoi",
+    names = ["no_uv", "noise", "two_images", "unlit_noise", "voronoi"]
+    line = "baked 5 materials with Cycles (their node trees cannot be read) on 5 objects in "
+    cli_line = [x for x in out["cli"]["stderr"] if "Cycles" in x]
+    all_hold(out, names=out["names"] == names,
+             report=out["report"].startswith(line) and out["report"].endswith(" s: " + ", ".join(names)),
+             bakes=sorted((b["object"], b["target"]) for b in out["bakes"]) == [
+                 ("no_uv", "corner colours"), ("noise", "texture"), ("two_images", "texture"),
+                 ("unlit_noise", "texture"), ("voronoi", "texture")],
              psnr={c: r["psnr_db"] for c, r in cases.items()
                    if r["psnr_db"] < (EDGES_PSNR_DB if c == "voronoi" else SMOOTH_PSNR_DB)} == {},
              better={c for c, r in cases.items() if r["psnr_db"] < r["base_color_psnr_db"] + 10} == set(),
@@ -93,13 +98,14 @@ def test_unreadable_trees_baked_by_cycles(versioned_repo, tmp_path):
              white={c for c, r in cases.items() if r["base_color"] != [1.0, 1.0, 1.0, 1.0]} == set(),
              side={c for c, r in cases.items() if r["side_px"] != [512, 512]} == set(),
              state=out["state_changed"] == [], same_files=out["same_files"],
-             no_uv=out["no_uv"] == {"texture": None, "base_color_kept": True},
-             warned=len(out["warnings"]) == 1 and "UV map" in out["warnings"][0],
-             cli=out["cli"]["status"] == 0 and "hlod: (unsaved): " + out["report"] in out["cli"]["stderr"]
-             and out["cli"]["textures"] == sorted(textures),
-             chosen=out["chosen"] == ["noise", "noise", "strip"],
+             no_uv=out["no_uv"]["texture"] is None and out["no_uv"]["base_color"] == [1.0, 1.0, 1.0, 1.0]
+             and out["no_uv"]["colour_spread"] > 0.05,
+             warned=out["warnings"] == [],
+             cli=out["cli"]["status"] == 0 and len(cli_line) == 1 and cli_line[0].startswith("hlod: (unsaved): " + line)
+             and out["cli"]["textures"] == sorted(textures) and len(out["cli"]["cycles_bakes"]) == 5,
+             tiles=out["cli"]["in_tiles"] == {t[:-4]: True for t in textures},
              operator=out["operator"]["result"] == ["FINISHED"]
-             and sum(out["report"] in line for line in out["operator"]["printed"]) == 1
+             and sum(line in printed for printed in out["operator"]["printed"]) == 1
              and out["operator"]["textures"] == sorted(textures))
 
 

@@ -157,33 +157,42 @@ def test_sources_changed_since_the_bake_are_counted_and_rebaked(repo, tmp_path):
 
 
 class _Stats:
-    dn, tris, queries, frame_ms = 12, 34_567, 21, 4.31
+    dn, tris, queries, frame_ms, depth_import_ms = 12, 34_567, 21, 4.31, 0.0
     resident_bytes, waiting = 3 * 2**20 + 2**19, 0  # 3.5 MB on the GPU, nothing waiting
 
 
 def test_corner_text_lines():
     """Exact wording on literal inputs: the share of the sources' triangles (34,567 of 100,000 is
-    34.6%), the private mode, and the warnings (changed sources; no record)."""
+    34.6%), the private and CPU modes with the milliseconds of Blender's depth, and the warnings
+    (changed sources; no record)."""
     assert corner_text.method_label("coh", "P") == "Coh(P)" and corner_text.method_label("vfc", "mu") == "VFC"
-    lines = corner_text.corner_lines(label="Coh(P)", stats=_Stats, source_tris=100_000, private=False,
+    lines = corner_text.corner_lines(label="Coh(P)", stats=_Stats, source_tris=100_000, where="",
                                        changed=0, recorded=144)
     assert lines == [("HLOD Coh(P): 12 nodes, 34,567 triangles (34.6% of 100,000)", False),
                      ("21 queries, 4.3 ms", False)]
-    lines = corner_text.corner_lines(label="SW(mu)", stats=_Stats, source_tris=0, private=True, changed=3, recorded=144)
+    lines = corner_text.corner_lines(label="SW(mu)", stats=_Stats, source_tris=0, where="private context", changed=3,
+                                     recorded=144)
     assert lines == [("HLOD SW(mu): 12 nodes, 34,567 triangles", False), ("21 queries, 4.3 ms, private context", False),
                      ("3 of 144 baked objects changed since the bake", True)]
-    assert corner_text.corner_lines(label="Full", stats=None, source_tris=10, private=False, changed=None,
+
+    class Imported(_Stats):
+        depth_import_ms = 1.26  # of frame_ms: Blender's depth read and handed to the CPU test
+
+    lines = corner_text.corner_lines(label="Coh(P)", stats=Imported, source_tris=0, where="CPU occlusion test",
+                                     changed=0, recorded=144)
+    assert lines[1] == ("21 queries, 4.3 ms (depth 1.3 ms), CPU occlusion test", False)
+    assert corner_text.corner_lines(label="Full", stats=None, source_tris=10, where="", changed=None,
                                       recorded=0) == [("HLOD Full: no frame drawn yet", False),
                                                       ("sources not recorded for this file: they stay visible (re-bake)", True)]
     # under a GPU budget (64 MB): resident MB, and the nodes waiting when there are any
-    lines = corner_text.corner_lines(label="Coh(P)", stats=_Stats, source_tris=0, private=False, changed=0,
+    lines = corner_text.corner_lines(label="Coh(P)", stats=_Stats, source_tris=0, where="", changed=0,
                                        recorded=144, budget_bytes=64 * 2**20)
     assert lines[-1] == ("GPU 3.5 of 64 MB", False)
 
     class Waiting(_Stats):
         waiting = 5
 
-    lines = corner_text.corner_lines(label="Coh(P)", stats=Waiting, source_tris=0, private=False, changed=0,
+    lines = corner_text.corner_lines(label="Coh(P)", stats=Waiting, source_tris=0, where="", changed=0,
                                        recorded=144, budget_bytes=64 * 2**20)
     assert lines[-1] == ("GPU 3.5 of 64 MB, 5 nodes waiting", False)
 
@@ -191,13 +200,13 @@ def test_corner_text_lines():
 @pytest.mark.blender
 @pytest.mark.gl
 def test_preview_streams_under_a_gpu_budget_and_converges(repo, tmp_path):
-    """A budget below the file's node geometry, in both drawing modes, camera held: the
+    """A budget below the file's node geometry, in the three drawing modes, camera held: the
     first frame already draws (coarser nodes stand in), resident bytes never exceed the budget, and
     the picture becomes the one drawn without a budget; the statistics and the corner text show the
     GPU memory."""
     out = preview_check(repo, "streaming", tmp_path)
     assert out["bake"] == ["FINISHED"] and out["toggle_on"] == ["FINISHED"] and out["sources_hidden"]
-    for mode in ("gl", "private"):
+    for mode in ("gl", "private", "cpu"):
         run = out[mode]
         frames = run["frames"]
         assert 0 < run["budget"] < run["whole"], mode

@@ -13,13 +13,17 @@ turned about +z, on a 4 x 4 grid 12 units apart: the re-bake benchmark's scene
 (benchmarks/rebake.py --spec tests/scenes/yard_1m.json --move 0 moves the statue at the (0, 0)
 corner, at the scene's edge).
 
+open_statues_5m.json: 100 statues with open boundaries (bunny x50, teapot x30, bust x20; about 5M
+triangles) on a 10 x 10 grid 12 units apart; open_statues_far_path.json orbits it while pulling back
+from 2 to 45 times its side (the coarse levels' benchmark: benchmarks/coarse_levels.py).
+
 crowd_1m.json: 144 statues (cow, airplane, spot, teapot, ring, creased; 1,535,020 triangles) each
 scaled to 10 units and turned about +z, packed on a 12 x 12 grid 8 units apart (neighbours nearly
 touch): from inside or beside the crowd the nearest statues hide most of the others, which show
-only as slivers through the gaps: the README's high-depth-complexity evaluation scene.
+only as slivers through the gaps: the high-depth-complexity scene of docs/evaluation.md.
 crowd_walk_path.json is a fast 320-frame tour of it (orbit at ground level, aisle walk, turn in
 place, dolly to close-up; up to 4.5 degrees or 1.35 units per frame), crowd_inspection_path.json
-the README's evaluation path: the same four parts at interactive speeds sampled at 60 frames per
+the evaluation's path (docs/evaluation.md): the same four parts at interactive speeds sampled at 60 frames per
 second (1,020 frames). Both paths name their parts ("parts": orbit, walk, turn, dolly with their
 start frames), which the evaluation report marks on its frame axis.
 """
@@ -97,6 +101,39 @@ def crowd() -> dict:
         position = np.array([CROWD_SPACING * i, CROWD_SPACING * j, 0.0])
         placed.setdefault(name, []).append(placement(name, position, turn_deg=37.0 * k, boxes=boxes))
     return {"models": [{"path": model_path(name), "transforms": t} for name, t in placed.items()]}
+
+
+OPEN_SIDE, OPEN_SPACING = 10, 12.0
+
+
+def open_statues() -> dict:
+    """100 statues with open boundaries, about 5M triangles: 50 bunnies (a scan with holes cut in it),
+    30 teapots (open surfaces in 4 pieces) and 20 busts (closed), each scaled to 10 units and turned
+    about +z, on a 10 x 10 grid 12 units apart (2 units between neighbours)."""
+    kinds = ["bunny", "teapot", "bunny", "bust", "bunny", "teapot", "bunny", "teapot", "bunny", "bust"]
+    placed: dict[str, list] = {}
+    boxes: dict[str, tuple] = {}
+    for k in range(OPEN_SIDE * OPEN_SIDE):
+        i, j = k % OPEN_SIDE, k // OPEN_SIDE
+        name = kinds[(k + 3 * j) % len(kinds)]
+        placed.setdefault(name, []).append(placement(name, np.array([OPEN_SPACING * i, OPEN_SPACING * j, 0.0]),
+                                                     turn_deg=29.0 * k, boxes=boxes))
+    return {"models": [{"path": model_path(name), "transforms": t} for name, t in placed.items()]}
+
+
+def open_statues_far(frames: int = 120) -> dict:
+    """Far views of open_statues: one orbit around the grid's centre while pulling back from 2 to 45
+    times the grid's side (log-spaced), half as high as far, looking at the centre: the coarse
+    levels' range (at 640x480 and tau 1 px a node of error e is drawn from about 416 e units away)."""
+    side = OPEN_SPACING * (OPEN_SIDE - 1)
+    centre = np.array([side / 2, side / 2, 0.0])
+    out = []
+    for i in range(frames):
+        a = 2 * np.pi * i / frames
+        r = side * 2.0 * (45.0 / 2.0) ** (i / (frames - 1))
+        out.append({"eye": [round(float(c), 6) for c in centre + [r * np.cos(a), r * np.sin(a), 0.5 * r]],
+                    "target": [round(float(c), 6) for c in centre], "up": [0, 0, 1]})
+    return {"fovy_deg": 60, "near": 1.0, "far": 20000, "frames": out}
 
 
 def _dolly(centre: np.ndarray, side: float, n: int) -> list:
@@ -189,3 +226,5 @@ if __name__ == "__main__":
     write_spec(HERE / "yard_1m.json", yard())
     (HERE / "crowd_walk_path.json").write_text(json.dumps(crowd_walk()) + "\n")
     (HERE / "crowd_inspection_path.json").write_text(json.dumps(crowd_inspection()) + "\n")
+    write_spec(HERE / "open_statues_5m.json", open_statues())
+    (HERE / "open_statues_far_path.json").write_text(json.dumps(open_statues_far()) + "\n")

@@ -1,0 +1,210 @@
+"""Cell seams: the vertices each octree node shares with the cells around it, which its decimation
+keeps in place (simplify.decimate_node), so that neighbouring nodes at any levels meet without
+cracks. Every other vertex may collapse, the models' own open boundaries included.
+
+Data form in: the leaves' vertices, per leaf (positions (k,3) float32, points of the bake's
+lattice), leaves in depth-first order (by their range in the octree's triangle order). A position
+is a seam of node n when leaves inside n and leaves outside n both use it (bit-identical float32:
+the weld's rule), i.e. when the depth-first leaf range of its users is not inside n's.
+Data form out: `CellSeams`, the shared positions with the leaves that use them; `locked(node)`,
+(s,3) float32, the node's seam positions (a set, in the order of their bits).
+Why: docs/how-it-works.md#decimating-a-node
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from .octree import OctreeLayout
+
+#: Leaf vertices sorted at a time while the shared positions are found: with more, they are
+#: split into buckets by a hash of their position and each bucket is sorted on its own (an
+#: out-of-core bake's leaves are memory-mapped; about 50 bytes a vertex while a bucket is sorted).
+BUCKET_VERTICES = 1 << 21
+
+
+@dataclass(frozen=True, eq=False)
+class CellSeams:
+    """positions (S,3) float32: the positions more than one leaf uses, numbered by first use
+    (depth first); first_leaf / last_leaf (S,) int64: the lowest and highest depth-first leaf
+    index using each; pair_leaf (P,) int64 ascending and pair_position (P,) int64: each (leaf,
+    shared position) use; pair_start (L+1,) int64: leaf j's uses are pairs pair_start[j]..
+    pair_start[j+1]; leaf_begin / leaf_end (n,) int64: each node's depth-first leaf range."""
+
+    positions: np.ndarray
+    first_leaf: np.ndarray
+    last_leaf: np.ndarray
+    pair_leaf: np.ndarray
+    pair_position: np.ndarray
+    pair_start: np.ndarray
+    leaf_begin: np.ndarray
+    leaf_end: np.ndarray
+
+    def locked(self, node: int) -> np.ndarray:
+        """(s,3) float32: the positions `node` shares with cells outside it, a set: in the order
+        of their bits (x, y, z), which depends on nothing outside them."""
+        a, b = int(self.leaf_begin[node]), int(self.leaf_end[node])
+        ids = self.pair_position[self.pair_start[a]:self.pair_start[b]]
+        ids = np.unique(ids[(self.first_leaf[ids] < a) | (self.last_leaf[ids] >= b)])
+        xy, z = _keys(self.positions[ids])
+        return self.positions[ids[np.lexsort((z, xy))]]
+
+    def digest(self, node: int) -> bytes:
+        """16 bytes naming locked(node) (the bake cache keys an inner node by it too: its LOD
+        depends on what its neighbours share with it)."""
+        return hashlib.blake2b(np.ascontiguousarray(self.locked(node)).tobytes(), digest_size=16).digest()
+
+
+def build(layout: OctreeLayout, lods: list) -> CellSeams:
+    """The CellSeams of a bake: lods[leaf] = (positions (k,3) f32, ...) for every leaf (arrays in
+    memory or memory-mapped); the inner nodes' entries are not read."""
+    leaves = np.flatnonzero(layout.is_leaf)
+    leaves = leaves[np.argsort(layout.tri_begin[leaves], kind="stable")]  # depth first
+    counts = np.array([lods[leaf][0].shape[0] for leaf in leaves], np.int64)
+    total = int(counts.sum())
+    buckets = max(1, -(-total // BUCKET_VERTICES))
+    rows, names = [], []
+    for bucket in range(buckets):
+        row, first = _shared_in_bucket(lods, leaves, counts, bucket=bucket, buckets=buckets)
+        rows.append(row)
+        names.append(first)
+    # every leaf-vertex row whose position is shared, in row order (depth first), with its
+    # position named by the row of its first use: unique across buckets, and numbered by it
+    row, name = np.concatenate(rows), np.concatenate(names)
+    del rows, names
+    order = np.argsort(row, kind="stable")
+    row, name = row[order], name[order]
+    number, pair_position = np.unique(name, return_inverse=True)
+    pair_position = pair_position.reshape(-1)
+    leaf_of_row = np.repeat(np.arange(leaves.size, dtype=np.int64), counts)
+    pair_leaf = leaf_of_row[row]
+    keep = np.ones(row.size, bool)  # one pair per (leaf, position): a leaf may list a position twice
+    keep[1:] = (np.diff(pair_leaf) != 0) | (np.diff(pair_position) != 0)
+    pair_leaf, pair_position = pair_leaf[keep], pair_position[keep]
+    s = number.size
+    first_leaf = np.full(s, leaves.size, np.int64)
+    last_leaf = np.full(s, -1, np.int64)
+    np.minimum.at(first_leaf, pair_position, pair_leaf)
+    np.maximum.at(last_leaf, pair_position, pair_leaf)
+    positions = _rows(lods, leaves, counts, number)
+    pair_start = np.searchsorted(pair_leaf, np.arange(leaves.size + 1), side="left").astype(np.int64)
+    return CellSeams(positions=positions, first_leaf=first_leaf, last_leaf=last_leaf, pair_leaf=pair_leaf,
+                     pair_position=pair_position, pair_start=pair_start, **_leaf_ranges(layout, leaves))
+
+
+def _keys(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k,3) float32 positions as two sort keys: x and y bits (uint64), z bits (uint32)."""
+    bits = np.ascontiguousarray(positions, np.float32).view(np.uint32).reshape(-1, 3)
+    return (bits[:, 0].astype(np.uint64) << np.uint64(32)) | bits[:, 1].astype(np.uint64), bits[:, 2]
+
+
+def _bucket_of(xy: np.ndarray, z: np.ndarray, buckets: int) -> np.ndarray:
+    """(k,) int64: a hash of each position's bits, mod `buckets` (equal positions, equal buckets)."""
+    h = xy * np.uint64(0x9E3779B97F4A7C15) ^ z.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F)
+    return ((h >> np.uint64(29)) % np.uint64(buckets)).astype(np.int64)
+
+
+def _shared_in_bucket(lods: list, leaves: np.ndarray, counts: np.ndarray, *, bucket: int, buckets: int):
+    """The leaf-vertex rows (global, depth first) of bucket `bucket` whose position more than one
+    leaf uses, and the first row using the same position: (row, first) (r,) int64."""
+    xs, zs, row_ids = [], [], []
+    start = 0
+    for leaf, count in zip(leaves, counts):
+        xy, z = _keys(lods[leaf][0])
+        ids = np.arange(start, start + int(count), dtype=np.int64)
+        if buckets > 1:
+            mine = _bucket_of(xy, z, buckets) == bucket
+            xy, z, ids = xy[mine], z[mine], ids[mine]
+        xs.append(xy)
+        zs.append(z)
+        row_ids.append(ids)
+        start += int(count)
+    xy, z, row = np.concatenate(xs), np.concatenate(zs), np.concatenate(row_ids)
+    del xs, zs, row_ids
+    order = np.lexsort((z, xy))  # by position; stable, so rows (depth first) stay ascending within one
+    xy, z, row = xy[order], z[order], row[order]
+    new = np.ones(row.size, bool)
+    new[1:] = (xy[1:] != xy[:-1]) | (z[1:] != z[:-1])
+    group = np.cumsum(new) - 1
+    starts = np.flatnonzero(new)
+    ends = np.append(starts[1:], row.size)
+    first_row, last_row = row[starts][group], row[ends - 1][group]
+    leaf_of = np.repeat(np.arange(leaves.size, dtype=np.int64), counts)
+    shared = leaf_of[first_row] != leaf_of[last_row]
+    return row[shared], first_row[shared]
+
+
+def _rows(lods: list, leaves: np.ndarray, counts: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """(r,3) float32: the positions of the given global leaf-vertex rows (ascending)."""
+    ends = np.cumsum(counts)
+    cut = np.searchsorted(rows, ends, side="left")  # rows[cut[j-1]:cut[j]] lie in leaf j
+    out = np.empty((rows.size, 3), np.float32)
+    start = 0
+    for j in np.flatnonzero(np.diff(np.concatenate([[0], cut])) > 0):
+        out[start:cut[j]] = np.asarray(lods[leaves[j]][0])[rows[start:cut[j]] - (ends[j] - counts[j])]
+        start = cut[j]
+    return out
+
+
+def _leaf_ranges(layout: OctreeLayout, leaves: np.ndarray) -> dict[str, np.ndarray]:
+    """Each node's depth-first leaf range [leaf_begin, leaf_end): the leaves whose triangles lie in
+    its triangle range (leaves in depth-first order have ascending tri_begin)."""
+    starts = layout.tri_begin[leaves]
+    return {"leaf_begin": np.searchsorted(starts, layout.tri_begin, side="left").astype(np.int64),
+            "leaf_end": np.searchsorted(starts, layout.tri_end, side="left").astype(np.int64)}
+
+
+def node_borders(positions: np.ndarray, faces: np.ndarray, seams: np.ndarray | None, *,
+                 position_ids: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What of a node's welded input (positions (k,3) float32, faces (m,3)) its decimation keeps in
+    place, as (k,) bool masks (locked, rim, border):
+    - locked: always kept: the vertices at a cell seam (seams (s,3) float32, `CellSeams.locked`;
+      None: the node's neighbours are unknown, so every vertex on an open edge) and, with
+      position_ids (k,) int64 (vertices split by attributes share one), those on an attribute
+      border: an open edge of the split mesh whose positions' edge is not open (a material border
+      or UV seam, which must stay closed);
+    - rim: the vertices on the models' own open boundaries (edges open by position too) that are
+      not locked: kept while the node's budget allows (collapse.py);
+    - border: every vertex on an open edge of the split mesh (pymeshlab's boundary preservation
+      keeps exactly these)."""
+    k = positions.shape[0]
+    locked, rim, border = np.zeros(k, bool), np.zeros(k, bool), np.zeros(k, bool)
+    if k == 0:
+        return locked, rim, border
+    open_edges = _open_edges(faces, k)
+    border[open_edges.ravel()] = True
+    if seams is None:
+        locked |= border
+    elif seams.shape[0]:
+        locked |= np.isin(_void_keys(positions), _void_keys(seams))
+    by_position = np.ones(open_edges.shape[0], bool)
+    if position_ids is not None and open_edges.shape[0]:
+        by_position = _open_by_position(open_edges, faces, position_ids)
+        locked[open_edges[~by_position].ravel()] = True
+    rim[open_edges[by_position].ravel()] = True
+    return locked, rim & ~locked, border
+
+
+def _open_by_position(edges: np.ndarray, faces: np.ndarray, position_ids: np.ndarray) -> np.ndarray:
+    """(e,) bool: which of the edges (e,2) (vertex ids) only one face has by position too."""
+    ids = np.asarray(position_ids, np.int64)
+    n = int(ids.max()) + 1
+    pairs = np.sort(ids[faces][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    keys, count = np.unique(pairs[:, 0] * n + pairs[:, 1], return_counts=True)
+    mine = np.sort(ids[edges], axis=1)
+    return count[np.searchsorted(keys, mine[:, 0] * n + mine[:, 1])] == 1
+
+
+def _open_edges(faces: np.ndarray, k: int) -> np.ndarray:
+    """(e,2) int64: the edges of faces (m,3) over k vertices that only one face has."""
+    pairs = np.sort(np.asarray(faces, np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    keys, count = np.unique(pairs[:, 0] * k + pairs[:, 1], return_counts=True)
+    single = keys[count == 1]
+    return np.stack([single // k, single % k], axis=1)
+
+
+def _void_keys(positions: np.ndarray) -> np.ndarray:
+    """(k,3) float32 positions as (k,) 12-byte keys, equal exactly when bit-identical."""
+    return np.ascontiguousarray(positions, np.float32).view(np.dtype((np.void, 12))).ravel()
