@@ -129,11 +129,11 @@ def test_a_grown_root_keeps_every_cell_one_level_down_bit_for_bit():
     Without the growth chain the old cube's octant would be computed from the grown cube's centre,
     which rounds: its centre would differ in the last bits and no cell would be shared."""
     rng = np.random.default_rng(3)
-    cloud = rng.random((20000, 3)) * [3.0, 2.0, 1.0] + [0.1, -5.0, 7.0]
+    cloud = rng.random((20000, 3)) * [3.0, 2.0, 1.0] + [0.3, -5.1, 7.7]
     base = tight_cube(cloud.min(0), cloud.max(0))
     old = build_octree(cloud, target_tris=100, max_depth=12, root=base)
-    assert np.allclose(base.corner, [0.1, -5.5, 6.0], atol=1e-3) and abs(base.side - 3.0) < 1e-3
-    extra = np.array([[3.6, -5.9, 7.5]]) + rng.random((300, 3)) * 0.2  # past +x and -y
+    assert np.allclose(base.corner, [0.3, -5.1, 7.7], atol=1e-3) and abs(base.side - 3.0) < 1e-3  # the box's low corner
+    extra = np.array([[3.8, -6.0, 8.2]]) + rng.random((300, 3)) * 0.2  # past +x and -y
     both = np.concatenate([cloud, extra])
     grown = base.grown_to(both.min(0), both.max(0), most=2)
     assert grown.growths == (0b101,)  # toward +x, -y and (where nothing left it) +z
@@ -144,7 +144,7 @@ def test_a_grown_root_keeps_every_cell_one_level_down_bit_for_bit():
     assert len(touched) <= 0.05 * len(old_cells)  # only the cells on the way to the new centroids changed
     shared = [n for n in range(new.node_count) if (tuple(new.cell_center[n]), float(new.cell_half[n])) in old_cells]
     assert np.all(new.cell_level[shared] >= 1)
-    top = grown.top  # the same cube, its octants computed: not one cell in common
+    top = grown.top  # the same cube, its octants computed: on this cloud, not one cell in common
     plain = build_octree(both, target_tris=100, max_depth=12, root=RootCube(top.corner, top.side))
     assert not old_cells.keys() & _cells_by_key(plain).keys()
     # the old cloud alone in the grown root: the root shrinks into the base cube, the same octree

@@ -111,9 +111,15 @@ def test_skip_candidates_are_the_nodes_visited_and_visible_last_frame(city_rende
 @pytest.fixture(scope="module")
 def sphere_row():
     """Five tessellated spheres in a row (15k triangles, about 400 per node): looking down the row,
-    each sphere hides most of the next, whose nodes show as thin crescents."""
+    each sphere hides most of the next, whose nodes show as thin crescents. Two specks of one tiny
+    triangle each, at opposite corners of the cube around the row and out of every view, centre the
+    root cube (its lowest corner is the centroids' box's) on the row, so the first octants split every
+    sphere through its centre: the half-hidden nodes the tests below need."""
     spheres = [meshes.TriangleMesh(*procedural.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, segments=48, rings=32), name=f"sphere {i}")
                for i in range(5)]
+    for i, corner in enumerate(([-5.0, -29.0, -29.0], [53.0, 29.0, 29.0])):
+        speck = np.asarray(corner) + np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.01, 0.0]])
+        spheres.append(meshes.TriangleMesh(speck.astype(np.float32), np.array([[0, 1, 2]], np.int32), name=f"speck {i}"))
     return bake(meshes.merge(spheres, name="sphere row"), BakeSettings(target_tris=400))
 
 
@@ -127,7 +133,7 @@ def test_measured_shift_up_reaches_the_sw_front_where_algorithm_4_stays_deep(gl_
     come back at once (llvmpipe with LP_NUM_THREADS=0) it reaches SW's set too, with llvmpipe's
     threads it varies with the machine's load. So the results come late here, scripted
     (ScriptedLatency, the latency of a busy GPU): measured, 88 nodes over the last 4 frames of the
-    two paths where SW draws 56, every run."""
+    two paths where SW draws 52, every run."""
     renderer = ScriptedLatency(Renderer(gl_ctx, sphere_row, size=SIZE))
     try:
         side = ([24.0, -30.0, 3.0], [24.0, 0.0, 0.0], [0.0, 0.0, 1.0])

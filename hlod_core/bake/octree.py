@@ -6,7 +6,7 @@ cell, plus a permutation of the triangles in which every subtree's triangles for
 range (leaves in depth-first order; input order within a leaf).
 
 Cells: the root cell is a `root_cube.RootCube`: in a bake from scratch the cube around the
-centroids' box (`tight_cube`: centred on it, side its longest extent), in a re-bake the earlier
+centroids' box (`tight_cube`: its lowest corner at the box's, side its longest extent), in a re-bake the earlier
 bake's while the centroids fit it (frame.py), possibly grown by doublings that keep the earlier
 cube as an octant; a cell splits at its centre into octants (a grown cube at the earlier cube's
 face, its octant there being exactly the earlier cube: root_cube.GrowthChain), so every cell is

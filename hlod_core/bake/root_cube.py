@@ -108,11 +108,13 @@ class RootCube:
 
 
 def tight_cube(lo: np.ndarray, hi: np.ndarray) -> RootCube:
-    """The cube centred on the box [lo, hi] ((3,) float64, finite) with its longest extent as side
-    (0 for a box of one point)."""
+    """The cube with its lowest corner at the box [lo, hi]'s ((3,) float64, finite) and its longest
+    extent as side (0 for a box of one point). On the box's shorter axes the cube reaches past hi, so
+    the first splits along a flat scene's thin axis fall above it instead of through its middle
+    (docs/how-it-works.md#octree-cells-that-stay-put)."""
     lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     side = float(np.max(hi - lo))
-    return RootCube(corner=0.5 * (lo + hi) - 0.5 * side, side=side)
+    return RootCube(corner=lo.copy(), side=side)
 
 
 @dataclass(frozen=True, eq=False)
