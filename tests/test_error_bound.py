@@ -30,23 +30,22 @@ from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import InputError
 from hlod_core.io import hlod_file, meshes
 
-from helpers import load_model, model, numeric_library_env, without_frame_meta
+from helpers import load_model, model, numeric_library_env
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Small test models (tests/models.py) and node budgets giving trees three to four levels deep in about a second.
 MODELS = [("cow", 300), ("creased", 300)]
 #: float32 rounding of pymeshlab's distances (relative), the only slack the no-slack check allows.
 F32_RELATIVE = 1e-6
-#: The last commit that changed what an exact bake writes (eba7dec: the coarse levels' locks and
-#: pruning; cow.obj's nodes, LODs and errors are the ones 103ebcb wrote, the bake's lattice, but the
-#: meta gained nodes_over_budget, pruned_pieces, pruned_tris and the "seams" phase; before that,
-#: 103ebcb, and the commit before the error bound, b1e28ff): an exact bake must write the bytes it
-#: wrote there.
-BEFORE_BOUND = "eba7dec"
+#: The last commit that changed what an exact bake writes (d373408: the root cube's lowest corner at
+#: the centroids' box's, which moves the cow's cells; before that eba7dec, the coarse levels' locks
+#: and pruning, 103ebcb, the bake's lattice, and the commit before the error bound, b1e28ff): an
+#: exact bake must write the bytes it wrote there.
+BEFORE_BOUND = "d373408"
 #: SHA-256 of the cow (tests/models.py) baked exactly at target_tris 300 (timings zeroed) at BEFORE_BOUND, pinned
 #: pymeshlab, on an AMD EPYC machine), for checkouts without that commit; where the
 #: commit is there, the old code's own file is compared instead (the digest of floats is per CPU).
-FILE_BEFORE_BOUND = "559afd4206d5e4d6777ba73d707e03ba134668734ea6da907c6193b92f288c51"
+FILE_BEFORE_BOUND = "e1012fd048b74d01dc260935d5901711f832c49600eec195347072458438eca2"
 
 
 @pytest.fixture(scope="module")
@@ -188,11 +187,9 @@ def _exact_file(hlod, path: Path) -> bytes:
 
 def test_exact_bake_writes_the_bytes_it_wrote_before_the_bound(tmp_path):
     """The cow baked exactly: the same .hlod bytes as the bake at BEFORE_BOUND (taken from git into a
-    temporary folder, run in its own process, its file re-saved by today's writer), but for the
-    frame's meta entries, recorded since."""
+    temporary folder, run in its own process, its file re-saved by today's writer)."""
     source = model("cow")
-    new = _exact_file(without_frame_meta(bake(meshes.load_mesh(source), BakeSettings(target_tris=300))),
-                      tmp_path / "new.hlod")
+    new = _exact_file(bake(meshes.load_mesh(source), BakeSettings(target_tris=300)), tmp_path / "new.hlod")
     archive = subprocess.run(["git", "-C", str(ROOT), "archive", "--format=tar", BEFORE_BOUND, "hlod_core"],
                              capture_output=True)
     if archive.returncode == 0:  # else a checkout without that commit: the digest below
