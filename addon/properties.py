@@ -7,8 +7,15 @@ the last bake took, with content keys (`source_objects`, `source_file`; addon/sc
 the objects the running preview hid (`hidden_objects`, `hidden_view_layer`;
 addon/scene/source_hiding.py)."""
 import bpy
-from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
-                       PointerProperty, StringProperty)
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
 
 from ..hlod_core.traversal.settings import RuntimeSettings
 from .preview.live import PREVIEW

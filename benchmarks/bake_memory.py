@@ -125,8 +125,8 @@ def bake_measured(spec: Path, out: Path, jobs: int, *, mode: str = "memory", chu
 
 def same_file(a: Path, b: Path) -> bool:
     """Whether two .hlod files hold the same bytes once their volatile meta is left out."""
-    from hlod_core.io import hlod_file
     from hlod_core.bake.meta import stable_meta
+    from hlod_core.io import hlod_file
 
     def stable_bytes(path: Path) -> bytes:
         hlod = hlod_file.load(path)

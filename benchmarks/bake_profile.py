@@ -21,8 +21,8 @@ small calls a little (the shares are what to read); the jobs 2 time is unprofile
 from __future__ import annotations
 
 import argparse
-import cProfile
 import concurrent.futures as cf
+import cProfile
 import json
 import multiprocessing
 import pickle

@@ -69,6 +69,7 @@ from hlod_core.io import meshes
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 import models  # noqa: E402  (tests/models.py: the test models by role)
+
 #: The prediction's scene size, machines and cores per machine.
 PREDICT_TRIS = 100_000_000
 PREDICT_MACHINES = (1, 4, 16)

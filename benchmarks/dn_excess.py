@@ -21,9 +21,9 @@ from collections import Counter
 from pathlib import Path
 
 from hlod_core.io import hlod_file
+from hlod_core.io.textures import load_images
 from hlod_core.model.camera_path import load_path
 from hlod_core.render.renderer import Renderer
-from hlod_core.io.textures import load_images
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
 

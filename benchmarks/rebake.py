@@ -45,11 +45,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core.io import meshes
 from hlod_core.bake.frame import Frame
 from hlod_core.bake.meta import stable_meta
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.io import meshes
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))

@@ -23,9 +23,9 @@ import statistics
 import numpy as np
 
 from hlod_core.io import hlod_file
-from hlod_core.report import image_error
 from hlod_core.model.camera_path import inspection_path, load_path
 from hlod_core.render.renderer import Renderer
+from hlod_core.report import image_error
 from hlod_core.report.runner import run_path
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings

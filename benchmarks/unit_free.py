@@ -14,9 +14,9 @@ import sys
 
 import numpy as np
 
-from hlod_core.io import meshes
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.io import meshes
 
 from .bake_throughput import ROOT
 

@@ -65,6 +65,7 @@ def enable_from_repo(repo_dir: str, module: str = "r"):
     enable the add-on in it under its real package name bl_ext.<module>.hlod."""
     import bpy  # first: importing bpy puts Blender's scripts/modules (addon_utils) on sys.path
 
+    # isort: split
     import addon_utils
 
     prefs = bpy.context.preferences.extensions

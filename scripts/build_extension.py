@@ -231,8 +231,8 @@ def cesium_build(mode: str, explicit: str | None) -> Path | None:
         if not (Path(explicit) / "Cesium.js").is_file():
             sys.exit(f"build_extension: --cesium {explicit}: no Cesium.js there (give npm's cesium/Build/Cesium)")
         return Path(explicit).resolve()
-    from hlod_core.export import viewer
     from hlod_core.core.errors import InputError
+    from hlod_core.export import viewer
 
     try:
         return viewer.find_cesium()

@@ -49,8 +49,8 @@ def draw_legend(out_dir: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hlod_core.core.colour import modulation_colour, srgb_from_linear
     from hlod_core.cli.main import build_parser
+    from hlod_core.core.colour import modulation_colour, srgb_from_linear
     from hlod_core.traversal.metrics import bias
 
     m = np.linspace(0.0, 1.0, 512)

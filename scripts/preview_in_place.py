@@ -41,8 +41,8 @@ def build_scene(spec_path: Path, *, unique_meshes: bool = False) -> list:
     import bpy
     from mathutils import Matrix
 
-    from hlod_core.io import meshes
     from hlod_core.core.errors import InputError
+    from hlod_core.io import meshes
 
     spec = json.loads(spec_path.read_text())
     models = spec.get("models") if isinstance(spec, dict) else None

@@ -13,10 +13,10 @@ import json
 import tempfile
 from pathlib import Path
 
-from hlod_core.io import procedural
-from hlod_core.export import tiles3d, viewer
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.export import tiles3d, viewer
+from hlod_core.io import procedural
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]

@@ -21,14 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
+from cesium_rule import CESIUM_FAR_M, CESIUM_NEAR_M, Camera, CesiumChoice, Tileset, cesium_select
 from hlod_core.export import tiles3d
 from hlod_core.model.hierarchy import Hlod, query_box_pad
 from hlod_core.model.view import View
 from hlod_core.traversal import boxes, metrics
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
-
-from cesium_rule import CESIUM_FAR_M, CESIUM_NEAR_M, Camera, CesiumChoice, Tileset, cesium_select
 
 #: An SSE or a plane distance this close (relative) to its threshold is a tie the two programs
 #: may round either way (Cesium works in its own frame, a rigid transform of ours).

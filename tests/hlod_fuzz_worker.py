@@ -40,8 +40,8 @@ def worker() -> int:
 def run_case(ctx, path: Path, index: int) -> dict:
     """Open, summarise, check and render one file; {"outcome": "loaded" | "refused" | "failed", ...}."""
     from hlod_core.bake import checks
-    from hlod_core.model.camera_path import inspection_path
     from hlod_core.core.errors import HlodError
+    from hlod_core.model.camera_path import inspection_path
     from hlod_core.render.renderer import Renderer
     from hlod_core.traversal.methods import make
     from hlod_core.traversal.settings import RuntimeSettings

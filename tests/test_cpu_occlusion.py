@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from helpers import street_path
-
 from hlod_core.core.errors import InputError
 from hlod_core.render import cpu_raster
 from hlod_core.render.cpu_occlusion import CpuOcclusion, default_factor, query_renderer

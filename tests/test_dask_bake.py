@@ -17,15 +17,14 @@ import distributed  # requirements.txt installs it (command line only): its abse
 import numpy as np
 import pytest
 
+import sample_meshes
+from helpers import ROOT, file_bytes, model
 from hlod_core.bake import dask_cluster, tasks
 from hlod_core.bake.partition import MeshSource
 from hlod_core.bake.pipeline import bake, bake_stream
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import BakeCancelled
 from hlod_core.io import hlod_file
-
-import sample_meshes
-from helpers import ROOT, file_bytes, model
 from processes import group_is_gone, hlod, last_json, one_line_error, wait_for
 from sample_meshes import HERD_SPACING
 

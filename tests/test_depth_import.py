@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from helpers import street_path
-
 from hlod_core.core.errors import InputError
 from hlod_core.model.view import View, look_at, perspective
 from hlod_core.render.depth_import import check_depth, reduce_depth, wall_depth

@@ -5,8 +5,8 @@ product text speaks of the product, not of its making. Fast: no GL, no bpy."""
 from __future__ import annotations
 
 import ast
-import os
 import importlib.util
+import os
 import re
 import sys
 from pathlib import Path

@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import ROOT, model, textured_scene
-from hlod_core.io import hlod_file as fileformat, meshes
-from hlod_core.export import glb, tiles3d
-from hlod_core.model.appearance import Material
-from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.model.hierarchy import Hlod, node_geometry
 from blender_runs import blender
+from helpers import ROOT, model, textured_scene
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.export import glb, tiles3d
+from hlod_core.io import hlod_file as fileformat
+from hlod_core.io import meshes
+from hlod_core.model.appearance import Material
+from hlod_core.model.hierarchy import Hlod, node_geometry
 from processes import hlod, last_json, one_line_error
 
 VALIDATORS = ROOT / "tools/validators"

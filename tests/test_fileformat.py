@@ -13,11 +13,10 @@ import time
 import numpy as np
 import pytest
 
-from hlod_core.io import hlod_file
+from helpers import ROOT
 from hlod_core.core import jsonutil
 from hlod_core.core.errors import FormatError
-
-from helpers import ROOT
+from hlod_core.io import hlod_file
 
 
 @pytest.fixture(scope="module")

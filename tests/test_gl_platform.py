@@ -22,12 +22,10 @@ import numpy as np
 import pytest
 
 from helpers import ROOT
-from processes import hlod, one_line_error
-
 from hlod_core.core.errors import GLUnavailable
 from hlod_core.render import gl_platform
 from hlod_core.render.gl_platform import current, keep_current, native_standalone, standalone_context
-
+from processes import hlod, one_line_error
 
 # --- Linux, for real -------------------------------------------------------------------------------
 

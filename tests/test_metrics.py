@@ -5,10 +5,9 @@ import warnings
 import numpy as np
 import pytest
 
-from hlod_core.traversal import alpha_estimators, boxes, metrics
 from hlod_core.core import colour
 from hlod_core.model.view import View, look_at, orthographic, perspective
-
+from hlod_core.traversal import alpha_estimators, boxes, metrics
 from silhouette_reference import silhouette_pixels
 
 MU = np.linspace(0.0, 1.0, 2001)

@@ -15,14 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlod_core.cli import main as cli
+from helpers import ROOT, file_bytes, model
 from hlod_core.bake import octree, partition
 from hlod_core.bake.pipeline import bake, bake_stream
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.cli import main as cli
 from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.io import hlod_file, meshes
-
-from helpers import ROOT, file_bytes, model
 
 
 def _transform(scale, x, y, *, z=0.0, turn_deg=0.0, mirror=False) -> list[float]:

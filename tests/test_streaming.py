@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from helpers import ScriptedAvailability
 from hlod_core.core.errors import InputError
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.render.renderer import Renderer
@@ -15,8 +16,6 @@ from hlod_core.render.residency import Residency, StreamingSettings
 from hlod_core.render.streamed_geometry import node_bytes
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import ScriptedAvailability
 
 SIZE = (320, 240)
 FRAMES = 30

@@ -9,14 +9,13 @@ the real renderer's own availability say so."""
 import numpy as np
 import pytest
 
+from helpers import ScriptedAvailability, street_path
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.io import meshes, procedural
 from hlod_core.model.camera_path import CameraPath
 from hlod_core.render.renderer import Renderer
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import ScriptedAvailability, street_path
 from traversal_runs import LAG, LLVMPIPE_COSTS, SIZE, Scripted, ScriptedLatency, frames_of
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context

@@ -6,11 +6,10 @@ import time
 import numpy as np
 import pytest
 
-from hlod_core.traversal.settings import RuntimeSettings
-
 import dn_classes
 import traversal_timing
 from helpers import street_path
+from hlod_core.traversal.settings import RuntimeSettings
 from traversal_runs import SIZE, ScriptedLatency
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context

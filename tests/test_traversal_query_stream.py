@@ -10,12 +10,11 @@ import math
 import numpy as np
 import pytest
 
+from helpers import street_path
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.query_stream import keep_hidden, multiquery_groups
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import street_path
 from traversal_runs import LAG, SIZE, Scripted
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context

@@ -9,6 +9,7 @@ from collections import deque
 import numpy as np
 import pytest
 
+from helpers import ScriptedAvailability, street_path
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.traversal import boxes
 from hlod_core.traversal.base import NEVER_FRAME
@@ -16,8 +17,6 @@ from hlod_core.traversal.methods import make
 from hlod_core.traversal.protocol import DELAY, MEASURE_RATIO, PREDICTED, REFINE, STOP
 from hlod_core.traversal.settings import RuntimeSettings
 from hlod_core.traversal.stats import COUNTERS, FrameStats
-
-from helpers import ScriptedAvailability, street_path
 from traversal_runs import SIZE
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context

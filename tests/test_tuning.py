@@ -13,15 +13,14 @@ from dataclasses import replace
 
 import pytest
 
-from hlod_core.cli import main as cli
-from hlod_core.io import hlod_file, procedural
-from hlod_core.report import tuning
-from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.model.camera_path import inspection_path
-from hlod_core.core.errors import InputError
-from hlod_core.traversal.settings import RuntimeSettings
-
 from figure_checks import PNG_SIGNATURE
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.cli import main as cli
+from hlod_core.core.errors import InputError
+from hlod_core.io import hlod_file, procedural
+from hlod_core.model.camera_path import inspection_path
+from hlod_core.report import tuning
+from hlod_core.traversal.settings import RuntimeSettings
 from processes import hlod, last_json, one_line_error
 
 FRAMES, SIZE = 10, (320, 240)

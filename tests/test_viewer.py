@@ -4,25 +4,23 @@ WebGL through SwiftShader, CesiumJS from tools/viewer's npm install, loading an 
 default city."""
 from __future__ import annotations
 
-import http.client
 import contextlib
+import http.client
 import json
 import os
 import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from hlod_core.export import tiles3d, viewer
-from hlod_core.core.errors import InputError
-
 from helpers import ROOT, textured_scene
+from hlod_core.core.errors import InputError
+from hlod_core.export import tiles3d, viewer
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]

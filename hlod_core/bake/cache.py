@@ -54,10 +54,10 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.jsonutil import JsonError, loads
 from ..io import hlod_file
 from ..io.meshes import TriangleMesh
 from ..model.appearance import AttributeLayout
-from ..core.jsonutil import JsonError, loads
 from ..model.hierarchy import Hlod
 from . import cache_files
 from .cache_files import KEY_BYTES, CorruptEntry

@@ -27,8 +27,8 @@ import numpy as np
 
 from ..core.arrays import compact, concat_indexed, distinct_corners
 from ..model.appearance import AttributeLayout
-from .lattice import unique_by_first
 from .collapse import Cut, collapse_node
+from .lattice import unique_by_first
 from .meshlab import DecimationSettings, NodeFrame, mesh_set, row_keys, unit_normals
 from .seams import decimate_across_uv_seams, row_sources
 

@@ -16,8 +16,8 @@ from ..bake.pipeline import bake, bake_stream
 from ..core.errors import InputError
 from ..export.formats import check_output_file
 from ..io import hlod_file, meshes, procedural
-from .options import bake_options, bake_settings_of, cluster_options, out_of_core_options, whole_number
 from ..io.texture_folder import EmbeddedTextures
+from .options import bake_options, bake_settings_of, cluster_options, out_of_core_options, whole_number
 
 log = logging.getLogger("hlod_core")
 

@@ -10,8 +10,13 @@ from ..bake.cache import DEFAULT_BUDGET_MB
 from ..bake.settings import ERROR_MEASURES, BakeSettings, bake_settings
 from ..core.errors import InputError
 from ..render.residency import StreamingSettings
-from ..traversal.settings import (BATCH_QUERY_MODES, MULTIQUERY_MODES, PREDICT_NEW_MODES, SKIP_QUERY_MODES,
-                                  RuntimeSettings)
+from ..traversal.settings import (
+    BATCH_QUERY_MODES,
+    MULTIQUERY_MODES,
+    PREDICT_NEW_MODES,
+    SKIP_QUERY_MODES,
+    RuntimeSettings,
+)
 
 
 class Parser(argparse.ArgumentParser):

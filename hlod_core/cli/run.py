@@ -10,8 +10,15 @@ from pathlib import Path
 from ..core.errors import InputError
 from ..export.formats import check_output_file
 from ..io import hlod_file
-from .options import (gpu_budget_option, parse_size, psnr_db, runtime_options, runtime_settings_of,
-                      streaming_of, whole_number)
+from .options import (
+    gpu_budget_option,
+    parse_size,
+    psnr_db,
+    runtime_options,
+    runtime_settings_of,
+    streaming_of,
+    whole_number,
+)
 
 log = logging.getLogger("hlod_core")
 

@@ -20,7 +20,6 @@ from ..core.errors import InputError
 from .gltf_codes import COMPONENT_DTYPES, ELEMENT_COMPONENTS
 
 
-
 def buffer_view(path: Path, header: dict, binary: bytes | None, *, view, what: str) -> bytes:
     """The bytes of a buffer view (the GLB's BIN chunk, a data: URI or a file beside the .gltf)."""
     views, buffers = header.get("bufferViews", []), header.get("buffers", [])

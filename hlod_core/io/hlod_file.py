@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from ..core import jsonutil
-from ..model.appearance import materials_from_json
+from ..core.arrays import segment_ranges
 from ..core.atomic import atomic_file
 from ..core.errors import FormatError, InputError
-from ..core.arrays import segment_ranges
+from ..model.appearance import materials_from_json
 from ..model.hierarchy import MAX_COORDINATE, NODE_ARRAYS, Hlod
 
 MAGIC = b"HLODBAKE"

@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from ..core import jsonutil
-from . import gltf, mtl, obj, stl
-from ..model.appearance import DEFAULT_BASE_COLOR, Material, check_material_ids, check_vertex_attributes
 from ..core.arrays import concat_indexed
 from ..core.colour import srgb_to_linear
 from ..core.errors import InputError
+from ..model.appearance import DEFAULT_BASE_COLOR, Material, check_material_ids, check_vertex_attributes
+from . import gltf, mtl, obj, stl
 
 log = logging.getLogger(__name__)
 

@@ -45,8 +45,8 @@ from .queries import Query, QueryPool
 from .query_boxes import QueryBoxes
 from .residency import Residency, StreamingSettings
 from .resources import GLObjects
-from .streamed_geometry import StreamedGeometry, node_bytes
 from .shaders import NODE_FS, NODE_VS
+from .streamed_geometry import StreamedGeometry, node_bytes
 
 log = logging.getLogger(__name__)
 

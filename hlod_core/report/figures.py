@@ -30,8 +30,22 @@ from pathlib import Path
 import numpy as np
 
 from ..traversal.settings import ALPHA_MODES
-from .figure_style import (BAR_LABEL_PT, DPI, FONT_PT, GRID_ALPHA, LINE_WIDTH_PT, METHOD_STYLES, RANGE_MARGIN,
-                           display_name, frozen_layout, padded_range, pyplot, save, style, sweep_keys)
+from .figure_style import (
+    BAR_LABEL_PT,
+    DPI,
+    FONT_PT,
+    GRID_ALPHA,
+    LINE_WIDTH_PT,
+    METHOD_STYLES,
+    RANGE_MARGIN,
+    display_name,
+    frozen_layout,
+    padded_range,
+    pyplot,
+    save,
+    style,
+    sweep_keys,
+)
 from .label_placement import LABEL_GAP_PX, MARKER_HALF_PX, place_labels
 from .per_frame_figure import per_frame_figure
 

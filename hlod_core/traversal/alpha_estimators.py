@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .boxes import box_corners
 from ..model.view import View
+from .boxes import box_corners
 
 #: Clip-space w below this magnitude is replaced by it before the perspective divide (a point on
 #: the eye plane; the near-plane clip keeps such points out, this only guards the division).

@@ -14,13 +14,13 @@ import heapq
 
 import numpy as np
 
+from ..core.errors import InputError
+from ..model.hierarchy import Hlod
 from .base import Traversal
 from .coherent import Bool, Coh, Simp
 from .protocol import NodeRenderer
 from .settings import RuntimeSettings
 from .stats import MS_PER_S
-from ..core.errors import InputError
-from ..model.hierarchy import Hlod
 
 
 class Full(Traversal):

@@ -19,7 +19,6 @@ import numpy as np
 
 from ..model.view import View
 
-
 # --- SSE (docs/how-it-works.md#sse) --------------------------------------------------------------------------
 
 def sphere_distance(view: View, center: np.ndarray, radius: np.ndarray) -> np.ndarray:

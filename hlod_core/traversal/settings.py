@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from . import metrics
 from ..core.errors import InputError
+from . import metrics
 
 ALPHA_MODES = ("query", "projected", "cube")
 SHIFT_UP_MODES = ("measured", "children")

@@ -34,10 +34,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import blender_preview  # noqa: E402
+import blender_checks  # the box row scene; it sets $HLOD_GPU_BACKEND's backend, before `import bpy`
+import blender_preview
 
-import blender_checks  # noqa: E402 - the box row scene
-import bpy  # noqa: E402
+# isort: split
+import bpy
 
 NAME = "bl_ext.r.hlod"
 CHILD_MODULE = "hlod_core.bake.child"

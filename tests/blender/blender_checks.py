@@ -26,8 +26,9 @@ import blender_gpu_backend  # noqa: E402
 
 FORCED_BACKEND = blender_gpu_backend.force_from_environment()  # before `import bpy` (module notes)
 
-import blender_preview  # noqa: E402
 import bpy  # noqa: E402
+
+import blender_preview  # noqa: E402
 from hlod_core.model.view import look_at, perspective  # noqa: E402
 
 NAME = "bl_ext.r.hlod"

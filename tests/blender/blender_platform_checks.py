@@ -31,10 +31,11 @@ from types import SimpleNamespace
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import blender_preview  # noqa: E402
+import blender_checks  # it sets $HLOD_GPU_BACKEND's backend, before `import bpy`
+import blender_preview
 
-import blender_checks  # noqa: E402
-import bpy  # noqa: E402
+# isort: split
+import bpy
 
 NAME = "bl_ext.r.hlod"
 SIZE = (320, 240)

@@ -17,11 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from hlod_core.report.evaluate import METHOD_SPECS
-from hlod_core.traversal.settings import RuntimeSettings
-
 from blender_runs import BLENDERS, VULKAN, all_hold, blender, blender_python
 from helpers import ROOT
+from hlod_core.report.evaluate import METHOD_SPECS
+from hlod_core.traversal.settings import RuntimeSettings
 
 sys.path.insert(0, str(ROOT / "scripts"))
 import build_extension  # noqa: E402

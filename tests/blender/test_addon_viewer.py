@@ -82,6 +82,7 @@ def check_operator(repo, work) -> dict:
 
     import bpy  # first: it puts Blender's scripts/modules (addon_utils) on sys.path
 
+    # isort: split
     import addon_utils
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
@@ -214,9 +215,9 @@ def tiles(tmp_path_factory) -> Path:
     """A small 3D Tiles export (a 2,048-triangle terrain-like sheet, baked with 256 triangles per node)."""
     import numpy as np
 
-    from hlod_core.io import meshes
-    from hlod_core.export import tiles3d
     from hlod_core.bake.pipeline import BakeSettings, bake
+    from hlod_core.export import tiles3d
+    from hlod_core.io import meshes
 
     side = 33
     x, y = np.meshgrid(np.linspace(0.0, 8.0, side), np.linspace(0.0, 8.0, side))

@@ -8,8 +8,8 @@ import sys
 
 import pytest
 
-from helpers import ROOT
 from blender_runs import blender
+from helpers import ROOT
 
 sys.path.insert(0, str(ROOT))
 from addon.preview import corner_text  # noqa: E402 - formatting only; blf is imported when drawing

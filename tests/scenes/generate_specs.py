@@ -39,6 +39,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 import models  # noqa: E402  (tests/models.py: the test models by role)
 
+
 def model_path(role: str) -> str:
     """The role's file relative to this folder, as the spec format wants (written when missing)."""
     return Path(os.path.relpath(models.path(role), HERE)).as_posix()
