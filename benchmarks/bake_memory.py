@@ -34,9 +34,10 @@ import threading
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "scenes"))
+import generate_specs  # the crowd's statues and placement
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "scenes"))
-import generate_specs  # noqa: E402  (the crowd's statues and placement)
 
 SAMPLE_SECONDS = 0.05
 

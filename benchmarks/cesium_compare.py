@@ -28,9 +28,10 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from cesium_selection import Browser, bake_and_export, cesium_choose, compare, scene_setups
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-from cesium_selection import Browser, bake_and_export, cesium_choose, compare, scene_setups  # noqa: E402
 
 
 def run(scene: str, taus: list[float], *, size: tuple[int, int] = (800, 600), folder: Path) -> list[dict]:

@@ -94,7 +94,10 @@ def agreement(hlod, size, factor: int, wall: bool, frames: int) -> dict:
     finally:
         gl.release()
     pairs = np.array(paired.pairs, np.float64).reshape(-1, 4)
-    mu = lambda q, a: np.where(a > 0, np.minimum(q / np.maximum(a, 1), 1.0), 0.0)  # noqa: E731
+
+    def mu(q, a):
+        return np.where(a > 0, np.minimum(q / np.maximum(a, 1), 1.0), 0.0)
+
     return {"tests": len(pairs), "visibility_differs": float(np.mean((pairs[:, 0] > 0) != (pairs[:, 2] > 0))),
             "mu_error_mean": float(np.mean(np.abs(mu(pairs[:, 0], pairs[:, 1]) - mu(pairs[:, 2], pairs[:, 3]))))}
 

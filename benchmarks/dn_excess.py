@@ -28,7 +28,7 @@ from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from dn_classes import CLASSES, classify  # noqa: E402  (the classes, a test helper)
+from dn_classes import CLASSES, classify  # the classes, a test helper
 
 #: Variants of Coh's settings by name (the rest are the defaults).
 VARIANTS = {"default": {}, "skip_off": {"skip_queries": "off"}, "predict_off": {"predict_new": "off"},

@@ -51,10 +51,11 @@ from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import models  # tests/models.py: the test models by role
+from rebake_work import rebuilt_work, timed_bake  # the timed re-bake, a test helper
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import models  # noqa: E402  (tests/models.py: the test models by role)
-from rebake_work import rebuilt_work, timed_bake  # noqa: E402  (the timed re-bake, a test helper)
 
 
 def moved_spec(spec_path: Path, instance: int, offset: np.ndarray, *, folder: Path) -> Path:

@@ -36,9 +36,10 @@ from hlod_core.bake import hausdorff, meshlab, simplify
 from hlod_core.bake.cell_seams import node_borders
 from hlod_core.core.arrays import compact
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import models  # tests/models.py: the test models by role
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import models  # noqa: E402  (tests/models.py: the test models by role)
 
 
 def half_with_seams(name: str):

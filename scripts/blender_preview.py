@@ -47,9 +47,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import blender_gpu_backend  # noqa: E402
+import blender_gpu_backend
+
+ROOT = Path(__file__).resolve().parents[1]
 
 #: --context's names -> the preview's mode names (addon/preview/live.py MODES); auto: its own choice.
 CONTEXTS = {"auto": None, "blender": "blender_context", "private": "private_context", "cpu": "cpu"}

@@ -39,9 +39,10 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from hlod_core.core.atomic import atomic_file  # the project's one atomic write
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from hlod_core.core.atomic import atomic_file  # noqa: E402 - the project's one atomic write
 
 WHEELS = ROOT / "wheels"
 FLAT_WHEELS = WHEELS / "flat"  # wheels rewritten for Blender 4.2's installer (see blender_ready)

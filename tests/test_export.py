@@ -149,7 +149,7 @@ def test_export_refuses_to_replace_a_foreign_folder(bakes, tmp_path):
 
 
 @pytest.mark.blender
-def test_background_batch_over_blend_files(versioned_repo, tmp_path):  # noqa: F811
+def test_background_batch_over_blend_files(versioned_repo, tmp_path):
     """Two .blend files made here plus a broken one, baked and exported in one background call of
     the installed extension's command (through each Blender's bpy module; the extension enabled
     from its repository, its dependencies from its wheels): the broken one fails alone, the summary
@@ -469,7 +469,7 @@ def test_textured_bake_exported_by_the_command_passes_the_validators(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.blender
-def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_path):  # noqa: F811
+def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_path):
     """The shared textured scene (tests/scenes/textured_scene.py, small) baked from its .blend by the
     installed extension's background command, with 3D Tiles: every GLB valid with its images, the
     root tile textured with TEXCOORD_0 (and COLOR_0: the scene has colour attributes), one image

@@ -243,7 +243,10 @@ def test_colour_by_depth_and_boxes_change_the_picture(page, tmp_path):
     page.locator("#boxes").uncheck()
     _wait_drawn(page)
     again = _picture(page, tmp_path, "again")
-    changed = lambda a, b: float(np.mean(np.abs(a - b).max(axis=2) > BACKGROUND_TOLERANCE))  # noqa: E731
+
+    def changed(a, b):
+        return float(np.mean(np.abs(a - b).max(axis=2) > BACKGROUND_TOLERANCE))
+
     # the city's grey turns to the depth palette's hues: a picture of several saturated colours
     saturation = coloured.max(axis=2) - coloured.min(axis=2)
     assert changed(plain, coloured) > 0.5 * _geometry_share(plain) and np.mean(saturation > 60) > 0.1

@@ -221,7 +221,7 @@ class BakeJob:
             for reader in self._readers:
                 reader.join(timeout=2.0)
             self._collect(returncode)
-        except BaseException as exc:  # noqa: BLE001 - reported through `error`, never lost in a thread
+        except BaseException as exc:  # reported through `error`, never lost in a thread
             log.exception("HLOD bake watcher failed")
             self.error = self.error or exc
         finally:

@@ -25,13 +25,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-import bpy  # noqa: E402
+import bpy
 
-import blender_preview  # noqa: E402
+import blender_preview
 from hlod_core.io import hlod_file
-from hlod_core.model.view import View  # noqa: E402
-from hlod_core.report import image_error  # noqa: E402
-from hlod_core.traversal.metrics import sse  # noqa: E402
+from hlod_core.model.view import View
+from hlod_core.report import image_error
+from hlod_core.traversal.metrics import sse
 
 NAME = "bl_ext.r.hlod"
 CHECKER_PX = 64  # the generated texture's side; 8 x 8 squares of red and blue

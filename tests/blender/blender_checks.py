@@ -22,14 +22,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-import blender_gpu_backend  # noqa: E402
+import blender_gpu_backend
+import blender_preview
+from hlod_core.model.view import look_at, perspective
 
 FORCED_BACKEND = blender_gpu_backend.force_from_environment()  # before `import bpy` (module notes)
 
-import bpy  # noqa: E402
-
-import blender_preview  # noqa: E402
-from hlod_core.model.view import look_at, perspective  # noqa: E402
+import bpy  # noqa: E402 - bpy picks its GPU backend while it is imported: after the override above
 
 NAME = "bl_ext.r.hlod"
 OPERATORS = ["bake", "clear", "preview_toggle", "materialize", "export", "benchmark"]

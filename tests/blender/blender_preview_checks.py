@@ -23,10 +23,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-import bpy  # noqa: E402
+import bpy
 
-import blender_preview  # noqa: E402
-from hlod_core.core.png import write_png  # noqa: E402
+import blender_preview
+from hlod_core.core.png import write_png
 
 NAME = "bl_ext.r.hlod"
 SIZE = (240, 180)  # offscreen pixels

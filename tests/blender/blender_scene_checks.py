@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-import bpy  # noqa: E402
+import bpy
 
-import blender_preview  # noqa: E402
+import blender_preview
 
 NAME = "bl_ext.r.hlod"
 CURVE_LIKE = ("Ring", "Text", "Surface", "Meta")  # objects whose mesh Blender makes from curve data

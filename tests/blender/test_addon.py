@@ -23,7 +23,7 @@ from hlod_core.report.evaluate import METHOD_SPECS
 from hlod_core.traversal.settings import RuntimeSettings
 
 sys.path.insert(0, str(ROOT / "scripts"))
-import build_extension  # noqa: E402
+import build_extension
 
 PREDICT_NEW = RuntimeSettings().predict_new  # the panel's default is the core's
 TOGGLED = {"on": "off", "off": "on"}

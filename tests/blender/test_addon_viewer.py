@@ -162,10 +162,10 @@ if __name__ == "__main__":
 
 # --- the tests, in pytest -------------------------------------------------------------------------
 
-import pytest  # noqa: E402 - not needed by the checks above
+import pytest  # noqa: E402 - not needed by the checks above (Blender's Python has no pytest)
 
-from blender_runs import all_hold, blender  # noqa: E402
-from helpers import ROOT  # noqa: E402
+from blender_runs import all_hold, blender  # noqa: E402 - the tests' helpers, for the tests only
+from helpers import ROOT  # noqa: E402 - the tests' helpers, for the tests only
 
 pytestmark = pytest.mark.blender
 

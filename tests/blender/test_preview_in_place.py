@@ -12,7 +12,7 @@ from blender_runs import blender
 from helpers import ROOT
 
 sys.path.insert(0, str(ROOT))
-from addon.preview import corner_text  # noqa: E402 - formatting only; blf is imported when drawing
+from addon.preview import corner_text  # formatting only; blf is imported when drawing
 
 KEY = re.compile(r"^[0-9a-f]{32}$")  # source_record.KEY_DIGEST_BYTES = 16
 SOURCES = ["cube 0", "cube 1", "cube 2", "cube 3", "arrayed", "sphere instance 0", "sphere instance 1"]
