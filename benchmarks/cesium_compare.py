@@ -60,8 +60,8 @@ def summary_lines(row: dict) -> list[str]:
     out = []
     for (term, at), ds in groups.items():
         ours = sum(d.side == "ours" for d in ds)
-        out.append(f"    {term} at {at}: {ours} ours only, {len(ds) - ours} Cesium only{' (tie)' if any(d.tie for d in ds) else ''}; "
-                   f"{ds[0].detail}")
+        tie = " (tie)" if any(d.tie for d in ds) else ""
+        out.append(f"    {term} at {at}: {ours} ours only, {len(ds) - ours} Cesium only{tie}; {ds[0].detail}")
     return out
 
 
@@ -77,7 +77,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for scene in args.scene:
             rows += run(scene, args.tau, size=size, folder=Path(tmp) / scene)
-    print("| scene | camera | tau px | ours | Cesium | both | Jaccard | predicted = Cesium | ours by depth | Cesium by depth |")
+    print("| scene | camera | tau px | ours | Cesium | both | Jaccard | predicted = Cesium | ours by depth "
+          "| Cesium by depth |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['scene']} | {r['camera']} | {r['tau_px']:g} | {r['ours']} | {r['cesium']} | {r['both']} | "

@@ -8,9 +8,9 @@ On the street walk of benchmarks.depth_import (the default city's first street),
 with a wall over the left half of the view at 5 m (depth_import.wall_depth) given to both as the
 host's depth, for each size, reduction factor and method:
 - the traversal on the GL renderer (queries, Mesa llvmpipe) and on render.cpu_occlusion.CpuOcclusion,
-  frame by frame side by side (a method is a traversal_table entry: `coh:skip_queries=off`): the mean over frames of the nodes drawn on the CPU over those drawn
-  with queries, and the PSNR-Y (median, minimum) of the frames drawn from the CPU's node lists
-  against the query path's (both drawn by the GL renderer, the wall's depth in both);
+  frame by frame side by side (a method is a traversal_table entry: `coh:skip_queries=off`): the mean over frames of the
+  nodes drawn on the CPU over those drawn with queries, and the PSNR-Y (median, minimum) of the frames drawn from the
+  CPU's node lists against the query path's (both drawn by the GL renderer, the wall's depth in both);
 - CPU milliseconds per frame (median of the CPU traversal's frame_ms; of which rasterising draws
   and queries);
 - with SW (stop and wait: every result awaited, so both traversals decide from the same results

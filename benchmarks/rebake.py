@@ -89,7 +89,8 @@ def main() -> None:
     parser.add_argument("--move", type=int, default=41, help="instance to move (file order)")
     parser.add_argument("--by", type=float, nargs=3, default=[1.5, 0.0, 0.0], help="translation, model units")
     parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--error", choices=["exact", "bound"], default="exact", help="error measure (BakeSettings.error)")
+    parser.add_argument("--error", choices=["exact", "bound"], default="exact",
+                        help="error measure (BakeSettings.error)")
     parser.add_argument("--verify", action="store_true", help="also bake the moved spec from scratch and compare")
     parser.add_argument("--work", action="store_true",
                         help="also time the moved re-bake's decimations and measurements (jobs 1) and its lower bound")

@@ -112,8 +112,8 @@ def main() -> None:
     best = min((table[e]["frame_ms"] for e in ("vfc", "bool") if e in table), default=None)
     for e in entries:
         print(json.dumps({"method": e, **table[e], **({"psnr_y": psnr[e]} if e in psnr else {})}))
-    print("| method | DN | RARN | D | triangles | queries | multiqueries | state changes | stall ms | cpu ms | frame ms "
-          "| / min(VFC, Bool) | PSNR-Y |")
+    print("| method | DN | RARN | D | triangles | queries | multiqueries | state changes | stall ms | cpu ms "
+          "| frame ms | / min(VFC, Bool) | PSNR-Y |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for e in entries:
         t = table[e]

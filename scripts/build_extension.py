@@ -74,7 +74,8 @@ class BlenderLine:
 
 BLENDER_LINES = (BlenderLine("blender-4.2-5.0", "cp311", "4.2.0", "5.1.0"),
                  BlenderLine("blender-5.1", "cp313", "5.1.0", None))
-VIEWER_CESIUM = "viewer/cesium"  # in the zip: where hlod_core.export.viewer.find_cesium looks (<hlod_core>/../viewer/cesium)
+#: in the zip: where hlod_core.export.viewer.find_cesium looks (<hlod_core>/../viewer/cesium)
+VIEWER_CESIUM = "viewer/cesium"
 CESIUM_LEFT_OUT = ("index.js", "index.cjs")  # Build/Cesium's module entry points (9 MB); the page loads Cesium.js
 # The extension tool inside a bpy wheel: bpy/<major.minor>/scripts/addons_core/bl_pkg/cli/blender_ext.py
 BLENDER_EXT_GLOB = "bpy/[0-9]*.[0-9]*/scripts/addons_core/bl_pkg/cli/blender_ext.py"

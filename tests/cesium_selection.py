@@ -254,13 +254,14 @@ def cesium_choose(page, camera: Camera, tau_px: float, *, timeout_s: float = 120
     every tile is loaded and the selection has stayed the same for STABLE_FRAMES frames, and return
     (Cesium's selected uris, the camera as the page reports it: position, direction, up, fovy, the
     drawing buffer, and near, far, pixel ratio where the page gives them)."""
-    page.evaluate("([c, tau]) => { window.hlodViewer.setMaximumScreenSpaceError(tau); window.hlodViewer.setCamera(c); }",
-                  [camera.to_page(), tau_px])
+    page.evaluate("([c, tau]) => { window.hlodViewer.setMaximumScreenSpaceError(tau); "
+                  "window.hlodViewer.setCamera(c); }", [camera.to_page(), tau_px])
     deadline = time.monotonic() + timeout_s
     previous, stable = None, 0
     while stable < STABLE_FRAMES:
         if time.monotonic() > deadline:
-            raise TimeoutError(f"Cesium did not settle within {timeout_s:g} s (tau {tau_px:g} px, camera {camera.to_page()})")
+            raise TimeoutError(f"Cesium did not settle within {timeout_s:g} s "
+                               f"(tau {tau_px:g} px, camera {camera.to_page()})")
         page.evaluate(_NEXT_FRAME_JS)
         state = page.evaluate(_STATE_JS)
         tiles = sorted(state["tiles"])
@@ -286,7 +287,8 @@ def scene_setups() -> dict:
     from hlod_core.io import procedural
 
     def cams(spec):
-        return {name: (lambda size, e=eye, t=target: Camera.looking_at(e, t, buffer_px=size)) for name, (eye, target) in spec.items()}
+        return {name: (lambda size, e=eye, t=target: Camera.looking_at(e, t, buffer_px=size))
+                for name, (eye, target) in spec.items()}
 
     return {
         "terrain": (lambda: procedural.low_scene(seed=1, scale=0.1), 500, cams({

@@ -105,7 +105,7 @@ def test_normals_are_carried_only_when_given():
     assert np.allclose(np.linalg.norm(with_normals.normals, axis=1), 1.0, atol=1e-3)
 
 
-# --- degenerate input (docs/how-it-works.md#numerical-stability) ---------------------------------------------------------------
+# --- degenerate input (docs/how-it-works.md#numerical-stability) -------------------------------------------------
 
 def test_empty_mesh_is_a_clear_error():
     with pytest.raises(InputError, match="empty-thing: the mesh has no triangles"):

@@ -293,7 +293,8 @@ def test_mesh_without_appearance_bakes_the_file_it_baked_before(tmp_path):
             "h = h.replace(meta={**h.meta, 'bake_seconds': 0.0, 'phase_seconds': zero})\n"
             "fileformat.save(h, sys.argv[2])\n")
         subprocess.run([sys.executable, "-c", script, str(tmp_path / "mesh.npz"), str(tmp_path / "old.hlod")],
-                       cwd=old, env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(old), **numeric_library_env()}, check=True)
+                       cwd=old, env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(old), **numeric_library_env()},
+                       check=True)
         resaved = hlod_file.save(hlod_file.load(tmp_path / "old.hlod"), tmp_path / "old-resaved.hlod")
 
 

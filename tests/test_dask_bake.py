@@ -212,7 +212,8 @@ def test_faults_of_the_scheduler_and_scratch_options(cluster, empty_scheduler, t
 
 
 def test_without_dask_the_option_says_what_to_install(tmp_path):
-    line = _refused(tmp_path, "--scheduler", "tcp://127.0.0.1:8786", prelude="import sys; sys.modules['distributed'] = None")
+    line = _refused(tmp_path, "--scheduler", "tcp://127.0.0.1:8786",
+                    prelude="import sys; sys.modules['distributed'] = None")
     assert line == ("hlod_core: error: --scheduler tcp://127.0.0.1:8786: Dask is not installed; it needs the "
                     "dask[distributed] package (pip install -r requirements.txt: a command-line-only dependency)")
 

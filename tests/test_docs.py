@@ -156,7 +156,8 @@ def _other_core_options() -> set[str]:
     for path in (ROOT / "hlod_core").rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "add_argument":
-                found.update(a.value for a in node.args if isinstance(a, ast.Constant) and str(a.value).startswith("--"))
+                found.update(a.value for a in node.args
+                             if isinstance(a, ast.Constant) and str(a.value).startswith("--"))
     return found
 
 

@@ -228,8 +228,8 @@ def test_redraw_from_the_saved_files(short_run, tmp_path):
     for target, message in ((tmp_path / "none", "report.json: cannot read the evaluation report"),
                             (folder, "per_frame.npz: not an evaluation's per-frame file"),
                             (tmp_path / "bad", "report.json: not an evaluation report (KeyError")):
-        proc = subprocess.run([sys.executable, "-m", "hlod_core.report.evaluate", "--redraw", target], capture_output=True,
-                              text=True, cwd=ROOT)
+        proc = subprocess.run([sys.executable, "-m", "hlod_core.report.evaluate", "--redraw", target],
+                              capture_output=True, text=True, cwd=ROOT)
         assert proc.returncode == 2 and message in one_line_error(proc), proc.stderr
 
 

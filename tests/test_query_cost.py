@@ -320,7 +320,8 @@ def test_the_change_rate_is_the_mean_of_its_results_until_its_weight_takes_over(
     mean of that weight: its start counts only until the first result. Through `queried` and the
     walk: on a static view nothing changes, so after the first frames with STOP results it is 0,
     where a start of 1 decaying by 1/64 a result would still hold it above 0.1."""
-    traversal = make("coh", city_renderer.hlod, _lagged(city_renderer), settings=RuntimeSettings(skip_queries="expected"))
+    traversal = make("coh", city_renderer.hlod, _lagged(city_renderer),
+                     settings=RuntimeSettings(skip_queries="expected"))
     skips = traversal.skips
     assert skips.change_rate == 1.0
     results = [True, False, False, True, False] + [False] * 100

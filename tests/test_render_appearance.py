@@ -116,7 +116,8 @@ def _with_appearance(hlod, *, materials, tri_material=None, uv=False, colors=Non
 def _front_view(size=SIZE) -> View:
     eye = np.array([0.0, 0.0, 3.0])
     return View(eye=eye, view=viewmod.look_at(eye, [0, 0, 0], [0, 1, 0]),
-                projection=viewmod.perspective(45.0, size[0] / size[1], near=0.1, far=10.0), width=size[0], height=size[1])
+                projection=viewmod.perspective(45.0, size[0] / size[1], near=0.1, far=10.0),
+                width=size[0], height=size[1])
 
 
 def _pixel(image: np.ndarray, view: View, point: tuple[float, float], *, radius: int = 3) -> np.ndarray:

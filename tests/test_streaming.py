@@ -131,7 +131,8 @@ def test_budget_larger_than_the_file_draws_todays_frames(gl_ctx, city_hlod, path
     whole = _file_bytes(city_hlod)
     for method, lag in (("vfc", None), ("sw", None), ("coh", LAG)):
         unlimited, _ = _run(gl_ctx, city_hlod, method, path, lag=lag)
-        budgeted, _ = _run(gl_ctx, city_hlod, method, path, streaming=StreamingSettings(budget_bytes=2 * whole), lag=lag)
+        budgeted, _ = _run(gl_ctx, city_hlod, method, path, streaming=StreamingSettings(budget_bytes=2 * whole),
+                           lag=lag)
         for (a, pixels_a, _), (b, pixels_b, resident) in zip(unlimited, budgeted):
             assert (a.dn, a.tris, a.queries, a.traversed, a.drawn) == (b.dn, b.tris, b.queries, b.traversed, b.drawn)
             assert np.array_equal(pixels_a, pixels_b), method

@@ -91,7 +91,8 @@ def test_skip_candidates_are_the_nodes_visited_and_visible_last_frame(city_rende
     """The skip test's candidates are exactly the nodes visited in the last frame and visible at
     its end, in the frustum and queryable this frame (read from the walk's visited list, not the
     node table); a node visible from an earlier frame but not visited last frame is not one."""
-    methods = make("coh", city_renderer.hlod, Scripted(city_renderer), settings=RuntimeSettings(skip_queries="expected"))
+    methods = make("coh", city_renderer.hlod, Scripted(city_renderer),
+                   settings=RuntimeSettings(skip_queries="expected"))
     path = street_path(12)
     stale = 0
     for i in range(len(path)):
@@ -111,7 +112,8 @@ def test_skip_candidates_are_the_nodes_visited_and_visible_last_frame(city_rende
 def sphere_row():
     """Five tessellated spheres in a row (15k triangles, about 400 per node): looking down the row,
     each sphere hides most of the next, whose nodes show as thin crescents."""
-    spheres = [meshes.TriangleMesh(*procedural.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, segments=48, rings=32), name=f"sphere {i}")
+    spheres = [meshes.TriangleMesh(*procedural.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, segments=48, rings=32),
+                                   name=f"sphere {i}")
                for i in range(5)]
     return bake(meshes.merge(spheres, name="sphere row"), BakeSettings(target_tris=400))
 

@@ -128,8 +128,8 @@ def test_unreachable_target_gives_the_most_conservative_setting(downtown, tmp_pa
     P of all (s, t), reported as such. With the logistic (k = 10) no setting draws Bool's image
     exactly, so 100 dB (identical at every PSNR frame) is above them all."""
     _, baked, path = downtown
-    report = tuning.tune(baked, path, SIZE, target_db=100.0, settings=replace(QUERY_EVERY_NODE, k=10.0), out_dir=tmp_path,
-                         psnr_frames=FRAMES, figures=False)
+    report = tuning.tune(baked, path, SIZE, target_db=100.0, settings=replace(QUERY_EVERY_NODE, k=10.0),
+                         out_dir=tmp_path, psnr_frames=FRAMES, figures=False)
     p = report["psnr_target"]
     assert max(x["psnr_y"] for x in p["candidates"]) < 100.0, "a candidate equals Bool: the fallback is not reached"
     assert not p["met"] and (p["chosen"]["s"], p["chosen"]["t"]) == tuning.MOST_CONSERVATIVE

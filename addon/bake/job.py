@@ -190,7 +190,8 @@ class BakeJob:
 
     def status_line(self) -> str:
         done, total, phase = self.progress
-        return f"HLOD bake ({self.jobs} job{'s' if self.jobs > 1 else ''}): {phase} {done}/{total} nodes ({self.percent:.0f}%)"
+        jobs = f"{self.jobs} job{'s' if self.jobs > 1 else ''}"
+        return f"HLOD bake ({jobs}): {phase} {done}/{total} nodes ({self.percent:.0f}%)"
 
     # --- threads ------------------------------------------------------------------------------
 

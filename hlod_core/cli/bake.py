@@ -161,7 +161,8 @@ def _cluster(args: argparse.Namespace):
     try:
         if args.scratch is not None:
             dask_cluster.check_scratch(args.scratch)
-        client = dask_cluster.connect(args.scheduler, timeout_s=args.scheduler_timeout or dask_cluster.CONNECT_TIMEOUT_S)
+        client = dask_cluster.connect(args.scheduler,
+                                      timeout_s=args.scheduler_timeout or dask_cluster.CONNECT_TIMEOUT_S)
     except dask_cluster.ClusterError as exc:
         raise InputError(f"--{exc}") from None
     with contextlib.closing(client):

@@ -279,7 +279,8 @@ def queries_pay_figure(results: dict, *, labels: dict[str, str]):
     w, h = results["size"]
     axes[0].set_title(f"When do occlusion queries pay? Frame time and drawn nodes relative to VFC's (dashed line: no "
                       f"queries).\nA bar below the line: the method beats VFC there. Per scene "
-                      f"{results['frames']} frames of a seeded inspection path,\n{w}x{h}, per frame the median of {results['repeat']} passes; "
+                      f"{results['frames']} frames of a seeded inspection path,\n{w}x{h}, "
+                      f"per frame the median of {results['repeat']} passes; "
                       f"timings compare within a scene's run", fontsize=9.5)
     fig.legend(*axes[0].get_legend_handles_labels(), loc="outside upper center", ncol=len(keys), fontsize=FONT_PT)
     return fig

@@ -441,7 +441,8 @@ class GLCensus:
         for kind, (is_name, gen_name, delete_name) in self.KINDS.items():
             self._is[kind] = fn(is_name, ctypes.c_uint8, ctypes.c_uint32)
             if gen_name is not None:
-                self._gen[kind] = (fn(gen_name, None, ctypes.c_int32, u32p), fn(delete_name, None, ctypes.c_int32, u32p))
+                self._gen[kind] = (fn(gen_name, None, ctypes.c_int32, u32p),
+                                   fn(delete_name, None, ctypes.c_int32, u32p))
         self._create_program = fn("glCreateProgram", ctypes.c_uint32)
         self._delete_program = fn("glDeleteProgram", None, ctypes.c_uint32)
         self._get_error = fn("glGetError", ctypes.c_uint32)

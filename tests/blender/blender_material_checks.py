@@ -238,7 +238,8 @@ def cycles_base_colour(obj) -> np.ndarray:
     material = obj.material_slots[0].material
     nodes, links = material.node_tree.nodes, material.node_tree.links
     shader = next((n for n in nodes if n.type == "BSDF_PRINCIPLED"), None)
-    base = shader.inputs["Base Color"] if shader is not None else next(n for n in nodes if n.type == "EMISSION").inputs[0]
+    base = (shader.inputs["Base Color"] if shader is not None
+            else next(n for n in nodes if n.type == "EMISSION").inputs[0])
     output = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
     emission = nodes.new("ShaderNodeEmission")
     if base.is_linked:
