@@ -215,7 +215,8 @@ def _objects(args) -> list:
     if args.collection:
         collection = bpy.data.collections.get(args.collection)
         if collection is None:
-            raise InputError(f"--collection {args.collection!r}: no such collection in {bpy.data.filepath or 'the file'}")
+            raise InputError(f"--collection {args.collection!r}: no such collection in "
+                             f"{bpy.data.filepath or 'the file'}")
         return list(collection.all_objects)
     if args.objects:
         names = [n.strip() for n in args.objects.split(",") if n.strip()]

@@ -68,7 +68,8 @@ def _setup(context, what: str):
         raise InputError(f"{what}: no baked file; run Bake first")
     hlod = PREVIEW.current_hlod() or hlod_file.load(bpy.path.abspath(props.file))
     r = scene.render
-    size = (max(1, r.resolution_x * r.resolution_percentage // 100), max(1, r.resolution_y * r.resolution_percentage // 100))
+    size = (max(1, r.resolution_x * r.resolution_percentage // 100),
+            max(1, r.resolution_y * r.resolution_percentage // 100))
     return hlod, size, camera_path(scene, context.evaluated_depsgraph_get(), size, what=what)
 
 

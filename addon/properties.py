@@ -7,8 +7,15 @@ the last bake took, with content keys (`source_objects`, `source_file`; addon/sc
 the objects the running preview hid (`hidden_objects`, `hidden_view_layer`;
 addon/scene/source_hiding.py)."""
 import bpy
-from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, IntProperty,
-                       PointerProperty, StringProperty)
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
 
 from ..hlod_core.traversal.settings import RuntimeSettings
 from .preview.live import PREVIEW
@@ -74,7 +81,8 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
                              description="Leaf budget and LOD size of every node")
     max_depth: IntProperty(name="Max Depth", default=12, min=0, max=24, description="Deepest octree level (root = 0)")
     quality_threshold: FloatProperty(name="Decimation Quality", default=0.3, min=0.0, max=1.0,
-                                     description="pymeshlab quadric quality threshold (higher keeps better-shaped triangles)")
+                                     description="pymeshlab quadric quality threshold "
+                                                 "(higher keeps better-shaped triangles)")
     error: EnumProperty(name="Error", items=[
         ("exact", "Exact", "Each inner node's error measured against every original triangle below it"),
         ("bound", "Bound", "Against the children's LODs plus their largest error: a faster bake, a looser "
@@ -83,8 +91,8 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
                       description="Worker processes of the bake, which runs outside Blender's process; "
                                   "0 = all cores but one")
     use_cache: BoolProperty(name="Bake Cache", default=True,
-                            description="Keep a cache folder beside the output (OUT.hlod.cache, safe to delete) so that "
-                                        "a re-bake redoes only the parts of the octree that changed")
+                            description="Keep a cache folder beside the output (OUT.hlod.cache, safe to delete) "
+                                        "so that a re-bake redoes only the parts of the octree that changed")
     output_path: StringProperty(name="Output", subtype="FILE_PATH", default="", options=BLEND_RELATIVE_PATH,
                                 description="Where the .hlod goes; empty = next to the .blend, named after it")
     last_bake: StringProperty(name="Last Bake", default="",
@@ -98,10 +106,12 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="coh")
     bias: EnumProperty(name="Bias", items=[("P", "P(s,t)", "VMSSE ratio P_{s,t}(mu), visual masking"),
                                            ("mu", "mu", "VMSSE ratio = mu, the visibility itself")], default="P")
-    tau: FloatProperty(name="Tau (px)", default=1.0, min=0.01, max=1000.0, description="Screen-space error threshold, pixels")
+    tau: FloatProperty(name="Tau (px)", default=1.0, min=0.01, max=1000.0,
+                       description="Screen-space error threshold, pixels")
     s: FloatProperty(name="s", default=0.9, min=0.0, max=1.0, description="Smoothness of P_{s,t}")
     t: FloatProperty(name="t", default=0.05, min=0.0, max=1.0, description="Turnover of P_{s,t}")
-    step: BoolProperty(name="Step (k = inf)", default=True, description="Use the step S_t; off = logistic of steepness k")
+    step: BoolProperty(name="Step (k = inf)", default=True,
+                       description="Use the step S_t; off = logistic of steepness k")
     k: FloatProperty(name="k", default=50.0, min=1e-3, max=1e9, description="Steepness of the logistic S_t")
     alpha: EnumProperty(name="Alpha", items=[("query", "Query", "Second query, depth test off: exact"),
                                              ("projected", "Projected", "Screen area of the box's silhouette"),
@@ -112,7 +122,8 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
         ("expected", "Expected", "Draw a visible node without a query when its draw, times the share of queries "
                                  "that changed anything, costs less than the query")],
         default=RuntimeSettings.skip_queries,
-        description="Queries that cannot pay (the renderer's measured costs); a skipped node is re-checked every 5 frames")
+        description="Queries that cannot pay (the renderer's measured costs); "
+                    "a skipped node is re-checked every 5 frames")
     multiquery: EnumProperty(name="Multiqueries", items=[
         ("on", "On", "Test nodes hidden last frame together, one query over their boxes (CHC++)"),
         ("lazy", "Lazy", "As On, but only once a group is full or the traversal would wait"),
@@ -131,10 +142,11 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     last_tuning: StringProperty(name="Last Tuning", default="",
                                 description="What the last Tune to PSNR chose: s, t, drawn nodes, PSNR")
     private_context: BoolProperty(name="Private Context", default=False,
-                                  description="Run the occlusion queries in a GL context of the extension's own, with "
-                                              "Blender's depth imported each frame so its objects occlude them, and draw "
-                                              "with Blender's gpu module (automatic on Metal and Vulkan; without any GL "
-                                              "context the queries run on the CPU)")
+                                  description="Run the occlusion queries in a GL context of the extension's "
+                                              "own, with Blender's depth imported each frame so its objects "
+                                              "occlude them, and draw with Blender's gpu module (automatic on "
+                                              "Metal and Vulkan; without any GL context the queries run on the "
+                                              "CPU)")
     gpu_budget_mb: FloatProperty(name="GPU Memory (MB)", default=512.0, min=0.0, max=1e6, precision=0,
                                  description="GPU memory the preview's node geometry may take: nodes are uploaded "
                                              "as the view wants them and the least recently used freed; a coarser "
@@ -144,7 +156,8 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     show_modulation: BoolProperty(name="Modulation Colours", default=True,
                                   description="Blue weak, magenta moderate, red strong occlusion-driven LOD change")
     show_boxes: BoolProperty(name="Node Boxes", default=False)
-    show_delayed: BoolProperty(name="Delayed Nodes", default=False, description="Boxes of nodes drawn after their own query (yellow)")
+    show_delayed: BoolProperty(name="Delayed Nodes", default=False,
+                               description="Boxes of nodes drawn after their own query (yellow)")
     show_rarn: BoolProperty(name="Refined After Draw", default=False, description="Boxes of RARN nodes (green)")
     show_corner_text: BoolProperty(name="Viewport Statistics", default=True,
                                    description="Method, drawn nodes, triangles (share of the sources'), queries and "
@@ -165,7 +178,8 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     stat_d: IntProperty(name="Delayed (D)", get=_stat("d"))
     stat_stall_ms: FloatProperty(name="Stall ms", get=_stat("stall_ms"))
     stat_frame_ms: FloatProperty(name="Frame ms", get=_stat("frame_ms"))
-    stat_resident_mb: FloatProperty(name="GPU Memory (MB)", get=lambda self: PREVIEW.statistic("resident_bytes") / 2**20,
+    stat_resident_mb: FloatProperty(name="GPU Memory (MB)",
+                                    get=lambda self: PREVIEW.statistic("resident_bytes") / 2**20,
                                     description="Node geometry on the GPU after the last frame")
     stat_waiting: IntProperty(name="Nodes Waiting", get=_stat("waiting"),
                               description="Nodes the view wants whose geometry is not on the GPU yet")

@@ -4,7 +4,8 @@ front end calls; RuntimeSettings). Imports no Blender module: it reads the prope
 """
 from __future__ import annotations
 
-from ..hlod_core.bake.settings import BakeSettings, bake_settings as core_bake_settings
+from ..hlod_core.bake.settings import BakeSettings
+from ..hlod_core.bake.settings import bake_settings as core_bake_settings
 from ..hlod_core.render.residency import StreamingSettings
 from ..hlod_core.traversal.settings import RuntimeSettings
 

@@ -33,14 +33,16 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core.io import hlod_file, meshes
-from hlod_core.model.appearance import Material
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.io import hlod_file, meshes
+from hlod_core.model.appearance import Material
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import models  # tests/models.py: the test models by role
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import models  # noqa: E402  (tests/models.py: the test models by role)
+
 #: The commit before the appearance contract (b4edc98^): the bake as it was without appearance.
 BEFORE = "fed64e9de7e20efcd316ea19c5ab79df4e2bd22a"
 

@@ -34,9 +34,10 @@ import threading
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "scenes"))
+import generate_specs  # the crowd's statues and placement
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "scenes"))
-import generate_specs  # noqa: E402  (the crowd's statues and placement)
 
 SAMPLE_SECONDS = 0.05
 
@@ -125,8 +126,8 @@ def bake_measured(spec: Path, out: Path, jobs: int, *, mode: str = "memory", chu
 
 def same_file(a: Path, b: Path) -> bool:
     """Whether two .hlod files hold the same bytes once their volatile meta is left out."""
-    from hlod_core.io import hlod_file
     from hlod_core.bake.meta import stable_meta
+    from hlod_core.io import hlod_file
 
     def stable_bytes(path: Path) -> bytes:
         hlod = hlod_file.load(path)

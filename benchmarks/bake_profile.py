@@ -21,8 +21,8 @@ small calls a little (the shares are what to read); the jobs 2 time is unprofile
 from __future__ import annotations
 
 import argparse
-import cProfile
 import concurrent.futures as cf
+import cProfile
 import json
 import multiprocessing
 import pickle
@@ -36,9 +36,10 @@ from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import models  # tests/models.py: the test models by role
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import models  # noqa: E402  (tests/models.py: the test models by role)
 
 #: (label, function name, file the function is in): cumulative seconds of each in the jobs 1 profile.
 PARTS = (
@@ -153,11 +154,13 @@ def main() -> None:
         row(f"phase {phase}", [f"{r['phase_seconds'].get(phase, 0.0):.2f} s" for r in results])
     for label, _, _ in PARTS:
         row(label.replace("  ", "&nbsp;&nbsp;"), [
-            f"{r['parts'][label]['seconds']:.2f} s ({100 * r['parts'][label]['seconds'] / r['jobs1_profiled_seconds']:.0f}%), "
+            f"{r['parts'][label]['seconds']:.2f} s "
+            f"({100 * r['parts'][label]['seconds'] / r['jobs1_profiled_seconds']:.0f}%), "
             f"{r['parts'][label]['calls']} calls" for r in results])
     row("jobs 2 (unprofiled), s", [f"{r['jobs2_seconds']:.1f}" for r in results])
     row("worker start (2 spawned, pymeshlab imported), s", [f"{r['worker_start_seconds']:.2f}" for r in results])
-    row("data sent with tasks and back (pickled)", [f"{r['task_bytes'] / 2**20:.0f} MB in {r['tasks']} tasks" for r in results])
+    row("data sent with tasks and back (pickled)",
+        [f"{r['task_bytes'] / 2**20:.0f} MB in {r['tasks']} tasks" for r in results])
     row("shared arrays written once", [f"{r['shared_bytes'] / 2**20:.0f} MB" for r in results])
 
 

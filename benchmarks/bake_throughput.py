@@ -21,14 +21,16 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core.io import hlod_file, meshes
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.io import hlod_file, meshes
 from hlod_core.model.hierarchy import Hlod, cube_sides
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import models  # tests/models.py: the test models by role
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import models  # noqa: E402  (tests/models.py: the test models by role)
+
 #: The inputs, by name: their files (written first where tests/models.py generates them).
 INPUTS = {"statue": lambda: models.path("statue"), "gallery_1m": lambda: models.scene("gallery_1m")}
 

@@ -16,7 +16,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from blender_runs import blender, build_extension_zips, install_extension, line_of  # noqa: E402
+from blender_runs import blender, build_extension_zips, install_extension, line_of
 
 SPEEDUP_JOBS_2 = 1.6  # jobs 2 against jobs 1 on about 1M triangles, same run
 

@@ -18,7 +18,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from blender_runs import blender, build_extension_zips, install_extension, line_of  # noqa: E402
+from blender_runs import blender, build_extension_zips, install_extension, line_of
 
 SPEEDUP_MOVED = 4.0  # the moved re-bake against the full bake, same run
 

@@ -28,9 +28,10 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from cesium_selection import Browser, bake_and_export, cesium_choose, compare, scene_setups
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-from cesium_selection import Browser, bake_and_export, cesium_choose, compare, scene_setups  # noqa: E402
 
 
 def run(scene: str, taus: list[float], *, size: tuple[int, int] = (800, 600), folder: Path) -> list[dict]:
@@ -59,8 +60,8 @@ def summary_lines(row: dict) -> list[str]:
     out = []
     for (term, at), ds in groups.items():
         ours = sum(d.side == "ours" for d in ds)
-        out.append(f"    {term} at {at}: {ours} ours only, {len(ds) - ours} Cesium only{' (tie)' if any(d.tie for d in ds) else ''}; "
-                   f"{ds[0].detail}")
+        tie = " (tie)" if any(d.tie for d in ds) else ""
+        out.append(f"    {term} at {at}: {ours} ours only, {len(ds) - ours} Cesium only{tie}; {ds[0].detail}")
     return out
 
 
@@ -76,7 +77,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for scene in args.scene:
             rows += run(scene, args.tau, size=size, folder=Path(tmp) / scene)
-    print("| scene | camera | tau px | ours | Cesium | both | Jaccard | predicted = Cesium | ours by depth | Cesium by depth |")
+    print("| scene | camera | tau px | ours | Cesium | both | Jaccard | predicted = Cesium | ours by depth "
+          "| Cesium by depth |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['scene']} | {r['camera']} | {r['tau_px']:g} | {r['ours']} | {r['cesium']} | {r['both']} | "

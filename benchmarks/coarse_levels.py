@@ -70,7 +70,8 @@ def levels(path: Path, target_tris: int) -> dict:
                            "over": int((tris > OVER_FACTOR * target_tris).sum())}
     return {"root_tris": int(hlod.tri_count[0]), "total_tris": int(hlod.indices.shape[0]),
             "root_error": float(hlod.error[0]), "per_depth": out,
-            "pruned_pieces": int(hlod.meta.get("pruned_pieces", 0)), "pruned_tris": int(hlod.meta.get("pruned_tris", 0)),
+            "pruned_pieces": int(hlod.meta.get("pruned_pieces", 0)),
+            "pruned_tris": int(hlod.meta.get("pruned_tris", 0)),
             "nodes_over_budget": int((hlod.tri_count[inner] > OVER_FACTOR * target_tris).sum())}
 
 

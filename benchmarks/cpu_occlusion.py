@@ -8,9 +8,9 @@ On the street walk of benchmarks.depth_import (the default city's first street),
 with a wall over the left half of the view at 5 m (depth_import.wall_depth) given to both as the
 host's depth, for each size, reduction factor and method:
 - the traversal on the GL renderer (queries, Mesa llvmpipe) and on render.cpu_occlusion.CpuOcclusion,
-  frame by frame side by side (a method is a traversal_table entry: `coh:skip_queries=off`): the mean over frames of the nodes drawn on the CPU over those drawn
-  with queries, and the PSNR-Y (median, minimum) of the frames drawn from the CPU's node lists
-  against the query path's (both drawn by the GL renderer, the wall's depth in both);
+  frame by frame side by side (a method is a traversal_table entry: `coh:skip_queries=off`): the mean over frames of the
+  nodes drawn on the CPU over those drawn with queries, and the PSNR-Y (median, minimum) of the frames drawn from the
+  CPU's node lists against the query path's (both drawn by the GL renderer, the wall's depth in both);
 - CPU milliseconds per frame (median of the CPU traversal's frame_ms; of which rasterising draws
   and queries);
 - with SW (stop and wait: every result awaited, so both traversals decide from the same results
@@ -94,7 +94,10 @@ def agreement(hlod, size, factor: int, wall: bool, frames: int) -> dict:
     finally:
         gl.release()
     pairs = np.array(paired.pairs, np.float64).reshape(-1, 4)
-    mu = lambda q, a: np.where(a > 0, np.minimum(q / np.maximum(a, 1), 1.0), 0.0)  # noqa: E731
+
+    def mu(q, a):
+        return np.where(a > 0, np.minimum(q / np.maximum(a, 1), 1.0), 0.0)
+
     return {"tests": len(pairs), "visibility_differs": float(np.mean((pairs[:, 0] > 0) != (pairs[:, 2] > 0))),
             "mu_error_mean": float(np.mean(np.abs(mu(pairs[:, 0], pairs[:, 1]) - mu(pairs[:, 2], pairs[:, 3]))))}
 

@@ -66,9 +66,11 @@ from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import models  # tests/models.py: the test models by role
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import models  # noqa: E402  (tests/models.py: the test models by role)
+
 #: The prediction's scene size, machines and cores per machine.
 PREDICT_TRIS = 100_000_000
 PREDICT_MACHINES = (1, 4, 16)

@@ -162,7 +162,8 @@ def main() -> None:
     factors = [int(f) for f in args.factors.split(",")]
     costs = {s: import_cost(hlod, s, factors, args.repeat) for s in sizes}
     for s, row in costs.items():
-        print(json.dumps({"measure": "import_ms", "size": f"{s[0]}x{s[1]}", **{f"factor_{f}": v for f, v in row.items()}}))
+        factors_ms = {f"factor_{f}": v for f, v in row.items()}
+        print(json.dumps({"measure": "import_ms", "size": f"{s[0]}x{s[1]}", **factors_ms}))
     read = None if args.no_blender else blender_read_cost(sizes, args.repeat)
     if read is not None:
         print(json.dumps({"measure": "blender_read_depth_ms", **read}))
@@ -176,7 +177,8 @@ def main() -> None:
     for s, row in costs.items():
         extra = f" | {read['read_depth_ms'][f'{s[0]}x{s[1]}']:.1f}" if read else ""
         print(f"| {s[0]}x{s[1]} | " + " | ".join(f"{row[f]:.2f}" for f in factors) + extra + " |")
-    print("\n| size | factor | drawn nodes | queries | PSNR-Y vs factor 1, median / min (dB) | import ms in the frame |")
+    print("\n| size | factor | drawn nodes | queries | PSNR-Y vs factor 1, median / min (dB) "
+          "| import ms in the frame |")
     print("|---|---:|---:|---:|---|---:|")
     for s, rows in effects.items():
         for f, row in rows.items():

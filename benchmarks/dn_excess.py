@@ -21,14 +21,14 @@ from collections import Counter
 from pathlib import Path
 
 from hlod_core.io import hlod_file
+from hlod_core.io.textures import load_images
 from hlod_core.model.camera_path import load_path
 from hlod_core.render.renderer import Renderer
-from hlod_core.io.textures import load_images
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from dn_classes import CLASSES, classify  # noqa: E402  (the classes, a test helper)
+from dn_classes import CLASSES, classify  # the classes, a test helper
 
 #: Variants of Coh's settings by name (the rest are the defaults).
 VARIANTS = {"default": {}, "skip_off": {"skip_queries": "off"}, "predict_off": {"predict_new": "off"},

@@ -28,15 +28,17 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core.traversal import boxes, metrics
-from hlod_core.model import camera_path
-from hlod_core.io import meshes
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.io import meshes
+from hlod_core.model import camera_path
+from hlod_core.traversal import boxes, metrics
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import models  # tests/models.py: the test models by role
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import models  # noqa: E402  (tests/models.py: the test models by role)
+
 #: The scenes and their camera paths.
 SCENES = {"gallery_1m": ROOT / "tests" / "scenes" / "gallery_row_path.json",
           "crowd_1m": ROOT / "tests" / "scenes" / "crowd_inspection_path.json"}

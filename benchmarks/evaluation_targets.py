@@ -16,9 +16,10 @@ import json
 import sys
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from report_targets import read_report, targets  # the targets, a test helper
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-from report_targets import read_report, targets  # noqa: E402  (the targets, a test helper)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -18,9 +18,10 @@ import logging
 import sys
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from hlod_fuzz import fuzz  # the fuzz run, a test helper
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-from hlod_fuzz import fuzz  # noqa: E402  (the fuzz run, a test helper)
 
 
 def main(argv: list[str] | None = None) -> int:

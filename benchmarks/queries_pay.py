@@ -23,12 +23,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from hlod_core.report import evaluate, figures
-from hlod_core.io import procedural
-from hlod_core.core.atomic import write_text_atomic
 from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.model.camera_path import inspection_path
+from hlod_core.core.atomic import write_text_atomic
 from hlod_core.core.errors import HlodError, InputError
+from hlod_core.io import procedural
+from hlod_core.model.camera_path import inspection_path
+from hlod_core.report import evaluate, figures
 
 SCENES = ("low", "middle", "high")
 DEFAULT_METHODS = ("vfc", "bool", "sw_p", "coh_p", "coh_mu", "ideal")

@@ -45,16 +45,17 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core.io import meshes
 from hlod_core.bake.frame import Frame
 from hlod_core.bake.meta import stable_meta
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.io import meshes
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import models  # tests/models.py: the test models by role
+from rebake_work import rebuilt_work, timed_bake  # the timed re-bake, a test helper
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import models  # noqa: E402  (tests/models.py: the test models by role)
-from rebake_work import rebuilt_work, timed_bake  # noqa: E402  (the timed re-bake, a test helper)
 
 
 def moved_spec(spec_path: Path, instance: int, offset: np.ndarray, *, folder: Path) -> Path:
@@ -88,7 +89,8 @@ def main() -> None:
     parser.add_argument("--move", type=int, default=41, help="instance to move (file order)")
     parser.add_argument("--by", type=float, nargs=3, default=[1.5, 0.0, 0.0], help="translation, model units")
     parser.add_argument("--jobs", type=int, default=2)
-    parser.add_argument("--error", choices=["exact", "bound"], default="exact", help="error measure (BakeSettings.error)")
+    parser.add_argument("--error", choices=["exact", "bound"], default="exact",
+                        help="error measure (BakeSettings.error)")
     parser.add_argument("--verify", action="store_true", help="also bake the moved spec from scratch and compare")
     parser.add_argument("--work", action="store_true",
                         help="also time the moved re-bake's decimations and measurements (jobs 1) and its lower bound")

@@ -36,9 +36,10 @@ from hlod_core.bake import hausdorff, meshlab, simplify
 from hlod_core.bake.cell_seams import node_borders
 from hlod_core.core.arrays import compact
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import models  # tests/models.py: the test models by role
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import models  # noqa: E402  (tests/models.py: the test models by role)
 
 
 def half_with_seams(name: str):
@@ -109,7 +110,8 @@ def main(argv=None) -> int:
             lod_f = lod.face_matrix().astype(np.int32)
             lods[way] = (out, lod_f)
             _, lod_rim, _ = node_borders(out, lod_f, positions[seam])
-            error = hausdorff.measure((out, lod_f), (positions, faces)) / float(np.linalg.norm(np.ptp(positions, axis=0)))
+            diagonal = float(np.linalg.norm(np.ptp(positions, axis=0)))
+            error = hausdorff.measure((out, lod_f), (positions, faces)) / diagonal
             print(f"  {way:15s} {lod.face_number():5d} triangles, seam vertices kept {int(kept.sum())}/{kept.size}, "
                   f"rim vertices left {int(lod_rim.sum()):4d}, error {error:.5f} of the diagonal, "
                   f"{np.median(seconds):.3f} s")

@@ -35,7 +35,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes", type=float, nargs="*", default=[1, 20], help="millions of triangles (none: no start-up run)")
+    parser.add_argument("--sizes", type=float, nargs="*", default=[1, 20],
+                        help="millions of triangles (none: no start-up run)")
     parser.add_argument("--budget-mb", type=float, default=64.0)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--jobs", type=int, default=2)

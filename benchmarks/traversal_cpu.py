@@ -35,9 +35,10 @@ from hlod_core.model.camera_path import load_path
 from hlod_core.traversal.methods import METHODS
 from hlod_core.traversal.settings import RuntimeSettings
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from traversal_timing import CLOCKS, baseline_traversal, run  # the measurement, a test helper
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-from traversal_timing import CLOCKS, baseline_traversal, run  # noqa: E402  (the measurement, a test helper)
 
 
 def main() -> None:

@@ -23,9 +23,9 @@ import statistics
 import numpy as np
 
 from hlod_core.io import hlod_file
-from hlod_core.report import image_error
 from hlod_core.model.camera_path import inspection_path, load_path
 from hlod_core.render.renderer import Renderer
+from hlod_core.report import image_error
 from hlod_core.report.runner import run_path
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
@@ -112,8 +112,8 @@ def main() -> None:
     best = min((table[e]["frame_ms"] for e in ("vfc", "bool") if e in table), default=None)
     for e in entries:
         print(json.dumps({"method": e, **table[e], **({"psnr_y": psnr[e]} if e in psnr else {})}))
-    print("| method | DN | RARN | D | triangles | queries | multiqueries | state changes | stall ms | cpu ms | frame ms "
-          "| / min(VFC, Bool) | PSNR-Y |")
+    print("| method | DN | RARN | D | triangles | queries | multiqueries | state changes | stall ms | cpu ms "
+          "| frame ms | / min(VFC, Bool) | PSNR-Y |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for e in entries:
         t = table[e]

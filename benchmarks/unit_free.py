@@ -14,14 +14,14 @@ import sys
 
 import numpy as np
 
-from hlod_core.io import meshes
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.io import meshes
 
 from .bake_throughput import ROOT
 
 sys.path.insert(0, str(ROOT / "tests"))
-import models  # noqa: E402  (tests/models.py: the test models by role)
+import models  # tests/models.py: the test models by role
 
 #: (role, target triangles) of the test models (tests/models.py).
 MODELS = (("spot", 200), ("cow", 200), ("creased", 500), ("ring", 500), ("teapot", 200), ("airplane", 500),

@@ -21,7 +21,8 @@ from ..addon.bake.from_scene import SceneBake, start_bake
 from ..addon.materials.cycles_bake import cycles_report
 from ..addon.preview.live import PREVIEW
 from ..addon.properties import stored_path
-from ..addon.scene import objects as scene_objects, source_record
+from ..addon.scene import objects as scene_objects
+from ..addon.scene import source_record
 from ..addon.settings import bake_settings
 from ..hlod_core.core.errors import BakeCancelled, HlodError, InputError
 

@@ -6,7 +6,8 @@ Draw code reads state only: the count of changed sources is kept current by the 
 import bpy
 
 from ..addon import tiles_server
-from ..addon.bake import job as bake_job, plan as bake_plan
+from ..addon.bake import job as bake_job
+from ..addon.bake import plan as bake_plan
 from ..addon.preview import corner_text
 from ..addon.preview.live import PREVIEW
 from ..addon.scene import source_record

@@ -47,9 +47,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import blender_gpu_backend  # noqa: E402
+import blender_gpu_backend
+
+ROOT = Path(__file__).resolve().parents[1]
 
 #: --context's names -> the preview's mode names (addon/preview/live.py MODES); auto: its own choice.
 CONTEXTS = {"auto": None, "blender": "blender_context", "private": "private_context", "cpu": "cpu"}
@@ -65,6 +66,7 @@ def enable_from_repo(repo_dir: str, module: str = "r"):
     enable the add-on in it under its real package name bl_ext.<module>.hlod."""
     import bpy  # first: importing bpy puts Blender's scripts/modules (addon_utils) on sys.path
 
+    # isort: split
     import addon_utils
 
     prefs = bpy.context.preferences.extensions
@@ -162,7 +164,8 @@ def draw_offscreen(package, scene, size, *, before=None, after=None, matrices=No
 
     preview = importlib.import_module(package.__name__ + ".addon.preview.live").PREVIEW
     view, projection = camera_matrices(scene, size) if matrices is None else matrices
-    view, projection = Matrix(np.asarray(view, np.float64).tolist()), Matrix(np.asarray(projection, np.float64).tolist())
+    view = Matrix(np.asarray(view, np.float64).tolist())
+    projection = Matrix(np.asarray(projection, np.float64).tolist())
     offscreen = gpu.types.GPUOffScreen(*size)
     try:
         with offscreen.bind():
@@ -352,7 +355,8 @@ def main(argv=None) -> int:
              else default_views(scene, hlod, size, args.frames or FRAMES_WITHOUT_PATH))
     wall_m = OCCLUDER_SHARE * float(np.linalg.norm(hlod.box_max[0] - hlod.box_min[0])) if args.occluder else None
     props = scene.hlod
-    props.file, props.method, props.bias, props.show_modulation = str(Path(args.file).resolve()), args.method, args.bias, True
+    props.file, props.method, props.bias = str(Path(args.file).resolve()), args.method, args.bias
+    props.show_modulation = True
     if args.skip_queries:
         props.skip_queries = args.skip_queries
     try:

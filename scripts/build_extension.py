@@ -39,9 +39,10 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from hlod_core.core.atomic import atomic_file  # the project's one atomic write
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-from hlod_core.core.atomic import atomic_file  # noqa: E402 - the project's one atomic write
 
 WHEELS = ROOT / "wheels"
 FLAT_WHEELS = WHEELS / "flat"  # wheels rewritten for Blender 4.2's installer (see blender_ready)
@@ -73,7 +74,8 @@ class BlenderLine:
 
 BLENDER_LINES = (BlenderLine("blender-4.2-5.0", "cp311", "4.2.0", "5.1.0"),
                  BlenderLine("blender-5.1", "cp313", "5.1.0", None))
-VIEWER_CESIUM = "viewer/cesium"  # in the zip: where hlod_core.export.viewer.find_cesium looks (<hlod_core>/../viewer/cesium)
+#: in the zip: where hlod_core.export.viewer.find_cesium looks (<hlod_core>/../viewer/cesium)
+VIEWER_CESIUM = "viewer/cesium"
 CESIUM_LEFT_OUT = ("index.js", "index.cjs")  # Build/Cesium's module entry points (9 MB); the page loads Cesium.js
 # The extension tool inside a bpy wheel: bpy/<major.minor>/scripts/addons_core/bl_pkg/cli/blender_ext.py
 BLENDER_EXT_GLOB = "bpy/[0-9]*.[0-9]*/scripts/addons_core/bl_pkg/cli/blender_ext.py"
@@ -231,8 +233,8 @@ def cesium_build(mode: str, explicit: str | None) -> Path | None:
         if not (Path(explicit) / "Cesium.js").is_file():
             sys.exit(f"build_extension: --cesium {explicit}: no Cesium.js there (give npm's cesium/Build/Cesium)")
         return Path(explicit).resolve()
-    from hlod_core.export import viewer
     from hlod_core.core.errors import InputError
+    from hlod_core.export import viewer
 
     try:
         return viewer.find_cesium()

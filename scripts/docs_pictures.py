@@ -49,8 +49,8 @@ def draw_legend(out_dir: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hlod_core.core.colour import modulation_colour, srgb_from_linear
     from hlod_core.cli.main import build_parser
+    from hlod_core.core.colour import modulation_colour, srgb_from_linear
     from hlod_core.traversal.metrics import bias
 
     m = np.linspace(0.0, 1.0, 512)
@@ -136,7 +136,7 @@ class RecordingLayout:
     def separator(self, **_) -> None:
         self.children.append(Item("separator"))
 
-    def progress(self, *, factor: float = 0.0, type: str = "BAR", text: str = "") -> None:
+    def progress(self, *, factor: float = 0.0, type: str = "BAR", text: str = "") -> None:  # noqa: A002 - Blender's UILayout.progress
         self.children.append(Item("progress", text=text, value=f"{factor:.0%}"))
 
     def operator(self, idname: str, *, text: str | None = None, icon: str = "NONE", depress: bool = False,
@@ -312,7 +312,7 @@ def draw_panels(out_dir: Path) -> list[Path]:
     """panel_<section>.png for each section under the main panel (the main panel's own lines on top
     of the first)."""
     sections = record_panels()
-    (main_label, main_rows), children = sections[0], sections[1:]
+    (_, main_rows), children = sections[0], sections[1:]
     paths = []
     for i, (label, rows) in enumerate(children):
         path = out_dir / f"panel_{label.lower().replace(' ', '_')}.png"

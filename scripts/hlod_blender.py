@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import blender_preview  # noqa: E402
+import blender_preview
 
 REPO_OPTION = "--extension-repo"
 

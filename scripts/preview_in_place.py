@@ -23,12 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import blender_preview
+import models  # tests/models.py: the test models, which the scene specs read
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
-sys.path.insert(0, str(ROOT / "tests"))
-import blender_preview  # noqa: E402
-import models  # noqa: E402  (tests/models.py: the test models, which the scene specs read)
 
 EYE, TARGET, LENS_MM = (-25.0, -25.0, 18.0), (44.0, 44.0, 0.0), 35.0  # a three-quarter view over the crowd
 YAW_STEP_DEG = 0.5  # the camera's turn about the target per frame (navigation)
@@ -41,8 +42,8 @@ def build_scene(spec_path: Path, *, unique_meshes: bool = False) -> list:
     import bpy
     from mathutils import Matrix
 
-    from hlod_core.io import meshes
     from hlod_core.core.errors import InputError
+    from hlod_core.io import meshes
 
     spec = json.loads(spec_path.read_text())
     models = spec.get("models") if isinstance(spec, dict) else None

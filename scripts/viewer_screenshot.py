@@ -13,10 +13,10 @@ import json
 import tempfile
 from pathlib import Path
 
-from hlod_core.io import procedural
-from hlod_core.export import tiles3d, viewer
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.export import tiles3d, viewer
+from hlod_core.io import procedural
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
@@ -29,7 +29,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs")
     parser.add_argument("--size", default="960x600")
-    parser.add_argument("--sse", type=float, default=1.0, help="maximum screen-space error, pixels (1: the preview's tau)")
+    parser.add_argument("--sse", type=float, default=1.0,
+                        help="maximum screen-space error, pixels (1: the preview's tau)")
     args = parser.parse_args()
     width, height = (int(v) for v in args.size.split("x"))
     out = Path(args.out)

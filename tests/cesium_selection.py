@@ -21,14 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
+from cesium_rule import CESIUM_FAR_M, CESIUM_NEAR_M, Camera, CesiumChoice, Tileset, cesium_select
 from hlod_core.export import tiles3d
 from hlod_core.model.hierarchy import Hlod, query_box_pad
 from hlod_core.model.view import View
 from hlod_core.traversal import boxes, metrics
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
-
-from cesium_rule import CESIUM_FAR_M, CESIUM_NEAR_M, Camera, CesiumChoice, Tileset, cesium_select
 
 #: An SSE or a plane distance this close (relative) to its threshold is a tie the two programs
 #: may round either way (Cesium works in its own frame, a rigid transform of ours).
@@ -255,13 +254,14 @@ def cesium_choose(page, camera: Camera, tau_px: float, *, timeout_s: float = 120
     every tile is loaded and the selection has stayed the same for STABLE_FRAMES frames, and return
     (Cesium's selected uris, the camera as the page reports it: position, direction, up, fovy, the
     drawing buffer, and near, far, pixel ratio where the page gives them)."""
-    page.evaluate("([c, tau]) => { window.hlodViewer.setMaximumScreenSpaceError(tau); window.hlodViewer.setCamera(c); }",
-                  [camera.to_page(), tau_px])
+    page.evaluate("([c, tau]) => { window.hlodViewer.setMaximumScreenSpaceError(tau); "
+                  "window.hlodViewer.setCamera(c); }", [camera.to_page(), tau_px])
     deadline = time.monotonic() + timeout_s
     previous, stable = None, 0
     while stable < STABLE_FRAMES:
         if time.monotonic() > deadline:
-            raise TimeoutError(f"Cesium did not settle within {timeout_s:g} s (tau {tau_px:g} px, camera {camera.to_page()})")
+            raise TimeoutError(f"Cesium did not settle within {timeout_s:g} s "
+                               f"(tau {tau_px:g} px, camera {camera.to_page()})")
         page.evaluate(_NEXT_FRAME_JS)
         state = page.evaluate(_STATE_JS)
         tiles = sorted(state["tiles"])
@@ -287,7 +287,8 @@ def scene_setups() -> dict:
     from hlod_core.io import procedural
 
     def cams(spec):
-        return {name: (lambda size, e=eye, t=target: Camera.looking_at(e, t, buffer_px=size)) for name, (eye, target) in spec.items()}
+        return {name: (lambda size, e=eye, t=target: Camera.looking_at(e, t, buffer_px=size))
+                for name, (eye, target) in spec.items()}
 
     return {
         "terrain": (lambda: procedural.low_scene(seed=1, scale=0.1), 500, cams({

@@ -34,9 +34,9 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import blender_runs  # noqa: E402
-import helpers  # noqa: E402
-from processes import hlod  # noqa: E402
+import blender_runs
+import helpers
+from processes import hlod
 
 #: Set for tests not marked gl: libglvnd then loads no EGL vendor, and glcontext's GLX backend
 #: (gl_platform's second choice on Linux, which tries $DISPLAY and then ":0.0") finds no libX11, so

@@ -9,10 +9,11 @@ import sys
 import traceback
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hlod_core.io import hlod_file  # noqa: E402
+from hlod_core.io import hlod_file
+
+ROOT = Path(__file__).resolve().parents[1]
 
 RENDER_SIZE = (64, 48)  # viewport of the rendering check, pixels
 RENDER_FRAMES = 4  # one frame of each part of the inspection path
@@ -40,8 +41,8 @@ def worker() -> int:
 def run_case(ctx, path: Path, index: int) -> dict:
     """Open, summarise, check and render one file; {"outcome": "loaded" | "refused" | "failed", ...}."""
     from hlod_core.bake import checks
-    from hlod_core.model.camera_path import inspection_path
     from hlod_core.core.errors import HlodError
+    from hlod_core.model.camera_path import inspection_path
     from hlod_core.render.renderer import Renderer
     from hlod_core.traversal.methods import make
     from hlod_core.traversal.settings import RuntimeSettings
@@ -71,7 +72,7 @@ def run_case(ctx, path: Path, index: int) -> dict:
         if "\n" in message or path.name not in message:
             return {"outcome": "failed", "stage": stage, "error": f"unclear refusal: {message!r}"}
         return {"outcome": "refused", "stage": stage, "message": message}
-    except Exception:  # everything else is what the fuzz is looking for
+    except Exception:  # noqa: BLE001 - everything else is what the fuzz is looking for
         return {"outcome": "failed", "stage": stage, "error": traceback.format_exc()}
     finally:
         if renderer is not None:

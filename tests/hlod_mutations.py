@@ -61,9 +61,9 @@ def uv_sphere(rings: int = 24, segments: int = 40):
 
 def base_file(folder: Path) -> bytes:
     """Bake the sphere, save it, and return the file with HEADER_SLACK spaces after the header."""
-    from hlod_core.io import meshes
     from hlod_core.bake.pipeline import bake
     from hlod_core.bake.settings import BakeSettings
+    from hlod_core.io import meshes
 
     positions, faces = uv_sphere()
     mesh = meshes.from_arrays(positions, faces, positions.astype(np.float32), name="fuzz_sphere")  # unit normals

@@ -13,10 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from helpers import load_model
 from hlod_core.io import meshes
 from hlod_core.model.appearance import Material
-
-from helpers import load_model
 
 #: Away from the origin: the bake stores positions relative to its own origin.
 SPHERE_CENTER = np.array([3.0, -2.0, 1.0])

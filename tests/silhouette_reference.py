@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hlod_core.traversal.boxes import BOX_EDGES, box_corners
 from hlod_core.model.view import View
+from hlod_core.traversal.boxes import BOX_EDGES, box_corners
 
 _MIN_CLIP_W = 1e-300
 

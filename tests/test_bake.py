@@ -7,15 +7,14 @@ import threading
 import numpy as np
 import pytest
 
+from helpers import load_model
 from hlod_core.bake import checks, hausdorff, lattice, meshlab, simplify
-from hlod_core.core import arrays
-from hlod_core.io import meshes
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.core import arrays
 from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.core.signals import Terminated, deliver_held, signals_as_exceptions, stop_signals_held
-
-from helpers import load_model
+from hlod_core.io import meshes
 
 ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}
 
@@ -106,7 +105,7 @@ def test_normals_are_carried_only_when_given():
     assert np.allclose(np.linalg.norm(with_normals.normals, axis=1), 1.0, atol=1e-3)
 
 
-# --- degenerate input (docs/how-it-works.md#numerical-stability) ---------------------------------------------------------------
+# --- degenerate input (docs/how-it-works.md#numerical-stability) -------------------------------------------------
 
 def test_empty_mesh_is_a_clear_error():
     with pytest.raises(InputError, match="empty-thing: the mesh has no triangles"):

@@ -21,18 +21,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlod_core.io import hlod_file, meshes
+from helpers import numeric_library_env, without_frame_meta
 from hlod_core.bake import lattice, meshlab, seams, simplify
-from hlod_core.core import arrays
-from hlod_core.model.appearance import Material
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.core import arrays
 from hlod_core.core.errors import InputError
+from hlod_core.io import hlod_file, meshes
 from hlod_core.model.hierarchy import node_geometry
-
-from helpers import numeric_library_env, without_frame_meta
-from sample_meshes import SPHERE_CENTER as CENTER, SPHERE_MATERIALS as MATERIALS, SPHERE_TARGET_TRIS as TARGET_TRIS
-from sample_meshes import expected_rgb, expected_uv, sphere as _sphere, textured_sphere
+from sample_meshes import SPHERE_CENTER as CENTER
+from sample_meshes import SPHERE_MATERIALS as MATERIALS
+from sample_meshes import SPHERE_TARGET_TRIS as TARGET_TRIS
+from sample_meshes import expected_rgb, expected_uv, textured_sphere
+from sample_meshes import sphere as _sphere
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -292,7 +293,8 @@ def test_mesh_without_appearance_bakes_the_file_it_baked_before(tmp_path):
             "h = h.replace(meta={**h.meta, 'bake_seconds': 0.0, 'phase_seconds': zero})\n"
             "fileformat.save(h, sys.argv[2])\n")
         subprocess.run([sys.executable, "-c", script, str(tmp_path / "mesh.npz"), str(tmp_path / "old.hlod")],
-                       cwd=old, env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(old), **numeric_library_env()}, check=True)
+                       cwd=old, env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(old), **numeric_library_env()},
+                       check=True)
         resaved = hlod_file.save(hlod_file.load(tmp_path / "old.hlod"), tmp_path / "old-resaved.hlod")
 
 

@@ -16,7 +16,7 @@ import pytest
 from helpers import ROOT
 
 sys.path.insert(0, str(ROOT / "scripts"))
-import build_extension  # noqa: E402
+import build_extension
 
 DEPENDENCIES = {"pymeshlab", "moderngl", "glcontext"}
 

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from helpers import ScriptedAvailability
-from hlod_core.core import jsonutil
-from hlod_core.io import meshes
 from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.model.camera_path import MAX_MAGNITUDE, inspection_path, load_path
+from hlod_core.core import jsonutil
 from hlod_core.core.errors import InputError
+from hlod_core.io import meshes
+from hlod_core.model.camera_path import MAX_MAGNITUDE, inspection_path, load_path
 from hlod_core.render.renderer import Renderer
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings

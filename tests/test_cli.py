@@ -63,7 +63,8 @@ def test_bake_scene_spec_and_info(tmp_path):
     assert summary["input_tris"] == 2 * 5804 + 6320 == summary["leaf_tris"]
     info = last_json(hlod("info", out))
     assert info["checks"] == ALL_TRUE
-    assert {k: info[k] for k in ("nodes", "leaves", "input_tris")} == {k: summary[k] for k in ("nodes", "leaves", "input_tris")}
+    keys = ("nodes", "leaves", "input_tris")
+    assert {k: info[k] for k in keys} == {k: summary[k] for k in keys}
 
 
 def test_several_inputs_merge_into_one_scene(tmp_path):
@@ -89,13 +90,15 @@ def test_default_scene_command(tmp_path):
 
 @pytest.mark.parametrize("make, expect", [
     (lambda d: d / "missing.obj", r"missing\.obj: no such file"),
-    (lambda d: write_text(d / "garbage.obj", "this is not a mesh\n"), r"garbage\.obj: (cannot read mesh|the mesh has no triangles)"),
+    (lambda d: write_text(d / "garbage.obj", "this is not a mesh\n"),
+     r"garbage\.obj: (cannot read mesh|the mesh has no triangles)"),
     (lambda d: write_text(d / "nan.obj", "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n"), r"nan\.obj: 1 of 3 vertices .*NaN"),
     (lambda d: write_text(d / "inf.obj", "v 0 0 0\nv 1 0 0\nv inf 1 0\nv 0 1 0\nf 1 2 3\nf 1 2 4\n"),
      r"inf\.obj: 1 of 4 vertices could not be read"),
     (lambda d: write_text(d / "bad.json", "{not json"), r"bad\.json: scene spec is not valid JSON"),
     (lambda d: write_text(d / "spec.json", json.dumps({"models": [{"path": "x.obj"}]})), r"x\.obj: no such file"),
-    (lambda d: write_text(d / "spec2.json", json.dumps({"models": [{"path": str(model("cow")), "transforms": [[1, 2, 3]]}]})),
+    (lambda d: write_text(d / "spec2.json",
+                          json.dumps({"models": [{"path": str(model("cow")), "transforms": [[1, 2, 3]]}]})),
      r"spec2\.json: models\[0\]\.transforms\[0\] must have 16 numbers"),
     (lambda d: write_text(d / "notes.txt", "hello"), r"notes\.txt: unsupported file type"),
 ])
@@ -153,7 +156,8 @@ def test_run_with_a_path_file_orthographic_and_saved_frames(cow_file, tmp_path):
         {"eye": [0.2, -3, 0.5], "target": [0.2, 0, 0.3], "up": [0, 0, 1]},
         {"eye": [0.3, -3, 0.5], "target": [0.2, 0, 0.3], "up": [0, 0, 1]}]}))
     out = last_json(hlod("-q", "run", cow_file, "--method", "coh", "--bias", "mu", "--alpha", "projected",
-                         "--shift-up", "children", "--path", path, "--save-frames", tmp_path / "frames", "--size", "64x48"))
+                         "--shift-up", "children", "--path", path, "--save-frames", tmp_path / "frames",
+                         "--size", "64x48"))
     assert out["frames"] == 2
     pngs = sorted((tmp_path / "frames").glob("*.png"))
     assert len(pngs) == 2 and pngs[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from hlod_core.bake import cell_seams, meshlab, pieces, prepare, simplify
-from hlod_core.bake.octree import build_octree
 from hlod_core.bake.collapse import OVER_BUDGET_FACTOR
+from hlod_core.bake.octree import build_octree
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.arrays import compact, concat_indexed

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from helpers import street_path
-
 from hlod_core.core.errors import InputError
 from hlod_core.render import cpu_raster
 from hlod_core.render.cpu_occlusion import CpuOcclusion, default_factor, query_renderer
@@ -86,7 +85,8 @@ def test_near_clipping_keeps_the_part_in_front(inside, pieces):
     assert (out[:, :, 2] + out[:, :, 3] >= -1e-12).all()
     if pieces:
         xy = out[:, :, :2]
-        area = (xy[:, 1, 0] - xy[:, 0, 0]) * (xy[:, 2, 1] - xy[:, 0, 1]) - (xy[:, 2, 0] - xy[:, 0, 0]) * (xy[:, 1, 1] - xy[:, 0, 1])
+        area = ((xy[:, 1, 0] - xy[:, 0, 0]) * (xy[:, 2, 1] - xy[:, 0, 1])
+                - (xy[:, 2, 0] - xy[:, 0, 0]) * (xy[:, 1, 1] - xy[:, 0, 1]))
         assert (area > 0).all()  # the original is counter-clockwise in x, y
 
 

@@ -17,15 +17,14 @@ import distributed  # requirements.txt installs it (command line only): its abse
 import numpy as np
 import pytest
 
+import sample_meshes
+from helpers import ROOT, file_bytes, model
 from hlod_core.bake import dask_cluster, tasks
 from hlod_core.bake.partition import MeshSource
 from hlod_core.bake.pipeline import bake, bake_stream
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import BakeCancelled
 from hlod_core.io import hlod_file
-
-import sample_meshes
-from helpers import ROOT, file_bytes, model
 from processes import group_is_gone, hlod, last_json, one_line_error, wait_for
 from sample_meshes import HERD_SPACING
 
@@ -213,7 +212,8 @@ def test_faults_of_the_scheduler_and_scratch_options(cluster, empty_scheduler, t
 
 
 def test_without_dask_the_option_says_what_to_install(tmp_path):
-    line = _refused(tmp_path, "--scheduler", "tcp://127.0.0.1:8786", prelude="import sys; sys.modules['distributed'] = None")
+    line = _refused(tmp_path, "--scheduler", "tcp://127.0.0.1:8786",
+                    prelude="import sys; sys.modules['distributed'] = None")
     assert line == ("hlod_core: error: --scheduler tcp://127.0.0.1:8786: Dask is not installed; it needs the "
                     "dask[distributed] package (pip install -r requirements.txt: a command-line-only dependency)")
 

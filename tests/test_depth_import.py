@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from helpers import street_path
-
 from hlod_core.core.errors import InputError
 from hlod_core.model.view import View, look_at, perspective
 from hlod_core.render.depth_import import check_depth, reduce_depth, wall_depth
@@ -69,7 +68,8 @@ def test_the_scene_depth_is_in_the_depth_buffer_bottom_row_first(gl_ctx, city_hl
         depth = _depth_pattern()
         renderer.set_scene_depth(depth, reduce=factor)
         renderer.begin_frame(street_path(1).view(0, SIZE))
-        held = np.frombuffer(renderer.fbo.read(components=1, attachment=-1, dtype="f4"), np.float32).reshape(SIZE[1], SIZE[0])
+        held = np.frombuffer(renderer.fbo.read(components=1, attachment=-1, dtype="f4"),
+                             np.float32).reshape(SIZE[1], SIZE[0])
         renderer.end_frame()
     finally:
         renderer.release()

@@ -5,8 +5,8 @@ product text speaks of the product, not of its making. Fast: no GL, no bpy."""
 from __future__ import annotations
 
 import ast
-import os
 import importlib.util
+import os
 import re
 import sys
 from pathlib import Path
@@ -156,7 +156,8 @@ def _other_core_options() -> set[str]:
     for path in (ROOT / "hlod_core").rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr == "add_argument":
-                found.update(a.value for a in node.args if isinstance(a, ast.Constant) and str(a.value).startswith("--"))
+                found.update(a.value for a in node.args
+                             if isinstance(a, ast.Constant) and str(a.value).startswith("--"))
     return found
 
 

@@ -24,13 +24,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import load_model, model, numeric_library_env
 from hlod_core.bake import hausdorff
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import InputError
 from hlod_core.io import hlod_file, meshes
-
-from helpers import load_model, model, numeric_library_env
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Small test models (tests/models.py) and node budgets giving trees three to four levels deep in about a second.

@@ -11,19 +11,18 @@ import moderngl
 import numpy as np
 import pytest
 
-from hlod_core.report import evaluate, image_error, per_frame_file
-from hlod_core.io import procedural
-from hlod_core.model.camera_path import inspection_path
-from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.core.errors import InputError
-from hlod_core.render.gl_functions import GL, GLFunctions
-from hlod_core.traversal.settings import RuntimeSettings
-from hlod_core.traversal.stats import COUNTERS
-from hlod_core.model.view import look_at, perspective
-
-from helpers import ROOT
 import report_targets
 from figure_checks import PNG_SIGNATURE, legible
+from helpers import ROOT
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import InputError
+from hlod_core.io import procedural
+from hlod_core.model.camera_path import inspection_path
+from hlod_core.model.view import look_at, perspective
+from hlod_core.render.gl_functions import GL, GLFunctions
+from hlod_core.report import evaluate, image_error, per_frame_file
+from hlod_core.traversal.settings import RuntimeSettings
+from hlod_core.traversal.stats import COUNTERS
 from processes import hlod, last_json, one_line_error
 
 ROW_KEYS = {"fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms",
@@ -229,8 +228,8 @@ def test_redraw_from_the_saved_files(short_run, tmp_path):
     for target, message in ((tmp_path / "none", "report.json: cannot read the evaluation report"),
                             (folder, "per_frame.npz: not an evaluation's per-frame file"),
                             (tmp_path / "bad", "report.json: not an evaluation report (KeyError")):
-        proc = subprocess.run([sys.executable, "-m", "hlod_core.report.evaluate", "--redraw", target], capture_output=True,
-                              text=True, cwd=ROOT)
+        proc = subprocess.run([sys.executable, "-m", "hlod_core.report.evaluate", "--redraw", target],
+                              capture_output=True, text=True, cwd=ROOT)
         assert proc.returncode == 2 and message in one_line_error(proc), proc.stderr
 
 

@@ -13,13 +13,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import ROOT, model, textured_scene
-from hlod_core.io import hlod_file as fileformat, meshes
-from hlod_core.export import glb, tiles3d
-from hlod_core.model.appearance import Material
-from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.model.hierarchy import Hlod, node_geometry
 from blender_runs import blender
+from helpers import ROOT, model, textured_scene
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.export import glb, tiles3d
+from hlod_core.io import hlod_file as fileformat
+from hlod_core.io import meshes
+from hlod_core.model.appearance import Material
+from hlod_core.model.hierarchy import Hlod, node_geometry
 from processes import hlod, last_json, one_line_error
 
 VALIDATORS = ROOT / "tools/validators"
@@ -148,7 +149,7 @@ def test_export_refuses_to_replace_a_foreign_folder(bakes, tmp_path):
 
 
 @pytest.mark.blender
-def test_background_batch_over_blend_files(versioned_repo, tmp_path):  # noqa: F811
+def test_background_batch_over_blend_files(versioned_repo, tmp_path):
     """Two .blend files made here plus a broken one, baked and exported in one background call of
     the installed extension's command (through each Blender's bpy module; the extension enabled
     from its repository, its dependencies from its wheels): the broken one fails alone, the summary
@@ -468,7 +469,7 @@ def test_textured_bake_exported_by_the_command_passes_the_validators(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.blender
-def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_path):  # noqa: F811
+def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_path):
     """The shared textured scene (tests/scenes/textured_scene.py, small) baked from its .blend by the
     installed extension's background command, with 3D Tiles: every GLB valid with its images, the
     root tile textured with TEXCOORD_0 (and COLOR_0: the scene has colour attributes), one image

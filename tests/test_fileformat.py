@@ -13,11 +13,10 @@ import time
 import numpy as np
 import pytest
 
-from hlod_core.io import hlod_file
+from helpers import ROOT
 from hlod_core.core import jsonutil
 from hlod_core.core.errors import FormatError
-
-from helpers import ROOT
+from hlod_core.io import hlod_file
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +103,8 @@ def test_appearance_round_trip_and_its_checks(bunny, tmp_path):
 
     v, t = bunny.positions.shape[0], bunny.indices.shape[0]
     texture = tmp_path / "textures" / "a.png"
-    textured = bunny.replace(uvs=np.asarray(bunny.positions[:, :2], np.float32), colors=np.full((v, 4), 0.5, np.float32),
+    textured = bunny.replace(uvs=np.asarray(bunny.positions[:, :2], np.float32),
+                             colors=np.full((v, 4), 0.5, np.float32),
                              tri_material=(np.arange(t) % 2).astype(np.uint16),
                              materials=(Material("A", (1, 0, 0, 1), texture=str(texture)), Material("B")))
     path = hlod_file.save(textured, tmp_path / "t.hlod")

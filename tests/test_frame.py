@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from helpers import file_bytes
 from hlod_core.bake import frame as frames
 from hlod_core.bake import prepare
 from hlod_core.bake.frame import Frame, Prior
@@ -17,11 +18,9 @@ from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import InputError
 from hlod_core.io import hlod_file, meshes
-
-from helpers import file_bytes
 from processes import hlod, last_json, one_line_error
-from sample_meshes import HERD_SPACING, herd_cow
 from rebuilt_nodes import Counted, dfs_ranges, inner_count, subtree_signatures
+from sample_meshes import HERD_SPACING, herd_cow
 
 YARD = BakeSettings(target_tris=600)
 GRID = [np.array([HERD_SPACING * (k % 3), HERD_SPACING * (k // 3), 0.0]) for k in range(9)]

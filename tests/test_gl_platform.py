@@ -22,12 +22,10 @@ import numpy as np
 import pytest
 
 from helpers import ROOT
-from processes import hlod, one_line_error
-
 from hlod_core.core.errors import GLUnavailable
 from hlod_core.render import gl_platform
 from hlod_core.render.gl_platform import current, keep_current, native_standalone, standalone_context
-
+from processes import hlod, one_line_error
 
 # --- Linux, for real -------------------------------------------------------------------------------
 
@@ -202,10 +200,10 @@ class _FakeWGL:
     def wglGetCurrentContext(self):  # noqa: N802 - the DLL's names
         return self.context
 
-    def wglGetCurrentDC(self):  # noqa: N802
+    def wglGetCurrentDC(self):  # noqa: N802 - the DLL's names
         return self.dc
 
-    def wglMakeCurrent(self, dc, context):  # noqa: N802
+    def wglMakeCurrent(self, dc, context):  # noqa: N802 - the DLL's names
         self.calls.append((dc, context))
         self.dc, self.context = dc, context
         return 1
@@ -220,7 +218,7 @@ class _FakeCGL:
     def CGLGetCurrentContext(self):  # noqa: N802 - the framework's names
         return self.context
 
-    def CGLSetCurrentContext(self, context):  # noqa: N802
+    def CGLSetCurrentContext(self, context):  # noqa: N802 - the framework's names
         self.calls.append(context)
         self.context = context
         return 0

@@ -12,13 +12,12 @@ import numpy as np
 import pymeshlab
 import pytest
 
-from hlod_core.bake import checks
-from hlod_core.io import meshes, obj
-from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.core.errors import InputError
-
 import models
 from helpers import ROOT, SCENES, load_model, model
+from hlod_core.bake import checks
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import InputError
+from hlod_core.io import meshes, obj
 from models import OBJ_ROLES
 
 ALL_TRUE = {"leaf_tris_equal_input": True, "nested_bounds": True, "monotone_error": True, "leaf_budget": True}

@@ -9,14 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from helpers import load_model
 from hlod_core.bake import hausdorff, tasks
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
-
-from helpers import load_model
 from sample_meshes import herd_cow
-
 
 #: The herd: 16 cows (sample_meshes.herd_cow: 10 units long) 12 units apart on a 4 x 4 grid, one mesh of about 93k
 #: triangles. Its root's LOD (600 triangles) is far coarser than a cow, the case of the crowd's

@@ -5,10 +5,9 @@ import warnings
 import numpy as np
 import pytest
 
-from hlod_core.traversal import alpha_estimators, boxes, metrics
 from hlod_core.core import colour
 from hlod_core.model.view import View, look_at, orthographic, perspective
-
+from hlod_core.traversal import alpha_estimators, boxes, metrics
 from silhouette_reference import silhouette_pixels
 
 MU = np.linspace(0.0, 1.0, 2001)
@@ -103,13 +102,14 @@ def test_sse_perspective_exact():
     v = _view(size=(640, 480), fovy=90.0)  # P11 = 1/tan(45 deg) = 1
     centre, radius = np.array([[0.0, 0.0, 0.0]]), np.array([2.0])
     # d = 10 - 2 = 8; SSE = 0.5 * (480/2) * 1 / 8 = 15 px
-    assert metrics.sse(v, np.array([0.5]), center=centre, radius=radius, is_leaf=np.array([False]))[0] == pytest.approx(15.0)
+    out = metrics.sse(v, np.array([0.5]), center=centre, radius=radius, is_leaf=np.array([False]))
+    assert out[0] == pytest.approx(15.0)
 
 
 def test_sse_orthographic_exact_and_distance_free():
     v = _view(ortho=20.0)  # P11 = 2/20; SSE = MSE * 240 * 0.1
-    out = metrics.sse(v, np.array([0.5, 0.5]), center=np.array([[0, 0, 0], [0, 0, -500.0]]), radius=np.array([1.0, 1.0]),
-                      is_leaf=np.array([False, False]))
+    out = metrics.sse(v, np.array([0.5, 0.5]), center=np.array([[0, 0, 0], [0, 0, -500.0]]),
+                      radius=np.array([1.0, 1.0]), is_leaf=np.array([False, False]))
     assert out.tolist() == pytest.approx([12.0, 12.0])
 
 
@@ -122,14 +122,16 @@ def test_eye_inside_sphere_refines_and_leaves_are_zero_not_nan():
 
 def test_eye_on_sphere_surface_refines():
     v = _view(eye=(0, 0, 1.0))
-    assert metrics.sse(v, np.array([1e-9]), center=np.zeros((1, 3)), radius=np.array([1.0]), is_leaf=np.array([False]))[0] == np.inf
+    out = metrics.sse(v, np.array([1e-9]), center=np.zeros((1, 3)), radius=np.array([1.0]),
+                      is_leaf=np.array([False]))
+    assert out[0] == np.inf
 
 
 @pytest.mark.parametrize("size", [(1, 1), (7680, 4320)])
 def test_extreme_viewports_give_finite_sse(size):
     v = _view(size=size)
-    out = metrics.sse(v, np.array([1e-4, 1e5]), center=np.array([[0, 0, 0], [0, 0, -1e5]]), radius=np.array([1e-4, 1.0]),
-                      is_leaf=np.array([False, False]))
+    out = metrics.sse(v, np.array([1e-4, 1e5]), center=np.array([[0, 0, 0], [0, 0, -1e5]]),
+                      radius=np.array([1e-4, 1.0]), is_leaf=np.array([False, False]))
     assert np.all(np.isfinite(out)) and np.all(out > 0)
 
 
@@ -144,8 +146,8 @@ def test_scene_at_1e6_and_extreme_near_far():
 
 def test_nodes_at_1e_minus_4_and_1e5_units():
     v = _view(eye=(0, 0, 1e-3), near=1e-4, far=1e6)
-    out = metrics.sse(v, np.array([1e-6, 1e3]), center=np.array([[0, 0, 0], [0, 0, -1e5]]), radius=np.array([1e-4, 1e4]),
-                      is_leaf=np.array([False, False]))
+    out = metrics.sse(v, np.array([1e-6, 1e3]), center=np.array([[0, 0, 0], [0, 0, -1e5]]),
+                      radius=np.array([1e-4, 1e4]), is_leaf=np.array([False, False]))
     assert np.all(np.isfinite(out)) and np.all(out > 0)
 
 
@@ -238,7 +240,8 @@ def test_projected_alpha_of_a_face_on_square():
 
 def test_projected_alpha_clips_to_the_viewport_and_handles_the_near_plane():
     v = _view(eye=(0, 0, 0.5), size=(64, 48))  # eye inside the box: covers the whole viewport
-    assert alpha_estimators.alpha_projected(v, np.array([-1, -1, -1.0]), np.array([1, 1, 1.0])) == pytest.approx(64 * 48)
+    inside = alpha_estimators.alpha_projected(v, np.array([-1, -1, -1.0]), np.array([1, 1, 1.0]))
+    assert inside == pytest.approx(64 * 48)
     behind = alpha_estimators.alpha_projected(v, np.array([-1, -1, 5.0]), np.array([1, 1, 6.0]))
     assert behind == 0.0
 
@@ -271,7 +274,8 @@ def test_cube_alpha_formula_and_eye_at_centre():
     v = _view(eye=(0, 0, 10), fovy=90.0, size=(480, 480))
     lo, hi = np.array([[-1, -1, -1.0]]), np.array([[1, 1, 1.0]])
     # side 2 at d = 10: (2 * 240 / 10)^2
-    assert alpha_estimators.alpha_cube(v, np.array([2.0]), box_min=lo, box_max=hi)[0] == pytest.approx((2 * 240 / 10) ** 2)
+    cube = alpha_estimators.alpha_cube(v, np.array([2.0]), box_min=lo, box_max=hi)
+    assert cube[0] == pytest.approx((2 * 240 / 10) ** 2)
     at_centre = _view(eye=(0, 0, 0), target=(0, 0, -1), fovy=90.0)
     assert alpha_estimators.alpha_cube(at_centre, np.array([2.0]), box_min=lo, box_max=hi)[0] == np.inf
 

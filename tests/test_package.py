@@ -15,7 +15,6 @@ import socket
 import subprocess
 import sys
 import sysconfig
-import time
 from pathlib import Path
 
 import pytest
@@ -87,7 +86,8 @@ def _wait_for_workers(python: Path, address: str, workers: int, *, env: dict, cw
 @pytest.mark.slow
 def test_the_installed_core_bakes_on_a_cluster_started_as_the_docs_say(tmp_path):
     bin_dir = _venv_with_the_package(tmp_path / "venv")
-    installed = subprocess.run([str(bin_dir / "python"), "-c", "import importlib.metadata as m; print(m.version('hlod-core'))"],
+    installed = subprocess.run([str(bin_dir / "python"), "-c",
+                                "import importlib.metadata as m; print(m.version('hlod-core'))"],
                                capture_output=True, text=True, check=True, env=_outside_env(), cwd=tmp_path)
     assert installed.stdout.strip() == _version_in_one_place()
     python, env, away = bin_dir / "python", _outside_env(), tmp_path / "elsewhere"
@@ -116,7 +116,8 @@ def test_the_installed_core_bakes_on_a_cluster_started_as_the_docs_say(tmp_path)
         scratch.mkdir()
         on_cluster, local = tmp_path / "cluster.hlod", tmp_path / "local.hlod"
         baked = subprocess.run([str(bin_dir / "hlod-core"), "-q", "bake", str(model("cow")), "-o", str(on_cluster),
-                                "--target-tris", "400", "--no-cache", "--scheduler", address, "--scratch", str(scratch)],
+                                "--target-tris", "400", "--no-cache", "--scheduler", address,
+                                "--scratch", str(scratch)],
                                capture_output=True, text=True, env=env, cwd=away, timeout=600)
         assert baked.returncode == 0, baked.stderr[-3000:]
         summary = json.loads(baked.stdout.strip().splitlines()[-1])

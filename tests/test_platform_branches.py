@@ -27,8 +27,6 @@ import numpy as np
 import pytest
 
 from helpers import ROOT, model
-from processes import hlod, last_json
-
 from hlod_core.bake import child
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.core import atomic, process_tree
@@ -37,6 +35,7 @@ from hlod_core.core.png import write_png
 from hlod_core.core.signals import Terminated, signals_as_exceptions
 from hlod_core.export import viewer
 from hlod_core.io import hlod_file, procedural
+from processes import hlod, last_json
 
 # --- the bake's process tree ------------------------------------------------------------------------
 

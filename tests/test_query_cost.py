@@ -7,10 +7,11 @@ what they skip never depends on the machine's load."""
 import numpy as np
 import pytest
 
+from helpers import ScriptedAvailability, street_path
 from hlod_core.core.errors import InputError
 from hlod_core.model.camera_path import CameraPath
-from hlod_core.render import calibration
 from hlod_core.model.view import View, look_at, orthographic, perspective
+from hlod_core.render import calibration
 from hlod_core.render.gl_functions import GLFunctions
 from hlod_core.render.renderer import Renderer
 from hlod_core.traversal import alpha_estimators, query_cost
@@ -19,8 +20,6 @@ from hlod_core.traversal.methods import METHODS, make
 from hlod_core.traversal.protocol import STOP
 from hlod_core.traversal.query_cost import CostModel, LinearCost, fit_linear
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import ScriptedAvailability, street_path
 
 SIZE = (320, 240)
 #: Results this many issued commands late (the latency of a GPU behind the CPU).
@@ -321,7 +320,8 @@ def test_the_change_rate_is_the_mean_of_its_results_until_its_weight_takes_over(
     mean of that weight: its start counts only until the first result. Through `queried` and the
     walk: on a static view nothing changes, so after the first frames with STOP results it is 0,
     where a start of 1 decaying by 1/64 a result would still hold it above 0.1."""
-    traversal = make("coh", city_renderer.hlod, _lagged(city_renderer), settings=RuntimeSettings(skip_queries="expected"))
+    traversal = make("coh", city_renderer.hlod, _lagged(city_renderer),
+                     settings=RuntimeSettings(skip_queries="expected"))
     skips = traversal.skips
     assert skips.change_rate == 1.0
     results = [True, False, False, True, False] + [False] * 100

@@ -5,8 +5,8 @@ import ctypes
 import hashlib
 import importlib.util
 import logging
-import subprocess
 import os
+import subprocess
 import sys
 
 import moderngl
@@ -14,21 +14,20 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from helpers import ROOT, ScriptedAvailability
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp, srgb_from_linear, srgb_to_linear
+from hlod_core.core.errors import InputError
 from hlod_core.io import hlod_file, meshes, textures
 from hlod_core.model import view as viewmod
 from hlod_core.model.appearance import Material
-from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.core.errors import InputError
+from hlod_core.model.view import View
 from hlod_core.render.gl_functions import GL, GLFunctions
-from hlod_core.report.image_error import psnr
-from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp, srgb_from_linear, srgb_to_linear
 from hlod_core.render.materials import TEXTURE_UNIT
 from hlod_core.render.renderer import Renderer
+from hlod_core.report.image_error import psnr
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
-from hlod_core.model.view import View
-
-from helpers import ROOT, ScriptedAvailability
 
 SIZE = (320, 240)
 #: 8-bit levels a drawn colour may differ from the expected one (float rounding in the shader and
@@ -117,7 +116,8 @@ def _with_appearance(hlod, *, materials, tri_material=None, uv=False, colors=Non
 def _front_view(size=SIZE) -> View:
     eye = np.array([0.0, 0.0, 3.0])
     return View(eye=eye, view=viewmod.look_at(eye, [0, 0, 0], [0, 1, 0]),
-                projection=viewmod.perspective(45.0, size[0] / size[1], near=0.1, far=10.0), width=size[0], height=size[1])
+                projection=viewmod.perspective(45.0, size[0] / size[1], near=0.1, far=10.0),
+                width=size[0], height=size[1])
 
 
 def _pixel(image: np.ndarray, view: View, point: tuple[float, float], *, radius: int = 3) -> np.ndarray:

@@ -11,9 +11,9 @@ import pytest
 
 from figure_checks import PNG_SIGNATURE, drawn_texts, legible
 from helpers import ROOT, SCENES
-from hlod_core.report import evaluate, figure_style, figures, html_page, per_frame_figure
-from hlod_core.model.camera_path import load_path, path_from_json
 from hlod_core.core.errors import InputError
+from hlod_core.model.camera_path import load_path, path_from_json
+from hlod_core.report import evaluate, figure_style, figures, html_page, per_frame_figure
 from hlod_core.traversal.stats import COUNTERS
 
 COMMITTED = ROOT / "docs" / "evaluation"

@@ -22,12 +22,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from hlod_core.cli import main as cli
-from hlod_core.io import hlod_file, meshes
-from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.core.errors import InputError
-
 from helpers import ROOT, model, textured_scene
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.cli import main as cli
+from hlod_core.core.errors import InputError
+from hlod_core.io import hlod_file, meshes
 
 #: Positions agree to float32 precision of the files (coordinates up to 40 units).
 POSITION_TOL = 1e-4

@@ -15,14 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hlod_core.cli import main as cli
+from helpers import ROOT, file_bytes, model
 from hlod_core.bake import octree, partition
 from hlod_core.bake.pipeline import bake, bake_stream
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.cli import main as cli
 from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.io import hlod_file, meshes
-
-from helpers import ROOT, file_bytes, model
 
 
 def _transform(scale, x, y, *, z=0.0, turn_deg=0.0, mirror=False) -> list[float]:
@@ -179,7 +178,8 @@ with partition.Partition(source, scratch_dir=scratch, chunk_tris=chunk) as part:
         read.append([int(faces.shape[0]), int(layout.tri_end[leaf] - layout.tri_begin[leaf]),
                      int(faces.max()) < positions.shape[0]])
     reads = {int(leaf): int(n) for leaf, n in part.stats.leaf_reads.items()}
-    print(json.dumps({"tris": int(scan.tri_count), "peak": int(peak), "largest_piece": int(part.stats.largest_piece_tris),
+    print(json.dumps({"tris": int(scan.tri_count), "peak": int(peak),
+                      "largest_piece": int(part.stats.largest_piece_tris),
                       "files": files, "cells": sorted(f"cell-{leaf}.bin" for leaf in leaves), "read": read,
                       "reads_are_the_cells": reads == {int(leaf): int(tree.tri_count[leaf]) for leaf in leaves},
                       "reads": sum(reads.values()), "folder": str(part.folder)}))
@@ -193,9 +193,8 @@ def test_the_partition_holds_no_array_of_every_triangle(tmp_path):
     file, exactly its triangles, and together the leaves read every triangle once. Measured in a
     process of its own (PARTITION_MEMORY): a third of the bound (120 cows, 4,096 at a time: 0.6)."""
     spec = tmp_path / "herd.json"
-    spec.write_text(json.dumps({"models": [{"path": str(model("cow")),
-                                            "transforms": [_transform(1, 1.2 * (k % 12), 1.2 * (k // 12), turn_deg=17 * k)
-                                                           for k in range(60)]}]}))
+    transforms = [_transform(1, 1.2 * (k % 12), 1.2 * (k // 12), turn_deg=17 * k) for k in range(60)]
+    spec.write_text(json.dumps({"models": [{"path": str(model("cow")), "transforms": transforms}]}))
     chunk = 2048
     proc = subprocess.run([sys.executable, "-c", PARTITION_MEMORY, str(spec), str(tmp_path), str(chunk)], cwd=ROOT,
                           capture_output=True, text=True, timeout=600)

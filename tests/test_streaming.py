@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from helpers import ScriptedAvailability
 from hlod_core.core.errors import InputError
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.render.renderer import Renderer
@@ -15,8 +16,6 @@ from hlod_core.render.residency import Residency, StreamingSettings
 from hlod_core.render.streamed_geometry import node_bytes
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import ScriptedAvailability
 
 SIZE = (320, 240)
 FRAMES = 30
@@ -132,7 +131,8 @@ def test_budget_larger_than_the_file_draws_todays_frames(gl_ctx, city_hlod, path
     whole = _file_bytes(city_hlod)
     for method, lag in (("vfc", None), ("sw", None), ("coh", LAG)):
         unlimited, _ = _run(gl_ctx, city_hlod, method, path, lag=lag)
-        budgeted, _ = _run(gl_ctx, city_hlod, method, path, streaming=StreamingSettings(budget_bytes=2 * whole), lag=lag)
+        budgeted, _ = _run(gl_ctx, city_hlod, method, path, streaming=StreamingSettings(budget_bytes=2 * whole),
+                           lag=lag)
         for (a, pixels_a, _), (b, pixels_b, resident) in zip(unlimited, budgeted):
             assert (a.dn, a.tris, a.queries, a.traversed, a.drawn) == (b.dn, b.tris, b.queries, b.traversed, b.drawn)
             assert np.array_equal(pixels_a, pixels_b), method

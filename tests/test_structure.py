@@ -502,7 +502,8 @@ def test_the_graph_sees_known_edges(graph):
         "tests.test_x: hlod_core.bake.pipeline._v (a string)"])
     # inside one room a module may use its neighbours' private names
     assert private_uses("hlod_core.bake.cache", ROOT / "hlod_core/bake/cache.py", sample, known) == sorted([
-        "hlod_core.bake.cache: from hlod_core.io.hlod_file import _x", "hlod_core.bake.cache: hlod_core.model.hierarchy._z"])
+        "hlod_core.bake.cache: from hlod_core.io.hlod_file import _x",
+        "hlod_core.bake.cache: hlod_core.model.hierarchy._z"])
 
 
 @pytest.mark.slow

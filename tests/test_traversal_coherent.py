@@ -9,14 +9,13 @@ the real renderer's own availability say so."""
 import numpy as np
 import pytest
 
+from helpers import ScriptedAvailability, street_path
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.io import meshes, procedural
 from hlod_core.model.camera_path import CameraPath
 from hlod_core.render.renderer import Renderer
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import ScriptedAvailability, street_path
 from traversal_runs import LAG, LLVMPIPE_COSTS, SIZE, Scripted, ScriptedLatency, frames_of
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context
@@ -92,7 +91,8 @@ def test_skip_candidates_are_the_nodes_visited_and_visible_last_frame(city_rende
     """The skip test's candidates are exactly the nodes visited in the last frame and visible at
     its end, in the frustum and queryable this frame (read from the walk's visited list, not the
     node table); a node visible from an earlier frame but not visited last frame is not one."""
-    methods = make("coh", city_renderer.hlod, Scripted(city_renderer), settings=RuntimeSettings(skip_queries="expected"))
+    methods = make("coh", city_renderer.hlod, Scripted(city_renderer),
+                   settings=RuntimeSettings(skip_queries="expected"))
     path = street_path(12)
     stale = 0
     for i in range(len(path)):
@@ -115,11 +115,13 @@ def sphere_row():
     triangle each, at opposite corners of the cube around the row and out of every view, centre the
     root cube (its lowest corner is the centroids' box's) on the row, so the first octants split every
     sphere through its centre: the half-hidden nodes the tests below need."""
-    spheres = [meshes.TriangleMesh(*procedural.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, segments=48, rings=32), name=f"sphere {i}")
+    spheres = [meshes.TriangleMesh(*procedural.uv_sphere([12.0 * i, 0.0, 0.0], 5.0, segments=48, rings=32),
+                                   name=f"sphere {i}")
                for i in range(5)]
     for i, corner in enumerate(([-5.0, -29.0, -29.0], [53.0, 29.0, 29.0])):
         speck = np.asarray(corner) + np.array([[0.0, 0.0, 0.0], [0.01, 0.0, 0.0], [0.0, 0.01, 0.0]])
-        spheres.append(meshes.TriangleMesh(speck.astype(np.float32), np.array([[0, 1, 2]], np.int32), name=f"speck {i}"))
+        spheres.append(meshes.TriangleMesh(speck.astype(np.float32), np.array([[0, 1, 2]], np.int32),
+                                           name=f"speck {i}"))
     return bake(meshes.merge(spheres, name="sphere row"), BakeSettings(target_tris=400))
 
 

@@ -9,13 +9,12 @@ the real renderer's own availability say so."""
 import numpy as np
 import pytest
 
+from helpers import street_path
 from hlod_core.core.errors import InputError
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.render.renderer import Renderer
 from hlod_core.traversal.methods import METHODS, make
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import street_path
 from traversal_runs import SIZE, Scripted
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context

@@ -6,11 +6,10 @@ import time
 import numpy as np
 import pytest
 
-from hlod_core.traversal.settings import RuntimeSettings
-
 import dn_classes
 import traversal_timing
 from helpers import street_path
+from hlod_core.traversal.settings import RuntimeSettings
 from traversal_runs import SIZE, ScriptedLatency
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context
@@ -29,7 +28,8 @@ def test_dn_excess_classifies_each_extra_node_once():
     visited[[0, 1, 2, 5, 6]] = True
     visible = visited.copy()
     visible[6] = False
-    got = dn_classes.classify(parent, coh_drawn=[3, 6, 2, 7, 8], sw_drawn=[1, 5], sw_visited=visited, sw_visible=visible)
+    got = dn_classes.classify(parent, coh_drawn=[3, 6, 2, 7, 8], sw_drawn=[1, 5], sw_visited=visited,
+                              sw_visible=visible)
     assert got == {"finer": 1, "hidden": 1, "coarser": 1, "under hidden": 1, "other": 1, "missing": 2}
 
 

@@ -13,6 +13,7 @@ import sys
 import numpy as np
 import pytest
 
+from helpers import load_model, street_path
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.io import meshes
 from hlod_core.model.camera_path import CameraPath, inspection_path
@@ -20,8 +21,6 @@ from hlod_core.render.renderer import Renderer
 from hlod_core.traversal import alpha_estimators, boxes, metrics
 from hlod_core.traversal.methods import METHODS, make
 from hlod_core.traversal.stats import COUNTERS, DEPTH_COUNTERS, QUERY_COUNTERS, STREAM_COUNTERS, FrameStats
-
-from helpers import load_model, street_path
 from traversal_runs import SIZE, Scripted, ScriptedLatency, frames_of
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context

@@ -9,11 +9,10 @@ the real renderer's own availability say so."""
 import numpy as np
 import pytest
 
+from helpers import street_path
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import street_path
 from traversal_runs import LAG, SIZE, Scripted
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context

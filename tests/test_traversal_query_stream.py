@@ -10,12 +10,11 @@ import math
 import numpy as np
 import pytest
 
+from helpers import street_path
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.query_stream import keep_hidden, multiquery_groups
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import street_path
 from traversal_runs import LAG, SIZE, Scripted
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context
@@ -124,7 +123,8 @@ def test_multiqueries_change_nothing_where_results_come_back_at_once(city_render
     counters, as without the option (no multiquery is ever issued)."""
     hlod = city_renderer.hlod
     paths = (street_path(20), inspection_path(hlod, seed=11, frames=28))
-    runs = [_scripted_run(city_renderer, method, settings=RuntimeSettings(multiquery=m, batch_queries="off"), paths=paths, lag=0)
+    runs = [_scripted_run(city_renderer, method, settings=RuntimeSettings(multiquery=m, batch_queries="off"),
+                          paths=paths, lag=0)
             for m in ("off", "on")]
     (off, off_stats), (on, on_stats) = runs
     assert on.calls == off.calls
@@ -142,7 +142,8 @@ def test_multiqueries_query_less_where_nodes_stay_hidden_and_show_what_appears(c
     hlod = city_renderer.hlod
     paths = (street_path(30),)
     (off, off_stats), (on, on_stats) = (
-        _scripted_run(city_renderer, method, settings=RuntimeSettings(multiquery=m, batch_queries="off"), paths=paths, lag=LAG)
+        _scripted_run(city_renderer, method, settings=RuntimeSettings(multiquery=m, batch_queries="off"),
+                      paths=paths, lag=LAG)
         for m in ("off", "on"))
     q_off, q_on = (sum(s.queries for s in stats) for stats in (off_stats, on_stats))
     assert sum(s.multiqueries for s in on_stats) > 0
@@ -164,7 +165,8 @@ def test_batched_queries_change_state_less_and_query_the_same_nodes(city_rendere
     hlod = city_renderer.hlod
     paths = (street_path(20), inspection_path(hlod, seed=11, frames=28))
     (off, off_stats), (on, on_stats) = (
-        _scripted_run(city_renderer, "coh", settings=RuntimeSettings(batch_queries=m, multiquery="off", skip_queries="off"),
+        _scripted_run(city_renderer, "coh",
+                      settings=RuntimeSettings(batch_queries=m, multiquery="off", skip_queries="off"),
                       paths=paths, lag=lag)
         for m in ("off", "on"))
     changes_off, changes_on = (sum(s.state_changes for s in stats) for stats in (off_stats, on_stats))

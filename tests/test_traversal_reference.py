@@ -9,6 +9,7 @@ from collections import deque
 import numpy as np
 import pytest
 
+from helpers import ScriptedAvailability, street_path
 from hlod_core.model.camera_path import inspection_path
 from hlod_core.traversal import boxes
 from hlod_core.traversal.base import NEVER_FRAME
@@ -16,16 +17,14 @@ from hlod_core.traversal.methods import make
 from hlod_core.traversal.protocol import DELAY, MEASURE_RATIO, PREDICTED, REFINE, STOP
 from hlod_core.traversal.settings import RuntimeSettings
 from hlod_core.traversal.stats import COUNTERS, FrameStats
-
-from helpers import ScriptedAvailability, street_path
 from traversal_runs import SIZE
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context
 
 
 class _ReferenceTraversal:
-    """The traversals of docs/how-it-works.md#the-traversal-methods written plainly, without the library's speed-ups: per-node
-    state in numpy arrays read one scalar at a time, the frame's box tests and SSE by the textbook
+    """The traversals of docs/how-it-works.md#the-traversal-methods written plainly, without the library's speed-ups:
+    per-node state in numpy arrays read one scalar at a time, the frame's box tests and SSE by the textbook
     (n,3) formulas, one helper call per step, every child pushed and the ones outside the frustum
     dropped when popped. Methods vfc, sw, bool, simp, coh (both shift-ups, predict_new on and off);
     skip_queries off, alpha "query". The library must do exactly what this does."""
@@ -262,7 +261,8 @@ def test_every_method_does_exactly_what_the_plain_reference_does(city_renderer, 
     variants = [(m, plain) for m in ("vfc", "sw", "bool", "simp", "coh")] + [
         ("coh", dataclasses.replace(plain, shift_up="children")), ("coh", dataclasses.replace(plain, bias="mu")),
         ("simp", dataclasses.replace(plain, bias="mu")), ("sw", dataclasses.replace(plain, s=0.6, t=0.2, k=30.0)),
-        ("coh", dataclasses.replace(plain, s=0.6, t=0.2, k=30.0)), ("coh", dataclasses.replace(plain, predict_new="off"))]
+        ("coh", dataclasses.replace(plain, s=0.6, t=0.2, k=30.0)),
+        ("coh", dataclasses.replace(plain, predict_new="off"))]
     variants = [(method, settings, 0.9) for method, settings in variants] + [("coh", plain, 0.0)]  # gate open too
     compared = {"rarn": 0, "d": 0, "queries": 0, "not_yet": 0, "predicted": 0}
 
@@ -297,4 +297,5 @@ def test_every_method_does_exactly_what_the_plain_reference_does(city_renderer, 
         compared["predicted"] += sum(f[-1] for f in frames)
     # the paths drew nodes that then refined, waited for results, queried, predicted new nodes
     # visible; with a lag, results were late
-    assert all(compared[c] for c in ("rarn", "d", "queries", "predicted")) and (compared["not_yet"] > 0) == (lag > 0), compared
+    assert all(compared[c] for c in ("rarn", "d", "queries", "predicted")), compared
+    assert (compared["not_yet"] > 0) == (lag > 0), compared

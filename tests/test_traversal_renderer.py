@@ -12,6 +12,7 @@ import moderngl
 import numpy as np
 import pytest
 
+from helpers import street_path
 from hlod_core.core import colour as overlay
 from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp
 from hlod_core.render.gl_functions import GL, GLFunctions
@@ -20,8 +21,6 @@ from hlod_core.render.renderer import DEFAULT_COLOUR, Renderer
 from hlod_core.traversal import metrics
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import street_path
 from traversal_runs import SIZE, Scripted, frames_of
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context

@@ -13,15 +13,14 @@ from dataclasses import replace
 
 import pytest
 
-from hlod_core.cli import main as cli
-from hlod_core.io import hlod_file, procedural
-from hlod_core.report import tuning
-from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.model.camera_path import inspection_path
-from hlod_core.core.errors import InputError
-from hlod_core.traversal.settings import RuntimeSettings
-
 from figure_checks import PNG_SIGNATURE
+from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.cli import main as cli
+from hlod_core.core.errors import InputError
+from hlod_core.io import hlod_file, procedural
+from hlod_core.model.camera_path import inspection_path
+from hlod_core.report import tuning
+from hlod_core.traversal.settings import RuntimeSettings
 from processes import hlod, last_json, one_line_error
 
 FRAMES, SIZE = 10, (320, 240)
@@ -129,8 +128,8 @@ def test_unreachable_target_gives_the_most_conservative_setting(downtown, tmp_pa
     P of all (s, t), reported as such. With the logistic (k = 10) no setting draws Bool's image
     exactly, so 100 dB (identical at every PSNR frame) is above them all."""
     _, baked, path = downtown
-    report = tuning.tune(baked, path, SIZE, target_db=100.0, settings=replace(QUERY_EVERY_NODE, k=10.0), out_dir=tmp_path,
-                         psnr_frames=FRAMES, figures=False)
+    report = tuning.tune(baked, path, SIZE, target_db=100.0, settings=replace(QUERY_EVERY_NODE, k=10.0),
+                         out_dir=tmp_path, psnr_frames=FRAMES, figures=False)
     p = report["psnr_target"]
     assert max(x["psnr_y"] for x in p["candidates"]) < 100.0, "a candidate equals Bool: the fallback is not reached"
     assert not p["met"] and (p["chosen"]["s"], p["chosen"]["t"]) == tuning.MOST_CONSERVATIVE

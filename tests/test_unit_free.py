@@ -6,13 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from helpers import load_model
 from hlod_core.bake import lattice
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
 from hlod_core.model.hierarchy import node_geometry
-
-from helpers import load_model
 
 SCALES = (1e-3, 1.0, 1e3)
 

@@ -4,25 +4,23 @@ WebGL through SwiftShader, CesiumJS from tools/viewer's npm install, loading an 
 default city."""
 from __future__ import annotations
 
-import http.client
 import contextlib
+import http.client
 import json
 import os
 import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from hlod_core.export import tiles3d, viewer
-from hlod_core.core.errors import InputError
-
 from helpers import ROOT, textured_scene
+from hlod_core.core.errors import InputError
+from hlod_core.export import tiles3d, viewer
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
@@ -245,7 +243,10 @@ def test_colour_by_depth_and_boxes_change_the_picture(page, tmp_path):
     page.locator("#boxes").uncheck()
     _wait_drawn(page)
     again = _picture(page, tmp_path, "again")
-    changed = lambda a, b: float(np.mean(np.abs(a - b).max(axis=2) > BACKGROUND_TOLERANCE))  # noqa: E731
+
+    def changed(a, b):
+        return float(np.mean(np.abs(a - b).max(axis=2) > BACKGROUND_TOLERANCE))
+
     # the city's grey turns to the depth palette's hues: a picture of several saturated colours
     saturation = coloured.max(axis=2) - coloured.min(axis=2)
     assert changed(plain, coloured) > 0.5 * _geometry_share(plain) and np.mean(saturation > 60) > 0.1

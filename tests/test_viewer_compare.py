@@ -93,6 +93,7 @@ def test_the_vfc_nodes_compared_are_those_the_gl_renderer_draws(terrain):
         for make_camera in cc.scene_setups()["terrain"][2].values():
             camera = make_camera((800, 600))
             for tau in TAUS_PX:
-                assert cc.vfc_nodes(hlod, camera, tau_px=tau, renderer=renderer) == cc.vfc_nodes(hlod, camera, tau_px=tau)
+                on_gpu = cc.vfc_nodes(hlod, camera, tau_px=tau, renderer=renderer)
+                assert on_gpu == cc.vfc_nodes(hlod, camera, tau_px=tau)
     finally:
         renderer.release()

@@ -3,11 +3,10 @@ query latency and the fixed cost model that make what a traversal does independe
 threads and the machine's load, and a run of one method over a camera path."""
 from __future__ import annotations
 
+from helpers import ScriptedAvailability
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.query_cost import CostModel, LinearCost
 from hlod_core.traversal.settings import RuntimeSettings
-
-from helpers import ScriptedAvailability
 
 SIZE = (320, 240)
 #: Results this many issued commands late (the latency of a GPU behind the CPU).

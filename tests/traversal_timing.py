@@ -19,11 +19,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from hlod_core.io.textures import load_images
 from hlod_core.model.camera_path import CameraPath
 from hlod_core.model.hierarchy import Hlod, query_box_pad
 from hlod_core.render.queries import Query
 from hlod_core.render.renderer import Renderer
-from hlod_core.io.textures import load_images
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
 

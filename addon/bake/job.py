@@ -190,7 +190,8 @@ class BakeJob:
 
     def status_line(self) -> str:
         done, total, phase = self.progress
-        return f"HLOD bake ({self.jobs} job{'s' if self.jobs > 1 else ''}): {phase} {done}/{total} nodes ({self.percent:.0f}%)"
+        jobs = f"{self.jobs} job{'s' if self.jobs > 1 else ''}"
+        return f"HLOD bake ({jobs}): {phase} {done}/{total} nodes ({self.percent:.0f}%)"
 
     # --- threads ------------------------------------------------------------------------------
 
@@ -221,7 +222,7 @@ class BakeJob:
             for reader in self._readers:
                 reader.join(timeout=2.0)
             self._collect(returncode)
-        except BaseException as exc:  # noqa: BLE001 - reported through `error`, never lost in a thread
+        except BaseException as exc:  # reported through `error`, never lost in a thread
             log.exception("HLOD bake watcher failed")
             self.error = self.error or exc
         finally:

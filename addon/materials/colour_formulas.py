@@ -31,7 +31,7 @@ def rgb_to_hsv(rgb: np.ndarray) -> np.ndarray:
     safe_high, safe_delta = np.where(high != 0, high, 1), np.where(delta != 0, delta, 1)
     s = np.where(high != 0, delta / safe_high, 0)
     c = (high[:, None] - rgb) / safe_delta[:, None]
-    r, g, b = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    r, g = rgb[:, 0], rgb[:, 1]
     h = np.where(r == high, c[:, 2] - c[:, 1], np.where(g == high, 2 + c[:, 0] - c[:, 2], 4 + c[:, 1] - c[:, 0]))
     h = np.where(s != 0, (h / 6) % 1.0, 0)
     return np.stack([h, s, high], axis=1).astype(np.float32)

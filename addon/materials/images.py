@@ -64,7 +64,8 @@ def _load_texture(material):
 def _fresh(image, material):
     """`image` as it is, or, for one loaded from a texture the bake wrote, read again from the
     material's file (a re-bake writes new pixels under the same name)."""
-    if image is None or WRITTEN_TEXTURE_KEY not in image or not material.texture or not os.path.isfile(material.texture):
+    if (image is None or WRITTEN_TEXTURE_KEY not in image or not material.texture
+            or not os.path.isfile(material.texture)):
         return image
     image.filepath = material.texture
     image[WRITTEN_TEXTURE_KEY] = material.texture

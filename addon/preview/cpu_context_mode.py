@@ -84,7 +84,7 @@ class CpuContextMode(BatchDrawnMode):
             return super().draw(view, **kwargs)
         except HlodError:
             raise
-        except Exception as exc:  # noqa: BLE001 - the last way to draw: say so in words (chained for the console)
+        except Exception as exc:  # the last way to draw: say so in words (chained for the console)
             why = self.reason.rstrip(".") if self.reason else "the CPU occlusion test was asked for"
             why = why[:1].lower() + why[1:]
             raise HlodError(f"No preview can be drawn here: {why}; and the CPU occlusion test that stands in "

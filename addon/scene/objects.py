@@ -57,7 +57,8 @@ def source_objects(context, props) -> list:
         where = f"collection {props.collection.name!r}"
     else:
         # a timer's context (the panel's count, addon/bake/plan.py) has the view layer, not selected_objects
-        selected = context.selected_objects if hasattr(context, "selected_objects") else context.view_layer.objects.selected
+        selected = (context.selected_objects if hasattr(context, "selected_objects")
+                    else context.view_layer.objects.selected)
         objects = list(selected)
         where = "the selection"
     if not objects:

@@ -142,7 +142,8 @@ def _rows(sources: dict[tuple, _Source], parts: list) -> dict[tuple, dict[int, M
             row = first_row.get((key, slot), Material(name))
             texture = written_texture(pixels) if pixels is not None else None
             out[key][slot] = dataclasses.replace(
-                row, name=name, base_color=(1.0, 1.0, 1.0, 1.0), metallic=0.0 if reading.whole_surface else row.metallic,
+                row, name=name, base_color=(1.0, 1.0, 1.0, 1.0),
+                metallic=0.0 if reading.whole_surface else row.metallic,
                 texture=texture, image=texture_image_name(name) if texture else None, alpha_mode="OPAQUE")
     return out
 

@@ -64,8 +64,8 @@ def assemble(layout: OctreeLayout, lods, origin, *, hausdorff_error: np.ndarray,
     normals: the LODs carry them; row_layout: the rows' columns (empty: none). InputError for an
     empty LOD or more vertices than 32-bit indices address."""
     n = layout.node_count
-    vertex_count = np.array([l[0].shape[0] for l in lods], np.int64)
-    tri_count = np.array([l[1].shape[0] for l in lods], np.int64)
+    vertex_count = np.array([lod[0].shape[0] for lod in lods], np.int64)
+    tri_count = np.array([lod[1].shape[0] for lod in lods], np.int64)
     if np.any(tri_count == 0):
         raise InputError("a node's LOD came out empty (pymeshlab removed every triangle)")
     vertex_offset = np.concatenate([[0], np.cumsum(vertex_count)[:-1]])
@@ -73,10 +73,10 @@ def assemble(layout: OctreeLayout, lods, origin, *, hausdorff_error: np.ndarray,
     if vertex_count.sum() >= 2**32:
         raise InputError(f"the HLOD would need {int(vertex_count.sum())} vertices, more than 32-bit indices address")
     positions, indices = _concat_nodes(lods, vertex_offset, tri_offset)
-    node_normals = np.concatenate([l[2] for l in lods]).astype(np.float32) if normals else None
+    node_normals = np.concatenate([lod[2] for lod in lods]).astype(np.float32) if normals else None
     uvs = colors = tri_material = None
     if not row_layout.empty:
-        uvs, colors, face_material = appearance.unpack(row_layout, np.concatenate([l[3] for l in lods]), indices)
+        uvs, colors, face_material = appearance.unpack(row_layout, np.concatenate([lod[3] for lod in lods]), indices)
         if face_material is not None:
             order = np.lexsort((face_material, np.repeat(np.arange(n), tri_count)))  # node, then material
             indices, tri_material = indices[order], face_material[order].astype(np.uint16)

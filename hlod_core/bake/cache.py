@@ -54,10 +54,10 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import InputError
+from ..core.jsonutil import JsonError, loads
 from ..io import hlod_file
 from ..io.meshes import TriangleMesh
 from ..model.appearance import AttributeLayout
-from ..core.jsonutil import JsonError, loads
 from ..model.hierarchy import Hlod
 from . import cache_files
 from .cache_files import KEY_BYTES, CorruptEntry
@@ -80,8 +80,9 @@ DEFAULT_BUDGET_MB = 1024.0
 #: Modules whose code computes LODs, errors or the result's arrays and meta (their source is part
 #: of every key: editing one retires every entry).
 RESULT_MODULES = ("bake.simplify", "bake.collapse", "bake.meshlab", "bake.seams", "bake.cell_seams", "bake.pieces",
-                  "bake.hausdorff", "model.appearance", "model.hierarchy", "core.arrays", "bake.octree", "bake.settings",
-                  "bake.prepare", "bake.sources", "bake.partition", "bake.leaf_arrays", "bake.tasks", "bake.schedule",
+                  "bake.hausdorff", "model.appearance", "model.hierarchy", "core.arrays", "bake.octree",
+                  "bake.settings", "bake.prepare", "bake.sources", "bake.partition", "bake.leaf_arrays", "bake.tasks",
+                  "bake.schedule",
                   "bake.assemble", "bake.meta", "bake.pipeline", "bake.cache", "bake.cache_files", "bake.lattice",
                   "bake.frame", "bake.root_cube")
 #: Temporary files older than this (seconds) are a crashed writer's: prune removes them.

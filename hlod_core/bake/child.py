@@ -48,16 +48,16 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core import process_tree
+from ..core.atomic import atomic_file, write_text_atomic
+from ..core.errors import FormatError, HlodError, InputError
+from ..core.signals import Terminated, signals_as_exceptions
 from ..io import hlod_file, meshes
 from ..model.appearance import materials_from_json
-from ..core.atomic import atomic_file, write_text_atomic
 from .cache import DEFAULT_BUDGET_MB
 from .frame import Frame
 from .pipeline import bake
 from .settings import BakeSettings
-from ..core.errors import FormatError, HlodError, InputError
-from ..core import process_tree
-from ..core.signals import Terminated, signals_as_exceptions
 
 log = logging.getLogger("hlod_core")
 

@@ -60,7 +60,8 @@ CONNECT_TIMEOUT_S = 10.0
 #: security settings, which the bake does not pass: not taken).
 _ADDRESS = re.compile(r"^(?:tcp://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 _PROBE = "probe"
-_INSTALL_HINT = "it needs the dask[distributed] package (pip install -r requirements.txt: a command-line-only dependency)"
+_INSTALL_HINT = ("it needs the dask[distributed] package "
+                 "(pip install -r requirements.txt: a command-line-only dependency)")
 
 
 class ClusterError(InputError):

@@ -12,11 +12,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..core.errors import InputError
+from .collapse import OVER_BUDGET_FACTOR
 from .octree import OctreeLayout
 from .settings import BakeSettings
-from .collapse import OVER_BUDGET_FACTOR
 from .simplify import NodeLod
-
 
 #: Lines the bake log keeps (the others are counted in "log_lines_dropped").
 MAX_LOG_LINES = 200

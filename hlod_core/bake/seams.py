@@ -29,8 +29,8 @@ def decimate_across_uv_seams(positions: np.ndarray, local: np.ndarray, rows: np.
 
     positions (k,3) float32, local (k,3) float64 (the same in the unit frame), rows (k,A), faces
     (f,3): the node's input welded by (position, material, UV); seams: the node's cell seams
-    (cell_seams.node_borders), kept in place as material borders and open boundaries are. Returns (local_out (j,3) float64,
-    faces_out (m,3) int32, source (j,) int64 input rows, island_spanning_faces), or None where
+    (cell_seams.node_borders), kept in place as material borders and open boundaries are. Returns (local_out (j,3)
+    float64, faces_out (m,3) int32, source (j,) int64 input rows, island_spanning_faces), or None where
     there is no UV seam or the collapse leaves no triangle."""
     keyed = np.ascontiguousarray(positions, np.float32).view(np.uint8).reshape(-1, 12)
     if material is not None:

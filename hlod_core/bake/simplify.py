@@ -1,5 +1,5 @@
-"""One inner node's LOD (docs/how-it-works.md#decimating-a-node), with pymeshlab: the children's LODs concatenated, welded
-and decimated by quadric edge collapse (collapse.py, meshlab.py) to `target_tris`.
+"""One inner node's LOD (docs/how-it-works.md#decimating-a-node), with pymeshlab: the children's LODs concatenated,
+welded and decimated by quadric edge collapse (collapse.py, meshlab.py) to `target_tris`.
 
 Data form: node geometry as positions (k,3) float32, in the bake's file-relative frame, faces
 (m,3) int32 local to those positions and, when the scene has appearance, attribute rows (k,A)
@@ -27,8 +27,8 @@ import numpy as np
 
 from ..core.arrays import compact, concat_indexed, distinct_corners
 from ..model.appearance import AttributeLayout
-from .lattice import unique_by_first
 from .collapse import Cut, collapse_node
+from .lattice import unique_by_first
 from .meshlab import DecimationSettings, NodeFrame, mesh_set, row_keys, unit_normals
 from .seams import decimate_across_uv_seams, row_sources
 

@@ -39,7 +39,7 @@ def init_worker() -> None:
 def warm_up() -> None:
     """A worker's first task, submitted when the pool starts: pymeshlab's import (about half a
     second) then overlaps the bake's prepare, octree and cache phases."""
-    import pymeshlab  # noqa: F401
+    import pymeshlab  # noqa: F401 - imported for its import time only (the warm-up)
 
 
 class InlineExecutor:

@@ -16,8 +16,8 @@ from ..bake.pipeline import bake, bake_stream
 from ..core.errors import InputError
 from ..export.formats import check_output_file
 from ..io import hlod_file, meshes, procedural
-from .options import bake_options, bake_settings_of, cluster_options, out_of_core_options, whole_number
 from ..io.texture_folder import EmbeddedTextures
+from .options import bake_options, bake_settings_of, cluster_options, out_of_core_options, whole_number
 
 log = logging.getLogger("hlod_core")
 
@@ -161,7 +161,8 @@ def _cluster(args: argparse.Namespace):
     try:
         if args.scratch is not None:
             dask_cluster.check_scratch(args.scratch)
-        client = dask_cluster.connect(args.scheduler, timeout_s=args.scheduler_timeout or dask_cluster.CONNECT_TIMEOUT_S)
+        client = dask_cluster.connect(args.scheduler,
+                                      timeout_s=args.scheduler_timeout or dask_cluster.CONNECT_TIMEOUT_S)
     except dask_cluster.ClusterError as exc:
         raise InputError(f"--{exc}") from None
     with contextlib.closing(client):

@@ -35,7 +35,8 @@ def add_view(sub) -> None:
     p.add_argument("dir", metavar="DIR", help="a 3D Tiles export folder (holding tileset.json)")
     p.add_argument("--port", type=whole_number(0), default=0, help="port on 127.0.0.1 (default 0: a free one)")
     p.add_argument("--no-browser", action="store_true", help="only serve (scripts, remote machines)")
-    p.add_argument("--cesium", metavar="DIR", help="CesiumJS's Build/Cesium folder (default: tools/viewer's npm install)")
+    p.add_argument("--cesium", metavar="DIR",
+                   help="CesiumJS's Build/Cesium folder (default: tools/viewer's npm install)")
     p.set_defaults(run=view_command)
 
 

@@ -10,8 +10,13 @@ from ..bake.cache import DEFAULT_BUDGET_MB
 from ..bake.settings import ERROR_MEASURES, BakeSettings, bake_settings
 from ..core.errors import InputError
 from ..render.residency import StreamingSettings
-from ..traversal.settings import (BATCH_QUERY_MODES, MULTIQUERY_MODES, PREDICT_NEW_MODES, SKIP_QUERY_MODES,
-                                  RuntimeSettings)
+from ..traversal.settings import (
+    BATCH_QUERY_MODES,
+    MULTIQUERY_MODES,
+    PREDICT_NEW_MODES,
+    SKIP_QUERY_MODES,
+    RuntimeSettings,
+)
 
 
 class Parser(argparse.ArgumentParser):
@@ -152,8 +157,8 @@ def runtime_options(p: argparse.ArgumentParser) -> None:
                         "(the dissertation's Algorithm 4 alone)")
     p.add_argument("--multiquery", choices=list(MULTIQUERY_MODES), default="on",
                    help="CHC++ multiqueries: on tests nodes hidden last frame together, one query over their boxes "
-                        "(each is queried on its own when it shows), at once when nothing is in flight; lazy: only when "
-                        "a group is full or the traversal would wait; off: each node its own query. Default on")
+                        "(each is queried on its own when it shows), at once when nothing is in flight; lazy: only "
+                        "when a group is full or the traversal would wait; off: each node its own query. Default on")
     p.add_argument("--batch-queries", choices=list(BATCH_QUERY_MODES), default="on",
                    help="CHC++ query batching: on issues the queries of drawn nodes together, all occlusion "
                         "queries then all alpha queries, one state change each (default); off: one by one")

@@ -10,8 +10,15 @@ from pathlib import Path
 from ..core.errors import InputError
 from ..export.formats import check_output_file
 from ..io import hlod_file
-from .options import (gpu_budget_option, parse_size, psnr_db, runtime_options, runtime_settings_of,
-                      streaming_of, whole_number)
+from .options import (
+    gpu_budget_option,
+    parse_size,
+    psnr_db,
+    runtime_options,
+    runtime_settings_of,
+    streaming_of,
+    whole_number,
+)
 
 log = logging.getLogger("hlod_core")
 
@@ -23,7 +30,8 @@ def add_run(sub) -> None:
     p = sub.add_parser("run", help="run a traversal method over a camera path; print per-frame means")
     p.add_argument("file", metavar="FILE.hlod")
     p.add_argument("--method", required=True, choices=METHODS)
-    p.add_argument("--bias", choices=["P", "mu"], default="P", help="P = P_{s,t}(mu); mu = the visibility itself (s = 0)")
+    p.add_argument("--bias", choices=["P", "mu"], default="P",
+                   help="P = P_{s,t}(mu); mu = the visibility itself (s = 0)")
     runtime_options(p)
     p.add_argument("--path", metavar="PATH.json", help="camera path file (docs/command-line.md#camera-paths)")
     p.add_argument("--seed", type=whole_number(0), default=1,
@@ -100,7 +108,8 @@ def evaluate_command(args: argparse.Namespace) -> dict:
     methods = args.methods or list(evaluate.METHOD_SPECS)
     unknown = [m for m in methods if m not in evaluate.METHOD_SPECS]
     if unknown:
-        raise InputError(f"--methods: unknown {', '.join(unknown)}; expected some of {', '.join(evaluate.METHOD_SPECS)}")
+        raise InputError(f"--methods: unknown {', '.join(unknown)}; "
+                         f"expected some of {', '.join(evaluate.METHOD_SPECS)}")
     out_dir = Path(args.out)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"--out {out_dir}: is a file, expected a folder")

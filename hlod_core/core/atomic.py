@@ -2,8 +2,8 @@
 
 A file is written to a temporary name in its target folder, flushed and fsynced, given the mode an
 ordinary `open(path, "w")` would give it (0o666 less the process umask; `tempfile` would leave
-0o600), then renamed over the target (`replace`: retried for a moment on Windows). A failure or an interrupt (Ctrl-C, SIGTERM turned into an
-exception by the command line) removes the temporary file and leaves any earlier file untouched.
+0o600), then renamed over the target (`replace`: retried for a moment on Windows). A failure or an interrupt (Ctrl-C,
+SIGTERM turned into an exception by the command line) removes the temporary file and leaves any earlier file untouched.
 A write that fails names the target file in its OSError.
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Colour: the sRGB transfer function (IEC 61966-2-1) both ways, the plain node colour, and the
-modulation overlay's colour ramp (docs/how-it-works.md#vmsse-and-the-bias-p_st): m = 1 - P from blue (0, weak) through magenta (0.5,
-moderate) to red (1, strong), and its lookup table for drawing. Data form: numpy arrays of values
+modulation overlay's colour ramp (docs/how-it-works.md#vmsse-and-the-bias-p_st): m = 1 - P from blue (0, weak) through
+magenta (0.5, moderate) to red (1, strong), and its lookup table for drawing. Data form: numpy arrays of values
 in [0, 1]; the ramp takes (n,) modulation values and gives (n,3) float32 linear RGB. The same sRGB
 encoding in GLSL is hlod_core.render.glsl.SRGB_FROM_LINEAR.
 """

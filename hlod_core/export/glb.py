@@ -16,8 +16,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..io.gltf_codes import (GLB_CHUNK, GLB_HEADER, GLB_MAGIC, GLB_VERSION, Z_UP_TO_Y_UP, BufferViewTarget, ChunkType,
-                             ComponentType, PrimitiveMode, SamplerFilter, WrapMode)
+from ..io.gltf_codes import (
+    GLB_CHUNK,
+    GLB_HEADER,
+    GLB_MAGIC,
+    GLB_VERSION,
+    Z_UP_TO_Y_UP,
+    BufferViewTarget,
+    ChunkType,
+    ComponentType,
+    PrimitiveMode,
+    SamplerFilter,
+    WrapMode,
+)
 from ..model.appearance import Material
 
 GENERATOR = "HLOD Bake & Preview"

@@ -73,10 +73,10 @@ class _Handler(http.server.BaseHTTPRequestHandler):
     server: "ViewerServer"
     protocol_version = "HTTP/1.1"
 
-    def do_GET(self) -> None:  # noqa: N802 - http.server's naming
+    def do_GET(self) -> None:  # http.server's naming
         self._send(body=True)
 
-    def do_HEAD(self) -> None:  # noqa: N802
+    def do_HEAD(self) -> None:
         self._send(body=False)
 
     def _send(self, *, body: bool) -> None:

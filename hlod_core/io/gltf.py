@@ -33,8 +33,16 @@ import numpy as np
 from ..core.errors import InputError
 from ..model.appearance import Material
 from .gltf_accessors import read_accessor
-from .gltf_codes import (GLB_CHUNK, GLB_HEADER, GLB_MAGIC, GLB_VERSION, Y_UP_TO_Z_UP, ChunkType, ComponentType,
-                         PrimitiveMode)
+from .gltf_codes import (
+    GLB_CHUNK,
+    GLB_HEADER,
+    GLB_MAGIC,
+    GLB_VERSION,
+    Y_UP_TO_Z_UP,
+    ChunkType,
+    ComponentType,
+    PrimitiveMode,
+)
 from .gltf_materials import read_materials
 
 log = logging.getLogger(__name__)

@@ -20,7 +20,6 @@ from ..core.errors import InputError
 from .gltf_codes import COMPONENT_DTYPES, ELEMENT_COMPONENTS
 
 
-
 def buffer_view(path: Path, header: dict, binary: bytes | None, *, view, what: str) -> bytes:
     """The bytes of a buffer view (the GLB's BIN chunk, a data: URI or a file beside the .gltf)."""
     views, buffers = header.get("bufferViews", []), header.get("buffers", [])
@@ -58,7 +57,8 @@ def read_accessor(path: Path, header: dict, binary: bytes | None, *, index, what
         raise InputError(f"{path}: {what} {index!r} is not one of the {len(accessors)} accessors")
     a = accessors[index]
     where = f"{path}: accessors[{index}]"
-    dtype, width, count = COMPONENT_DTYPES.get(a.get("componentType")), ELEMENT_COMPONENTS.get(a.get("type")), a.get("count")
+    dtype, width = COMPONENT_DTYPES.get(a.get("componentType")), ELEMENT_COMPONENTS.get(a.get("type"))
+    count = a.get("count")
     if dtype is None or width is None or not isinstance(count, int) or count < 0:
         raise InputError(f"{where}: componentType {a.get('componentType')!r}, type {a.get('type')!r} and "
                          f"count {count!r} are not an accessor this reader knows")
@@ -76,7 +76,8 @@ def read_accessor(path: Path, header: dict, binary: bytes | None, *, index, what
             raise InputError(f"{where}: {count} elements of {element} bytes (stride {stride}) from byte {offset} "
                              f"do not fit its buffer view of {len(data)} bytes")
         raw = np.frombuffer(data, np.uint8, count=max(0, len(data) - offset), offset=offset) if count else None
-        rows = np.lib.stride_tricks.as_strided(raw, (count, element), (stride, 1)) if count else np.zeros((0, element), np.uint8)
+        rows = (np.lib.stride_tricks.as_strided(raw, (count, element), (stride, 1)) if count
+                else np.zeros((0, element), np.uint8))
         values = np.ascontiguousarray(rows).view(dtype).reshape(count, width).astype(np.float64)
         if a.get("normalized") and dtype.kind in "iu":
             values = values / float(np.iinfo(dtype).max)

@@ -1,4 +1,5 @@
-"""Native `.hlod` container (docs/how-it-works.md#the-node-table): versioned, no pickle, validated on load, atomic writes.
+"""Native `.hlod` container (docs/how-it-works.md#the-node-table): versioned, no pickle, validated on load,
+atomic writes.
 
 Layout (all integers little-endian):
 
@@ -12,8 +13,8 @@ Layout (all integers little-endian):
     then       arrays, raw C-order, each starting on a 64-byte boundary
 
 Arrays are memory-mapped on load (numpy.memmap, read-only) except on Windows (`maps_files`): opening
-a file costs the header parse and the range checks, not a read of the geometry. What `load` accepts, the renderer can draw without
-reading outside its buffers. Why: docs/how-it-works.md#what-a-hlod-file-must-pass-to-load
+a file costs the header parse and the range checks, not a read of the geometry. What `load` accepts, the renderer can
+draw without reading outside its buffers. Why: docs/how-it-works.md#what-a-hlod-file-must-pass-to-load
 
 Versions: 2 adds appearance: the optional arrays `uvs` (v,2) <f4, `colors` (v,4) <f4 and
 `tri_material` (t,) <u2, and the header's material table (appearance.Material.to_json; texture
@@ -33,10 +34,10 @@ from pathlib import Path
 import numpy as np
 
 from ..core import jsonutil
-from ..model.appearance import materials_from_json
+from ..core.arrays import segment_ranges
 from ..core.atomic import atomic_file
 from ..core.errors import FormatError, InputError
-from ..core.arrays import segment_ranges
+from ..model.appearance import materials_from_json
 from ..model.hierarchy import MAX_COORDINATE, NODE_ARRAYS, Hlod
 
 MAGIC = b"HLODBAKE"

@@ -27,11 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from ..core import jsonutil
-from . import gltf, mtl, obj, stl
-from ..model.appearance import DEFAULT_BASE_COLOR, Material, check_material_ids, check_vertex_attributes
 from ..core.arrays import concat_indexed
 from ..core.colour import srgb_to_linear
 from ..core.errors import InputError
+from ..model.appearance import DEFAULT_BASE_COLOR, Material, check_material_ids, check_vertex_attributes
+from . import gltf, mtl, obj, stl
 
 log = logging.getLogger(__name__)
 
@@ -243,7 +243,8 @@ def merge(meshes: list[TriangleMesh], *, name: str = "scene") -> TriangleMesh:
         for m in meshes:
             rows = m.materials if m.material_ids is not None else (Material("default", DEFAULT_BASE_COLOR),)
             remap = np.array([table.setdefault(row, len(table)) for row in rows], np.int32)
-            ids.append(remap[m.material_ids] if m.material_ids is not None else np.full(m.tri_count, remap[0], np.int32))
+            ids.append(remap[m.material_ids] if m.material_ids is not None
+                       else np.full(m.tri_count, remap[0], np.int32))
         material_ids = np.concatenate(ids)
         materials = tuple(table)
         check_material_ids(name, material_ids.shape[0], material_ids=material_ids, materials=materials)
@@ -282,7 +283,8 @@ def scene_spec_models(path: str | os.PathLike) -> list[tuple[Path, list[np.ndarr
         if not model_path.is_absolute():
             model_path = (path.parent / model_path).resolve()
         if model_path.suffix.lower() == ".json":
-            raise InputError(f"{path}: models[{i}] refers to another scene spec ({model_path}); nesting is not supported")
+            raise InputError(f"{path}: models[{i}] refers to another scene spec ({model_path}); "
+                             "nesting is not supported")
         transforms = model.get("transforms", [np.eye(4).ravel().tolist()])
         if not isinstance(transforms, list) or not transforms:
             raise InputError(f"{path}: models[{i}].transforms must be a non-empty list of 16-number lists")

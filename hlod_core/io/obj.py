@@ -3,7 +3,8 @@ inside their lists, the layouts pymeshlab misreads), or read here when they name
 (`read_obj`: triangles, UVs, normals, `usemtl` groups; the MTL in mtl.py).
 
 Data form: a file's bytes in, numpy arrays or counts out, vectorised over the bytes; InputError
-naming the file and the line at fault. Why: docs/how-it-works.md#why-obj-and-stl-files-are-checked-before-pymeshlab-reads-them
+naming the file and the line at fault. Why:
+docs/how-it-works.md#why-obj-and-stl-files-are-checked-before-pymeshlab-reads-them
 """
 from __future__ import annotations
 

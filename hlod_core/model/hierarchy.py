@@ -173,7 +173,8 @@ class DrawParts:
 
 
 def cube_sides(box_min: np.ndarray, box_max: np.ndarray, pad: float) -> np.ndarray:
-    """Side of the cube with the volume of each box enlarged by `pad` on every face (docs/how-it-works.md#alpha-three-ways).
+    """Side of the cube with the volume of each box enlarged by `pad` on every face
+    (docs/how-it-works.md#alpha-three-ways).
 
     box_min, box_max: (n,3) float64; pad: model units. Returns (n,) float64 > 0 when pad > 0.
     """

@@ -18,6 +18,7 @@ import numpy as np
 from ..core.errors import InputError
 from .gl_functions import GL, GLFunctions
 
+
 def check_depth(depth, *, where: str = "depth") -> np.ndarray:
     """`depth` as a C-contiguous (h, w) float32 array; InputError naming `where` for another shape,
     NaN or values outside [0, 1]."""

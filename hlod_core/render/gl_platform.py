@@ -117,7 +117,8 @@ def native_standalone(backend: str, *, require: int):
     if backend == "wgl":
         from glcontext import wgl
 
-        return wgl.create_context(**_given(mode="standalone", glversion=require, libgl=os.environ.get("GLCONTEXT_WIN_LIBGL")))
+        libgl = os.environ.get("GLCONTEXT_WIN_LIBGL")
+        return wgl.create_context(**_given(mode="standalone", glversion=require, libgl=libgl))
     if backend == "darwin":
         from glcontext import darwin
 
@@ -206,7 +207,8 @@ def _egl_current() -> CurrentContext | None:
     egl = egl_library()
     if egl is None or not egl.eglGetCurrentContext():
         return None
-    display, draw, read = egl.eglGetCurrentDisplay(), egl.eglGetCurrentSurface(EGL_DRAW), egl.eglGetCurrentSurface(EGL_READ)
+    display = egl.eglGetCurrentDisplay()
+    draw, read = egl.eglGetCurrentSurface(EGL_DRAW), egl.eglGetCurrentSurface(EGL_READ)
     context = egl.eglGetCurrentContext()
     return CurrentContext("EGL", int(context), restore=lambda: bool(egl.eglMakeCurrent(display, draw, read, context)),
                           release=lambda: bool(egl.eglMakeCurrent(display, None, None, None)))
@@ -263,7 +265,8 @@ def egl_library():
         return None
     p = ctypes.c_void_p
     return _typed(lib, {"eglGetCurrentContext": ([], p), "eglGetCurrentDisplay": ([], p),
-                        "eglGetCurrentSurface": ([ctypes.c_int32], p), "eglMakeCurrent": ([p, p, p, p], ctypes.c_uint32)})
+                        "eglGetCurrentSurface": ([ctypes.c_int32], p),
+                        "eglMakeCurrent": ([p, p, p, p], ctypes.c_uint32)})
 
 
 @functools.lru_cache(maxsize=None)

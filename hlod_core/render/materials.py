@@ -8,7 +8,8 @@ the HLOD has them); no material table counts as glTF's default material (NO_MATE
 
 Images (`images`: material row -> (h, w, 4) uint8 RGBA, top row first, sRGB-encoded) become
 sRGB8_ALPHA8 textures: one per distinct array object, rows uploaded bottom row first (UV origin
-bottom-left), mipmapped, repeat wrap, trilinear. Colour spaces: docs/how-it-works.md#colours-in-the-renderer-linear-in-srgb-out
+bottom-left), mipmapped, repeat wrap, trilinear. Colour spaces:
+docs/how-it-works.md#colours-in-the-renderer-linear-in-srgb-out
 """
 from __future__ import annotations
 

@@ -45,8 +45,8 @@ from .queries import Query, QueryPool
 from .query_boxes import QueryBoxes
 from .residency import Residency, StreamingSettings
 from .resources import GLObjects
-from .streamed_geometry import StreamedGeometry, node_bytes
 from .shaders import NODE_FS, NODE_VS
+from .streamed_geometry import StreamedGeometry, node_bytes
 
 log = logging.getLogger(__name__)
 
@@ -209,8 +209,9 @@ class Renderer:
         """The host's depth (h, w) float32 window depth, row 0 the bottom row (depth_import.py), for
         the next frame's queries and draws to test against: at its begin_frame it is uploaded
         (reduced by the integer factor `reduce`, keeping each block's farthest depth) and blitted
-        into the own framebuffer after the clear (InputError there for a renderer without one); `depth_import_ms` is then what both cost. It must have
-        the frame's size. Kept for later frames until set again; None: none. InputError for another form."""
+        into the own framebuffer after the clear (InputError there for a renderer without one); `depth_import_ms` is
+        then what both cost. It must have the frame's size. Kept for later frames until set again; None: none.
+        InputError for another form."""
         if depth is None:
             self._scene_depth = None
             return
@@ -353,7 +354,8 @@ class Renderer:
         if not with_alpha:
             return [Query(node=node, samples_query_id=q, alpha_query_id=None) for node, q in zip(nodes, samples_ids)]
         alpha_ids = self._query_each(nodes, "alpha")
-        return [Query(node=node, samples_query_id=q, alpha_query_id=a) for node, q, a in zip(nodes, samples_ids, alpha_ids)]
+        return [Query(node=node, samples_query_id=q, alpha_query_id=a)
+                for node, q, a in zip(nodes, samples_ids, alpha_ids)]
 
     def _query_each(self, nodes, mode: str) -> list[int]:
         """One GL_SAMPLES_PASSED query around each node's box, all in `mode` ("query": depth test

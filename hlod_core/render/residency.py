@@ -171,7 +171,8 @@ class Residency:
                     requests[child] = priority
                 if refines is not None and refines(child):
                     first = self._child_offset[child]
-                    deeper.extend(c for c in range(first, first + self._child_count[child]) if needed is None or needed(c))
+                    deeper.extend(c for c in range(first, first + self._child_count[child])
+                                  if needed is None or needed(c))
             generation, level = generation + 1, deeper
         return False
 
@@ -198,7 +199,8 @@ class Residency:
                 break
             # a node wanted now pushes out nodes unused this frame and the last (a cut that does not
             # fit then settles instead of alternating); a prefetched one only nodes unused for a while
-            oldest = self.frame - (EVICTS_AFTER_FRAMES if self._requests[node][1] == 0.0 else PREFETCH_EVICTS_AFTER_FRAMES)
+            unused_frames = EVICTS_AFTER_FRAMES if self._requests[node][1] == 0.0 else PREFETCH_EVICTS_AFTER_FRAMES
+            oldest = self.frame - unused_frames
             taken, freed = 0, 0
             while projected - freed + size > budget and taken < len(candidates) \
                     and self.last_used[candidates[taken]] < oldest:

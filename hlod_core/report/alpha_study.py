@@ -1,5 +1,5 @@
-"""The alpha estimators compared (docs/how-it-works.md#alpha-three-ways, report section "alpha estimators"): the error of
-`projected` and `cube` against the exact `query` count, and each one's cost per node.
+"""The alpha estimators compared (docs/how-it-works.md#alpha-three-ways, report section "alpha estimators"): the error
+of `projected` and `cube` against the exact `query` count, and each one's cost per node.
 
 Data form: in, a renderer and a few views; out, a dict {"nodes", "views", and per estimator
 {"cost_us_per_node", "median_rel_error_pct", "p90_rel_error_pct"}} (percent relative error over

@@ -6,8 +6,8 @@ Occlusion Queries", dissertation, 2007 (docs/how-it-works.md#papers): Table 8.1 
 luminance and chrominance over 20 random frames against Bool), Table 8.2 (FPS, DN, RARN, D per
 method), Tables 8.3/8.4 (speedup and node savings of Coh(P)/Coh(mu) over Bool, Simp and SW),
 Figures 8.1-8.3 (`showcase`) and 8.4/8.5 (`per_frame_figure`); plus the alpha estimators
-(docs/how-it-works.md#alpha-three-ways, `alpha_study`) and sweeps over tau, (s, t) and alpha. The variants run interleaved on one
-renderer (`interleaved`); their rows are `rows`, image error `image_error`, the Markdown
+(docs/how-it-works.md#alpha-three-ways, `alpha_study`) and sweeps over tau, (s, t) and alpha. The variants run
+interleaved on one renderer (`interleaved`); their rows are `rows`, image error `image_error`, the Markdown
 `markdown`, the page `html_page`. Pass/fail targets are not the product's:
 benchmarks/evaluation_targets.py reads a report.json and says which hold. `tuning` runs its candidates
 through the same loop and rows and writes its report with `write_report`.

@@ -30,8 +30,22 @@ from pathlib import Path
 import numpy as np
 
 from ..traversal.settings import ALPHA_MODES
-from .figure_style import (BAR_LABEL_PT, DPI, FONT_PT, GRID_ALPHA, LINE_WIDTH_PT, METHOD_STYLES, RANGE_MARGIN,
-                           display_name, frozen_layout, padded_range, pyplot, save, style, sweep_keys)
+from .figure_style import (
+    BAR_LABEL_PT,
+    DPI,
+    FONT_PT,
+    GRID_ALPHA,
+    LINE_WIDTH_PT,
+    METHOD_STYLES,
+    RANGE_MARGIN,
+    display_name,
+    frozen_layout,
+    padded_range,
+    pyplot,
+    save,
+    style,
+    sweep_keys,
+)
 from .label_placement import LABEL_GAP_PX, MARKER_HALF_PX, place_labels
 from .per_frame_figure import per_frame_figure
 
@@ -265,7 +279,8 @@ def queries_pay_figure(results: dict, *, labels: dict[str, str]):
     w, h = results["size"]
     axes[0].set_title(f"When do occlusion queries pay? Frame time and drawn nodes relative to VFC's (dashed line: no "
                       f"queries).\nA bar below the line: the method beats VFC there. Per scene "
-                      f"{results['frames']} frames of a seeded inspection path,\n{w}x{h}, per frame the median of {results['repeat']} passes; "
+                      f"{results['frames']} frames of a seeded inspection path,\n{w}x{h}, "
+                      f"per frame the median of {results['repeat']} passes; "
                       f"timings compare within a scene's run", fontsize=9.5)
     fig.legend(*axes[0].get_legend_handles_labels(), loc="outside upper center", ncol=len(keys), fontsize=FONT_PT)
     return fig

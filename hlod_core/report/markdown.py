@@ -133,7 +133,8 @@ def _psnr_target(p: dict, *, frames: int) -> list[str]:
     c, bounds = p["chosen"], p["search"]
     if p["met"]:
         verdict = (f"Chosen: **(s, t) = ({c['s']:g}, {c['t']:g})**, {_f(c['dn'])} drawn nodes (Bool "
-                   f"{_f(p['bool_dn'])} on average over the rounds), lowest PSNR-Y {_f(c['psnr_y'], 1)} dB (mean {_f(c['psnr_y_mean'], 1)}): "
+                   f"{_f(p['bool_dn'])} on average over the rounds), lowest PSNR-Y {_f(c['psnr_y'], 1)} dB "
+                   f"(mean {_f(c['psnr_y_mean'], 1)}): "
                    f"the fewest drawn nodes of the candidates that meet the target.")
     else:
         verdict = f"**Target not met.** {p['note']}"

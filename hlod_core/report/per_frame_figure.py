@@ -14,8 +14,19 @@ import warnings
 import numpy as np
 
 from ..traversal.stats import COUNTERS
-from .figure_style import (DPI, FONT_PT, GRID_ALPHA, LINE_WIDTH_PT, RANGE_MARGIN, TITLE_CHARS, display_name,
-                           padded_range, pyplot, style, sweep_keys)
+from .figure_style import (
+    DPI,
+    FONT_PT,
+    GRID_ALPHA,
+    LINE_WIDTH_PT,
+    RANGE_MARGIN,
+    TITLE_CHARS,
+    display_name,
+    padded_range,
+    pyplot,
+    style,
+    sweep_keys,
+)
 
 # ratios for the methods that query (and their sweep points); Full and VFC in panels of their own
 RATIO_METHODS = ("bool", "sw_p", "sw_mu", "simp_p", "simp_mu", "coh_p", "coh_mu", "coh_p_alg4")

@@ -217,7 +217,8 @@ def _round(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: tuple[int,
 
 def tune(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, target_db: float,
          settings: RuntimeSettings = RuntimeSettings(), repeat: int = 1, out_dir: str | os.PathLike,
-         psnr_frames: int = 20, seed: int = 1, figures: bool = True, streaming: StreamingSettings | None = None) -> dict:
+         psnr_frames: int = 20, seed: int = 1, figures: bool = True,
+         streaming: StreamingSettings | None = None) -> dict:
     """`search` on a private headless renderer, then the report into out_dir (module docstring):
     evaluate's report of Bool and Coh(P) at the chosen (s, t) (both from the chosen candidate's
     round), with a "psnr_target" section (`section`). Returns the report (report.json's contents)."""

@@ -1,5 +1,5 @@
-"""Estimators of alpha, the pixels a node's box covers with nothing in front (docs/how-it-works.md#alpha-three-ways), besides
-the exact `query` count that the renderer measures: `cube` (the 2006 paper's cube of equal volume,
+"""Estimators of alpha, the pixels a node's box covers with nothing in front (docs/how-it-works.md#alpha-three-ways),
+besides the exact `query` count that the renderer measures: `cube` (the 2006 paper's cube of equal volume,
 vectorised over nodes) and `projected` (the box's silhouette clipped to the viewport: the summed
 area of its back faces' projections, vectorised over nodes).
 
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .boxes import box_corners
 from ..model.view import View
+from .boxes import box_corners
 
 #: Clip-space w below this magnitude is replaced by it before the perspective divide (a point on
 #: the eye plane; the near-plane clip keeps such points out, this only guards the division).

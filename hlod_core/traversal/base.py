@@ -17,12 +17,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from ..model.hierarchy import Hlod
+from ..model.view import View
 from . import alpha_estimators, boxes, metrics
 from .protocol import NodeRenderer
 from .settings import RuntimeSettings
 from .stats import MS_PER_S, FrameStats
-from ..model.hierarchy import Hlod
-from ..model.view import View
 
 #: Frame id of "never": far enough below frame 1 that no "visited last frame" and no "measured
 #: within measure_every frames" (RuntimeSettings.measure_every, any int64-sized period) holds for it.

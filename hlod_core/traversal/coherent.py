@@ -6,8 +6,8 @@ while work remains), and its three predictors: Bool (Algorithm 1, after Gobbetti
 (Algorithm 3, the 2006 predictor) and Coh (Algorithm 4: refine / stop / delay from the previous
 frame's cached ratio).
 
-Decisions on points the pseudocode leaves open (docs/how-it-works.md#the-traversal-methods): a node drawn this frame is never drawn
-again; if its query later says "refine" it counts in RARN and its children are traversed. A query
+Decisions on points the pseudocode leaves open (docs/how-it-works.md#the-traversal-methods): a node drawn this frame is
+never drawn again; if its query later says "refine" it counts in RARN and its children are traversed. A query
 result of 0 sets ratio = P(0) = 0 and leaves the node invisible. In Algorithm 4 a child not visited
 in the previous frame counts as stopped with ratio 0, and the average ratio is over all children.
 Why and how: docs/how-it-works.md#the-coherent-loop
@@ -178,7 +178,8 @@ class CoherentLoop(Traversal):
                 stats.predicted += 1
         return visit
 
-    def _result_step(self, heap: list, queue: deque, *, render, stats) -> Callable[[int, str, QueryHandle | None], None]:
+    def _result_step(self, heap: list, queue: deque, *, render,
+                     stats) -> Callable[[int, str, QueryHandle | None], None]:
         """The frame's `take_result(node, mode, query)` of a query in flight, taken off `queue` in
         the order issued. Query None: an unqueryable box, visible with mu = 1."""
         frame_id, candidate_in, predicting_new = self.frame_id, self._candidate_in, self._predicting_new
@@ -218,7 +219,8 @@ class CoherentLoop(Traversal):
         query or a multiquery): P(0) = 0, it stays invisible."""
         frame_id, children, parent, rendered = self.frame_id, self._children, self._parent, self._rendered
         visible, stop_refinement, ratio = self._visible, self._stop_refinement, self._ratio
-        stop_on_result, schedule, residency, refinable = self._stop_step(), self._schedule, self._residency, self._refinable
+        stop_on_result, schedule = self._stop_step(), self._schedule
+        residency, refinable = self._residency, self._refinable
         queried = self.skips.queried_step(frame_id) if self._skipping else None
         hidden = self.stream.found_hidden if self.stream.grouping else None
 
@@ -268,7 +270,8 @@ class Bool(CoherentLoop):
         self._ratio = [1.0] * hlod.node_count  # queries are booleans: VMSSE never lowers its LOD
 
     def _predict_step(self):
-        previous, visible, last_visited, sse, tau = self.frame_id - 1, self._visible, self._last_visited, self.sse, self._tau
+        previous, visible, last_visited = self.frame_id - 1, self._visible, self._last_visited
+        sse, tau = self.sse, self._tau
 
         def predict(node: int) -> str:
             if not (visible[node] and last_visited[node] == previous):  # not visible last frame
@@ -312,7 +315,8 @@ class Simp(CoherentLoop):
         super()._schedule(heap, nodes)
 
     def _predict_step(self):
-        previous, last_visited, visible, position = self.frame_id - 1, self._last_visited, self._visible, self._previous_position
+        previous, last_visited, visible = self.frame_id - 1, self._last_visited, self._visible
+        position = self._previous_position
         total, p, sse, tau = max(self._previous_scheduled, 1), self._p, self.sse, self._tau
 
         def predict(node: int) -> str:
@@ -351,7 +355,8 @@ class Coh(CoherentLoop):
     measured = property(lambda self: state_array(self._measured, np.int64), doc="(n,) int64 frame id")
 
     def _predict_step(self):
-        frame_id, previous, measured, every = self.frame_id, self.frame_id - 1, self._measured, self.measure_every_frames
+        frame_id, previous, measured = self.frame_id, self.frame_id - 1, self._measured
+        every = self.measure_every_frames
         last_visited, stop_refinement, ratio = self._last_visited, self._stop_refinement, self._ratio
         visible, leaf, sse, tau, measure = self._visible, self._leaf, self.sse, self._tau, self._measure
         unvisited, children_stop = self._predict_unvisited if self._predicting_new else None, self._children_stop
@@ -389,7 +394,8 @@ class Coh(CoherentLoop):
         return candidate and total / count * sse[node] <= tau
 
     def _stop_step(self):
-        frame_id, ratio, measured, p, sse, tau = self.frame_id, self._ratio, self._measured, self._p, self.sse, self._tau
+        frame_id, ratio, measured = self.frame_id, self._ratio, self._measured
+        p, sse, tau = self._p, self.sse, self._tau
 
         def stop_on_result(node: int, mu: float) -> bool:
             ratio[node] = node_ratio = p(mu)

@@ -1,5 +1,5 @@
-"""HLOD traversal methods (docs/how-it-works.md#the-traversal-methods), one class each, one `frame(view)` entry point, the same
-counters (`stats.FrameStats`): Full, VFC, SW and Ideal here; Bool, Simp and Coh, the coherent
+"""HLOD traversal methods (docs/how-it-works.md#the-traversal-methods), one class each, one `frame(view)` entry point,
+the same counters (`stats.FrameStats`): Full, VFC, SW and Ideal here; Bool, Simp and Coh, the coherent
 loop's, in `coherent`. `make` builds one by name.
 
 Papers (docs/how-it-works.md#papers): J. P. Charalambos, "HLOD Refinement Driven by Hardware
@@ -14,13 +14,13 @@ import heapq
 
 import numpy as np
 
+from ..core.errors import InputError
+from ..model.hierarchy import Hlod
 from .base import Traversal
 from .coherent import Bool, Coh, Simp
 from .protocol import NodeRenderer
 from .settings import RuntimeSettings
 from .stats import MS_PER_S
-from ..core.errors import InputError
-from ..model.hierarchy import Hlod
 
 
 class Full(Traversal):
@@ -64,7 +64,8 @@ class VFC(Traversal):
         while heap:
             node = heappop(heap)[1]
             traversed += 1
-            if sse[node] <= tau or (residency is not None and not self._refinable(node, visible=True)):  # _vmsse_stop at ratio 1
+            # _vmsse_stop at ratio 1
+            if sse[node] <= tau or (residency is not None and not self._refinable(node, visible=True)):
                 render(node)
             else:
                 schedule(heap, children[node])

@@ -19,7 +19,6 @@ import numpy as np
 
 from ..model.view import View
 
-
 # --- SSE (docs/how-it-works.md#sse) --------------------------------------------------------------------------
 
 def sphere_distance(view: View, center: np.ndarray, radius: np.ndarray) -> np.ndarray:
@@ -63,7 +62,7 @@ def sse_at(view: View, error: np.ndarray, *, distance: np.ndarray | None, inside
         return np.where(distance > 0, error * view.pixels_per_unit_y / distance, inside)
 
 
-# --- the bias P_{s,t} (docs/how-it-works.md#vmsse-and-the-bias-p_st) -------------------------------------------------------------
+# --- the bias P_{s,t} (docs/how-it-works.md#vmsse-and-the-bias-p_st) ---------------------------------------------
 
 #: Below this k the normalised logistic is computed as its k -> 0 limit, mu itself (the
 #: difference of two logistics then cancels catastrophically).

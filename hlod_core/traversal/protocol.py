@@ -1,5 +1,5 @@
-"""What a traversal and its drawing side exchange (docs/how-it-works.md#the-traversal-methods): the `NodeRenderer` protocol it
-draws and queries through (`render.renderer.Renderer` is one, Blender's preview another, tests wrap
+"""What a traversal and its drawing side exchange (docs/how-it-works.md#the-traversal-methods): the `NodeRenderer`
+protocol it draws and queries through (`render.renderer.Renderer` is one, Blender's preview another, tests wrap
 them), the `QueryHandle` a query comes back as, and a query in flight (`Pending`) with its mode,
 the prediction it was issued for."""
 from __future__ import annotations

@@ -84,7 +84,8 @@ class QueryStream:
         in the batch otherwise (batch_queries; a DELAY query gates its subtree, so the batch goes
         out with it), or is issued now. The traversal issues the waiting ones when due."""
         grouping, batching, hidden_in, previous = self.grouping, self.batching, self.hidden_in, frame_id - 1
-        wait_hidden, wait_batch, wait_mode = self.waiting_hidden.append, self.waiting_batch.append, self.waiting_modes.append
+        wait_hidden, wait_batch = self.waiting_hidden.append, self.waiting_batch.append
+        wait_mode = self.waiting_modes.append
         issue_query, query_alpha, in_flight, issue_batch = (self.renderer.issue_query, self.query_alpha, queue.append,
                                                             self.issue_batch)
 

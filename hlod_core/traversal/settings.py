@@ -1,11 +1,11 @@
-"""The traversal's runtime settings (docs/how-it-works.md#vmsse-and-the-bias-p_st): one frozen `RuntimeSettings`, validated on
-construction, and the tuples of the values each mode setting accepts."""
+"""The traversal's runtime settings (docs/how-it-works.md#vmsse-and-the-bias-p_st): one frozen `RuntimeSettings`,
+validated on construction, and the tuples of the values each mode setting accepts."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from . import metrics
 from ..core.errors import InputError
+from . import metrics
 
 ALPHA_MODES = ("query", "projected", "cube")
 SHIFT_UP_MODES = ("measured", "children")

@@ -14,10 +14,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import query_cost
-from .protocol import STOP
 from ..model.hierarchy import Hlod
 from ..model.view import View
+from . import query_cost
+from .protocol import STOP
 
 
 class SkippedQueries:

@@ -1,5 +1,5 @@
-"""What one traversal frame did (docs/how-it-works.md#the-traversal-methods): `FrameStats`, its counters (`COUNTERS`, the columns of
-per-frame tables, then `QUERY_COUNTERS`, under a GPU budget `STREAM_COUNTERS`, and with a host's
+"""What one traversal frame did (docs/how-it-works.md#the-traversal-methods): `FrameStats`, its counters (`COUNTERS`,
+the columns of per-frame tables, then `QUERY_COUNTERS`, under a GPU budget `STREAM_COUNTERS`, and with a host's
 depth `DEPTH_COUNTERS`) and the node lists behind some of them."""
 from __future__ import annotations
 

@@ -25,13 +25,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-import blender_preview  # noqa: E402
+import bpy
 
-import bpy  # noqa: E402
+import blender_preview
 from hlod_core.io import hlod_file
-from hlod_core.report import image_error  # noqa: E402
-from hlod_core.traversal.metrics import sse  # noqa: E402
-from hlod_core.model.view import View  # noqa: E402
+from hlod_core.model.view import View
+from hlod_core.report import image_error
+from hlod_core.traversal.metrics import sse
 
 NAME = "bl_ext.r.hlod"
 CHECKER_PX = 64  # the generated texture's side; 8 x 8 squares of red and blue
@@ -257,7 +257,8 @@ def check_extraction(repo, work) -> dict:
     # two triangles sharing the edge 0-2; vertex 0 has another UV in the second one (a seam), vertex 2
     # has (1, 0.0) and (1, -0.0), which count as one: 4 vertices + 1 for the seam
     uv = np.array([[0, 0], [1, 0], [1, 0.0], [0.5, 0], [1, -0.0], [0, 1]], np.float32)
-    vertex, faces, (split_uv,) = importlib.import_module(NAME + ".addon.scene.parts").split_corners(np.array([0, 1, 2, 0, 2, 3]), [uv])
+    parts = importlib.import_module(NAME + ".addon.scene.parts")
+    vertex, faces, (split_uv,) = parts.split_corners(np.array([0, 1, 2, 0, 2, 3]), [uv])
     out["split"] = {"vertex": vertex.tolist(), "faces": faces.tolist(), "uv": split_uv.tolist()}
     # images as the preview gives them to the renderer: top row first, a float image's linear 0.5
     # sRGB-encoded (188), a byte image's values as they are

@@ -34,10 +34,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import blender_preview  # noqa: E402
+import blender_checks  # the box row scene; it sets $HLOD_GPU_BACKEND's backend, before `import bpy`
+import blender_preview
 
-import blender_checks  # noqa: E402 - the box row scene
-import bpy  # noqa: E402
+# isort: split
+import bpy
 
 NAME = "bl_ext.r.hlod"
 CHILD_MODULE = "hlod_core.bake.child"
@@ -293,10 +294,11 @@ def check_cancel(repo, work) -> dict:
     _monkeys(16, 2)
     mesh = m["addon.scene.gather"].gather(bpy.context, list(bpy.context.selected_objects)).mesh
     out_path = Path(work) / "monkeys.hlod"
-    small = m["hlod_core.bake.pipeline"].bake(mesh, m["hlod_core.bake.pipeline"].BakeSettings(target_tris=1_000_000, max_depth=0))
+    pipeline = m["hlod_core.bake.pipeline"]
+    small = pipeline.bake(mesh, pipeline.BakeSettings(target_tris=1_000_000, max_depth=0))
     m["hlod_core.io.hlod_file"].save(small, out_path)  # the earlier file: the mesh as one node
     earlier = out_path.read_bytes()
-    job = m["addon.bake.job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(out_path))
+    job = m["addon.bake.job"].BakeJob(mesh, pipeline.BakeSettings(jobs=2), str(out_path))
     started = _wait_until(lambda: len(workers(job.pid)) >= 2 and job.progress[2] == "simplify", 120.0)
     decimating = _wait_decimating(job, 120.0)
     processes = group(job.pid)
@@ -363,7 +365,8 @@ def check_parent_dies(repo, work) -> dict:
     m = _modules()
     _monkeys(16, 2)
     mesh = m["addon.scene.gather"].gather(bpy.context, list(bpy.context.selected_objects)).mesh
-    job = m["addon.bake.job"].BakeJob(mesh, m["hlod_core.bake.pipeline"].BakeSettings(jobs=2), str(Path(work) / "x.hlod"))
+    settings = m["hlod_core.bake.pipeline"].BakeSettings(jobs=2)
+    job = m["addon.bake.job"].BakeJob(mesh, settings, str(Path(work) / "x.hlod"))
     started = _wait_until(lambda: len(workers(job.pid)) >= 2 and job.progress[2] == "simplify", 120.0)
     out = {"child": job.pid, "group": group(job.pid), "workers_started_s": started, "tmp": str(tmp),
            "scratch": _leftovers(tmp)}
@@ -550,7 +553,8 @@ def check_every_operator(repo, work) -> dict:
     camera.keyframe_insert("location", frame=2)
     scene.render.resolution_x, scene.render.resolution_y, scene.render.resolution_percentage = 120, 90, 100
     os.environ["BROWSER"] = "true"  # View in Browser serves and "opens" the page with the `true` command
-    arguments = {"materialize": {"depth": 1}, "export": {"filepath": str(Path(work) / "copy.hlod"), "format": "3DTILES"},
+    arguments = {"materialize": {"depth": 1},
+                 "export": {"filepath": str(Path(work) / "copy.hlod"), "format": "3DTILES"},
                  "benchmark": {"directory": str(Path(work) / "report"), "repeat": 1},
                  "tune_psnr": {"directory": str(Path(work) / "tuning"), "repeat": 1}}
     props.s, props.t, props.bias, props.psnr_target = 0.42, 0.42, "mu", 40.0

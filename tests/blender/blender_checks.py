@@ -22,13 +22,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-import blender_gpu_backend  # noqa: E402
+import blender_gpu_backend
+import blender_preview
+from hlod_core.model.view import look_at, perspective
 
 FORCED_BACKEND = blender_gpu_backend.force_from_environment()  # before `import bpy` (module notes)
 
-import blender_preview  # noqa: E402
-import bpy  # noqa: E402
-from hlod_core.model.view import look_at, perspective  # noqa: E402
+import bpy  # noqa: E402 - bpy picks its GPU backend while it is imported: after the override above
 
 NAME = "bl_ext.r.hlod"
 OPERATORS = ["bake", "clear", "preview_toggle", "materialize", "export", "benchmark"]
@@ -441,7 +441,8 @@ class GLCensus:
         for kind, (is_name, gen_name, delete_name) in self.KINDS.items():
             self._is[kind] = fn(is_name, ctypes.c_uint8, ctypes.c_uint32)
             if gen_name is not None:
-                self._gen[kind] = (fn(gen_name, None, ctypes.c_int32, u32p), fn(delete_name, None, ctypes.c_int32, u32p))
+                self._gen[kind] = (fn(gen_name, None, ctypes.c_int32, u32p),
+                                   fn(delete_name, None, ctypes.c_int32, u32p))
         self._create_program = fn("glCreateProgram", ctypes.c_uint32)
         self._delete_program = fn("glDeleteProgram", None, ctypes.c_uint32)
         self._get_error = fn("glGetError", ctypes.c_uint32)

@@ -31,10 +31,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-import blender_preview  # noqa: E402
+import bpy
 
-import bpy  # noqa: E402
-from hlod_core.core.colour import srgb_from_linear, srgb_to_linear  # noqa: E402
+import blender_preview
+from hlod_core.core.colour import srgb_from_linear, srgb_to_linear
 
 NAME = "bl_ext.r.hlod"
 SIDE_PX = 32  # source image and bake image side
@@ -238,7 +238,8 @@ def cycles_base_colour(obj) -> np.ndarray:
     material = obj.material_slots[0].material
     nodes, links = material.node_tree.nodes, material.node_tree.links
     shader = next((n for n in nodes if n.type == "BSDF_PRINCIPLED"), None)
-    base = shader.inputs["Base Color"] if shader is not None else next(n for n in nodes if n.type == "EMISSION").inputs[0]
+    base = (shader.inputs["Base Color"] if shader is not None
+            else next(n for n in nodes if n.type == "EMISSION").inputs[0])
     output = next(n for n in nodes if n.type == "OUTPUT_MATERIAL")
     emission = nodes.new("ShaderNodeEmission")
     if base.is_linked:

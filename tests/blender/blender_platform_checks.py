@@ -31,15 +31,17 @@ from types import SimpleNamespace
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import blender_preview  # noqa: E402
+import blender_checks  # it sets $HLOD_GPU_BACKEND's backend, before `import bpy`
+import blender_preview
 
-import blender_checks  # noqa: E402
-import bpy  # noqa: E402
+# isort: split
+import bpy
 
 NAME = "bl_ext.r.hlod"
 SIZE = (320, 240)
 #: glcontext's library overrides pointed at nothing: no EGL and no GLX library can be loaded.
-NO_GL_LIBRARIES = {"GLCONTEXT_LINUX_LIBEGL": "/nonexistent/libEGL.so.1", "GLCONTEXT_LINUX_LIBX11": "/nonexistent/libX11.so.6"}
+NO_GL_LIBRARIES = {"GLCONTEXT_LINUX_LIBEGL": "/nonexistent/libEGL.so.1",
+                   "GLCONTEXT_LINUX_LIBX11": "/nonexistent/libX11.so.6"}
 #: A Python exception's name in a message (what the artist must never be shown for these cases).
 EXCEPTION_NAME = re.compile(r"\b[A-Z]\w*(Error|Exception|Unavailable)\b|Traceback")
 

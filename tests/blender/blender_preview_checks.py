@@ -23,10 +23,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-import blender_preview  # noqa: E402
+import bpy
 
-import bpy  # noqa: E402
-from hlod_core.core.png import write_png  # noqa: E402
+import blender_preview
+from hlod_core.core.png import write_png
 
 NAME = "bl_ext.r.hlod"
 SIZE = (240, 180)  # offscreen pixels
@@ -73,7 +73,8 @@ def row_scene() -> dict:
         c.objects.unlink(sphere)
     collection.objects.link(sphere)
     for k, x in enumerate((SPHERE_INSTANCE_AT[0], -9.0)):
-        empty = _coloured(bpy.data.objects.new(f"sphere instance {k}", None), SOURCE_COLOUR)  # instances take its colour
+        # instances take its colour
+        empty = _coloured(bpy.data.objects.new(f"sphere instance {k}", None), SOURCE_COLOUR)
         empty.instance_type, empty.instance_collection = "COLLECTION", collection
         empty.location = (x, 0.0, 0.5)
         scene.collection.objects.link(empty)
@@ -241,11 +242,13 @@ def check_in_place(repo, work) -> dict:
         "source_pixels_before": int(masks["blender_only"]["source"].sum()),
         "source_pixels_during": int(masks["during"]["source"].sum()),
         "during_equals_hidden_by_hand": bool(np.array_equal(blender_during, without_sources)),
-        "instance_pixel_before": blender_only[y, x, :3].tolist(), "instance_pixel_during": blender_during[y, x, :3].tolist(),
+        "instance_pixel_before": blender_only[y, x, :3].tolist(),
+        "instance_pixel_during": blender_during[y, x, :3].tolist(),
         "wall_pixels": int(masks["during"]["wall"].sum()),
         "ramp_pixels": int(masks["with_preview"]["ramp"].sum()),
         "ramp_on_wall": int((masks["with_preview"]["ramp"] & masks["during"]["wall"]).sum()),
-        "wall_changed": int(np.any(with_preview[masks["during"]["wall"]] != blender_during[masks["during"]["wall"]], axis=-1).sum()),
+        "wall_changed": int(np.any(with_preview[masks["during"]["wall"]] != blender_during[masks["during"]["wall"]],
+                                   axis=-1).sum()),
         "ramp_where_sources_were": int((masks["with_preview"]["ramp"] & masks["blender_only"]["source"]).sum()),
     }
     out["stats"] = {"drawn": scene.hlod.stat_drawn, "tris": scene.hlod.stat_tris, "queries": scene.hlod.stat_queries}

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
-import blender_preview  # noqa: E402
+import bpy
 
-import bpy  # noqa: E402
+import blender_preview
 
 NAME = "bl_ext.r.hlod"
 CURVE_LIKE = ("Ring", "Text", "Surface", "Meta")  # objects whose mesh Blender makes from curve data
@@ -212,7 +212,8 @@ def check_kinds(repo, work) -> dict:
     bpy.context.scene.hlod.source = "SELECTED"
     plan = bake_plan.count_line(bpy.context)
     layers_before = [layer.name for layer in bpy.context.scene.view_layers]
-    status, summary, stderr = _cli(cli, "bake", "--target-tris", "20000", "--max-depth", "3", "-o", str(work / "kinds.hlod"))
+    status, summary, stderr = _cli(cli, "bake", "--target-tris", "20000", "--max-depth", "3",
+                                   "-o", str(work / "kinds.hlod"))
     status_h, summary_h, stderr_h = _cli(cli, "bake", "--target-tris", "20000", "--max-depth", "3", "--include-hidden",
                                          "-o", str(work / "hidden.hlod"))
     return {"known": known, "drawn": drawn, "converted": converted, "ours": ours, "objects": len(every),
@@ -328,13 +329,15 @@ def check_udim(repo, work) -> dict:
     material.use_nodes = True
     texture = material.node_tree.nodes.new("ShaderNodeTexImage")
     texture.image = image
-    material.node_tree.links.new(texture.outputs["Color"], material.node_tree.nodes["Principled BSDF"].inputs["Base Color"])
+    base_colour = material.node_tree.nodes["Principled BSDF"].inputs["Base Color"]
+    material.node_tree.links.new(texture.outputs["Color"], base_colour)
     quad.data.materials.append(material)
     status, _, stderr = _cli(cli, "bake", "-o", str(work / "quad.hlod"))
     baked = hlod_file.load(work / "quad.hlod") if status == 0 else None
     texture_file = baked.materials[0].texture if baked is not None else None
     return {"status": status, "stderr": stderr, "tiles": [t.number for t in image.tiles],
-            "texture": texture_file, "texture_rgba": np.unique(_png_rgba(Path(texture_file)).reshape(-1, 4), axis=0).tolist()
+            "texture": texture_file,
+            "texture_rgba": np.unique(_png_rgba(Path(texture_file)).reshape(-1, 4), axis=0).tolist()
             if texture_file else None}
 
 
@@ -379,7 +382,8 @@ def check_batch(repo, work) -> dict:
     (work / "not_a_blend.blend").write_text("this is not a .blend file\n")
     files = [str(work / name) for name in ("not_a_blend.blend", "lights_only.blend", "missing.blend", "good.blend")]
     status, summary, stderr = _cli(cli, "bake", *files, "-o", str(work / "out"))
-    return {"status": status, "summary": summary, "stderr": stderr, "good_written": (work / "out" / "good.hlod").is_file()}
+    return {"status": status, "summary": summary, "stderr": stderr,
+            "good_written": (work / "out" / "good.hlod").is_file()}
 
 
 if __name__ == "__main__":

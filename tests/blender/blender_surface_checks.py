@@ -33,10 +33,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-import blender_preview  # noqa: E402
+import bpy
 
-import bpy  # noqa: E402
-from hlod_core.core.colour import srgb_from_linear, srgb_to_linear  # noqa: E402
+import blender_preview
+from hlod_core.core.colour import srgb_from_linear, srgb_to_linear
 
 NAME = "bl_ext.r.hlod"
 SOURCE_PX = 32  # the source image's side

@@ -17,14 +17,13 @@ from pathlib import Path
 
 import pytest
 
+from blender_runs import BLENDERS, VULKAN, all_hold, blender, blender_python
+from helpers import ROOT
 from hlod_core.report.evaluate import METHOD_SPECS
 from hlod_core.traversal.settings import RuntimeSettings
 
-from blender_runs import BLENDERS, VULKAN, all_hold, blender, blender_python
-from helpers import ROOT
-
 sys.path.insert(0, str(ROOT / "scripts"))
-import build_extension  # noqa: E402
+import build_extension
 
 PREDICT_NEW = RuntimeSettings().predict_new  # the panel's default is the core's
 TOGGLED = {"on": "off", "off": "on"}
@@ -103,7 +102,8 @@ def test_enable_disable_twice_under_the_real_package_name(versioned_repo, tmp_pa
                           f"sys.exit(any(importlib.util.find_spec(n) for n in {DEPENDENCIES!r}))"])
     assert own.returncode == 0, f"{versioned_repo.python} has its own copy of one of {DEPENDENCIES}"
     on = {"scene_hlod": True, "operators": dict.fromkeys(["bake", "clear", "preview_toggle", "materialize", "export",
-                                                          "benchmark"], True), "panel": True, "cli_command": True, "handlers": 1}
+                                                          "benchmark"], True),
+          "panel": True, "cli_command": True, "handlers": 1}
     off = {"scene_hlod": False, "operators": dict.fromkeys(on["operators"], False), "panel": False,
            "cli_command": False, "handlers": 0}
     assert out["first"] == out["second"] == out["register_again"] == on
@@ -162,7 +162,8 @@ def _draw_path_holds(out: dict, *, backend: str, mode: str, status: str) -> None
     frames = {"occluded": out["occluded"], "after_benchmark": out["after_benchmark"]}
     private = out["private"]  # Private Context ticked: traversal in a private context, nodes drawn with the gpu module
     checks = {"backend": out["backend"] == backend, "mode": out["mode"] == mode,
-              "running": out["running"] and out["status_on"].startswith("on:") and out["status_drawn"].startswith(status)}
+              "running": out["running"] and out["status_on"].startswith("on:")
+              and out["status_drawn"].startswith(status)}
     for name, frame in frames.items():
         checks |= {f"{name}_modulation_colours": frame["ramp_pixels"] > 1000 and frame["red_pixels"] > 50,
                    f"{name}_occluder_hides_nodes": frame["ramp_in_occluder"] == 0

@@ -39,8 +39,8 @@ def test_extraction_carries_materials_uvs_and_colours(versioned_repo, tmp_path):
     PNG and image name, white base colour; the plain one with its factors), every corner's position,
     UV and colour as the source has them (house and its mirrored linked duplicate: bevel modifier,
     corner byte colours; the instanced ball: point float colours), vertices split at UV seams and
-    colour jumps only; images for the renderer top row first, float ones sRGB-encoded; a plain cube (a UV map but no material or colour) has no appearance at all; an
-    empty slot gives the default row; the table is sorted by name."""
+    colour jumps only; images for the renderer top row first, float ones sRGB-encoded; a plain cube (a UV map but no
+    material or colour) has no appearance at all; an empty slot gives the default row; the table is sorted by name."""
     out = appearance_check(versioned_repo, "extraction", tmp_path)
     texture = out["names"]["texture"]
     all_hold(out,

@@ -153,7 +153,8 @@ def test_the_cache_on_a_mixed_scene_reuses_what_did_not_change(versioned_repo, t
              order_changed=out["order_before"] != out["order_after"],
              relinked_from_cache=(out["relinked"]["cache"] or {}).get("reused_result") is True
              and out["relinked_arrays_differ"] == [],
-             moved_rebuilds_few=0 < cache.get("rebuilt_nodes", 0) and 4 * cache.get("rebuilt_nodes", 0) <= cache.get("nodes", 0),
+             moved_rebuilds_few=0 < cache.get("rebuilt_nodes", 0)
+             and 4 * cache.get("rebuilt_nodes", 0) <= cache.get("nodes", 0),
              moved_reuses=cache.get("reused_nodes", 0) >= 3 * cache.get("nodes", 1) // 4,
              moved_equals_fresh=out["moved_arrays_differ"] == [],
              edge_baked=out["edge"]["status"] == 0 and out["edge_fresh"]["status"] == 0,

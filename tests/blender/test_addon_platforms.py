@@ -50,7 +50,8 @@ def test_without_any_gl_context_the_preview_tests_on_the_cpu_and_every_message_i
              cpu_mode=cpu["mode"] == "cpu" and cpu["running"]
              and cpu["status"].startswith("on (CPU occlusion test): row.hlod - " + NO_CONTEXT),
              cpu_draws=cpu["ramp_pixels"] > 1000 and cpu["green_pixels"] > 100 and cpu["other_pixels"] == 0,
-             cpu_sees_the_occluder=cpu["ramp_in_occluder"] == 0 and cpu["red_pixels"] > 50 and cpu["depth_import_ms"] > 0,
+             cpu_sees_the_occluder=cpu["ramp_in_occluder"] == 0 and cpu["red_pixels"] > 50
+             and cpu["depth_import_ms"] > 0,
              corner=any(line.endswith("CPU occlusion test") and "(depth " in line for line in out["corner"]),
              unreadable=unreadable["running"] and unreadable["ramp_in_occluder"] == 0 and unreadable["status"].endswith(
                  "Blender's objects hide the nodes but do not occlude them: its depth could not be read "
@@ -72,8 +73,10 @@ def test_a_rebake_replaces_the_file_the_preview_has_open(repo, tmp_path, reader)
     out = platform_check(repo, "replaced_file", tmp_path, reader)
     all_hold(out, rebake=out["rebake"] == ["FINISHED"], replaced=out["inode_after"] != out["inode_before"],
              new_bake=out["nodes_after"] == out["nodes_file"] != out["nodes_before"],
-             draws=out["before"]["ramp_pixels"] > 1000 and out["after"]["ramp_pixels"] > 1000 and out["after"]["running"],
-             nothing_open=reader != "memory" or out["handles_before"] == out["handles_after"] == {"fds": [], "maps": []},
+             draws=out["before"]["ramp_pixels"] > 1000 and out["after"]["ramp_pixels"] > 1000
+             and out["after"]["running"],
+             nothing_open=reader != "memory"
+             or out["handles_before"] == out["handles_after"] == {"fds": [], "maps": []},
              mapped=reader != "mapped" or (bool(out["handles_before"]["maps"]) and bool(out["handles_after"]["maps"])
                                           and not any("(deleted)" in m for m in out["handles_after"]["maps"])),
              released=out["handles_stopped"]["fds"] == [])
@@ -85,14 +88,16 @@ def test_paths_with_spaces_and_non_ascii_letters(repo, tmp_path):
     draws it; then the background command bakes that .blend into "Ausgabe ß" with an ASCII-only
     console (PYTHONIOENCODING=ascii) and the same temp folder: exit status 0, the file written."""
     out = platform_check(repo, "unicode_paths", tmp_path)
-    all_hold(out, bake=out["bake"] == ["FINISHED"], file=out["file_exists"] and out["file"].endswith("Bake ñ/city ø.hlod"),
+    all_hold(out, bake=out["bake"] == ["FINISHED"],
+             file=out["file_exists"] and out["file"].endswith("Bake ñ/city ø.hlod"),
              cache=out["cache"] == ["city ø.hlod", "city ø.hlod.cache"],
              preview=out["frame"]["running"] and out["frame"]["ramp_pixels"] > 1000,
              scratch_removed=out["temp_left"] == [])
     target = tmp_path / "Ausgabe ß"
     env = {**os.environ, "BLENDER_USER_RESOURCES": str(repo / "user"), "PYTHONPATH": str(ROOT),
            "PYTHONIOENCODING": "ascii", "TMPDIR": str(tmp_path / "Temp Ünïcødé")}
-    proc = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "--extension-repo", str(repo / "repo"),
+    proc = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"),
+                           "--extension-repo", str(repo / "repo"),
                            "bake", out["blend"], "-o", str(target), "--format", "hlod", "--target-tris", "300"],
                           capture_output=True, text=True, timeout=600, env=env, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -53,8 +53,10 @@ def test_every_kind_of_geometry_bakes_as_blender_draws_it(versioned_repo, tmp_pa
                                                                                    "InHiddenCollection"],
              hidden_baked=cli_h["status"] == 0 and file_h.get("input_tris") == total + hidden_total
              and "hidden objects" not in file_h.get("skipped", {}),
-             hidden_left_hidden=out["still_hidden"] == [True, True, True] and out["layers_after"] == out["layers_before"],
-             panel_count=out["plan"].startswith(f"Will bake {len(with_triangles)} objects, {total:,} triangles; skipped ")
+             hidden_left_hidden=out["still_hidden"] == [True, True, True]
+             and out["layers_after"] == out["layers_before"],
+             panel_count=out["plan"].startswith(
+                 f"Will bake {len(with_triangles)} objects, {total:,} triangles; skipped ")
              and all(f"1 {kind}: {name}" in out["plan"] for kind, name in KINDS_SKIPPED))
 
 

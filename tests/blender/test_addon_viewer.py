@@ -82,6 +82,7 @@ def check_operator(repo, work) -> dict:
 
     import bpy  # first: it puts Blender's scripts/modules (addon_utils) on sys.path
 
+    # isort: split
     import addon_utils
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
@@ -161,10 +162,10 @@ if __name__ == "__main__":
 
 # --- the tests, in pytest -------------------------------------------------------------------------
 
-import pytest  # noqa: E402 - not needed by the checks above
+import pytest  # noqa: E402 - not needed by the checks above (Blender's Python has no pytest)
 
-from blender_runs import all_hold, blender  # noqa: E402
-from helpers import ROOT  # noqa: E402
+from blender_runs import all_hold, blender  # noqa: E402 - the tests' helpers, for the tests only
+from helpers import ROOT  # noqa: E402 - the tests' helpers, for the tests only
 
 pytestmark = pytest.mark.blender
 
@@ -214,9 +215,9 @@ def tiles(tmp_path_factory) -> Path:
     """A small 3D Tiles export (a 2,048-triangle terrain-like sheet, baked with 256 triangles per node)."""
     import numpy as np
 
-    from hlod_core.io import meshes
-    from hlod_core.export import tiles3d
     from hlod_core.bake.pipeline import BakeSettings, bake
+    from hlod_core.export import tiles3d
+    from hlod_core.io import meshes
 
     side = 33
     x, y = np.meshgrid(np.linspace(0.0, 8.0, side), np.linspace(0.0, 8.0, side))

@@ -74,7 +74,8 @@ def test_three_contexts_with_an_occluder(versioned_repo, default_scene, tmp_path
     occluded = private["blender_drawn_nodes_mean"] <= OCCLUDED_SHARE * private["blender_no_occluder_drawn_nodes_mean"]
     _targets_hold(private, context="private", backend="OPENGL", ratio=PRIVATE_RATIO, psnr_db=PRIVATE_PSNR_DB,
                   occluder_seen=occluded, status=private["status"] == "on (private context): default.hlod")
-    cpu = preview_script(versioned_repo, default_scene, tmp_path, *SETTINGS, "--context", "cpu", "--compare-to", "blender")
+    cpu = preview_script(versioned_repo, default_scene, tmp_path, *SETTINGS, "--context", "cpu",
+                         "--compare-to", "blender")
     _targets_hold(cpu, context="cpu", backend="OPENGL", ratio=CPU_RATIO, psnr_db=CPU_PSNR_DB,
                   status=cpu["status"] == "on (CPU occlusion test): default.hlod")
 

@@ -8,11 +8,11 @@ import sys
 
 import pytest
 
-from helpers import ROOT
 from blender_runs import blender
+from helpers import ROOT
 
 sys.path.insert(0, str(ROOT))
-from addon.preview import corner_text  # noqa: E402 - formatting only; blf is imported when drawing
+from addon.preview import corner_text  # formatting only; blf is imported when drawing
 
 KEY = re.compile(r"^[0-9a-f]{32}$")  # source_record.KEY_DIGEST_BYTES = 16
 SOURCES = ["cube 0", "cube 1", "cube 2", "cube 3", "arrayed", "sphere instance 0", "sphere instance 1"]
@@ -119,7 +119,8 @@ def test_every_way_out_of_the_preview_gives_the_visibility_back(repo, tmp_path):
     assert as_before(out["saved_file"])  # the file written while the preview ran
     assert running_hidden(out["undo_to_preview_on"]) and out["undo_to_preview_on"]["ground_z"] == pytest.approx(-0.01)
     assert running_hidden(out["undo_to_baked"])
-    assert running_hidden(out["redo_to_ground_moved"]) and out["redo_to_ground_moved"]["ground_z"] == pytest.approx(-0.5)
+    assert running_hidden(out["redo_to_ground_moved"])
+    assert out["redo_to_ground_moved"]["ground_z"] == pytest.approx(-0.5)
     unhandled = out["undo_to_baked_unhandled"]
     assert unhandled["running"] and unhandled["visibility"] == before  # the step itself holds them visible
     assert running_hidden(out["redo_handled"])
@@ -181,9 +182,9 @@ def test_corner_text_lines():
     lines = corner_text.corner_lines(label="Coh(P)", stats=Imported, source_tris=0, where="CPU occlusion test",
                                      changed=0, recorded=144)
     assert lines[1] == ("21 queries, 4.3 ms (depth 1.3 ms), CPU occlusion test", False)
-    assert corner_text.corner_lines(label="Full", stats=None, source_tris=10, where="", changed=None,
-                                      recorded=0) == [("HLOD Full: no frame drawn yet", False),
-                                                      ("sources not recorded for this file: they stay visible (re-bake)", True)]
+    assert corner_text.corner_lines(label="Full", stats=None, source_tris=10, where="", changed=None, recorded=0) == [
+        ("HLOD Full: no frame drawn yet", False),
+        ("sources not recorded for this file: they stay visible (re-bake)", True)]
     # under a GPU budget (64 MB): resident MB, and the nodes waiting when there are any
     lines = corner_text.corner_lines(label="Coh(P)", stats=_Stats, source_tris=0, where="", changed=0,
                                        recorded=144, budget_bytes=64 * 2**20)

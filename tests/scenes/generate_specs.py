@@ -35,9 +35,11 @@ from pathlib import Path
 import numpy as np
 import pymeshlab
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import models  # tests/models.py: the test models by role
+
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent))
-import models  # noqa: E402  (tests/models.py: the test models by role)
+
 
 def model_path(role: str) -> str:
     """The role's file relative to this folder, as the spec format wants (written when missing)."""
