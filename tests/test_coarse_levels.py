@@ -256,3 +256,23 @@ def test_the_log_names_a_node_over_the_budget_and_what_held_it():
     within = simplify.NodeLod(positions=np.zeros((3, 3), np.float32), faces=np.zeros((2500, 3), np.int32),
                               normals=None, decimated=True, input_tris=12000)
     assert lod_notes(7, within, error=1.0, target_tris=2000) == []
+
+
+def test_rims_stay_where_freeing_them_cannot_reach_the_budget():
+    """A flat open ground (3,200 triangles) beside a ball whose every vertex is a cell seam (held in
+    place): the ball alone keeps the LOD far over 1.25 x target_tris whatever the rims do. Freeing
+    the ground's rim would buy no budget, only error (the collapse with free rims flattened such a
+    ground to nothing: the root of a textured scene lost its ground that way), so the rims stay:
+    every vertex of the ground's rim is in the LOD."""
+    ground = procedural.grid_patch([-4.0, -4.0, 0.0], [8.0, 0.0, 0.0], [0.0, 8.0, 0.0], nu=40, nv=40)
+    ball = procedural.uv_sphere([0.0, 0.0, 2.0], 1.0, segments=32, rings=24)
+    children = [(np.asarray(p, np.float32), np.asarray(f)) for p, f in (ground, ball)]
+    seams = np.unique(children[1][0], axis=0)
+    target = 200
+    settings = meshlab.DecimationSettings(target_tris=target)
+    lod = simplify.decimate_node(children, settings, with_normals=False, seams=seams)
+    assert lod.faces.shape[0] > 2 * OVER_BUDGET_FACTOR * target  # held by the ball's seams
+    assert not lod.open_boundaries_freed and lod.pruned_pieces == 0
+    p = children[0][0]
+    rim = (np.abs(p[:, 0]) == 4.0) | (np.abs(p[:, 1]) == 4.0)
+    assert rim.sum() == 160 and _keys(p[rim]) <= _keys(lod.positions)  # the ground's rim, every vertex

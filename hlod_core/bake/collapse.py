@@ -109,7 +109,9 @@ def _within_budget(local: np.ndarray, faces: np.ndarray, settings: DecimationSet
                    rim: np.ndarray, border: np.ndarray, vertex_ids: np.ndarray | None, rows: bool,
                    free_at_once: bool = False):
     """(MeshSet, kept_in_place, freed): the collapse with the models' open boundaries (rim (k,)
-    bool) in place, or where that LOD is over OVER_BUDGET_FACTOR x target_tris, free (freed True).
+    bool) in place, or where that LOD is over OVER_BUDGET_FACTOR x target_tris and the collapse with
+    them free is within it, that one (freed True): where what is locked holds the node over the
+    budget anyway, freeing the rims would buy only error (a flat open ground collapses to nothing).
     border (k,) bool: the vertices on open edges of the node's whole input (faces may be a part of
     it: whole pieces dropped); where the vertices kept are just those, pymeshlab's boundary
     preservation keeps them (meshlab.quadric_collapse). free_at_once: the rims are free from the
@@ -122,10 +124,13 @@ def _within_budget(local: np.ndarray, faces: np.ndarray, settings: DecimationSet
     kept = (locked | rim) & used
     ms, kept_in_place = _collapse(local, faces, settings, vertex_ids=vertex_ids, rows=rows,
                                   locked=None if np.array_equal(kept, border & used) else kept)
-    if not (rim & used).any() or ms.current_mesh().face_number() <= OVER_BUDGET_FACTOR * settings.target_tris:
+    in_place = ms.current_mesh().face_number()
+    if not (rim & used).any() or in_place <= OVER_BUDGET_FACTOR * settings.target_tris:
         return ms, kept_in_place, False
-    ms, kept_in_place = _collapse(local, faces, settings, locked=locked & used, vertex_ids=vertex_ids, rows=rows)
-    return ms, kept_in_place, True
+    free, free_kept = _collapse(local, faces, settings, locked=locked & used, vertex_ids=vertex_ids, rows=rows)
+    if free.current_mesh().face_number() > OVER_BUDGET_FACTOR * settings.target_tris:
+        return ms, kept_in_place, False  # freeing bought no budget (what holds it is locked): keep the rims
+    return free, free_kept, True
 
 
 def _collapse(local: np.ndarray, faces: np.ndarray, settings: DecimationSettings, *, locked: np.ndarray | None,
