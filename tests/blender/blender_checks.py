@@ -290,13 +290,15 @@ def check_preview(repo, work) -> dict:
     # the backend: OpenGL, Blender's default on Linux in 4.2, 5.0 and 5.2, or the one forced (Vulkan)
     out = {"running": preview.running(), "status_on": props.status, "backend": gpu.platform.backend_type_get()}
     size = (320, 240)
+    queries = []  # per frame: Coh may skip every query of a settled frame (results kept, prediction)
     for _ in range(3):
         frame = _draw_checks(package, scene, size, occlude=True)
+        queries.append(props.stat_queries)
     out["occluded"], out["mode"], out["status_drawn"] = frame, preview.session.mode, props.status
     out["materialize_front"] = sorted(bpy.ops.hlod.materialize(depth=-1))
     out["front_objects"] = len(bpy.data.collections["HLOD front"].objects)
-    out["stats"] = {"drawn": props.stat_drawn, "queries": props.stat_queries, "tris": props.stat_tris,
-                    "frame_ms": props.stat_frame_ms}
+    out["stats"] = {"drawn": props.stat_drawn, "queries": max(queries), "queries_per_frame": queries,
+                    "tris": props.stat_tris, "frame_ms": props.stat_frame_ms}
     # overlay boxes with Blender's gpu module
     props.show_boxes = True
     out["with_boxes"] = _draw_checks(package, scene, size, occlude=False)["other_pixels"]

@@ -178,6 +178,8 @@ def _draw_path_holds(out: dict, *, backend: str, mode: str, status: str) -> None
              orthographic_and_xray=out["ortho"] > 1000 and "X-ray clears the depth" in out["status_xray"],
              materialize_front=out["materialize_front"] == ["FINISHED"]
              and out["front_objects"] == out["stats"]["drawn"],
+             # the last frame's nodes and triangles; queries in one of the three frames (the first
+             # always queries; a settled Coh frame may skip them all, as under load its results wait)
              statistics=out["stats"]["drawn"] > 0 and out["stats"]["queries"] > 0 and out["stats"]["tris"] > 0,
              box_outlines=out["with_boxes"] > 200,  # drawn with Blender's gpu module
              query_stream_switches=out["query_stream"] == ["on", "on", "off", "off", PREDICT_NEW, TOGGLED[PREDICT_NEW]]
