@@ -113,6 +113,7 @@ def _imported_by_gl_context(platform: str, monkeypatch) -> list[str]:
     return imported
 
 
+@pytest.mark.slow  # every_zip: each platform's wheels, downloaded on a fresh clone (about a minute)
 def test_every_zip_holds_the_glcontext_modules_its_platform_imports(every_zip, monkeypatch):
     """For each zip the build makes (linux-x64, windows-x64, macos-arm64, each for both Blender lines):
     the glcontext modules the GL context's branch for that platform imports (run, not read) are
@@ -156,6 +157,7 @@ def test_a_zip_whose_glcontext_lacks_the_platforms_module_stops_the_build(tmp_pa
                                "glcontext.egl)")
 
 
+@pytest.mark.slow  # every_zip: each platform's wheels, downloaded on a fresh clone (about a minute)
 def test_the_licence_ships_in_every_zip_the_build_makes(every_zip):
     """LICENSE, the full GPL v3 text the manifest's GPL-3.0-or-later refers to, is in every zip the
     build makes with Blender's own tool (check_zip holds every release zip to the same list)."""
