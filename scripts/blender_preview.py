@@ -190,14 +190,20 @@ def draw_wall(projection, distance: float, *, covered: float = 0.5, colour=OCCLU
     the left `covered` share of the view, into the bound framebuffer's colour and depth (depth test
     and writes on for it). Drawn in clip space: x from -1 to 2 covered - 1, z_ndc of view-space
     z = -distance under `projection` (4x4), the depth hlod_core's depth_import.wall_depth gives."""
+    p = np.asarray(projection, np.float64)
+    z = -float(distance)
+    draw_clip_quad(right=2.0 * covered - 1.0, z_ndc=float((p[2, 2] * z + p[2, 3]) / (p[3, 2] * z + p[3, 3])),
+                   colour=colour)
+
+
+def draw_clip_quad(*, right: float, z_ndc: float, colour) -> None:
+    """A quad in clip space from x = -1 to `right`, the whole height, at depth `z_ndc`, in `colour`
+    (linear RGBA), into the bound framebuffer's colour and depth (depth test LESS_EQUAL and writes on
+    for it, both off after)."""
     import gpu
     from gpu_extras.batch import batch_for_shader
     from mathutils import Matrix
 
-    p = np.asarray(projection, np.float64)
-    z = -float(distance)
-    z_ndc = float((p[2, 2] * z + p[2, 3]) / (p[3, 2] * z + p[3, 3]))
-    right = 2.0 * covered - 1.0
     shader = gpu.shader.from_builtin("UNIFORM_COLOR")
     with gpu.matrix.push_pop():
         gpu.matrix.load_identity()

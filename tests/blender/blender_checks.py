@@ -201,25 +201,10 @@ def check_bake(repo, work) -> dict:
     return out
 
 
-def _occluder_quad(shader) -> None:
+def _occluder_quad() -> None:
     """Blender's own drawing before the preview: a grey quad in clip space at depth -0.9 (near) over
     the left 40% of the view, depth written, so it hides and occludes the nodes behind it."""
-    import gpu
-    from gpu_extras.batch import batch_for_shader
-    from mathutils import Matrix
-
-    with gpu.matrix.push_pop():
-        gpu.matrix.load_identity()
-        with gpu.matrix.push_pop_projection():
-            gpu.matrix.load_projection_matrix(Matrix.Identity(4))
-            gpu.state.depth_test_set("LESS_EQUAL")
-            gpu.state.depth_mask_set(True)
-            quad = [(-1, -1, -0.9), (-0.2, -1, -0.9), (-0.2, 1, -0.9), (-1, 1, -0.9)]
-            batch = batch_for_shader(shader, "TRI_FAN", {"pos": quad})
-            shader.uniform_float("color", (0.5, 0.5, 0.5, 1.0))
-            batch.draw(shader)
-            gpu.state.depth_test_set("NONE")
-            gpu.state.depth_mask_set(False)
+    blender_preview.draw_clip_quad(right=-0.2, z_ndc=-0.9, colour=(0.5, 0.5, 0.5, 1.0))
 
 
 def _green_triangle(shader) -> None:
@@ -249,7 +234,7 @@ def _draw_checks(package, scene, size, occlude: bool) -> dict:
     def occluder():
         state["before"] = (gpu.state.depth_mask_get(), gpu.state.depth_test_get(), tuple(gpu.state.viewport_get()))
         if occlude:
-            _occluder_quad(shader)
+            _occluder_quad()
 
     def green():
         state["after"] = (gpu.state.depth_mask_get(), gpu.state.depth_test_get(), tuple(gpu.state.viewport_get()))
@@ -529,7 +514,7 @@ def _blender_drawing(package, scene, size) -> np.ndarray:
     shader = gpu.shader.from_builtin("UNIFORM_COLOR")
     pixels = None
     for _ in range(3):  # a few frames of the same view, as the viewport redraws
-        pixels = blender_preview.draw_offscreen(package, scene, size, before=lambda: _occluder_quad(shader),
+        pixels = blender_preview.draw_offscreen(package, scene, size, before=_occluder_quad,
                                                 after=lambda: _green_triangle(shader))
     return pixels
 
@@ -558,13 +543,12 @@ def _redraw(preview, scene, offscreen, census, view: np.ndarray, projection: np.
     import gpu
     from mathutils import Matrix
 
-    shader = gpu.shader.from_builtin("UNIFORM_COLOR")
     with offscreen.bind():
         gpu.state.active_framebuffer_get().clear(color=(1.0, 1.0, 1.0, 1.0), depth=1.0)
         with gpu.matrix.push_pop():
             gpu.matrix.load_matrix(Matrix(view.tolist()))
             gpu.matrix.load_projection_matrix(Matrix(projection.tolist()))
-            _occluder_quad(shader)
+            _occluder_quad()
             preview.safe_draw(scene, preview.view_from_matrices(view, projection, LONG_SIZE))
         return census.drain_errors()
 

@@ -492,7 +492,7 @@ def check_cycles_fallback(repo, work) -> dict:
     bystander.select_set(True)
     bpy.context.view_layer.objects.active = bystander
     bpy.context.scene.cycles.samples, bpy.context.scene.render.bake.margin = 37, 3  # not Cycles' defaults
-    warnings = _captured_warnings(NAME + ".addon")
+    warnings = captured_warnings(NAME + ".addon")
     before = _scene_state()
     started = time.perf_counter()
     gathered = gathering.gather(bpy.context, [*planes, bare])
@@ -585,7 +585,7 @@ def _bare_plane(material):
     return obj
 
 
-def _captured_warnings(logger_name: str) -> list[str]:
+def captured_warnings(logger_name: str) -> list[str]:
     """A list that receives the messages of every warning `logger_name` (and below) logs from now."""
     messages: list[str] = []
 

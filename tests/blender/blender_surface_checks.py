@@ -36,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import bpy
 
 import blender_preview
+from blender_material_checks import captured_warnings
 from hlod_core.core.colour import srgb_from_linear, srgb_to_linear
 
 NAME = "bl_ext.r.hlod"
@@ -430,27 +431,13 @@ def check_without_cycles_bakes(repo, work) -> dict:
     import addon_utils
 
     addon_utils.disable("cycles", default_set=True)
-    warnings = _captured_warnings(NAME + ".addon")
+    warnings = captured_warnings(NAME + ".addon")
     plane = _plane("diffuse", 5, _bsdf_material("diffuse", "ShaderNodeBsdfDiffuse", image))
     gathered = gathering.gather(bpy.context, [plane])
     row = gathered.mesh.materials[0]
     out["cycles_disabled"] = {"cycles": hasattr(bpy.context.scene, "cycles"), "warnings": warnings,
                               "bakes": len(gathered.cycles_bakes), "row": [row.name, list(row.base_color), row.texture]}
     return out
-
-
-def _captured_warnings(logger_name: str) -> list[str]:
-    """A list that receives the messages of every warning `logger_name` (and below) logs from now."""
-    import logging
-
-    messages: list[str] = []
-
-    class Keep(logging.Handler):
-        def emit(self, record):
-            messages.append(record.getMessage())
-
-    logging.getLogger(logger_name).addHandler(Keep(logging.WARNING))
-    return messages
 
 
 if __name__ == "__main__":
