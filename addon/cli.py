@@ -23,7 +23,7 @@ A file that fails is one stderr line naming it and the reason (never a traceback
 go on. The last stdout line is a JSON summary ({"files": [{"blend", "ok", "outputs", "skipped" |
 "error"}], "failed": N}); the exit status is 1 if any failed, 2 for bad arguments.
 `view` is the core's `view` command (hlod_core.export.viewer.serve_until_stopped, imported only by
-this command): the first line it prints is the page's URL (http://localhost:N/), for scripts; it
+this command): the first line it prints is the page's URL (http://127.0.0.1:N/), for scripts; it
 serves until Ctrl-C or SIGTERM, then exits 0. A folder without tileset.json, CesiumJS not found or
 a port in use is one line on stderr and exit status 2.
 """
@@ -73,7 +73,7 @@ def parser() -> argparse.ArgumentParser:
     e.add_argument("file", metavar="IN.hlod")
     e.add_argument("--format", choices=["3dtiles", "hlod"], required=True)
     e.add_argument("-o", "--output", required=True, metavar="DIR")
-    v = sub.add_parser("view", help="serve a 3D Tiles export and a CesiumJS viewer on localhost until Ctrl-C")
+    v = sub.add_parser("view", help="serve a 3D Tiles export and a CesiumJS viewer on 127.0.0.1 until Ctrl-C")
     v.add_argument("dir", metavar="DIR", help="a 3D Tiles export: the folder holding tileset.json")
     v.add_argument("--port", type=int, default=0, metavar="N", help="the port (default 0: a free one)")
     v.add_argument("--no-browser", action="store_true", help="only serve (scripts, remote machines)")

@@ -17,7 +17,7 @@ def running_server():
 
 
 def url() -> str | None:
-    """The running viewer's page ("http://localhost:N/"), None when none runs (the panel's line)."""
+    """The running viewer's page ("http://127.0.0.1:N/"), None when none runs (the panel's line)."""
     return _server.url if _server is not None else None
 
 

@@ -97,6 +97,9 @@ class HLOD_OT_bake(bpy.types.Operator):
         the operator's return value."""
         bake.finish()
         job = bake.job
+        if job.scratch_left:
+            self.report({"WARNING"}, f"HLOD bake: scratch folder {job.scratch_left} not removed (a file in it is "
+                                     "still held); the next bake removes it")
         if isinstance(job.error, BakeCancelled):
             self.report({"WARNING"}, "HLOD bake cancelled; nothing written")
         elif job.error is not None:

@@ -27,7 +27,7 @@ def _tiles_folder(props, picked: str) -> str:
 
 
 class HLOD_OT_view_tiles(bpy.types.Operator):
-    """Serve the last 3D Tiles export on this computer (localhost) and open it in the web browser with CesiumJS"""
+    """Serve the last 3D Tiles export on this computer (127.0.0.1) and open it in the web browser with CesiumJS"""
 
     bl_idname = "hlod.view_tiles"
     bl_label = "View in Browser"

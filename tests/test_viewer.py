@@ -56,7 +56,7 @@ def _get(url: str, path: str, method: str = "GET") -> tuple[int, dict, bytes]:
 def test_server_serves_the_page_cesium_and_the_tiles_with_their_types(tiles):
     with viewer.serve(tiles) as server:
         server.start()
-        assert server.url == f"http://localhost:{server.port}/" and server.server_address[0] == "127.0.0.1"
+        assert server.url == f"http://127.0.0.1:{server.port}/" and server.server_address[0] == "127.0.0.1"
         status, headers, body = _get(server.url, "/")
         assert status == 200 and headers["Content-Type"].startswith("text/html") and b"/viewer/viewer.js" in body
         for path, kind in (("/viewer/viewer.js", "text/javascript"), ("/viewer/viewer.css", "text/css"),
@@ -126,7 +126,7 @@ def test_view_command_prints_the_url_serves_and_ends_cleanly_on_sigterm(tiles, t
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         url = proc.stdout.readline().strip()
-        assert url.startswith("http://localhost:"), url
+        assert url.startswith("http://127.0.0.1:"), url
         assert _get(url, "/tiles/tileset.json")[0] == 200
     finally:
         proc.send_signal(signal.SIGTERM)

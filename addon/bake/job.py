@@ -16,15 +16,20 @@ signal or status and the last lines it wrote on stderr.
 
 `cancel()` asks the child and its workers to stop (process_tree.ask_to_stop: SIGTERM to the group,
 or on Windows its stdin closed), and kills the tree after STOP_GRACE_SECONDS (kill_tree: SIGKILL to
-the group, or taskkill /T /F). Whatever ends the child, what is left of its tree, the scratch folder
-and the temporary files of its atomic write go before the job reports itself finished: an earlier
-.hlod stays as it was unless the child renamed a complete new one over it. If Blender dies, the
-child stops itself (its stdin closes).
+the group, or taskkill /T /F). Whatever ends the child, what is left of its tree
+(process_tree.end_leftovers; on Windows the child's job object has ended it), the scratch folder
+(core.atomic.remove_tree: retried on Windows while a dying worker still maps its files) and the
+temporary files of its atomic write go before the job reports itself finished: an earlier .hlod
+stays as it was unless the child renamed a complete new one over it. A scratch folder that cannot
+be removed is named (`scratch_left`, and the result's), marked (LEFTOVER_MARK) and removed by the
+next job (`sweep_leftovers`). If Blender dies, the child stops itself (its stdin closes).
 Why: docs/how-it-works.md#the-bakes-child-process-and-its-cleanup
 """
 from __future__ import annotations
 
 import collections
+import contextlib
+import dataclasses
 import importlib.util
 import json
 import logging
@@ -41,7 +46,7 @@ from pathlib import Path
 
 from ...hlod_core.bake import child
 from ...hlod_core.bake.settings import BakeSettings
-from ...hlod_core.core import process_tree
+from ...hlod_core.core import atomic, process_tree
 from ...hlod_core.core.errors import BakeCancelled, HlodError
 from ...hlod_core.io.meshes import TriangleMesh
 
@@ -53,6 +58,8 @@ EXTENSION_DIR = Path(child.__file__).resolve().parents[2]
 #: child's path (in Blender, pymeshlab comes from the extension's wheels, numpy with Blender).
 CHILD_MODULES = ("pymeshlab", "numpy")
 SCRATCH_PREFIX = "hlod-blender-"
+#: The file a job leaves in a scratch folder it could not remove: the next job removes the folder.
+LEFTOVER_MARK = "hlod-leftover"
 #: Between asking the child's tree to stop and killing it after a cancel.
 STOP_GRACE_SECONDS = 0.5
 #: How often the watcher looks at the child (and the cancel deadline).
@@ -71,7 +78,8 @@ class BakeProcessError(HlodError):
 class BakeResult:
     """What a finished child reported: output path, node count, input triangles, the bake's own
     seconds (bake() alone, in the child), worker processes, and the cache's statistics of the
-    bake (None without a cache)."""
+    bake (None without a cache); scratch_left: the job's scratch folder when it could not be
+    removed (BakeJob.scratch_left), else None."""
 
     output: str
     node_count: int
@@ -79,6 +87,7 @@ class BakeResult:
     bake_seconds: float
     jobs: int
     cache: dict | None = None
+    scratch_left: str | None = None
 
 
 def child_path() -> list[str]:
@@ -120,6 +129,7 @@ class BakeJob:
         self.jobs = settings.jobs
         self.started = time.perf_counter()
         self.stderr_tail: collections.deque[str] = collections.deque(maxlen=STDERR_TAIL_LINES)
+        self.scratch_left: str | None = None  # set when the job could not remove its scratch folder
         self._events: dict[str, dict] = {}
         self._lock = threading.Lock()
         self._stop_at: float | None = None  # monotonic time of cancel()
@@ -127,6 +137,7 @@ class BakeJob:
         self._reaped = False
         self._finished = threading.Event()
         self._temp_before = self._output_temps()
+        sweep_leftovers()
         self._scratch = tempfile.mkdtemp(prefix=SCRATCH_PREFIX)
         try:
             job_file = child.write_job(self._scratch, mesh, settings, output=self.output, extra_meta=extra_meta,
@@ -233,8 +244,8 @@ class BakeJob:
 
     def _wait_child(self) -> int:
         """Wait for the child to end, escalating a cancel to a kill of its tree after the grace;
-        then kill what is left of its tree (orphaned workers) while the child's pid still names it
-        (POSIX: the child is not reaped yet, `_exited`), and reap it."""
+        then end what is left of its tree (orphaned workers: process_tree.end_leftovers) while the
+        child's pid still names it (POSIX: the child is not reaped yet, `_exited`), and reap it."""
         while not self._exited():
             time.sleep(POLL_SECONDS)
             stop_at = self._stop_at
@@ -243,7 +254,7 @@ class BakeJob:
                     process_tree.kill_tree(self.pid)
                     self._killed = True
         with self._lock:
-            process_tree.kill_tree(self.pid)
+            process_tree.end_leftovers(self.pid)
             returncode = self._proc.wait()
             self._reaped = True
         self._proc.stdin.close()
@@ -264,7 +275,7 @@ class BakeJob:
         if returncode == 0 and done is not None:
             self.result = BakeResult(output=done["output"], node_count=int(done["nodes"]),
                                      input_tris=int(done["input_tris"]), bake_seconds=float(done["bake_seconds"]),
-                                     jobs=int(done["jobs"]), cache=done.get("cache"))
+                                     jobs=int(done["jobs"]), cache=done.get("cache"))  # scratch_left: _clean_up
             self.progress = (self.progress[1], self.progress[1], "done")
         elif failed is not None:
             kind = child.ERROR_TYPES.get(failed["type"], HlodError)
@@ -292,9 +303,18 @@ class BakeJob:
                 + (" | ".join(tail) if tail else "(none)"))
 
     def _clean_up(self) -> None:
-        """Remove the scratch folder (the child's temporary files with it) and temporary files of
-        the child's atomic write beside the output that were not there before the job."""
-        shutil.rmtree(self._scratch, ignore_errors=True)
+        """Remove the scratch folder (the child's temporary files with it; atomic.remove_tree) and
+        temporary files of the child's atomic write beside the output that were not there before
+        the job. A scratch folder that stays is named (`scratch_left`, the result's, the log) and
+        marked for the next job (LEFTOVER_MARK)."""
+        if not atomic.remove_tree(self._scratch):
+            self.scratch_left = self._scratch
+            with contextlib.suppress(OSError):
+                Path(self._scratch, LEFTOVER_MARK).touch()
+            if self.result is not None:
+                self.result = dataclasses.replace(self.result, scratch_left=self._scratch)
+            log.warning("HLOD bake: %s: scratch folder not removed (a file in it is still held); the next bake "
+                        "removes it", self._scratch)
         for leftover in self._output_temps() - self._temp_before:
             try:
                 os.unlink(leftover)
@@ -309,6 +329,36 @@ class BakeJob:
                     if entry.startswith(f".{name}.") and entry.endswith(".tmp")}
         except OSError:
             return set()
+
+
+def sweep_leftovers(folder: str | None = None) -> list[str]:
+    """Remove the scratch folders earlier jobs could not remove (those holding LEFTOVER_MARK) in
+    `folder` (default: the temp folder), in one pass: the mark goes last, so a folder a file still
+    holds stays marked for the next job. Another job's folder in use has no mark. Returns the
+    folders that stay."""
+    folder = tempfile.gettempdir() if folder is None else folder
+    try:
+        marked = [Path(folder, name) for name in os.listdir(folder)
+                  if name.startswith(SCRATCH_PREFIX) and os.path.isfile(os.path.join(folder, name, LEFTOVER_MARK))]
+    except OSError:
+        return []
+    left = []
+    for scratch in marked:
+        try:
+            for entry in scratch.iterdir():
+                if entry.name == LEFTOVER_MARK:
+                    continue
+                if entry.is_dir():
+                    shutil.rmtree(entry, ignore_errors=True)
+                else:
+                    with contextlib.suppress(OSError):
+                        entry.unlink()
+            held = any(entry.name != LEFTOVER_MARK for entry in scratch.iterdir())
+        except OSError:
+            held = True
+        if held or not atomic.remove_tree(scratch):
+            left.append(str(scratch))
+    return left
 
 
 def active() -> BakeJob | None:

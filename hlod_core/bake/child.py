@@ -29,7 +29,8 @@ SIGHUP: the bake stops, its worker pool and scratch files go, nothing is written
 With `--parent-stdin` the parent keeps the child's stdin open and never writes to it: end of file
 there means the parent is gone (Blender quit or crashed) or, on Windows, that it cancels the bake
 (core.process_tree: Windows has no process groups to signal), and the child then stops itself and
-its workers as if cancelled (process_tree.stop_self), and removes the job's files itself. Temporary
+its workers as if cancelled (process_tree.stop_self), and removes the job's files itself. However
+the child ends, its workers end with it (process_tree.end_with_self, end_leftovers). Temporary
 files of the bake (`hlod-bake-*`) go where TMPDIR says: the extension points it into its private
 folder, which it removes whatever happens to the child.
 """
@@ -181,6 +182,10 @@ def main(argv: list[str] | None = None) -> int:
     events = _Events()
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="hlod_core: %(message)s")
     parent = os.getppid()
+    try:  # before any worker starts: on Windows its workers then end with it however it ends
+        process_tree.end_with_self()
+    except OSError as exc:
+        log.warning("the bake's workers may outlive this process if it dies (%s)", exc)
     try:
         with signals_as_exceptions():
             if watch_parent:

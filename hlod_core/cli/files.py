@@ -31,7 +31,7 @@ def add_export(sub) -> None:
 
 def add_view(sub) -> None:
     """The `view` command's parser, on the subparsers `sub`."""
-    p = sub.add_parser("view", help="serve a 3D Tiles export and a CesiumJS viewer page on localhost; open the browser")
+    p = sub.add_parser("view", help="serve a 3D Tiles export and a CesiumJS viewer page on 127.0.0.1; open the browser")
     p.add_argument("dir", metavar="DIR", help="a 3D Tiles export folder (holding tileset.json)")
     p.add_argument("--port", type=whole_number(0), default=0, help="port on 127.0.0.1 (default 0: a free one)")
     p.add_argument("--no-browser", action="store_true", help="only serve (scripts, remote machines)")

@@ -8,7 +8,7 @@ them; texture files copied once into `textures/` and referred to by every GLB; e
 Why: docs/how-it-works.md#3d-tiles-export
 
 Data form: in, an Hlod; out, a folder tileset.json, tiles/<node>.glb, textures/ (when textured),
-written into a temporary folder and renamed into place.
+written into a temporary folder and put in place of an earlier export (`replace_export`).
 """
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from urllib.parse import quote
 
 import numpy as np
 
-from ..core.atomic import umask_mode
+from ..core.atomic import replace_folder, umask_mode
 from ..core.errors import InputError
 from ..io.texture_folder import unique_file_name
 from ..model.hierarchy import Hlod, node_geometry
@@ -134,11 +134,13 @@ def tileset(hlod: Hlod, content_uri) -> dict:
             "geometricError": max(diagonal, float(hlod.error[0])), "root": root}
 
 
-def export(hlod: Hlod, out_dir: str | os.PathLike) -> dict:
+def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = None) -> dict:
     """Write tileset.json, tiles/<node>.glb and, for textured materials, textures/ into out_dir,
     atomically: everything is written into a temporary folder beside it and renamed into place,
-    replacing an earlier export. Folders and files get the modes of ordinary ones (0o777 / 0o666
-    less the umask). Returns a summary (tiles, glb files, triangles, bytes, image files, warnings)."""
+    replacing an earlier export (`replace_export`). Folders and files get the modes of ordinary
+    ones (0o777 / 0o666 less the umask). `platform`: a sys.platform string (default this
+    machine's) for replace_export.
+    Returns a summary (tiles, glb files, triangles, bytes, image files, warnings)."""
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
@@ -148,7 +150,7 @@ def export(hlod: Hlod, out_dir: str | os.PathLike) -> dict:
         written, tris, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images)
         document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb")
         (staging / "tileset.json").write_text(json.dumps(document, indent=1))
-        _replace_folder(out_dir, staging)
+        warnings = warnings + replace_export(out_dir, staging, platform=platform)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -170,19 +172,20 @@ def _write_tiles(hlod: Hlod, folder: Path, *, images: dict[str, TileImage]) -> t
     return written, tris, size
 
 
-def _replace_folder(out_dir: Path, staging: Path) -> None:
-    """Rename `staging` to out_dir, replacing an earlier export there (a folder holding tileset.json,
-    or an empty one); InputError for any other folder."""
-    old = None
-    if out_dir.exists():
-        if not (out_dir / "tileset.json").is_file() and any(out_dir.iterdir()):
-            raise InputError(f"{out_dir}: exists, is not empty and holds no tileset.json; not replacing it")
-        old = out_dir.with_name(f".{out_dir.name}.old")
-        shutil.rmtree(old, ignore_errors=True)
-        out_dir.rename(old)
-    staging.rename(out_dir)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+def replace_export(out_dir: Path, staging: Path, *, platform: str | None = None) -> list[str]:
+    """Put the export written in `staging` in out_dir's place (core.atomic.replace_folder: out_dir is
+    the earlier export or the new one, whole; renames retried while Windows refuses them, a served
+    tile being open; the earlier export put back when the new one cannot take its place), replacing
+    an earlier export there (a folder holding tileset.json, or an empty one); InputError for any
+    other folder. Returns warnings naming earlier exports renamed aside that could not be removed
+    yet (a file in them still open): the next export removes them."""
+    if out_dir.exists() and not (out_dir / "tileset.json").is_file() and any(out_dir.iterdir()):
+        raise InputError(f"{out_dir}: exists, is not empty and holds no tileset.json; not replacing it")
+    left = [f"{path}: an earlier export, not removed yet (a file in it is open); the next export removes it"
+            for path in replace_folder(staging, out_dir, platform=platform)]
+    for line in left:
+        log.warning("%s", line)
+    return left
 
 
 def _count(tile: dict) -> int:

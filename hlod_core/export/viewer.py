@@ -110,8 +110,15 @@ def port_options(platform: str | None = None) -> list[tuple[int, int, int]]:
     return [(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)]
 
 
+def page_url(port: int) -> str:
+    """The viewer page's URL on `port`: the address it listens on (HOST), never `localhost`, which
+    Windows resolves to ::1 first; a client without a fallback to 127.0.0.1 (Python's urllib, a
+    script) then waits 1 to 2 s on each connection for ::1 to refuse."""
+    return f"http://{HOST}:{port}/"
+
+
 class ViewerServer(http.server.ThreadingHTTPServer):
-    """The viewer's HTTP server on 127.0.0.1:`port` (0 = a free one). `url` is its page. `start()`
+    """The viewer's HTTP server on 127.0.0.1:`port` (0 = a free one). `url` is its page (page_url). `start()`
     serves from a daemon thread, `serve_forever()` from the caller's; `close()` (or leaving the
     `with` block) stops serving and frees the port. Its socket options are `port_options()`'s."""
 
@@ -130,7 +137,7 @@ class ViewerServer(http.server.ThreadingHTTPServer):
         except OSError as exc:
             raise InputError(f"port {port}: cannot listen on {HOST} ({exc.strerror or exc})") from None
         self.port = int(self.server_address[1])
-        self.url = f"http://localhost:{self.port}/"
+        self.url = page_url(self.port)
         self._thread: threading.Thread | None = None
 
     def resolve(self, request_path: str) -> Path | None:

@@ -10,6 +10,7 @@ import re
 import shutil
 from pathlib import Path
 
+from ..core.atomic import replace_folder
 from ..core.errors import InputError
 from .meshes import TriangleMesh
 
@@ -68,13 +69,12 @@ class EmbeddedTextures:
         return dataclasses.replace(mesh, materials=moved)
 
     def publish(self) -> str | None:
-        """Rename the scratch folder to OUT.textures; returns its path, or None when nothing was written."""
+        """Rename the scratch folder to OUT.textures (core.atomic.replace_folder: an earlier one is
+        replaced whole); returns its path, or None when nothing was written."""
         if not self.scratch.is_dir():
             return None
-        old = self.final.parent / f".{self.final.name}.old-{os.getpid()}"
-        if self.final.is_dir():
-            os.replace(self.final, old)
-        os.replace(self.scratch, self.final)
-        shutil.rmtree(old, ignore_errors=True)
+        for path in replace_folder(self.scratch, self.final):
+            log.warning("%s: earlier embedded images, not removed yet (a file in it is open); the next bake "
+                        "removes them", path)
         log.info("embedded images: %s", self.final)
         return str(self.final)

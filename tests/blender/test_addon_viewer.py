@@ -198,7 +198,7 @@ def test_view_in_browser_serves_the_export_on_localhost_and_stops(repo, tmp_path
              exported=out["bake"] == out["export"] == ["FINISHED"]
              and out["tiles_dir"] == str(tmp_path / "row_3dtiles"),
              bundled=out["bundled_cesium"],
-             serving=out["view"] == ["FINISHED"] and bool(out["url"]) and out["url"].startswith("http://localhost:"),
+             serving=out["view"] == ["FINISHED"] and bool(out["url"]) and out["url"].startswith("http://127.0.0.1:"),
              localhost_only=out["bound"] == "127.0.0.1",
              served=all(statuses[p] == 200 for p in PATHS_200),
              nothing_else=all(statuses[p] == 404 for p in PATHS_404),
@@ -266,7 +266,7 @@ def test_background_view_command_prints_the_url_and_serves_until_sigterm(repo, t
             proc.kill()
             proc.wait()
     stderr = proc.stderr.read()
-    assert line == f"http://localhost:{port}/", (line, stderr[-3000:])
+    assert line == f"http://127.0.0.1:{port}/", (line, stderr[-3000:])
     assert statuses == {"/": 200, "/tiles/tileset.json": 200, "/tiles/../tileset.json": 404}, statuses
     assert status == 0, (status, stderr[-3000:])
     assert not port_open(port)
