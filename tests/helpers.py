@@ -1,6 +1,7 @@
 """Test inputs shared by the test modules: where things are, the test models (models.py: by role)
 and their bakes, the street walk through the default city, the textured scene made with bpy, the
-comparable bytes of a .hlod file, and a scripted query-availability double.
+comparable bytes of a .hlod file, a scripted query-availability double, and the extension imported
+as a package outside Blender (for its modules that import no Blender module).
 
 Nothing is cached at module level: what a test run shares (the bakes, the GL context) is a fixture in
 conftest.py, made once and dropped by pytest at the end. The core is imported inside the functions:
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import importlib.util
 import json
 import os
 import shutil
@@ -227,3 +229,17 @@ def numeric_library_env() -> dict[str, str]:
     differ by the kernel, not by the code (a machine that sets OPENBLAS_CORETYPE=Haswell on an AMD
     EPYC gave a different cow without it)."""
     return {k: v for k, v in os.environ.items() if k.startswith(("OPENBLAS_", "OMP_", "MKL_", "GOTO", "BLIS_"))}
+
+
+def extension_package(name: str = "hlod_extension"):
+    """The repository imported as the package `name`, as Blender imports the extension (its
+    modules import one another relatively), for the add-on's modules that import no Blender module
+    (addon.bake.job) in tests outside Blender. Its hlod_core is a second copy of the core (its
+    errors are its own classes). Imported once a process (sys.modules keeps it)."""
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, ROOT / "__init__.py", submodule_search_locations=[str(ROOT)])
+    package = importlib.util.module_from_spec(spec)
+    sys.modules[name] = package
+    spec.loader.exec_module(package)
+    return package

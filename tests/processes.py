@@ -1,6 +1,6 @@
 """Child processes in tests: the command line (`python -m hlod_core`) and its contract (the last
 stdout line is one JSON object; a failure is one line on stderr), waiting for a condition without
-a fixed sleep, and whether a process group is gone."""
+a fixed sleep, and whether a process or a process group is gone."""
 from __future__ import annotations
 
 import json
@@ -62,4 +62,37 @@ def group_is_gone(pgid: int) -> bool:
         os.killpg(pgid, 0)
     except ProcessLookupError:
         return True
+    return False
+
+
+def alive(pid: int) -> bool:
+    """Whether `pid` runs (a zombie counts as ended: an orphan's reaper may be slow to reap it)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def live_group(pgid: int) -> list[int]:
+    """The live processes of process group `pgid` (from /proc; zombies left out)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[2]) == pgid and fields[0] != "Z":
+                found.append(int(entry.name))
+    return found
+
+
+def wait_gone(pids, timeout_s: float = 20.0) -> bool:
+    """Whether every process of `pids` has ended within timeout_s (a hang guard)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if not any(alive(p) for p in pids):
+            return True
+        time.sleep(POLL_S)
     return False

@@ -35,7 +35,7 @@ from hlod_core.core.png import write_png
 from hlod_core.core.signals import Terminated, signals_as_exceptions
 from hlod_core.export import viewer
 from hlod_core.io import hlod_file, procedural
-from processes import hlod, last_json
+from processes import alive, hlod, last_json, live_group, wait_gone
 
 # --- the bake's process tree ------------------------------------------------------------------------
 
@@ -44,38 +44,6 @@ TREE = ("import subprocess, sys, time\n"
         "g = subprocess.Popen([sys.executable, '-c', 'import time; time.sleep(60)'])\n"
         "print(g.pid, flush=True)\n"
         "time.sleep(60)\n")
-
-
-def _alive(pid: int) -> bool:
-    """Whether `pid` runs (a zombie counts as ended)."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
-
-
-def _group(pgid: int) -> list[int]:
-    """The live processes of process group `pgid` (from /proc)."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[2]) == pgid and fields[0] != "Z":
-                found.append(int(entry.name))
-    return found
-
-
-def _wait_gone(pids, timeout_s=20.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if not any(_alive(p) for p in pids):
-            return True
-        time.sleep(0.05)
-    return False
 
 
 def test_the_child_is_started_as_the_root_of_a_tree_on_each_platform():
@@ -90,13 +58,13 @@ def test_posix_stop_and_kill_reach_the_child_and_its_children(how):
                             **process_tree.child_options())
     try:
         grandchild = int(proc.stdout.readline())
-        assert _alive(grandchild)
+        assert alive(grandchild)
         if how == "ask":
             process_tree.ask_to_stop(proc)
         else:
             process_tree.kill_tree(proc.pid)
         assert proc.wait(timeout=20) == (-signal.SIGTERM if how == "ask" else -signal.SIGKILL)
-        assert _wait_gone([grandchild])
+        assert wait_gone([grandchild])
     finally:
         process_tree.kill_tree(proc.pid)
         proc.wait(timeout=20)
@@ -144,7 +112,7 @@ def test_closing_the_bake_childs_stdin_stops_it_and_its_workers(tmp_path):
     finally:
         process_tree.kill_tree(proc.pid)
         proc.wait(timeout=20)
-    assert _wait_gone(_group(proc.pid)) and not _group(proc.pid)
+    assert wait_gone(live_group(proc.pid)) and not live_group(proc.pid)
     assert not (tmp_path / "out.hlod").exists() and not (tmp_path / "job").exists()
 
 

@@ -333,31 +333,22 @@ class BakeJob:
 
 def sweep_leftovers(folder: str | None = None) -> list[str]:
     """Remove the scratch folders earlier jobs could not remove (those holding LEFTOVER_MARK) in
-    `folder` (default: the temp folder), in one pass: the mark goes last, so a folder a file still
-    holds stays marked for the next job. Another job's folder in use has no mark. Returns the
-    folders that stay."""
+    `folder` (default: the temp folder), in one pass (a bake's start waits on no retries); one a
+    file still holds is marked again for the next job. Another job's folder in use has no mark.
+    Returns the folders that stay."""
     folder = tempfile.gettempdir() if folder is None else folder
     try:
-        marked = [Path(folder, name) for name in os.listdir(folder)
+        marked = [os.path.join(folder, name) for name in os.listdir(folder)
                   if name.startswith(SCRATCH_PREFIX) and os.path.isfile(os.path.join(folder, name, LEFTOVER_MARK))]
     except OSError:
         return []
     left = []
     for scratch in marked:
-        try:
-            for entry in scratch.iterdir():
-                if entry.name == LEFTOVER_MARK:
-                    continue
-                if entry.is_dir():
-                    shutil.rmtree(entry, ignore_errors=True)
-                else:
-                    with contextlib.suppress(OSError):
-                        entry.unlink()
-            held = any(entry.name != LEFTOVER_MARK for entry in scratch.iterdir())
-        except OSError:
-            held = True
-        if held or not atomic.remove_tree(scratch):
-            left.append(str(scratch))
+        shutil.rmtree(scratch, ignore_errors=True)
+        if os.path.lexists(scratch):
+            with contextlib.suppress(OSError):
+                Path(scratch, LEFTOVER_MARK).touch()
+            left.append(scratch)
     return left
 
 
