@@ -215,8 +215,14 @@ def _scratch_folders(bake_job) -> list[Path]:
 
 
 def _shared_arrays(bake_job) -> list[Path]:
-    """The shared arrays the bake's workers map (tasks.save_shared), in the job's scratch folder."""
-    return sorted(bake_job.temp.glob(f"{bake_job.SCRATCH_PREFIX}*/hlod-bake-*/*.npy"))
+    """The shared arrays the bake's workers map (tasks.save_shared), in the job's scratch folder,
+    those written so far (not empty: a file being written may be)."""
+    found = []
+    for path in sorted(bake_job.temp.glob(f"{bake_job.SCRATCH_PREFIX}*/hlod-bake-*/*.npy")):
+        with contextlib.suppress(OSError):
+            if path.stat().st_size > 0:
+                found.append(path)
+    return found
 
 
 def _spawned_workers(pid: int) -> list[int]:
@@ -373,22 +379,23 @@ def test_the_earlier_export_is_put_back_when_the_new_one_cannot_take_its_place(b
 
 def test_stale_copies_beside_an_export_do_not_stop_the_next_one_and_are_cleared(bakes, tmp_path, as_windows,
                                                                                monkeypatch):
-    """An earlier version's `.NAME.old` and an aside folder a process still maps a tile of (as a
-    removal Windows refused leaves them): the export goes through, names the one still held in
-    its warnings, and the export after it (the tile let go) clears it."""
+    """A `.NAME.old` folder a process still maps a tile of (as a removal Windows refused leaves it;
+    it made the next export fail with FileExistsError) and an aside folder left free: the export
+    goes through, removes the free one, names the one still held in its warnings, and the export
+    after it (the tile let go) clears it."""
     _, first = bakes.baked("cow", target_tris=400)
     out = tmp_path / "tiles"
     tiles3d.export(first, out)
-    shutil.copytree(out, tmp_path / ".tiles.old")
-    held_aside = tmp_path / ".tiles.old-0123abcd"
+    held_aside = tmp_path / ".tiles.old"
     shutil.copytree(out, held_aside)
+    shutil.copytree(out, tmp_path / ".tiles.old-0123abcd")
     tile = next((held_aside / "tiles").iterdir())
     monkeypatch.setattr(atomic, "REMOVE_RETRY_SECONDS", 0.2)
     with held(tile):
         summary = tiles3d.export(first, out, platform="win32")
         assert summary["warnings"] == [f"{held_aside}: an earlier export, not removed yet (a file in it is open); "
                                        "the next export removes it"]
-        assert sorted(p.name for p in tmp_path.iterdir()) == [".tiles.old-0123abcd", "tiles"]
+        assert sorted(p.name for p in tmp_path.iterdir()) == [".tiles.old", "tiles"]
     assert tiles3d.export(first, out, platform="win32")["warnings"] == []
     assert sorted(p.name for p in tmp_path.iterdir()) == ["tiles"]
 
