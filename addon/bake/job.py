@@ -275,7 +275,7 @@ class BakeJob:
         if returncode == 0 and done is not None:
             self.result = BakeResult(output=done["output"], node_count=int(done["nodes"]),
                                      input_tris=int(done["input_tris"]), bake_seconds=float(done["bake_seconds"]),
-                                     jobs=int(done["jobs"]), cache=done.get("cache"))  # scratch_left: _clean_up
+                                     jobs=int(done["jobs"]), cache=done.get("cache"))
             self.progress = (self.progress[1], self.progress[1], "done")
         elif failed is not None:
             kind = child.ERROR_TYPES.get(failed["type"], HlodError)
