@@ -263,6 +263,7 @@ def test_windows_removes_a_folder_once_the_process_holding_it_has_gone(tmp_path,
     (folder / "inner").mkdir(parents=True)
     (folder / "inner" / "a.npy").write_bytes(b"x" * 4096)
     (folder / "b.npy").write_bytes(b"y" * 4096)
+    monkeypatch.setattr(atomic, "REMOVE_RETRY_SECONDS", 60.0)  # a hang guard: released long before
     with held(folder / "inner" / "a.npy") as holder:
         threading.Timer(0.3, release, [holder]).start()
         started = time.monotonic()
@@ -346,6 +347,7 @@ def test_a_reexport_waits_while_a_tile_is_held_open_and_never_leaves_it_half_rep
     tiles3d.export(first, out, platform="win32")
     earlier = _tileset(out)
     tile = next((out / "tiles").iterdir())
+    monkeypatch.setattr(atomic, "REPLACE_RETRY_SECONDS", 60.0)  # a hang guard: released long before
     with held(tile, "open") as viewer_process:
         threading.Timer(0.3, release, [viewer_process]).start()
         summary = tiles3d.export(second, out, platform="win32")
