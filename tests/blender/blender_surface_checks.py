@@ -44,6 +44,8 @@ SOURCE_PX = 32  # the source image's side
 REFERENCE_PX = 64  # the reference bake's side, one sample per texel (at its centre)
 OURS_PX = 128  # the add-on's bake side here (cycles_bake.BAKE_SIDE_PX; 512 in a user's bake)
 GREY = 0.8  # Blender's default material colour: what these surfaces gave before
+#: The viewport colour (diffuse_color, linear RGBA) of the material baked with Cycles disabled.
+VIEWPORT_COLOUR = (0.25, 0.5, 0.125, 1.0)
 SPACING = 3.0  # metres between the cases' objects
 GROUP = "glTF Metallic Roughness"
 CASES = ("gltf_group", "linked_group", "diffuse", "toon", "mix_shader", "add_shader", "emission_mix",
@@ -432,11 +434,14 @@ def check_without_cycles_bakes(repo, work) -> dict:
 
     addon_utils.disable("cycles", default_set=True)
     warnings = captured_warnings(NAME + ".addon")
-    plane = _plane("diffuse", 5, _bsdf_material("diffuse", "ShaderNodeBsdfDiffuse", image))
+    material = _bsdf_material("diffuse", "ShaderNodeBsdfDiffuse", image)
+    material.diffuse_color = VIEWPORT_COLOUR  # not Blender's default: what the row keeps is this
+    plane = _plane("diffuse", 5, material)
     gathered = gathering.gather(bpy.context, [plane])
     row = gathered.mesh.materials[0]
     out["cycles_disabled"] = {"cycles": hasattr(bpy.context.scene, "cycles"), "warnings": warnings,
-                              "bakes": len(gathered.cycles_bakes), "row": [row.name, list(row.base_color), row.texture]}
+                              "bakes": len(gathered.cycles_bakes), "row": [row.name, list(row.base_color), row.texture],
+                              "viewport_colour": list(material.diffuse_color)}
     return out
 
 

@@ -57,13 +57,14 @@ def test_a_scene_whose_trees_are_read_runs_no_cycles_bake(versioned_repo, tmp_pa
     """Principled BSDFs with an image and with a constant colour, and an Emission-only surface:
     gathering them evaluates no scene but the artist's (no Cycles bake, no temporary scene) and
     leaves every datablock as it was; the image-coloured ones keep their textures. With the Cycles
-    add-on disabled, a Diffuse BSDF's material keeps Blender's default grey, with one warning
-    naming it and saying why."""
+    add-on disabled, a Diffuse BSDF's material keeps its viewport colour (one set, not Blender's
+    default grey: exactly that colour), with one warning naming it and saying why."""
     out = blender(versioned_repo, "without_cycles_bakes", tmp_path, script="blender_surface_checks.py")
     disabled = out["cycles_disabled"]
     all_hold(out, cycles_bakes=out["cycles_bakes"] == 0, scenes=set(out["scenes_updated"]) <= {"Scene"},
              kept=out["datablocks_kept"], textures=out["textures"] == ["image", "unlit"],
              disabled=not disabled["cycles"] and disabled["bakes"] == 0
-             and disabled["row"] == ["diffuse", pytest.approx([0.8, 0.8, 0.8, 1.0]), None],
+             and disabled["viewport_colour"] != [0.8, 0.8, 0.8, 1.0]
+             and disabled["row"] == ["diffuse", disabled["viewport_colour"], None],
              warned=len(disabled["warnings"]) == 1 and "'diffuse'" in disabled["warnings"][0]
              and "Cycles" in disabled["warnings"][0] and "not enabled" in disabled["warnings"][0])
