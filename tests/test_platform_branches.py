@@ -57,18 +57,23 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def _group(pgid: int) -> list[int]:
-    """The live processes of process group `pgid` (from /proc)."""
-    found = []
+def _live_processes() -> dict[int, tuple[int, int]]:
+    """{pid: (parent pid, process group)} of the live processes (zombies left out), from /proc."""
+    found = {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
                 fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
             except OSError:
                 continue
-            if int(fields[2]) == pgid and fields[0] != "Z":
-                found.append(int(entry.name))
+            if fields[0] != "Z":
+                found[int(entry.name)] = (int(fields[1]), int(fields[2]))
     return found
+
+
+def _group(pgid: int) -> list[int]:
+    """The live processes of process group `pgid` (from /proc)."""
+    return [pid for pid, (_, group) in _live_processes().items() if group == pgid]
 
 
 def _wait_gone(pids, timeout_s=20.0) -> bool:
@@ -173,15 +178,7 @@ def _workers(pid: int) -> set[int]:
 
 def _descendants(pid: int) -> set[int]:
     """The live processes below `pid` (from /proc: each one's parent)."""
-    parents = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if fields[0] != "Z":
-                parents[int(entry.name)] = int(fields[1])
+    parents = {process: parent for process, (parent, _) in _live_processes().items()}
     found, frontier = set(), {pid}
     while frontier:
         frontier = {p for p, parent in parents.items() if parent in frontier} - found
