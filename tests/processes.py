@@ -74,18 +74,23 @@ def alive(pid: int) -> bool:
         return False
 
 
-def live_group(pgid: int) -> list[int]:
-    """The live processes of process group `pgid` (from /proc; zombies left out)."""
-    found = []
+def live_processes() -> dict[int, tuple[int, int]]:
+    """{pid: (parent pid, process group)} of the live processes (zombies left out), from /proc."""
+    found = {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():
             try:
                 fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
             except OSError:
                 continue
-            if int(fields[2]) == pgid and fields[0] != "Z":
-                found.append(int(entry.name))
+            if fields[0] != "Z":
+                found[int(entry.name)] = (int(fields[1]), int(fields[2]))
     return found
+
+
+def live_group(pgid: int) -> list[int]:
+    """The live processes of process group `pgid` (from /proc; zombies left out)."""
+    return [pid for pid, (_, group) in live_processes().items() if group == pgid]
 
 
 def wait_gone(pids, timeout_s: float = 20.0) -> bool:

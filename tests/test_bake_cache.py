@@ -336,6 +336,42 @@ def test_the_budget_evicts_the_least_recently_used_entries_never_the_bakes_own(t
     _assert_same_file(bake(meshes_["cow"], COW), cold, tmp_path)
 
 
+def test_an_entry_read_again_is_kept_over_one_written_later_and_not_read(tmp_path):
+    """Least recently *used*, not least recently written: cow baked, then spot, then the cow again
+    (its whole result read back, which touches the result and every node entry it used), then the
+    teapot under a budget that holds the cow's and the teapot's entries but not the spot's too.
+    The spot's entries go, all of them, and the cow's stay, all of them; first in, first out would
+    have evicted the cow's, written first."""
+    folder = tmp_path / "cache"
+    meshes_ = {name: meshes.transform_mesh(load_model(name), _translation(100.0 * i), name=name)
+               for i, name in enumerate(("cow", "spot", "teapot"))}
+    bake(meshes_["cow"], COW, cache_dir=folder)
+    files = {"cow": set(_entry_files(folder))}
+    bake(meshes_["spot"], COW, cache_dir=folder)
+    again = bake(meshes_["cow"], COW, cache_dir=folder)
+    assert again.meta["cache"]["reused_result"]
+    files["spot"] = set(_entry_files(folder)) - files["cow"]
+    alone = tmp_path / "alone"
+    bake(meshes_["teapot"], COW, cache_dir=alone)
+    files["teapot"] = set(_entry_files(alone))
+
+    def size(name: str) -> int:  # the bytes of one bake's entries, as written into the shared folder
+        return sum((alone if name == "teapot" else folder).joinpath(f).stat().st_size for f in files[name])
+
+    assert files["cow"] and files["spot"] and not files["cow"] & files["spot"]
+    others = sum(p.stat().st_size for p in folder.iterdir() if p.name not in files["cow"] | files["spot"])
+    smallest_spot = min((folder / f).stat().st_size for f in files["spot"])
+    # room for the cow, the teapot and the folder's other files (frame.json grows by one frame:
+    # far less than half an entry), and for no spot entry besides
+    budget_mb = (size("cow") + size("teapot") + others + smallest_spot // 2) / 2**20
+    third = bake(meshes_["teapot"], COW, cache_dir=folder, cache_budget_mb=budget_mb)
+    after = set(_entry_files(folder))
+    assert files["cow"] <= after, f"the cow's entries, read last, were evicted: {sorted(files['cow'] - after)}"
+    assert not files["spot"] & after, f"the spot's entries, not read since written, were kept: " \
+                                      f"{sorted(files['spot'] & after)}"
+    assert files["teapot"] <= after and third.meta["cache"]["evicted_entries"] == len(files["spot"])
+
+
 def test_a_budget_smaller_than_the_bake_keeps_the_bakes_entries(tmp_path):
     cow = load_model("cow")
     folder = tmp_path / "cache"

@@ -4,7 +4,8 @@ stopping the bake's process tree (core/process_tree.py), a .hlod replaced while 
 paths with spaces and non-ASCII characters through the command line.
 
 The POSIX branches run for real. Of the Windows branches, these run for real here, their platform
-named: closing the bake child's stdin to stop it (a real bake child stops), Terminated raised in
+named: closing the bake child's stdin to stop it (a real bake child stops; and one started as on
+Windows, without a process group and stop_self on its win32 branch, ends its workers itself), Terminated raised in
 the main thread by stop_self, reading a .hlod into memory (no mapping or handle left: the condition
 for Windows to let a re-bake replace the file). These are simulated, with the OS call recorded in
 place of being made: taskkill of the tree, the rename retried while Windows refuses it, the
@@ -12,6 +13,7 @@ socket option. Only a Windows machine proves them end to end.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -34,8 +36,8 @@ from hlod_core.core.errors import InputError
 from hlod_core.core.png import write_png
 from hlod_core.core.signals import Terminated, signals_as_exceptions
 from hlod_core.export import viewer
-from hlod_core.io import hlod_file, procedural
-from processes import alive, hlod, last_json, live_group, wait_gone
+from hlod_core.io import hlod_file, meshes, procedural
+from processes import alive, hlod, last_json, live_group, live_processes, wait_gone
 
 # --- the bake's process tree ------------------------------------------------------------------------
 
@@ -113,6 +115,97 @@ def test_closing_the_bake_childs_stdin_stops_it_and_its_workers(tmp_path):
         process_tree.kill_tree(proc.pid)
         proc.wait(timeout=20)
     assert wait_gone(live_group(proc.pid)) and not live_group(proc.pid)
+    assert not (tmp_path / "out.hlod").exists() and not (tmp_path / "job").exists()
+
+
+#: The bake child as it runs on Windows: started without a process group of its own (no group
+#: signal reaches its workers) and its stop_self taking the win32 branch (Terminated raised in its
+#: main thread), so only its own clean-up can end its workers.
+WINDOWS_CHILD = ("import sys\n"
+                 "from hlod_core.core import process_tree\n"
+                 "stop_self = process_tree.stop_self\n"
+                 "process_tree.stop_self = lambda platform=None: stop_self(platform='win32')\n"
+                 "from hlod_core.bake import child\n"
+                 "sys.exit(child.main(sys.argv[1:]))\n")
+
+
+def _workers(pid: int) -> set[int]:
+    """The live worker processes (multiprocessing's spawned ones) below `pid`, from /proc."""
+    found = set()
+    for process in _descendants(pid):
+        with contextlib.suppress(OSError):
+            if b"spawn_main" in Path(f"/proc/{process}/cmdline").read_bytes():
+                found.add(process)
+    return found
+
+
+def _descendants(pid: int) -> set[int]:
+    """The live processes below `pid` (from /proc: each one's parent)."""
+    parents = {process: parent for process, (parent, _) in live_processes().items()}
+    found, frontier = set(), {pid}
+    while frontier:
+        frontier = {p for p, parent in parents.items() if parent in frontier} - found
+        found |= frontier
+    return found
+
+
+def _cpu_seconds(pid: int) -> float:
+    """The CPU time (user + system, s) process `pid` has used; 0 once it has gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+#: A sphere of 360,000 triangles baked to depth 1: its eight leaves need no work, the root's
+#: decimation takes about 18 s on the 2-core test machine (and its exact error as long again).
+SPHERE_SEGMENTS = 600
+#: The most a stop may take (s) from the stdin closed to the child gone: killing and joining the
+#: workers takes well under a second (measured 0.45 s); a pool left to finish the running task
+#: waited 17.5 s.
+STOP_SECONDS = 5.0
+
+
+def test_a_bake_child_without_a_process_group_ends_its_workers_itself(tmp_path):
+    """The child as on Windows (WINDOWS_CHILD), stopped while a worker runs the root's long
+    decimation: no signal reaches its workers, so its own unwinding must end them (killed and joined,
+    the pool shut down) rather than wait for the task. It exits with 128 + 15 within STOP_SECONDS,
+    no worker is left, nothing is written and its job files are gone."""
+    positions, faces = procedural.uv_sphere((0.0, 0.0, 0.0), 1.0, segments=SPHERE_SEGMENTS,
+                                            rings=SPHERE_SEGMENTS // 2)
+    (tmp_path / "job").mkdir()
+    job = child.write_job(tmp_path / "job", meshes.from_arrays(positions, faces, None, name="sphere"),
+                          BakeSettings(jobs=2, max_depth=1), output=tmp_path / "out.hlod")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    proc = subprocess.Popen([sys.executable, "-c", WINDOWS_CHILD, str(job), child.PARENT_STDIN], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env)
+    workers: set[int] = set()
+    try:
+        assert os.getpgid(proc.pid) == os.getpgrp()  # no group of its own: stop_self cannot signal one
+        for line in proc.stdout:  # until only the root's task is left
+            event = json.loads(line)
+            if event["event"] == "progress" and event["phase"] == "simplify" and event["done"] == event["total"] - 1:
+                break
+        workers = _workers(proc.pid)
+        busy = {pid: _cpu_seconds(pid) for pid in workers}
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and all(_cpu_seconds(pid) < busy[pid] + 0.5 for pid in workers):
+            time.sleep(0.05)  # until a worker is half a CPU second into the root's task
+        process_tree.ask_to_stop(proc, platform="win32")
+        stopped = time.monotonic()
+        status = proc.wait(timeout=120)
+        seconds = time.monotonic() - stopped
+        left = [pid for pid in workers if alive(pid)]
+    finally:
+        for pid in workers | _descendants(proc.pid):  # this test's own processes, whatever happened
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        proc.kill()
+        proc.wait(timeout=20)
+    assert len(workers) == 2 and status == 128 + signal.SIGTERM, proc.stderr.read()
+    assert seconds < STOP_SECONDS, f"the stop waited {seconds:.1f} s: for the worker's task, not ending it"
+    assert left == [], f"workers left running after the child exited: {left}"
     assert not (tmp_path / "out.hlod").exists() and not (tmp_path / "job").exists()
 
 

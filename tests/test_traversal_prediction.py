@@ -69,9 +69,9 @@ def test_predicting_new_nodes_waits_for_fewer_queries_and_shows_what_waiting_sho
     """The same paths with and without predict_new (the share's gate open, as above), results
     three commands late: far fewer nodes drawn only after their own query (D), the same image in
     every frame (measured: the node choices differ a little, since nodes drawn earlier fill the
-    depth buffer before later queries, but not a pixel), and about the same number of nodes drawn
-    (a node predicted visible that its query finds hidden was drawn for nothing, that frame only:
-    the city hides a quarter of its candidates, which is what the share's gate is for)."""
+    depth buffer before later queries, but not a pixel), and at most one more draw per predicted
+    node (a node predicted visible that its query finds hidden was drawn for nothing, that frame
+    only: the city hides a quarter of its candidates, which is what the share's gate is for)."""
     hlod = city_renderer.hlod
     paths = (street_path(30), inspection_path(hlod, seed=11, frames=28))
     images = {"off": [], "on": []}
@@ -83,8 +83,10 @@ def test_predicting_new_nodes_waits_for_fewer_queries_and_shows_what_waiting_sho
     assert d_on < 0.5 * d_off, (d_on, d_off)
     differ = [int((a != b).any(axis=2).sum()) for a, b in zip(images["off"], images["on"])]
     assert differ == [0] * len(differ), differ
-    dn_off, dn_on = (np.mean([s.dn for s in runs[m]]) for m in ("off", "on"))
-    assert 0.95 * dn_off <= dn_on <= 1.15 * dn_off, (dn_on, dn_off)  # measured: 11% more, the gate open
+    dn_off, dn_on = (sum(s.dn for s in runs[m]) for m in ("off", "on"))
+    # the design's bound, not a measured figure: a predicted node costs at most its own draw, in its
+    # frame (measured 2026-12-07: 104 more draws over 58 frames for 258 predicted, 1.109 x the nodes)
+    assert 0.95 * dn_off <= dn_on <= dn_off + sum(s.predicted for s in runs["on"]), (dn_on, dn_off)
 
 
 class _CandidatesScripted(Scripted):

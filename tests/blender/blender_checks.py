@@ -256,6 +256,41 @@ def _draw_checks(package, scene, size, occlude: bool) -> dict:
             "state_before": state.get("before"), "state_after": state.get("after")}
 
 
+#: The panel's statistics (scene.hlod's stat_NAME, panels.STATISTICS) and the field of the preview's
+#: FrameStats each shows (stat_resident_mb: resident_bytes in MB; stat_changed is not the frame's).
+PANEL_STATISTICS = {"drawn": "dn", "tris": "tris", "queries": "queries", "rarn": "rarn", "d": "d",
+                    "stall_ms": "stall_ms", "frame_ms": "frame_ms", "resident_mb": "resident_bytes",
+                    "waiting": "waiting"}
+#: Eyes (y, m) of a walk toward the row: each frame draws another front, so every counter moves.
+WALK_EYES_Y = (-8.0, -6.5, -5.0, -3.5, -2.0)
+
+
+def _statistics_walk(package, preview, scene, size) -> dict:
+    """Frame by frame along a walk toward the row: the panel's statistics after the frame, and the
+    same fields of the FrameStats the preview's draw returned for it (recorded as the draw returns
+    them); {"panel": [...], "frames": [...]}, one dict per frame."""
+    returned = []
+
+    def draw_view(*args, **kwargs):
+        stats = type(preview).draw_view(preview, *args, **kwargs)
+        returned.append(stats)
+        return stats
+
+    preview.draw_view = draw_view  # the instance's attribute: safe_draw looks it up on each draw
+    panel, frames = [], []
+    try:
+        for y in WALK_EYES_Y:
+            blender_preview.camera(scene, eye=(1.5, y, 1.5), target=(0.0, 6.0, 1.0), lens_mm=30.0)
+            blender_preview.draw_offscreen(package, scene, size)
+            panel.append({name: getattr(scene.hlod, f"stat_{name}") for name in PANEL_STATISTICS})
+            stats = returned[-1]
+            frames.append({name: getattr(stats, field) / (2**20 if name == "resident_mb" else 1)
+                           for name, field in PANEL_STATISTICS.items()})
+    finally:
+        del preview.draw_view
+    return {"panel": panel, "frames": frames, "draws": len(returned)}
+
+
 def check_preview(repo, work) -> dict:
     import gpu
 
@@ -284,6 +319,8 @@ def check_preview(repo, work) -> dict:
     out["front_objects"] = len(bpy.data.collections["HLOD front"].objects)
     out["stats"] = {"drawn": props.stat_drawn, "queries": max(queries), "queries_per_frame": queries,
                     "tris": props.stat_tris, "frame_ms": props.stat_frame_ms}
+    out["statistics_walk"] = _statistics_walk(package, preview, scene, size)
+    blender_preview.camera(scene, eye=(1.5, -8.0, 1.5), target=(0.0, 6.0, 1.0), lens_mm=30.0)
     # overlay boxes with Blender's gpu module
     props.show_boxes = True
     out["with_boxes"] = _draw_checks(package, scene, size, occlude=False)["other_pixels"]

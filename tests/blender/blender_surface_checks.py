@@ -36,14 +36,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import bpy
 
 import blender_preview
+import surface_colours as expect
 from blender_material_checks import captured_warnings
 from hlod_core.core.colour import srgb_from_linear, srgb_to_linear
 
 NAME = "bl_ext.r.hlod"
-SOURCE_PX = 32  # the source image's side
+SOURCE_PX = expect.SOURCE_PX  # the source image's side
 REFERENCE_PX = 64  # the reference bake's side, one sample per texel (at its centre)
 OURS_PX = 128  # the add-on's bake side here (cycles_bake.BAKE_SIDE_PX; 512 in a user's bake)
 GREY = 0.8  # Blender's default material colour: what these surfaces gave before
+#: The viewport colour (diffuse_color, linear RGBA) of the material baked with Cycles disabled.
+VIEWPORT_COLOUR = (0.25, 0.5, 0.125, 1.0)
 SPACING = 3.0  # metres between the cases' objects
 GROUP = "glTF Metallic Roughness"
 CASES = ("gltf_group", "linked_group", "diffuse", "toon", "mix_shader", "add_shader", "emission_mix",
@@ -53,11 +56,9 @@ CASES = ("gltf_group", "linked_group", "diffuse", "toon", "mix_shader", "add_sha
 # --- the scene ------------------------------------------------------------------------------------
 
 def _source_image():
-    """A packed 32x32 sRGB image: smooth hue ramps (every channel varies)."""
-    y, x = np.mgrid[0:SOURCE_PX, 0:SOURCE_PX] / (SOURCE_PX - 1)
-    rgba = np.stack([0.1 + 0.8 * x, 0.2 + 0.7 * y, 0.5 + 0.4 * np.sin(5 * x * y), np.ones_like(x)], axis=-1)
+    """A packed 32x32 8-bit sRGB image of surface_colours.source_rgba (smooth hue ramps)."""
     image = bpy.data.images.new("source", SOURCE_PX, SOURCE_PX, alpha=True)
-    image.pixels.foreach_set(rgba.astype(np.float32).ravel())
+    image.pixels.foreach_set(expect.source_rgba().ravel())
     image.pack()
     return image
 
@@ -131,7 +132,7 @@ def gltf_group(name: str = GROUP):
         links.new(separate.outputs[channel], product.inputs[0])
         links.new(inside.outputs[factor], product.inputs[1])
     fresnel, diffuse = nodes.new("ShaderNodeFresnel"), nodes.new("ShaderNodeBsdfDiffuse")
-    fresnel.inputs["IOR"].default_value = 1.5
+    fresnel.inputs["IOR"].default_value = expect.FRESNEL_IOR
     specular, metal = nodes.new("ShaderNodeBsdfGlossy"), nodes.new("ShaderNodeBsdfGlossy")
     dielectric, out = nodes.new("ShaderNodeMixShader"), nodes.new("ShaderNodeMixShader")
     links.new(base.outputs["Color"], diffuse.inputs["Color"])
@@ -164,9 +165,9 @@ def _group_material(name: str, group, image):
     material, nodes, links, output = _material(name)
     node = nodes.new("ShaderNodeGroup")
     node.node_tree = group
-    node.inputs["BaseColorFactor"].default_value = (0.9, 0.85, 0.7, 1.0)
-    node.inputs["MetallicFactor"].default_value = 0.3
-    node.inputs["RoughnessFactor"].default_value = 0.6
+    node.inputs["BaseColorFactor"].default_value = expect.BASE_COLOR_FACTOR
+    node.inputs["MetallicFactor"].default_value = expect.METALLIC_FACTOR
+    node.inputs["RoughnessFactor"].default_value = expect.ROUGHNESS_FACTOR
     links.new(_image_node(nodes, image).outputs["Color"], node.inputs["BaseColor"])
     links.new(node.outputs[0], output.inputs["Surface"])
     return material
@@ -182,7 +183,7 @@ def _bsdf_material(name: str, kind: str, image):
 
 
 def _shader_mix(name: str, image, *, add: bool = False, second: str = "ShaderNodeBsdfGlossy",
-                colour=(1.0, 1.0, 1.0, 1.0), factor: float = 0.3):
+                colour=(1.0, 1.0, 1.0, 1.0), factor: float = expect.GLOSSY_MIX):
     """Mix (factor) or Add Shader of a Diffuse BSDF coloured by the image and a `second` shader."""
     material, nodes, links, output = _material(name)
     diffuse, other = nodes.new("ShaderNodeBsdfDiffuse"), nodes.new(second)
@@ -204,8 +205,7 @@ def _procedural_material(name: str):
                                    nodes.new("ShaderNodeValToRGB"))
     links.new(coordinates.outputs["Generated"], separate.inputs[0])
     links.new(separate.outputs["X"], ramp.inputs["Fac"])
-    ramp.color_ramp.elements[0].color = (0.9, 0.2, 0.1, 1.0)
-    ramp.color_ramp.elements[1].color = (0.1, 0.4, 0.9, 1.0)
+    ramp.color_ramp.elements[0].color, ramp.color_ramp.elements[1].color = expect.RAMP
     diffuse = nodes.new("ShaderNodeBsdfDiffuse")
     links.new(ramp.outputs["Color"], diffuse.inputs["Color"])
     links.new(diffuse.outputs[0], output.inputs["Surface"])
@@ -242,9 +242,9 @@ def build_scene(work: Path) -> dict:
     add("toon", _bsdf_material("toon", "ShaderNodeBsdfToon", image))
     add("mix_shader", _shader_mix("mix_shader", image))
     add("add_shader", _shader_mix("add_shader", image, add=True, second="ShaderNodeBsdfDiffuse",
-                                  colour=(0.15, 0.05, 0.1, 1.0)))
-    add("emission_mix", _shader_mix("emission_mix", image, second="ShaderNodeEmission", colour=(1.0, 0.5, 0.1, 1.0),
-                                    factor=0.4))
+                                  colour=expect.ADD_COLOUR))
+    add("emission_mix", _shader_mix("emission_mix", image, second="ShaderNodeEmission", colour=expect.EMISSION_COLOUR,
+                                    factor=expect.EMISSION_MIX))
     set_by_nodes = _bsdf_material("set_material", "ShaderNodeBsdfDiffuse", image)
     obj = add("set_material", None)
 
@@ -375,6 +375,18 @@ def _datablocks() -> dict:
             for kind in ("scenes", "objects", "meshes", "materials", "images", "node_groups")}
 
 
+def _expected(case: str, obj, reference: np.ndarray) -> np.ndarray:
+    """surface_colours' linear colour of `case` where `reference` was baked: at the texel centres,
+    or at each face corner of `obj`'s mesh (the procedural over the plane's local x) without UVs."""
+    if reference.ndim == 3:
+        return expect.expected(case, reference.shape[0])
+    co = np.empty(len(obj.data.vertices) * 3, np.float32)
+    obj.data.vertices.foreach_get("co", co)
+    corner_vertex = np.empty(len(obj.data.loops), np.int64)
+    obj.data.loops.foreach_get("vertex_index", corner_vertex)
+    return expect.ramp_linear(co.reshape(-1, 3)[corner_vertex, 0])
+
+
 def check_surfaces(repo, work) -> dict:
     """Every case gathered together, as a bake gathers them: its colour against Cycles' DIFFUSE
     COLOR bake (PSNR, dB) and the grey's; the rows (names, textures); the bakes run and reported;
@@ -399,7 +411,9 @@ def check_surfaces(repo, work) -> dict:
         row = rows[0]
         ours = corner_colours(mesh, obj) if reference.ndim == 2 else texture_at_texel_centres(row)
         grey = np.full_like(reference, srgb_from_linear(np.float32(GREY)))
+        model = srgb_from_linear(_expected(case, obj, reference))
         out["cases"][case] = {"psnr_db": psnr_db(ours, reference), "grey_psnr_db": psnr_db(grey, reference),
+                              "expected_db": psnr_db(ours, model), "reference_expected_db": psnr_db(reference, model),
                               "rows": [r.name for r in rows], "texture": row.texture is not None,
                               "base_color": list(row.base_color), "metallic": row.metallic}
     shared_a = texture_at_texel_centres(next(m for m in mesh.materials if m.name == "shared (shared_a)"))
@@ -432,11 +446,14 @@ def check_without_cycles_bakes(repo, work) -> dict:
 
     addon_utils.disable("cycles", default_set=True)
     warnings = captured_warnings(NAME + ".addon")
-    plane = _plane("diffuse", 5, _bsdf_material("diffuse", "ShaderNodeBsdfDiffuse", image))
+    material = _bsdf_material("diffuse", "ShaderNodeBsdfDiffuse", image)
+    material.diffuse_color = VIEWPORT_COLOUR  # not Blender's default: what the row keeps is this
+    plane = _plane("diffuse", 5, material)
     gathered = gathering.gather(bpy.context, [plane])
     row = gathered.mesh.materials[0]
     out["cycles_disabled"] = {"cycles": hasattr(bpy.context.scene, "cycles"), "warnings": warnings,
-                              "bakes": len(gathered.cycles_bakes), "row": [row.name, list(row.base_color), row.texture]}
+                              "bakes": len(gathered.cycles_bakes), "row": [row.name, list(row.base_color), row.texture],
+                              "viewport_colour": list(material.diffuse_color)}
     return out
 
 

@@ -139,7 +139,8 @@ def test_preview_draw_path_in_an_offscreen(versioned_repo, tmp_path):
     """The add-on's draw path inside a GPUOffScreen with a scene camera's matrices: nodes drawn in
     modulation colours, none over Blender's own occluder (its depth hides them), strongly modulated
     (red) nodes where occlusion lowered their LOD, Blender's gpu drawing after the pass still shows,
-    its GL state is as before, statistics are updated; the private-context fallback draws through
+    its GL state is as before, the panel's statistics are the last frame's, frame by frame along a
+    walk that moves each of them; the private-context fallback draws through
     Blender's gpu module; the benchmark's standalone EGL context leaves
     Blender's drawing working; an exception in the draw path turns the preview off, not raised.
     In each Blender, on its default GPU backend (OpenGL in all three): the preview draws in
@@ -155,6 +156,13 @@ def test_preview_draw_path_under_vulkan(vulkan_repo, tmp_path):
     the occluder's depth imported (no node over it) and the benchmark's EGL context beside Vulkan."""
     out = blender(vulkan_repo, "preview", tmp_path, env=VULKAN)
     _draw_path_holds(out, backend="VULKAN", mode="private_context", status="on (private context): ")
+
+
+def _panel_shows_each_frame(walk: dict) -> bool:
+    frames, panel = walk["frames"], walk["panel"]
+    moving = all(len({frame[name] for frame in frames}) > 1 for name in ("drawn", "tris", "queries", "frame_ms"))
+    return walk["draws"] == len(frames) == len(panel) == 5 and moving and all(
+        shown == pytest.approx(frame, rel=1e-6, abs=1e-6) for shown, frame in zip(panel, frames))
 
 
 def _draw_path_holds(out: dict, *, backend: str, mode: str, status: str) -> None:
@@ -181,6 +189,9 @@ def _draw_path_holds(out: dict, *, backend: str, mode: str, status: str) -> None
              # the last frame's nodes and triangles; queries in one of the three frames (the first
              # always queries; a settled Coh frame may skip them all, as under load its results wait)
              statistics=out["stats"]["drawn"] > 0 and out["stats"]["queries"] > 0 and out["stats"]["tris"] > 0,
+             # frame by frame along a walk, the panel shows the frame's own statistics (float
+             # properties hold float32); the walk moves each counter, so a frozen one cannot pass
+             panel_statistics=_panel_shows_each_frame(out["statistics_walk"]),
              box_outlines=out["with_boxes"] > 200,  # drawn with Blender's gpu module
              query_stream_switches=out["query_stream"] == ["on", "on", "off", "off", PREDICT_NEW, TOGGLED[PREDICT_NEW]]
              and out["query_stream_frame"] > 1000,  # and it still draws with both off, Predict New Nodes toggled
