@@ -4,7 +4,7 @@ which the node first shows, compared as PSNR of luma Y (pure numpy: it runs in b
 Data form: surface_colour.Surface in; a `Render` out: (h,w,3) float32 linear RGB, row 0 the bottom,
 and its (h,w) bool coverage. The view is orthographic along -direction onto the sphere (center,
 radius): pixel (i, j) has its centre at center + right (-radius + (j + 0.5) pixel_size) + up
-(-radius + (i + 0.5) pixel_size). Triangles are rasterised by render/cpu_raster.py (both facings,
+(-radius + (i + 0.5) pixel_size). Triangles are rasterised by core/cpu_raster.py (both facings,
 pixel centres inside, vectorised over the triangles' bounding boxes; a centre on a shared edge is
 drawn by one of its triangles, as GL's fill rule does), z-buffered, and each pixel
 shows colour_at at its face and barycentric point with footprint = pixel_size, unlit (the gate
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.colour import srgb_from_linear, srgb_to_linear
-from ..render.cpu_raster import covered
+from ..core.cpu_raster import covered
 from .surface_colour import Surface, colour_at
 
 #: A node whose proxy scores under this many dB is named in the bake log with its main cause.
