@@ -1,4 +1,4 @@
-"""bake.proxy_quality: the numpy renderer of a Surface (coverage, z-buffer, MASK and BLEND) and the
+"""bake.appearance.quality: the numpy renderer of a Surface (coverage, z-buffer, MASK and BLEND) and the
 proxy's PSNR-Y against its sources, on literal squares and spheres with values computed by hand."""
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from hlod_core.bake.proxy_quality import DIRECTIONS, GATE_DB, PSNR_CAP_DB, luma, node_psnr, render
-from hlod_core.bake.surface_colour import MipChain, Surface
+from hlod_core.bake.appearance.quality import DIRECTIONS, GATE_DB, PSNR_CAP_DB, luma, node_psnr, render
+from hlod_core.bake.appearance.surface_colour import MipChain, Surface
 from hlod_core.model.appearance import Material
 
 UP = np.array([0.0, 0.0, 1.0])  # the view looks down -z: nearer is larger z

@@ -1,4 +1,4 @@
-"""bake.surface_colour: what a textured surface shows at given points, on tiny literal inputs with
+"""bake.appearance.surface_colour: what a textured surface shows at given points, on tiny literal inputs with
 exact expected values (the renderer's colour, sRGB decoded to linear, repeat wrap, mip levels from
 the footprint), and the stiff cases (1x1 and 8192x8192 images, far-out UVs, degenerate faces)."""
 from __future__ import annotations
@@ -8,7 +8,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from hlod_core.bake.surface_colour import MipChain, Surface, colour_at, texture_texels_per_unit
+from hlod_core.bake.appearance.surface_colour import MipChain, Surface, colour_at, texture_texels_per_unit
 from hlod_core.core.errors import InputError
 from hlod_core.model.appearance import Material
 

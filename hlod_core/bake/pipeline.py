@@ -162,6 +162,7 @@ def _bake(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache:
                            with_rows=not source.row_layout.empty, frame=nodes.tree.frame.to_meta())
     if proxy_materials:
         derived["proxies"] = plan.meta()
+        derived["log"] = derived["log"] + plan.log_lines()
     stats = None
     if cache is not None:
         stats = cache.finish(hlod, derived, made=nodes.made, hausdorff_error=nodes.hausdorff_error,

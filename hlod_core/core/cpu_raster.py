@@ -1,6 +1,6 @@
 """Triangles rasterised with numpy into a small depth buffer: the CPU occlusion test's GL
 (docs/how-it-works.md#the-cpu-occlusion-test), and the coverage of the bake's quality gate
-(bake/proxy_quality.py).
+(bake/appearance/quality.py).
 
 Data form: triangles as (t, 3, 4) float64 clip-space vertices (clip = MVP @ (x, y, z, 1), OpenGL
 conventions); a depth buffer as (h, w) float32 window depth in [0, 1], row 0 the bottom row, as GL's

@@ -21,9 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...core.colour import srgb_from_linear
-from ...model.appearance import AttributeLayout
+from ...model.appearance import AttributeLayout, Material
 from .atlas import PADDING_TEXELS, node_atlas, surface_area, texture_side
-from .surface_colour import Surface, colour_at
+from .quality import node_psnr
+from .surface_colour import MipChain, Surface, colour_at
 from .texels import closest_on_sources, dilate, texel_samples
 
 #: Alpha (of 1) at or above which a texel is opaque: a face all of whose texels are goes in the
@@ -84,6 +85,8 @@ class Proxy:
     texel_size: float
     utilization: float
     alpha_mode: str | None
+    psnr_y: float = float("nan")
+    psnr_reason: str | None = None
 
 
 def source_surface(sources: list[tuple], layout: AttributeLayout, looks: SourceLooks) -> Surface:
@@ -150,10 +153,17 @@ def bake_proxy(lod: tuple, error: float, sources: list[tuple], *, node: int, lay
     if "color" in columns:
         rows[:, columns["color"]] = 1.0
     lod_vertex = atlas.vertex_of[vertex]
+    image = np.ascontiguousarray(image[::-1])
+    mode = alpha_mode if alpha_face.any() else None
+    looks_of_proxy = Surface(positions=p[vertex], faces=split_faces, uvs=atlas.uvs[vertex], colors=None,
+                             face_material=corner_alpha[split_faces[:, 0]].astype(np.int64),
+                             materials=(Material("proxy"), Material("proxy alpha", alpha_mode=mode or "OPAQUE")),
+                             images={0: MipChain.of(image), 1: MipChain.of(image)})
+    psnr, reason = node_psnr(looks_of_proxy, surface, error=error, tau_px=settings.tau_px)
     return Proxy(positions=np.asarray(positions, np.float32)[lod_vertex], faces=split_faces,
                  normals=None if normals is None else np.asarray(normals, np.float32)[lod_vertex], rows=rows,
-                 image=np.ascontiguousarray(image[::-1]), texel_size=footprint, utilization=atlas.utilization,
-                 alpha_mode=alpha_mode if alpha_face.any() else None)
+                 image=image, texel_size=footprint, utilization=atlas.utilization, alpha_mode=mode, psnr_y=psnr,
+                 psnr_reason=reason)
 
 
 def _split_parts(faces: np.ndarray, alpha_face: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

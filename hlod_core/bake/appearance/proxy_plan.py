@@ -37,6 +37,8 @@ class ProxyMade:
     texel_size: float
     utilization: float
     alpha_mode: str | None
+    psnr_y: float
+    psnr_reason: str | None
 
 
 class ProxyPlan:
@@ -102,7 +104,8 @@ class ProxyPlan:
         h, w, _ = proxy.image.shape
         self.made_proxies[int(node)] = ProxyMade(file=str(self.reference / name), width=w, height=h,
                                                  texel_size=proxy.texel_size, utilization=proxy.utilization,
-                                                 alpha_mode=proxy.alpha_mode)
+                                                 alpha_mode=proxy.alpha_mode, psnr_y=proxy.psnr_y,
+                                                 psnr_reason=proxy.psnr_reason)
         return dataclasses.replace(lod, positions=proxy.positions, faces=proxy.faces, normals=proxy.normals,
                                    attributes=proxy.rows)
 
@@ -145,12 +148,29 @@ class ProxyPlan:
         return tuple(materials)
 
     def meta(self) -> dict:
-        """meta["proxies"]: per proxied node its texture's size, texel size and the atlas's use."""
+        """meta["proxies"]: per proxied node its texture's size, texel size (model units), the atlas's
+        utilization and the quality gate's PSNR-Y (dB), and the median PSNR-Y over them."""
         nodes = sorted(self.made_proxies)
         made = [self.made_proxies[n] for n in nodes]
+        psnr = [round(float(m.psnr_y), 2) for m in made]
         return {"nodes": nodes, "width": [m.width for m in made], "height": [m.height for m in made],
                 "texel_size": [float(m.texel_size) for m in made],
-                "utilization": [round(float(m.utilization), 4) for m in made]}
+                "utilization": [round(float(m.utilization), 4) for m in made], "psnr_y": psnr,
+                "psnr_y_median": float(np.median(psnr)) if psnr else None}
+
+    def log_lines(self) -> list[str]:
+        """The bake log's lines of the proxies: their count, the median PSNR-Y, and each node under
+        the quality gate with its reason."""
+        if not self.made_proxies:
+            return []
+        psnr = [m.psnr_y for m in self.made_proxies.values()]
+        lines = [f"proxy materials: {len(psnr)} inner nodes, median PSNR-Y {np.median(psnr):.1f} dB against their "
+                 "sources from where each first shows"]
+        for node in sorted(self.made_proxies):
+            made = self.made_proxies[node]
+            if made.psnr_reason is not None:
+                lines.append(f"node {node}: proxy PSNR-Y {made.psnr_y:.1f} dB, {made.psnr_reason}")
+        return lines
 
 
 @dataclass(frozen=True, eq=False)

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.colour import srgb_from_linear, srgb_to_linear
-from ..core.cpu_raster import covered
+from ...core.colour import srgb_from_linear, srgb_to_linear
+from ...core.cpu_raster import covered
 from .surface_colour import Surface, colour_at
 
 #: A node whose proxy scores under this many dB is named in the bake log with its main cause.
