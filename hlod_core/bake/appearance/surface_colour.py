@@ -250,6 +250,8 @@ def _density(surface: Surface, faces: np.ndarray, *, chain: MipChain | None = No
     out = np.zeros(len(faces), np.float64)
     if surface.uvs is None or surface.face_material is None or not surface.images or not len(faces):
         return out
+    if len(faces) > len(surface.faces):  # more points than faces: every face once, then looked up
+        return _density(surface, np.arange(len(surface.faces)), chain=chain)[faces]
     texels = np.zeros(len(faces), np.float64)  # w h of each face's image
     if chain is not None:
         texels[:] = chain.width * chain.height
