@@ -62,8 +62,9 @@ def surface_area(positions: np.ndarray, faces: np.ndarray) -> float:
 def node_atlas(positions: np.ndarray, faces: np.ndarray, *, texels_per_unit: float, floor: int,
                cap: int) -> Atlas:
     """The atlas of a LOD (module docstring) packed at `texels_per_unit` texels per model unit, made
-    again at a scaled density while its longer side is over `cap` or its longer side under `floor`
-    (at most MAX_PACKS packs). A LOD without faces gets an empty atlas of floor x floor."""
+    again at a scaled density while its longer side is over `cap` or under `floor` (at most
+    MAX_PACKS packs); a pack still outside them is scaled into them as a whole (its UVs are fractions
+    of the image). A LOD without faces gets an empty atlas of floor x floor."""
     import xatlas
 
     f = np.ascontiguousarray(faces, np.uint32)
@@ -92,6 +93,10 @@ def node_atlas(positions: np.ndarray, faces: np.ndarray, *, texels_per_unit: flo
         density *= (cap if side > cap or atlas.atlas_count != 1 else floor) / max(side, 1) * 0.97
     vertex_of, atlas_faces, uvs = atlas[0]
     uvs = np.asarray(uvs, np.float32)
+    # the UVs are in [0, 1] of the image: an image within [floor, cap] holds the same charts scaled
+    side = max(atlas.width, atlas.height)
+    scale = min(cap, max(floor, side)) / side
+    width, height = (max(1, min(cap, int(round(n * scale)))) for n in (atlas.width, atlas.height))
     return Atlas(vertex_of=np.asarray(vertex_of, np.int64), faces=np.asarray(atlas_faces, np.int32).reshape(-1, 3),
-                 uvs=np.ascontiguousarray(uvs), width=int(atlas.width), height=int(atlas.height),
-                 texels_per_unit=float(atlas.texels_per_unit) / diagonal, utilization=float(atlas.utilization))
+                 uvs=np.ascontiguousarray(uvs), width=width, height=height,
+                 texels_per_unit=float(atlas.texels_per_unit) * scale / diagonal, utilization=float(atlas.utilization))
