@@ -371,7 +371,8 @@ def test_gltf_alpha_modes_are_read(tmp_path):
     for mode, cutoff in (("MASK", 0.3), ("BLEND", None), (None, None)):
         gltf = _hand_gltf()
         gltf["materials"][0].update({k: v for k, v in (("alphaMode", mode), ("alphaCutoff", cutoff)) if v is not None})
-        (material,) = meshes.load_mesh(_write_gltf(tmp_path / f"{mode}.gltf", gltf), texture_dir=tmp_path / "t").materials
+        mesh = meshes.load_mesh(_write_gltf(tmp_path / f"{mode}.gltf", gltf), texture_dir=tmp_path / "t")
+        (material,) = mesh.materials
         found[mode] = (material.alpha_mode, material.alpha_cutoff)
     assert found == {"MASK": ("MASK", pytest.approx(0.3)), "BLEND": ("BLEND", 0.5), None: ("OPAQUE", 0.5)}
     for field, value, message in (("alphaMode", "CUTOUT", r"not a readable glTF file .*alphaMode.*CUTOUT"),
