@@ -15,7 +15,7 @@ with its own generated PNG texture (37 materials, every one image-textured):
   to 9.5).
 
 Sizes: `small` (the tests': cow, spot and teapot statues, about 200k triangles, 128-pixel
-textures) and `bench` (benchmarks/proxy_materials.py: bust, bunny, statue and the smaller models,
+textures) and `bench` (benchmarks/proxy_materials.py: bust, bunny, ring and the smaller models,
 about 1.2M triangles, 512-pixel textures). Beside the models: scene.json, the scene spec, and
 far_path.json, a camera path from far to near (docs/command-line.md#camera-paths).
 
