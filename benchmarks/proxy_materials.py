@@ -25,9 +25,9 @@ Per tree:
                     half of the path (its first half) Coh(P)'s draws, texture bytes and triangles
                     (docs/evaluation.md#draws-and-texture-memory; a tree whose report lacks the draws
                     gives null);
-    proxy PSNR-Y    where the file's meta has per-node proxy PSNR-Y ("proxy_psnr_y", (n,) dB, NaN or
-                    absent for a node without one): the median and lowest over inner nodes and the
-                    count under 25 dB; null when the meta has none.
+    proxy PSNR-Y    the quality gate's PSNR-Y of the proxied inner nodes (meta["proxies"]["psnr_y"],
+                    docs/file-format.md): the median and lowest and the count under 25 dB; null when
+                    the file has no proxies.
 The load average is recorded before and after. Writes report.json and report.md into --out.
 """
 from __future__ import annotations
@@ -47,7 +47,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 OVER_FACTOR = 1.25  # bake.collapse.OVER_BUDGET_FACTOR: an inner node above this x target is over budget
 MIP_CHAIN, RGBA8_BYTES = 4.0 / 3.0, 4
-PROXY_PSNR_KEYS = ("proxy_psnr_y", "proxy_psnr", "node_psnr_y")
 LOW_PSNR_DB = 25.0
 
 
@@ -113,17 +112,14 @@ def analyse(path: Path, target_tris: int) -> dict:
 
 
 def proxy_psnr(meta: dict, inner: np.ndarray) -> dict | None:
-    """The inner nodes' proxy PSNR-Y from meta (PROXY_PSNR_KEYS): median, lowest, count under
-    LOW_PSNR_DB; None when the meta has none."""
-    for key in PROXY_PSNR_KEYS:
-        if key in meta:
-            values = np.asarray(meta[key], np.float64)
-            values = values[inner] if values.shape[0] > int(inner.max()) else values
-            values = values[np.isfinite(values)]
-            if values.size:
-                return {"key": key, "nodes": int(values.size), "median": float(np.median(values)),
-                        "lowest": float(values.min()), "under_25_db": int((values < LOW_PSNR_DB).sum())}
-    return None
+    """The proxied inner nodes' PSNR-Y from meta["proxies"]: median, lowest, count under LOW_PSNR_DB;
+    None when the file has no proxies."""
+    values = np.asarray((meta.get("proxies") or {}).get("psnr_y", []), np.float64)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return None
+    return {"nodes": int(values.size), "median": float(np.median(values)), "lowest": float(values.min()),
+            "under_25_db": int((values < LOW_PSNR_DB).sum())}
 
 
 def analyse_with(tree: Path, path: Path, target_tris: int) -> dict:

@@ -162,8 +162,8 @@ def test_a_sliver_node_bakes_a_proxy_a_texel_wide():
     assert hlod.meta["proxies"]["nodes"]
     assert all(np.isfinite(hlod.meta["proxies"]["psnr_y"]))
     for node in hlod.meta["proxies"]["nodes"]:
-        positions, faces = node_geometry(hlod, node)[:2]
-        assert np.all(np.isfinite(positions)) and faces.shape[0] > 0
+        geometry = node_geometry(hlod, node)
+        assert np.all(np.isfinite(geometry.positions)) and geometry.faces.shape[0] > 0
 
 
 def test_a_missing_image_file_gets_one_warning_that_names_it(tmp_path, caplog):

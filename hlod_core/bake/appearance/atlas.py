@@ -64,7 +64,9 @@ def node_atlas(positions: np.ndarray, faces: np.ndarray, *, texels_per_unit: flo
     """The atlas of a LOD (module docstring) packed at `texels_per_unit` texels per model unit, made
     again at a scaled density while its longer side is over `cap` or under `floor` (at most
     MAX_PACKS packs); a pack still outside them is scaled into them as a whole (its UVs are fractions
-    of the image). A LOD without faces gets an empty atlas of floor x floor."""
+    of the image). A LOD without faces gets an empty atlas of floor x floor, and one whose faces are
+    all too thin for xatlas to chart one of floor x floor with every UV at its centre (texels_per_unit
+    0: the proxy is then one colour)."""
     import xatlas
 
     f = np.ascontiguousarray(faces, np.uint32)
@@ -93,8 +95,12 @@ def node_atlas(positions: np.ndarray, faces: np.ndarray, *, texels_per_unit: flo
         density *= (cap if side > cap or atlas.atlas_count != 1 else floor) / max(side, 1) * 0.97
     vertex_of, atlas_faces, uvs = atlas[0]
     uvs = np.asarray(uvs, np.float32)
-    # the UVs are in [0, 1] of the image: an image within [floor, cap] holds the same charts scaled
     side = max(atlas.width, atlas.height)
+    if side == 0 or np.asarray(atlas_faces).size != f.size:  # every face too thin to chart: one colour
+        return Atlas(vertex_of=np.arange(p.shape[0], dtype=np.int64), faces=np.asarray(f, np.int32),
+                     uvs=np.full((p.shape[0], 2), 0.5, np.float32), width=floor, height=floor, texels_per_unit=0.0,
+                     utilization=0.0)
+    # the UVs are in [0, 1] of the image: an image within [floor, cap] holds the same charts scaled
     scale = min(cap, max(floor, side)) / side
     width, height = (max(1, min(cap, int(round(n * scale)))) for n in (atlas.width, atlas.height))
     return Atlas(vertex_of=np.asarray(vertex_of, np.int64), faces=np.asarray(atlas_faces, np.int32).reshape(-1, 3),

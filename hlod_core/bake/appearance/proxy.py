@@ -125,12 +125,20 @@ def bake_proxy(lod: tuple, error: float, sources: list[tuple], *, node: int, lay
     width, height = atlas.width, atlas.height
     p = np.asarray(positions, np.float64)[atlas.vertex_of]
     texel, face, bary = texel_samples(atlas.uvs, atlas.faces, width, height)
+    if texel.size == 0:  # no texel centre inside a face (faces thinner than a texel): their centroids
+        face = np.arange(atlas.faces.shape[0])
+        bary = np.full((face.size, 3), 1.0 / 3.0)
+        texel = np.zeros(face.size, np.int64)
     points = np.einsum("sk,skd->sd", bary, p[atlas.faces[face]])
     surface = source_surface(sources, layout, looks)
     source_face, source_bary = closest_on_sources(points, (surface.positions, surface.faces))
     footprint = 1.0 / atlas.texels_per_unit if atlas.texels_per_unit > 0 else texel_size
+    if not footprint > 0:
+        footprint = 0.0
     colour = colour_at(surface, source_face, source_bary, footprint=footprint)
     rgba = np.zeros((height * width, 4), np.float32)
+    if atlas.texels_per_unit == 0:  # one colour: the mean of what the faces show
+        colour = np.broadcast_to(colour.mean(axis=0), colour.shape)
     rgba[texel] = colour
     filled = np.zeros(height * width, bool)
     filled[texel] = True

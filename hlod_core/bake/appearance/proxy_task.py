@@ -19,6 +19,22 @@ from .atlas import surface_area, texture_side
 from .proxy import EXPECTED_PACKING, Proxy, ProxySettings, SourceLooks, bake_proxy, proxy_of_id
 from .surface_colour import MipChain
 
+#: Coarsest mip level a child proxy's texture is read at: its charts have PADDING_TEXELS of padding
+#: (atlas.py), so level 1 mixes no neighbouring chart, and a coarser one would.
+ATLAS_MAX_LEVEL = 1
+
+
+class AtlasChain(MipChain):
+    """The mip chain of a child proxy's atlas texture, read no coarser than ATLAS_MAX_LEVEL."""
+
+    @staticmethod
+    def of(image_rgba8_top_first: np.ndarray) -> "AtlasChain":
+        MipChain.of(image_rgba8_top_first)  # its checks (the levels are built when first read)
+        return AtlasChain(image_rgba8_top_first)
+
+    def sample(self, uv: np.ndarray, level: np.ndarray) -> np.ndarray:
+        return super().sample(uv, np.minimum(level, ATLAS_MAX_LEVEL))
+
 #: Mip chains a worker keeps (the oldest go first).
 CHAINS_KEPT = 64
 
@@ -96,7 +112,7 @@ def make_proxy(folder: str, lod: tuple, error: float, sources: list[tuple], *, n
             _, alpha = proxy_of_id(np.array([material]), scene_materials=scene_count)
             materials[material] = Material(name="proxy", base_color=(1.0, 1.0, 1.0, 1.0),
                                            alpha_mode=mode if alpha[0] else "OPAQUE")
-            chain = MipChain.of(image)
+            chain = AtlasChain.of(image)
         if chain is not None:
             chains[material] = chain
     if not free:
