@@ -109,3 +109,24 @@ def test_evaluate_reports_draws_and_texture_bytes(corner, tmp_path):
     assert (f"| Full | {full['tris']:,.0f} | {full['frame_ms']:,.2f} | {full['draws']:,.1f} | "
             f"{full['draws_max']:,.0f} | {full['texture_bytes'] / 2**20:,.2f} |") in md
     assert evaluate.LABELS["coh_p"] in md.split("## Draws and texture memory per frame")[1]
+
+
+def test_statue_square_is_what_its_docstring_says():
+    """The small statue square as the bake reads it: 37 materials, each with its own texture file;
+    the 4 bushes alpha-masked; one statue's UVs far outside [0, 1]; the ground's repeating; the
+    triangles its facts.json gives."""
+    from hlod_core.io import meshes
+
+    spec = statue_square.scene("small")
+    facts = json.loads((spec.parent / "facts.json").read_text())
+    mesh = meshes.load_inputs([spec])
+    assert mesh.tri_count == facts["triangles"] and len(mesh.materials) == facts["materials"] == 37
+    assert len({m.texture for m in mesh.materials if m.texture}) == 37
+    assert sorted(m.name for m in mesh.materials if m.alpha_mode == "MASK") == [f"bush_{k:02d}" for k in
+                                                                                statue_square.BUSH_CELLS]
+    names = [m.name for m in mesh.materials]
+    corner_uvs = mesh.uvs[mesh.faces]  # (f, 3, 2)
+    far = corner_uvs[mesh.material_ids == names.index(f"statue_{statue_square.FAR_UV_CELL:02d}_teapot")]
+    assert far[..., 0].min() >= 999.0 and far[..., 1].max() <= -496.0
+    ground = corner_uvs[mesh.material_ids == names.index("ground")]
+    assert np.ptp(ground[..., 0]) > 9.0 and np.ptp(ground[..., 1]) > 9.0
