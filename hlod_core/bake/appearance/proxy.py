@@ -12,7 +12,8 @@ texture as (h,w,4) uint8 sRGB RGBA, top row first (as io.textures gives images).
 A proxy's material ids in the bake's rows are `proxy_material_id(node, alpha)`: past every scene
 material, so they never clash; assemble renumbers them into the file's material table.
 Texel size: a node first shows when its error projects to tau pixels, where a texel of
-error / tau model units is about one pixel (DESIGN: appearance at inner nodes).
+error / tau model units is about one pixel; no finer than the detail its sources hold
+(`source_texel_size`). docs/how-it-works.md#proxy-materials-for-the-inner-nodes
 """
 from __future__ import annotations
 
@@ -24,12 +25,15 @@ from ...core.colour import srgb_from_linear
 from ...model.appearance import AttributeLayout, Material
 from .atlas import PADDING_TEXELS, node_atlas, surface_area, texture_side
 from .quality import node_psnr
-from .surface_colour import MipChain, Surface, colour_at
+from .surface_colour import MipChain, Surface, colour_at, texture_texels_per_unit
 from .texels import closest_on_sources, dilate, texel_samples
 
 #: Alpha (of 1) at or above which a texel is opaque: a face all of whose texels are goes in the
 #: proxy's opaque part, the others in its alpha-tested part.
 OPAQUE_ALPHA = 1.0 - 0.5 / 255.0
+#: Texels a source face without a texture stands for (source_texel_size): its colour is a blend of
+#: its corners', which a couple of texels hold.
+UNTEXTURED_FACE_TEXELS = 2.0
 #: Packing efficiency assumed before the atlas is packed (xatlas packs 0.65 to 0.76 of the image on
 #: the bakes measured in docs/performance.md); the texel size itself is what the pack is asked for.
 EXPECTED_PACKING = 0.7
@@ -110,12 +114,26 @@ def source_surface(sources: list[tuple], layout: AttributeLayout, looks: SourceL
                    materials=materials, images=images)
 
 
+def source_texel_size(surface: Surface) -> float:
+    """Model units per texel of the detail the sources hold, sqrt(area / texels): a textured face
+    holds its texture's texels over it (texels per unit^2 x area; a repeated texture counts every
+    repeat), a face without a texture UNTEXTURED_FACE_TEXELS. A proxy finer than this would only
+    magnify its sources. 0 without area."""
+    p = np.asarray(surface.positions, np.float64)[np.asarray(surface.faces, np.int64)]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    density = texture_texels_per_unit(surface)
+    texels = np.where(density > 0, density * density * area, UNTEXTURED_FACE_TEXELS)
+    total_area, total_texels = float(area.sum()), float(texels.sum())
+    return float(np.sqrt(total_area / total_texels)) if total_area > 0 and total_texels > 0 else 0.0
+
+
 def bake_proxy(lod: tuple, error: float, sources: list[tuple], *, node: int, layout: AttributeLayout,
                looks: SourceLooks, scene_materials: int, settings: ProxySettings) -> Proxy:
     """The proxy of one inner node (module docstring). lod: (positions, faces, normals); error: the
     node's error (model units); sources: the children's (positions, faces, rows)."""
     positions, faces, normals = lod
-    texel_size = max(float(error), 0.0) / settings.tau_px
+    surface = source_surface(sources, layout, looks)
+    texel_size = max(max(float(error), 0.0) / settings.tau_px, source_texel_size(surface))
     area = surface_area(positions, faces)
     side = texture_side(area, texel_size, efficiency=EXPECTED_PACKING, floor=settings.texture_floor,
                         cap=settings.texture_cap)
@@ -130,7 +148,6 @@ def bake_proxy(lod: tuple, error: float, sources: list[tuple], *, node: int, lay
         bary = np.full((face.size, 3), 1.0 / 3.0)
         texel = np.zeros(face.size, np.int64)
     points = np.einsum("sk,skd->sd", bary, p[atlas.faces[face]])
-    surface = source_surface(sources, layout, looks)
     source_face, source_bary = closest_on_sources(points, (surface.positions, surface.faces))
     footprint = 1.0 / atlas.texels_per_unit if atlas.texels_per_unit > 0 else texel_size
     if not footprint > 0:

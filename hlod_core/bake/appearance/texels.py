@@ -118,28 +118,29 @@ def barycentric(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
 
 
 def dilate(rgba: np.ndarray, filled: np.ndarray, *, steps: int) -> np.ndarray:
-    """rgba (h,w,4) float32 with `filled` (h,w) bool texels set: each of `steps` rounds gives every
-    empty texel with a filled 4-neighbour their mean (the charts' padding, so filtering at a chart's
-    border reads its own colours); texels still empty then take the filled texels' mean (the mip
-    levels above mix nothing foreign). Returns a new array."""
+    """rgba (h,w,4) float32 with `filled` (h,w) bool texels set: the empty texels filled by pull-push
+    (the image averaged down over its filled texels only, level by level to 1 x 1, then each empty
+    texel given the level below's value at its place, coarse to fine), so the charts' padding holds
+    their border colours and the texture's coarser mip levels mix each chart with its neighbours,
+    never with a colour that is nowhere on the surface. steps: kept for the callers; pull-push fills
+    every texel. Returns a new array."""
     out = np.array(rgba, np.float32)
-    have = np.array(filled, bool)
+    have = np.asarray(filled, bool)
     if not have.any():
         return out
-    for _ in range(steps):
-        total = np.zeros_like(out)
-        count = np.zeros(have.shape, np.float32)
-        for target, source in (((slice(1, None), slice(None)), (slice(None, -1), slice(None))),
-                               ((slice(None, -1), slice(None)), (slice(1, None), slice(None))),
-                               ((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
-                               ((slice(None), slice(None, -1)), (slice(None), slice(1, None)))):
-            neighbour = have[source]
-            total[target] += out[source] * neighbour[..., None]
-            count[target] += neighbour
-        grow = ~have & (count > 0)
-        if not grow.any():
-            break
-        out[grow] = total[grow] / count[grow][:, None]
-        have |= grow
-    out[~have] = out[have].mean(axis=0)
+    levels = [(out * have[..., None], have.astype(np.float32))]  # (weighted sums, weights)
+    while max(levels[-1][1].shape) > 1:
+        total, weight = levels[-1]
+        h, w = weight.shape
+        hh, ww = (h + 1) // 2, (w + 1) // 2
+        pad = ((0, 2 * hh - h), (0, 2 * ww - w))
+        t = np.pad(total, (*pad, (0, 0))).reshape(hh, 2, ww, 2, 4).sum(axis=(1, 3))
+        k = np.pad(weight, pad).reshape(hh, 2, ww, 2).sum(axis=(1, 3))
+        levels.append((t, k))
+    colour = levels[-1][0] / np.maximum(levels[-1][1], 1e-30)[..., None]
+    for total, weight in reversed(levels[:-1]):
+        h, w = weight.shape
+        up = np.repeat(np.repeat(colour, 2, axis=0), 2, axis=1)[:h, :w]
+        colour = np.where(weight[..., None] > 0, total / np.maximum(weight, 1e-30)[..., None], up)
+    out[~have] = colour[~have]
     return out
