@@ -20,7 +20,8 @@ Per tree:
                     chain (4/3 x w x h x 4 bytes; the images `io.textures.load_images` gives the
                     renderer): mean and largest, the root's; the largest texture side of an inner node;
     root tile       `export` (3D Tiles): the root tile's GLB and the texture files it refers to, bytes;
-    path            `evaluate --methods full coh_p --tau 1` over the path, every frame compared:
+    path            `evaluate --methods full coh_p --tau 1` over the path with this checkout's code for
+                    every tree's file (the bake is what is compared), every frame compared:
                     Coh(P)'s PSNR-Y, Cb, Cr against Full (mean over frames), and per frame on the far
                     half of the path (its first half) Coh(P)'s draws, texture bytes and triangles
                     (docs/evaluation.md#draws-and-texture-memory; a tree whose report lacks the draws
@@ -197,7 +198,8 @@ def run(trees: dict[str, Path], *, size: str, repeat: int, jobs: int, target_tri
         row.update(analyse_with(tree, hlod, target_tris))
         _hlod_core(tree, "export", hlod, "-o", out / f"{name}-tiles")
         row["root_tile"] = root_tile_bytes(out / f"{name}-tiles")
-        _hlod_core(tree, "evaluate", hlod, "--out", out / f"{name}-eval", "--path", camera, "--methods", "full",
+        # one evaluation code for every tree's file (this checkout's: its draws and texture bytes)
+        _hlod_core(ROOT, "evaluate", hlod, "--out", out / f"{name}-eval", "--path", camera, "--methods", "full",
                    "coh_p", "--tau", 1, "--repeat", 1, "--psnr-frames", frames, "--size", eval_size)
         row["path"] = path_figures(out / f"{name}-eval")
         result["trees"][name] = row
