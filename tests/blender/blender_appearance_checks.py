@@ -530,7 +530,24 @@ def check_shared_scene(repo, work, blend) -> dict:
                proxy_textures=sorted(Path(m.texture).name for m in hlod.materials
                                      if m.texture and m.name.startswith("HLOD proxy") and Path(m.texture).is_file()))
     out["leaves"] = corners_match(source_corners(objects), hlod_leaf_corners(hlod))
+    # the preview's images of the proxies: each the pixels of its own texture file
+    images = importlib.import_module(NAME + ".addon.materials.images").material_images(hlod.materials)
+    proxies = [row for row, m in enumerate(hlod.materials) if m.name.startswith("HLOD proxy")]
+    out["proxy_images_match"] = bool(proxies) and all(
+        row in images and np.array_equal(images[row], _png_pixels(hlod.materials[row].texture)) for row in proxies)
     return out
+
+
+def _png_pixels(path: str) -> np.ndarray:
+    """(h,w,4) uint8 RGBA, top row first, of a PNG, read by Blender itself."""
+    image = bpy.data.images.load(path, check_existing=False)
+    try:
+        pixels = np.empty(image.size[0] * image.size[1] * 4, np.float32)
+        image.pixels.foreach_get(pixels)
+        rgba = pixels.reshape(image.size[1], image.size[0], 4)[::-1]
+        return np.round(rgba * 255.0).astype(np.uint8)
+    finally:
+        bpy.data.images.remove(image)
 
 
 if __name__ == "__main__":

@@ -144,7 +144,8 @@ class ProxyPlan:
             mode = made.alpha_mode if part else "OPAQUE"
             materials.append(Material(name=f"HLOD proxy {node}" + (" (alpha)" if part else ""),
                                       base_color=(1.0, 1.0, 1.0, 1.0), metallic=0.0, roughness=0.5,
-                                      texture=made.file, alpha_mode=mode or "OPAQUE", alpha_cutoff=0.5))
+                                      texture=made.file, image=proxy_image_name(made.file),
+                                      alpha_mode=mode or "OPAQUE", alpha_cutoff=0.5))
         return tuple(materials)
 
     def meta(self) -> dict:
@@ -171,6 +172,13 @@ class ProxyPlan:
             if made.psnr_reason is not None:
                 lines.append(f"node {node}: proxy PSNR-Y {made.psnr_y:.1f} dB, {made.psnr_reason}")
         return lines
+
+
+def proxy_image_name(file: str) -> str:
+    """The image name a proxy's texture goes by in Blender (appearance.Material.image): its folder's
+    and file's names, within Blender's 63 characters (a texture folder per bake output)."""
+    path = Path(file)
+    return f"{path.parent.name[:40]}/{path.name}"
 
 
 @dataclass(frozen=True, eq=False)
