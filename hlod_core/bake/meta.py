@@ -33,11 +33,11 @@ VOLATILE_META = ("bake_seconds", "phase_seconds", "cache", "frame_source")
 #: bake's frame (frame.Frame.to_meta).
 DERIVED_META = {"leaves_over_budget": int, "collapsed_input_tris": int, "nodes_over_budget": int, "pruned_pieces": int,
                 "pruned_tris": int, "log": list, "log_lines_dropped": int, "uv_seams_crossed_nodes": int,
-                "frame": dict, "proxies": dict}
+                "frame": dict}
 
 #: The meta entries a bake writes itself (extra_meta may not replace them).
 OWN_META = frozenset({"generator", "input_tris", "input_vertices", "settings", "target_tris", "max_depth", "sources",
-                      *DERIVED_META, *VOLATILE_META})
+                      "proxies", *DERIVED_META, *VOLATILE_META})
 
 
 def check_extra_meta(extra_meta: dict | None) -> None:
