@@ -188,3 +188,44 @@ def test_a_missing_image_file_gets_one_warning_that_names_it(tmp_path, caplog):
 def test_bad_texture_sizes_are_refused():
     with pytest.raises(InputError, match="floor"):
         BakeSettings(texture_cap=8, texture_floor=16)
+
+
+def _gradient_plane():
+    """A gently waved 1 x 1 plane: its left part textured with a gradient (red = u, green = v, the
+    UVs its x and y), its right part (x > 0.7) a flat blue material."""
+    n = 60
+    x, y = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1))
+    positions = np.stack([x.ravel(), y.ravel(), (0.05 * np.sin(7 * x) * np.cos(5 * y)).ravel()], 1)
+    index = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = index[:-1, :-1].ravel(), index[:-1, 1:].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
+    ids = (positions[faces].mean(axis=1)[:, 0] > 0.7).astype(np.int32)
+    texture = np.zeros((256, 256, 4), np.uint8)
+    texture[..., 3] = 255
+    texture[..., 0] = np.arange(256)[None, :]  # red grows with u (columns)
+    texture[..., 1] = np.arange(256)[::-1, None]  # green grows with v (the top row is v = 1)
+    materials = (Material("gradient", base_color=(1, 1, 1, 1), texture="gradient.png"),
+                 Material("flat", base_color=(0, 0, 1, 1)))
+    mesh = meshes.from_arrays(positions, faces, name="plane", uvs=positions[:, :2], material_ids=ids,
+                              materials=materials)
+    return mesh, {0: texture}
+
+
+def test_a_proxy_shows_its_sources_colours_where_they_are_and_the_gate_says_so():
+    mesh, images = _gradient_plane()
+    hlod = bake(mesh, BakeSettings(target_tris=400, texture_cap=128), images=images)
+    proxies = hlod.meta["proxies"]
+    for node in proxies["nodes"]:
+        geometry = node_geometry(hlod, node)
+        with Image.open(hlod.materials[int(geometry.face_material[0])].texture) as image:
+            texels = np.asarray(image.convert("RGBA"))[::-1]
+        h, w, _ = texels.shape
+        centre = hlod.origin + geometry.positions[geometry.faces].mean(axis=1)
+        uv = geometry.uvs[geometry.faces].mean(axis=1)
+        left = centre[:, 0] < 0.65
+        at = texels[np.clip((uv[left, 1] * h).astype(int), 0, h - 1), np.clip((uv[left, 0] * w).astype(int), 0, w - 1)]
+        # the gradient where each face is: red = 255 x, green = 255 y (sRGB bytes, as the texture holds)
+        assert np.median(np.abs(at[:, 0] - 255 * centre[left, 0])) <= 2, node
+        assert np.median(np.abs(at[:, 1] - 255 * centre[left, 1])) <= 2, node
+    # a proxy this close to its sources scores high at the gate (a white proxy base colour: no dimming)
+    assert proxies["psnr_y_median"] >= 35.0

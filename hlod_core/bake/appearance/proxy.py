@@ -31,6 +31,8 @@ from .texels import closest_on_sources, dilate, texel_samples
 #: Alpha (of 1) at or above which a texel is opaque: a face all of whose texels are goes in the
 #: proxy's opaque part, the others in its alpha-tested part.
 OPAQUE_ALPHA = 1.0 - 0.5 / 255.0
+#: A proxy material's base colour: its texture holds every colour.
+WHITE = (1.0, 1.0, 1.0, 1.0)
 #: Texels a source face without a texture stands for (source_texel_size): its colour is a blend of
 #: its corners', which a couple of texels hold.
 UNTEXTURED_FACE_TEXELS = 2.0
@@ -185,7 +187,8 @@ def bake_proxy(lod: tuple, error: float, sources: list[tuple], *, node: int, lay
     mode = alpha_mode if alpha_face.any() else None
     looks_of_proxy = Surface(positions=p[vertex], faces=split_faces, uvs=atlas.uvs[vertex], colors=None,
                              face_material=corner_alpha[split_faces[:, 0]].astype(np.int64),
-                             materials=(Material("proxy"), Material("proxy alpha", alpha_mode=mode or "OPAQUE")),
+                             materials=(Material("proxy", base_color=WHITE),
+                                        Material("proxy alpha", base_color=WHITE, alpha_mode=mode or "OPAQUE")),
                              images={0: MipChain.of(image), 1: MipChain.of(image)})
     psnr, reason = node_psnr(looks_of_proxy, surface, error=error, tau_px=settings.tau_px,
                              directions=GATE_DIRECTIONS)

@@ -16,7 +16,7 @@ import numpy as np
 
 from ...model.appearance import AttributeLayout, Material
 from .atlas import surface_area, texture_side
-from .proxy import EXPECTED_PACKING, Proxy, ProxySettings, SourceLooks, bake_proxy, proxy_of_id
+from .proxy import EXPECTED_PACKING, WHITE, Proxy, ProxySettings, SourceLooks, bake_proxy, proxy_of_id
 from .surface_colour import MipChain
 
 #: Coarsest mip level a child proxy's texture is read at: its charts have PADDING_TEXELS of padding
@@ -110,7 +110,7 @@ def make_proxy(folder: str, lod: tuple, error: float, sources: list[tuple], *, n
         else:
             image, mode = child_proxies[material]
             _, alpha = proxy_of_id(np.array([material]), scene_materials=scene_count)
-            materials[material] = Material(name="proxy", base_color=(1.0, 1.0, 1.0, 1.0),
+            materials[material] = Material(name="proxy", base_color=WHITE,
                                            alpha_mode=mode if alpha[0] else "OPAQUE")
             chain = AtlasChain.of(image)
         if chain is not None:
