@@ -87,6 +87,13 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
         ("exact", "Exact", "Each inner node's error measured against every original triangle below it"),
         ("bound", "Bound", "Against the children's LODs plus their largest error: a faster bake, a looser "
                            "(never smaller) error, more triangles drawn")], default="exact")
+    proxy_materials: BoolProperty(name="Proxy Materials", default=True,
+                                  description="Inner nodes whose sources have several materials or finer textures "
+                                              "than they need get one material of their own: a UV atlas and one "
+                                              "base-colour texture sized by the node's error (off: every level "
+                                              "keeps the sources' materials)")
+    texture_cap: IntProperty(name="Texture Cap", default=1024, min=16, max=16384,
+                             description="Longest side of a proxy texture, texels")
     jobs: IntProperty(name="Jobs", default=0, min=0, max=256,
                       description="Worker processes of the bake, which runs outside Blender's process; "
                                   "0 = all cores but one")

@@ -15,7 +15,9 @@ def bake_settings(props) -> BakeSettings:
     The bake runs in a child process of Blender's Python (addon/bake/job.py), where worker
     processes import hlod_core as from the command line."""
     return core_bake_settings(target_tris=props.target_tris, max_depth=props.max_depth, jobs=props.jobs,
-                              quality_threshold=props.quality_threshold, error=props.error)
+                              quality_threshold=props.quality_threshold, error=props.error,
+                              proxy_materials=props.proxy_materials, texture_cap=props.texture_cap,
+                              texture_floor=min(props.texture_cap, BakeSettings.texture_floor))
 
 
 def runtime_settings(props) -> RuntimeSettings:

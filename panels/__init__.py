@@ -52,6 +52,11 @@ class HLOD_PT_bake(_HlodSection, bpy.types.Panel):
         layout.prop(props, "quality_threshold")
         layout.prop(props, "error")
         row = layout.row()
+        row.prop(props, "proxy_materials")
+        sub = row.row()
+        sub.active = props.proxy_materials
+        sub.prop(props, "texture_cap")
+        row = layout.row()
         row.prop(props, "jobs")
         row.prop(props, "use_cache")
         layout.prop(props, "output_path")

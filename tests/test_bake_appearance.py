@@ -53,6 +53,10 @@ FILE_BEFORE_APPEARANCE = "999cc7a06a48f5c77ad22a6ed214bad524f06514a9aba473b65825
 F32_TOLERANCE = 1e-6
 
 
+#: These tests pin the inner nodes' keeping of the sources' materials (the bake's --keep-materials);
+#: the proxy materials that replace them by default are tested in tests/test_proxy_materials.py.
+SOURCE_MATERIALS = {"proxy_materials": False}
+
 @pytest.fixture(scope="module")
 def baked():
     """baked(jobs=1, **which): the textured sphere (with the attributes `which` keeps) baked to
@@ -62,7 +66,8 @@ def baked():
     def bake_once(jobs: int = 1, **which):
         key = (jobs, tuple(sorted(which.items())))
         if key not in made:
-            made[key] = bake(textured_sphere(**which), BakeSettings(target_tris=TARGET_TRIS, jobs=jobs))
+            made[key] = bake(textured_sphere(**which),
+                BakeSettings(target_tris=TARGET_TRIS, jobs=jobs, **SOURCE_MATERIALS))
         return made[key]
     return bake_once
 
@@ -321,18 +326,20 @@ def test_colour_jumps_do_not_stop_decimation():
     shade = np.repeat(np.linspace(0.0, 1.0, faces.shape[0]), 3)
     colours = np.stack([shade, 1 - shade, np.full_like(shade, 0.5), np.ones_like(shade)], 1)
     mesh = meshes.from_arrays(corners, np.arange(corners.shape[0]).reshape(-1, 3), name="faceted", colors=colours)
-    hlod = bake(mesh, BakeSettings(target_tris=TARGET_TRIS))
-    bare = bake(meshes.from_arrays(positions, faces, name="bare"), BakeSettings(target_tris=TARGET_TRIS))
+    hlod = bake(mesh, BakeSettings(target_tris=TARGET_TRIS, **SOURCE_MATERIALS))
+    bare = bake(meshes.from_arrays(positions, faces, name="bare"),
+        BakeSettings(target_tris=TARGET_TRIS, **SOURCE_MATERIALS))
     assert hlod.tri_count[0] <= 1.1 * TARGET_TRIS and bare.tri_count[0] <= 1.1 * TARGET_TRIS
     _assert_colours_blend_the_inputs(mesh, hlod, hlod.positions, colors=hlod.colors, where="faceted sphere")
 
 
 def test_extra_meta_is_recorded_and_cannot_replace_the_bakes_own():
     mesh = textured_sphere()
-    hlod = bake(mesh, BakeSettings(target_tris=2000), extra_meta={"uv_map": "UVMap", "color_attribute": "Col"})
+    hlod = bake(mesh,
+        BakeSettings(target_tris=2000, **SOURCE_MATERIALS), extra_meta={"uv_map": "UVMap", "color_attribute": "Col"})
     assert hlod.meta["uv_map"] == "UVMap" and hlod.meta["color_attribute"] == "Col"
     with pytest.raises(InputError, match="input_tris"):
-        bake(mesh, BakeSettings(target_tris=2000), extra_meta={"input_tris": 1})
+        bake(mesh, BakeSettings(target_tris=2000, **SOURCE_MATERIALS), extra_meta={"input_tris": 1})
 
 
 def test_undecimated_and_zero_area_nodes_keep_their_rows():
@@ -416,17 +423,18 @@ def test_many_uv_islands_are_crossed_so_the_root_reaches_its_target(baked):
     at 668 triangles against a target of 200. The bake decimates such a node again across its UV
     seams: the root reaches its target, the log says so and meta counts the node."""
     mesh = island_sphere()
-    hlod = bake(mesh, BakeSettings(target_tris=TARGET_TRIS))
+    hlod = bake(mesh, BakeSettings(target_tris=TARGET_TRIS, **SOURCE_MATERIALS))
     assert hlod.tri_count[0] <= 2 * TARGET_TRIS, hlod.meta["log"]
     crossed = [line for line in hlod.meta["log"] if "UV seams crossed" in line]
     assert hlod.meta["uv_seams_crossed_nodes"] == len(crossed) >= 1 and crossed[0].startswith("node 0: ")
-    parallel = bake(mesh, BakeSettings(target_tris=TARGET_TRIS, jobs=2))  # the LODs come back from workers
+    parallel = bake(mesh,
+        BakeSettings(target_tris=TARGET_TRIS, jobs=2, **SOURCE_MATERIALS))  # the LODs come back from workers
     for name in ("positions", "indices", "uvs", "tri_material", "error"):
         assert np.array_equal(getattr(parallel, name), getattr(hlod, name)), name
     assert parallel.meta["uv_seams_crossed_nodes"] == hlod.meta["uv_seams_crossed_nodes"]
     assert baked().meta["uv_seams_crossed_nodes"] == 0  # one seam: nothing to cross
     assert "uv_seams_crossed_nodes" not in bake(meshes.from_arrays(*_sphere(), name="bare"),
-                                                BakeSettings(target_tris=TARGET_TRIS)).meta
+                                                BakeSettings(target_tris=TARGET_TRIS, **SOURCE_MATERIALS)).meta
 
 
 def test_faces_inside_one_uv_island_keep_its_uvs_when_seams_are_crossed():
@@ -436,7 +444,7 @@ def test_faces_inside_one_uv_island_keep_its_uvs_when_seams_are_crossed():
     so its UVs are that island's function of position, exact; (3) material borders stay put.
     Taking each corner's lowest candidate row instead breaks (2) for 51 of the root's 111."""
     mesh = island_sphere()
-    hlod = bake(mesh, BakeSettings(target_tris=TARGET_TRIS))
+    hlod = bake(mesh, BakeSettings(target_tris=TARGET_TRIS, **SOURCE_MATERIALS))
     stored = _stored(mesh, hlod)
     input_corners = set(_corner_records(stored, mesh.faces, uvs=mesh.uvs, colors=None,
                                         material=mesh.material_ids).tolist())

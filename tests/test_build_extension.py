@@ -18,7 +18,7 @@ from helpers import ROOT
 sys.path.insert(0, str(ROOT / "scripts"))
 import build_extension
 
-DEPENDENCIES = {"pymeshlab", "moderngl", "glcontext"}
+DEPENDENCIES = {"pymeshlab", "moderngl", "glcontext", "xatlas"}
 
 
 def test_manifest_lists_cp311_and_cp313_wheels_of_every_dependency_for_every_platform():

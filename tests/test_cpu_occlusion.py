@@ -1,4 +1,4 @@
-"""hlod_core/render/cpu_raster.py and cpu_occlusion.py: occlusion tested on the CPU, for when no GL
+"""hlod_core/core/cpu_raster.py and cpu_occlusion.py: occlusion tested on the CPU, for when no GL
 context can be made. The rasteriser on tiny literal triangles with exact expected pixels; the tests
 against real GL queries (Mesa llvmpipe) at full resolution, where they must agree pixel for pixel
 but for pixel centres on an edge; the traversal on the CPU without any GL."""
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from helpers import street_path
+from hlod_core.core import cpu_raster
 from hlod_core.core.errors import InputError
-from hlod_core.render import cpu_raster
 from hlod_core.render.cpu_occlusion import CpuOcclusion, default_factor, query_renderer
 from hlod_core.render.depth_import import wall_depth
 from hlod_core.render.renderer import Renderer

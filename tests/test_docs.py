@@ -254,18 +254,22 @@ ROOMS_NAMING_EVERY_MODULE = ("addon/",)
 def _layout_entries() -> dict[str, str]:
     """{path: its description} of the Layout block of docs/development.md: a line that starts with
     a name is a top-level entry (`addon/`, `__init__.py`), an indented `name/` a folder inside the
-    last top-level folder; continuation lines join their entry's description."""
+    last top-level folder (indented two spaces more, a folder inside the last such folder);
+    continuation lines join their entry's description."""
     text = DEVELOPMENT.read_text(encoding="utf-8")
     block = FENCE.search(text, text.index("\n## Layout")).group(0)
     entries: dict[str, str] = {}
-    top = path = None
+    top = path = middle = None
     for line in block.splitlines()[1:-1]:
         head = re.match(r"(\S+)\s", line + " ")
         nested = re.match(r"  (\S+/)\s", line + " ")
+        deeper = re.match(r"    (\S+/)\s", line + " ")
         if head:
             path = top = head.group(1)
         elif nested and top and top.endswith("/"):
-            path = top + nested.group(1)
+            path = middle = top + nested.group(1)
+        elif deeper and middle:
+            path = middle + deeper.group(1)
         elif path is None:
             continue
         entries[path] = entries.get(path, "") + " " + line.strip()

@@ -363,6 +363,27 @@ def test_malformed_glb_is_one_clear_error(tmp_path, damage, message):
     assert str(path) in str(err.value) and "\n" not in str(err.value)
 
 
+def test_gltf_alpha_modes_are_read(tmp_path):
+    """alphaMode and alphaCutoff reach the material (MASK with its cutoff, BLEND; OPAQUE and 0.5 when
+    absent); a mode glTF does not define (trimesh refuses the file), or a cutoff outside [0, 1], is
+    refused naming the file."""
+    found = {}
+    for mode, cutoff in (("MASK", 0.3), ("BLEND", None), (None, None)):
+        gltf = _hand_gltf()
+        gltf["materials"][0].update({k: v for k, v in (("alphaMode", mode), ("alphaCutoff", cutoff)) if v is not None})
+        mesh = meshes.load_mesh(_write_gltf(tmp_path / f"{mode}.gltf", gltf), texture_dir=tmp_path / "t")
+        (material,) = mesh.materials
+        found[mode] = (material.alpha_mode, material.alpha_cutoff)
+    assert found == {"MASK": ("MASK", pytest.approx(0.3)), "BLEND": ("BLEND", 0.5), None: ("OPAQUE", 0.5)}
+    for field, value, message in (("alphaMode", "CUTOUT", r"not a readable glTF file .*alphaMode.*CUTOUT"),
+                                  ("alphaCutoff", 2, r"materials\[0\]\.alphaCutoff must be a number in \[0, 1\]"),
+                                  ("alphaCutoff", "half", r"not a readable glTF file .*half")):
+        gltf = _hand_gltf()
+        gltf["materials"][0][field] = value
+        with pytest.raises(InputError, match=message):
+            meshes.load_mesh(_write_gltf(tmp_path / "bad.gltf", gltf), texture_dir=tmp_path / "t")
+
+
 def test_malformed_gltf_parts_are_named(tmp_path):
     gltf = _hand_gltf()
     gltf["nodes"][0]["rotation"] = [0, 0, 0]

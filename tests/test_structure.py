@@ -54,7 +54,7 @@ MAX_MODULE_LINES = 500
 COMMAND_LINE_ONLY = {"trimesh", "PIL", "matplotlib", "dask", "distributed"}
 #: What the core may import besides the standard library: numpy (Blender ships it), the extension's
 #: wheels (blender_manifest.toml) and the command-line-only libraries.
-CORE_DEPENDENCIES = {"numpy", "pymeshlab", "moderngl", "glcontext"} | COMMAND_LINE_ONLY
+CORE_DEPENDENCIES = {"numpy", "pymeshlab", "moderngl", "glcontext", "xatlas"} | COMMAND_LINE_ONLY
 #: Modules the extension reaches that may touch a command-line-only library, each behind a guard
 #: that works without it (and the test suite runs that path with the library blocked).
 GUARDED = {"hlod_core.report.figures": {"matplotlib"}, "hlod_core.io.textures": {"PIL"},

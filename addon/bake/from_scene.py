@@ -26,6 +26,7 @@ from ...hlod_core.bake.settings import BakeSettings
 from ...hlod_core.core.errors import InputError
 from ...hlod_core.io.texture_folder import EmbeddedTextures
 from ..materials.cycles_bake import CyclesBake
+from ..materials.images import material_images
 from ..materials.textures import place_textures
 from ..scene.gather import Gathered, gather
 from .job import BakeJob
@@ -78,6 +79,8 @@ def start_bake(context, objects, output: Path, settings: BakeSettings, *, use_ca
     textures = EmbeddedTextures(output)
     try:
         mesh = place_textures(gathered.mesh, textures)
+        if settings.proxy_materials:  # what the inner nodes' proxy materials are baked from
+            options.update(images=material_images(mesh.materials), textures=textures)
         job = BakeJob(mesh, settings, output, extra_meta=gathered.attributes or None, cache_dir=cache_dir,
                       job_options=options)
     except BaseException:

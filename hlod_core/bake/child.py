@@ -12,7 +12,10 @@ Data form of a job (one folder, written by `write_job`, read by `read_job`):
   "materials" (appearance.Material.to_json rows, textures absolute), "settings" (BakeSettings
   fields), "output" (the .hlod path), "extra_meta", "cache_dir" (the bake's cache folder,
   cache.py; null: no cache), "cache_budget_mb" (its size budget), "frame_from" (an earlier bake's
-  frame, frame.Frame.to_meta, to bake in while the input fits it; null: the cache's or the input's)}.
+  frame, frame.Frame.to_meta, to bake in while the input fits it; null: the cache's or the input's),
+  "images" (`images.npz`: `image_<row>` (h,w,4) uint8 sRGB RGBA, top row first, the materials'
+  texture images the proxy materials are baked from; null: none), "textures" ({"scratch", "final"}:
+  the bake's texture folder, where the proxies' textures are written; null: a temporary folder)}.
 Both are written atomically (hlod_core.core.atomic), the npz first, so a job.json always names a whole npz.
 
 Protocol: stdout carries JSON lines only, one object per event, flushed at once:
@@ -44,7 +47,7 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import asdict, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -63,7 +66,7 @@ from .settings import BakeSettings
 log = logging.getLogger("hlod_core")
 
 JOB_VERSION = 1
-JOB_FILE, MESH_FILE = "job.json", "mesh.npz"
+JOB_FILE, MESH_FILE, IMAGES_FILE = "job.json", "mesh.npz", "images.npz"
 MODULE = "hlod_core.bake.child"  # what `python -m` runs
 PARENT_STDIN = "--parent-stdin"  # the option saying stdin is the parent's pipe (module notes)
 #: Optional per-vertex / per-face arrays of a TriangleMesh carried in the npz when present.
@@ -77,20 +80,29 @@ ERROR_TYPES = {cls.__name__: cls for cls in (InputError, FormatError, HlodError)
 def write_job(folder: str | os.PathLike, mesh: meshes.TriangleMesh, settings: BakeSettings, *,
               output: str | os.PathLike, extra_meta: dict | None = None,
               cache_dir: str | os.PathLike | None = None, cache_budget_mb: float = DEFAULT_BUDGET_MB,
-              frame_from: Frame | None = None) -> Path:
-    """Write `mesh` and what to do with it into `folder` (module notes); returns the job.json path."""
+              frame_from: Frame | None = None, images: dict | None = None, textures=None) -> Path:
+    """Write `mesh` and what to do with it into `folder` (module notes); returns the job.json path.
+    images: material row -> its texture image, (h,w,4) uint8 sRGB RGBA, top row first (what the proxy
+    materials are baked from; `images.npz`); textures: the bake's texture folder (its `scratch` and
+    `final` paths: io.texture_folder.EmbeddedTextures), where the proxies' textures go."""
     folder = Path(folder)
     arrays = {"positions": np.ascontiguousarray(mesh.positions, np.float64),
               "faces": np.ascontiguousarray(mesh.faces, np.int64)}
     arrays.update({name: np.ascontiguousarray(getattr(mesh, name)) for name in OPTIONAL_ARRAYS
                    if getattr(mesh, name) is not None})
+    if images:
+        with atomic_file(folder / IMAGES_FILE) as f:
+            np.savez(f, **{f"image_{int(row)}": np.ascontiguousarray(image, np.uint8) for row, image in images.items()})
     with atomic_file(folder / MESH_FILE) as f:
         np.savez(f, **arrays)
     job = {"version": JOB_VERSION, "mesh": MESH_FILE, "name": mesh.name,
            "materials": [m.to_json() for m in mesh.materials], "settings": asdict(settings),
            "output": os.fspath(Path(output).absolute()), "extra_meta": extra_meta or {},
            "cache_dir": None if cache_dir is None else os.fspath(cache_dir), "cache_budget_mb": float(cache_budget_mb),
-           "frame_from": None if frame_from is None else frame_from.to_meta()}
+           "frame_from": None if frame_from is None else frame_from.to_meta(),
+           "images": IMAGES_FILE if images else None,
+           "textures": None if textures is None else {"scratch": os.fspath(Path(textures.scratch).absolute()),
+                                                      "final": os.fspath(Path(textures.final).absolute())}}
     return write_text_atomic(folder / JOB_FILE, json.dumps(job))
 
 
@@ -112,6 +124,24 @@ def read_job(path: str | os.PathLike) -> tuple[meshes.TriangleMesh, BakeSettings
                               uvs=arrays.get("uvs"), colors=arrays.get("colors"),
                               material_ids=arrays.get("material_ids"), materials=materials)
     return mesh, settings, job
+
+
+def job_images(path: str | os.PathLike, job: dict) -> tuple[dict, JobTextures | None]:
+    """The job's texture images (material row -> image) and texture folder (None: none given)."""
+    images = {}
+    if job.get("images"):
+        with np.load(Path(path).parent / job["images"], allow_pickle=False) as npz:
+            images = {int(name.split("_", 1)[1]): npz[name] for name in npz.files}
+    folder = job.get("textures")
+    return images, None if folder is None else JobTextures(scratch=Path(folder["scratch"]), final=Path(folder["final"]))
+
+
+@dataclass(frozen=True)
+class JobTextures:
+    """The bake's texture folder as a job names it: where its files are written and what names them."""
+
+    scratch: Path
+    final: Path
 
 
 # --- the child ----------------------------------------------------------------------------------
@@ -152,8 +182,10 @@ def run(job_path: str, events: _Events) -> int:
         mesh, settings, job = read_job(job_path)
         started = time.perf_counter()
         frame_from = None if job.get("frame_from") is None else Frame.from_meta(job["frame_from"], where=job_path)
+        images, textures = job_images(job_path, job)
         hlod = bake(mesh, settings, extra_meta=job["extra_meta"] or None, cache_dir=job["cache_dir"],
                     cache_budget_mb=job.get("cache_budget_mb", DEFAULT_BUDGET_MB), frame_from=frame_from,
+                    images=images, textures=textures,
                     progress=lambda done, total, phase: events.send("progress", done=done, total=total, phase=phase))
         hlod_file.save(hlod, job["output"])
         log.info("saved %s (%d nodes) in %.2f s", job["output"], hlod.node_count, time.perf_counter() - started)

@@ -37,7 +37,7 @@ DERIVED_META = {"leaves_over_budget": int, "collapsed_input_tris": int, "nodes_o
 
 #: The meta entries a bake writes itself (extra_meta may not replace them).
 OWN_META = frozenset({"generator", "input_tris", "input_vertices", "settings", "target_tris", "max_depth", "sources",
-                      *DERIVED_META, *VOLATILE_META})
+                      "proxies", *DERIVED_META, *VOLATILE_META})
 
 
 def check_extra_meta(extra_meta: dict | None) -> None:
@@ -150,12 +150,19 @@ def lod_notes(node: int, lod: NodeLod, *, error: float, target_tris: int) -> lis
     return notes
 
 
+#: The proxy settings meta["settings"] names only where they differ from the defaults.
+PROXY_SETTINGS = ("proxy_materials", "texture_cap", "texture_floor")
+
+
 def settings_meta(settings: BakeSettings) -> dict:
     """meta["settings"]: the settings' fields, but `error` only when it is not "exact": a file
     without it was measured exactly, and an exact bake writes the bytes it always wrote."""
     fields = asdict(settings)
     if fields["error"] == "exact":
         del fields["error"]
+    for name in PROXY_SETTINGS:  # at their defaults a file writes the bytes it wrote before proxies
+        if fields[name] == getattr(BakeSettings, name):
+            del fields[name]
     return fields
 
 
@@ -187,6 +194,8 @@ def bake_meta(size: InputSize, settings: BakeSettings, derived: dict, *, cache_s
     }
     if "uv_seams_crossed_nodes" in derived:
         meta["uv_seams_crossed_nodes"] = derived["uv_seams_crossed_nodes"]
+    if "proxies" in derived:
+        meta["proxies"] = derived["proxies"]
     if cache_stats is not None:
         meta["cache"] = cache_stats
     meta.update(extra_meta or {})

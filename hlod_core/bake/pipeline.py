@@ -40,6 +40,7 @@ from ..core.signals import deliver_held, stop_signals_held
 from ..io.meshes import TriangleMesh
 from ..model.hierarchy import Hlod
 from . import cell_seams
+from .appearance.proxy_plan import ProxyPlan, proxy_plan
 from .assemble import assemble
 from .cache import DEFAULT_BUDGET_MB, BakeCache
 from .frame import Frame, FrameChoice, Prior
@@ -62,7 +63,7 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
          sources: list[str] | None = None, extra_meta: dict | None = None,
          cache_dir: str | os.PathLike | None = None, scheduler=None,
          scratch_dir: str | os.PathLike | None = None, frame_from: Frame | None = None,
-         cache_budget_mb: float = DEFAULT_BUDGET_MB) -> Hlod:
+         cache_budget_mb: float = DEFAULT_BUDGET_MB, images: dict | None = None, textures=None) -> Hlod:
     """Bake `mesh` into an Hlod. Raises InputError for unusable input, BakeCancelled if `cancel()`
     turns true (checked between nodes). Writes nothing to disk except worker scratch files and,
     with `cache_dir`, once the bake is complete, the cache folder (cache.py: what it did not
@@ -79,13 +80,24 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     phase's tasks run on its workers instead of `settings.jobs` local processes (dask_cluster.py),
     for the same file; scratch_dir: a folder every worker reads (shared storage on a cluster;
     default the temporary folder), where the bake writes its shared arrays into a subfolder of its
-    own, removed at the end. Neither is a setting: they change where the work runs, not the file."""
+    own, removed at the end. Neither is a setting: they change where the work runs, not the file.
+    images: material row -> its texture image ((h,w,4) uint8 sRGB RGBA, top row first;
+    io.textures.load_material_images), what the inner nodes' proxy materials are baked from
+    (appearance/); textures: where their PNGs go (`scratch`, written, and `final`, what the file's
+    materials name: io.texture_folder.EmbeddedTextures; None: a temporary folder of their own)."""
     with stop_signals_held():
         check_extra_meta(extra_meta)
+        plan = proxy_plan(mesh, settings, images=images, textures=textures)
+        if plan is not None:
+            mesh = plan.mesh
+            if cache_dir is not None:
+                log.info("proxy materials: the bake cache is not used for a bake that makes them")
+                cache_dir = None
         cache = BakeCache.open(cache_dir, mesh=mesh, settings=settings, budget_mb=cache_budget_mb)
         prior = Prior(frame_from, "file") if frame_from is not None else cache.prior() if cache is not None else None
         return _bake(InMemorySource(mesh, prior), settings, _Callbacks(progress, cancel), cache=cache,
-                     scheduler=scheduler, scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta, prior=prior)
+                     scheduler=scheduler, scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta, prior=prior,
+                     plan=None if plan is None else plan.plan)
 
 
 def bake_stream(source: TriangleSource, settings: BakeSettings = BakeSettings(), *,
@@ -123,7 +135,7 @@ class _Callbacks:
 
 def _bake(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache: BakeCache | None, scheduler,
           scratch_dir: str | os.PathLike | None, sources: list[str] | None, extra_meta: dict | None,
-          prior: Prior | None = None) -> Hlod:
+          prior: Prior | None = None, plan: ProxyPlan | None = None) -> Hlod:
     """The phases (module docstring), once for every source; scheduler, scratch_dir: as for `bake`;
     prior: the frame the bake starts from (None: the input's own)."""
     clock = run.clock
@@ -136,17 +148,21 @@ def _bake(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache:
         choice = FrameChoice(prior.source, f"the input is unchanged: its whole result in {which} {prior.source} frame")
         return hlod.replace(meta=bake_meta(source.size, settings, derived, cache_stats=stats, sources=sources,
                                            extra_meta=extra_meta, clock=clock, frame_source=choice.to_meta()))
-    nodes = _baked_nodes(source, settings, run, cache=cache, scheduler=scheduler, scratch_dir=scratch_dir)
+    nodes = _baked_nodes(source, settings, run, cache=cache, scheduler=scheduler, scratch_dir=scratch_dir, plan=plan)
     layout, n = nodes.tree.layout, nodes.tree.layout.node_count
+    proxy_materials = plan.finish(nodes.lods) if plan is not None else ()
     hlod = assemble(layout, nodes.lods, nodes.tree.origin, hausdorff_error=nodes.hausdorff_error,
                     normals=source.with_normals, row_layout=source.row_layout)
     del nodes.lods
     if source.materials:
-        hlod = hlod.replace(materials=source.materials)
+        hlod = hlod.replace(materials=tuple(source.materials) + proxy_materials)
     clock.lap("assemble")
     derived = derived_meta(layout, nodes.made, nodes.hausdorff_error, counted_per_node=nodes.tree.counted_per_node,
                            settings=settings, collapsed_tris=nodes.tree.collapsed_tris,
                            with_rows=not source.row_layout.empty, frame=nodes.tree.frame.to_meta())
+    if proxy_materials:
+        derived["proxies"] = plan.meta()
+        derived["log"] = derived["log"] + plan.log_lines()
     stats = None
     if cache is not None:
         stats = cache.finish(hlod, derived, made=nodes.made, hausdorff_error=nodes.hausdorff_error,
@@ -171,7 +187,7 @@ class _Nodes:
 
 
 def _baked_nodes(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache: BakeCache | None,
-                 scheduler, scratch_dir: str | os.PathLike | None) -> _Nodes:
+                 scheduler, scratch_dir: str | os.PathLike | None, plan: ProxyPlan | None = None) -> _Nodes:
     """The phases from the octree to the simplify phase, with the workers running. They start
     first and import pymeshlab while this process prepares; an input of one leaf has no inner
     node to simplify, and runs inline."""
@@ -197,7 +213,7 @@ def _baked_nodes(source: BakeSource, settings: BakeSettings, run: _Callbacks, *,
             clock.lap("cache")
         what = SimplifyInput(with_normals=source.with_normals,
                              row_layout=None if source.row_layout.empty else source.row_layout,
-                             leaf_folder=source.leaf_folder, unit_length=tree.unit_length, seams=seams)
+                             leaf_folder=source.leaf_folder, unit_length=tree.unit_length, seams=seams, proxies=plan)
         simplify_phase(layout, nodes.lods, hausdorff_error=nodes.hausdorff_error, made=nodes.made, settings=settings,
                        source=what, workers=workers, cancel=run.cancel, progress=run.progress)
         clock.lap("simplify")

@@ -1,11 +1,14 @@
 """The simplify phase's task scheduler: every inner node without a LOD yet is decimated once its
 children's LODs exist and then measured, as tasks on `workers.Workers`.
 
-Two kinds of task: DECIMATE a node (simplify.decimate_node) and MEASURE its error (exact:
+Three kinds of task: DECIMATE a node (simplify.decimate_node), MEASURE its error (exact:
 tasks.measure_exact over the leaves' shared arrays; bound: hausdorff.measure_to_children against
-its children's LODs, the bounds composed after the phase, `compose_bounds`). Priority:
-decimations first, deepest first (they unlock the rest), then measurements, largest first; at
-most `workers.limit` tasks are in flight, so the priority holds.
+its children's LODs, the bounds composed after the phase, `compose_bounds`) and, where the node's
+sources need one, bake its PROXY material (appearance/proxy_task.py; `ProxyPlan`). Priority:
+decimations first, deepest first (they unlock the rest), then measurements, largest first, then
+proxies; at most `workers.limit` tasks are in flight, so the priority holds. With proxies, a node is
+decimated once its children are complete (their proxies made: its sources and its decision whether
+to decimate freely depend on them); without, once they are decimated.
 Why: docs/how-it-works.md#scheduling-the-simplify-phase
 
 The task functions are looked up on their modules at each submit (simplify.decimate_node,
@@ -32,6 +35,8 @@ from ..core.errors import BakeCancelled
 from ..core.signals import deliver_held
 from ..model.appearance import AttributeLayout
 from . import hausdorff, leaf_arrays, simplify, tasks
+from .appearance import proxy_task
+from .appearance.proxy_plan import ProxyPlan
 from .cell_seams import CellSeams
 from .leaf_arrays import LeafArrays
 from .octree import OctreeLayout
@@ -44,7 +49,7 @@ ProgressFn = Callable[[int, int, str], None]
 CancelFn = Callable[[], bool]
 
 #: Task kinds of the simplify phase; the values order the heap (decimations before measurements).
-TASK_DECIMATE, TASK_MEASURE = 0, 1
+TASK_DECIMATE, TASK_MEASURE, TASK_PROXY = 0, 1, 2
 #: How often (seconds) the scheduler wakes while tasks run, to check cancel().
 POLL_SECONDS = 0.25
 
@@ -62,6 +67,7 @@ class SimplifyInput:
     leaf_folder: str | os.PathLike | None = None
     unit_length: float = 0.0
     seams: CellSeams | None = None
+    proxies: ProxyPlan | None = None
 
 
 def simplify_phase(layout: OctreeLayout, lods: list, *, hausdorff_error: np.ndarray, made: dict,
@@ -129,6 +135,9 @@ class _Scheduler:
         self.running: dict[cf.Future, tuple[int, int]] = {}  # future -> (kind, node)
         self.decimated: dict[int, simplify.NodeLod] = {}  # LODs made, until their measurement is done
         self.leaves: LeafArrays | None = None  # the exact measure's tasks wait for them
+        self.plan = source.proxies if source.row_layout is not None else None
+        if self.plan is not None:
+            self.plan.share(workers)
 
     def run(self, *, cancel: CancelFn, node_done: Callable[[int, simplify.NodeLod], None]) -> None:
         """Run every task; node_done(node, lod) once a node is decimated and measured. The exact
@@ -169,6 +178,8 @@ class _Scheduler:
         layout = self.layout
         if kind == TASK_DECIMATE:
             size = -int(layout.depth[node])
+        elif kind == TASK_PROXY:
+            size = -int(layout.depth[node])
         else:
             size = -int(layout.tri_end[node] - layout.tri_begin[node])
         heapq.heappush(self.heap, (kind, size, node))
@@ -185,8 +196,19 @@ class _Scheduler:
         layout, lods = self.layout, self.lods
         kids = range(layout.child_offset[node], layout.child_offset[node] + layout.child_count[node])
         order = (kind, size)
+        if kind == TASK_PROXY:
+            plan = self.plan
+            return self.workers.submit(order, proxy_task.make_proxy, self.workers.scratch,
+                                       (lods[node][0], lods[node][1], lods[node][2]),
+                                       float(self.hausdorff_error[node]),
+                                       [(lods[k][0], lods[k][1], lods[k][3]) for k in kids], node=node,
+                                       layout=self.source.row_layout, scene_materials=plan.scene_materials,
+                                       child_proxies=plan.child_proxies([lods[k][3] for k in kids]),
+                                       settings=plan.settings, free=node in plan.free)
         if kind == TASK_DECIMATE:
             children = [(lods[k][0], lods[k][1], lods[k][3]) for k in kids]
+            if self.plan is not None and self.plan.decimate_freely(node, [c[2] for c in children]):
+                children = [(c[0], c[1]) for c in children]
             seams = None if self.source.seams is None else self.source.seams.locked(node)
             return self.workers.submit(order, simplify.decimate_node, children, self.decimation,
                                        with_normals=self.source.with_normals, layout=self.source.row_layout,
@@ -208,11 +230,33 @@ class _Scheduler:
             raise
         if kind == TASK_MEASURE:
             self.hausdorff_error[node] = result
-            node_done(node, self.decimated.pop(node))
+            if self.plan is not None and self.plan.wants_proxy(node, self.lods[node][3]):
+                self._push(TASK_PROXY, node)
+            else:
+                self._complete(node, node_done=node_done)
+            return
+        if kind == TASK_PROXY:
+            if result is not None:
+                self.lods[node] = (result.positions, result.faces, result.normals, result.rows)
+                self.decimated[node] = self.plan.made(node, result, self.decimated[node])
+            self.plan.release_children(node, self.layout, self.lods)
+            self._complete(node, node_done=node_done)
             return
         self.lods[node] = (result.positions, result.faces, result.normals, result.attributes)
         self.decimated[node] = result
         self._push(TASK_MEASURE, node)
+        if self.plan is None:
+            self._unlock_parent(node)
+
+    def _complete(self, node: int, *, node_done) -> None:
+        """`node` decimated, measured and (with proxies) its proxy made: hand it over, and with
+        proxies unlock its parent."""
+        node_done(node, self.decimated.pop(node))
+        if self.plan is not None:
+            self._unlock_parent(node)
+
+    def _unlock_parent(self, node: int) -> None:
+        """One child of node's parent fewer to wait for; the parent's decimation once none is left."""
         parent = int(self.layout.parent[node])
         if parent >= 0 and self.todo[parent]:
             self.waiting[parent] -= 1

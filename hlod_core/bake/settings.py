@@ -7,7 +7,11 @@ import os
 from dataclasses import dataclass
 
 from ..core.errors import InputError
+from .appearance.proxy import ProxySettings
 from .meshlab import DecimationSettings
+
+#: Largest side of a proxy texture (texels) a bake may ask for.
+MAX_TEXTURE_SIDE = 16384
 
 #: BakeSettings.error: the inner nodes' error measures. "exact" measures each inner node's LOD
 #: against every original triangle below it; "bound" against its children's LODs only, plus the
@@ -19,7 +23,8 @@ ERROR_MEASURES = ("exact", "bound")
 class BakeSettings:
     """target_tris: triangles per node (leaf budget and LOD size); max_depth: deepest node level
     (root = 0); jobs: worker processes for decimation (1 = in this process); error: the inner nodes'
-    error measure (ERROR_MEASURES); the rest go to meshlab.DecimationSettings."""
+    error measure (ERROR_MEASURES); proxy_materials, texture_cap, texture_floor: the inner nodes'
+    proxy materials (`proxy`); the rest go to meshlab.DecimationSettings."""
 
     target_tris: int = 2000
     max_depth: int = 12
@@ -28,6 +33,9 @@ class BakeSettings:
     preserve_normals: bool = False
     boundary_weight: float = 1.0
     error: str = "exact"
+    proxy_materials: bool = True
+    texture_cap: int = 1024
+    texture_floor: int = 16
 
     def __post_init__(self):
         if self.target_tris < 1:
@@ -40,6 +48,14 @@ class BakeSettings:
             raise InputError(f"quality_threshold must be in [0, 1], got {self.quality_threshold}")
         if self.error not in ERROR_MEASURES:
             raise InputError(f"error must be one of {', '.join(ERROR_MEASURES)}, got {self.error!r}")
+        if not 1 <= self.texture_floor <= self.texture_cap <= MAX_TEXTURE_SIDE:
+            raise InputError(f"texture sizes must satisfy 1 <= floor <= cap <= {MAX_TEXTURE_SIDE}, got floor "
+                             f"{self.texture_floor} and cap {self.texture_cap}")
+
+    def proxy(self) -> ProxySettings:
+        """The inner nodes' proxy materials (appearance/proxy.py)."""
+        return ProxySettings(enabled=self.proxy_materials, texture_cap=self.texture_cap,
+                             texture_floor=self.texture_floor)
 
     def decimation(self) -> DecimationSettings:
         """The settings pymeshlab's collapse takes (meshlab.quadric_collapse)."""
@@ -64,10 +80,12 @@ def resolve_jobs(jobs: int) -> int:
 
 
 def bake_settings(*, target_tris: int, max_depth: int, jobs: int, quality_threshold: float,
-                  preserve_normals: bool = False, error: str = "exact") -> BakeSettings:
+                  preserve_normals: bool = False, error: str = "exact", proxy_materials: bool = True,
+                  texture_cap: int = 1024, texture_floor: int = 16) -> BakeSettings:
     """The BakeSettings of a front end's values (the command line's options, the extension's
     properties or its background command's options): plain ints, floats and strings (Blender's
     properties give their own), jobs through resolve_jobs. InputError for a value out of range."""
     return BakeSettings(target_tris=int(target_tris), max_depth=int(max_depth), jobs=resolve_jobs(int(jobs)),
                         quality_threshold=float(quality_threshold), preserve_normals=bool(preserve_normals),
-                        error=str(error))
+                        error=str(error), proxy_materials=bool(proxy_materials), texture_cap=int(texture_cap),
+                        texture_floor=int(texture_floor))

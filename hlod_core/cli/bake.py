@@ -17,6 +17,7 @@ from ..core.errors import InputError
 from ..export.formats import check_output_file
 from ..io import hlod_file, meshes, procedural
 from ..io.texture_folder import EmbeddedTextures
+from ..io.textures import load_material_images
 from .options import bake_options, bake_settings_of, cluster_options, out_of_core_options, whole_number
 
 log = logging.getLogger("hlod_core")
@@ -61,7 +62,7 @@ def bake_command(args: argparse.Namespace) -> dict:
             mesh = textures.relocate(meshes.load_inputs(args.inputs, texture_dir=textures.scratch))
             load_seconds = time.perf_counter() - started
             summary = _bake_and_save(mesh, args, sources=[str(p) for p in args.inputs], cache_dir=cache_dir,
-                                     scheduler=client, frame_from=frame_from)
+                                     scheduler=client, frame_from=frame_from, textures=textures)
             summary["texture_folder"] = textures.publish()
     summary["load_seconds"] = load_seconds
     return summary
@@ -113,10 +114,11 @@ def _frame_from(args: argparse.Namespace) -> Frame | None:
 
 
 def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_dir: Path | None = None,
-                   scheduler=None, frame_from: Frame | None = None) -> dict:
+                   scheduler=None, frame_from: Frame | None = None, textures: EmbeddedTextures | None = None) -> dict:
     """Bake, save to --output and summarise. mesh: a TriangleMesh, or a partition.TriangleSource
     (--out-of-core: bake_stream, no cache); scheduler: the distributed.Client of `_cluster` (None:
-    local workers); frame_from: --frame-from's frame."""
+    local workers); frame_from: --frame-from's frame; textures: the bake's texture folder (the proxy
+    materials' textures go there; their source images are read with Pillow, io.textures)."""
     settings = bake_settings_of(args)
     streamed = not isinstance(mesh, meshes.TriangleMesh)
     started = time.perf_counter()
@@ -125,8 +127,10 @@ def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_
                            scratch_dir=args.scratch, chunk_tris=args.chunk_tris or partition.CHUNK_TRIS)
     else:
         budget = cache.DEFAULT_BUDGET_MB if args.cache_budget is None else args.cache_budget
+        images = load_material_images(mesh.materials) if settings.proxy_materials else {}
         hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
-                    scratch_dir=getattr(args, "scratch", None), frame_from=frame_from, cache_budget_mb=budget)
+                    scratch_dir=getattr(args, "scratch", None), frame_from=frame_from, cache_budget_mb=budget,
+                    images=images, textures=textures)
     hlod_file.save(hlod, args.output)
     seconds = time.perf_counter() - started
     for line in hlod.meta["log"]:

@@ -90,6 +90,14 @@ def bake_options(p: argparse.ArgumentParser) -> None:
                    help="inner nodes' error: exact (against every original triangle below the node; default) or "
                         "bound (against the children's LODs plus their largest error: faster bakes, looser errors, "
                         "more nodes drawn)")
+    p.add_argument("--keep-materials", action="store_true",
+                   help="every level keeps the sources' materials and textures (default: an inner node whose "
+                        "sources have several materials or finer textures than it needs gets one proxy material, "
+                        "a UV atlas and one base-colour texture sized by its error)")
+    p.add_argument("--texture-cap", type=whole_number(1), default=BakeSettings.texture_cap, metavar="TEXELS",
+                   help="the longest side of a proxy texture, texels (default %(default)s)")
+    p.add_argument("--texture-floor", type=whole_number(1), default=BakeSettings.texture_floor, metavar="TEXELS",
+                   help="the shortest longest side of a proxy texture, texels (default %(default)s)")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--cache", metavar="DIR", help="bake cache folder (default OUT.hlod.cache beside the output): "
                                                       "a re-bake takes the unchanged subtrees from it, and keeps the "
@@ -109,7 +117,8 @@ def bake_settings_of(args: argparse.Namespace) -> BakeSettings:
     """The BakeSettings of bake_options' arguments (bake.settings.bake_settings: --jobs 0 = all cores but one)."""
     return bake_settings(target_tris=args.target_tris, max_depth=args.max_depth, jobs=args.jobs,
                          quality_threshold=args.quality_threshold, preserve_normals=args.preserve_normals,
-                         error=args.error)
+                         error=args.error, proxy_materials=not args.keep_materials, texture_cap=args.texture_cap,
+                         texture_floor=args.texture_floor)
 
 
 def out_of_core_options(p: argparse.ArgumentParser) -> None:

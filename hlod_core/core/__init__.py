@@ -1,4 +1,5 @@
 """Shared helpers every room of the core uses: typed errors (`errors`), array helpers (`arrays`),
 the one atomic write (`atomic`), nesting-limited JSON (`jsonutil`), PNG writing (`png`), colour
 conversions and the overlay's colour ramp (`colour`), stop signals (`signals`), the bake's process
-tree on each platform (`process_tree`). Imports nothing else of the core."""
+tree on each platform (`process_tree`), triangles rasterised with numpy (`cpu_raster`: the CPU
+occlusion test's and the bake's quality gate's). Imports nothing else of the core."""

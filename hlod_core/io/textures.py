@@ -21,11 +21,18 @@ log = logging.getLogger(__name__)
 
 
 def load_images(hlod: Hlod) -> dict[int, np.ndarray]:
-    """material row -> RGBA image of its texture file, for every material with a readable one.
-    PNG/JPEG (anything Pillow reads); palette, grey and RGB images become RGBA (alpha 255). A file
-    that is missing or unreadable logs one warning naming it and the first material using it, and
-    its materials are left out (drawn in their base colours)."""
-    paths = texture_paths(hlod.materials)
+    """material row -> RGBA image of its texture file, for every material of `hlod` with a readable
+    one (load_material_images)."""
+    return load_material_images(hlod.materials)
+
+
+def load_material_images(materials) -> dict[int, np.ndarray]:
+    """material row -> RGBA image of its texture file, for every material (appearance.Material) with
+    a readable one. PNG/JPEG (anything Pillow reads); palette, grey and RGB images become RGBA (alpha
+    255). A file that is missing or unreadable logs one warning naming it and the first material
+    using it, and its materials are left out (drawn in their base colours)."""
+    materials = tuple(materials)
+    paths = texture_paths(materials)
     if not paths:
         return {}
     try:
@@ -36,11 +43,11 @@ def load_images(hlod: Hlod) -> dict[int, np.ndarray]:
         return {}
     images: dict[str, np.ndarray] = {}
     for path in paths:
-        user = next(m.name for m in hlod.materials if m.texture == path)
+        user = next(m.name for m in materials if m.texture == path)
         try:
             with Image.open(path) as image:
                 images[path] = np.asarray(image.convert("RGBA"), dtype=np.uint8)
         except (OSError, UnidentifiedImageError, ValueError, Image.DecompressionBombError) as exc:
             reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc) or type(exc).__name__
             log.warning("texture %s of material %r not loaded (%s): drawn in its base colour", path, user, reason)
-    return {row: images[m.texture] for row, m in enumerate(hlod.materials) if m.texture in images}
+    return {row: images[m.texture] for row, m in enumerate(materials) if m.texture in images}

@@ -5,4 +5,4 @@ points and enums (`gl_functions`), the host's GL state saved and restored (`gl_s
 object ownership (`resources`), and node geometry streamed under a GPU budget (`residency`
 decides, `streamed_geometry` uploads); the standalone GL context on every platform (`gl_platform`), the
 host's depth imported before the queries (`depth_import`), and occlusion tested on the CPU when no
-GL context can be made (`cpu_occlusion` over `cpu_raster`)."""
+GL context can be made (`cpu_occlusion`, over the core's numpy rasteriser core/cpu_raster.py)."""

@@ -18,10 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core import cpu_raster
 from ..core.errors import InputError
 from ..model.hierarchy import Hlod, query_box_pad
 from ..model.view import View
-from . import cpu_raster
 from .depth_import import check_depth, reduce_depth
 from .query_boxes import CUBE_CORNERS, CUBE_TRIS
 

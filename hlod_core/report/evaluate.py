@@ -47,6 +47,7 @@ from ..render.residency import StreamingSettings
 from ..traversal.settings import ALPHA_MODES, RuntimeSettings
 from . import html_page
 from .alpha_study import alpha_estimators
+from .draw_cost import COLUMNS, DrawCost, cost_row
 from .interleaved import Variant, psnr_frame_indices, run_interleaved
 from .markdown import markdown
 from .per_frame_file import PER_FRAME_FILE, load_per_frame, save_per_frame
@@ -107,11 +108,12 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     picked = psnr_frame_indices(frames, psnr_frames, seed)
     runs = variants(methods, settings, sweep)
     started = time.perf_counter()
-    renderer = Renderer.create_standalone(hlod, size, images=load_images(hlod),  # coloured images: Cb/Cr
-                                          streaming=streaming)
+    textures = load_images(hlod)
+    renderer = Renderer.create_standalone(hlod, size, images=textures, streaming=streaming)  # coloured images: Cb/Cr
+    costs: dict = {}
     try:
         per_frame, images = run_interleaved(hlod, renderer, path, size=size, runs=runs, repeat=repeat, picked=picked,
-                                            started=started)
+                                            started=started, draw_cost=DrawCost(hlod, textures), costs=costs)
         alpha_study = alpha_estimators(hlod, renderer, [path.view(i, size) for i in picked[:ALPHA_STUDY_VIEWS]])
         showcase = modulation_frames(hlod, renderer, path=path, size=size, runs=runs, per_frame=per_frame,
                                      out_dir=out_dir)
@@ -119,6 +121,9 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
         renderer.release()
     report = _summarise(hlod, frames=frames, size=size, runs=runs, per_frame=per_frame, images=images,
                         picked=picked, repeat=repeat, settings=settings, sweep=sweep)
+    for table in (report["methods"], (report["sweep"] or {}).get("points", {})):
+        for key, row in table.items():
+            row.update(cost_row(costs[key]))
     report["alpha_estimators"] = alpha_study
     report["figures"] = {}
     if showcase is not None:
@@ -127,7 +132,7 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     report["settings"]["gpu_budget_bytes"] = 0 if streaming is None else streaming.budget_bytes
     report["seconds"] = time.perf_counter() - started
     medians = {key: np.median(counters, axis=0) for key, counters in per_frame.items()}
-    save_per_frame(out_dir / PER_FRAME_FILE, medians)
+    save_per_frame(out_dir / PER_FRAME_FILE, medians, costs={k: np.median(c, axis=0) for k, c in costs.items()})
     path.save(out_dir / "path.json")
     write_report(report, medians, out_dir, figures=figures)
     return report
@@ -202,14 +207,15 @@ def _summarise(hlod: Hlod, *, frames: int, size: tuple[int, int], runs: list[Var
 
 
 def summary_line(report: dict, out_dir) -> dict:
-    """The command's last stdout line: SUMMARY_KEYS and the PSNR columns per method (and sweep point),
-    frames, size, where the report is."""
+    """The command's last stdout line: SUMMARY_KEYS, the PSNR columns and draw_cost.COLUMNS per method
+    (and sweep point), frames, size, where the report is."""
     keys = SUMMARY_KEYS + ("psnr_y_vs_bool", "psnr_cb_vs_bool", "psnr_cr_vs_bool", "psnr_y_vs_full")
-    methods = {k: {c: r[c] for c in keys} for k, r in report["methods"].items()}
+    methods = {k: {c: r[c] for c in keys} | {c: r.get(c) for c in COLUMNS}  # a tuning report has no COLUMNS
+               for k, r in report["methods"].items()}
     out = {"methods": methods, "frames": report["frames"], "size": report["size"],
            "report": str(Path(out_dir) / "report.md")}
     if report.get("sweep"):
-        out["sweep"] = {k: {c: r[c] for c in keys} for k, r in report["sweep"]["points"].items()}
+        out["sweep"] = {k: {c: r[c] for c in keys + COLUMNS} for k, r in report["sweep"]["points"].items()}
     return out
 
 

@@ -27,6 +27,9 @@ NO_FIGURES = ("No figures: they were not drawn here (they need matplotlib, which
               "per_frame.npz, with a Python that has matplotlib.")
 
 
+MIB = 2.0 ** 20
+
+
 def _f(x, digits=2) -> str:
     """A number with thousands separators, or an en dash for a missing one."""
     return "–" if x is None else f"{x:,.{digits}f}"
@@ -44,6 +47,7 @@ def markdown(report: dict, *, labels: dict[str, str]) -> str:
     if report.get("psnr_target"):
         lines += _psnr_target(report["psnr_target"], frames=len(report["psnr_frames"]))
     lines += _per_method(report["methods"], labels=labels)
+    lines += _draw_cost(report["methods"], labels=labels)
     lines += _relative(report["relative"], labels=labels)
     lines += _image_quality(report, labels=labels)
     if report.get("sweep"):
@@ -78,6 +82,25 @@ def _per_method(methods: dict, *, labels: dict[str, str]) -> list[str]:
         lines.append(f"| {labels[key]} | {_f(r['fps'], 1)} | {_f(r['frame_ms'])} | {_f(r['dn'])} | {_f(r['rarn'])} | "
                      f"{_f(r['d'])} | {_f(r['tris'], 0)} | {_f(r['queries'], 1)} | {_f(r['stall_ms'])} | "
                      f"{_f(r['cpu_ms'])} | {_f(r['gpu_ms'])} |")
+    return lines
+
+
+def _draw_cost(methods: dict, *, labels: dict[str, str]) -> list[str]:
+    """Draws and texture memory per frame beside triangles and time (none in a report made before
+    they were counted, nor in a tuning report)."""
+    if not any("draws" in r for r in methods.values()):
+        return []
+    lines = ["", "## Draws and texture memory per frame", "",
+             "Draws: one per drawn node and material. Texture MiB: the distinct textures the drawn nodes refer to, "
+             "each as RGBA8 with a full mip chain (4/3 x width x height x 4 bytes). Mean over frames, and the most.",
+             "",
+             "| method | triangles | frame ms | draws | draws max | texture MiB | texture MiB max |",
+             "|---|---:|---:|---:|---:|---:|---:|"]
+    for key, r in methods.items():
+        if "draws" in r:
+            lines.append(f"| {labels[key]} | {_f(r['tris'], 0)} | {_f(r['frame_ms'])} | {_f(r['draws'], 1)} | "
+                         f"{_f(r['draws_max'], 0)} | {_f(r['texture_bytes'] / MIB)} | "
+                         f"{_f(r['texture_bytes_max'] / MIB)} |")
     return lines
 
 

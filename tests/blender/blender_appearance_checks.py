@@ -340,6 +340,7 @@ def check_appearance(repo, work) -> dict:
     scene = bpy.context.scene
     props = scene.hlod
     props.output_path, props.target_tris = str(work / "textured.hlod"), 300
+    props.proxy_materials = False  # the root keeps the source's materials (Materialize's datablocks)
     out = {"bake": sorted(bpy.ops.hlod.bake())}
     hlod = hlod_file.load(bpy.path.abspath(props.file))
     out["file"] = {"nodes": hlod.node_count, "depth": int(hlod.depth.max()), "input_tris": int(hlod.meta["input_tris"]),
@@ -455,6 +456,7 @@ def check_render(repo, work) -> dict:
         background.inputs["Color"].default_value = (0.4, 0.45, 0.5, 1.0)
     props = scene.hlod
     props.output_path, props.target_tris = str(work / "textured.hlod"), RENDER_TARGET_TRIS
+    props.proxy_materials = False  # the far view is the sources' materials on the root's LOD
     out = {"bake": sorted(bpy.ops.hlod.bake())}
     hlod = hlod_file.load(bpy.path.abspath(props.file))
     out["root_tris"], out["input_tris"] = int(hlod.tri_count[0]), int(hlod.meta["input_tris"])
@@ -523,9 +525,29 @@ def check_shared_scene(repo, work, blend) -> dict:
                uv_map=hlod.meta.get("uv_map"), color_attribute=hlod.meta.get("color_attribute"),
                leaf_tris_per_material=per_material,
                root_materials=_node_materials(hlod, 0),
-               inner_nodes=len(inner), has_uvs=hlod.uvs is not None, has_colors=hlod.colors is not None)
+               inner_nodes=len(inner), has_uvs=hlod.uvs is not None, has_colors=hlod.colors is not None,
+               inner_parts_max=max(len(_node_materials(hlod, int(node))) for node in inner),
+               proxy_textures=sorted(Path(m.texture).name for m in hlod.materials
+                                     if m.texture and m.name.startswith("HLOD proxy") and Path(m.texture).is_file()))
     out["leaves"] = corners_match(source_corners(objects), hlod_leaf_corners(hlod))
+    # the preview's images of the proxies: each the pixels of its own texture file
+    images = importlib.import_module(NAME + ".addon.materials.images").material_images(hlod.materials)
+    proxies = [row for row, m in enumerate(hlod.materials) if m.name.startswith("HLOD proxy")]
+    out["proxy_images_match"] = bool(proxies) and all(
+        row in images and np.array_equal(images[row], _png_pixels(hlod.materials[row].texture)) for row in proxies)
     return out
+
+
+def _png_pixels(path: str) -> np.ndarray:
+    """(h,w,4) uint8 RGBA, top row first, of a PNG, read by Blender itself."""
+    image = bpy.data.images.load(path, check_existing=False)
+    try:
+        pixels = np.empty(image.size[0] * image.size[1] * 4, np.float32)
+        image.pixels.foreach_get(pixels)
+        rgba = pixels.reshape(image.size[1], image.size[0], 4)[::-1]
+        return np.round(rgba * 255.0).astype(np.uint8)
+    finally:
+        bpy.data.images.remove(image)
 
 
 if __name__ == "__main__":

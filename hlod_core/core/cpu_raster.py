@@ -1,9 +1,10 @@
 """Triangles rasterised with numpy into a small depth buffer: the CPU occlusion test's GL
-(docs/how-it-works.md#the-cpu-occlusion-test).
+(docs/how-it-works.md#the-cpu-occlusion-test), and the coverage of the bake's quality gate
+(bake/appearance/quality.py).
 
 Data form: triangles as (t, 3, 4) float64 clip-space vertices (clip = MVP @ (x, y, z, 1), OpenGL
 conventions); a depth buffer as (h, w) float32 window depth in [0, 1], row 0 the bottom row, as GL's
-(depth_import.py). A pixel (i, j) (row i, column j) is covered by a triangle when its centre
+(render/depth_import.py). A pixel (i, j) (row i, column j) is covered by a triangle when its centre
 (j + 0.5, i + 0.5) lies inside it, edges included; its depth is the triangle's window depth
 z = (z_ndc + 1) / 2 there, linear in window x and y as GL interpolates it. Every step is vectorised
 over all triangles and all the pixels of their bounding boxes: no Python loop over triangles or

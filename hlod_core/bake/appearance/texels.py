@@ -1,0 +1,146 @@
+"""Where an atlas's texels lie on the LOD, and where the sources are nearest to them: the two
+geometric steps of a proxy texture's bake (proxy.py).
+
+Data form: an atlas (atlas.Atlas: uvs (j,2) in [0, 1], GL convention, faces (m,3)) over a
+width x height image whose row 0 is the bottom row (v = 0); a texel is its flat index
+row * width + column, its centre at ((column + 0.5) / width, (row + 0.5) / height) in UV.
+Points are float64 model units; sources are (positions (k,3), faces (f,3)) in the same frame.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..meshlab import UNIT_DIAGONAL, NodeFrame
+
+#: Texel centres this far outside a triangle (in barycentric units) still count as inside it, so a
+#: texel on a shared chart edge is covered once or twice, never dropped.
+INSIDE_SLACK = 1e-7
+#: Texel candidates (bounding-box texels) rasterised at a time: bounds the temporaries.
+_BLOCK = 1 << 21
+
+
+def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
+    """The texels whose centres the atlas's triangles cover: (texel (s,) int64 flat indices, each
+    once, ascending; face (s,) int64 the triangle covering it (the lowest of those that do);
+    bary (s,3) float64 its barycentric coordinates there). Vectorised over the triangles' texel
+    bounding boxes, a block at a time."""
+    uv = np.asarray(uvs, np.float64) * np.array([width, height], np.float64)
+    f = np.asarray(faces, np.int64)
+    a, b, c = uv[f[:, 0]], uv[f[:, 1]], uv[f[:, 2]]
+    lo = np.floor(np.minimum(np.minimum(a, b), c) - 0.5).astype(np.int64)
+    hi = np.ceil(np.maximum(np.maximum(a, b), c) - 0.5).astype(np.int64)
+    lo = np.clip(lo, 0, [width - 1, height - 1])
+    hi = np.clip(hi, 0, [width - 1, height - 1])
+    span = np.maximum(hi - lo + 1, 0)
+    count = span[:, 0] * span[:, 1]
+    denominator = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
+    usable = np.abs(denominator) > 1e-18
+    count = np.where(usable, count, 0)
+    texels, owners, barys = [], [], []
+    ends = np.cumsum(count)
+    start = 0
+    while start < f.shape[0]:
+        stop = int(np.searchsorted(ends, (ends[start - 1] if start else 0) + _BLOCK, side="right"))
+        stop = max(stop, start + 1)
+        tri = np.arange(start, stop)
+        n = count[tri]
+        owner = np.repeat(tri, n)
+        rank = np.arange(owner.size) - np.repeat(np.cumsum(n) - n, n)
+        column = lo[owner, 0] + rank % np.maximum(span[owner, 0], 1)
+        row = lo[owner, 1] + rank // np.maximum(span[owner, 0], 1)
+        px, py = column + 0.5, row + 0.5
+        d = denominator[owner]
+        l0 = ((b[owner, 1] - c[owner, 1]) * (px - c[owner, 0]) + (c[owner, 0] - b[owner, 0]) * (py - c[owner, 1])) / d
+        l1 = ((c[owner, 1] - a[owner, 1]) * (px - c[owner, 0]) + (a[owner, 0] - c[owner, 0]) * (py - c[owner, 1])) / d
+        l2 = 1.0 - l0 - l1
+        inside = (l0 >= -INSIDE_SLACK) & (l1 >= -INSIDE_SLACK) & (l2 >= -INSIDE_SLACK)
+        texels.append(row[inside] * width + column[inside])
+        owners.append(owner[inside])
+        barys.append(np.clip(np.stack([l0[inside], l1[inside], l2[inside]], axis=1), 0.0, 1.0))
+        start = stop
+    texel = np.concatenate(texels) if texels else np.zeros(0, np.int64)
+    owner = np.concatenate(owners) if owners else np.zeros(0, np.int64)
+    bary = np.concatenate(barys) if barys else np.zeros((0, 3))
+    # one triangle per texel, the lowest: written in descending order, the last write wins
+    which = np.full(width * height, -1, np.int64)
+    reverse = np.arange(texel.size - 1, -1, -1)
+    which[texel[reverse]] = reverse
+    chosen = which[which >= 0]
+    bary = bary[chosen]
+    bary /= np.maximum(bary.sum(axis=1, keepdims=True), 1e-300)
+    return texel[chosen], owner[chosen], bary
+
+
+def closest_on_sources(points: np.ndarray, sources: tuple[np.ndarray, np.ndarray]):
+    """For each point (s,3) float64 model units, the nearest point of the sources' surface:
+    (face (s,) int64 into sources' faces, bary (s,3) float64 of that point in that face). With
+    pymeshlab's closest-point search (vcglib's uniform grid; `transfer_attributes_per_vertex`
+    moving each point onto the source surface and carrying the face number as a constant
+    per-face vertex quality), in the unit frame of the sources and points (meshlab.NodeFrame)."""
+    import pymeshlab
+
+    positions, faces = np.asarray(sources[0]), np.asarray(sources[1], np.int64)
+    if points.shape[0] == 0 or faces.shape[0] == 0:
+        return np.zeros(points.shape[0], np.int64), np.tile([1.0, 0.0, 0.0], (points.shape[0], 1))
+    frame = NodeFrame.of(np.concatenate([np.asarray(positions, np.float64), points]))
+    corners = frame.to_local(positions)[faces]  # (f,3,3): one vertex per corner, so quality is per face
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=corners.reshape(-1, 3),
+                               face_matrix=np.arange(3 * faces.shape[0], dtype=np.int32).reshape(-1, 3),
+                               v_scalar_array=np.repeat(np.arange(faces.shape[0], dtype=np.float64), 3)))
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=frame.to_local(points)))
+    ms.transfer_attributes_per_vertex(sourcemesh=0, targetmesh=1, geomtransfer=True, colortransfer=False,
+                                      qualitytransfer=True, upperbound=pymeshlab.PureValue(4.0 * UNIT_DIAGONAL))
+    moved = ms.current_mesh()
+    face = np.clip(np.round(moved.vertex_scalar_array()).astype(np.int64), 0, faces.shape[0] - 1)
+    return face, barycentric(moved.vertex_matrix(), corners[face])
+
+
+def barycentric(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(s,3) barycentric coordinates of points (s,3) projected into triangles (s,3,3), clamped to
+    the triangle and summing to 1; a degenerate triangle gives its first corner."""
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+    v0, v1, v2 = b - a, c - a, points - a
+    d00 = (v0 * v0).sum(axis=1)
+    d01 = (v0 * v1).sum(axis=1)
+    d11 = (v1 * v1).sum(axis=1)
+    d20 = (v2 * v0).sum(axis=1)
+    d21 = (v2 * v1).sum(axis=1)
+    denominator = d00 * d11 - d01 * d01
+    ok = denominator > 1e-30 * np.maximum(d00 * d11, 1e-300)
+    safe = np.where(ok, denominator, 1.0)
+    v = np.where(ok, (d11 * d20 - d01 * d21) / safe, 0.0)
+    w = np.where(ok, (d00 * d21 - d01 * d20) / safe, 0.0)
+    out = np.clip(np.stack([1.0 - v - w, v, w], axis=1), 0.0, 1.0)
+    out /= np.maximum(out.sum(axis=1, keepdims=True), 1e-300)
+    out[~ok] = (1.0, 0.0, 0.0)
+    return out
+
+
+def dilate(rgba: np.ndarray, filled: np.ndarray, *, steps: int) -> np.ndarray:
+    """rgba (h,w,4) float32 with `filled` (h,w) bool texels set: the empty texels filled by pull-push
+    (the image averaged down over its filled texels only, level by level to 1 x 1, then each empty
+    texel given the level below's value at its place, coarse to fine), so the charts' padding holds
+    their border colours and the texture's coarser mip levels mix each chart with its neighbours,
+    never with a colour that is nowhere on the surface. steps: kept for the callers; pull-push fills
+    every texel. Returns a new array."""
+    out = np.array(rgba, np.float32)
+    have = np.asarray(filled, bool)
+    if not have.any():
+        return out
+    levels = [(out * have[..., None], have.astype(np.float32))]  # (weighted sums, weights)
+    while max(levels[-1][1].shape) > 1:
+        total, weight = levels[-1]
+        h, w = weight.shape
+        hh, ww = (h + 1) // 2, (w + 1) // 2
+        pad = ((0, 2 * hh - h), (0, 2 * ww - w))
+        t = np.pad(total, (*pad, (0, 0))).reshape(hh, 2, ww, 2, 4).sum(axis=(1, 3))
+        k = np.pad(weight, pad).reshape(hh, 2, ww, 2).sum(axis=(1, 3))
+        levels.append((t, k))
+    colour = levels[-1][0] / np.maximum(levels[-1][1], 1e-30)[..., None]
+    for total, weight in reversed(levels[:-1]):
+        h, w = weight.shape
+        up = np.repeat(np.repeat(colour, 2, axis=0), 2, axis=1)[:h, :w]
+        colour = np.where(weight[..., None] > 0, total / np.maximum(weight, 1e-30)[..., None], up)
+    out[~have] = colour[~have]
+    return out
