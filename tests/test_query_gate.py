@@ -14,7 +14,6 @@ from hlod_core.model.camera_path import inspection_path
 from hlod_core.render.renderer import Renderer
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.query_gate import GateParameters, QueryGate
-from hlod_core.traversal.settings import RuntimeSettings
 from traversal_runs import SIZE, Scripted
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context
