@@ -45,10 +45,12 @@ def psnr_frame_indices(frames: int, count: int, seed: int) -> list[int]:
 
 
 def run_interleaved(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: tuple[int, int], runs: list[Variant],
-                    repeat: int, picked: list[int], started: float, label: str = "") -> tuple[dict, dict]:
+                    repeat: int, picked: list[int], started: float, label: str = "",
+                    notes: dict | None = None) -> tuple[dict, dict]:
     """One timed pass of `runs` over the path, `repeat` times, interleaved (module docstring).
     Returns (per_frame, images) of the module docstring, images at the `picked` frames. `started`
-    (a perf_counter time) dates the progress lines, `label` prefixes them."""
+    (a perf_counter time) dates the progress lines, `label` prefixes them; `notes`, where given,
+    gets key -> why the variant's queries were last off (FrameStats.queries_note) in the first repeat."""
     frames = len(path)
     picked_set = set(picked)
     per_frame = {v.key: np.zeros((repeat, frames, len(COUNTERS))) for v in runs}
@@ -61,6 +63,8 @@ def run_interleaved(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: t
             for v, traversal in (turn if rep % 2 == 0 else turn[::-1]):
                 stats = traversal.frame(view)
                 per_frame[v.key][rep, i] = [getattr(stats, c) for c in COUNTERS]
+                if notes is not None and rep == 0 and stats.queries_note:
+                    notes[v.key] = stats.queries_note
                 if rep == 0 and i in picked_set:
                     images[v.key][i] = renderer.read_pixels()
             if (i + 1) % max(frames // PROGRESS_STEPS, 1) == 0 or i + 1 == frames:
