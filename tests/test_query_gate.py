@@ -14,6 +14,7 @@ from hlod_core.model.camera_path import inspection_path
 from hlod_core.render.renderer import Renderer
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.query_gate import GateParameters, QueryGate
+from hlod_core.traversal.settings import RuntimeSettings
 from traversal_runs import SIZE, Scripted
 
 pytestmark = pytest.mark.gl  # these tests draw with a real OpenGL context
@@ -81,19 +82,21 @@ def test_queries_stay_on_in_the_citys_street(city_renderer):
 
 
 def test_queries_come_back_where_occlusion_appears_mid_path(gl_ctx, square_and_street_hlod):
-    """From the first frame where SW's queries cull RESUME_SHARE of VFC's triangles (after the
-    gate first turned the queries off), Coh queries again within RESUME_FRAMES frames."""
+    """From the first frame where Coh(P)'s queries, asked every frame (queries "always"), cull
+    RESUME_SHARE of VFC's triangles (after the gate first turned the queries off), Coh(P) with the
+    gate queries again within RESUME_FRAMES frames."""
     hlod = square_and_street_hlod
     path = procedural.square_to_street_path(frames=60)
     renderer = _renderer(gl_ctx, hlod)
     try:
-        vfc, sw = make("vfc", hlod, renderer), make("sw", hlod, renderer)
+        vfc = make("vfc", hlod, renderer)
+        always = make("coh", hlod, Scripted(renderer), settings=RuntimeSettings(queries="always"))
         coh = make("coh", hlod, Scripted(renderer))
         culled, off = [], []
         for i in range(len(path)):
             view = path.view(i, SIZE)
             vfc_tris = vfc.frame(view).tris
-            culled.append(1.0 - sw.frame(view).tris / vfc_tris)
+            culled.append(1.0 - always.frame(view).tris / vfc_tris)
             off.append(coh.frame(view).queries_off)
     finally:
         renderer.release()
