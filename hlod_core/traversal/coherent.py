@@ -61,12 +61,15 @@ class CoherentLoop(Traversal):
         self.new_visible_share = 1.0  # nothing measured yet: candidates are predicted visible
         self.gate = QueryGate(hlod) if settings.queries == "auto" else None
         self._decision = Decision(QUERYING)  # this frame's
-        self._last_drawn = 0  # nodes drawn last frame
+        self._last_drawn: list[int] = []  # the nodes drawn last frame, in draw order
+        self._last_tris = 0  # and their triangles
 
     candidate_in = property(lambda self: state_array(self._candidate_in, np.int64), doc="(n,) int64 frame id")
 
     def prepare(self, view):
         super().prepare(view)
+        self._probe_wait_s = 0.0 if self.gate is None else self.gate.read_probe(  # last frame's probe
+            self.renderer, drawn_nodes=len(self._last_drawn), drawn_tris=self._last_tris)
         self._decision = Decision(QUERYING) if self.gate is None else self.gate.decide(self.frame_id, view)
         skips = self.skips if self._decision.mode == QUERYING else None
         model = getattr(self.renderer, "cost_model", None) if skips is not None else None
@@ -121,6 +124,7 @@ class CoherentLoop(Traversal):
         """The frame's walk: with queries (`_walk`), then what they culled and cost told the gate;
         or, with the queries off, VFC's (`_walk_without_queries`)."""
         decision, gate = self._decision, self.gate
+        stats.stall_ms += self._probe_wait_s * MS_PER_S
         if decision.mode == QUERYING:
             self._walk(stats)
             if gate is not None:
@@ -130,22 +134,24 @@ class CoherentLoop(Traversal):
         else:
             self._walk_without_queries(stats, probe=decision.mode == PROBING)
             stats.queries_off, stats.queries_note = 1, decision.reason
-        self._last_drawn = stats.dn
+        self._last_drawn, self._last_tris = stats.drawn, stats.tris
 
     def _walk_without_queries(self, stats, *, probe: bool) -> None:
         """VFC's walk (methods.VFC), keeping the state the method reads next frame: every visited
-        node visible, a drawn one stopped at ratio 1. A probe queries a few of the drawn nodes
-        (gate.probe_picks), each just before its draw (its box against what is drawn in front of
-        it), and tells the gate the share of their triangles found hidden."""
+        node visible, a drawn one stopped at ratio 1. A probe queries a few of last frame's farther
+        drawn nodes (gate.probe_picks) together, once the nearer half is drawn (their boxes against
+        what is in front of them); the gate reads their results at the next frame's start."""
         heap: list = []
         self._schedule(heap, (0,))
         frame_id, children, schedule, render = self.frame_id, self._children, self._schedule, self._draw_step(stats)
         visible, last_visited, stop_refinement, ratio = (self._visible, self._last_visited, self._stop_refinement,
                                                          self._ratio)
-        sse, tau, residency, unqueryable = self.sse, self._tau, self._residency, self.unqueryable
+        sse, tau, residency, in_frustum, unqueryable = self.sse, self._tau, self._residency, self.in_frustum, \
+            self.unqueryable
         heappop = heapq.heappop
-        first, stride, phase, size = self.gate.probe_picks(self._last_drawn) if probe else (0, 1, -1, 0)
-        issue, probes = self.renderer.issue_query, []
+        picks = [n for n in self.gate.probe_picks(self._last_drawn) if in_frustum[n] and not unqueryable[n]] \
+            if probe else []
+        probe_at = len(self._last_drawn) // 2 if picks else -1
         self._visited = visited = []
         drawn = 0
         while heap:
@@ -158,22 +164,14 @@ class CoherentLoop(Traversal):
                 schedule(heap, children[node])
                 continue
             ratio[node] = 1.0
-            if drawn >= first and (drawn - first) % stride == phase and len(probes) < size and not unqueryable[node]:
-                probes.append((node, issue(node, with_alpha=False)))
+            if drawn == probe_at:  # the nearer half drawn: the picks' boxes against it
+                stats.probes = self.gate.probe(self.renderer, picks)
             drawn += 1
             render(node)
         stats.traversed += len(visited)
-        if probe:
-            hidden = probed = 0
-            result, tri_count = self.renderer.result, self._tri_count
-            for node, query in probes:
-                q, _, stall = result(query)
-                stats.stall_ms += stall * MS_PER_S
-                probed += tri_count[node]
-                hidden += tri_count[node] if q == 0 else 0
-            stats.queries += len(probes)
-            stats.probes += len(probes)
-            self.gate.learn_probe(hidden_tris=hidden, probed_tris=probed, drawn_nodes=stats.dn, drawn_tris=stats.tris)
+        if picks and not stats.probes:  # fewer nodes drawn than the probe waited for
+            stats.probes = self.gate.probe(self.renderer, picks)
+        stats.queries += stats.probes
 
     def _walk(self, stats):
         """Results taken in the order issued while they are back (all of them once the heap is

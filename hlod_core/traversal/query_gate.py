@@ -39,8 +39,9 @@ class GateParameters:
     window_frames: frames with queries over which culled and cost shares are averaged before the
     queries may go off (the learning window, and the least a resumption lasts);
     probe_every_frames: frames between two probes while queries are off;
-    probe_queries: nodes a probe queries at most, spread evenly over the frame's draw order (front to
-    back), and no more than half the queries the method asked over as many frames (its last window);
+    probe_queries: nodes a probe queries at most, spread evenly over the farther half of last frame's
+    drawn nodes, and no more than half the queries the method asked over as many frames (its last
+    window);
     query_triangles: what one query costs, in triangles drawn (llvmpipe: about 80 us a query at
     about 3M triangles/s, docs/performance.md#no-queries-on-an-open-scene);
     max_cost_share: the cost share's cap: queries that cull this share of VFC's triangles pay;
@@ -48,12 +49,12 @@ class GateParameters:
     turn_deg: a turn of the line of sight since the last probe that probes at once."""
 
     window_frames: int = 8
-    probe_every_frames: int = 3
+    probe_every_frames: int = 4
     probe_queries: int = 8
     query_triangles: float = 250.0
     max_cost_share: float = 0.08
-    move_radii: float = 0.1
-    turn_deg: float = 20.0
+    move_radii: float = 0.5
+    turn_deg: float = 30.0
 
 
 @dataclass(frozen=True)
@@ -88,6 +89,8 @@ class QueryGate:
         self._probe_at: tuple[np.ndarray, np.ndarray] | None = None  # (eye, forward) of the last probe
         self._probes = 0
         self.last_probe_share: float | None = None  # culled share of the last probe
+        #: a probe's (nodes, queries), read at the next frame's start
+        self._pending: tuple[list[int], list] | None = None
 
     # --- before the walk ------------------------------------------------------------------------
 
@@ -107,16 +110,15 @@ class QueryGate:
             return Decision(PROBING, self.reason)
         return Decision(OFF, self.reason)
 
-    def probe_picks(self, last_drawn: int) -> tuple[int, int, int, int]:
-        """(first, stride, phase, size): a probe queries the first `size` drawn nodes whose index i in
-        the frame's draw order (front to back) has i >= first and (i - first) % stride == phase: the
-        probe's size of the farther half of last frame's `last_drawn` nodes (the nearer ones have little in
-        front of them to hide them). The phase moves on with each probe, so successive probes ask
-        about other nodes."""
-        first = last_drawn // 2
-        stride = max(1, (last_drawn - first) // self._probe_size)
+    def probe_picks(self, last_drawn: list[int]) -> list[int]:
+        """The nodes a probe queries: the probe's size of the farther half of last frame's drawn
+        nodes `last_drawn` (in draw order, front to back: the nearer ones have little in front of
+        them to hide them), every stride-th from a phase that moves on with each probe, so
+        successive probes ask about other nodes."""
+        far = last_drawn[len(last_drawn) // 2:]
+        stride = max(1, len(far) // self._probe_size)
         self._probes += 1
-        return first, stride, self._probes % stride, self._probe_size
+        return far[self._probes % stride::stride][:self._probe_size]
 
     # --- after the walk -------------------------------------------------------------------------
 
@@ -159,6 +161,32 @@ class QueryGate:
             self.reason = (f"queries off: they culled {max(mean_culled, 0.0):.1%} of the triangles over "
                            f"{p.window_frames} frames, cost {mean_cost:.1%}; probing every "
                            f"{p.probe_every_frames} frames")
+
+    def probe(self, renderer, nodes: list[int]) -> int:
+        """Issue a probe's queries of `nodes` (batched where the renderer batches: one state
+        change); their results are read at the next frame's start (`read_probe`), so the frame does
+        not wait for them. The number of queries issued."""
+        batch = getattr(renderer, "issue_queries", None)
+        queries = batch(nodes, with_alpha=False) if batch is not None else [
+            renderer.issue_query(node, with_alpha=False) for node in nodes]
+        self._pending = (nodes, queries)
+        return len(queries)
+
+    def read_probe(self, renderer, *, drawn_nodes: int, drawn_tris: int) -> float:
+        """The last probe's results, if one is pending, learnt (`learn_probe`) with the nodes and
+        triangles its frame drew; the seconds waited for them."""
+        if self._pending is None:
+            return 0.0
+        (nodes, queries), self._pending = self._pending, None
+        hidden = probed = 0
+        waited = 0.0
+        for node, query in zip(nodes, queries):
+            q, _, stall = renderer.result(query)
+            waited += stall
+            probed += int(self._tri_count[node])
+            hidden += int(self._tri_count[node]) if q == 0 else 0
+        self.learn_probe(hidden_tris=hidden, probed_tris=probed, drawn_nodes=drawn_nodes, drawn_tris=drawn_tris)
+        return waited
 
     def learn_probe(self, *, hidden_tris: int, probed_tris: int, drawn_nodes: int, drawn_tris: int) -> None:
         """A probe frame: the share of the probed nodes' triangles found hidden, against what the
