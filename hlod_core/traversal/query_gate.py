@@ -45,6 +45,11 @@ class GateParameters:
     query_triangles: what one query costs, in triangles drawn (llvmpipe: about 80 us a query at
     about 3M triangles/s, docs/performance.md#no-queries-on-an-open-scene);
     max_cost_share: the cost share's cap: queries that cull this share of VFC's triangles pay;
+    off_share: the queries go off only where their culled share is below this fraction of their
+    cost share (they clearly do not pay: the cost is an estimate);
+    resume_share: they resume where a probe's hidden share reaches this fraction of the cost share
+    (a probe sees hidden nodes, not the refinements the bias stops, so it sees less than the
+    queries would cull);
     move_radii: an eye move since the last probe, in root-sphere radii, that probes at once;
     turn_deg: a turn of the line of sight since the last probe that probes at once."""
 
@@ -53,6 +58,8 @@ class GateParameters:
     probe_queries: int = 8
     query_triangles: float = 250.0
     max_cost_share: float = 0.08
+    off_share: float = 0.25
+    resume_share: float = 0.5
     move_radii: float = 0.5
     turn_deg: float = 30.0
 
@@ -81,7 +88,7 @@ class QueryGate:
         self._culled: deque[float] = deque(maxlen=p.window_frames)  # culled shares, frames with queries
         self._cost: deque[float] = deque(maxlen=p.window_frames)
         self._asked: deque[tuple[int, int]] = deque(maxlen=p.window_frames)  # (queries, drawn nodes)
-        self._queries_per_node = 1.0  # queries a drawn node cost over the last window (before any: 1)
+        self._asked_total = [0, 0]  # queries and drawn nodes over every frame with queries so far
         self._probe_size = p.probe_queries
         self.mode = QUERYING
         self.reason = ""
@@ -142,19 +149,20 @@ class QueryGate:
     def learn_querying(self, frame_id: int, *, vfc_tris: int, drawn_tris: int, drawn_nodes: int,
                        queries: int) -> None:
         """A frame with queries: its culled and cost shares join the window; once the window is
-        full, queries whose mean culled share stays below their mean cost share go off."""
+        full, queries whose mean culled share stays below off_share of their mean cost share go off."""
         p = self.parameters
         culled = (vfc_tris - drawn_tris) / vfc_tris if vfc_tris > 0 else 0.0
         cost = min(queries * p.query_triangles / vfc_tris, p.max_cost_share) if vfc_tris > 0 else 0.0
         self._culled.append(culled)
         self._cost.append(cost)
         self._asked.append((queries, drawn_nodes))
+        self._asked_total[0] += queries
+        self._asked_total[1] += drawn_nodes
         if len(self._culled) < p.window_frames:
             return
         mean_culled, mean_cost = float(np.mean(self._culled)), float(np.mean(self._cost))
-        if mean_culled < mean_cost:
-            asked, drawn = (sum(column) for column in zip(*self._asked))
-            self._queries_per_node = asked / max(drawn, 1)
+        if mean_culled < p.off_share * mean_cost:
+            asked = sum(queries for queries, _ in self._asked)
             per_probe = asked / len(self._asked) * p.probe_every_frames / 2
             self._probe_size = max(1, min(p.probe_queries, round(per_probe)))
             self.mode, self._off_since, self._probe_at = OFF, frame_id, None
@@ -190,14 +198,15 @@ class QueryGate:
 
     def learn_probe(self, *, hidden_tris: int, probed_tris: int, drawn_nodes: int, drawn_tris: int) -> None:
         """A probe frame: the share of the probed nodes' triangles found hidden, against what the
-        method's queries would cost for the frame (queries per drawn node of the last window); where
-        it culls at least that, queries resume for a new window."""
+        method's queries would cost for the frame (its queries per drawn node over every frame with
+        queries); where it reaches resume_share of that, queries resume for a new window."""
         p = self.parameters
         share = hidden_tris / probed_tris if probed_tris > 0 else 0.0
         self.last_probe_share = share
-        cost = min(self._queries_per_node * drawn_nodes * p.query_triangles / drawn_tris,
+        asked, drawn = self._asked_total
+        cost = min(asked / max(drawn, 1) * drawn_nodes * p.query_triangles / drawn_tris,
                    p.max_cost_share) if drawn_tris > 0 else 0.0
-        if share > 0.0 and share >= cost:
+        if share > 0.0 and share >= p.resume_share * cost:
             self.mode, self.reason = QUERYING, ""
             self._culled.clear()
             self._cost.clear()
