@@ -8,6 +8,10 @@
   inspection path): Coh(P) of this checkout against Coh(P) of another (`--main`, e.g. a worktree
   of the main branch), each `python -m hlod_core run` in its own process, the two alternating
   `--repeat` times: frame time and drawn nodes over the other's (medians over the runs);
+- occluded, in one process: Coh(P) against Coh(P) with `--queries always` (this checkout's, which
+  the traversal tests hold call for call to the published loop) on the same scenes, interleaved
+  frame by frame as the evaluation does (hlod_core.report.interleaved): frame time and drawn nodes,
+  the timing the alternating processes cannot give on a loaded machine;
 - mid-path: the square beside a city block (square_and_street_scene) along square_to_street_path:
   the first frame, once the gate has turned the queries off, where Coh(P)'s queries, asked every
   frame (queries "always"), cull 10% of VFC's triangles, and how many frames later Coh(P) with the
@@ -15,11 +19,11 @@
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.queries_off --work DIR --prepare    # bakes, untimed
     flock /tmp/hlod-bench.lock env PYTHONPATH=. .venv/bin/python -m benchmarks.queries_off --work DIR \\
-        --main ../main-checkout [--size 640x480] [--repeat 3] [--frames 80]
+        --main ../main-checkout [--size 640x480] [--repeat 3] [--frames 80] [--parts open mid main interleaved]
 
 `--prepare` bakes the scenes into --work (the crowd and the gallery from tests/scenes/, whose models
 tests/models.py writes first) and writes the paths; the timed run reads them. Prints one JSON line
-per part and writes DIR/queries_off.json with all of them.
+per part and writes DIR/queries_off.json with all of them (queries_off_PARTS.json for some).
 """
 from __future__ import annotations
 
@@ -34,19 +38,24 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.io import hlod_file, procedural
 from hlod_core.model.camera_path import inspection_path, load_path
 from hlod_core.render.renderer import Renderer
 from hlod_core.report import evaluate
+from hlod_core.report.interleaved import Variant, run_interleaved
 from hlod_core.traversal.methods import make
 from hlod_core.traversal.settings import RuntimeSettings
+from hlod_core.traversal.stats import COUNTERS
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "tests" / "scenes"
 #: occluded scene -> (its .hlod in --work, its path file in --work)
 OCCLUDED = ("crowd", "gallery", "city")
-RESUME_SHARE = 0.10  # the triangles SW's queries cull from which Coh's must be back
+RESUME_SHARE = 0.10  # the triangles Coh(P)'s queries cull from which they must be back
+PARTS = ("open", "mid", "main", "interleaved")
 
 
 def prepare(work: Path, *, frames: int) -> None:
@@ -116,6 +125,28 @@ def occluded(work: Path, main: Path, *, size: tuple[int, int], repeat: int) -> d
     return out
 
 
+def interleaved(work: Path, *, size: tuple[int, int], repeat: int) -> dict:
+    """Coh(P) against Coh(P) asking every frame, interleaved frame by frame (module docstring)."""
+    runs = [Variant("coh_p", "coh", RuntimeSettings()),
+            Variant("coh_p always", "coh", RuntimeSettings(queries="always"))]
+    ms, dn, off = (COUNTERS.index(c) for c in ("frame_ms", "dn", "queries_off"))
+    out = {}
+    for name in OCCLUDED:
+        hlod, path = hlod_file.load(work / f"{name}.hlod"), load_path(work / f"{name}.json")
+        renderer = Renderer.create_standalone(hlod, size)
+        try:
+            per_frame, _ = run_interleaved(hlod, renderer, path, size=size, runs=runs, repeat=repeat, picked=[],
+                                           started=time.perf_counter(), label=f"{name}: ")
+        finally:
+            renderer.release()
+        rows = {k: np.median(v, axis=0).mean(axis=0) for k, v in per_frame.items()}
+        auto, always = rows["coh_p"], rows["coh_p always"]
+        out[name] = {"frames": len(path), "frame_ms": [auto[ms], always[ms]], "dn": [auto[dn], always[dn]],
+                     "frame_ms_ratio": auto[ms] / always[ms], "dn_ratio": auto[dn] / always[dn],
+                     "queries_off": auto[off]}
+    return out
+
+
 def mid_path(work: Path, *, size: tuple[int, int]) -> dict:
     """The switch back to queries where occlusion appears (module docstring)."""
     hlod, path = hlod_file.load(work / "street.hlod"), load_path(work / "street.json")
@@ -148,6 +179,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--size", default="640x480")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--frames", type=int, default=80, help="frames of the open square's path")
+    parser.add_argument("--parts", nargs="+", default=list(PARTS), choices=list(PARTS), help="what to measure")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="queries_off: %(message)s")
     work = Path(args.work)
@@ -157,18 +189,25 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     started = time.perf_counter()
     results = {"size": list(size), "load_before": os.getloadavg()}
-    results["open"] = open_scene(work, size=size, repeat=args.repeat)
-    print(json.dumps({"open": {k: v for k, v in results["open"].items() if k != "rows"}}), flush=True)
-    results["mid_path"] = mid_path(work, size=size)
-    series = ("off", "culled", "sw_culled")
-    print(json.dumps({"mid_path": {k: v for k, v in results["mid_path"].items() if k not in series}}), flush=True)
-    if args.main:
+    if "open" in args.parts:
+        results["open"] = open_scene(work, size=size, repeat=args.repeat)
+        print(json.dumps({"open": {k: v for k, v in results["open"].items() if k != "rows"}}), flush=True)
+    if "mid" in args.parts:
+        results["mid_path"] = mid_path(work, size=size)
+        series = ("off", "culled", "sw_culled")
+        print(json.dumps({"mid_path": {k: v for k, v in results["mid_path"].items() if k not in series}}),
+              flush=True)
+    if "main" in args.parts and args.main:
         results["occluded"] = occluded(work, Path(args.main).resolve(), size=size, repeat=args.repeat)
         for name, r in results["occluded"].items():
             print(json.dumps({name: {k: v for k, v in r.items() if k != "frame_ms_runs"}}), flush=True)
+    if "interleaved" in args.parts:
+        results["interleaved"] = interleaved(work, size=size, repeat=args.repeat)
+        print(json.dumps({"interleaved": results["interleaved"]}), flush=True)
     results["load_after"] = os.getloadavg()
     results["seconds"] = time.perf_counter() - started
-    (work / "queries_off.json").write_text(json.dumps(results, indent=1))
+    name = "queries_off" if set(args.parts) == set(PARTS) else "queries_off_" + "_".join(args.parts)
+    (work / f"{name}.json").write_text(json.dumps(results, indent=1))
     print(json.dumps({"seconds": results["seconds"], "load": [results["load_before"], results["load_after"]]}))
     return 0
 
