@@ -142,8 +142,17 @@ def test_evaluate_writes_the_report_and_its_last_line(short_run):
     assert report["settings"] == {"tau": 1.0, "s": 0.9, "t": 0.05, "k": None, "alpha": "query", "shift_up": "measured",
                                   "skip_queries": defaults.skip_queries, "multiquery": defaults.multiquery,
                                   "batch_queries": defaults.batch_queries, "predict_new": defaults.predict_new,
-                                  "measure_every": defaults.measure_every, "gpu_budget_bytes": 0}
+                                  "measure_every": defaults.measure_every, "queries": defaults.queries,
+                                  "gpu_budget_bytes": 0}
     assert f"measure_every = {defaults.measure_every}" in (out_dir / "report.md").read_text()
+    # the share of frames without queries, per part of the path (an inspection path's), and why
+    parts = [p["name"] for p in report["parts"]] or ["path"]
+    for key, row in report["methods"].items():
+        assert list(row["queries_off_by_part"]) == parts and 0.0 <= row["queries_off"] <= 1.0, key
+        assert row["queries_off_reason"] == "" or row["queries_off_reason"].startswith("queries off:"), key
+    assert m["full"]["queries_off"] == m["vfc"]["queries_off"] == m["sw_p"]["queries_off"] == 0.0
+    off = [key for key, row in report["methods"].items() if row["queries_off"]]
+    assert ("## Frames without queries" in (out_dir / "report.md").read_text()) == bool(off), off
     rel = report["relative"]["coh_p"]["bool"]
     assert rel["node_savings_pct"] == pytest.approx(100 * (1 - m["coh_p"]["dn"] / m["bool"]["dn"]))
     # the report holds measured figures; the targets are the acceptance thresholds of tests/report_targets.py

@@ -3,7 +3,8 @@ out with it (traversal.skipping, settings skip_queries), with real OpenGL (llvmp
 
 Only the calibration tests time anything; the traversals read a fixed cost model (LLVMPIPE_COSTS,
 or one a test scripts) and get their query results after a scripted lag (ScriptedAvailability), so
-what they skip never depends on the machine's load."""
+what they skip never depends on the machine's load. The traversals here query every frame (queries
+"always"): the gate that turns all queries off where they do not pay is test_query_gate.py's."""
 import numpy as np
 import pytest
 
@@ -141,6 +142,11 @@ def test_calibration_gives_positive_costs_that_grow_with_the_work(city_renderer,
 
 # --- skipping in the traversals -------------------------------------------------------------------
 
+def _skipping(mode: str) -> RuntimeSettings:
+    """skip_queries `mode`, queries every frame (module docstring)."""
+    return RuntimeSettings(queries="always", skip_queries=mode)
+
+
 @pytest.mark.gl
 def test_queries_all_but_vanish_where_nothing_hides(city_renderer):
     """Overview orbit: Coh with skip_queries "expected" issues a fraction of the queries of Coh
@@ -150,8 +156,8 @@ def test_queries_all_but_vanish_where_nothing_hides(city_renderer):
     assert RuntimeSettings().skip_queries == "expected"
     r = city_renderer
     path = _overview(r.hlod, 45)
-    off = _run(make("coh", r.hlod, _lagged(r), settings=RuntimeSettings(skip_queries="off")), path)
-    on_traversal = make("coh", r.hlod, _lagged(r), settings=RuntimeSettings(skip_queries="expected"))
+    off = _run(make("coh", r.hlod, _lagged(r), settings=_skipping("off")), path)
+    on_traversal = make("coh", r.hlod, _lagged(r), settings=_skipping("expected"))
     on = _run(on_traversal, path)
     later = slice(WARM_UP_FRAMES, None)
     q_off, q_on = (np.mean([s.queries for s in stats[later]]) for stats in (off, on))
@@ -168,7 +174,7 @@ def test_queries_all_but_vanish_where_nothing_hides(city_renderer):
     assert max(runs, default=0) <= on_traversal.skips.recheck_frames, (differing, runs)
     dn_off, dn_on = (np.mean([s.dn for s in stats[later]]) for stats in (off, on))
     assert dn_on == pytest.approx(dn_off, rel=0.03)
-    b_off, b_on = (_run(make("bool", r.hlod, _lagged(r), settings=RuntimeSettings(skip_queries=m)), path)
+    b_off, b_on = (_run(make("bool", r.hlod, _lagged(r), settings=_skipping(m)), path)
                    for m in ("off", "expected"))
     assert np.mean([s.queries for s in b_on[later]]) < VANISHED_SHARE * np.mean([s.queries for s in b_off[later]])
 
@@ -196,7 +202,7 @@ class _Hider:
 def test_a_node_that_becomes_hidden_is_found_within_the_recheck_interval(city_renderer, method):
     path, hide_from = _overview(city_renderer.hlod, 40, static=True), 25
     hider = _lagged(_Hider(city_renderer, hide_from))
-    traversal = make(method, city_renderer.hlod, hider, settings=RuntimeSettings(skip_queries="expected"))
+    traversal = make(method, city_renderer.hlod, hider, settings=_skipping("expected"))
     stats = _run(traversal, path)
     assert stats[hide_from - 1].skipped  # nodes were assumed visible when the occluder came
     assert stats[hide_from].dn > 0  # ...and are still drawn in its first frame, unqueried
@@ -205,7 +211,7 @@ def test_a_node_that_becomes_hidden_is_found_within_the_recheck_interval(city_re
     for i in range(hide_from + n + 1, len(path)):
         assert stats[i].dn == 0, (i, [s.dn for s in stats])
     hider = _lagged(_Hider(city_renderer, hide_from))
-    off = _run(make(method, city_renderer.hlod, hider, settings=RuntimeSettings(skip_queries="off")), path)
+    off = _run(make(method, city_renderer.hlod, hider, settings=_skipping("off")), path)
     assert all(s.dn == 0 for s in off[hide_from + 2:])
 
 
@@ -223,7 +229,7 @@ def test_a_scripted_cost_model_pins_both_branches(city_renderer):
         # results come back after a scripted lag, not when llvmpipe's threads finish them, so runs
         # that should do the same work do exactly the same
         lagged = _lagged(r, model)
-        return _run(make("coh", r.hlod, lagged, settings=RuntimeSettings(skip_queries=skip_queries)), path)
+        return _run(make("coh", r.hlod, lagged, settings=_skipping(skip_queries)), path)
 
     off = run("off")
     never = run("cheap", CostModel(query=free, draw=second, clock="wall"))
@@ -251,7 +257,7 @@ def test_skipping_tests_only_the_nodes_visible_last_frame_and_changes_nothing(ci
 
     runs = []
     for traversal_class in (cls, EveryCandidate):
-        traversal = traversal_class(r.hlod, _lagged(r), RuntimeSettings(skip_queries=mode))
+        traversal = traversal_class(r.hlod, _lagged(r), _skipping(mode))
         stats = _run(traversal, street_path(30)) + _run(traversal, _overview(r.hlod, 30))
         runs.append([(s.drawn, s.skipped, s.queries) for s in stats])
     assert runs[0] == runs[1]
@@ -305,7 +311,7 @@ def test_skip_tests_in_python_and_numpy_give_the_same_frames(city_renderer, meth
     r = city_renderer
     runs = []
     for limit in (0, 10**9):
-        traversal = make(method, r.hlod, _lagged(r), settings=RuntimeSettings(skip_queries="expected"))
+        traversal = make(method, r.hlod, _lagged(r), settings=_skipping("expected"))
         traversal.skips.python_test_nodes = limit
         stats = _run(traversal, street_path(30)) + _run(traversal, _overview(r.hlod, 30))
         runs.append([(s.drawn, s.skipped, s.queries) for s in stats])
@@ -321,7 +327,7 @@ def test_the_change_rate_is_the_mean_of_its_results_until_its_weight_takes_over(
     walk: on a static view nothing changes, so after the first frames with STOP results it is 0,
     where a start of 1 decaying by 1/64 a result would still hold it above 0.1."""
     traversal = make("coh", city_renderer.hlod, _lagged(city_renderer),
-                     settings=RuntimeSettings(skip_queries="expected"))
+                     settings=_skipping("expected"))
     skips = traversal.skips
     assert skips.change_rate == 1.0
     results = [True, False, False, True, False] + [False] * 100
@@ -332,7 +338,7 @@ def test_the_change_rate_is_the_mean_of_its_results_until_its_weight_takes_over(
             assert skips.change_rate == pytest.approx(np.mean(results[:k]), abs=1e-12)
         else:
             assert skips.change_rate == pytest.approx(before + (float(changed) - before) / 64, abs=1e-15)
-    still = make("coh", city_renderer.hlod, _lagged(city_renderer), settings=RuntimeSettings(skip_queries="expected"))
+    still = make("coh", city_renderer.hlod, _lagged(city_renderer), settings=_skipping("expected"))
     stats = _run(still, _overview(city_renderer.hlod, 4, static=True))
     assert stats[1].dn > 5 and still.skips.change_results > 5  # STOP results were counted
     assert still.skips.change_rate == 0.0
@@ -345,7 +351,7 @@ def test_recheck_frames_follow_the_seed(city_renderer):
     is ever skipped on its own re-check frame."""
     r = city_renderer
     path = _overview(r.hlod, 30)
-    settings = RuntimeSettings(skip_queries="expected")
+    settings = _skipping("expected")
     first, again, other = (Coh(r.hlod, _lagged(r), settings, recheck_seed=seed) for seed in (7, 7, 8))
     phase, n = first.skips.recheck_phase, first.skips.recheck_frames
     assert phase == again.skips.recheck_phase != other.skips.recheck_phase

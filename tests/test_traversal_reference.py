@@ -27,7 +27,8 @@ class _ReferenceTraversal:
     per-node state in numpy arrays read one scalar at a time, the frame's box tests and SSE by the textbook
     (n,3) formulas, one helper call per step, every child pushed and the ones outside the frustum
     dropped when popped. Methods vfc, sw, bool, simp, coh (both shift-ups, predict_new on and off);
-    skip_queries off, alpha "query". The library must do exactly what this does."""
+    skip_queries off, queries "always" (the gate that turns queries off is its own module's, tested in
+    test_query_gate.py), alpha "query". The library must do exactly what this does."""
 
     def __init__(self, method, hlod, renderer, *, settings, gate=0.9):
         self.method, self.hlod, self.renderer, self.settings = method, hlod, renderer, settings
@@ -257,7 +258,7 @@ def test_every_method_does_exactly_what_the_plain_reference_does(city_renderer, 
     close-up) both."""
     hlod = city_renderer.hlod
     paths = (street_path(20), inspection_path(hlod, seed=11, frames=28))
-    plain = RuntimeSettings(skip_queries="off")  # the reference asks every query
+    plain = RuntimeSettings(skip_queries="off", queries="always")  # the reference asks every query, every frame
     variants = [(m, plain) for m in ("vfc", "sw", "bool", "simp", "coh")] + [
         ("coh", dataclasses.replace(plain, shift_up="children")), ("coh", dataclasses.replace(plain, bias="mu")),
         ("simp", dataclasses.replace(plain, bias="mu")), ("sw", dataclasses.replace(plain, s=0.6, t=0.2, k=30.0)),

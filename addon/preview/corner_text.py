@@ -5,7 +5,8 @@ its margin and right of an overlapping toolbar.
 Lines (top to bottom): the method and what it drew (nodes, triangles and their share of the
 sources' triangles), the queries and the last frame's milliseconds (of which reading and importing
 Blender's depth, in the modes that import it) and where the queries ran when not in Blender's
-context, under a GPU budget the node
+context, while the method's queries are off (they culled less than they cost) why, under a GPU
+budget the node
 geometry on the GPU and the nodes waiting for theirs, then a warning when sources changed since
 the bake or the file has no record of them.
 """
@@ -49,6 +50,8 @@ def corner_lines(*, label: str, stats, source_tris: int, where: str,
         depth = f" (depth {stats.depth_import_ms:.1f} ms)" if stats.depth_import_ms else ""
         timing = f"{stats.queries:,} queries, {stats.frame_ms:.1f} ms{depth}" + (f", {where}" if where else "")
         lines = [(f"HLOD {label}: {stats.dn:,} nodes, {stats.tris:,} triangles{share}", False), (timing, False)]
+        if stats.queries_off:
+            lines.append((stats.queries_note, False))
         if budget_bytes:
             waiting = f", {stats.waiting:,} nodes waiting" if stats.waiting else ""
             lines.append((f"GPU {stats.resident_bytes / 2**20:.1f} of {budget_bytes / 2**20:.0f} MB{waiting}", False))

@@ -14,6 +14,7 @@ from ..traversal.settings import (
     BATCH_QUERY_MODES,
     MULTIQUERY_MODES,
     PREDICT_NEW_MODES,
+    QUERIES_MODES,
     SKIP_QUERY_MODES,
     RuntimeSettings,
 )
@@ -178,6 +179,10 @@ def runtime_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--measure-every", type=whole_number(1), default=RuntimeSettings.measure_every,
                    help="Coh's measured shift-up: query each refined node every N frames (staggered); 1 keeps the "
                         f"ratios fresh at the cost of more box queries. Default {RuntimeSettings.measure_every}")
+    p.add_argument("--queries", choices=list(QUERIES_MODES), default=RuntimeSettings.queries,
+                   help="Bool, Simp, Coh: auto draws as VFC, with no queries, where over recent frames they culled "
+                        "less than they cost, probing a few every few frames to resume them; always queries every "
+                        f"frame. Default {RuntimeSettings.queries}")
 
 
 def runtime_settings_of(args: argparse.Namespace, *, bias: str = "P") -> RuntimeSettings:
@@ -186,7 +191,7 @@ def runtime_settings_of(args: argparse.Namespace, *, bias: str = "P") -> Runtime
     return RuntimeSettings(tau=args.tau, s=args.s, t=args.t, k=args.k, bias=bias, alpha=args.alpha,
                            shift_up=args.shift_up, skip_queries=args.skip_queries, multiquery=args.multiquery,
                            batch_queries=args.batch_queries, predict_new=args.predict_new,
-                           measure_every=args.measure_every)
+                           measure_every=args.measure_every, queries=args.queries)
 
 
 def gpu_budget_option(p: argparse.ArgumentParser) -> None:

@@ -1,5 +1,8 @@
 """Procedural scenes made by the project itself, with no input files (the main job's `default`,
-and `pieces`: open boundaries and many small pieces).
+and `pieces`: open boundaries and many small pieces), and two that measure when queries pay, with
+their camera paths: `square_scene` (scanned statues standing apart on flat ground: nothing hides
+much) and `square_and_street_scene` (such a square beside a city block, the path walking from one
+into the other).
 
 Data form: `meshes.TriangleMesh` (positions float64 model units, metres by convention; Z up).
 The default scene is a seeded city block: a tessellated ground, a grid of finely tessellated
@@ -11,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.arrays import concat_indexed
+from ..model.camera_path import CameraPath
 from .meshes import TriangleMesh
 
 
@@ -191,6 +195,71 @@ def machine(center, radius: float, *, patches: tuple[int, int], bolts: int,
         lo = np.asarray(center, float) + n * radius - half
         out.append(box(lo, lo + 2 * half, 1))
     return out
+
+
+def _square(rng: np.random.Generator, *, corner, per_side: int, spacing: float,
+            segments: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """per_side x per_side scanned statues (2 m radius, standing on z = 0) `spacing` apart from
+    `corner` (x, y), on a 32 x 32 quad flat ground reaching a spacing beyond them."""
+    x0, y0 = corner
+    side = (per_side - 1) * spacing
+    parts = [grid_patch([x0 - spacing, y0 - spacing, 0.0], [side + 2 * spacing, 0, 0], [0, side + 2 * spacing, 0],
+                        nu=32, nv=32)]
+    for i in range(per_side):
+        for j in range(per_side):
+            parts.append(open_scan([x0 + i * spacing, y0 + j * spacing, 1.6], 2.0, rng=rng, segments=segments,
+                                   rings=segments * 2 // 3, holes=2))
+    return parts
+
+
+def square_scene(*, seed: int = 1, per_side: int = 6, spacing: float = 12.0, segments: int = 96) -> TriangleMesh:
+    """An open square: per_side^2 scanned statues (about 8k triangles each at 96 segments)
+    standing `spacing` apart on flat ground, from (0, 0) along +x and +y. Seen along
+    `square_far_path`, a statue hides little of the others."""
+    positions, faces = concat_indexed(_square(np.random.default_rng(seed), corner=(0.0, 0.0), per_side=per_side,
+                                              spacing=spacing, segments=segments))
+    return TriangleMesh(positions=positions, faces=faces, name=f"square scene (seed {seed})")
+
+
+def square_far_path(*, frames: int, per_side: int = 6, spacing: float = 12.0) -> CameraPath:
+    """From far to near: the eye 8 m up, approaching the square of `square_scene` along its diagonal
+    from 4 times its side away to its first statue, looking at its centre."""
+    side = (per_side - 1) * spacing
+    centre = np.array([side / 2, side / 2, 1.6])
+    t = np.linspace(0.0, 1.0, frames)[:, None]
+    away = np.array([-1.0, -0.35, 0.0]) / np.hypot(1.0, 0.35)
+    eye = centre + away * (4.0 * side * (1.0 - t) + 0.75 * side * t) + [0.0, 0.0, 6.4]
+    out = np.stack([eye, np.broadcast_to(centre, eye.shape), np.broadcast_to([0.0, 0.0, 1.0], eye.shape)], axis=1)
+    return CameraPath(frames=out, near=0.1, far=8.0 * side, fovy_deg=60.0)
+
+
+def square_and_street_scene(*, seed: int = 1, per_side: int = 3, blocks: int = 4, segments: int = 64) -> TriangleMesh:
+    """A square of per_side^2 scanned statues 12 m apart (x from -60 m) beside a city block of blocks x
+    blocks buildings 20 m apart (x from 0, as the default scene's), their streets along +y."""
+    rng = np.random.default_rng(seed)
+    parts = _square(rng, corner=(-60.0, 0.0), per_side=per_side, spacing=12.0, segments=segments)
+    city = _city(seed=seed, per_side=blocks, spacing=20.0, footprint=12.0, heights=(15.0, 45.0), box_cells=12,
+                 sphere=(32, 24), name="")
+    positions, faces = concat_indexed(parts + [(city.positions, city.faces)])
+    return TriangleMesh(positions=positions, faces=faces, name=f"square and street scene (seed {seed})")
+
+
+def square_to_street_path(*, frames: int) -> CameraPath:
+    """Along `square_and_street_scene`, eye 1.7 m up: a third of the frames in the square looking
+    away from the block (-x), a third turning to +y while walking to the street between the block's
+    first two columns (x = 10 m), a third down that street. Parts "square", "turn", "street"."""
+    n = frames // 3
+    a = np.linspace(0.0, 1.0, n, endpoint=False)
+    b = np.linspace(0.0, 1.0, n, endpoint=False)
+    c = np.linspace(0.0, 1.0, frames - 2 * n)
+    eye = np.concatenate([np.column_stack([-30.0 + 0.0 * a, -14.0 + 6.0 * a, 1.7 + 0.0 * a]),
+                          np.column_stack([-30.0 + 40.0 * b, -8.0 + 0.0 * b, 1.7 + 0.0 * b]),
+                          np.column_stack([10.0 + 0.0 * c, -8.0 + 60.0 * c, 1.7 + 0.0 * c])])
+    heading = np.concatenate([np.full(n, np.pi), np.pi - np.pi / 2 * b, np.full(frames - 2 * n, np.pi / 2)])
+    target = eye + np.column_stack([30.0 * np.cos(heading), 30.0 * np.sin(heading), np.full(frames, 2.3)])
+    out = np.stack([eye, target, np.broadcast_to([0.0, 0.0, 1.0], eye.shape)], axis=1)
+    return CameraPath(frames=out, near=0.05, far=400.0, fovy_deg=60.0,
+                      parts=(("square", 0), ("turn", n), ("street", 2 * n)))
 
 
 SCENES = {"low": low_scene, "middle": middle_scene, "high": high_scene, "default": default_scene,

@@ -51,7 +51,7 @@ from .draw_cost import COLUMNS, DrawCost, cost_row
 from .interleaved import Variant, psnr_frame_indices, run_interleaved
 from .markdown import markdown
 from .per_frame_file import PER_FRAME_FILE, load_per_frame, save_per_frame
-from .rows import SUMMARY_KEYS, relative_tables, settings_json, variant_row
+from .rows import SUMMARY_KEYS, queries_off_by_part, relative_tables, settings_json, variant_row
 from .showcase import modulation_frames
 
 log = logging.getLogger(__name__)
@@ -112,8 +112,10 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     renderer = Renderer.create_standalone(hlod, size, images=textures, streaming=streaming)  # coloured images: Cb/Cr
     costs: dict = {}
     try:
+        notes: dict[str, str] = {}
         per_frame, images = run_interleaved(hlod, renderer, path, size=size, runs=runs, repeat=repeat, picked=picked,
-                                            started=started, draw_cost=DrawCost(hlod, textures), costs=costs)
+                                            started=started, draw_cost=DrawCost(hlod, textures), costs=costs,
+                                            notes=notes)
         alpha_study = alpha_estimators(hlod, renderer, [path.view(i, size) for i in picked[:ALPHA_STUDY_VIEWS]])
         showcase = modulation_frames(hlod, renderer, path=path, size=size, runs=runs, per_frame=per_frame,
                                      out_dir=out_dir)
@@ -129,6 +131,9 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     if showcase is not None:
         report["showcase"] = showcase
     report["parts"] = [{"name": name, "start": start} for name, start in path.parts]
+    for key, row in report["methods"].items():
+        row["queries_off_by_part"] = queries_off_by_part(per_frame[key], list(path.parts))
+        row["queries_off_reason"] = notes.get(key, "")
     report["settings"]["gpu_budget_bytes"] = 0 if streaming is None else streaming.budget_bytes
     report["seconds"] = time.perf_counter() - started
     medians = {key: np.median(counters, axis=0) for key, counters in per_frame.items()}

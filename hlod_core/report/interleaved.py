@@ -49,11 +49,13 @@ def psnr_frame_indices(frames: int, count: int, seed: int) -> list[int]:
 
 def run_interleaved(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: tuple[int, int], runs: list[Variant],
                     repeat: int, picked: list[int], started: float, label: str = "",
-                    draw_cost: DrawCost | None = None, costs: dict | None = None) -> tuple[dict, dict]:
+                    draw_cost: DrawCost | None = None, costs: dict | None = None,
+                    notes: dict | None = None) -> tuple[dict, dict]:
     """One timed pass of `runs` over the path, `repeat` times, interleaved (module docstring).
     Returns (per_frame, images) of the module docstring, images at the `picked` frames. `started`
     (a perf_counter time) dates the progress lines, `label` prefixes them. With `draw_cost`, the
-    dict `costs` gets costs[key] of the module docstring."""
+    dict `costs` gets costs[key] of the module docstring; `notes`, where given, gets key -> why the
+    variant's queries were last off (FrameStats.queries_note) in the first repeat."""
     frames = len(path)
     picked_set = set(picked)
     per_frame = {v.key: np.zeros((repeat, frames, len(COUNTERS))) for v in runs}
@@ -70,6 +72,8 @@ def run_interleaved(hlod: Hlod, renderer: Renderer, path: CameraPath, *, size: t
                 per_frame[v.key][rep, i] = [getattr(stats, c) for c in COUNTERS]
                 if draw_cost is not None:
                     costs[v.key][rep, i] = draw_cost.frame(stats.drawn)
+                if notes is not None and rep == 0 and stats.queries_note:
+                    notes[v.key] = stats.queries_note
                 if rep == 0 and i in picked_set:
                     images[v.key][i] = renderer.read_pixels()
             if (i + 1) % max(frames // PROGRESS_STEPS, 1) == 0 or i + 1 == frames:

@@ -48,6 +48,7 @@ def markdown(report: dict, *, labels: dict[str, str]) -> str:
         lines += _psnr_target(report["psnr_target"], frames=len(report["psnr_frames"]))
     lines += _per_method(report["methods"], labels=labels)
     lines += _draw_cost(report["methods"], labels=labels)
+    lines += _queries_off(report["methods"], labels=labels)
     lines += _relative(report["relative"], labels=labels)
     lines += _image_quality(report, labels=labels)
     if report.get("sweep"):
@@ -101,6 +102,23 @@ def _draw_cost(methods: dict, *, labels: dict[str, str]) -> list[str]:
             lines.append(f"| {labels[key]} | {_f(r['tris'], 0)} | {_f(r['frame_ms'])} | {_f(r['draws'], 1)} | "
                          f"{_f(r['draws_max'], 0)} | {_f(r['texture_bytes'] / MIB)} | "
                          f"{_f(r['texture_bytes_max'] / MIB)} |")
+    return lines
+
+
+def _queries_off(methods: dict, *, labels: dict[str, str]) -> list[str]:
+    """The share of frames each querying method drew without queries (settings queries "auto"), per
+    part of the path, and why; nothing for a report from before the gate or where none went off."""
+    rows = {k: r for k, r in methods.items() if r.get("queries_off")}
+    if not rows:
+        return []
+    parts = list(next(iter(rows.values())).get("queries_off_by_part") or {})
+    lines = ["", "## Frames without queries (they culled less than they cost)", "",
+             "| method | all frames | " + " | ".join(parts) + " | why, last time |",
+             "|---|---:|" + "---:|" * len(parts) + "---|"]
+    for key, r in rows.items():
+        by_part = r.get("queries_off_by_part") or {}
+        cells = " | ".join("–" if by_part.get(p) is None else f"{by_part[p]:.0%}" for p in parts)
+        lines.append(f"| {labels[key]} | {r['queries_off']:.0%} | {cells} | {r.get('queries_off_reason', '')} |")
     return lines
 
 

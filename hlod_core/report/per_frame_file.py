@@ -13,7 +13,7 @@ import numpy as np
 
 from ..core.atomic import atomic_file
 from ..core.errors import InputError
-from ..traversal.stats import COUNTERS
+from ..traversal.stats import COUNTERS, LATER_COUNTERS
 from .draw_cost import COLUMNS
 
 PER_FRAME_FILE = "per_frame.npz"
@@ -50,11 +50,16 @@ def load_per_frame(source: Path, *, frames: int | None = None) -> dict:
             keys, counters, median = data["keys"], data["counters"], data["median"]
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
         raise InputError(f"{source}: not an evaluation's per-frame file ({exc})") from None
-    missing = [c for c in COUNTERS if c not in counters.tolist()]
+    names = counters.tolist()
+    missing = [c for c in COUNTERS if c not in names and c not in LATER_COUNTERS]
     if median.ndim != 3 or median.shape[0] != len(keys) or median.shape[2] != len(counters) or missing:
         raise InputError(f"{source}: not an evaluation's per-frame file (median {median.shape}, "
                          f"{len(keys)} keys, counters missing: {', '.join(missing) or 'none'})")
     if frames is not None and median.shape[1] != frames:
         raise InputError(f"{source}: {median.shape[1]} frames, its report.json {frames}")
-    order = [counters.tolist().index(c) for c in COUNTERS]
-    return {str(k): median[i][:, order].astype(np.float64) for i, k in enumerate(keys)}
+    out = {}
+    for i, k in enumerate(keys):
+        columns = [median[i][:, names.index(c)] if c in names else np.full(median.shape[1], LATER_COUNTERS[c])
+                   for c in COUNTERS]
+        out[str(k)] = np.stack(columns, axis=1).astype(np.float64)
+    return out

@@ -14,14 +14,15 @@ from ..traversal.settings import RuntimeSettings
 from ..traversal.stats import COUNTERS
 from .image_error import psnr, rmse_y
 
-SUMMARY_KEYS = ("fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms")
+SUMMARY_KEYS = ("fps", "frame_ms", "dn", "rarn", "d", "tris", "queries", "stall_ms", "cpu_ms", "gpu_ms", "queries_off")
 PSNR_REFERENCES = ("bool", "full")  # the PSNR columns are against these methods' images
 MS_PER_S = 1e3
 
 
 def variant_row(counters: np.ndarray, images: dict, *, key: str, picked: list[int]) -> dict:
     """One variant's row of the report: `counters` (repeat, frames, len(COUNTERS)) -> per frame the
-    median over repeats, then the mean over frames of each of SUMMARY_KEYS (and fps); PSNR mean and
+    median over repeats, then the mean over frames of each of SUMMARY_KEYS (and fps; of queries_off,
+    the share of frames drawn with the method's queries off, traversal.query_gate); PSNR mean and
     s.d. per channel against each of PSNR_REFERENCES present in `images` (key -> frame -> image), and
     the luminance RMSE against Full, over the `picked` frames (None where the reference is absent)."""
     index = {c: j for j, c in enumerate(COUNTERS)}
@@ -37,6 +38,15 @@ def variant_row(counters: np.ndarray, images: dict, *, key: str, picked: list[in
     rmse = [rmse_y(images[key][i], images["full"][i]) for i in picked] if "full" in images else None
     row["rmse_y_vs_full"] = None if rmse is None else float(np.mean(rmse))
     return row
+
+
+def queries_off_by_part(counters: np.ndarray, parts: list[tuple[str, int]]) -> dict:
+    """Share of each part's frames with the queries off (per frame the median over repeats): part
+    name -> share; `parts` (name, start frame) in order, empty: the whole path as "path"."""
+    off = np.median(counters, axis=0)[:, COUNTERS.index("queries_off")]
+    parts = list(parts) or [("path", 0)]
+    ends = [start for _, start in parts[1:]] + [off.shape[0]]
+    return {name: float(np.mean(off[start:end])) if end > start else None for (name, start), end in zip(parts, ends)}
 
 
 def psnr_against(images: dict, *, key: str, ref: str, picked: list[int]) -> np.ndarray | None:

@@ -11,5 +11,6 @@ preview) is passed in through the `protocol.NodeRenderer` protocol.
 - methods: Full, VFC, SW, Ideal, the METHODS table and `methods.make`;
 - coherent: the coherent loop and Bool, Simp, Coh;
 - query_stream: CHC++'s multiqueries and query batches;
-- skipping, query_cost: skipped queries, and the renderer's cost model they read.
+- skipping, query_cost: skipped queries, and the renderer's cost model they read;
+- query_gate: no queries at all where they do not pay, and the probes that resume them.
 """

@@ -24,6 +24,7 @@ import numpy as np
 
 from .base import NEVER_FRAME, Traversal, state_array
 from .protocol import DELAY, MEASURE_RATIO, MULTIQUERY, PREDICTED, REFINE, STOP, Pending, QueryHandle
+from .query_gate import PROBING, QUERYING, Decision, QueryGate
 from .query_stream import QueryStream
 from .settings import RuntimeSettings
 from .skipping import SkippedQueries
@@ -33,8 +34,9 @@ from .stats import MS_PER_S
 class CoherentLoop(Traversal):
     """Algorithm 2's loop (Algorithm 1 with Bool's `_predict_step` and `_stop_step`), with
     CHC++'s query stream (`stream`: multiqueries and batches), skipped queries (`skips`, for the
-    classes with `skips_queries`: None otherwise or with skip_queries "off") and, for the classes
-    with `predicts_new`, nodes not visited last frame predicted visible (settings predict_new)."""
+    classes with `skips_queries`: None otherwise or with skip_queries "off"), for the classes
+    with `predicts_new`, nodes not visited last frame predicted visible (settings predict_new),
+    and with settings queries "auto" no queries where they do not pay (`gate`, else None)."""
 
     skips_queries = False
     predicts_new = False
@@ -57,12 +59,19 @@ class CoherentLoop(Traversal):
         self._visited: list[int] = []  # the nodes the last (or current) walk visited, in order
         self._candidate_in = [NEVER_FRAME] * n  # frame the node was a candidate of predict_new
         self.new_visible_share = 1.0  # nothing measured yet: candidates are predicted visible
+        self.gate = QueryGate(hlod) if settings.queries == "auto" else None
+        self._decision = Decision(QUERYING)  # this frame's
+        self._last_drawn: list[int] = []  # the nodes drawn last frame, in draw order
+        self._last_tris = 0  # and their triangles
 
     candidate_in = property(lambda self: state_array(self._candidate_in, np.int64), doc="(n,) int64 frame id")
 
     def prepare(self, view):
         super().prepare(view)
-        skips = self.skips
+        self._probe_wait_s = 0.0 if self.gate is None else self.gate.read_probe(  # last frame's probe
+            self.renderer, drawn_nodes=len(self._last_drawn), drawn_tris=self._last_tris)
+        self._decision = Decision(QUERYING) if self.gate is None else self.gate.decide(self.frame_id, view)
+        skips = self.skips if self._decision.mode == QUERYING else None
         model = getattr(self.renderer, "cost_model", None) if skips is not None else None
         self._skipping = model is not None  # a renderer without a cost model (tests' wrappers) skips nothing
         if model is not None:
@@ -112,6 +121,59 @@ class CoherentLoop(Traversal):
     # --- the walk -------------------------------------------------------------------------------
 
     def _traverse(self, stats):
+        """The frame's walk: with queries (`_walk`), then what they culled and cost told the gate;
+        or, with the queries off, VFC's (`_walk_without_queries`)."""
+        decision, gate = self._decision, self.gate
+        stats.stall_ms += self._probe_wait_s * MS_PER_S
+        if decision.mode == QUERYING:
+            self._walk(stats)
+            if gate is not None:
+                _, vfc_tris = gate.vfc_cut(self.in_frustum, self.sse, self._tau)
+                gate.learn_querying(self.frame_id, vfc_tris=vfc_tris, drawn_tris=stats.tris, drawn_nodes=stats.dn,
+                                    queries=stats.queries)
+        else:
+            self._walk_without_queries(stats, probe=decision.mode == PROBING)
+            stats.queries_off, stats.queries_note = 1, decision.reason
+        self._last_drawn, self._last_tris = stats.drawn, stats.tris
+
+    def _walk_without_queries(self, stats, *, probe: bool) -> None:
+        """VFC's walk (methods.VFC), keeping the state the method reads next frame: every visited
+        node visible, a drawn one stopped at ratio 1. A probe queries a few of last frame's farther
+        drawn nodes (gate.probe_picks) together, once the nearer half is drawn (their boxes against
+        what is in front of them); the gate reads their results at the next frame's start."""
+        heap: list = []
+        self._schedule(heap, (0,))
+        frame_id, children, schedule, render = self.frame_id, self._children, self._schedule, self._draw_step(stats)
+        visible, last_visited, stop_refinement, ratio = (self._visible, self._last_visited, self._stop_refinement,
+                                                         self._ratio)
+        sse, tau, residency, in_frustum, unqueryable = self.sse, self._tau, self._residency, self.in_frustum, \
+            self.unqueryable
+        heappop = heapq.heappop
+        picks = [n for n in self.gate.probe_picks(self._last_drawn) if in_frustum[n] and not unqueryable[n]] \
+            if probe else []
+        probe_at = len(self._last_drawn) // 2 if picks else -1
+        self._visited = visited = []
+        drawn = 0
+        while heap:
+            node = heappop(heap)[1]
+            visited.append(node)
+            visible[node], last_visited[node] = True, frame_id
+            stop = sse[node] <= tau or (residency is not None and not self._refinable(node, visible=True))
+            stop_refinement[node] = stop
+            if not stop:
+                schedule(heap, children[node])
+                continue
+            ratio[node] = 1.0
+            if drawn == probe_at:  # the nearer half drawn: the picks' boxes against it
+                stats.probes = self.gate.probe(self.renderer, picks)
+            drawn += 1
+            render(node)
+        stats.traversed += len(visited)
+        if picks and not stats.probes:  # fewer nodes drawn than the probe waited for
+            stats.probes = self.gate.probe(self.renderer, picks)
+        stats.queries += stats.probes
+
+    def _walk(self, stats):
         """Results taken in the order issued while they are back (all of them once the heap is
         empty), then the nearest node popped and visited. Queries waiting in the stream go out
         when due (CHC++): the i-queue when full, when nothing is in flight (multiquery "on") or

@@ -23,6 +23,10 @@ BATCH_QUERY_MODES = ("off", "on")
 #: predict_new (Coh): "off" waits for the query of every node not visited last frame, "on" draws
 #: those that would stop even fully visible at once while most such nodes turn out visible.
 PREDICT_NEW_MODES = ("off", "on")
+#: queries (Bool, Simp, Coh): "auto" leaves them all out, drawing as VFC, where over recent frames
+#: they culled less than they cost, and probes to resume them (query_gate.QueryGate); "always"
+#: queries every frame as the method asks.
+QUERIES_MODES = ("auto", "always")
 
 
 @dataclass(frozen=True)
@@ -35,7 +39,8 @@ class RuntimeSettings:
     multiquery (Bool, Simp, Coh): one of MULTIQUERY_MODES, batch_queries: one of BATCH_QUERY_MODES,
     CHC++'s multiqueries and query batching;
     predict_new (Coh): one of PREDICT_NEW_MODES;
-    measure_every (Coh, shift_up "measured"): frames between two queries of a refined node.
+    measure_every (Coh, shift_up "measured"): frames between two queries of a refined node;
+    queries (Bool, Simp, Coh): one of QUERIES_MODES.
     The defaults are the fastest measured on every scene (docs/performance.md#traversal-and-preview)."""
 
     tau: float = 1.0
@@ -51,6 +56,7 @@ class RuntimeSettings:
     # node counts within 0.5% of "off" (docs/performance.md#newly-visited-nodes-predicted-visible)
     predict_new: str = "on"
     measure_every: int = 4
+    queries: str = "auto"
 
     def __post_init__(self):
         if not self.tau > 0:
@@ -59,7 +65,8 @@ class RuntimeSettings:
             raise InputError(f"bias must be 'P' or 'mu', got {self.bias!r}")
         for name, allowed in (("alpha", ALPHA_MODES), ("shift_up", SHIFT_UP_MODES),
                               ("skip_queries", SKIP_QUERY_MODES), ("multiquery", MULTIQUERY_MODES),
-                              ("batch_queries", BATCH_QUERY_MODES), ("predict_new", PREDICT_NEW_MODES)):
+                              ("batch_queries", BATCH_QUERY_MODES), ("predict_new", PREDICT_NEW_MODES),
+                              ("queries", QUERIES_MODES)):
             if getattr(self, name) not in allowed:
                 raise InputError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
         if isinstance(self.measure_every, bool) or not isinstance(self.measure_every, int) or self.measure_every < 1:

@@ -8,10 +8,14 @@ from dataclasses import dataclass, field
 MS_PER_S = 1e3
 
 #: FrameStats' counters, in the order of its fields (the columns of per-frame tables).
-COUNTERS = ("dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms")
+COUNTERS = ("dn", "rarn", "d", "tris", "queries", "traversed", "stall_ms", "cpu_ms", "gpu_ms", "frame_ms",
+            "queries_off")
+#: Counters added to COUNTERS after per-frame files were first written, with the value an older
+#: file's frames had (report.per_frame_file fills them in): no frame had its queries off.
+LATER_COUNTERS = {"queries_off": 0.0}
 #: FrameStats' counters of the query stream (CHC++), after COUNTERS: not columns of the
 #: evaluation's per-frame files, which keep the counters they were saved with.
-QUERY_COUNTERS = ("multiqueries", "state_changes", "predicted")
+QUERY_COUNTERS = ("multiqueries", "state_changes", "predicted", "probes")
 #: FrameStats' counters of streamed node geometry (render.residency), 0 without a GPU budget.
 STREAM_COUNTERS = ("substitutions", "waiting", "resident_bytes", "upload_bytes", "upload_ms")
 #: FrameStats' counter of a host's depth imported into the frame (the renderer's `depth_import_ms`;
@@ -33,9 +37,11 @@ class FrameStats:
     cpu_ms: float = 0.0
     gpu_ms: float = 0.0
     frame_ms: float = 0.0
+    queries_off: int = 0    # 1: the method's queries were off this frame, drawn as VFC (query_gate)
     multiqueries: int = 0   # of `queries`, those over several nodes' boxes (CHC++)
     state_changes: int = 0  # the renderer's switches between drawing and querying (its `state_changes`)
     predicted: int = 0      # nodes not visited last frame drawn at once, assumed visible (predict_new)
+    probes: int = 0         # of `queries`, those of a probe while the queries were off (query_gate)
     substitutions: int = 0  # nodes drawn in place of children whose geometry was not resident yet
     waiting: int = 0        # nodes wanted and still not resident after the frame's uploads
     resident_bytes: int = 0  # node geometry on the GPU after the frame
@@ -46,3 +52,4 @@ class FrameStats:
     delayed: list = field(default_factory=list)     # the nodes counted in d
     refined_after_draw: list = field(default_factory=list)  # the nodes counted in rarn
     skipped: list = field(default_factory=list)  # visible, stopped nodes drawn without their query
+    queries_note: str = ""  # with queries_off: why (query_gate.QueryGate.reason)

@@ -160,6 +160,7 @@ def test_sources_changed_since_the_bake_are_counted_and_rebaked(repo, tmp_path):
 class _Stats:
     dn, tris, queries, frame_ms, depth_import_ms = 12, 34_567, 21, 4.31, 0.0
     resident_bytes, waiting = 3 * 2**20 + 2**19, 0  # 3.5 MB on the GPU, nothing waiting
+    queries_off, queries_note = 0, ""
 
 
 def test_corner_text_lines():
@@ -182,6 +183,12 @@ def test_corner_text_lines():
     lines = corner_text.corner_lines(label="Coh(P)", stats=Imported, source_tris=0, where="CPU occlusion test",
                                      changed=0, recorded=144)
     assert lines[1] == ("21 queries, 4.3 ms (depth 1.3 ms), CPU occlusion test", False)
+
+    class Off(_Stats):  # the method's queries off (query_gate): why, under the timing
+        queries_off, queries_note = 1, "queries off: they culled 0.8% of the triangles over 8 frames, cost 7.6%"
+
+    lines = corner_text.corner_lines(label="Coh(P)", stats=Off, source_tris=0, where="", changed=0, recorded=144)
+    assert lines[2] == (Off.queries_note, False) and len(lines) == 3
     assert corner_text.corner_lines(label="Full", stats=None, source_tris=10, where="", changed=None, recorded=0) == [
         ("HLOD Full: no frame drawn yet", False),
         ("sources not recorded for this file: they stay visible (re-bake)", True)]
