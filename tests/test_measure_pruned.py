@@ -89,16 +89,17 @@ def test_pruned_measure_gives_the_unpruned_float_on_every_inner_node(name, targe
 
 def test_the_measure_goes_whole_only_where_the_clusters_cannot_prune(monkeypatch, measured_pairs):
     """measure_clustered with `whole`: the herd's big nodes (a coarse LOD far from most clusters)
-    are pruned, small cells whose LOD hugs the surface (every cluster's bound above the floor) are
-    measured whole; both give the unpruned float."""
-    measured_whole = []
-    measure = hausdorff.measure
-    monkeypatch.setattr(hausdorff, "measure", lambda lod, original: measured_whole.append(1) or measure(lod, original))
+    are pruned cluster by cluster, small cells whose LOD hugs the surface (every cluster's bound
+    above the floor) have every original vertex measured in one call; both give the unpruned float."""
+    by_clusters = []
+    original_to_lod = hausdorff._Pruning.original_to_lod
+    monkeypatch.setattr(hausdorff._Pruning, "original_to_lod",
+                        lambda self, bound, floor: by_clusters.append(1) or original_to_lod(self, bound, floor=floor))
     went_whole = {}
     for lod, original, error, _ in measured_pairs("herd", 600):
-        measured_whole.clear()
+        by_clusters.clear()
         assert hausdorff.measure_pruned(lod, original, allow_whole=True) == error
-        went_whole[original[0].shape[0]] = bool(measured_whole)
+        went_whole[original[0].shape[0]] = not by_clusters
     largest = max(went_whole)
     assert not went_whole[largest] and any(went_whole.values()), went_whole
 
