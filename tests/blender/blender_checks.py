@@ -629,12 +629,13 @@ def check_long_session(repo, work) -> dict:
     path in a GPUOffScreen with an orbiting camera and Blender's own occluder; the method changes
     every METHOD_EVERY redraws (every item of scene.hlod.method), the private-context mode flips
     half-way, and the preview is toggled off and on at redraw TOGGLE_AT, every third session while
-    another GL context is current. The configuration repeats every 6 sessions. Recorded: the GL object census of Blender's
-    context after each load (preview stopped) and at each session's end (preview on), the RSS and
-    Python's allocated blocks after each session, the GL errors left pending after each redraw, any
-    unplanned stop of the preview, and Blender's own drawing with and without the preview at the
-    start and at the end. test_addon runs it with LP_NUM_THREADS=0 (llvmpipe's rasteriser threads
-    make a one-time RSS jump at a random session): it measures leaks, not speed."""
+    another GL context is current. The configuration repeats every 6 sessions. Recorded: the GL
+    object census of Blender's context after each load (preview stopped) and at each session's end
+    (preview on), the RSS and Python's allocated blocks after each session, the GL errors left
+    pending after each redraw, any unplanned stop of the preview, and Blender's own drawing with and
+    without the preview at the start and at the end. test_addon runs it with LP_NUM_THREADS=0
+    (llvmpipe's rasteriser threads make a one-time RSS jump at a random session): it measures leaks,
+    not speed."""
     import gpu
 
     started = time.perf_counter()
