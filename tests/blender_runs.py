@@ -74,22 +74,49 @@ class Installed:
         return self.base / name
 
 
-def build_extension_zips(dist: Path) -> dict[str, Path]:
-    """The linux-x64 zips, one per Blender line, built into `dist` by scripts/build_extension.py with
-    the main .venv: {python tag ("cp311", "cp313"): zip path}."""
-    build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms", "linux-x64",
-                            "--output-dir", str(dist)], capture_output=True, text=True, timeout=900)
-    assert build.returncode == 0, build.stderr
-    zips = [Path(line) for line in build.stdout.strip().splitlines()]
-    lines = _build_extension().BLENDER_LINES
-    assert len(zips) == len(lines), zips
-    return {line.python_tag: next(z for z in zips if f"-{line.label}-" in z.name) for line in lines}
+#: test.sh sets this to one folder for both of its pytest processes: the zips are built there once
+#: per run, by whichever process asks first (`built_zips`).
+ZIPS_FOLDER_VARIABLE = "HLOD_TEST_ZIPS"
+
+
+def built_zips(platforms: list[str], fallback: Path) -> list[Path]:
+    """The zips scripts/build_extension.py makes for `platforms` (each Blender line; CesiumJS bundled
+    as a release build bundles it), built once per test run: in $HLOD_TEST_ZIPS where test.sh set it
+    (shared by its two pytest processes), else in `fallback` (one folder per pytest session). Each
+    platform is built under a file lock by the first process to ask for it; the other waits and
+    takes its zips."""
+    import fcntl
+
+    folder = Path(os.environ.get(ZIPS_FOLDER_VARIABLE) or fallback)
+    folder.mkdir(parents=True, exist_ok=True)
+    zips = []
+    for platform in platforms:
+        listing = folder / f"{platform}.zips"
+        with open(folder / f"{platform}.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+            if not listing.exists():
+                build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms",
+                                        platform, "--output-dir", str(folder / platform)],
+                                       capture_output=True, text=True, timeout=900)
+                assert build.returncode == 0, build.stderr
+                listing.write_text(build.stdout)
+            zips += [Path(line) for line in listing.read_text().split()]
+    return zips
+
+
+def build_extension_zips(zips: list[Path]) -> dict[str, Path]:
+    """The linux-x64 zips among `zips` (built_zips), one per Blender line: {python tag ("cp311",
+    "cp313"): zip path}."""
+    lines = build_extension_script().BLENDER_LINES
+    linux = [z for z in zips if z.name.endswith("-linux_x64.zip")]
+    assert len(linux) == len(lines), zips
+    return {line.python_tag: next(z for z in linux if f"-{line.label}-" in z.name) for line in lines}
 
 
 def line_of(version: str):
     """The build's BlenderLine of Blender `version` ("X.Y"): the zip that Blender installs."""
     wanted = tuple(int(x) for x in version.split("."))
-    for line in _build_extension().BLENDER_LINES:
+    for line in build_extension_script().BLENDER_LINES:
         low = tuple(int(x) for x in line.version_min.split("."))[:2]
         high = None if line.version_max is None else tuple(int(x) for x in line.version_max.split("."))[:2]
         if low <= wanted and (high is None or wanted < high):
@@ -97,7 +124,7 @@ def line_of(version: str):
     raise AssertionError(f"no Blender line of scripts/build_extension.py takes Blender {version}")
 
 
-def _build_extension():
+def build_extension_script():
     sys.path.insert(0, str(ROOT / "scripts"))
     import build_extension
 
@@ -106,7 +133,7 @@ def _build_extension():
 
 def extension_tool(python: Path) -> Path:
     """blender_ext.py of the bpy installed for `python` (whichever version)."""
-    build_extension = _build_extension()
+    build_extension = build_extension_script()
     platlib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['platlib'])"],
                              capture_output=True, text=True, check=True).stdout.strip()
     return build_extension.blender_ext(platlib)
