@@ -8,7 +8,8 @@ An INPUT is a mesh file, a scene spec, or the name of a test model (tests/models
 Per input, two bakes in this process, reading excluded:
   jobs 1 under cProfile: every task runs here, so the profile splits the whole bake into the
     phases (meta.PhaseClock) and, inside the simplify phase, decimation (pymeshlab's quadric
-    collapse; the weld; the unit frame's mapping back; building pymeshlab meshes) and the error
+    collapse; the weld; the unit frame's mapping back; building pymeshlab meshes; the coarse levels'
+    cell seams, rims and pieces) and the error
     measure (nodes measured whole; nodes measured pruned, and in those the exact LOD -> original
     evaluation; pymeshlab's Hausdorff calls in all; the samples; the clusters, built once);
   jobs 2 with the real worker processes: the wall time, the worker start (spawn and pymeshlab's
@@ -48,10 +49,14 @@ PARTS = (
     ("  weld", "weld", "simplify.py"),
     ("  unit frame back to model (to_model)", "to_model", "meshlab.py"),
     ("  pymeshlab meshes made", "mesh_set", "meshlab.py"),
+    ("  cell seams and rims found (node_borders)", "node_borders", "cell_seams.py"),
+    ("  connected pieces found (pieces_of)", "pieces_of", "pieces.py"),
+    ("  pieces chosen to drop (choose)", "choose", "pieces.py"),
     ("error measure", "measure_exact", "tasks.py"),
     ("  measured whole (small nodes; big ones pruning cannot help)", "measure", "hausdorff.py"),
     ("  big nodes (pruned, or whole inside)", "measure_clustered", "hausdorff.py"),
     ("    of which LOD -> original against clusters", "_max_to_faces", "hausdorff.py"),
+    ("    of which the original's vertices as one point set", "add_points", "hausdorff.py"),
     ("  pymeshlab Hausdorff calls (all)", "hausdorff_max", "hausdorff.py"),
     ("  samples (vertices + 7 per face)", "surface_samples", "hausdorff.py"),
     ("clusters of the leaves (once)", "build", "hausdorff.py"),
