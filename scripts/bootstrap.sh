@@ -105,7 +105,8 @@ ensure_blender_venv() {
     want="$(sha256sum "$req" | cut -d' ' -f1)"
     if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
         say "installing bpy $version into $dir (first run downloads about 400 MB)"
-        "$dir/bin/python" -m pip install --disable-pip-version-check -q -r "$req" >&2
+        # niced: beside it the validators' npm install compiles better-sqlite3, the set-up's longest step
+        nice -n 5 "$dir/bin/python" -m pip install --disable-pip-version-check -q -r "$req" >&2
         echo "$want" > "$stamp"
     fi
 }
@@ -252,7 +253,7 @@ setup_for_tests() {
     ensure_venv
     if [ "$blender" = blender ]; then
         # the wheels the extension zips carry (tests/blender_runs.py builds the zips)
-        "$VENV/bin/python" "$ROOT/scripts/build_extension.py" --download-only >&2 &
+        nice -n 5 "$VENV/bin/python" "$ROOT/scripts/build_extension.py" --download-only >&2 &
         pids+=("$!")
     fi
     for pid in "${pids[@]}"; do

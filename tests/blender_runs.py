@@ -79,36 +79,53 @@ class Installed:
 ZIPS_FOLDER_VARIABLE = "HLOD_TEST_ZIPS"
 
 
+#: The platform whose zips the Blender checks install: built as a release build is, with CesiumJS
+#: (the viewer's files, the same in every zip, checked there). The others' zips are read for their
+#: wheels and licence only, and built without it (a few seconds instead of a minute under load).
+INSTALLED_PLATFORM = "linux-x64"
+
+
 def built_zips(platforms: list[str], fallback: Path) -> list[Path]:
-    """The zips scripts/build_extension.py makes for `platforms` (each Blender line; CesiumJS bundled
-    as a release build bundles it), built once per test run: in $HLOD_TEST_ZIPS where test.sh set it
-    (shared by its two pytest processes), else in `fallback` (one folder per pytest session). Each
-    platform is built under a file lock by the first process to ask for it; the other waits and
-    takes its zips."""
+    """The zips scripts/build_extension.py makes for `platforms` (each Blender line), built once per
+    test run: in $HLOD_TEST_ZIPS where test.sh set it (shared by its two pytest processes), else in
+    `fallback` (one folder per pytest session). Each platform is built under a file lock by the first
+    process to ask for it; the other takes its zips, building the platforms nobody holds first and
+    waiting for the one being built last."""
     import fcntl
 
     folder = Path(os.environ.get(ZIPS_FOLDER_VARIABLE) or fallback)
     folder.mkdir(parents=True, exist_ok=True)
-    zips = []
-    for platform in platforms:
-        listing = folder / f"{platform}.zips"
-        with open(folder / f"{platform}.lock", "w") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
-            if not listing.exists():
-                build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms",
-                                        platform, "--output-dir", str(folder / platform)],
-                                       capture_output=True, text=True, timeout=900)
-                assert build.returncode == 0, build.stderr
-                listing.write_text(build.stdout)
-            zips += [Path(line) for line in listing.read_text().split()]
-    return zips
+    zips: dict[str, list[Path]] = {}
+    while len(zips) < len(platforms):
+        pending = [p for p in platforms if p not in zips]
+        for platform in pending:
+            with open(folder / f"{platform}.lock", "w") as lock:  # the lock goes when the file closes
+                try:
+                    fcntl.flock(lock, fcntl.LOCK_EX | (fcntl.LOCK_NB if platform != pending[-1] else 0))
+                except BlockingIOError:
+                    continue  # being built by the other process: the next pass takes it
+                zips[platform] = _zips_of(platform, folder)
+    return [z for platform in platforms for z in zips[platform]]
+
+
+def _zips_of(platform: str, folder: Path) -> list[Path]:
+    """`platform`'s zips in `folder`, built there first if missing (the caller holds its lock)."""
+    listing = folder / f"{platform}.zips"
+    if not listing.exists():
+        viewer = [] if platform == INSTALLED_PLATFORM else ["--viewer", "none"]
+        build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms", platform,
+                                *viewer, "--output-dir", str(folder / platform)],
+                               capture_output=True, text=True, timeout=900)
+        assert build.returncode == 0, build.stderr
+        listing.write_text(build.stdout)
+    return [Path(line) for line in listing.read_text().split()]
 
 
 def build_extension_zips(zips: list[Path]) -> dict[str, Path]:
     """The linux-x64 zips among `zips` (built_zips), one per Blender line: {python tag ("cp311",
     "cp313"): zip path}."""
     lines = build_extension_script().BLENDER_LINES
-    linux = [z for z in zips if z.name.endswith("-linux_x64.zip")]
+    linux = [z for z in zips if z.name.endswith(f"-{INSTALLED_PLATFORM.replace('-', '_')}.zip")]
     assert len(linux) == len(lines), zips
     return {line.python_tag: next(z for z in linux if f"-{line.label}-" in z.name) for line in lines}
 

@@ -188,13 +188,13 @@ def zip_folder(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def extension_zips(zip_folder) -> dict[str, Path]:
     """The linux-x64 zips of the extension, {python tag: path}, one per Blender line."""
-    return blender_runs.build_extension_zips(blender_runs.built_zips(["linux-x64"], zip_folder))
+    return blender_runs.build_extension_zips(blender_runs.built_zips([blender_runs.INSTALLED_PLATFORM], zip_folder))
 
 
 @pytest.fixture(scope="session")
 def every_zip(zip_folder) -> list[Path]:
     """Every zip the build makes: each platform, each Blender line (the linux-x64 ones are
-    extension_zips's)."""
+    extension_zips's; the others without CesiumJS, blender_runs.INSTALLED_PLATFORM)."""
     return blender_runs.built_zips(list(blender_runs.build_extension_script().PIP_PLATFORMS), zip_folder)
 
 
