@@ -11,18 +11,16 @@
 # checks may run: not when a marker expression leaves them out, i.e. -m EXPR where EXPR is
 # `not blender` or has `not blender` as one of its terms joined by `and`, without `or`
 # (bash test.sh -m "not slow and not blender", bash test.sh -m "gl and not blender").
-HLOD_SETUP_TEST_TOOLS=1 source "$(dirname "${BASH_SOURCE[0]}")/scripts/bootstrap.sh"  # .venv and ensure_test_tools
-if blender_checks_may_run "$@"; then
-    ensure_blender_venvs  # .venv-blender/bpy-4.2, bpy-5.0, bpy-5.2: the extension checks run in each
-    ensure_vulkan  # lavapipe: the Blender checks also run under Blender's Vulkan backend
-else
-    say "a marker expression leaves out the Blender checks: the Blender environments are not set up"
-fi
+# Set-up steps run side by side (scripts/bootstrap.sh setup_for_tests).
+HLOD_SETUP_TEST_TOOLS=1 source "$(dirname "${BASH_SOURCE[0]}")/scripts/bootstrap.sh" "$@"
 if [ $# -gt 0 ] || [ "${HLOD_TEST_PROCESSES:-2}" = 1 ]; then
     exec "$PY" -m pytest -q --durations=10 "$@"
 fi
 log="$(mktemp "${TMPDIR:-/tmp}/hlod-tests-blender.XXXXXX")"
-trap 'rm -f "$log"' EXIT
+# the extension zips, built once for both processes by the first to need them (tests/blender_runs.py built_zips)
+HLOD_TEST_ZIPS="$(mktemp -d "${TMPDIR:-/tmp}/hlod-test-zips.XXXXXX")"
+export HLOD_TEST_ZIPS
+trap 'rm -rf "$log" "$HLOD_TEST_ZIPS"' EXIT
 "$PY" -m pytest -q --durations=5 -m blender >"$log" 2>&1 &
 blender_pid=$!
 status=0

@@ -1,20 +1,25 @@
 """Where a bake's time goes: decimation, welding, Hausdorff sampling, process start and
 data movement, on one input.
 
-    PYTHONPATH=. .venv/bin/python -m benchmarks.bake_profile INPUT [INPUT ...] [--target-tris 2000]
+    PYTHONPATH=. .venv/bin/python -m benchmarks.bake_profile INPUT [INPUT ...] [--target-tris 2000] [--task-cpu]
 
 An INPUT is a mesh file, a scene spec, or the name of a test model (tests/models.py: statue, bunny, ...).
 
 Per input, two bakes in this process, reading excluded:
   jobs 1 under cProfile: every task runs here, so the profile splits the whole bake into the
     phases (meta.PhaseClock) and, inside the simplify phase, decimation (pymeshlab's quadric
-    collapse; the weld; the unit frame's mapping back; building pymeshlab meshes) and the error
+    collapse; the weld; the unit frame's mapping back; building pymeshlab meshes; the coarse levels'
+    cell seams, rims and pieces) and the error
     measure (nodes measured whole; nodes measured pruned, and in those the exact LOD -> original
     evaluation; pymeshlab's Hausdorff calls in all; the samples; the clusters, built once);
   jobs 2 with the real worker processes: the wall time, the worker start (spawn and pymeshlab's
     import, timed by starting a pool of 2 alone), and the data moved: the bytes pickled for every
     task's arguments and results (the LODs travel with their tasks) and the shared arrays written
     once to the scratch folder.
+--task-cpu instead: one jobs 1 bake unprofiled, every decimation and measure timed with the
+process's CPU clock (less moved by other processes' load than wall time), summed by kind and by
+the node's original vertices (the measure) or input triangles (the decimation); one JSON line per
+input. The module imports hlod_core from PYTHONPATH: run from another checkout to read that version.
 Prints one JSON line per input and a Markdown table. cProfile's own overhead inflates the many
 small calls a little (the shares are what to read); the jobs 2 time is unprofiled.
 """
@@ -48,10 +53,14 @@ PARTS = (
     ("  weld", "weld", "simplify.py"),
     ("  unit frame back to model (to_model)", "to_model", "meshlab.py"),
     ("  pymeshlab meshes made", "mesh_set", "meshlab.py"),
+    ("  cell seams and rims found (node_borders)", "node_borders", "cell_seams.py"),
+    ("  connected pieces found (pieces_of)", "pieces_of", "pieces.py"),
+    ("  pieces chosen to drop (choose)", "choose", "pieces.py"),
     ("error measure", "measure_exact", "tasks.py"),
     ("  measured whole (small nodes; big ones pruning cannot help)", "measure", "hausdorff.py"),
     ("  big nodes (pruned, or whole inside)", "measure_clustered", "hausdorff.py"),
     ("    of which LOD -> original against clusters", "_max_to_faces", "hausdorff.py"),
+    ("    of which the original's vertices as one point set", "add_points", "hausdorff.py"),
     ("  pymeshlab Hausdorff calls (all)", "hausdorff_max", "hausdorff.py"),
     ("  samples (vertices + 7 per face)", "surface_samples", "hausdorff.py"),
     ("clusters of the leaves (once)", "build", "hausdorff.py"),
@@ -134,11 +143,63 @@ def profile(path: Path, target_tris: int) -> dict:
             "tasks": moved.tasks, "task_bytes": moved.task_bytes, "shared_bytes": moved.shared_bytes}
 
 
+#: --task-cpu's node sizes: the measure's by original vertices, the decimation's by input triangles.
+MEASURE_BINS = (0, 5_000, 20_000, 60_000)
+DECIMATE_BINS = (0, 4_000, 8_000, 16_000)
+
+
+def task_cpu(path: Path, target_tris: int) -> dict:
+    """CPU seconds of a jobs 1 bake's decimations and measures, by node size (module docstring)."""
+    from hlod_core.bake import simplify, tasks
+
+    spent = {"measure": [], "decimate": []}  # (size, cpu seconds) per task
+    measure_exact, decimate_node = tasks.measure_exact, simplify.decimate_node
+
+    def measured(folder, lod, ranges):
+        started = time.process_time()
+        error = measure_exact(folder, lod, ranges)
+        spent["measure"].append((ranges[1] - ranges[0], time.process_time() - started))
+        return error
+
+    def decimated(*args, **kwargs):
+        started = time.process_time()
+        lod = decimate_node(*args, **kwargs)
+        spent["decimate"].append((lod.input_tris, time.process_time() - started))
+        return lod
+
+    mesh = meshes.load_inputs([path])
+    tasks.measure_exact, simplify.decimate_node = measured, decimated  # looked up at each submit
+    try:
+        started = time.process_time()
+        hlod = bake(mesh, BakeSettings(jobs=1, target_tris=target_tris))
+        total = time.process_time() - started
+    finally:
+        tasks.measure_exact, simplify.decimate_node = measure_exact, decimate_node
+
+    def by_size(kind, bins):
+        out = {}
+        for low, high in zip(bins, (*bins[1:], None)):
+            rows = [s for n, s in spent[kind] if n >= low and (high is None or n < high)]
+            out[f"{low}-{high or ''}"] = {"tasks": len(rows), "cpu_seconds": round(sum(rows), 3)}
+        return out
+
+    return {"input": str(path), "nodes": hlod.node_count, "cpu_seconds": round(total, 3),
+            "measure_cpu_seconds": round(sum(s for _, s in spent["measure"]), 3),
+            "decimate_cpu_seconds": round(sum(s for _, s in spent["decimate"]), 3),
+            "measure_by_original_vertices": by_size("measure", MEASURE_BINS),
+            "decimate_by_input_tris": by_size("decimate", DECIMATE_BINS)}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("inputs", nargs="+", type=models.input_file, metavar="INPUT")
     parser.add_argument("--target-tris", type=int, default=2000)
+    parser.add_argument("--task-cpu", action="store_true", help="CPU seconds per task kind and node size instead")
     args = parser.parse_args()
+    if args.task_cpu:
+        for p in args.inputs:
+            print(json.dumps(task_cpu(p, args.target_tris)), flush=True)
+        return
     results = [profile(p, args.target_tris) for p in args.inputs]
     for r in results:
         print(json.dumps(r), flush=True)

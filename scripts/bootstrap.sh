@@ -1,4 +1,5 @@
-# Sourced by run.sh and test.sh: make sure the Mesa EGL system packages and .venv/ exist.
+# Sourced by run.sh and test.sh: make sure the Mesa EGL system packages and .venv/ exist (test.sh:
+# with HLOD_SETUP_TEST_TOOLS=1 and its arguments, all the tests need, setup_for_tests).
 # Creates or reuses .venv/ at the repository root; installs only what is missing.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -74,28 +75,40 @@ ensure_blender_venvs() {
     # The extension checks run the built zip in each Blender we support, one environment each:
     # .venv-blender/bpy-X.Y from requirements-bpyXY.txt (its "# python-version:" line names the
     # Python of that Blender). They hold bpy and numpy only, as a Blender install does; the
-    # extension's own dependencies come from its wheels. Each is created once and reused.
-    local req version python interp dir stamp want
+    # extension's own dependencies come from its wheels. Each is created once and reused; the
+    # missing ones install side by side (pip's downloads and unpacking overlap).
+    local req pids=() pid
     for req in "$ROOT"/requirements-bpy*.txt; do
-        version="$(sed -n 's/^bpy==\([0-9]*\.[0-9]*\).*/\1/p' "$req")"
-        python="$(sed -n 's/^# python-version: *//p' "$req")"
-        dir="$ROOT/.venv-blender/bpy-$version"
-        if [ ! -x "$dir/bin/python" ]; then
-            interp="$(find_python "$python")" || {
-                say "Python $python not found (Blender $version runs it): install it (pyenv install $python, or your distribution's python$python package) or set HLOD_PYTHON${python/./} to its path"
-                exit 1
-            }
-            say "creating $dir (Blender $version, Python $python)"
-            "$interp" -m venv "$dir"
-        fi
-        stamp="$dir/.requirements.sha256"
-        want="$(sha256sum "$req" | cut -d' ' -f1)"
-        if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
-            say "installing bpy $version into $dir (first run downloads about 400 MB)"
-            "$dir/bin/python" -m pip install --disable-pip-version-check -q -r "$req" >&2
-            echo "$want" > "$stamp"
-        fi
+        ensure_blender_venv "$req" &
+        pids+=("$!")
     done
+    for pid in "${pids[@]}"; do
+        wait "$pid"
+    done
+}
+
+ensure_blender_venv() {
+    # One .venv-blender/bpy-X.Y from requirements-bpyXY.txt ($1)
+    local req="$1" version python interp dir stamp want
+    version="$(sed -n 's/^bpy==\([0-9]*\.[0-9]*\).*/\1/p' "$req")"
+    python="$(sed -n 's/^# python-version: *//p' "$req")"
+    dir="$ROOT/.venv-blender/bpy-$version"
+    if [ ! -x "$dir/bin/python" ]; then
+        interp="$(find_python "$python")" || {
+            say "Python $python not found (Blender $version runs it): install it (pyenv install $python, or your distribution's python$python package) or set HLOD_PYTHON${python/./} to its path"
+            exit 1
+        }
+        say "creating $dir (Blender $version, Python $python)"
+        "$interp" -m venv "$dir"
+    fi
+    stamp="$dir/.requirements.sha256"
+    want="$(sha256sum "$req" | cut -d' ' -f1)"
+    if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+        say "installing bpy $version into $dir (first run downloads about 400 MB)"
+        # niced: beside it the validators' npm install compiles better-sqlite3, the set-up's longest step
+        nice -n 5 "$dir/bin/python" -m pip install --disable-pip-version-check -q -r "$req" >&2
+        echo "$want" > "$stamp"
+    fi
 }
 
 blender_checks_may_run() {
@@ -192,10 +205,60 @@ ensure_x_server() {
 
 ensure_test_tools() {
     # What the tests need besides .venv (test.sh): the validators, CesiumJS, chromium and a virtual X server
-    # (system packages with apt in this one job, never beside another apt run).
-    ensure_validators
+    # (system packages with apt in this one job, never beside another apt run; the two npm installs
+    # side by side).
+    ensure_npm "the export validators and CesiumJS"
+    ensure_validators &
+    local validators=$!
     ensure_viewer  # CesiumJS (npm) and chromium: the viewer page and its browser test
+    wait "$validators"
     ensure_x_server  # Xvfb and Mesa's GLX: the GLX branch of the GL context is tested on it
+}
+
+ensure_test_system_packages() {
+    # test.sh, as root with apt: every Debian package the tests need that is missing, in one apt run
+    # ($1 = blender: with lavapipe for the Blender checks); the ensure_* functions then find them.
+    [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1 && command -v dpkg-query >/dev/null 2>&1 || return 0
+    local want="$GL_PACKAGES libglx-mesa0" missing="" pkg
+    command -v npm >/dev/null 2>&1 || want="$want nodejs npm"
+    command -v chromium >/dev/null 2>&1 || want="$want chromium"
+    command -v Xvfb >/dev/null 2>&1 || want="$want xvfb"
+    [ "${1:-}" = blender ] && want="$want mesa-vulkan-drivers"
+    for pkg in $want; do
+        dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing="$missing $pkg"
+    done
+    [ -z "$missing" ] && return 0
+    say "installing system packages:$missing"
+    DEBIAN_FRONTEND=noninteractive apt-get update -qq >&2
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $missing >&2
+}
+
+setup_for_tests() {
+    # test.sh's set-up for its arguments "$@": the system packages first (one apt run), then side by
+    # side the npm installs, .venv, the Blender environments and the extension's wheels (downloads
+    # and unpacking overlap); a failure of any stops the set-up.
+    local blender=no pids=() pid
+    blender_checks_may_run "$@" && blender=blender
+    ensure_test_system_packages "$blender"
+    ensure_gl_packages
+    [ "$blender" = blender ] && ensure_vulkan  # lavapipe: the Blender checks also run under Vulkan
+    ensure_test_tools &  # the last that may run apt (where the one run above could not)
+    pids+=("$!")
+    if [ "$blender" = blender ]; then
+        ensure_blender_venvs &  # .venv-blender/bpy-4.2, bpy-5.0, bpy-5.2: the extension checks run in each
+        pids+=("$!")
+    else
+        say "a marker expression leaves out the Blender checks: the Blender environments are not set up"
+    fi
+    ensure_venv
+    if [ "$blender" = blender ]; then
+        # the wheels the extension zips carry (tests/blender_runs.py builds the zips)
+        nice -n 5 "$VENV/bin/python" "$ROOT/scripts/build_extension.py" --download-only >&2 &
+        pids+=("$!")
+    fi
+    for pid in "${pids[@]}"; do
+        wait "$pid"
+    done
 }
 
 ensure_vulkan() {
@@ -216,15 +279,10 @@ ensure_vulkan() {
     fi
 }
 
-ensure_gl_packages
 if [ "${HLOD_SETUP_TEST_TOOLS:-}" = 1 ]; then
-    # test.sh: the npm packages install while pip fills .venv (neither needs the other); a failure
-    # of either stops the setup
-    ensure_test_tools &
-    test_tools=$!
-    ensure_venv
-    wait "$test_tools"
+    setup_for_tests "$@"  # test.sh sources this with its arguments
 else
+    ensure_gl_packages
     ensure_venv
 fi
 PY="$VENV/bin/python"

@@ -1,14 +1,15 @@
 """Build the Blender extension zip(s) with Blender's own extension tool.
 
     .venv/bin/python scripts/build_extension.py [--platforms linux-x64 windows-x64 macos-arm64] [--output-dir dist]
-                                                [--viewer auto|bundle|none] [--cesium CESIUM_DIR]
+                                                [--viewer auto|bundle|none] [--cesium CESIUM_DIR] [--download-only]
 
 One zip per platform and Blender line: Blender 4.2 to 5.0 run Python 3.11, 5.1 and later 3.13
 (BLENDER_LINES), and a zip carries the wheels of its line's Python only, with blender_version_min
 and blender_version_max set so that Blender offers each Blender the zip it can load (the extension
-platform lists both; Install from Disk of the other one is refused by Blender). For each platform:
-download the wheels the manifest lists for it into ./wheels/ (pip, from PyPI, once; later builds
-reuse them); for each line, stage the package files with a manifest narrowed to that platform, that
+platform lists both; Install from Disk of the other one is refused by Blender). First the wheels
+the manifest lists for the platforms are downloaded into ./wheels/ (pip, from PyPI, once, every
+platform and Python at once; later builds reuse them; --download-only stops there). For each
+platform and line, stage the package files with a manifest narrowed to that platform, that
 line's wheels and versions, and run `blender_ext.py build` (shipped in the bpy wheel of the
 interpreter running this script, whichever Blender version that is) on the stage, then
 `blender_ext.py validate` on the zip, check that its glcontext wheel holds the modules the GL context
@@ -111,26 +112,31 @@ def wheels_for(manifest: dict, platform: str) -> list[str]:
     return wheels
 
 
-def download(wheels: list[str], platform: str) -> None:
-    """pip-download the missing wheels, one pip call per Python tag (pip resolves for one Python)."""
-    missing = [w for w in wheels if not (ROOT / w).is_file()]
-    if not missing:
+def download(wanted: dict[str, list[str]]) -> None:
+    """pip-download the missing wheels of each platform ({platform: its wheels}): one pip call per
+    platform and Python tag (pip resolves for one platform and Python), all at once (each waits
+    mostly on the network, and each writes other files)."""
+    missing = {platform: [w for w in wheels if not (ROOT / w).is_file()] for platform, wheels in wanted.items()}
+    calls = []
+    for platform, wheels in missing.items():
+        for python_tag, python_version in PYTHON_TAGS.items():
+            specs = [f"{wheel_tags(w)[0]}=={Path(w).name.split('-')[1]}" for w in wheels
+                     if wheel_tags(w)[1] == python_tag]
+            if not specs:
+                continue
+            cmd = [sys.executable, "-m", "pip", "download", "--disable-pip-version-check", "-q", "--no-deps",
+                   "--only-binary=:all:", "--python-version", python_version, "-d", str(WHEELS)]
+            for tag in PIP_PLATFORMS[platform]:
+                cmd += ["--platform", tag]
+            calls.append(cmd + specs)
+    if not calls:
         return
     WHEELS.mkdir(exist_ok=True)
-    for python_tag, python_version in PYTHON_TAGS.items():
-        specs = []
-        for w in missing:
-            name, tag = wheel_tags(w)
-            if tag == python_tag:
-                specs.append(f"{name}=={Path(w).name.split('-')[1]}")
-        if not specs:
-            continue
-        cmd = [sys.executable, "-m", "pip", "download", "--disable-pip-version-check", "-q", "--no-deps",
-               "--only-binary=:all:", "--python-version", python_version, "-d", str(WHEELS)]
-        for tag in PIP_PLATFORMS[platform]:
-            cmd += ["--platform", tag]
-        subprocess.run(cmd + specs, check=True)
-    still = [w for w in missing if not (ROOT / w).is_file()]
+    running = [subprocess.Popen(cmd) for cmd in calls]
+    failed = [cmd for cmd, process in zip(calls, running) if process.wait() != 0]
+    if failed:
+        sys.exit(f"build_extension: pip download failed: {' '.join(failed[0][-3:])}")
+    still = [w for wheels in missing.values() for w in wheels if not (ROOT / w).is_file()]
     if still:
         sys.exit(f"build_extension: pip did not produce {', '.join(still)} (update blender_manifest.toml)")
 
@@ -299,16 +305,20 @@ def main() -> None:
     parser.add_argument("--viewer", choices=["auto", "bundle", "none"], default="auto",
                         help="bundle CesiumJS for View in Browser: when found (auto), or stop if not found (bundle)")
     parser.add_argument("--cesium", metavar="CESIUM_DIR", help="CesiumJS's Build/Cesium folder (default: found)")
+    parser.add_argument("--download-only", action="store_true",
+                        help="only download the platforms' wheels into wheels/ (as test.sh's set-up does)")
     args = parser.parse_args()
-    tool = blender_ext()
-    cesium = cesium_build(args.viewer, args.cesium)
     manifest_text = (ROOT / "blender_manifest.toml").read_text()
     manifest = tomllib.loads(manifest_text)
+    wanted = {platform: wheels_for(manifest, platform) for platform in args.platforms}
+    download(wanted)
+    if args.download_only:
+        return
+    tool = blender_ext()
+    cesium = cesium_build(args.viewer, args.cesium)
     out = Path(args.output_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    for platform in args.platforms:
-        wheels = wheels_for(manifest, platform)
-        download(wheels, platform)
+    for platform, wheels in wanted.items():
         for line in BLENDER_LINES:
             print(build_zip(manifest_text, manifest, platform, line=line, wheels=wheels, out=out, tool=tool,
                             cesium=cesium))

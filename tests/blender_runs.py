@@ -74,22 +74,66 @@ class Installed:
         return self.base / name
 
 
-def build_extension_zips(dist: Path) -> dict[str, Path]:
-    """The linux-x64 zips, one per Blender line, built into `dist` by scripts/build_extension.py with
-    the main .venv: {python tag ("cp311", "cp313"): zip path}."""
-    build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms", "linux-x64",
-                            "--output-dir", str(dist)], capture_output=True, text=True, timeout=900)
-    assert build.returncode == 0, build.stderr
-    zips = [Path(line) for line in build.stdout.strip().splitlines()]
-    lines = _build_extension().BLENDER_LINES
-    assert len(zips) == len(lines), zips
-    return {line.python_tag: next(z for z in zips if f"-{line.label}-" in z.name) for line in lines}
+#: test.sh sets this to one folder for both of its pytest processes: the zips are built there once
+#: per run, by whichever process asks first (`built_zips`).
+ZIPS_FOLDER_VARIABLE = "HLOD_TEST_ZIPS"
+
+
+#: The platform whose zips the Blender checks install: built as a release build is, with CesiumJS
+#: (the viewer's files, the same in every zip, checked there). The others' zips are read for their
+#: wheels and licence only, and built without it (a few seconds instead of a minute under load).
+INSTALLED_PLATFORM = "linux-x64"
+
+
+def built_zips(platforms: list[str], fallback: Path) -> list[Path]:
+    """The zips scripts/build_extension.py makes for `platforms` (each Blender line), built once per
+    test run: in $HLOD_TEST_ZIPS where test.sh set it (shared by its two pytest processes), else in
+    `fallback` (one folder per pytest session). Each platform is built under a file lock by the first
+    process to ask for it; the other takes its zips, building the platforms nobody holds first and
+    waiting for the one being built last."""
+    import fcntl
+
+    folder = Path(os.environ.get(ZIPS_FOLDER_VARIABLE) or fallback)
+    folder.mkdir(parents=True, exist_ok=True)
+    zips: dict[str, list[Path]] = {}
+    while len(zips) < len(platforms):
+        pending = [p for p in platforms if p not in zips]
+        for platform in pending:
+            with open(folder / f"{platform}.lock", "w") as lock:  # the lock goes when the file closes
+                try:
+                    fcntl.flock(lock, fcntl.LOCK_EX | (fcntl.LOCK_NB if platform != pending[-1] else 0))
+                except BlockingIOError:
+                    continue  # being built by the other process: the next pass takes it
+                zips[platform] = _zips_of(platform, folder)
+    return [z for platform in platforms for z in zips[platform]]
+
+
+def _zips_of(platform: str, folder: Path) -> list[Path]:
+    """`platform`'s zips in `folder`, built there first if missing (the caller holds its lock)."""
+    listing = folder / f"{platform}.zips"
+    if not listing.exists():
+        viewer = [] if platform == INSTALLED_PLATFORM else ["--viewer", "none"]
+        build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--platforms", platform,
+                                *viewer, "--output-dir", str(folder / platform)],
+                               capture_output=True, text=True, timeout=900)
+        assert build.returncode == 0, build.stderr
+        listing.write_text(build.stdout)
+    return [Path(line) for line in listing.read_text().split()]
+
+
+def build_extension_zips(zips: list[Path]) -> dict[str, Path]:
+    """The linux-x64 zips among `zips` (built_zips), one per Blender line: {python tag ("cp311",
+    "cp313"): zip path}."""
+    lines = build_extension_script().BLENDER_LINES
+    linux = [z for z in zips if z.name.endswith(f"-{INSTALLED_PLATFORM.replace('-', '_')}.zip")]
+    assert len(linux) == len(lines), zips
+    return {line.python_tag: next(z for z in linux if f"-{line.label}-" in z.name) for line in lines}
 
 
 def line_of(version: str):
     """The build's BlenderLine of Blender `version` ("X.Y"): the zip that Blender installs."""
     wanted = tuple(int(x) for x in version.split("."))
-    for line in _build_extension().BLENDER_LINES:
+    for line in build_extension_script().BLENDER_LINES:
         low = tuple(int(x) for x in line.version_min.split("."))[:2]
         high = None if line.version_max is None else tuple(int(x) for x in line.version_max.split("."))[:2]
         if low <= wanted and (high is None or wanted < high):
@@ -97,7 +141,7 @@ def line_of(version: str):
     raise AssertionError(f"no Blender line of scripts/build_extension.py takes Blender {version}")
 
 
-def _build_extension():
+def build_extension_script():
     sys.path.insert(0, str(ROOT / "scripts"))
     import build_extension
 
@@ -106,7 +150,7 @@ def _build_extension():
 
 def extension_tool(python: Path) -> Path:
     """blender_ext.py of the bpy installed for `python` (whichever version)."""
-    build_extension = _build_extension()
+    build_extension = build_extension_script()
     platlib = subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['platlib'])"],
                              capture_output=True, text=True, check=True).stdout.strip()
     return build_extension.blender_ext(platlib)

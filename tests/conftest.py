@@ -164,12 +164,38 @@ def cow_file(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture(scope="session")
+def textured_scene_bake(tmp_path_factory):
+    """The textured test scene (tests/scenes/textured_scene.py, small) read from its GLB, its
+    images written to a session folder, baked with jobs 2: (mesh, Hlod), shared by the tests that
+    draw or export it. Tests must not modify it."""
+    from hlod_core.bake.pipeline import BakeSettings, bake
+    from hlod_core.io.meshes import load_inputs
+
+    mesh = load_inputs([helpers.textured_scene("small")["glb"]], texture_dir=tmp_path_factory.mktemp("textured-images"))
+    return mesh, bake(mesh, BakeSettings(jobs=2))
+
+
 # --- the extension in the real bpy module ------------------------------------------------------------
 
 @pytest.fixture(scope="session")
-def extension_zips(tmp_path_factory) -> dict[str, Path]:
+def zip_folder(tmp_path_factory) -> Path:
+    """Where this session's zips are built when test.sh does not share one folder between its two
+    pytest processes (blender_runs.built_zips)."""
+    return tmp_path_factory.mktemp("dist")
+
+
+@pytest.fixture(scope="session")
+def extension_zips(zip_folder) -> dict[str, Path]:
     """The linux-x64 zips of the extension, {python tag: path}, one per Blender line."""
-    return blender_runs.build_extension_zips(tmp_path_factory.mktemp("dist"))
+    return blender_runs.build_extension_zips(blender_runs.built_zips([blender_runs.INSTALLED_PLATFORM], zip_folder))
+
+
+@pytest.fixture(scope="session")
+def every_zip(zip_folder) -> list[Path]:
+    """Every zip the build makes: each platform, each Blender line (the linux-x64 ones are
+    extension_zips's; the others without CesiumJS, blender_runs.INSTALLED_PLATFORM)."""
+    return blender_runs.built_zips(list(blender_runs.build_extension_script().PIP_PLATFORMS), zip_folder)
 
 
 @pytest.fixture(scope="module")

@@ -4,12 +4,10 @@ licence in the zip (a file listed to ship and missing stops the build); and on e
 the glcontext modules the GL context imports on each platform are in its wheel."""
 import csv
 import io
-import subprocess
 import sys
 import tomllib
 import types
 import zipfile
-from pathlib import Path
 
 import pytest
 
@@ -81,16 +79,6 @@ def test_a_plain_wheel_is_used_as_it_is_and_other_data_folders_stop_the_build(tm
 
 # --- the GL context's glcontext modules in every zip ----------------------------------------------------
 
-@pytest.fixture(scope="module")
-def every_zip(tmp_path_factory) -> list:
-    """Every zip the build makes (each platform, each Blender line), built without CesiumJS (a few seconds)."""
-    out = tmp_path_factory.mktemp("dist-all")
-    build = subprocess.run([sys.executable, str(ROOT / "scripts/build_extension.py"), "--viewer", "none",
-                            "--output-dir", str(out)], capture_output=True, text=True, timeout=900)
-    assert build.returncode == 0, build.stderr
-    return [Path(line) for line in build.stdout.split()]
-
-
 def _imported_by_gl_context(platform: str, monkeypatch) -> list[str]:
     """The glcontext modules hlod_core's standalone GL context imports on `platform` (a build
     platform), in order: its branch run with a stand-in for every glcontext module, each refusing
@@ -113,7 +101,7 @@ def _imported_by_gl_context(platform: str, monkeypatch) -> list[str]:
     return imported
 
 
-@pytest.mark.slow  # every_zip: each platform's wheels, downloaded on a fresh clone (about a minute)
+@pytest.mark.slow  # every_zip: each platform's zips (without test.sh's set-up, their wheels downloaded first)
 def test_every_zip_holds_the_glcontext_modules_its_platform_imports(every_zip, monkeypatch):
     """For each zip the build makes (linux-x64, windows-x64, macos-arm64, each for both Blender lines):
     the glcontext modules the GL context's branch for that platform imports (run, not read) are
@@ -157,7 +145,7 @@ def test_a_zip_whose_glcontext_lacks_the_platforms_module_stops_the_build(tmp_pa
                                "glcontext.egl)")
 
 
-@pytest.mark.slow  # every_zip: each platform's wheels, downloaded on a fresh clone (about a minute)
+@pytest.mark.slow  # every_zip: each platform's zips (without test.sh's set-up, their wheels downloaded first)
 def test_the_licence_ships_in_every_zip_the_build_makes(every_zip):
     """LICENSE, the full GPL v3 text the manifest's GPL-3.0-or-later refers to, is in every zip the
     build makes with Blender's own tool (check_zip holds every release zip to the same list)."""

@@ -103,6 +103,30 @@ def test_the_measure_goes_whole_only_where_the_clusters_cannot_prune(monkeypatch
     assert not went_whole[largest] and any(went_whole.values()), went_whole
 
 
+def test_where_pruning_cannot_pay_a_large_node_measures_its_vertices_as_points(monkeypatch, measured_pairs):
+    """From POINT_SET_FROM_VERTICES original vertices (here every node: the limit set to 0), a node
+    whose clusters cannot prune is not measured whole: its vertices go to the LOD as one point set and
+    the LOD's samples only where those points leave them within reach; the unpruned float all the
+    same, on the herd's nodes that go that way, and more than one of them does."""
+    monkeypatch.setattr(hausdorff, "POINT_SET_FROM_VERTICES", 0)
+    measured_whole = []
+    measure = hausdorff.measure
+    monkeypatch.setattr(hausdorff, "measure", lambda lod, original: measured_whole.append(1) or measure(lod, original))
+    as_points = 0
+    for lod, original, error, _ in measured_pairs("herd", 600):
+        measured_whole.clear()
+        whole = []
+        faces = np.asarray(original[1])
+        clusters = hausdorff.Clusters.build(original[0], faces, np.array([0, faces.shape[0]], np.int64))
+        p = np.asarray(original[0], np.float64)
+        got = hausdorff.measure_clustered(lod, original[0], clusters, first=0, last=clusters.radius.size,
+                                          original_box=(p.min(axis=0), p.max(axis=0)),
+                                          whole=lambda: whole.append(1) or original)
+        assert got == error and not measured_whole
+        as_points += bool(whole)
+    assert as_points > 1
+
+
 def test_pruning_skips_many_samples_of_a_large_node(monkeypatch, measured_pairs):
     """The herd's root (about 55k original vertices): the pruned measure evaluates under 65% of the
     original vertices (34k of 55k: the cow's triangles are large, so a cluster of CLUSTER_FACES of

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import ROOT, textured_scene
+from helpers import ROOT
 from hlod_core.core.errors import InputError
 from hlod_core.export import tiles3d, viewer
 
@@ -255,17 +255,14 @@ def test_colour_by_depth_and_boxes_change_the_picture(page, tmp_path):
     assert page.problems == []
 
 
-# slow: a textured bake and a second page (about 30 s); the GLBs' materials pass the validators in test_export
+# slow: a textured bake (shared with the textured acceptance check) and a second page; the GLBs' materials pass
+# the validators in test_export
 @pytest.mark.slow
-def test_page_shows_the_exports_textures_and_colours(browser, tmp_path):
+def test_page_shows_the_exports_textures_and_colours(browser, textured_scene_bake, tmp_path):
     """The textured test scene (tests/scenes/textured_scene.py, read from its GLB) exported with its
     materials, textures and vertex colours: the page draws them (the city above is one grey)."""
-    from hlod_core.bake.pipeline import BakeSettings, bake
-    from hlod_core.io.meshes import load_mesh
-
-    mesh = load_mesh(textured_scene("small")["glb"], texture_dir=tmp_path / "images")
     folder = tmp_path / "tiles"
-    summary = tiles3d.export(bake(mesh, BakeSettings(jobs=2)), folder)
+    summary = tiles3d.export(textured_scene_bake[1], folder)
     assert summary["image_files"] >= 2
     with _open_page(browser, folder) as tab:
         rgb = _picture(tab, tmp_path, "textured")

@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.arrays import concat_indexed
+from ..core.arrays import compact, concat_indexed
 from .meshlab import UNIT_DIAGONAL, NodeFrame
 
 #: Barycentric sample points per LOD face for the LOD -> original direction: centroid, three
@@ -49,6 +49,11 @@ PRUNE_MARGIN = 1e-5
 #: pruned measure cost 0.06 to 0.4x the whole one's CPU time where the share was at most 0.42, and
 #: 1.2 to 1.5x on the gallery's middle nodes, where it was 1.00).
 PRUNE_MAX_SHARE = 0.9
+#: measure_clustered, where pruning cannot pay: nodes of fewer original vertices are measured whole
+#: (`measure`), larger ones with their vertices as a point set (chosen on the yard's nodes, measured
+#: whole against that way: 0.10-0.14 s against 0.13-0.17 s at 56k vertices, one bust; 0.42-0.54 s
+#: against 0.19-0.24 s at 227k, four busts; 1.9-2.1 s against 0.9 s at 908k, sixteen).
+POINT_SET_FROM_VERTICES = 100_000
 #: LOD -> original: when more than this share of the samples can still raise the maximum, they are
 #: measured against the node's whole original at once (what `measure` does), not cluster by cluster.
 WHOLE_TARGET_SHARE = 0.25
@@ -94,8 +99,18 @@ def measure_to_children(lod: tuple[np.ndarray, np.ndarray], children: list[tuple
 
 
 def surface_samples(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(k + 7m, 3): the vertices (k,3), then the FACE_SAMPLES points of each of the m faces."""
-    return np.concatenate([positions, np.einsum("sk,fkd->fsd", FACE_SAMPLES, positions[faces]).reshape(-1, 3)])
+    """(k + 7m, 3) float64: the vertices (k,3) float64 (unit frame), then the FACE_SAMPLES points of
+    each of the m faces, each w0 * a + w1 * b + w2 * c summed in that order (the floats np.einsum
+    gave, in half its time)."""
+    positions = np.asarray(positions, np.float64)
+    k = positions.shape[0]
+    out = np.empty((k + FACE_SAMPLES.shape[0] * faces.shape[0], 3))
+    out[:k] = positions
+    corners = [positions[faces[:, i]] for i in range(3)]
+    points = out[k:].reshape(faces.shape[0], FACE_SAMPLES.shape[0], 3)
+    for s, (w0, w1, w2) in enumerate(FACE_SAMPLES):
+        points[:, s] = w0 * corners[0] + w1 * corners[1] + w2 * corners[2]
+    return out
 
 
 def hausdorff_max(ms, *, sampled: int, target: int, count: int, save: bool = False) -> float:
@@ -221,14 +236,16 @@ def _morton10(cell: np.ndarray) -> np.ndarray:
 def measure_pruned(lod: tuple[np.ndarray, np.ndarray], original: tuple[np.ndarray, np.ndarray], *,
                    allow_whole: bool = False) -> float:
     """`measure`'s float, pruned: the original made one run of clusters (tests; the bake builds
-    its clusters once, over all leaves, and calls measure_clustered). allow_whole: measure whole
-    where pruning cannot pay (measure_clustered's `whole`); off, it always prunes."""
+    its clusters once, over all leaves, and calls measure_clustered). allow_whole: measure whole, or
+    the original's vertices as a point set, where pruning cannot pay (measure_clustered's `whole`:
+    the original with only the vertices its faces use, as pruning measures it); off, it always
+    prunes."""
     faces = np.asarray(original[1])
     clusters = Clusters.build(original[0], faces, np.array([0, faces.shape[0]], np.int64))
     p = np.asarray(original[0], np.float64)
     return measure_clustered(lod, original[0], clusters, first=0, last=clusters.radius.size,
                              original_box=(p.min(axis=0), p.max(axis=0)),
-                             whole=(lambda: original) if allow_whole else None)
+                             whole=(lambda: compact(original[0], faces)[:2]) if allow_whole else None)
 
 
 def measure_clustered(lod: tuple[np.ndarray, np.ndarray], positions: np.ndarray, clusters: Clusters, *,
@@ -238,9 +255,14 @@ def measure_clustered(lod: tuple[np.ndarray, np.ndarray], positions: np.ndarray,
     `positions`, (V,3) float32), pruned (module docstring); the same float. original_box: the
     original vertices' (min, max), which set the unit frame with the LOD's; by default the clusters'
     boxes (equal when every original vertex is a face corner, as in the bake's compacted leaves).
-    whole: the original as (positions, faces) for `measure`, used instead of pruning where the
-    clusters' bounds show it cannot pay (more than PRUNE_MAX_SHARE of them above the floor: a LOD
-    that stays within a cluster's radius of the surface everywhere)."""
+    whole: the original as (positions, faces), every position a face corner (as in the bake's
+    compacted leaves), for where the clusters' bounds show that pruning the original -> LOD
+    direction cannot pay (more than PRUNE_MAX_SHARE of them above the floor: a LOD that stays within
+    a cluster's radius of the surface everywhere): below POINT_SET_FROM_VERTICES vertices the node
+    is measured whole (`measure`); from it, every original vertex is measured to the LOD in one call
+    as a point set, and the LOD's samples only where those points leave them within reach of
+    raising the maximum, against the clusters there (on a node of several models, a few samples
+    and clusters: the whole original never becomes one pymeshlab mesh)."""
     if original_box is None:
         original_box = (clusters.box_min[first:last].min(axis=0), clusters.box_max[first:last].max(axis=0))
     pruning = _Pruning(lod, positions, clusters, first=first, last=last, original_box=original_box)
@@ -249,12 +271,20 @@ def measure_clustered(lod: tuple[np.ndarray, np.ndarray], positions: np.ndarray,
     finite = np.isfinite(centre_distance)
     bound = np.where(finite, centre_distance + pruning.radius + PRUNE_MARGIN, np.inf)
     floor = float(np.max(centre_distance[finite] - pruning.radius[finite], initial=0.0)) - PRUNE_MARGIN
+    points = None
     if whole is not None and np.mean(bound > floor) > PRUNE_MAX_SHARE:
-        return measure(lod, whole())
-    best = pruning.original_to_lod(bound, floor=floor)
+        original = whole()
+        if original[0].shape[0] < POINT_SET_FROM_VERTICES:
+            return measure(lod, original)
+        # every original vertex to the LOD in one call, as a point set (this direction needs no
+        # faces); the same points then bound the LOD's samples' distances from above
+        points = pruning.add_points(pruning.frame.to_local(original[0]))
+        best = hausdorff_max(pruning.ms, sampled=points, target=0, count=original[0].shape[0])
+    else:
+        best = pruning.original_to_lod(bound, floor=floor)
     if not np.isfinite(best):
         return float("nan")
-    best = pruning.lod_to_original(best)
+    best = pruning.lod_to_original(best, on_surface=points)
     return best / pruning.frame.scale if np.isfinite(best) else float("nan")
 
 
@@ -279,6 +309,13 @@ class _Pruning:
         self.positions, self.clusters, self.first, self.last = positions, clusters, first, last
         self.ms = pymeshlab.MeshSet()
         self.ms.add_mesh(pymeshlab.Mesh(vertex_matrix=lod_p, face_matrix=lod[1]))  # mesh 0: the LOD
+
+    def add_points(self, points: np.ndarray) -> int:
+        """Add points (b,3), unit frame, to the MeshSet as a mesh without faces; its id."""
+        import pymeshlab
+
+        self.ms.add_mesh(pymeshlab.Mesh(vertex_matrix=points))
+        return self.ms.current_mesh_id()
 
     def distances(self, points: np.ndarray, target: int) -> np.ndarray:
         """(b,) each of points (b,3)'s distance to mesh `target`, unit frame."""
@@ -322,15 +359,15 @@ class _Pruning:
             batch *= 4
         return best
 
-    def lod_to_original(self, best: float) -> float:
+    def lod_to_original(self, best: float, *, on_surface: int | None = None) -> float:
         """max(best, the largest distance of a LOD sample to the original surface), unit frame (NaN
-        if pymeshlab gives none): upper bounds from the clusters' surface vertices, then the samples
-        that can still raise the maximum, against the clusters within their reach."""
-        import pymeshlab
-
-        surface = self.clusters.surface_vertex[self.first:self.last]
-        self.ms.add_mesh(pymeshlab.Mesh(vertex_matrix=self.frame.to_local(self.positions[surface])))
-        reach = self.distances(self.samples, self.ms.current_mesh_id())
+        if pymeshlab gives none): upper bounds from points on the original surface (the mesh
+        `on_surface` of this MeshSet, points only; by default the clusters' surface vertices), then
+        the samples that can still raise the maximum, against the clusters within their reach."""
+        if on_surface is None:
+            surface = self.clusters.surface_vertex[self.first:self.last]
+            on_surface = self.add_points(self.frame.to_local(self.positions[surface]))
+        reach = self.distances(self.samples, on_surface)
         reach = np.where(np.isfinite(reach), reach + PRUNE_MARGIN, np.inf)
         candidates = np.flatnonzero(reach > best)
         candidates = candidates[np.argsort(-reach[candidates], kind="stable")]

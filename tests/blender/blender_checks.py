@@ -422,8 +422,10 @@ def check_make_blends(repo, work) -> dict:
 # --- the long session: redraws, file switches, re-bakes, toggles, every method -------------
 
 SESSIONS = 50  # file switches, each followed by a re-bake
-REDRAWS_PER_SESSION = 200  # 50 x 200 = 10,000 redraws
-LONG_SIZE = (160, 120)  # offscreen pixels: small, so 10,000 llvmpipe redraws fit in a few minutes
+REDRAWS_PER_SESSION = 80  # 50 x 80 = 4,000 redraws: the growth is measured per session (tests/blender/test_addon.py)
+METHOD_EVERY = REDRAWS_PER_SESSION // 4  # redraws between method changes: four methods a session
+TOGGLE_AT = 3 * REDRAWS_PER_SESSION // 4  # the redraw before which the preview is toggled off and on
+LONG_SIZE = (160, 120)  # offscreen pixels: small, so thousands of llvmpipe redraws fit in a minute
 CENSUS_MIN_NAMES = 4096  # GL names probed at least (1..4096)
 
 
@@ -630,11 +632,11 @@ def _session(out: dict, *, session: int, blend: Path, preview, gl_platform, othe
     hlod = preview.current_hlod()
     projection = perspective(50.0, LONG_SIZE[0] / LONG_SIZE[1], near=0.1, far=500.0)
     for redraw in range(REDRAWS_PER_SESSION):
-        if redraw and redraw % 50 == 0:
-            props.method = methods[(session + redraw // 50) % len(methods)]
+        if redraw and redraw % METHOD_EVERY == 0:
+            props.method = methods[(session + redraw // METHOD_EVERY) % len(methods)]
         if redraw == REDRAWS_PER_SESSION // 2:
             props.private_context = not props.private_context
-        if redraw == 150:
+        if redraw == TOGGLE_AT:
             if session % 3 == 1:
                 out["other_context_current"].append(_toggle_in_another_context(gl_platform, other))
             else:
@@ -662,14 +664,15 @@ def check_long_session(repo, work) -> dict:
     """SESSIONS file switches between two .blend files (load_pre stops the preview), each followed by
     a re-bake (the hlod.bake operator's execute path) and REDRAWS_PER_SESSION redraws of the draw
     path in a GPUOffScreen with an orbiting camera and Blender's own occluder; the method changes
-    every 50 redraws (every item of scene.hlod.method), the private-context mode flips half-way, and
-    the preview is toggled off and on at redraw 150, every third session while another GL context is
-    current. The configuration repeats every 6 sessions. Recorded: the GL object census of Blender's
-    context after each load (preview stopped) and at each session's end (preview on), the RSS and
-    Python's allocated blocks after each session, the GL errors left pending after each redraw, any
-    unplanned stop of the preview, and Blender's own drawing with and without the preview at the
-    start and at the end. test_addon runs it with LP_NUM_THREADS=0 (llvmpipe's rasteriser threads
-    make a one-time RSS jump at a random session): it measures leaks, not speed."""
+    every METHOD_EVERY redraws (every item of scene.hlod.method), the private-context mode flips
+    half-way, and the preview is toggled off and on at redraw TOGGLE_AT, every third session while
+    another GL context is current. The configuration repeats every 6 sessions. Recorded: the GL
+    object census of Blender's context after each load (preview stopped) and at each session's end
+    (preview on), the RSS and Python's allocated blocks after each session, the GL errors left
+    pending after each redraw, any unplanned stop of the preview, and Blender's own drawing with and
+    without the preview at the start and at the end. test_addon runs it with LP_NUM_THREADS=0
+    (llvmpipe's rasteriser threads make a one-time RSS jump at a random session): it measures leaks,
+    not speed."""
     import gpu
 
     started = time.perf_counter()
