@@ -72,8 +72,12 @@ def assert_matches(tiles_dir, hlod_file):
     children's."""
     h = fileformat.load(hlod_file)
     read = independent_read(tiles_dir)
-    tiles = read["tiles"]
+    every = read["tiles"]
+    tiles = [t for t in every if not t["external"]]  # a tile referring to an external tileset is no node
     assert len(tiles) == h.node_count == sum(1 for t in tiles if t["uri"])
+    for ref in (t for t in every if t["external"]):  # same box and error as the root it refers to
+        root = next(t for t in every if t["path"].startswith(ref["path"] + "/[external:"))
+        assert (root["box"], root["geometricError"]) == (ref["box"], ref["geometricError"])
     bad = [(t["uri"], t["messages"]) for t in tiles if t["errors"]]  # images read relative to each GLB
     assert not bad, bad[:3]
     origin = np.asarray(h.origin)
@@ -209,6 +213,63 @@ def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_ch
     uris = {t["content"]["uri"] for t in tiles if "content" in t}
     assert len(tiles) == h.node_count - 1 and "content" not in doc["root"]
     assert f"tiles/{leaves[0]}.glb" not in uris and len(uris) == h.node_count - 2
+
+
+def _flatten(files: dict, path: str = "tileset.json") -> dict:
+    """The tileset of `files` (tiles3d.tileset_files) back in one document: each tile referring to an
+    external tileset replaced by that tileset's root, URIs made relative to the top folder."""
+    folder = path.rpartition("/")[0]
+
+    def tile(t: dict) -> dict:
+        t = dict(t)
+        uri = t.get("content", {}).get("uri")
+        if uri is not None:
+            full = f"{folder}/{uri}" if folder else uri
+            if full.endswith(".json"):
+                root = _flatten(files, full)["root"]
+                root.pop("refine")
+                return root
+            t["content"] = {"uri": full}
+        if "children" in t:
+            t["children"] = [tile(c) for c in t["children"]]
+        return t
+
+    return {**files[path], "root": tile(files[path]["root"])}
+
+
+def _tile_count(t: dict) -> int:
+    return 1 + sum(_tile_count(c) for c in t.get("children", []))
+
+
+@pytest.mark.parametrize("max_tiles", [9, 20, 40])  # 9: an octree node and its 8 children
+def test_external_tilesets_hold_the_one_document_tileset_exactly(bakes, max_tiles):
+    """Split at any size, the files put back together are tileset()'s document, every box, error,
+    URI and the root's transform the same; each file at most max_tiles tiles, each subtree's file
+    rooted at a tile of the same box and error as the tile that refers to it."""
+    _, h = bakes.baked("cow", target_tris=200)
+    whole = tiles3d.tileset(h, lambda node: f"tiles/{node}.glb")
+    files = tiles3d.tileset_files(h, max_tiles=max_tiles)
+    assert _tile_count(whole["root"]) > max_tiles and len(files) > 1
+    assert _flatten(files) == whole
+    assert all(_tile_count(f["root"]) <= max_tiles for f in files.values())
+    for path, part in files.items():
+        assert part["asset"] == whole["asset"] and part["root"]["refine"] == "REPLACE"
+        assert ("transform" in part["root"]) == (path == "tileset.json")
+        if path != "tileset.json":
+            assert part["geometricError"] == part["root"]["geometricError"]
+
+
+def test_a_big_export_has_a_small_first_file_and_passes_the_readers(city_hlod, tmp_path):
+    """The city (445 nodes: 0.3 MB as one indented document) is written as external tilesets: the
+    first file at most 64 KB, the independent reader finds every node through them; a small
+    tileset stays one file (test_an_export_without_appearance_is_byte_identical_to_before)."""
+    src = fileformat.save(city_hlod, tmp_path / "city.hlod")
+    summary = tiles3d.export(city_hlod, tmp_path / "tiles")
+    first = (tmp_path / "tiles/tileset.json").stat().st_size
+    assert summary["tileset_json_bytes"] == first <= 64_000 < len(json.dumps(
+        tiles3d.tileset(city_hlod, lambda node: f"tiles/{node}.glb"), indent=1))
+    assert summary["tileset_files"] == 1 + len(list((tmp_path / "tiles/tiles").glob("*.json"))) > 1
+    assert_matches(tmp_path / "tiles", src)
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o027])

@@ -40,6 +40,16 @@
   const pointToLocal = (p) => arr(Cesium.Matrix4.multiplyByPoint(toLocal, p, new Cesium.Cartesian3()));
   const vectorToLocal = (v) => arr(Cesium.Matrix4.multiplyByPointAsVector(toLocal, v, new Cesium.Cartesian3()));
   function setText(id, text) { const el = document.getElementById(id); if (el) el.textContent = text; }
+  // A tile's level in the HLOD (root 0): Cesium's depth less the tiles above it that only refer to an
+  // external tileset (a big export's subtrees are files of their own, tiles3d.tileset_files).
+  function level(tile) {
+    if (tile._hlodLevel === undefined) {
+      let n = 0;
+      for (let t = tile.parent; t; t = t.parent) if (!t.hasTilesetContent) n += 1;
+      tile._hlodLevel = n;
+    }
+    return tile._hlodLevel;
+  }
 
   const viewer = new Cesium.Viewer("cesium", {
     baseLayer: false, globe: false, skyBox: false, skyAtmosphere: false, scene3DOnly: true,
@@ -118,14 +128,16 @@
     if (tileset) tileset.debugShowBoundingVolume = Boolean(on);
   };
 
-  hv.selectedTiles = () => (tileset ? tileset._selectedTiles.map((t) => ({ uri: t._header.content.uri, depth: t._depth })) : []);
+  // a content's path in the export folder (tiles/<node>.glb), whichever tileset file names it
+  const exportPath = (t) => new URL(t._contentResource.url, location.href).pathname.replace(/^\/tiles\//, "");
+  hv.selectedTiles = () => (tileset ? tileset._selectedTiles.map((t) => ({ uri: exportPath(t), depth: level(t) })) : []);
 
   hv.stats = function () {
     if (!tileset) return { tilesLoaded: 0, tilesDrawn: 0, trianglesDrawn: 0, maxDepthDrawn: -1 };
     const s = tileset.statistics;
     const selected = tileset._selectedTiles;
     return { tilesLoaded: s.numberOfTilesWithContentReady, tilesDrawn: selected.length,
-      trianglesDrawn: s.numberOfTrianglesSelected, maxDepthDrawn: selected.reduce((m, t) => Math.max(m, t._depth), -1) };
+      trianglesDrawn: s.numberOfTrianglesSelected, maxDepthDrawn: selected.reduce((m, t) => Math.max(m, level(t)), -1) };
   };
 
   // the camera around the root's bounding sphere, the whole tileset in view
@@ -174,7 +186,7 @@
     ts.customShader = FACETED;
     ts.tileFailed.addEventListener((e) => fail(`${e.url}: ${e.message}`));
     ts.tileVisible.addEventListener((tile) => {
-      const want = colourByDepth ? DEPTH_COLOURS[tile._depth % DEPTH_COLOURS.length] : Cesium.Color.WHITE;
+      const want = colourByDepth ? DEPTH_COLOURS[level(tile) % DEPTH_COLOURS.length] : Cesium.Color.WHITE;
       if (!Cesium.Color.equals(tile.color, want)) tile.color = want;
     });
     hv.setMaximumScreenSpaceError(Number(document.getElementById("sse").value));
