@@ -16,7 +16,7 @@ from PIL import Image
 from blender_runs import blender
 from helpers import ROOT, model, textured_scene
 from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.export import glb, tiles3d
+from hlod_core.export import glb, place, tiles3d
 from hlod_core.io import hlod_file as fileformat
 from hlod_core.io import meshes
 from hlod_core.model.appearance import Material
@@ -251,6 +251,9 @@ def test_external_tilesets_hold_the_one_document_tileset_exactly(bakes, max_tile
     files = tiles3d.tileset_files(h, max_tiles=max_tiles)
     assert _tile_count(whole["root"]) > max_tiles and len(files) > 1
     assert _flatten(files) == whole
+    placed = place.place(-71.06, 42.36, 5.0, 20.0)  # the root's transform and extras, placed, the same
+    assert _flatten(tiles3d.tileset_files(h, max_tiles=max_tiles, place=placed)) == tiles3d.tileset(
+        h, lambda node: f"tiles/{node}.glb", place=placed)
     assert all(_tile_count(f["root"]) <= max_tiles for f in files.values())
     for path, part in files.items():
         assert part["asset"] == whole["asset"] and part["root"]["refine"] == "REPLACE"

@@ -30,6 +30,7 @@ from ..core.errors import InputError
 from ..io.texture_folder import unique_file_name
 from ..model.hierarchy import Hlod, node_geometry
 from .glb import GENERATOR, TileImage, glb_bytes
+from .place import Place
 
 log = logging.getLogger(__name__)
 
@@ -200,13 +201,13 @@ class _Tiles:
         return [node, *(n for c in self.children[node] for n in self._subtree(c))]
 
 
-def tileset(hlod: Hlod, content_uri, *, transform: np.ndarray | None = None) -> dict:
+def tileset(hlod: Hlod, content_uri, *, place: Place | None = None) -> dict:
     """The tileset JSON of the whole tree in one document; content_uri(node) names each node's GLB.
-    `transform`: the root's (4x4 float64), default the translation by the bake's origin (`root_transform`).
-    InputError without triangles."""
+    The root's transform is `root_transform` (on the globe at `place` when given, which the
+    document's extras.place also names). InputError without triangles."""
     tiles = _tiles(hlod)
-    transform = root_transform(hlod) if transform is None else transform
-    return tiles.document(tiles.tile(0, content_uri), transform)
+    extras = None if place is None else {"place": place.as_dict()}
+    return tiles.document(tiles.tile(0, content_uri), root_transform(hlod, place), extras)
 
 
 def _tiles(hlod: Hlod) -> _Tiles:
@@ -216,23 +217,23 @@ def _tiles(hlod: Hlod) -> _Tiles:
     return tiles
 
 
-def root_transform(hlod: Hlod, frame: np.ndarray | None = None) -> np.ndarray:
+def root_transform(hlod: Hlod, place: Place | None = None) -> np.ndarray:
     """The root tile's transform (4x4 float64): the translation by the bake's origin (model space),
-    then `frame` (a 4x4 rigid transform of model space onto the globe, place.Place.frame) when given."""
+    then, for a `place`, its east-north-up frame turned by its heading (place.Place.frame: the scene's
+    origin at that point of the WGS84 ellipsoid, ECEF metres)."""
     transform = np.eye(4)
     transform[:3, 3] = np.asarray(hlod.origin, np.float64)
-    return transform if frame is None else np.asarray(frame, np.float64) @ transform
+    return transform if place is None else place.frame() @ transform
 
 
-def tileset_files(hlod: Hlod, *, transform: np.ndarray | None = None, extras: dict | None = None,
-                  max_tiles: int = MAX_TILES_PER_FILE) -> dict[str, dict]:
+def tileset_files(hlod: Hlod, *, place: Place | None = None, max_tiles: int = MAX_TILES_PER_FILE) -> dict[str, dict]:
     """The tileset split into external tilesets: {path in the export: tileset JSON}. "tileset.json"
     holds the top of the tree (at most `max_tiles` tiles, `chunks`); a subtree cut off is
     tiles/<node>.json, referred to by a tile with its node's box and error whose content is that
     file (3D Tiles 1.1 "external tileset"; the referring tile's transform applies to it). GLBs are
-    tiles/<node>.glb as in one document. Boxes, errors and the root's transform are tileset()'s."""
+    tiles/<node>.glb as in one document. Boxes, errors, the root's transform and extras are tileset()'s."""
     tiles = _tiles(hlod)
-    transform = root_transform(hlod) if transform is None else transform
+    transform, extras = root_transform(hlod, place), None if place is None else {"place": place.as_dict()}
     files = {}
     for top, held in tiles.chunks(max_tiles).items():
         prefix = f"{TILE_FOLDER}/" if top == 0 else ""  # URIs are relative to the file that holds them
@@ -253,12 +254,14 @@ def tileset_files(hlod: Hlod, *, transform: np.ndarray | None = None, extras: di
     return files
 
 
-def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = None) -> dict:
+def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = None,
+           place: Place | None = None) -> dict:
     """Write tileset.json, tiles/<node>.glb and, for textured materials, textures/ into out_dir,
     atomically: everything is written into a temporary folder beside it and renamed into place,
     replacing an earlier export (`replace_export`). Folders and files get the modes of ordinary
     ones (0o777 / 0o666 less the umask). `platform`: a sys.platform string (default this
-    machine's) for replace_export.
+    machine's) for replace_export. `place`: where the scene's origin stands on the globe (None: the
+    local frame, as the bake's model space).
     Returns a summary (tiles, glb files, triangles, bytes, image files, warnings)."""
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -267,8 +270,8 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
         os.chmod(staging, umask_mode(0o777))  # mkdtemp makes it 0700; the export is an ordinary folder
         images, warnings = copy_textures(hlod, staging / TEXTURE_FOLDER)
         written, tris, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images)
-        document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb")
-        files = write_tileset(hlod, staging, document)
+        document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb", place=place)
+        files = write_tileset(hlod, staging, document, place=place)
         warnings = warnings + replace_export(out_dir, staging, platform=platform)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -276,20 +279,20 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
     return {"format": "3dtiles", "output": str(out_dir), "tiles": _count(document["root"]), "glb_files": written,
             "triangles": tris, "bytes": size, "tileset_geometric_error": document["geometricError"],
             "image_files": len(set(images.values())), "tileset_files": len(files),
-            "tileset_json_bytes": files["tileset.json"], "warnings": warnings}
+            "tileset_json_bytes": files["tileset.json"], "place": None if place is None else place.as_dict(),
+            "warnings": warnings}
 
 
-def write_tileset(hlod: Hlod, folder: Path, document: dict) -> dict[str, int]:
+def write_tileset(hlod: Hlod, folder: Path, document: dict, *, place: Place | None = None) -> dict[str, int]:
     """Write the tileset JSON into `folder` (its tiles/ made): `document` (tileset()) as one indented
     tileset.json while that is at most ONE_FILE_MAX_BYTES, else split into external tilesets
-    (tileset_files), compact. Returns {path: bytes written}."""
+    (tileset_files at `place`, the document's), compact. Returns {path: bytes written}."""
     text = json.dumps(document, indent=1).encode()
     if len(text) <= ONE_FILE_MAX_BYTES:
         (folder / "tileset.json").write_bytes(text)
         return {"tileset.json": len(text)}
-    transform = np.asarray(document["root"]["transform"], np.float64).reshape(4, 4).T
     written = {}
-    for path, part in tileset_files(hlod, transform=transform, extras=document.get("extras")).items():
+    for path, part in tileset_files(hlod, place=place).items():
         data = json.dumps(part, separators=(",", ":")).encode()
         (folder / path).write_bytes(data)
         written[path] = len(data)
