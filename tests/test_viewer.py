@@ -20,7 +20,7 @@ from PIL import Image
 
 from helpers import ROOT, textured_scene
 from hlod_core.core.errors import InputError
-from hlod_core.export import tiles3d, viewer
+from hlod_core.export import place, tiles3d, viewer
 
 CHROMIUM = "/usr/bin/chromium"
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
@@ -165,6 +165,10 @@ def _open_page(browser, tiles: Path):
             tab.on("console", lambda m: m.type == "error" and problems.append(f"console: {m.text}"))
             tab.on("pageerror", lambda e: problems.append(f"page error: {e}"))
             tab.on("response", lambda r: r.status >= 400 and problems.append(f"HTTP {r.status}: {r.url}"))
+            requested: list[str] = []  # paths under /tiles/, in the export folder
+            tab.on("request", lambda r: r.url.startswith(server.url + "tiles/")
+                   and requested.append(r.url.removeprefix(server.url + "tiles/")))
+            tab.requested = requested
             tab.goto(server.url)
             _wait_loaded(tab)
             tab.problems = problems
@@ -277,3 +281,47 @@ def test_page_shows_the_exports_textures_and_colours(browser, tmp_path):
     assert len(saturated) > 0.15 * len(pixels)  # measured 0.30 (the city's grey: none)
     dominant = np.bincount(saturated.argmax(axis=1), minlength=3) / len(saturated)
     assert np.count_nonzero(dominant > 0.05) >= 2, dominant  # red roofs and green ground, at least
+
+
+# --- a placed export on the globe -------------------------------------------------------------------
+
+#: Where the placed export stands: San Francisco, 16 m above the ellipsoid, turned 30 degrees.
+PLACE = place.place(-122.4194, 37.7749, 16.0, 30.0)
+
+
+def test_a_placed_export_stands_on_a_plain_globe_and_every_tile_is_requested(browser, city_hlod, tmp_path):
+    """The city exported at PLACE (split into external tilesets: 445 nodes): the page reads its
+    place, draws a plain globe (no imagery layer, the ellipsoid terrain) with the city standing at
+    that longitude and latitude, no console error or failed request; at a maximum screen-space error
+    of 1e-6 px (every tile with an error refines) from the fitted view every tileset file and every
+    GLB of the export is requested and every tile loaded, and the city is drawn over the globe."""
+    folder = tmp_path / "placed"
+    summary = tiles3d.export(city_hlod, folder, place=PLACE)
+    assert summary["tileset_files"] > 1
+    with _open_page(browser, folder) as tab:
+        assert tab.evaluate("hlodViewer.place") == PLACE.as_dict()
+        globe = tab.evaluate("""() => { const s = hlodViewer.viewer.scene, c = Cesium.Cartographic.fromCartesian(
+            hlodViewer.tileset.boundingSphere.center);
+            return {shown: s.globe !== undefined && s.globe.show, layers: s.globe.imageryLayers.length,
+                    terrain: s.globe.terrainProvider instanceof Cesium.EllipsoidTerrainProvider,
+                    lon: Cesium.Math.toDegrees(c.longitude), lat: Cesium.Math.toDegrees(c.latitude)}; }""")
+        assert globe["shown"] and globe["layers"] == 0 and globe["terrain"], globe
+        # the city's bounding sphere (320 m across) is centred within 0.01 degrees (about 1 km) of the place
+        assert abs(globe["lon"] - PLACE.longitude_deg) < 0.01 and abs(globe["lat"] - PLACE.latitude_deg) < 0.01
+        with_city = _picture(tab, tmp_path, "placed")
+        tab.evaluate("hlodViewer.tileset.show = false")
+        _wait_drawn(tab)
+        globe_only = _picture(tab, tmp_path, "globe_only")
+        tab.evaluate("hlodViewer.tileset.show = true")
+        tab.evaluate("hlodViewer.setMaximumScreenSpaceError(1e-6)")  # every tile with an error refines
+        _wait_loaded(tab)
+        stats = tab.evaluate("hlodViewer.stats()")
+        assert tab.problems == [] and tab.evaluate("hlodViewer.errors") == []
+        requested = set(tab.requested)
+    files = {p.relative_to(folder).as_posix() for p in folder.rglob("*") if p.suffix in (".json", ".glb")}
+    assert requested == files, sorted(files - requested)[:10]
+    assert stats["tilesLoaded"] == summary["glb_files"], stats
+    # the globe's colour fills what the city leaves; the city is drawn over it, not buried in it
+    assert float(np.mean(np.abs(with_city - globe_only).max(axis=2) > BACKGROUND_TOLERANCE)) > MIN_GEOMETRY_SHARE
+    globe_rgb = np.array([0x6B, 0x7A, 0x66])
+    assert float(np.mean(np.abs(globe_only - globe_rgb).max(axis=2) <= 24)) > 0.2
