@@ -4,9 +4,10 @@ code through the bpy module (`python scripts/hlod_blender.py ...`, for machines 
 and no Blender install).
 
     hlod bake [FILE.blend ...] [--collection NAME | --objects A,B] -o OUT [--format hlod 3dtiles]
-              [--include-hidden] [--place LON,LAT,HEIGHT[,HEADING] | none]
+              [--include-hidden] [--place LON,LAT,HEIGHT[,HEADING] | none] [--mesh plain|quantized]
               [the core's bake options: --target-tris N ... --jobs N --cache DIR | --no-cache]
     hlod export IN.hlod --format 3dtiles|hlod -o DIR [--place LON,LAT,HEIGHT[,HEADING] | none]
+                [--mesh plain|quantized]
     hlod view DIR [--port N] [--no-browser] [--cesium CESIUM_DIR]
 
 `bake` takes the core command's bake options (hlod_core/cli/options.py `bake_options`: the same
@@ -44,7 +45,7 @@ import bpy
 
 from ..hlod_core.cli.options import bake_options, bake_settings_of, place_text
 from ..hlod_core.core.errors import HlodError, InputError
-from ..hlod_core.export.formats import export_hlod
+from ..hlod_core.export.formats import MESH_ENCODINGS, export_hlod
 from ..hlod_core.export.place import chosen
 from ..hlod_core.io import hlod_file
 from .bake.from_scene import start_bake
@@ -76,12 +77,12 @@ def parser() -> argparse.ArgumentParser:
     bake_options(b)  # the core command's: --target-tris ... --jobs, --cache DIR | --no-cache
     b.add_argument("--include-hidden", action="store_true",
                    help="bake objects hidden in the viewport too (default: what the view layer shows)")
-    _place_option(b)
+    _export_arguments(b)
     e = sub.add_parser("export", help="export a baked .hlod")
     e.add_argument("file", metavar="IN.hlod")
     e.add_argument("--format", choices=["3dtiles", "hlod"], required=True)
     e.add_argument("-o", "--output", required=True, metavar="DIR")
-    _place_option(e)
+    _export_arguments(e)
     v = sub.add_parser("view", help="serve a 3D Tiles export and a CesiumJS viewer on 127.0.0.1 until Ctrl-C")
     v.add_argument("dir", metavar="DIR", help="a 3D Tiles export: the folder holding tileset.json")
     v.add_argument("--port", type=int, default=0, metavar="N", help="the port (default 0: a free one)")
@@ -91,7 +92,10 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
-def _place_option(p) -> None:
+def _export_arguments(p) -> None:
+    p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
+                   help="3dtiles: tile content as float32 (plain) or with positions and normals quantized "
+                        "(KHR_mesh_quantization)")
     p.add_argument("--place", type=place_text, metavar="LON,LAT,HEIGHT[,HEADING]",
                    help="3dtiles: stand the scene's origin at this WGS84 point (degrees, degrees, metres; heading "
                         "in degrees clockwise from north; --place=-122.4,... for a negative longitude); none: the "
@@ -136,7 +140,7 @@ def execute(argv: list[str]) -> int:
         try:
             place = scene_place(args.place, bpy.context.scene) if args.format == "3dtiles" else None
             summary = export_hlod(hlod_file.load(args.file), args.format, Path(args.output), stem=Path(args.file).stem,
-                                  place=place)
+                                  place=place, mesh=args.mesh)
         except (HlodError, OSError) as exc:
             print(f"hlod: error: {exc}", file=sys.stderr)
             return 1
@@ -216,7 +220,7 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         if "3dtiles" in args.format:
             tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
             outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir, stem=target.stem,
-                                             place=place)["output"]
+                                             place=place, mesh=args.mesh)["output"]
     except Exception as exc:  # noqa: BLE001 - one line per failed file, and the batch goes on
         message = _one_line(exc)
         print(f"hlod: {blend}: {message}", file=sys.stderr)

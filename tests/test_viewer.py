@@ -325,3 +325,31 @@ def test_a_placed_export_stands_on_a_plain_globe_and_every_tile_is_requested(bro
     assert float(np.mean(np.abs(with_city - globe_only).max(axis=2) > BACKGROUND_TOLERANCE)) > MIN_GEOMETRY_SHARE
     globe_rgb = np.array([0x6B, 0x7A, 0x66])
     assert float(np.mean(np.abs(globe_only - globe_rgb).max(axis=2) <= 24)) > 0.2
+
+
+# --- quantized tile content -----------------------------------------------------------------------
+
+#: CesiumJS's picture of the quantized export against the plain one's, PSNR-Y (the issue's target).
+MIN_QUANTIZED_PSNR_Y_DB = 40.0
+
+
+def test_a_quantized_export_looks_like_the_plain_one(browser, city_hlod, tiles, tmp_path):
+    """The city exported with positions and normals quantized (KHR_mesh_quantization): CesiumJS
+    loads it without an error, and its picture from the same fitted camera at 16 px and at 2 px is
+    within MIN_QUANTIZED_PSNR_Y_DB of the plain export's (measured 60.0 and 60.3 dB)."""
+    from hlod_core.report.image_error import psnr
+
+    folder = tmp_path / "quantized"
+    tiles3d.export(city_hlod, folder, quantize=True)
+    pictures = {}
+    for name, source in (("plain", tiles), ("quantized", folder)):
+        with _open_page(browser, source) as tab:
+            for sse in (16, 2):
+                tab.evaluate(f"hlodViewer.setMaximumScreenSpaceError({sse})")
+                _wait_loaded(tab)
+                pictures[name, sse] = _picture(tab, tmp_path, f"{name}_{sse}").astype(np.uint8)
+            assert tab.problems == [] and tab.evaluate("hlodViewer.errors") == []
+    for sse in (16, 2):
+        y_db = float(psnr(pictures["plain", sse], pictures["quantized", sse])[0])
+        assert y_db >= MIN_QUANTIZED_PSNR_Y_DB, (sse, y_db)
+        assert _geometry_share(pictures["quantized", sse]) > MIN_GEOMETRY_SHARE

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..bake import checks
 from ..core.errors import InputError
-from ..export.formats import export_hlod
+from ..export.formats import MESH_ENCODINGS, export_hlod
 from ..export.place import chosen
 from ..io import hlod_file
 from .options import place_text, whole_number
@@ -31,6 +31,9 @@ def add_export(sub) -> None:
                    help="3dtiles: stand the scene's origin at this WGS84 point (degrees, degrees, metres; "
                         "heading in degrees clockwise from north); write --place=-122.4,37.8,0 for a "
                         "negative longitude; none: the local frame (default)")
+    p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
+                   help="3dtiles: tile content as float32 (plain) or with positions and normals quantized "
+                        "(KHR_mesh_quantization)")
     p.set_defaults(run=export_command)
 
 
@@ -67,7 +70,7 @@ def export_command(args: argparse.Namespace) -> dict:
     if place is not None and args.format != "3dtiles":
         raise InputError(f"--place: only for --format 3dtiles (a .hlod has no place on the globe), not {args.format}")
     hlod = hlod_file.load(args.file)
-    return export_hlod(hlod, args.format, out, stem=Path(args.file).stem, place=place)
+    return export_hlod(hlod, args.format, out, stem=Path(args.file).stem, place=place, mesh=args.mesh)
 
 
 def view_command(args: argparse.Namespace) -> dict:

@@ -167,7 +167,8 @@ class _Tiles:
         """The tree cut into files: {a file's root node: the nodes it holds}, each file at most
         `max_tiles` tiles counting its references to other files (breadth first from its root, a
         node joining while the count allows its children's references; a child left out roots a
-        file of its own). The first file is node 0's."""
+        file of its own; a file's root and its children are always in it, which an octree's 9 never
+        exceed here). The first file is node 0's."""
         size = self._sizes()
         files, queue = {}, [0]
         while queue:
@@ -184,7 +185,6 @@ class _Tiles:
             files[top] = held
             queue.extend(c for node in held for c in self.children[node] if c not in held)
         return files
-
 
     def _sizes(self) -> dict[int, int]:
         """{node: the number of tiles of its subtree}, for the tiles."""
@@ -255,13 +255,14 @@ def tileset_files(hlod: Hlod, *, place: Place | None = None, max_tiles: int = MA
 
 
 def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = None,
-           place: Place | None = None) -> dict:
+           place: Place | None = None, quantize: bool = False) -> dict:
     """Write tileset.json, tiles/<node>.glb and, for textured materials, textures/ into out_dir,
     atomically: everything is written into a temporary folder beside it and renamed into place,
     replacing an earlier export (`replace_export`). Folders and files get the modes of ordinary
     ones (0o777 / 0o666 less the umask). `platform`: a sys.platform string (default this
     machine's) for replace_export. `place`: where the scene's origin stands on the globe (None: the
-    local frame, as the bake's model space).
+    local frame, as the bake's model space). `quantize`: positions and normals quantized
+    (KHR_mesh_quantization, glb module notes); plain float32 otherwise.
     Returns a summary (tiles, glb files, triangles, bytes, image files, warnings)."""
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -269,7 +270,7 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
     try:
         os.chmod(staging, umask_mode(0o777))  # mkdtemp makes it 0700; the export is an ordinary folder
         images, warnings = copy_textures(hlod, staging / TEXTURE_FOLDER)
-        written, tris, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images)
+        written, tris, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images, quantize=quantize)
         document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb", place=place)
         files = write_tileset(hlod, staging, document, place=place)
         warnings = warnings + replace_export(out_dir, staging, platform=platform)
@@ -279,7 +280,8 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
     return {"format": "3dtiles", "output": str(out_dir), "tiles": _count(document["root"]), "glb_files": written,
             "triangles": tris, "bytes": size, "tileset_geometric_error": document["geometricError"],
             "image_files": len(set(images.values())), "tileset_files": len(files),
-            "tileset_json_bytes": files["tileset.json"], "place": None if place is None else place.as_dict(),
+            "tileset_json_bytes": files["tileset.json"], "mesh": "quantized" if quantize else "plain",
+            "place": None if place is None else place.as_dict(),
             "warnings": warnings}
 
 
@@ -299,14 +301,14 @@ def write_tileset(hlod: Hlod, folder: Path, document: dict, *, place: Place | No
     return written
 
 
-def _write_tiles(hlod: Hlod, folder: Path, *, images: dict[str, TileImage]) -> tuple[int, int, int]:
+def _write_tiles(hlod: Hlod, folder: Path, *, images: dict[str, TileImage], quantize: bool) -> tuple[int, int, int]:
     """folder/<node>.glb for every node with triangles (folder made here); (files, triangles, bytes)."""
     folder.mkdir()
     written, tris, size = 0, 0, 0
     for node in np.flatnonzero(hlod.tri_count > 0).tolist():
         mesh = node_geometry(hlod, node)
         data = glb_bytes(mesh.positions, mesh.faces, mesh.normals, uvs=mesh.uvs, colors=mesh.colors,
-                         face_material=mesh.face_material, materials=hlod.materials, images=images)
+                         face_material=mesh.face_material, materials=hlod.materials, images=images, quantize=quantize)
         (folder / f"{node}.glb").write_bytes(data)
         written, tris, size = written + 1, tris + mesh.faces.shape[0], size + len(data)
     return written, tris, size

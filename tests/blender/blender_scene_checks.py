@@ -453,7 +453,22 @@ def check_place(repo, work) -> dict:
     status, stdout, stderr = _run_cli(cli, "export", str(work / "ball.hlod"), "--format", "3dtiles", "-o",
                                       str(work / "bad"), "--place=0,95,0")
     out["cli_bad_latitude"] = (status, stderr, (work / "bad").exists())
+    # quantized tile content, from the background command and from the button
+    status, stdout, stderr = _run_cli(cli, "export", str(work / "ball.hlod"), "--format", "3dtiles", "-o",
+                                      str(work / "quantized"), "--place=none", "--mesh", "quantized")
+    props.place_mode = "NONE"
+    bpy.ops.hlod.export(filepath=str(work / "button_quantized"), format="3DTILES", mesh="quantized")
+    out["quantized"] = [status, *(_required_extensions(work / name) for name in ("quantized", "button_quantized"))]
     return out
+
+
+def _required_extensions(folder: Path) -> list:
+    """The root tile GLB's extensionsRequired (empty for a plain one, None without an export)."""
+    glb = folder / "tiles" / "0.glb"
+    if not glb.is_file():
+        return None
+    data = glb.read_bytes()
+    return json.loads(data[20:20 + int.from_bytes(data[12:16], "little")]).get("extensionsRequired", [])
 
 
 if __name__ == "__main__":
