@@ -287,12 +287,29 @@ def test_page_shows_the_exports_textures_and_colours(browser, tmp_path):
 
 #: Where the placed export stands: San Francisco, 16 m above the ellipsoid, turned 30 degrees.
 PLACE = place.place(-122.4194, 37.7749, 16.0, 30.0)
+#: ([origin], place) -> the root's computed transform against CesiumJS's own frame at the place: the
+#: distance of the scene's origin from Cesium's point (m), the cosines of +Z with Cesium's ellipsoid
+#: normal and of +Y with north turned clockwise by the heading.
+ROOT_FRAME_JS = """([o, p]) => {
+  const V = Cesium.Cartesian3, M = Cesium.Matrix4, m = hlodViewer.tileset.root.computedTransform;
+  const at = V.fromDegrees(p.longitude_deg, p.latitude_deg, p.height_m);
+  const enu = Cesium.Transforms.eastNorthUpToFixedFrame(at);
+  const col = (k, mat) => V.normalize(M.multiplyByPointAsVector(mat, [V.UNIT_X, V.UNIT_Y, V.UNIT_Z][k], new V()),
+    new V());
+  const origin = M.multiplyByPoint(m, new V(-o[0], -o[1], -o[2]), new V());
+  const h = Cesium.Math.toRadians(p.heading_deg);
+  const y = V.add(V.multiplyByScalar(col(0, enu), Math.sin(h), new V()),
+    V.multiplyByScalar(col(1, enu), Math.cos(h), new V()), new V());
+  return {distance: V.distance(origin, at), up: V.dot(col(2, m), Cesium.Ellipsoid.WGS84.geodeticSurfaceNormal(at)),
+    y: V.dot(col(1, m), y)};
+}"""
 
 
 def test_a_placed_export_stands_on_a_plain_globe_and_every_tile_is_requested(browser, city_hlod, tmp_path):
     """The city exported at PLACE (split into external tilesets: 445 nodes): the page reads its
     place, draws a plain globe (no imagery layer, the ellipsoid terrain) with the city standing at
-    that longitude and latitude, no console error or failed request; at a maximum screen-space error
+    that longitude and latitude (the root frame as CesiumJS's own geodesy computes it), no console
+    error or failed request; at a maximum screen-space error
     of 1e-6 px (every tile with an error refines) from the fitted view every tileset file and every
     GLB of the export is requested and every tile loaded, and the city is drawn over the globe."""
     folder = tmp_path / "placed"
@@ -308,6 +325,10 @@ def test_a_placed_export_stands_on_a_plain_globe_and_every_tile_is_requested(bro
         assert globe["shown"] and globe["layers"] == 0 and globe["terrain"], globe
         # the city's bounding sphere (320 m across) is centred within 0.01 degrees (about 1 km) of the place
         assert abs(globe["lon"] - PLACE.longitude_deg) < 0.01 and abs(globe["lat"] - PLACE.latitude_deg) < 0.01
+        # CesiumJS's own geodesy: the root's computed transform stands the scene's origin at Cesium's
+        # point of the place (within 1 mm), +Z along its ellipsoid normal, +Y north turned 30 degrees
+        frame = tab.evaluate(ROOT_FRAME_JS, [list(map(float, city_hlod.origin)), PLACE.as_dict()])
+        assert frame["distance"] < 1e-3 and frame["up"] > 1 - 1e-12 and frame["y"] > 1 - 1e-12, frame
         with_city = _picture(tab, tmp_path, "placed")
         tab.evaluate("hlodViewer.tileset.show = false")
         _wait_drawn(tab)
