@@ -4,8 +4,10 @@ code through the bpy module (`python scripts/hlod_blender.py ...`, for machines 
 and no Blender install).
 
     hlod bake [FILE.blend ...] [--collection NAME | --objects A,B] -o OUT [--format hlod 3dtiles]
-              [--include-hidden] [the core's bake options: --target-tris N ... --jobs N --cache DIR | --no-cache]
-    hlod export IN.hlod --format 3dtiles|hlod -o DIR
+              [--include-hidden] [--place LON,LAT,HEIGHT[,HEADING] | none] [--mesh plain|quantized]
+              [the core's bake options: --target-tris N ... --jobs N --cache DIR | --no-cache]
+    hlod export IN.hlod --format 3dtiles|hlod -o DIR [--place LON,LAT,HEIGHT[,HEADING] | none]
+                [--mesh plain|quantized]
     hlod view DIR [--port N] [--no-browser] [--cesium CESIUM_DIR]
 
 `bake` takes the core command's bake options (hlod_core/cli/options.py `bake_options`: the same
@@ -22,6 +24,10 @@ objects, kinds without triangles: addon/scene/objects.py) is named in one stderr
 A file that fails is one stderr line naming it and the reason (never a traceback) and the others
 go on. The last stdout line is a JSON summary ({"files": [{"blend", "ok", "outputs", "skipped" |
 "error"}], "failed": N}); the exit status is 1 if any failed, 2 for bad arguments.
+A 3D Tiles export stands on the globe at --place, else where the scene's Export panel Place says
+(addon/scene/place.py; by default the scene's georeference, the custom properties GIS add-ons write:
+hlod_core/export/place.py), else in the local frame; a place that cannot be read fails the file
+before its bake, one line.
 `view` is the core's `view` command (hlod_core.export.viewer.serve_until_stopped, imported only by
 this command): the first line it prints is the page's URL (http://127.0.0.1:N/), for scripts; it
 serves until Ctrl-C or SIGTERM, then exits 0. A folder without tileset.json, CesiumJS not found or
@@ -37,13 +43,15 @@ from pathlib import Path
 
 import bpy
 
-from ..hlod_core.cli.options import bake_options, bake_settings_of
+from ..hlod_core.cli.options import bake_options, bake_settings_of, place_text
 from ..hlod_core.core.errors import HlodError, InputError
-from ..hlod_core.export.formats import export_hlod
+from ..hlod_core.export.formats import MESH_ENCODINGS, export_hlod
+from ..hlod_core.export.place import chosen
 from ..hlod_core.io import hlod_file
 from .bake.from_scene import start_bake
 from .materials.cycles_bake import cycles_report
 from .scene.objects import HIDDEN, Skipped
+from .scene.place import export_place
 
 _cli_command = None  # the handle of the registered command
 
@@ -69,10 +77,12 @@ def parser() -> argparse.ArgumentParser:
     bake_options(b)  # the core command's: --target-tris ... --jobs, --cache DIR | --no-cache
     b.add_argument("--include-hidden", action="store_true",
                    help="bake objects hidden in the viewport too (default: what the view layer shows)")
+    _export_arguments(b)
     e = sub.add_parser("export", help="export a baked .hlod")
     e.add_argument("file", metavar="IN.hlod")
     e.add_argument("--format", choices=["3dtiles", "hlod"], required=True)
     e.add_argument("-o", "--output", required=True, metavar="DIR")
+    _export_arguments(e)
     v = sub.add_parser("view", help="serve a 3D Tiles export and a CesiumJS viewer on 127.0.0.1 until Ctrl-C")
     v.add_argument("dir", metavar="DIR", help="a 3D Tiles export: the folder holding tileset.json")
     v.add_argument("--port", type=int, default=0, metavar="N", help="the port (default 0: a free one)")
@@ -80,6 +90,26 @@ def parser() -> argparse.ArgumentParser:
     v.add_argument("--cesium", metavar="CESIUM_DIR",
                    help="CesiumJS's built files (npm cesium/Build/Cesium; default: the one the extension carries)")
     return p
+
+
+def _export_arguments(p) -> None:
+    p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
+                   help="3dtiles: tile content as float32 (plain) or with positions and normals quantized "
+                        "(KHR_mesh_quantization)")
+    p.add_argument("--place", type=place_text, metavar="LON,LAT,HEIGHT[,HEADING]",
+                   help="3dtiles: stand the scene's origin at this WGS84 point (degrees, degrees, metres; heading "
+                        "in degrees clockwise from north; --place=-122.4,... for a negative longitude); none: the "
+                        "local frame; default: the scene's Export panel Place (by default its georeference: "
+                        "BlenderGIS, Blosm), if any")
+
+
+def scene_place(given, scene):
+    """The place of a 3D Tiles export of `scene`: `--place`'s value (a Place, or none: the local
+    frame), else the scene's Export panel Place (scene/place.py: by default its georeference);
+    InputError, one line, for one that cannot be read."""
+    if given is None:
+        return export_place(scene)
+    return chosen(given)
 
 
 def register() -> None:
@@ -108,7 +138,9 @@ def execute(argv: list[str]) -> int:
         return _view(args)
     if args.command == "export":
         try:
-            summary = export_hlod(hlod_file.load(args.file), args.format, Path(args.output), stem=Path(args.file).stem)
+            place = scene_place(args.place, bpy.context.scene) if args.format == "3dtiles" else None
+            summary = export_hlod(hlod_file.load(args.file), args.format, Path(args.output), stem=Path(args.file).stem,
+                                  place=place, mesh=args.mesh)
         except (HlodError, OSError) as exc:
             print(f"hlod: error: {exc}", file=sys.stderr)
             return 1
@@ -169,6 +201,7 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         if target.suffix != ".hlod":
             raise InputError(f"-o {target}: give a .hlod file name when baking the open file")
         objects = _objects(args)
+        place = scene_place(args.place, bpy.context.scene) if "3dtiles" in args.format else None  # before the bake
         target.parent.mkdir(parents=True, exist_ok=True)
         bake = start_bake(bpy.context, objects, target, bake_settings_of(args), use_cache=not args.no_cache,
                           cache_folder=args.cache, include_hidden=args.include_hidden,
@@ -186,7 +219,8 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         outputs = {"hlod": str(target)}
         if "3dtiles" in args.format:
             tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
-            outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir, stem=target.stem)["output"]
+            outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir, stem=target.stem,
+                                             place=place, mesh=args.mesh)["output"]
     except Exception as exc:  # noqa: BLE001 - one line per failed file, and the batch goes on
         message = _one_line(exc)
         print(f"hlod: {blend}: {message}", file=sys.stderr)

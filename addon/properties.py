@@ -2,7 +2,8 @@
 processes, and `last_bake`, the line the panel shows about the last bake), runtime settings, overlay
 settings, read-only live statistics (getters over the running preview; nothing is written from the
 draw handler), `psnr_target` and `last_tuning` (Tune to PSNR's target and its last result),
-`tiles_dir` (the last 3D Tiles export, which View in Browser serves), and two records: the objects
+`tiles_dir` (the last 3D Tiles export, which View in Browser serves), `place_*` (where a 3D Tiles
+export stands on the globe), and two records: the objects
 the last bake took, with content keys (`source_objects`, `source_file`; addon/scene/source_record.py) and
 the objects the running preview hid (`hidden_objects`, `hidden_view_layer`;
 addon/scene/source_hiding.py)."""
@@ -109,6 +110,23 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     tiles_dir: StringProperty(name="3D Tiles Export", subtype="DIR_PATH", default="", options=BLEND_RELATIVE_PATH,
                               description="The folder of the last 3D Tiles export (tileset.json); View in Browser "
                                           "serves it (set by Export and by View in Browser's folder)")
+    # --- export: the place of a 3D Tiles export on the globe (hlod_core/export/place.py) ----------
+    place_mode: EnumProperty(name="Place", items=[
+        ("SCENE", "Scene's Georeference", "Where the scene's georeference says (the custom properties BlenderGIS "
+                                          "or Blosm write: latitude/longitude, or a longitude/latitude CRS and its "
+                                          "origin); the local frame when it has none"),
+        ("MANUAL", "Longitude, Latitude", "At the longitude, latitude, height and heading below"),
+        ("NONE", "Local Frame", "No place on the globe: the bake's own frame, as a viewer without a globe shows it")],
+        default="SCENE", description="Where a 3D Tiles export's origin stands on the globe (WGS84)")
+    # text, not FloatProperty: Blender's float properties are single precision (a metre at 120 degrees)
+    place_longitude: StringProperty(name="Longitude", default="0",
+                                    description="Degrees east of Greenwich (-180 to 180), decimal")
+    place_latitude: StringProperty(name="Latitude", default="0", description="Degrees north (-90 to 90), decimal")
+    place_height: FloatProperty(name="Height", default=0.0, min=-1e5, max=1e7, unit="LENGTH",
+                                description="Metres above the WGS84 ellipsoid")
+    place_heading: FloatProperty(name="Heading", default=0.0, min=-360.0, max=360.0,
+                                 description="Degrees the scene turns clockwise from north seen from above "
+                                             "(0: +Y north, +X east)")
     # --- runtime ------------------------------------------------------------------------------
     method: EnumProperty(name="Method", items=METHOD_ITEMS, default="coh")
     bias: EnumProperty(name="Bias", items=[("P", "P(s,t)", "VMSSE ratio P_{s,t}(mu), visual masking"),

@@ -1,12 +1,13 @@
 """Export (docs/user-guide.md): the baked file as a copy of the native .hlod, or as 3D Tiles 1.1
-(hlod_core/export/tiles3d.py, imported only when used); a 3D Tiles export is what View in Browser
-serves next."""
+(hlod_core/export/tiles3d.py, imported only when used), placed on the globe as the panel's Place
+says (addon/scene/place.py); a 3D Tiles export is what View in Browser serves next."""
 from __future__ import annotations
 
 import bpy
 from bpy.props import EnumProperty, StringProperty
 
 from ..addon.properties import BLEND_RELATIVE_PATH, stored_path
+from ..addon.scene.place import export_place
 from ..hlod_core.core.errors import HlodError, InputError
 from ..hlod_core.io import hlod_file
 
@@ -26,6 +27,11 @@ class HLOD_OT_export(bpy.types.Operator):
         ("HLOD", "HLOD (native)", "The extension's own memory-mappable format"),
         ("3DTILES", "3D Tiles 1.1", "tileset.json with one GLB per node; geometricError = the node's error"),
     ], default="HLOD")
+    mesh: EnumProperty(name="Tile Content", items=[
+        ("plain", "Plain", "float32 positions, normals and colours"),
+        ("quantized", "Quantized", "positions as 16-bit integers, normals 8-bit, colours 16-bit "
+                                   "(KHR_mesh_quantization): 12 to 36% smaller tiles"),
+    ], default="plain", description="3D Tiles only: how the tiles' vertices are stored")
 
     def invoke(self, context, event):
         if not self.filepath:
@@ -47,7 +53,7 @@ class HLOD_OT_export(bpy.types.Operator):
                 from ..hlod_core.export import tiles3d
 
                 target = target[:-len(".hlod")] + TILES_SUFFIX if target.lower().endswith(".hlod") else target
-                tiles3d.export(hlod, target)
+                tiles3d.export(hlod, target, place=export_place(context.scene), quantize=self.mesh == "quantized")
                 props.tiles_dir = stored_path(target)  # what View in Browser serves
             else:
                 hlod_file.save(hlod, target)

@@ -11,6 +11,7 @@ from ..addon.bake import plan as bake_plan
 from ..addon.preview import corner_text
 from ..addon.preview.live import PREVIEW
 from ..addon.scene import source_record
+from ..addon.scene.place import place_line
 
 
 class _HlodPanel:
@@ -117,6 +118,7 @@ class HLOD_PT_preview(_HlodSection, bpy.types.Panel):
         row = layout.row(align=True)
         row.operator("hlod.export", icon="EXPORT")
         row.operator("hlod.view_tiles", icon="URL")
+        _draw_place(layout, context.scene)
         _draw_viewer(layout)
         row = layout.row(align=True)
         row.operator("hlod.benchmark", icon="TIME")
@@ -124,6 +126,22 @@ class HLOD_PT_preview(_HlodSection, bpy.types.Panel):
         layout.prop(props, "psnr_target")
         if props.last_tuning:
             layout.label(text=props.last_tuning, icon="INFO")
+
+
+def _draw_place(layout, scene) -> None:
+    """Where a 3D Tiles export stands on the globe: the mode, the fields of a typed place, and the
+    place the next export takes (or why it cannot)."""
+    props = scene.hlod
+    col = layout.column(align=True)
+    col.prop(props, "place_mode")
+    if props.place_mode == "MANUAL":
+        row = col.row(align=True)
+        row.prop(props, "place_longitude")
+        row.prop(props, "place_latitude")
+        row = col.row(align=True)
+        row.prop(props, "place_height")
+        row.prop(props, "place_heading")
+    col.label(text=place_line(scene), icon="WORLD_DATA")
 
 
 def _draw_viewer(layout) -> None:

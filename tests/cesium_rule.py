@@ -98,14 +98,21 @@ class Tileset:
     @classmethod
     def read(cls, tileset_json: Path) -> "Tileset":
         doc = json.loads(Path(tileset_json).read_text())
+        top = Path(tileset_json).parent
         uri, parent, children, center, axes, error, depth = [], [], [], [], [], [], []
 
-        def visit(tile: dict, parent_row: int, *, parent_transform: np.ndarray, level: int) -> int:
+        def visit(tile: dict, parent_row: int, *, parent_transform: np.ndarray, level: int, folder: str = "") -> int:
+            content = (tile.get("content") or {}).get("uri")
+            if content is not None and content.endswith(".json"):  # an external tileset: its root in its place,
+                path = folder + content  # the same box and error (Cesium always traverses through the referring tile)
+                sub = json.loads((top / path).read_text())["root"]
+                return visit(sub, parent_row, parent_transform=parent_transform, level=level,
+                             folder=path.rpartition("/")[0] + "/" if "/" in path else "")
             local = np.asarray(tile.get("transform", np.eye(4).ravel()), np.float64).reshape(4, 4).T  # column-major
             transform = parent_transform @ local
             box = np.asarray(tile["boundingVolume"]["box"], np.float64)
             row = len(uri)
-            uri.append((tile.get("content") or {}).get("uri"))
+            uri.append(None if content is None else folder + content)
             parent.append(parent_row)
             children.append([])
             center.append(transform[:3, :3] @ box[:3] + transform[:3, 3])
@@ -113,7 +120,7 @@ class Tileset:
             error.append(float(tile["geometricError"]))
             depth.append(level)
             for child in tile.get("children", []):
-                children[row].append(visit(child, row, parent_transform=transform, level=level + 1))
+                children[row].append(visit(child, row, parent_transform=transform, level=level + 1, folder=folder))
             return row
 
         visit(doc["root"], -1, parent_transform=np.eye(4), level=0)

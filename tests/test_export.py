@@ -16,7 +16,7 @@ from PIL import Image
 from blender_runs import blender
 from helpers import ROOT, model, textured_scene
 from hlod_core.bake.pipeline import BakeSettings, bake
-from hlod_core.export import glb, tiles3d
+from hlod_core.export import glb, place, tiles3d
 from hlod_core.io import hlod_file as fileformat
 from hlod_core.io import meshes
 from hlod_core.model.appearance import Material
@@ -72,8 +72,12 @@ def assert_matches(tiles_dir, hlod_file):
     children's."""
     h = fileformat.load(hlod_file)
     read = independent_read(tiles_dir)
-    tiles = read["tiles"]
+    every = read["tiles"]
+    tiles = [t for t in every if not t["external"]]  # a tile referring to an external tileset is no node
     assert len(tiles) == h.node_count == sum(1 for t in tiles if t["uri"])
+    for ref in (t for t in every if t["external"]):  # same box and error as the root it refers to
+        root = next(t for t in every if t["path"].startswith(ref["path"] + "/[external:"))
+        assert (root["box"], root["geometricError"]) == (ref["box"], ref["geometricError"])
     bad = [(t["uri"], t["messages"]) for t in tiles if t["errors"]]  # images read relative to each GLB
     assert not bad, bad[:3]
     origin = np.asarray(h.origin)
@@ -209,6 +213,66 @@ def test_empty_leaves_are_absent_and_inner_nodes_without_triangles_keep_their_ch
     uris = {t["content"]["uri"] for t in tiles if "content" in t}
     assert len(tiles) == h.node_count - 1 and "content" not in doc["root"]
     assert f"tiles/{leaves[0]}.glb" not in uris and len(uris) == h.node_count - 2
+
+
+def _flatten(files: dict, path: str = "tileset.json") -> dict:
+    """The tileset of `files` (tiles3d.tileset_files) back in one document: each tile referring to an
+    external tileset replaced by that tileset's root, URIs made relative to the top folder."""
+    folder = path.rpartition("/")[0]
+
+    def tile(t: dict) -> dict:
+        t = dict(t)
+        uri = t.get("content", {}).get("uri")
+        if uri is not None:
+            full = f"{folder}/{uri}" if folder else uri
+            if full.endswith(".json"):
+                root = _flatten(files, full)["root"]
+                root.pop("refine")
+                return root
+            t["content"] = {"uri": full}
+        if "children" in t:
+            t["children"] = [tile(c) for c in t["children"]]
+        return t
+
+    return {**files[path], "root": tile(files[path]["root"])}
+
+
+def _tile_count(t: dict) -> int:
+    return 1 + sum(_tile_count(c) for c in t.get("children", []))
+
+
+@pytest.mark.parametrize("max_tiles", [9, 20, 40])  # 9: an octree node and its 8 children
+def test_external_tilesets_hold_the_one_document_tileset_exactly(bakes, max_tiles):
+    """Split at any size, the files put back together are tileset()'s document, every box, error,
+    URI and the root's transform the same; each file at most max_tiles tiles, each subtree's file
+    rooted at a tile of the same box and error as the tile that refers to it."""
+    _, h = bakes.baked("cow", target_tris=200)
+    whole = tiles3d.tileset(h, lambda node: f"tiles/{node}.glb")
+    files = tiles3d.tileset_files(h, max_tiles=max_tiles)
+    assert _tile_count(whole["root"]) > max_tiles and len(files) > 1
+    assert _flatten(files) == whole
+    placed = place.place(-71.06, 42.36, 5.0, 20.0)  # the root's transform and extras, placed, the same
+    assert _flatten(tiles3d.tileset_files(h, max_tiles=max_tiles, place=placed)) == tiles3d.tileset(
+        h, lambda node: f"tiles/{node}.glb", place=placed)
+    assert all(_tile_count(f["root"]) <= max_tiles for f in files.values())
+    for path, part in files.items():
+        assert part["asset"] == whole["asset"] and part["root"]["refine"] == "REPLACE"
+        assert ("transform" in part["root"]) == (path == "tileset.json")
+        if path != "tileset.json":
+            assert part["geometricError"] == part["root"]["geometricError"]
+
+
+def test_a_big_export_has_a_small_first_file_and_passes_the_readers(city_hlod, tmp_path):
+    """The city (445 nodes: 0.3 MB as one indented document) is written as external tilesets: the
+    first file at most 64 KB, the independent reader finds every node through them; a small
+    tileset stays one file (test_an_export_without_appearance_is_byte_identical_to_before)."""
+    src = fileformat.save(city_hlod, tmp_path / "city.hlod")
+    summary = tiles3d.export(city_hlod, tmp_path / "tiles")
+    first = (tmp_path / "tiles/tileset.json").stat().st_size
+    assert summary["tileset_json_bytes"] == first <= 64_000 < len(json.dumps(
+        tiles3d.tileset(city_hlod, lambda node: f"tiles/{node}.glb"), indent=1))
+    assert summary["tileset_files"] == 1 + len(list((tmp_path / "tiles/tiles").glob("*.json"))) > 1
+    assert_matches(tmp_path / "tiles", src)
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o027])
@@ -491,3 +555,69 @@ def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_pa
     gltf, _ = read_glb(tiles_dir / "tiles/0.glb")
     assert any("baseColorTexture" in m["pbrMetallicRoughness"] for m in gltf["materials"])
     assert {"TEXCOORD_0", "COLOR_0"} <= set(gltf["meshes"][0]["primitives"][0]["attributes"])
+
+
+# --- quantized tile content (KHR_mesh_quantization) ------------------------------------------------
+
+def _decoded(gltf: dict, binary: bytes, index: int) -> np.ndarray:
+    """An accessor's values as float64 (count, components), through its view's byteStride and, for a
+    normalized integer accessor, glTF's decoding (max(c / (2^(bits-1) - 1), -1) for signed types)."""
+    acc = gltf["accessors"][index]
+    view = gltf["bufferViews"][acc["bufferView"]]
+    dtype = np.dtype({5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32,
+                      5126: np.float32}[acc["componentType"]])
+    width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[acc["type"]]
+    stride = view.get("byteStride", dtype.itemsize * width) // dtype.itemsize
+    start = view["byteOffset"] + acc.get("byteOffset", 0)
+    rows = np.frombuffer(binary, dtype, acc["count"] * stride, start).reshape(acc["count"], stride)[:, :width]
+    values = rows.astype(np.float64)
+    if acc.get("normalized"):
+        values = np.maximum(values / np.iinfo(dtype).max, -1.0) if dtype.kind == "i" else values / np.iinfo(dtype).max
+    return values
+
+
+def test_quantized_tiles_decode_to_the_plain_ones_and_pass_the_validators(bakes, tmp_path):
+    """The cow with normals and colours exported plain and quantized (`export --mesh quantized`): every
+    quantized GLB requires KHR_mesh_quantization, its positions through the node's translation and
+    uniform scale are the plain ones within half a step (the largest side / 65534) and inside the
+    tile's box, its normals within half an int8 step, its colours half a uint16 step; indices and the
+    tileset are the plain export's; the glTF
+    validator finds no error and no warning the plain GLB does not have; bytes go down."""
+    _, h = bakes.baked("cow", target_tris=300)
+    rng = np.random.default_rng(7)
+    normals = rng.normal(size=h.positions.shape)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    normals[0] = 0.0  # a zero normal becomes +Y in both
+    colors = rng.random((h.positions.shape[0], 4)).astype(np.float32)
+    src = fileformat.save(h.replace(normals=normals.astype(np.float32), colors=colors), tmp_path / "cow.hlod")
+    plain = last_json(hlod("-q", "export", src, "-o", tmp_path / "plain"))
+    quantized = last_json(hlod("-q", "export", src, "-o", tmp_path / "quantized", "--mesh", "quantized"))
+    assert (plain["mesh"], quantized["mesh"]) == ("plain", "quantized") and quantized["bytes"] < plain["bytes"]
+    assert (tmp_path / "plain/tileset.json").read_bytes() == (tmp_path / "quantized/tileset.json").read_bytes()
+    h = fileformat.load(src)
+    origin = np.asarray(h.origin)
+    for node in range(h.node_count):
+        a, a_bin = read_glb(tmp_path / f"plain/tiles/{node}.glb")
+        b, b_bin = read_glb(tmp_path / f"quantized/tiles/{node}.glb")
+        assert "extensionsRequired" not in a and b["extensionsRequired"] == b["extensionsUsed"] == [
+            "KHR_mesh_quantization"]
+        pa, pb = a["meshes"][0]["primitives"][0], b["meshes"][0]["primitives"][0]
+        position = _decoded(b, b_bin, pb["attributes"]["POSITION"])
+        assert b["accessors"][pb["attributes"]["POSITION"]]["min"] == np.rint(position.min(0) * 32767).tolist()
+        scale, translation = b["nodes"][0]["scale"], np.array(b["nodes"][0]["translation"])
+        assert scale[0] == scale[1] == scale[2] > 0
+        world = position * scale[0] + translation  # Y up, relative to the origin
+        exact = _decoded(a, a_bin, pa["attributes"]["POSITION"])
+        assert np.abs(world - exact).max() <= scale[0] / 32767 * 0.5 + 1e-6 * scale[0]
+        z_up = world @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float).T  # glTF (x, y, z) -> (x, -z, y)
+        slack = scale[0] / 32767
+        assert np.all(z_up >= h.box_min[node] - origin - slack) and np.all(z_up <= h.box_max[node] - origin + slack)
+        na, nb = (_decoded(g, data, p["attributes"]["NORMAL"]) for g, data, p in ((a, a_bin, pa), (b, b_bin, pb)))
+        assert np.abs(na - nb).max() <= 0.5 / 127 + 1e-6
+        ca, cb = (_decoded(g, data, p["attributes"]["COLOR_0"]) for g, data, p in ((a, a_bin, pa), (b, b_bin, pb)))
+        assert np.abs(ca - cb).max() <= 0.5 / 65535 + 1e-7
+        assert np.array_equal(accessor(a, a_bin, pa["indices"]), accessor(b, b_bin, pb["indices"]))
+    reports = {kind: validate_with_images(tmp_path / kind) for kind in ("plain", "quantized")}
+    assert all(r["errors"] == 0 for r in reports["quantized"].values()), reports["quantized"]
+    assert all(reports["quantized"][k]["warnings"] <= reports["plain"][k]["warnings"] for k in reports["plain"])
+    assert_matches(tmp_path / "quantized", src)

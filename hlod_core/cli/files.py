@@ -8,9 +8,10 @@ from pathlib import Path
 
 from ..bake import checks
 from ..core.errors import InputError
-from ..export.formats import export_hlod
+from ..export.formats import MESH_ENCODINGS, export_hlod
+from ..export.place import chosen
 from ..io import hlod_file
-from .options import whole_number
+from .options import place_text, whole_number
 
 
 def add_info(sub) -> None:
@@ -26,6 +27,13 @@ def add_export(sub) -> None:
     p.add_argument("file", metavar="IN.hlod")
     p.add_argument("--format", choices=["3dtiles", "hlod"], default="3dtiles")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (replaced atomically)")
+    p.add_argument("--place", type=place_text, metavar="LON,LAT,HEIGHT[,HEADING]",
+                   help="3dtiles: stand the scene's origin at this WGS84 point (degrees, degrees, metres; "
+                        "heading in degrees clockwise from north); write --place=-122.4,37.8,0 for a "
+                        "negative longitude; none: the local frame (default)")
+    p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
+                   help="3dtiles: tile content as float32 (plain) or with positions and normals quantized "
+                        "(KHR_mesh_quantization)")
     p.set_defaults(run=export_command)
 
 
@@ -58,8 +66,11 @@ def export_command(args: argparse.Namespace) -> dict:
     out = Path(args.output)
     if out.exists() and not out.is_dir():
         raise InputError(f"-o {out}: is a file, expected a folder")
+    place = chosen(args.place)
+    if place is not None and args.format != "3dtiles":
+        raise InputError(f"--place: only for --format 3dtiles (a .hlod has no place on the globe), not {args.format}")
     hlod = hlod_file.load(args.file)
-    return export_hlod(hlod, args.format, out, stem=Path(args.file).stem)
+    return export_hlod(hlod, args.format, out, stem=Path(args.file).stem, place=place, mesh=args.mesh)
 
 
 def view_command(args: argparse.Namespace) -> dict:

@@ -45,6 +45,16 @@ def whole_number(minimum: int):
     return parse
 
 
+def place_text(text: str):
+    """argparse type of --place: export.place.parse's Place, or its NO_PLACE."""
+    from ..export.place import parse
+
+    try:
+        return parse(text, where=text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def seconds(text: str) -> float:
     """argparse type: a finite number of seconds > 0."""
     try:

@@ -10,6 +10,7 @@ from pathlib import Path
 from ..core.errors import InputError
 from ..io import hlod_file
 from . import tiles3d
+from .place import Place
 
 
 def check_output_file(path: str, option: str = "-o", example: str = "scene.hlod") -> None:
@@ -30,11 +31,16 @@ def check_output_file(path: str, option: str = "-o", example: str = "scene.hlod"
         raise InputError(f"{out}: folder {parent} is not writable")
 
 
-def export_hlod(hlod, fmt: str, out_dir, *, stem: str) -> dict:
+#: The 3D Tiles export's tile content: float32 attributes, or positions and normals quantized.
+MESH_ENCODINGS = ("plain", "quantized")
+
+
+def export_hlod(hlod, fmt: str, out_dir, *, stem: str, place: Place | None = None, mesh: str = "plain") -> dict:
     """Export into out_dir in format `fmt` ("3dtiles" or "hlod"): 3D Tiles (tileset.json, tiles/,
-    textures/ when textured) or the native file <stem>.hlod. Returns the export's summary."""
+    textures/ when textured; on the globe at `place` when given; `mesh` one of MESH_ENCODINGS) or the
+    native file <stem>.hlod (which has neither). Returns the export's summary."""
     if fmt == "3dtiles":
-        return tiles3d.export(hlod, out_dir)
+        return tiles3d.export(hlod, out_dir, place=place, quantize=mesh == "quantized")
     target = Path(out_dir) / f"{stem}.hlod"
     check_output_file(str(target))
     hlod_file.save(hlod, target)

@@ -8,6 +8,13 @@ Data form: positions (v,3) and normals (v,3) given Z up (Blender's model space) 
 glTF asks, (x, y, z) -> (x, z, -y); faces (t,3) local rows; uvs (v,2) in Blender's convention
 (written as (u, 1 - v): glTF's origin is the image's top-left); colors (v,4) float linear RGBA;
 face_material (t,) rows of a tuple of appearance.Material.
+
+Quantized (`quantize`, the glTF extension KHR_mesh_quantization): POSITION as normalized int16 in
+the mesh's own frame, the node's translation (the positions' box centre) and uniform scale (half its
+largest side) taking it back to the tile's frame, each vertex padded to 8 bytes; NORMAL as
+normalized int8, padded to 4 bytes (a uniform scale leaves normals as they are); COLOR_0 as
+normalized uint16 (glTF core; linear RGBA clamped to 0..1). A position moves at most half a step,
+(largest side) / 65534, a colour 1 / 131070; UVs stay float32.
 """
 from __future__ import annotations
 
@@ -50,10 +57,12 @@ class _Buffer:
         self.views: list[dict] = []
         self.accessors: list[dict] = []
 
-    def view(self, data: bytes, target: BufferViewTarget) -> int:
-        self.views.append({"buffer": 0, "byteOffset": sum(map(len, self.parts)), "byteLength": len(data),
-                           "target": int(target)})
-        self.parts.append(data)
+    def view(self, data: bytes, target: BufferViewTarget, stride: int | None = None) -> int:
+        row = {"buffer": 0, "byteOffset": sum(map(len, self.parts)), "byteLength": len(data), "target": int(target)}
+        if stride is not None:
+            row["byteStride"] = stride
+        self.views.append(row)
+        self.parts.append(data + b"\0" * (-len(data) % 4))  # the next view starts 4-byte aligned
         return len(self.views) - 1
 
     def accessor(self, fields: dict) -> int:
@@ -74,22 +83,29 @@ class _Buffer:
 def glb_bytes(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None, *,
               uvs: np.ndarray | None = None, colors: np.ndarray | None = None,
               face_material: np.ndarray | None = None, materials: tuple[Material, ...] = (),
-              images: dict[str, TileImage] | None = None) -> bytes:
+              images: dict[str, TileImage] | None = None, quantize: bool = False) -> bytes:
     """A GLB with one mesh of indexed triangles (module docstring for the arrays; each optional one
     may be None). Without face_material: one primitive with glTF's default material. With it: one
     primitive per material used, triangles grouped by material (stable), sharing the vertex
-    accessors; a material's texture is bound when its path is a key of `images` and uvs are given."""
+    accessors; a material's texture is bound when its path is a key of `images` and uvs are given.
+    `quantize`: positions and normals quantized (module notes)."""
     buffer = _Buffer()
-    attributes = _vertex_attributes(buffer, positions, normals=normals, uvs=uvs, colors=colors)
+    node: dict = {"mesh": 0}
+    if quantize:
+        attributes = _quantized_attributes(buffer, positions, normals=normals, uvs=uvs, colors=colors, node=node)
+    else:
+        attributes = _vertex_attributes(buffer, positions, normals=normals, uvs=uvs, colors=colors)
     primitives, document = _primitives(buffer, faces, attributes=attributes, vertex_count=positions.shape[0],
                                        face_material=face_material, materials=materials,
                                        images=None if uvs is None else images or {})
     binary = buffer.binary()
     gltf = {"asset": {"version": "2.0", "generator": GENERATOR},
-            "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [node],
             "meshes": [{"primitives": primitives}],
             "accessors": buffer.accessors, "bufferViews": buffer.views, "buffers": [{"byteLength": len(binary)}],
             **document}
+    if quantize:
+        gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["KHR_mesh_quantization"]
     return container(json.dumps(gltf, separators=(",", ":")).encode(), binary)
 
 
@@ -111,16 +127,59 @@ def _vertex_attributes(buffer: _Buffer, positions: np.ndarray, *, normals, uvs, 
                                                "count": int(pos.shape[0]), "type": "VEC3",
                                                "min": pos.min(0).tolist(), "max": pos.max(0).tolist()})}
     if normals is not None:
-        nrm = np.ascontiguousarray((normals.astype(np.float64) @ Z_UP_TO_Y_UP.T).astype(np.float32))
-        length = np.linalg.norm(nrm, axis=1, keepdims=True)
-        nrm = np.where(length > 0, nrm / np.where(length > 0, length, 1), [[0.0, 1.0, 0.0]]).astype(np.float32)
-        attributes["NORMAL"] = buffer.vertex_attribute(nrm, "VEC3")
+        attributes["NORMAL"] = buffer.vertex_attribute(_unit_normals(normals, np.float32), "VEC3")
+    attributes.update(_uv_colour_attributes(buffer, uvs, colors))
+    return attributes
+
+
+def _unit_normals(normals: np.ndarray, dtype) -> np.ndarray:
+    """(v,3) normals Y up, unit length in `dtype` arithmetic; zero ones become +Y."""
+    nrm = np.ascontiguousarray((normals.astype(np.float64) @ Z_UP_TO_Y_UP.T).astype(dtype))
+    length = np.linalg.norm(nrm, axis=1, keepdims=True)
+    return np.where(length > 0, nrm / np.where(length > 0, length, 1), [[0.0, 1.0, 0.0]]).astype(dtype)
+
+
+def _uv_colour_attributes(buffer: _Buffer, uvs, colors) -> dict[str, int]:
+    """TEXCOORD_0 (v flipped) and COLOR_0 where given, float32, each in its own view."""
+    attributes = {}
     if uvs is not None:
         st = np.asarray(uvs, np.float32).copy()
         st[:, 1] = 1.0 - st[:, 1]  # glTF's v runs down the image, Blender's up
         attributes["TEXCOORD_0"] = buffer.vertex_attribute(np.ascontiguousarray(st), "VEC2")
     if colors is not None:
         attributes["COLOR_0"] = buffer.vertex_attribute(np.ascontiguousarray(colors, np.float32), "VEC4")
+    return attributes
+
+
+def _quantized_attributes(buffer: _Buffer, positions: np.ndarray, *, normals, uvs, colors,
+                          node: dict) -> dict[str, int]:
+    """As _vertex_attributes, POSITION, NORMAL and COLOR_0 quantized (module notes); the node's translation
+    and scale set in `node`."""
+    pos = np.asarray(positions, np.float64) @ Z_UP_TO_Y_UP.T
+    lo, hi = pos.min(0), pos.max(0)
+    centre, half = 0.5 * (lo + hi), 0.5 * float((hi - lo).max())
+    half = half if half > 0 else 1.0
+    padded = np.zeros((pos.shape[0], 4), np.int16)
+    padded[:, :3] = np.clip(np.rint((pos - centre) / half * 32767.0), -32767, 32767)
+    view = buffer.view(padded.tobytes(), BufferViewTarget.ARRAY_BUFFER, stride=8)
+    attributes = {"POSITION": buffer.accessor({"bufferView": view, "componentType": int(ComponentType.SHORT),
+                                               "normalized": True, "count": int(pos.shape[0]), "type": "VEC3",
+                                               "min": padded[:, :3].min(0).tolist(),
+                                               "max": padded[:, :3].max(0).tolist()})}
+    node.update(translation=centre.tolist(), scale=[half] * 3)
+    if normals is not None:
+        nrm = _unit_normals(normals, np.float64)
+        packed = np.zeros((nrm.shape[0], 4), np.int8)
+        packed[:, :3] = np.clip(np.rint(nrm * 127.0), -127, 127)
+        view = buffer.view(packed.tobytes(), BufferViewTarget.ARRAY_BUFFER, stride=4)
+        attributes["NORMAL"] = buffer.accessor({"bufferView": view, "componentType": int(ComponentType.BYTE),
+                                                "normalized": True, "count": int(nrm.shape[0]), "type": "VEC3"})
+    attributes.update(_uv_colour_attributes(buffer, uvs, None))
+    if colors is not None:
+        rgba = np.rint(np.clip(np.asarray(colors, np.float64), 0.0, 1.0) * 65535.0).astype(np.uint16)
+        view = buffer.view(np.ascontiguousarray(rgba).tobytes(), BufferViewTarget.ARRAY_BUFFER)
+        attributes["COLOR_0"] = buffer.accessor({"bufferView": view, "componentType": int(ComponentType.UNSIGNED_SHORT),
+                                                 "normalized": True, "count": int(rgba.shape[0]), "type": "VEC4"})
     return attributes
 
 

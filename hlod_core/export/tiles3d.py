@@ -5,10 +5,13 @@ refinement, glTF content). The tileset is in the bake's model space (Z up, metre
 the bake's float64 origin in the root's `transform`; a tile's geometricError is its node's
 model-space error; its box the node's subtree box; attributes and materials only where the bake has
 them; texture files copied once into `textures/` and referred to by every GLB; empty nodes left out.
+A tileset bigger than ONE_FILE_MAX_BYTES as one document is split into external tilesets
+(`tileset_files`), so that the tileset.json a viewer reads first stays small.
 Why: docs/how-it-works.md#3d-tiles-export
 
-Data form: in, an Hlod; out, a folder tileset.json, tiles/<node>.glb, textures/ (when textured),
-written into a temporary folder and put in place of an earlier export (`replace_export`).
+Data form: in, an Hlod; out, a folder tileset.json, tiles/<node>.glb, tiles/<node>.json (external
+tilesets of a big tileset), textures/ (when textured), written into a temporary folder and put in
+place of an earlier export (`replace_export`).
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ from ..core.errors import InputError
 from ..io.texture_folder import unique_file_name
 from ..model.hierarchy import Hlod, node_geometry
 from .glb import GENERATOR, TileImage, glb_bytes
+from .place import Place
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +40,10 @@ IMAGE_SIGNATURES = {b"\x89PNG\r\n\x1a\n": ("image/png", ".png"), b"\xff\xd8\xff"
 #: Half sizes of the tiles' boxes are at least this fraction of the root diagonal (flat nodes), and
 #: at least MIN_HALF_SIZE model units (a scene without extent).
 MIN_HALF_SIZE_OF_DIAGONAL, MIN_HALF_SIZE = 1e-6, 1e-9
+#: A tileset written as one tileset.json (indented, as it always was) while that text is at most this
+#: many bytes; a bigger one is split into external tilesets of at most MAX_TILES_PER_FILE tiles each
+#: (compact JSON: at most about 450 bytes a tile, so the first file stays under 64 KB).
+ONE_FILE_MAX_BYTES, MAX_TILES_PER_FILE = 64_000, 128
 
 
 def copy_textures(hlod: Hlod, folder: Path) -> tuple[dict[str, TileImage], list[str]]:
@@ -103,43 +111,158 @@ def _box(lo: np.ndarray, hi: np.ndarray, floor: float) -> list[float]:
     return [*centre.tolist(), half[0], 0.0, 0.0, 0.0, half[1], 0.0, 0.0, 0.0, half[2]]
 
 
-def tileset(hlod: Hlod, content_uri) -> dict:
-    """The tileset JSON; content_uri(node) names each node's GLB. InputError without triangles."""
-    origin = np.asarray(hlod.origin, np.float64)
-    lo_all, hi_all = hlod.box_min - origin, hlod.box_max - origin
-    diagonal = float(np.linalg.norm(hi_all[0] - lo_all[0]))
-    floor = max(MIN_HALF_SIZE_OF_DIAGONAL * diagonal, MIN_HALF_SIZE)
+class _Tiles:
+    """The tiles of an HLOD: a tile per node with triangles or with a tile below it (an empty node is
+    absent), each with its box (model space less the bake's origin) and its node's error."""
 
-    def tile(node: int) -> dict | None:
-        first, count = int(hlod.child_offset[node]), int(hlod.child_count[node])
-        children = [t for t in (tile(c) for c in range(first, first + count)) if t is not None] if count else []
-        if hlod.tri_count[node] == 0 and not children:
-            return None  # an empty node is absent
-        out = {"boundingVolume": {"box": _box(lo_all[node], hi_all[node], floor)},
-               "geometricError": float(hlod.error[node])}
-        if hlod.tri_count[node] > 0:
+    def __init__(self, hlod: Hlod):
+        self.hlod = hlod
+        origin = np.asarray(hlod.origin, np.float64)
+        self.lo, self.hi = hlod.box_min - origin, hlod.box_max - origin
+        self.diagonal = float(np.linalg.norm(self.hi[0] - self.lo[0]))
+        self.floor = max(MIN_HALF_SIZE_OF_DIAGONAL * self.diagonal, MIN_HALF_SIZE)
+        self.children: dict[int, list[int]] = {}
+        self.present = self._present(0)
+
+    def _present(self, node: int) -> bool:
+        """Whether `node` is a tile; fills self.children (its tiles' children) on the way."""
+        first, count = int(self.hlod.child_offset[node]), int(self.hlod.child_count[node])
+        kept = [c for c in range(first, first + count) if self._present(c)] if count else []
+        self.children[node] = kept
+        return bool(kept) or self.hlod.tri_count[node] > 0
+
+    def fields(self, node: int) -> dict:
+        """A tile's boundingVolume and geometricError."""
+        return {"boundingVolume": {"box": _box(self.lo[node], self.hi[node], self.floor)},
+                "geometricError": float(self.hlod.error[node])}
+
+    def tile(self, node: int, content_uri, external=None) -> dict:
+        """The tile of `node` with its subtree; content_uri(node) names a GLB. `external(child)`, when
+        given, names the external tileset of a child written in another file (None: in this one)."""
+        out = self.fields(node)
+        if self.hlod.tri_count[node] > 0:
             out["content"] = {"uri": content_uri(node)}
+        children = []
+        for child in self.children[node]:
+            uri = None if external is None else external(child)
+            children.append(self.tile(child, content_uri, external) if uri is None
+                            else {**self.fields(child), "content": {"uri": uri}})
         if children:
             out["children"] = children
         return out
 
-    root = tile(0)
-    if root is None:
+    def document(self, root: dict, transform: np.ndarray | None, extras: dict | None = None) -> dict:
+        """The tileset JSON of the whole tree around its `root` tile: REPLACE refinement, the root's
+        `transform` (4x4, float64, row-major here, written column-major) when given."""
+        root["refine"] = "REPLACE"
+        if transform is not None:
+            root["transform"] = np.asarray(transform, np.float64).T.ravel().tolist()  # column-major
+        document = {"asset": {"version": "1.1", "generator": GENERATOR},
+                    "geometricError": max(self.diagonal, float(self.hlod.error[0])), "root": root}
+        if extras:
+            document["extras"] = extras
+        return document
+
+    def chunks(self, max_tiles: int) -> dict[int, set[int]]:
+        """The tree cut into files: {a file's root node: the nodes it holds}, each file at most
+        `max_tiles` tiles counting its references to other files (breadth first from its root, a
+        node joining while the count allows its children's references; a child left out roots a
+        file of its own; a file's root and its children are always in it, which an octree's 9 never
+        exceed here). The first file is node 0's."""
+        size = self._sizes()
+        files, queue = {}, [0]
+        while queue:
+            top = queue.pop(0)
+            held, count, frontier = {top}, 1 + len(self.children[top]), list(self.children[top])
+            for node in frontier:  # grows as nodes join: breadth first
+                if count - 1 + size[node] <= max_tiles:  # the whole subtree fits: no file of its own
+                    held.update(self._subtree(node))
+                    count += size[node] - 1
+                elif count + len(self.children[node]) <= max_tiles:
+                    held.add(node)
+                    count += len(self.children[node])
+                    frontier.extend(self.children[node])
+            files[top] = held
+            queue.extend(c for node in held for c in self.children[node] if c not in held)
+        return files
+
+    def _sizes(self) -> dict[int, int]:
+        """{node: the number of tiles of its subtree}, for the tiles."""
+        size: dict[int, int] = {}
+
+        def count(node: int) -> int:
+            size[node] = 1 + sum(count(c) for c in self.children[node])
+            return size[node]
+
+        count(0)
+        return size
+
+    def _subtree(self, node: int) -> list[int]:
+        return [node, *(n for c in self.children[node] for n in self._subtree(c))]
+
+
+def tileset(hlod: Hlod, content_uri, *, place: Place | None = None) -> dict:
+    """The tileset JSON of the whole tree in one document; content_uri(node) names each node's GLB.
+    The root's transform is `root_transform` (on the globe at `place` when given, which the
+    document's extras.place also names). InputError without triangles."""
+    tiles = _tiles(hlod)
+    extras = None if place is None else {"place": place.as_dict()}
+    return tiles.document(tiles.tile(0, content_uri), root_transform(hlod, place), extras)
+
+
+def _tiles(hlod: Hlod) -> _Tiles:
+    tiles = _Tiles(hlod)
+    if not tiles.present:
         raise InputError("3D Tiles export: the hierarchy has no triangles")
+    return tiles
+
+
+def root_transform(hlod: Hlod, place: Place | None = None) -> np.ndarray:
+    """The root tile's transform (4x4 float64): the translation by the bake's origin (model space),
+    then, for a `place`, its east-north-up frame turned by its heading (place.Place.frame: the scene's
+    origin at that point of the WGS84 ellipsoid, ECEF metres)."""
     transform = np.eye(4)
-    transform[:3, 3] = origin
-    root["refine"] = "REPLACE"
-    root["transform"] = transform.T.ravel().tolist()  # column-major
-    return {"asset": {"version": "1.1", "generator": GENERATOR},
-            "geometricError": max(diagonal, float(hlod.error[0])), "root": root}
+    transform[:3, 3] = np.asarray(hlod.origin, np.float64)
+    return transform if place is None else place.frame() @ transform
 
 
-def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = None) -> dict:
+def tileset_files(hlod: Hlod, *, place: Place | None = None, max_tiles: int = MAX_TILES_PER_FILE) -> dict[str, dict]:
+    """The tileset split into external tilesets: {path in the export: tileset JSON}. "tileset.json"
+    holds the top of the tree (at most `max_tiles` tiles, `chunks`); a subtree cut off is
+    tiles/<node>.json, referred to by a tile with its node's box and error whose content is that
+    file (3D Tiles 1.1 "external tileset"; the referring tile's transform applies to it). GLBs are
+    tiles/<node>.glb as in one document. Boxes, errors, the root's transform and extras are tileset()'s."""
+    tiles = _tiles(hlod)
+    transform, extras = root_transform(hlod, place), None if place is None else {"place": place.as_dict()}
+    files = {}
+    for top, held in tiles.chunks(max_tiles).items():
+        prefix = f"{TILE_FOLDER}/" if top == 0 else ""  # URIs are relative to the file that holds them
+
+        def glb_uri(node, prefix=prefix):
+            return f"{prefix}{node}.glb"
+
+        def external(node, prefix=prefix, held=held):
+            return None if node in held else f"{prefix}{node}.json"
+
+        root = tiles.tile(top, glb_uri, external)
+        if top == 0:
+            files["tileset.json"] = tiles.document(root, transform, extras)
+        else:
+            root["refine"] = "REPLACE"
+            files[f"{TILE_FOLDER}/{top}.json"] = {"asset": {"version": "1.1", "generator": GENERATOR},
+                                                  "geometricError": root["geometricError"], "root": root}
+    return files
+
+
+def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = None,
+           place: Place | None = None, quantize: bool = False) -> dict:
     """Write tileset.json, tiles/<node>.glb and, for textured materials, textures/ into out_dir,
     atomically: everything is written into a temporary folder beside it and renamed into place,
     replacing an earlier export (`replace_export`). Folders and files get the modes of ordinary
     ones (0o777 / 0o666 less the umask). `platform`: a sys.platform string (default this
-    machine's) for replace_export.
+    machine's) for replace_export. `place`: where the scene's origin stands on the globe (None: the
+    local frame, as the bake's model space). `quantize`: positions and normals quantized
+    (KHR_mesh_quantization, glb module notes); plain float32 otherwise.
     Returns a summary (tiles, glb files, triangles, bytes, image files, warnings)."""
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
@@ -147,26 +270,45 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
     try:
         os.chmod(staging, umask_mode(0o777))  # mkdtemp makes it 0700; the export is an ordinary folder
         images, warnings = copy_textures(hlod, staging / TEXTURE_FOLDER)
-        written, tris, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images)
-        document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb")
-        (staging / "tileset.json").write_text(json.dumps(document, indent=1))
+        written, tris, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images, quantize=quantize)
+        document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb", place=place)
+        files = write_tileset(hlod, staging, document, place=place)
         warnings = warnings + replace_export(out_dir, staging, platform=platform)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return {"format": "3dtiles", "output": str(out_dir), "tiles": _count(document["root"]), "glb_files": written,
             "triangles": tris, "bytes": size, "tileset_geometric_error": document["geometricError"],
-            "image_files": len(set(images.values())), "warnings": warnings}
+            "image_files": len(set(images.values())), "tileset_files": len(files),
+            "tileset_json_bytes": files["tileset.json"], "mesh": "quantized" if quantize else "plain",
+            "place": None if place is None else place.as_dict(),
+            "warnings": warnings}
 
 
-def _write_tiles(hlod: Hlod, folder: Path, *, images: dict[str, TileImage]) -> tuple[int, int, int]:
+def write_tileset(hlod: Hlod, folder: Path, document: dict, *, place: Place | None = None) -> dict[str, int]:
+    """Write the tileset JSON into `folder` (its tiles/ made): `document` (tileset()) as one indented
+    tileset.json while that is at most ONE_FILE_MAX_BYTES, else split into external tilesets
+    (tileset_files at `place`, the document's), compact. Returns {path: bytes written}."""
+    text = json.dumps(document, indent=1).encode()
+    if len(text) <= ONE_FILE_MAX_BYTES:
+        (folder / "tileset.json").write_bytes(text)
+        return {"tileset.json": len(text)}
+    written = {}
+    for path, part in tileset_files(hlod, place=place).items():
+        data = json.dumps(part, separators=(",", ":")).encode()
+        (folder / path).write_bytes(data)
+        written[path] = len(data)
+    return written
+
+
+def _write_tiles(hlod: Hlod, folder: Path, *, images: dict[str, TileImage], quantize: bool) -> tuple[int, int, int]:
     """folder/<node>.glb for every node with triangles (folder made here); (files, triangles, bytes)."""
     folder.mkdir()
     written, tris, size = 0, 0, 0
     for node in np.flatnonzero(hlod.tri_count > 0).tolist():
         mesh = node_geometry(hlod, node)
         data = glb_bytes(mesh.positions, mesh.faces, mesh.normals, uvs=mesh.uvs, colors=mesh.colors,
-                         face_material=mesh.face_material, materials=hlod.materials, images=images)
+                         face_material=mesh.face_material, materials=hlod.materials, images=images, quantize=quantize)
         (folder / f"{node}.glb").write_bytes(data)
         written, tris, size = written + 1, tris + mesh.faces.shape[0], size + len(data)
     return written, tris, size

@@ -1,7 +1,9 @@
 """A local web viewer of a 3D Tiles export: a small static HTTP server on 127.0.0.1 that
 serves the viewer page (`viewer_page/`), CesiumJS's built files and the tileset folder, and nothing
 else. The page (viewer_page/viewer.js) shows the tileset with CesiumJS in a local frame (no globe,
-no imagery, no token, no network) and exposes `window.hlodViewer` for scripts and tests.
+no imagery, no token, no network), or, when the export is placed (its extras.place), on a plain
+WGS84 globe of one colour (no imagery, no terrain, still no network), and exposes
+`window.hlodViewer` for scripts and tests.
 
 URL map (GET and HEAD only; anything else is 404, never a directory listing):
     /                 -> viewer_page/index.html

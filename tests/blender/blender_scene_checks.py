@@ -386,6 +386,91 @@ def check_batch(repo, work) -> dict:
             "good_written": (work / "out" / "good.hlod").is_file()}
 
 
+def _run_cli(cli, *argv: str) -> tuple[int, list[str], list[str]]:
+    """The background command in this process: (status, stdout lines, stderr lines)."""
+    with contextlib.redirect_stdout(io.StringIO()) as out, contextlib.redirect_stderr(io.StringIO()) as err:
+        status = cli.execute(list(argv))
+    return status, out.getvalue().splitlines(), err.getvalue().splitlines()
+
+
+def _tileset_place(folder: Path):
+    """(extras.place or None, the root transform's translation) of an export, or None without one."""
+    file = folder / "tileset.json"
+    if not file.is_file():
+        return None
+    document = json.loads(file.read_text())
+    return document.get("extras", {}).get("place"), document["root"]["transform"][12:15]
+
+
+def check_place(repo, work) -> dict:
+    """Where a 3D Tiles export from Blender stands: a scene with BlenderGIS's latitude/longitude is
+    placed by the background bake and by the Export button; --place wins; the panel's typed place
+    (text: double precision) and its Local Frame; a projected CRS refused with one line and nothing
+    written, by the button and by the background export."""
+    work = Path(work)
+    bpy.ops.wm.read_factory_settings(use_empty=True)  # first: it would disable the add-on
+    blender_preview.enable_from_repo(repo)
+    cli = importlib.import_module(NAME + ".addon.cli")
+    place_line = importlib.import_module(NAME + ".addon.scene.place").place_line
+    _add("mesh.primitive_ico_sphere_add", "Ball", location=(3.0, 4.0, 5.0))
+    scene = bpy.context.scene
+    out = {"line_unplaced": place_line(scene)}
+    scene["latitude"], scene["longitude"] = 47.3769, 8.5417  # BlenderGIS's keys (degrees)
+    scene["SRID"], scene["crs x"], scene["crs y"] = "EPSG:2056", 2683000.0, 1248000.0
+    out["line_scene"] = place_line(scene)
+    status, stdout, stderr = _run_cli(cli, "bake", "-o", str(work / "ball.hlod"), "--format", "hlod", "3dtiles",
+                                      "--target-tris", "64")
+    out["bake"] = (status, stderr)
+    out["bake_place"] = _tileset_place(work / "ball_3dtiles")
+    status, stdout, stderr = _run_cli(cli, "export", str(work / "ball.hlod"), "--format", "3dtiles", "-o",
+                                      str(work / "given"), "--place=-122.4194,37.7749,16,30")
+    out["given_place"] = (status, _tileset_place(work / "given"))
+    props = scene.hlod
+    props.file = str(work / "ball.hlod")
+
+    def button(folder: str):
+        try:
+            result = sorted(bpy.ops.hlod.export(filepath=str(work / folder), format="3DTILES"))
+        except RuntimeError as exc:
+            result = [" ".join(str(exc).split())]
+        return result, _tileset_place(work / folder)
+
+    out["button_scene"] = button("button_scene")
+    props.place_mode = "MANUAL"
+    props.place_longitude, props.place_latitude = "-73.98513", "40.75890"
+    props.place_height, props.place_heading = 12.5, 90
+    out["line_manual"] = place_line(scene)
+    out["button_manual"] = button("button_manual")
+    props.place_mode = "NONE"
+    out["button_none"] = button("button_none")
+    props.place_mode = "SCENE"
+    del scene["latitude"], scene["longitude"]  # BlenderGIS's projected CRS alone: cannot be read
+    out["line_projected"] = place_line(scene)
+    out["button_projected"] = button("button_projected")
+    status, stdout, stderr = _run_cli(cli, "export", str(work / "ball.hlod"), "--format", "3dtiles", "-o",
+                                      str(work / "projected"))
+    out["cli_projected"] = (status, stderr, (work / "projected").exists())
+    status, stdout, stderr = _run_cli(cli, "export", str(work / "ball.hlod"), "--format", "3dtiles", "-o",
+                                      str(work / "bad"), "--place=0,95,0")
+    out["cli_bad_latitude"] = (status, stderr, (work / "bad").exists())
+    # quantized tile content, from the background command and from the button
+    status, stdout, stderr = _run_cli(cli, "export", str(work / "ball.hlod"), "--format", "3dtiles", "-o",
+                                      str(work / "quantized"), "--place=none", "--mesh", "quantized")
+    props.place_mode = "NONE"
+    bpy.ops.hlod.export(filepath=str(work / "button_quantized"), format="3DTILES", mesh="quantized")
+    out["quantized"] = [status, *(_required_extensions(work / name) for name in ("quantized", "button_quantized"))]
+    return out
+
+
+def _required_extensions(folder: Path) -> list:
+    """The root tile GLB's extensionsRequired (empty for a plain one, None without an export)."""
+    glb = folder / "tiles" / "0.glb"
+    if not glb.is_file():
+        return None
+    data = glb.read_bytes()
+    return json.loads(data[20:20 + int.from_bytes(data[12:16], "little")]).get("extensionsRequired", [])
+
+
 if __name__ == "__main__":
     repo_dir, check, work_dir = sys.argv[1:4]
     sys.path.insert(0, str(Path(__file__).resolve().parents[2]))

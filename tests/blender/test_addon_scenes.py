@@ -3,6 +3,7 @@
 of geometry a .blend holds; the kinds without triangles and hidden objects skipped and named once;
 --include-hidden; the panel's count before a bake; a batch that goes on past files that cannot bake.
 """
+import numpy as np
 import pytest
 
 from blender_runs import all_hold, blender
@@ -118,3 +119,39 @@ def test_a_batch_goes_on_past_files_that_cannot_bake(versioned_repo, tmp_path):
              lights_only_says_why="no triangles" in files["lights_only.blend"]["error"]
              and "1 light: Light" in files["lights_only.blend"]["error"],
              no_traceback=not any("Traceback" in line for line in out["stderr"]))
+
+
+def test_a_georeferenced_scene_is_placed_and_a_projected_crs_is_one_line(versioned_repo, tmp_path):
+    """BlenderGIS's scene latitude/longitude place the background bake's and the Export button's 3D
+    Tiles (its root origin 6.37e6 m from the Earth's centre, extras.place the scene's); --place
+    wins; the panel's typed place is read in double precision and Local Frame is not placed; a
+    projected CRS alone is refused by the button and by `hlod export`, one line, nothing written;
+    a latitude of 95 likewise; --mesh quantized and the button's Tile Content write quantized GLBs."""
+    out = scene_check(versioned_repo, "place", tmp_path)
+    zurich = {"longitude_deg": 8.5417, "latitude_deg": 47.3769, "height_m": 0.0, "heading_deg": 0.0}
+    manhattan = {"longitude_deg": -73.98513, "latitude_deg": 40.7589, "height_m": 12.5, "heading_deg": 90.0}
+
+    def placed(result, expected):
+        return result is not None and result[0] == expected and 6.36e6 < float(np.linalg.norm(result[1])) < 6.38e6
+
+    all_hold(out,
+             baked=out["bake"][0] == 0 and placed(out["bake_place"], zurich),
+             given_wins=out["given_place"][0] == 0 and placed(out["given_place"][1], {
+                 "longitude_deg": -122.4194, "latitude_deg": 37.7749, "height_m": 16.0, "heading_deg": 30.0}),
+             button_scene=out["button_scene"][0] == ["FINISHED"] and placed(out["button_scene"][1], zurich),
+             button_manual=out["button_manual"][0] == ["FINISHED"] and placed(out["button_manual"][1], manhattan),
+             button_none=out["button_none"][0] == ["FINISHED"] and out["button_none"][1][0] is None
+             and float(np.linalg.norm(out["button_none"][1][1])) < 1e3,
+             lines=out["line_unplaced"] == "Local frame: the scene has no georeference"
+             and out["line_scene"].startswith("At 47.376900 N, 8.541700 E")
+             and out["line_manual"].startswith("At 40.758900 N, 73.985130 W, 12.5 m, heading 90")
+             and "'EPSG:2056' is not geographic" in out["line_projected"],
+             button_projected=len(out["button_projected"][0]) == 1
+             and "'EPSG:2056' is not geographic" in out["button_projected"][0][0]
+             and out["button_projected"][1] is None,
+             cli_projected=out["cli_projected"][0] == 1 and len(out["cli_projected"][1]) == 1
+             and "'EPSG:2056' is not geographic" in out["cli_projected"][1][0] and not out["cli_projected"][2],
+             cli_bad_latitude=out["cli_bad_latitude"][0] == 2 and len(out["cli_bad_latitude"][1]) == 1
+             and "latitude 95 is beyond +-90 degrees" in out["cli_bad_latitude"][1][0]
+             and not out["cli_bad_latitude"][2],
+             quantized=out["quantized"] == [0, ["KHR_mesh_quantization"], ["KHR_mesh_quantization"]])

@@ -1,0 +1,76 @@
+"""Bytes of a 3D Tiles export by what they hold: plain float32 tile content against positions and
+normals quantized (KHR_mesh_quantization), on baked files.
+
+    .venv/bin/python -m benchmarks.tile_bytes FILE.hlod [FILE.hlod ...]
+
+Each file is exported twice into a temporary folder (hlod_core.export.tiles3d.export, plain and
+quantized) and every GLB's buffer views are summed by what they serve: POSITION, NORMAL,
+TEXCOORD_0, COLOR_0, indices, and the rest of the GLB (JSON chunk, headers, padding); the tileset
+JSON files and the texture files are counted apart. Prints one JSON object per file: nodes, stored
+triangles, and for each encoding the bytes by part, the GLB bytes per stored triangle and the whole
+export's bytes. Sizes only: no timing, so the machine's load does not matter.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import struct
+import tempfile
+from pathlib import Path
+
+from hlod_core.export import tiles3d
+from hlod_core.io import hlod_file
+
+PARTS = ("POSITION", "NORMAL", "TEXCOORD_0", "COLOR_0", "indices", "glb_rest")
+
+
+def glb_parts(data: bytes) -> dict[str, int]:
+    """Bytes of one GLB by part (PARTS): each buffer view counted once, under the first attribute
+    (or indices) that uses it; the rest is the JSON chunk, headers and padding."""
+    json_len = struct.unpack("<I", data[12:16])[0]
+    gltf = json.loads(data[20:20 + json_len])
+    view_part: dict[int, str] = {}
+    for primitive in gltf["meshes"][0]["primitives"]:
+        for name, index in [*primitive["attributes"].items(), ("indices", primitive["indices"])]:
+            view_part.setdefault(gltf["accessors"][index]["bufferView"], name)
+    out = dict.fromkeys(PARTS, 0)
+    for view, name in view_part.items():
+        out[name] += gltf["bufferViews"][view]["byteLength"]
+    out["glb_rest"] = len(data) - sum(out.values())
+    return out
+
+
+def measure(folder: Path) -> dict:
+    """The export in `folder` by part, with its tileset JSON and texture files."""
+    parts = dict.fromkeys(PARTS, 0)
+    for glb in (folder / tiles3d.TILE_FOLDER).glob("*.glb"):
+        for name, size in glb_parts(glb.read_bytes()).items():
+            parts[name] += size
+    parts["tileset_json"] = sum(p.stat().st_size for p in folder.rglob("*.json"))
+    textures = folder / tiles3d.TEXTURE_FOLDER
+    parts["textures"] = sum(p.stat().st_size for p in textures.iterdir()) if textures.is_dir() else 0
+    return parts
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.tile_bytes", description=__doc__.split("\n\n")[0])
+    parser.add_argument("files", nargs="+", metavar="FILE.hlod")
+    args = parser.parse_args(argv)
+    for file in args.files:
+        hlod = hlod_file.load(file)
+        row = {"file": str(file), "nodes": hlod.node_count, "stored_triangles": int(hlod.tri_count.sum()),
+               "normals": hlod.normals is not None, "uvs": hlod.uvs is not None, "colors": hlod.colors is not None}
+        with tempfile.TemporaryDirectory(prefix="tile_bytes.") as scratch:
+            for name, quantize in (("plain", False), ("quantized", True)):
+                folder = Path(scratch) / name
+                summary = tiles3d.export(hlod, folder, quantize=quantize)
+                parts = measure(folder)
+                row[name] = {**parts, "glb_bytes": summary["bytes"],
+                             "glb_bytes_per_triangle": summary["bytes"] / row["stored_triangles"],
+                             "export_bytes": summary["bytes"] + parts["tileset_json"] + parts["textures"]}
+        row["glb_ratio"] = row["quantized"]["glb_bytes"] / row["plain"]["glb_bytes"]
+        print(json.dumps(row), flush=True)
+
+
+if __name__ == "__main__":
+    main()
