@@ -95,6 +95,8 @@ def test_evaluate_psnr_target_meets_it_with_the_fewest_nodes(downtown, tmp_path)
     assert set(report["methods"]) == set(line["methods"]) == {"bool", "coh_p"}
     assert report["methods"]["coh_p"]["dn"] == p["chosen"]["dn"]
     assert report["methods"]["coh_p"]["psnr_y_vs_bool"] == pytest.approx(p["chosen"]["psnr_y_mean"])
+    # the query gate runs in the search as in the evaluation: its share of frames without queries
+    assert all(0.0 <= report["methods"][k]["queries_off"] <= 1.0 for k in ("bool", "coh_p"))
     md = (out / "report.md").read_text()
     assert "## Tuned to PSNR-Y >= 40 dB against Bool" in md
     rows = [r for r in md.splitlines() if r.startswith("| ") and r.endswith(("| yes |", "| no |", "(chosen) |"))]

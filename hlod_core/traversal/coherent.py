@@ -68,8 +68,10 @@ class CoherentLoop(Traversal):
 
     def prepare(self, view):
         super().prepare(view)
+        rendered, probed_in = self._rendered, self.frame_id - 1
         self._probe_wait_s = 0.0 if self.gate is None else self.gate.read_probe(  # last frame's probe
-            self.renderer, drawn_nodes=len(self._last_drawn), drawn_tris=self._last_tris)
+            self.renderer, drawn_nodes=len(self._last_drawn), drawn_tris=self._last_tris,
+            drawn_in=lambda node: rendered[node] == probed_in)
         self._decision = Decision(QUERYING) if self.gate is None else self.gate.decide(self.frame_id, view)
         skips = self.skips if self._decision.mode == QUERYING else None
         model = getattr(self.renderer, "cost_model", None) if skips is not None else None

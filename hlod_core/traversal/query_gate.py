@@ -50,8 +50,9 @@ class GateParameters:
     resume_share: they resume where a probe's hidden share reaches this fraction of the cost share
     (a probe sees hidden nodes, not the refinements the bias stops, so it sees less than the
     queries would cull);
-    move_radii: an eye move since the last probe, in root-sphere radii, that probes at once;
-    turn_deg: a turn of the line of sight since the last probe that probes at once."""
+    move_radii: an eye move from one frame to the next, in root-sphere radii, that probes at once
+    (a cut: a smooth path, however fast, waits for the next periodic probe);
+    turn_deg: a turn of the line of sight from one frame to the next that probes at once."""
 
     window_frames: int = 8
     probe_every_frames: int = 4
@@ -93,7 +94,7 @@ class QueryGate:
         self.mode = QUERYING
         self.reason = ""
         self._off_since = 0  # frame the queries went off
-        self._probe_at: tuple[np.ndarray, np.ndarray] | None = None  # (eye, forward) of the last probe
+        self._last_view: tuple[np.ndarray, np.ndarray] | None = None  # (eye, forward) of the last frame
         self._probes = 0
         self.last_probe_share: float | None = None  # culled share of the last probe
         #: a probe's (nodes, queries), read at the next frame's start
@@ -103,19 +104,17 @@ class QueryGate:
 
     def decide(self, frame_id: int, view: View) -> Decision:
         """The frame's Decision: querying while queries pay; off, or probing every
-        probe_every_frames-th frame since they went off and on a large camera move."""
+        probe_every_frames-th frame since they went off and on a cut (a large camera move since
+        the last frame)."""
+        eye, forward = np.asarray(view.eye, np.float64), -np.asarray(view.view[2, :3], np.float64)
+        last, self._last_view = self._last_view, (eye, forward)
         if self.mode == QUERYING:
             return Decision(QUERYING)
-        eye, forward = np.asarray(view.eye, np.float64), -np.asarray(view.view[2, :3], np.float64)
         due = (frame_id - self._off_since) % self.parameters.probe_every_frames == 0
-        if not due and self._probe_at is not None:
-            last_eye, last_forward = self._probe_at
-            turn = math.degrees(math.acos(min(1.0, max(-1.0, float(forward @ last_forward)))))
-            due = float(np.linalg.norm(eye - last_eye)) > self._move_units or turn > self.parameters.turn_deg
-        if due:
-            self._probe_at = (eye, forward)
-            return Decision(PROBING, self.reason)
-        return Decision(OFF, self.reason)
+        if not due and last is not None:
+            turn = math.degrees(math.acos(min(1.0, max(-1.0, float(forward @ last[1])))))
+            due = float(np.linalg.norm(eye - last[0])) > self._move_units or turn > self.parameters.turn_deg
+        return Decision(PROBING if due else OFF, self.reason)
 
     def probe_picks(self, last_drawn: list[int]) -> list[int]:
         """The nodes a probe queries: the probe's size of the farther half of last frame's drawn
@@ -165,7 +164,7 @@ class QueryGate:
             asked = sum(queries for queries, _ in self._asked)
             per_probe = asked / len(self._asked) * p.probe_every_frames / 2
             self._probe_size = max(1, min(p.probe_queries, round(per_probe)))
-            self.mode, self._off_since, self._probe_at = OFF, frame_id, None
+            self.mode, self._off_since = OFF, frame_id
             self.reason = (f"queries off: they culled {max(mean_culled, 0.0):.1%} of the triangles over "
                            f"{p.window_frames} frames, cost {mean_cost:.1%}; probing every "
                            f"{p.probe_every_frames} frames")
@@ -180,9 +179,11 @@ class QueryGate:
         self._pending = (nodes, queries)
         return len(queries)
 
-    def read_probe(self, renderer, *, drawn_nodes: int, drawn_tris: int) -> float:
+    def read_probe(self, renderer, *, drawn_nodes: int, drawn_tris: int, drawn_in) -> float:
         """The last probe's results, if one is pending, learnt (`learn_probe`) with the nodes and
-        triangles its frame drew; the seconds waited for them."""
+        triangles its frame drew; the seconds waited for them. drawn_in(node): was the node drawn
+        in the probe's frame? Only those count: a node the frame did not draw (its LOD changed, it
+        left the view) may be hidden by what replaced it."""
         if self._pending is None:
             return 0.0
         (nodes, queries), self._pending = self._pending, None
@@ -191,6 +192,8 @@ class QueryGate:
         for node, query in zip(nodes, queries):
             q, _, stall = renderer.result(query)
             waited += stall
+            if not drawn_in(node):
+                continue
             probed += int(self._tri_count[node])
             hidden += int(self._tri_count[node]) if q == 0 else 0
         self.learn_probe(hidden_tris=hidden, probed_tris=probed, drawn_nodes=drawn_nodes, drawn_tris=drawn_tris)
