@@ -178,7 +178,7 @@ def node_borders(positions: np.ndarray, faces: np.ndarray, seams: np.ndarray | N
     if seams is None:
         locked |= border
     elif seams.shape[0]:
-        locked |= np.isin(_void_keys(positions), _void_keys(seams))
+        locked |= _among(positions, seams)
     by_position = np.ones(open_edges.shape[0], bool)
     if position_ids is not None and open_edges.shape[0]:
         by_position = _open_by_position(open_edges, faces, position_ids)
@@ -198,13 +198,34 @@ def _open_by_position(edges: np.ndarray, faces: np.ndarray, position_ids: np.nda
 
 
 def _open_edges(faces: np.ndarray, k: int) -> np.ndarray:
-    """(e,2) int64: the edges of faces (m,3) over k vertices that only one face has."""
-    pairs = np.sort(np.asarray(faces, np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    keys, count = np.unique(pairs[:, 0] * k + pairs[:, 1], return_counts=True)
-    single = keys[count == 1]
-    return np.stack([single // k, single % k], axis=1)
+    """(e,2) int64: the edges of faces (m,3) over k vertices that only one face has, ascending."""
+    f = np.asarray(faces, np.int64)
+    a, b = f.ravel(), f[:, [1, 2, 0]].ravel()
+    keys = np.sort(np.minimum(a, b) * k + np.maximum(a, b))
+    single = np.ones(keys.shape[0], bool)
+    same = keys[1:] == keys[:-1]
+    single[1:] &= ~same
+    single[:-1] &= ~same
+    keys = keys[single]
+    return np.stack([keys // k, keys % k], axis=1)
 
 
-def _void_keys(positions: np.ndarray) -> np.ndarray:
-    """(k,3) float32 positions as (k,) 12-byte keys, equal exactly when bit-identical."""
-    return np.ascontiguousarray(positions, np.float32).view(np.dtype((np.void, 12))).ravel()
+def _among(positions: np.ndarray, seams: np.ndarray) -> np.ndarray:
+    """(k,) bool: which of positions (k,3) float32 are bit-identical to a row of seams (s,3) float32:
+    their x and y bits first (one uint64 each, np.isin), then z among the seams of those x and y."""
+    xy, z = _keys(positions)
+    seam_xy, seam_z = _keys(seams)
+    out = np.isin(xy, seam_xy)
+    rows = np.flatnonzero(out)
+    if rows.size == 0:
+        return out
+    order = np.lexsort((seam_z, seam_xy))
+    seam_xy, seam_z = seam_xy[order], seam_z[order]
+    lo = np.searchsorted(seam_xy, xy[rows], side="left")
+    hi = np.searchsorted(seam_xy, xy[rows], side="right")
+    found = np.zeros(rows.size, bool)
+    for offset in range(int((hi - lo).max())):  # seams sharing x and y: almost always one
+        at = lo + offset
+        found |= (at < hi) & (seam_z[np.minimum(at, seam_z.shape[0] - 1)] == z[rows])
+    out[rows] = found
+    return out

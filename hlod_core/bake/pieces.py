@@ -81,18 +81,24 @@ def pieces_of(local: np.ndarray, faces: np.ndarray, locked: np.ndarray, *,
     """The Pieces of a welded node input (module docstring)."""
     k = local.shape[0]
     ids = np.arange(k, dtype=np.int64) if position_ids is None else np.asarray(position_ids, np.int64)
-    root = components(ids[faces], int(ids.max()) + 1 if k else 0)[ids]
-    _, first, of_vertex = np.unique(root, return_index=True, return_inverse=True)
-    rank = np.empty(first.size, np.int64)
-    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
-    of_vertex = rank[of_vertex.reshape(-1)]
-    p = first.size
+    n = int(ids.max()) + 1 if k else 0
+    comp = components(ids[faces], n)
+    # pieces by their lowest id (the components' roots), then numbered by first vertex
+    by_root = np.cumsum(comp == np.arange(n)) - 1
+    of_vertex = by_root[comp[ids]]
+    p = int(by_root[-1]) + 1 if n else 0
+    first = np.full(p, k, np.int64)
+    np.minimum.at(first, of_vertex, np.arange(k, dtype=np.int64))
+    rank = np.empty(p, np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(p)
+    of_vertex = rank[of_vertex]
     free = np.ones(p, bool)
     free[of_vertex[locked]] = False
-    box_min = np.full((p, 3), np.inf)
-    box_max = np.full((p, 3), -np.inf)
-    np.minimum.at(box_min, of_vertex, local)
-    np.maximum.at(box_max, of_vertex, local)
+    # boxes: each piece's vertices in one run (every piece has one at least)
+    order = np.argsort(of_vertex, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(np.bincount(of_vertex, minlength=p))[:-1]]).astype(np.int64)
+    box_min = np.minimum.reduceat(np.asarray(local, np.float64)[order], starts, axis=0) if p else np.zeros((0, 3))
+    box_max = np.maximum.reduceat(np.asarray(local, np.float64)[order], starts, axis=0) if p else np.zeros((0, 3))
     input_tris = np.bincount(of_vertex[faces[:, 0]], minlength=p).astype(np.int64)
     free &= input_tris > 0  # a vertex no face uses is a piece of its own, and nothing to drop
     return Pieces(of_vertex=of_vertex, free=free, box_min=box_min, box_max=box_max, input_tris=input_tris)
