@@ -8,6 +8,7 @@ import os
 import struct
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -536,8 +537,9 @@ def test_textured_bake_exported_by_the_command_passes_the_validators(tmp_path):
 def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_path):
     """The shared textured scene (tests/scenes/textured_scene.py, small) baked from its .blend by the
     installed extension's background command, with 3D Tiles: every GLB valid with its images, the
-    root tile textured with TEXCOORD_0 (and COLOR_0: the scene has colour attributes), one image
-    file per distinct texture of the scene, each the source's bytes."""
+    root tile textured with TEXCOORD_0 (and COLOR_0: the scene has colour attributes) and referring to
+    its own proxy texture only, one image file per distinct texture of the scene and per proxy, each
+    its source's bytes."""
     scene = textured_scene("small")
     run = subprocess.run([sys.executable, str(ROOT / "scripts/hlod_blender.py"), "--extension-repo", str(repo / "repo"),
                           "bake", str(scene["blend"]), "-o", str(tmp_path / "out"), "--format", "hlod", "3dtiles"],
@@ -549,11 +551,16 @@ def test_the_textured_scene_baked_in_blender_exports_textured_tiles(repo, tmp_pa
     assert h.node_count > 1 and h.uvs is not None and h.colors is not None
     assert_matches(tiles_dir, src)
     textures = sorted(scene["textures"].iterdir())
-    assert len({m.texture for m in h.materials} - {None}) == len(textures)
+    # the scene's textures and the inner nodes' proxy textures (OUT.textures/proxy_<node>.png)
+    proxies = sorted({Path(m.texture) for m in h.materials if m.name.startswith("HLOD proxy")})
+    assert proxies and len({m.texture for m in h.materials} - {None}) == len(textures) + len(proxies)
     copied = sorted((tiles_dir / "textures").iterdir())
-    assert sorted(p.read_bytes() for p in copied) == sorted(p.read_bytes() for p in textures)
+    assert sorted(p.read_bytes() for p in copied) == sorted(p.read_bytes() for p in [*textures, *proxies])
     gltf, _ = read_glb(tiles_dir / "tiles/0.glb")
     assert any("baseColorTexture" in m["pbrMetallicRoughness"] for m in gltf["materials"])
+    # the root refers to its own proxy texture only
+    names = [image.get("uri", "").rsplit("/", 1)[-1] for image in gltf.get("images", [])]
+    assert names and all(name.startswith("proxy_0") for name in names), names
     assert {"TEXCOORD_0", "COLOR_0"} <= set(gltf["meshes"][0]["primitives"][0]["attributes"])
 
 

@@ -684,7 +684,7 @@ def test_bake_keeps_materials_and_uvs(kind, ours, scene):
     """A bake of the read scene keeps its material table, UVs and per-triangle materials; the
     leaves keep every triangle of every material."""
     mesh = ours[kind]
-    hlod = bake(mesh, BakeSettings(target_tris=8000, jobs=1))
+    hlod = bake(mesh, BakeSettings(target_tris=8000, jobs=1, proxy_materials=False))  # the table as read
     assert [m.name for m in hlod.materials] == [m.name for m in mesh.materials]
     assert hlod.uvs is not None and hlod.tri_material is not None
     assert (hlod.colors is not None) == (kind == "glb")
@@ -698,9 +698,11 @@ def test_bake_keeps_materials_and_uvs(kind, ours, scene):
 def test_cli_bake_writes_embedded_images_beside_the_output(tmp_path, scene, capsys):
     """bake X.glb -o OUT.hlod: the GLB's images go to OUT.textures/ (once each), the .hlod refers
     to them relative to itself; an OBJ (images are files already) writes no folder; a bake that
-    fails after the images were written leaves neither the folder nor its scratch copy."""
+    fails after the images were written leaves neither the folder nor its scratch copy. (With the
+    sources' materials on every level: the proxies' own textures are test_cli_bake_writes_proxies.)"""
     out = tmp_path / "scene.hlod"
-    assert cli.main(["-q", "bake", str(scene["glb"]), "-o", str(out), "--target-tris", "20000"]) == 0
+    keep = "--keep-materials"
+    assert cli.main(["-q", "bake", str(scene["glb"]), "-o", str(out), "--target-tris", "20000", keep]) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     folder = tmp_path / "scene.textures"
     assert summary["texture_folder"] == str(folder) and len(list(folder.iterdir())) == 3
@@ -708,19 +710,35 @@ def test_cli_bake_writes_embedded_images_beside_the_output(tmp_path, scene, caps
     assert header_textures == sorted(str(p.resolve()) for p in folder.iterdir())
     raw = out.read_bytes()
     assert b'"scene.textures/' in raw and str(folder).encode() not in raw  # stored relative
-    assert cli.main(["-q", "bake", str(scene["obj"]), "-o", str(tmp_path / "obj.hlod"), "--target-tris", "20000"]) == 0
+    assert cli.main(["-q", "bake", str(scene["obj"]), "-o", str(tmp_path / "obj.hlod"), "--target-tris", "20000",
+                     keep]) == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["texture_folder"] is None
     assert not (tmp_path / "obj.textures").exists()
     bad = tmp_path / "bad.obj"
     bad.write_text("v 0 0 0\nf 1 2 3\n")
     before = {p.name: p.read_bytes() for p in [out, *folder.iterdir()]}
     for target in (tmp_path / "failed.hlod", out):  # a new output; a re-bake of the first one
-        assert cli.main(["-q", "bake", str(scene["glb"]), str(bad), "-o", str(target)]) == 2
+        assert cli.main(["-q", "bake", str(scene["glb"]), str(bad), "-o", str(target), keep]) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("hlod_core: error: ") and str(bad) in err and "\n" not in err
         assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.obj", "obj.hlod", "obj.hlod.cache", "scene.hlod",
                                                               "scene.hlod.cache", "scene.textures"]
     assert {p.name: p.read_bytes() for p in [out, *folder.iterdir()]} == before
+
+
+def test_cli_bake_writes_proxies_beside_the_output(tmp_path, scene, capsys):
+    """bake X.obj -o OUT.hlod with proxy materials (the default): the inner nodes' textures are
+    OUT.textures/proxy_<node>.png, which the .hlod refers to relative to itself; the bake says it
+    used no cache (a bake that makes proxies runs without one)."""
+    out = tmp_path / "proxies.hlod"
+    assert cli.main(["-q", "bake", str(scene["obj"]), "-o", str(out), "--target-tris", "20000"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    folder = tmp_path / "proxies.textures"
+    hlod = hlod_file.load(out)
+    proxies = [m for m in hlod.materials if m.name.startswith("HLOD proxy")]
+    assert summary["texture_folder"] == str(folder) and summary["cache"] is None and proxies
+    assert sorted(Path(m.texture).name for m in proxies) == sorted(p.name for p in folder.iterdir())
+    assert b'"proxies.textures/proxy_' in out.read_bytes()
 
 
 def test_interrupted_bake_leaves_no_texture_folder(tmp_path, scene):

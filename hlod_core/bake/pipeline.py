@@ -81,8 +81,9 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     for the same file; scratch_dir: a folder every worker reads (shared storage on a cluster;
     default the temporary folder), where the bake writes its shared arrays into a subfolder of its
     own, removed at the end. Neither is a setting: they change where the work runs, not the file.
-    images: material row -> its texture image ((h,w,4) uint8 sRGB RGBA, top row first;
-    io.textures.load_material_images), what the inner nodes' proxy materials are baked from
+    images: material row -> its texture image ((h,w,4) uint8 sRGB RGBA, top row first), what the
+    inner nodes' proxy materials are baked from; None: read from the materials' texture files
+    (io.textures.load_material_images)
     (appearance/); textures: where their PNGs go (`scratch`, written, and `final`, what the file's
     materials name: io.texture_folder.EmbeddedTextures; None: a temporary folder of their own)."""
     with stop_signals_held():
@@ -90,7 +91,7 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         plan = proxy_plan(mesh, settings, images=images, textures=textures)
         if plan is not None:
             mesh = plan.mesh
-            if cache_dir is not None:
+            if cache_dir is not None and mesh.tri_count > settings.target_tris:  # inner nodes: proxies
                 log.info("proxy materials: the bake cache is not used for a bake that makes them")
                 cache_dir = None
         cache = BakeCache.open(cache_dir, mesh=mesh, settings=settings, budget_mb=cache_budget_mb)

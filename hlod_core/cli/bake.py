@@ -59,10 +59,13 @@ def bake_command(args: argparse.Namespace) -> dict:
     with _cluster(args) as client:
         started = time.perf_counter()
         with EmbeddedTextures(Path(args.output)) as textures:
-            mesh = textures.relocate(meshes.load_inputs(args.inputs, texture_dir=textures.scratch))
+            loaded = meshes.load_inputs(args.inputs, texture_dir=textures.scratch)
+            # the proxies' sources, read while the embedded images are still where the bake wrote them
+            images = load_material_images(loaded.materials) if not args.keep_materials else {}
+            mesh = textures.relocate(loaded)
             load_seconds = time.perf_counter() - started
             summary = _bake_and_save(mesh, args, sources=[str(p) for p in args.inputs], cache_dir=cache_dir,
-                                     scheduler=client, frame_from=frame_from, textures=textures)
+                                     scheduler=client, frame_from=frame_from, textures=textures, images=images)
             summary["texture_folder"] = textures.publish()
     summary["load_seconds"] = load_seconds
     return summary
@@ -114,11 +117,13 @@ def _frame_from(args: argparse.Namespace) -> Frame | None:
 
 
 def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_dir: Path | None = None,
-                   scheduler=None, frame_from: Frame | None = None, textures: EmbeddedTextures | None = None) -> dict:
+                   scheduler=None, frame_from: Frame | None = None, textures: EmbeddedTextures | None = None,
+                   images: dict | None = None) -> dict:
     """Bake, save to --output and summarise. mesh: a TriangleMesh, or a partition.TriangleSource
     (--out-of-core: bake_stream, no cache); scheduler: the distributed.Client of `_cluster` (None:
     local workers); frame_from: --frame-from's frame; textures: the bake's texture folder (the proxy
-    materials' textures go there; their source images are read with Pillow, io.textures)."""
+    materials' textures go there); images: the materials' texture images the proxies are baked from
+    (None: read from the materials' files with Pillow, io.textures)."""
     settings = bake_settings_of(args)
     streamed = not isinstance(mesh, meshes.TriangleMesh)
     started = time.perf_counter()
@@ -127,7 +132,8 @@ def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_
                            scratch_dir=args.scratch, chunk_tris=args.chunk_tris or partition.CHUNK_TRIS)
     else:
         budget = cache.DEFAULT_BUDGET_MB if args.cache_budget is None else args.cache_budget
-        images = load_material_images(mesh.materials) if settings.proxy_materials else {}
+        if images is None:
+            images = load_material_images(mesh.materials) if settings.proxy_materials else {}
         hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
                     scratch_dir=getattr(args, "scratch", None), frame_from=frame_from, cache_budget_mb=budget,
                     images=images, textures=textures)
@@ -139,7 +145,8 @@ def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_
     summary.update(output=str(args.output), jobs=settings.jobs, seconds=seconds,
                    phase_seconds=hlod.meta["phase_seconds"],
                    tris_per_second=summary["input_tris"] / seconds if seconds > 0 else None,
-                   cache=None if cache_dir is None else {"folder": str(cache_dir), **hlod.meta["cache"]},
+                   cache=None if cache_dir is None or "cache" not in hlod.meta
+                   else {"folder": str(cache_dir), **hlod.meta["cache"]},
                    frame=hlod.meta["frame_source"])
     if scheduler is not None:
         summary["scheduler"] = {"address": args.scheduler, "worker_threads": sum(scheduler.nthreads().values())}

@@ -448,7 +448,8 @@ def check_cache_mixed_scene(repo, work) -> dict:
 
     def bake(path: Path, *extra: str) -> dict:
         with contextlib.redirect_stdout(io.StringIO()) as stdout:
-            status = cli.execute(["bake", "--target-tris", "300", *extra, "-o", str(path)])
+            # the sources' materials on every level: a bake that makes proxy materials runs without the cache
+            status = cli.execute(["bake", "--target-tris", "300", "--keep-materials", *extra, "-o", str(path)])
         summary = json.loads(stdout.getvalue().strip().splitlines()[-1])["files"][0]
         return {"status": status, "cache": summary.get("cache"), "error": summary.get("error"),
                 "jobs": summary.get("jobs")}
@@ -509,7 +510,7 @@ def check_mixed_rebake_speed(repo, work, detail: str = "8", jobs: str = "2") -> 
     def bake(path: Path, *extra: str) -> tuple[float, dict]:
         started = time.perf_counter()
         with contextlib.redirect_stdout(io.StringIO()) as stdout:
-            cli.execute(["bake", "--jobs", jobs, *extra, "-o", str(path)])
+            cli.execute(["bake", "--jobs", jobs, "--keep-materials", *extra, "-o", str(path)])
         return time.perf_counter() - started, json.loads(stdout.getvalue().strip().splitlines()[-1])["files"][0]
 
     full_s, full = bake(out_path)

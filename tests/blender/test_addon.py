@@ -31,7 +31,7 @@ TOGGLED = {"on": "off", "off": "on"}
 pytestmark = pytest.mark.blender  # the extension in the real bpy module (or Blender's own extension tool)
 
 BLENDER_EXT = Path(sysconfig.get_paths()["platlib"]) / "bpy/5.0/scripts/addons_core/bl_pkg/cli/blender_ext.py"
-DEPENDENCIES = ("pymeshlab", "moderngl", "glcontext")
+DEPENDENCIES = ("pymeshlab", "moderngl", "glcontext", "xatlas")
 BLENDER_PYTHON = {"4.2": (3, 11), "5.0": (3, 11), "5.2": (3, 13)}  # the Python each Blender ships
 
 

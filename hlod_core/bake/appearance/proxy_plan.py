@@ -193,15 +193,20 @@ class PlannedBake:
 def proxy_plan(mesh, settings, *, images: dict | None, textures) -> PlannedBake | None:
     """The ProxyPlan of a bake of `mesh` (io.meshes.TriangleMesh) at `settings` (BakeSettings), or
     None where no node can need a proxy: proxies off, no material table, or one material without a
-    texture. A material naming a texture without an image in `images` (the loader warned) shows its
-    base colour in the proxies. textures: where the PNGs go (its `scratch` folder, named by
+    texture. images: material row -> its texture image; None: read from the materials' files
+    (io.textures.load_material_images). A material naming a texture without an image there (the
+    loader warned) shows its base colour in the proxies. textures: where the PNGs go (its `scratch` folder, named by
     the file as its `final` one); None: a temporary folder."""
     materials = tuple(getattr(mesh, "materials", ()) or ())
     if not settings.proxy_materials or mesh.material_ids is None or not materials:
         return None
-    images = dict(images or {})
     if len(materials) == 1 and materials[0].texture is None:
         return None
+    if images is None:  # the materials' own files (Pillow; without it, one warning and base colours)
+        from ...io.textures import load_material_images
+
+        images = load_material_images(materials)
+    images = dict(images)
     if mesh.uvs is None:
         mesh = dataclasses.replace(mesh, uvs=np.zeros((mesh.positions.shape[0], 2), np.float32))
     layout = AttributeLayout(material=True, uv=True, color=mesh.colors is not None)
