@@ -86,8 +86,8 @@ RESULT_MODULES = ("bake.simplify", "bake.collapse", "bake.meshlab", "bake.seams"
                   "bake.assemble", "bake.meta", "bake.pipeline", "bake.cache", "bake.cache_files", "bake.lattice",
                   "bake.frame", "bake.root_cube", "bake.appearance.proxy", "bake.appearance.atlas",
                   "bake.appearance.texels", "bake.appearance.surface_colour", "bake.appearance.quality",
-                  "bake.appearance.proxy_task", "bake.appearance.proxy_plan", "core.cpu_raster", "core.colour", "io.textures",
-                  "core.png")
+                  "bake.appearance.proxy_task", "bake.appearance.proxy_plan", "core.cpu_raster", "core.colour",
+                  "core.png", "io.textures")
 #: Temporary files older than this (seconds) are a crashed writer's: prune removes them.
 _STALE_TEMP_SECONDS = 3600.0
 _CACHEDIR_TAG = (b"Signature: 8a477f597d28d172789f06886806bc55\n"
