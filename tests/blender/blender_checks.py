@@ -54,7 +54,7 @@ def _dependency_files() -> dict:
     wheels of its zip that match its Python into the user's extensions/.local/lib/pythonX.Y/site-packages
     and puts that folder on sys.path."""
     files = {}
-    for name in ("pymeshlab", "moderngl", "glcontext"):
+    for name in ("pymeshlab", "moderngl", "glcontext", "xatlas"):
         try:
             files[name] = importlib.import_module(name).__file__
         except ImportError as exc:
