@@ -229,3 +229,17 @@ def test_a_proxy_shows_its_sources_colours_where_they_are_and_the_gate_says_so()
         assert np.median(np.abs(at[:, 1] - 255 * centre[left, 1])) <= 2, node
     # a proxy this close to its sources scores high at the gate (a white proxy base colour: no dimming)
     assert proxies["psnr_y_median"] >= 35.0
+
+
+def test_empty_texels_take_the_colours_of_the_charts_nearest_them():
+    from hlod_core.bake.appearance.texels import fill_empty
+
+    rgba = np.zeros((5, 7, 4), np.float32)
+    filled = np.zeros((5, 7), bool)
+    rgba[1, 1], rgba[3, 5] = (1, 0, 0, 1), (0, 0, 1, 1)
+    filled[1, 1] = filled[3, 5] = True
+    out = fill_empty(rgba, filled)
+    assert np.array_equal(out[1, 1], rgba[1, 1]) and np.array_equal(out[3, 5], rgba[3, 5])  # kept
+    assert np.array_equal(out[0, 0], (1, 0, 0, 1)) and np.array_equal(out[2, 6], (0, 0, 1, 1))  # the nearer
+    # every texel a blend of the two charts' colours, never a colour that is on neither (no black)
+    assert np.allclose(out[..., 0] + out[..., 2], 1.0) and np.all(out[..., 3] == 1.0)

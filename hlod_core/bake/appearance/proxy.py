@@ -23,10 +23,10 @@ import numpy as np
 
 from ...core.colour import srgb_from_linear
 from ...model.appearance import AttributeLayout, Material
-from .atlas import PADDING_TEXELS, node_atlas, surface_area, texture_side
+from .atlas import node_atlas, surface_area, texture_side
 from .quality import DIRECTIONS, node_psnr
 from .surface_colour import MipChain, Surface, colour_at, texture_texels_per_unit
-from .texels import closest_on_sources, dilate, texel_samples
+from .texels import closest_on_sources, fill_empty, texel_samples
 
 #: Alpha (of 1) at or above which a texel is opaque: a face all of whose texels are goes in the
 #: proxy's opaque part, the others in its alpha-tested part.
@@ -165,7 +165,7 @@ def bake_proxy(lod: tuple, error: float, sources: list[tuple], *, node: int, lay
     filled = np.zeros(height * width, bool)
     filled[texel] = True
     alpha_mode = _alpha_mode(surface)
-    rgba = dilate(rgba.reshape(height, width, 4), filled.reshape(height, width), steps=PADDING_TEXELS + 1)
+    rgba = fill_empty(rgba.reshape(height, width, 4), filled.reshape(height, width))
     face_alpha = np.ones(atlas.faces.shape[0], np.float32)
     if alpha_mode is not None:
         np.minimum.at(face_alpha, face, colour[:, 3])

@@ -117,13 +117,12 @@ def barycentric(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return out
 
 
-def dilate(rgba: np.ndarray, filled: np.ndarray, *, steps: int) -> np.ndarray:
+def fill_empty(rgba: np.ndarray, filled: np.ndarray) -> np.ndarray:
     """rgba (h,w,4) float32 with `filled` (h,w) bool texels set: the empty texels filled by pull-push
     (the image averaged down over its filled texels only, level by level to 1 x 1, then each empty
     texel given the level below's value at its place, coarse to fine), so the charts' padding holds
     their border colours and the texture's coarser mip levels mix each chart with its neighbours,
-    never with a colour that is nowhere on the surface. steps: kept for the callers; pull-push fills
-    every texel. Returns a new array."""
+    never with a colour that is nowhere on the surface. Returns a new array."""
     out = np.array(rgba, np.float32)
     have = np.asarray(filled, bool)
     if not have.any():
