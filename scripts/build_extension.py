@@ -42,6 +42,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from hlod_core.core.atomic import atomic_file  # the project's one atomic write
+from zip_rename import copy_renamed  # scripts/ is on the path: this script's folder
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -166,18 +167,16 @@ def blender_ready(wheel: Path, flat_dir: Path = FLAT_WHEELS) -> Path:
         def moved(name: str) -> str:
             return next((name[len(p):] for p in payload if name.startswith(p)), name)
 
-        # atomic: builds running at once each write a private temporary file, then rename it
-        with atomic_file(flat) as f, zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED) as out:
-            for info in src.infolist():
-                data = src.read(info)
-                if info.filename.endswith(".dist-info/RECORD"):  # CSV: path, hash, size
-                    rows = [[moved(row[0]), *row[1:]] for row in csv.reader(io.StringIO(data.decode("utf-8"))) if row]
-                    text = io.StringIO()
-                    csv.writer(text, lineterminator="\n").writerows(rows)
-                    data = text.getvalue().encode("utf-8")
-                renamed = zipfile.ZipInfo(moved(info.filename), info.date_time)
-                renamed.external_attr, renamed.compress_type = info.external_attr, zipfile.ZIP_DEFLATED
-                out.writestr(renamed, data)
+        def record(data: bytes) -> bytes:  # CSV: path, hash, size
+            rows = [[moved(row[0]), *row[1:]] for row in csv.reader(io.StringIO(data.decode("utf-8"))) if row]
+            text = io.StringIO()
+            csv.writer(text, lineterminator="\n").writerows(rows)
+            return text.getvalue().encode("utf-8")
+
+        # atomic: builds running at once each write a private temporary file, then rename it; the members'
+        # compressed bytes are copied, not deflated again (zip_rename)
+        with atomic_file(flat) as f:
+            copy_renamed(wheel, f, moved, lambda name: record if name.endswith(".dist-info/RECORD") else None)
     return flat
 
 

@@ -69,6 +69,46 @@ def test_a_data_payload_moves_to_the_wheel_root_for_blender_4_2(tmp_path):
     assert build_extension.blender_ready(src, tmp_path / "flat") == flat  # made once, then reused
 
 
+def test_members_are_copied_renamed_with_their_bytes_dates_and_attributes(tmp_path):
+    """zip_rename copies members compressed as they are (deflated, stored, written with a data
+    descriptor through an unseekable stream, a non-ASCII name); Python's zipfile reads the copy back,
+    CRCs included, and only the rewritten member has new content."""
+    from zip_rename import copy_renamed
+
+    class Unseekable(io.RawIOBase):  # zipfile then writes each member's sizes in a data descriptor
+        def __init__(self, target):
+            self.target = target
+
+        def writable(self):
+            return True
+
+        def write(self, data):
+            return self.target.write(data)
+
+    src = tmp_path / "src.zip"
+    members = {"pkg.data/platlib/a.py": (b"A = 1\n" * 500, zipfile.ZIP_DEFLATED),
+               "pkg.data/platlib/b.bin": (bytes(range(256)) * 40, zipfile.ZIP_STORED),
+               "pkg.data/platlib/ünï.txt": ("café".encode() * 100, zipfile.ZIP_DEFLATED),
+               "pkg-1.0.dist-info/RECORD": (b"old\n", zipfile.ZIP_DEFLATED)}
+    with open(src, "wb") as f, zipfile.ZipFile(Unseekable(f), "w") as z:
+        for number, (name, (data, method)) in enumerate(members.items()):
+            info = zipfile.ZipInfo(name, (2020, 1 + number, 2, 3, 4, 6))
+            info.compress_type, info.external_attr = method, (0o755 if number == 0 else 0o644) << 16
+            z.writestr(info, data)
+    with open(tmp_path / "copy.zip", "wb") as f:
+        copy_renamed(src, f, lambda name: name.replace("pkg.data/platlib/", ""),
+                     lambda name: (lambda data: data.upper()) if name.endswith("RECORD") else None)
+    with zipfile.ZipFile(src) as before, zipfile.ZipFile(tmp_path / "copy.zip") as after:
+        assert after.testzip() is None
+        assert after.namelist() == ["a.py", "b.bin", "ünï.txt", "pkg-1.0.dist-info/RECORD"]
+        for old, new in zip(before.infolist(), after.infolist()):
+            expected = before.read(old).upper() if new.filename.endswith("RECORD") else before.read(old)
+            assert after.read(new) == expected
+            assert (new.date_time, new.external_attr) == (old.date_time, old.external_attr)
+            if not new.filename.endswith("RECORD"):
+                assert (new.compress_type, new.compress_size) == (old.compress_type, old.compress_size)
+
+
 def test_a_plain_wheel_is_used_as_it_is_and_other_data_folders_stop_the_build(tmp_path):
     plain = _wheel(tmp_path / "demo-1.0-py3-none-any.whl", {"demo/__init__.py": b""})
     assert build_extension.blender_ready(plain, tmp_path / "flat") == plain
