@@ -105,8 +105,7 @@ ensure_blender_venv() {
     want="$(sha256sum "$req" | cut -d' ' -f1)"
     if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
         say "installing bpy $version into $dir (first run downloads about 400 MB)"
-        # niced: beside it the validators' npm install compiles better-sqlite3, the set-up's longest step
-        nice -n 5 "$dir/bin/python" -m pip install --disable-pip-version-check -q -r "$req" >&2
+        "$dir/bin/python" -m pip install --disable-pip-version-check -q -r "$req" >&2
         echo "$want" > "$stamp"
     fi
 }
@@ -149,12 +148,16 @@ ensure_npm() {
 }
 
 npm_ci() {
-    # npm ci in folder $1 when its package-lock.json changed since the last install; $2 says what
+    # npm ci in folder $1 when its package-lock.json changed since the last install; $2 says what.
+    # Without the packages' install scripts: the only ones (tools/validators) compile better-sqlite3 from
+    # source (about 1.5 min of CPU; its prebuilt binaries are on GitHub, not on the registry), which
+    # 3d-tiles-tools loads only to read .3dtiles packages, and check sharp's prebuilt binary, which npm
+    # installs as a package of its own. check_tileset.mjs uses neither.
     local folder="$1" stamp="$1/node_modules/.lock.sha256" want
     want="$(sha256sum "$folder/package-lock.json" | cut -d' ' -f1)"
     if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
         say "installing $2 into $folder/node_modules"
-        (cd "$folder" && npm ci --silent --no-audit --no-fund >&2)
+        (cd "$folder" && npm ci --silent --no-audit --no-fund --ignore-scripts >&2)
         echo "$want" > "$stamp"
     fi
 }

@@ -51,7 +51,7 @@ def main() -> None:
                     page.evaluate(f"hlodViewer.setColorByDepth({str(depth).lower()})")
                     page.wait_for_timeout(300)
                     page.wait_for_function("hlodViewer.allTilesLoaded", timeout=LOAD_TIMEOUT_MS)
-                    page.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
+                    page.evaluate("hlodViewer.redraw().then(() => hlodViewer.redraw())")
                     page.screenshot(path=str(out / name))
                     shots[name] = page.evaluate("hlodViewer.stats()")
                 errors = page.evaluate("hlodViewer.errors")

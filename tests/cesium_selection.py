@@ -242,7 +242,7 @@ def _depths(ts: Tileset, uris: set) -> str:
 
 #: Frames a selection must stay the same, with all tiles loaded, before it is read as Cesium's choice.
 STABLE_FRAMES = 3
-_NEXT_FRAME_JS = "() => new Promise(done => requestAnimationFrame(() => requestAnimationFrame(done)))"
+_NEXT_FRAME_JS = "() => window.hlodViewer.redraw()"  # the page draws on demand: ask for a frame
 _STATE_JS = """() => ({loaded: window.hlodViewer.allTilesLoaded === true,
     tiles: window.hlodViewer.selectedTiles().map(t => t.uri),
     size: window.hlodViewer.frameSize(), camera: window.hlodViewer.camera(),

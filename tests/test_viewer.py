@@ -193,9 +193,10 @@ def _wait_loaded(tab) -> None:
 
 
 def _wait_drawn(tab) -> None:
-    """Until two more animation frames have been drawn: Cesium's render loop has drawn the page's
-    state as it is now (however long a frame takes on a loaded machine; no fixed wait)."""
-    tab.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
+    """Until two more frames have been drawn: Cesium has drawn the page's state as it is now
+    (however long a frame takes on a loaded machine; no fixed wait). The page draws on demand, so each
+    frame is asked for (hlodViewer.redraw)."""
+    tab.evaluate("hlodViewer.redraw().then(() => hlodViewer.redraw())")
 
 
 def _picture(tab, tmp_path: Path, name: str) -> np.ndarray:

@@ -17,6 +17,10 @@
 //
 // Tile selection is made comparable with our traversal: dynamic and foveated screen-space error
 // off, no progressive resolution, no skipping of levels (REPLACE refinement as written).
+//
+// Frames are drawn on demand (CesiumJS's request render mode): when the camera moves, a tile loads or
+// the panel changes something, not 60 times a second, so an idle page costs no GPU or CPU time.
+// hlodViewer.redraw() draws one frame of the page's state now and resolves once it is drawn.
 "use strict";
 
 (function () {
@@ -85,7 +89,7 @@
       baseLayer: false, globe: globe, skyBox: false, skyAtmosphere: false, scene3DOnly: true,
       animation: false, timeline: false, baseLayerPicker: false, geocoder: false, homeButton: false,
       sceneModePicker: false, navigationHelpButton: false, fullscreenButton: false, infoBox: false,
-      selectionIndicator: false, shouldAnimate: false,
+      selectionIndicator: false, shouldAnimate: false, requestRenderMode: true, maximumRenderTimeChange: Infinity,
     });
     const scene = viewer.scene;
     scene.backgroundColor = Cesium.Color.fromCssColorString("#30343a");
@@ -140,22 +144,30 @@
 
     hv.frameSize = () => [scene.drawingBufferWidth, scene.drawingBufferHeight];
 
+    hv.redraw = () => new Promise((drawn) => {
+      const stop = scene.postRender.addEventListener(() => { stop(); drawn(); });
+      scene.requestRender();
+    });
+
     hv.setMaximumScreenSpaceError = function (px) {
       hv.allTilesLoaded = false;
       const input = document.getElementById("sse");
       input.value = String(px);
       setText("sse-value", String(px));
       if (tileset) tileset.maximumScreenSpaceError = Number(px);
+      scene.requestRender();
     };
 
     hv.setColorByDepth = function (on) {
       colourByDepth = Boolean(on);
       document.getElementById("depth-colours").checked = colourByDepth;
+      scene.requestRender();
     };
 
     hv.setShowBoxes = function (on) {
       document.getElementById("boxes").checked = Boolean(on);
       if (tileset) tileset.debugShowBoundingVolume = Boolean(on);
+      scene.requestRender();
     };
 
     // a content's path in the export folder (tiles/<node>.glb), whichever tileset file names it
@@ -190,20 +202,28 @@
     document.getElementById("boxes").addEventListener("change", (e) => hv.setShowBoxes(e.target.checked));
     viewer.camera.changed.addEventListener(() => { hv.allTilesLoaded = false; });
 
+    // the panel's counters: at most every 200 ms, and once more after the last frame of a burst
     let lastCounters = 0;
+    let countersLater = null;
     scene.postRender.addEventListener(() => {
       if (!tileset) return;
       hv.allTilesLoaded = tileset.tilesLoaded;
-      const now = performance.now();
-      if (now - lastCounters < 200) return;
-      lastCounters = now;
+      const wait = lastCounters + 200 - performance.now();
+      if (wait <= 0) updateCounters();
+      else if (countersLater === null) countersLater = setTimeout(updateCounters, wait);
+    });
+
+    function updateCounters() {
+      clearTimeout(countersLater);
+      countersLater = null;
+      lastCounters = performance.now();
       const s = hv.stats();
       setText("tiles-loaded", s.tilesLoaded.toLocaleString("en"));
       setText("tiles-drawn", s.tilesDrawn.toLocaleString("en"));
       setText("triangles-drawn", s.trianglesDrawn.toLocaleString("en"));
       setText("depth-drawn", s.maxDepthDrawn >= 0 ? String(s.maxDepthDrawn) : "-");
       if (!hv.errors.length) setText("status", hv.allTilesLoaded ? "all tiles loaded" : "loading");
-    });
+    }
 
     Cesium.Cesium3DTileset.fromUrl("/tiles/tileset.json", {
       modelMatrix: place === null ? toWorld : Cesium.Matrix4.IDENTITY, maximumScreenSpaceError: 16,
