@@ -4,10 +4,10 @@ code through the bpy module (`python scripts/hlod_blender.py ...`, for machines 
 and no Blender install).
 
     hlod bake [FILE.blend ...] [--collection NAME | --objects A,B] -o OUT [--format hlod 3dtiles]
-              [--include-hidden] [--place LON,LAT,HEIGHT[,HEADING] | none] [--mesh plain|quantized]
+              [--include-hidden] [--place LON,LAT,HEIGHT[,HEADING] | none] [--mesh plain|quantized|draco]
               [the core's bake options: --target-tris N ... --jobs N --cache DIR | --no-cache]
     hlod export IN.hlod --format 3dtiles|hlod -o DIR [--place LON,LAT,HEIGHT[,HEADING] | none]
-                [--mesh plain|quantized]
+                [--mesh plain|quantized|draco]
     hlod view DIR [--port N] [--no-browser] [--cesium CESIUM_DIR]
 
 `bake` takes the core command's bake options (hlod_core/cli/options.py `bake_options`: the same
@@ -94,8 +94,9 @@ def parser() -> argparse.ArgumentParser:
 
 def _export_arguments(p) -> None:
     p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
-                   help="3dtiles: tile content as float32 (plain) or with positions and normals quantized "
-                        "(KHR_mesh_quantization)")
+                   help="3dtiles: tile content as float32 (plain), with positions and normals quantized "
+                        "(KHR_mesh_quantization) or Draco compressed (KHR_draco_mesh_compression; needs "
+                        "the DracoPy package)")
     p.add_argument("--place", type=place_text, metavar="LON,LAT,HEIGHT[,HEADING]",
                    help="3dtiles: stand the scene's origin at this WGS84 point (degrees, degrees, metres; heading "
                         "in degrees clockwise from north; --place=-122.4,... for a negative longitude); none: the "

@@ -1,14 +1,17 @@
 """Bytes of a 3D Tiles export by what they hold: plain float32 tile content against positions and
-normals quantized (KHR_mesh_quantization), on baked files.
+normals quantized (KHR_mesh_quantization) and Draco compressed (KHR_draco_mesh_compression), on
+baked files.
 
     .venv/bin/python -m benchmarks.tile_bytes FILE.hlod [FILE.hlod ...]
 
-Each file is exported twice into a temporary folder (hlod_core.export.tiles3d.export, plain and
-quantized) and every GLB's buffer views are summed by what they serve: POSITION, NORMAL,
-TEXCOORD_0, COLOR_0, indices, and the rest of the GLB (JSON chunk, headers, padding); the tileset
-JSON files and the texture files are counted apart. Prints one JSON object per file: nodes, stored
-triangles, and for each encoding the bytes by part, the GLB bytes per stored triangle and the whole
-export's bytes. Sizes only: no timing, so the machine's load does not matter.
+Each file is exported once per encoding (MESH_ENCODINGS, --mesh) into a temporary folder
+(hlod_core.export.tiles3d.export) and every GLB's buffer views are summed by what they serve:
+POSITION, NORMAL, TEXCOORD_0, COLOR_0, indices, draco (a Draco mesh holds all of them), and the
+rest of the GLB (JSON chunk, headers, padding); the tileset JSON files and the texture files are
+counted apart. Prints one JSON object per file: nodes, stored triangles, and for each encoding the
+bytes by part, the GLB bytes per stored triangle, the whole export's bytes and the export's seconds
+(a rough figure: the machine's load moves it; sizes do not depend on it), and each encoding's GLB
+bytes against plain's.
 """
 from __future__ import annotations
 
@@ -16,21 +19,27 @@ import argparse
 import json
 import struct
 import tempfile
+import time
 from pathlib import Path
 
 from hlod_core.export import tiles3d
 from hlod_core.io import hlod_file
 
-PARTS = ("POSITION", "NORMAL", "TEXCOORD_0", "COLOR_0", "indices", "glb_rest")
+PARTS = ("POSITION", "NORMAL", "TEXCOORD_0", "COLOR_0", "indices", "draco", "glb_rest")
 
 
 def glb_parts(data: bytes) -> dict[str, int]:
     """Bytes of one GLB by part (PARTS): each buffer view counted once, under the first attribute
-    (or indices) that uses it; the rest is the JSON chunk, headers and padding."""
+    (or indices) that uses it, a Draco primitive's view under "draco" (its accessors have no view);
+    the rest is the JSON chunk, headers and padding."""
     json_len = struct.unpack("<I", data[12:16])[0]
     gltf = json.loads(data[20:20 + json_len])
     view_part: dict[int, str] = {}
     for primitive in gltf["meshes"][0]["primitives"]:
+        compressed = primitive.get("extensions", {}).get("KHR_draco_mesh_compression")
+        if compressed is not None:
+            view_part.setdefault(compressed["bufferView"], "draco")
+            continue
         for name, index in [*primitive["attributes"].items(), ("indices", primitive["indices"])]:
             view_part.setdefault(gltf["accessors"][index]["bufferView"], name)
     out = dict.fromkeys(PARTS, 0)
@@ -61,14 +70,17 @@ def main(argv: list[str] | None = None) -> None:
         row = {"file": str(file), "nodes": hlod.node_count, "stored_triangles": int(hlod.tri_count.sum()),
                "normals": hlod.normals is not None, "uvs": hlod.uvs is not None, "colors": hlod.colors is not None}
         with tempfile.TemporaryDirectory(prefix="tile_bytes.") as scratch:
-            for name, quantize in (("plain", False), ("quantized", True)):
+            for name in tiles3d.MESH_ENCODINGS:
                 folder = Path(scratch) / name
-                summary = tiles3d.export(hlod, folder, quantize=quantize)
+                start = time.perf_counter()
+                summary = tiles3d.export(hlod, folder, mesh=name)
+                seconds = time.perf_counter() - start
                 parts = measure(folder)
                 row[name] = {**parts, "glb_bytes": summary["bytes"],
                              "glb_bytes_per_triangle": summary["bytes"] / row["stored_triangles"],
-                             "export_bytes": summary["bytes"] + parts["tileset_json"] + parts["textures"]}
-        row["glb_ratio"] = row["quantized"]["glb_bytes"] / row["plain"]["glb_bytes"]
+                             "export_bytes": summary["bytes"] + parts["tileset_json"] + parts["textures"],
+                             "export_s": round(seconds, 2)}
+        row["glb_ratio"] = {name: row[name]["glb_bytes"] / row["plain"]["glb_bytes"] for name in tiles3d.MESH_ENCODINGS}
         print(json.dumps(row), flush=True)
 
 

@@ -51,7 +51,7 @@ NO_BLENDER_CLAIM = re.compile(r"imports\s+no\s+Blender\s+module", re.IGNORECASE)
 MAX_MODULE_LINES = 500
 #: Libraries of the command line only (requirements.txt): Blender ships none of them, nor does the
 #: extension's manifest, so no module the extension can reach may import them.
-COMMAND_LINE_ONLY = {"trimesh", "PIL", "matplotlib", "dask", "distributed"}
+COMMAND_LINE_ONLY = {"trimesh", "PIL", "matplotlib", "dask", "distributed", "DracoPy"}
 #: What the core may import besides the standard library: numpy (Blender ships it), the extension's
 #: wheels (blender_manifest.toml) and the command-line-only libraries.
 CORE_DEPENDENCIES = {"numpy", "pymeshlab", "moderngl", "glcontext", "xatlas"} | COMMAND_LINE_ONLY
@@ -59,7 +59,8 @@ CORE_DEPENDENCIES = {"numpy", "pymeshlab", "moderngl", "glcontext", "xatlas"} | 
 #: that works without it (and the test suite runs that path with the library blocked).
 GUARDED = {"hlod_core.report.figures": {"matplotlib"}, "hlod_core.io.textures": {"PIL"},
            "hlod_core.io.gltf": {"trimesh"}, "hlod_core.bake.dask_cluster": {"distributed"},
-           "hlod_core.report.figure_style": {"matplotlib"}, "hlod_core.report.label_placement": {"matplotlib"}}
+           "hlod_core.report.figure_style": {"matplotlib"}, "hlod_core.report.label_placement": {"matplotlib"},
+           "hlod_core.export.draco": {"DracoPy"}}
 
 
 def _module_name(path: Path) -> str:

@@ -359,7 +359,7 @@ def test_a_quantized_export_looks_like_the_plain_one(browser, city_hlod, tiles, 
     from hlod_core.report.image_error import psnr
 
     folder = tmp_path / "quantized"
-    tiles3d.export(city_hlod, folder, quantize=True)
+    tiles3d.export(city_hlod, folder, mesh="quantized")
     pictures = {}
     for name, source in (("plain", tiles), ("quantized", folder)):
         with _open_page(browser, source) as tab:

@@ -32,8 +32,9 @@ def add_export(sub) -> None:
                         "heading in degrees clockwise from north); write --place=-122.4,37.8,0 for a "
                         "negative longitude; none: the local frame (default)")
     p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
-                   help="3dtiles: tile content as float32 (plain) or with positions and normals quantized "
-                        "(KHR_mesh_quantization)")
+                   help="3dtiles: tile content as float32 (plain), with positions and normals quantized "
+                        "(KHR_mesh_quantization) or Draco compressed (KHR_draco_mesh_compression; needs "
+                        "the DracoPy package)")
     p.set_defaults(run=export_command)
 
 

@@ -31,8 +31,7 @@ def check_output_file(path: str, option: str = "-o", example: str = "scene.hlod"
         raise InputError(f"{out}: folder {parent} is not writable")
 
 
-#: The 3D Tiles export's tile content: float32 attributes, or positions and normals quantized.
-MESH_ENCODINGS = ("plain", "quantized")
+MESH_ENCODINGS = tiles3d.MESH_ENCODINGS
 
 
 def export_hlod(hlod, fmt: str, out_dir, *, stem: str, place: Place | None = None, mesh: str = "plain") -> dict:
@@ -40,7 +39,7 @@ def export_hlod(hlod, fmt: str, out_dir, *, stem: str, place: Place | None = Non
     textures/ when textured; on the globe at `place` when given; `mesh` one of MESH_ENCODINGS) or the
     native file <stem>.hlod (which has neither). Returns the export's summary."""
     if fmt == "3dtiles":
-        return tiles3d.export(hlod, out_dir, place=place, quantize=mesh == "quantized")
+        return tiles3d.export(hlod, out_dir, place=place, mesh=mesh)
     target = Path(out_dir) / f"{stem}.hlod"
     check_output_file(str(target))
     hlod_file.save(hlod, target)

@@ -9,12 +9,15 @@ glTF asks, (x, y, z) -> (x, z, -y); faces (t,3) local rows; uvs (v,2) in Blender
 (written as (u, 1 - v): glTF's origin is the image's top-left); colors (v,4) float linear RGBA;
 face_material (t,) rows of a tuple of appearance.Material.
 
-Quantized (`quantize`, the glTF extension KHR_mesh_quantization): POSITION as normalized int16 in
+Quantized (`mesh="quantized"`, the glTF extension KHR_mesh_quantization): POSITION as normalized int16 in
 the mesh's own frame, the node's translation (the positions' box centre) and uniform scale (half its
 largest side) taking it back to the tile's frame, each vertex padded to 8 bytes; NORMAL as
 normalized int8, padded to 4 bytes (a uniform scale leaves normals as they are); COLOR_0 as
 normalized uint16 (glTF core; linear RGBA clamped to 0..1). A position moves at most half a step,
 (largest side) / 65534, a colour 1 / 131070; UVs stay float32.
+
+Draco (`mesh="draco"`, the glTF extension KHR_draco_mesh_compression): each material part a Draco
+mesh of its own (draco.py: DracoPy, a command-line-only dependency).
 """
 from __future__ import annotations
 
@@ -37,8 +40,11 @@ from ..io.gltf_codes import (
     WrapMode,
 )
 from ..model.appearance import Material
+from . import draco
 
 GENERATOR = "HLOD Bake & Preview"
+#: The glTF extension each tile content other than plain requires.
+EXTENSIONS = {"quantized": "KHR_mesh_quantization", "draco": draco.EXTENSION}
 
 
 @dataclass(frozen=True)
@@ -57,8 +63,10 @@ class _Buffer:
         self.views: list[dict] = []
         self.accessors: list[dict] = []
 
-    def view(self, data: bytes, target: BufferViewTarget, stride: int | None = None) -> int:
-        row = {"buffer": 0, "byteOffset": sum(map(len, self.parts)), "byteLength": len(data), "target": int(target)}
+    def view(self, data: bytes, target: BufferViewTarget | None, stride: int | None = None) -> int:
+        row = {"buffer": 0, "byteOffset": sum(map(len, self.parts)), "byteLength": len(data)}
+        if target is not None:  # a Draco buffer has none: no GPU buffer is made of it
+            row["target"] = int(target)
         if stride is not None:
             row["byteStride"] = stride
         self.views.append(row)
@@ -83,29 +91,33 @@ class _Buffer:
 def glb_bytes(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | None = None, *,
               uvs: np.ndarray | None = None, colors: np.ndarray | None = None,
               face_material: np.ndarray | None = None, materials: tuple[Material, ...] = (),
-              images: dict[str, TileImage] | None = None, quantize: bool = False) -> bytes:
+              images: dict[str, TileImage] | None = None, mesh: str = "plain") -> bytes:
     """A GLB with one mesh of indexed triangles (module docstring for the arrays; each optional one
     may be None). Without face_material: one primitive with glTF's default material. With it: one
     primitive per material used, triangles grouped by material (stable), sharing the vertex
     accessors; a material's texture is bound when its path is a key of `images` and uvs are given.
-    `quantize`: positions and normals quantized (module notes)."""
+    `mesh`: "plain" (float32), "quantized" (positions and normals quantized) or "draco" (module notes)."""
     buffer = _Buffer()
     node: dict = {"mesh": 0}
-    if quantize:
-        attributes = _quantized_attributes(buffer, positions, normals=normals, uvs=uvs, colors=colors, node=node)
+    images = None if uvs is None else images or {}
+    if mesh == "draco":
+        primitives, document = _draco_primitives(buffer, positions, faces, normals=normals, uvs=uvs, colors=colors,
+                                                 face_material=face_material, materials=materials, images=images)
     else:
-        attributes = _vertex_attributes(buffer, positions, normals=normals, uvs=uvs, colors=colors)
-    primitives, document = _primitives(buffer, faces, attributes=attributes, vertex_count=positions.shape[0],
-                                       face_material=face_material, materials=materials,
-                                       images=None if uvs is None else images or {})
+        if mesh == "quantized":
+            attributes = _quantized_attributes(buffer, positions, normals=normals, uvs=uvs, colors=colors, node=node)
+        else:
+            attributes = _vertex_attributes(buffer, positions, normals=normals, uvs=uvs, colors=colors)
+        primitives, document = _primitives(buffer, faces, attributes=attributes, vertex_count=positions.shape[0],
+                                           face_material=face_material, materials=materials, images=images)
     binary = buffer.binary()
     gltf = {"asset": {"version": "2.0", "generator": GENERATOR},
             "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [node],
             "meshes": [{"primitives": primitives}],
             "accessors": buffer.accessors, "bufferViews": buffer.views, "buffers": [{"byteLength": len(binary)}],
             **document}
-    if quantize:
-        gltf["extensionsUsed"] = gltf["extensionsRequired"] = ["KHR_mesh_quantization"]
+    if mesh in EXTENSIONS:
+        gltf["extensionsUsed"] = gltf["extensionsRequired"] = [EXTENSIONS[mesh]]
     return container(json.dumps(gltf, separators=(",", ":")).encode(), binary)
 
 
@@ -202,6 +214,25 @@ def _primitives(buffer: _Buffer, faces: np.ndarray, *, attributes: dict[str, int
         first_index += int(part_faces.size)
         primitive = {"attributes": attributes, "indices": buffer.accessor(accessor),
                      "mode": int(PrimitiveMode.TRIANGLES)}
+        if material is not None:
+            primitive["material"] = _material(materials[material], document, images)
+        primitives.append(primitive)
+    return primitives, document
+
+
+def _draco_primitives(buffer: _Buffer, positions: np.ndarray, faces: np.ndarray, *, normals, uvs, colors,
+                      face_material, materials: tuple[Material, ...], images: dict[str, TileImage] | None):
+    """A Draco-compressed primitive per material part (draco.draco_primitive: each with the vertices
+    its triangles use). Returns (primitives, the document's materials, textures, images, samplers)."""
+    st = None
+    if uvs is not None:
+        st = np.asarray(uvs, np.float64).copy()
+        st[:, 1] = 1.0 - st[:, 1]  # glTF's v runs down the image, Blender's up
+    arrays = {"positions": np.asarray(positions, np.float64) @ Z_UP_TO_Y_UP.T, "uvs": st, "colors": colors,
+              "normals": None if normals is None else _unit_normals(normals, np.float64)}
+    primitives, document = [], {}
+    for material, part_faces in _group_by_material(faces, face_material):
+        primitive = draco.draco_primitive(buffer, part_faces, **arrays)
         if material is not None:
             primitive["material"] = _material(materials[material], document, images)
         primitives.append(primitive)

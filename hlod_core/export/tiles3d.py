@@ -29,6 +29,7 @@ from ..core.atomic import replace_folder, umask_mode
 from ..core.errors import InputError
 from ..io.texture_folder import unique_file_name
 from ..model.hierarchy import Hlod, node_geometry
+from .draco import require_dracopy
 from .glb import GENERATOR, TileImage, glb_bytes
 from .place import Place
 
@@ -44,6 +45,9 @@ MIN_HALF_SIZE_OF_DIAGONAL, MIN_HALF_SIZE = 1e-6, 1e-9
 #: many bytes; a bigger one is split into external tilesets of at most MAX_TILES_PER_FILE tiles each
 #: (compact JSON: at most about 450 bytes a tile, so the first file stays under 64 KB).
 ONE_FILE_MAX_BYTES, MAX_TILES_PER_FILE = 64_000, 128
+#: The tiles' vertices: float32, positions and normals quantized (KHR_mesh_quantization), or Draco
+#: compressed (KHR_draco_mesh_compression, DracoPy on the command line only); glb module notes.
+MESH_ENCODINGS = ("plain", "quantized", "draco")
 
 
 def copy_textures(hlod: Hlod, folder: Path) -> tuple[dict[str, TileImage], list[str]]:
@@ -255,22 +259,26 @@ def tileset_files(hlod: Hlod, *, place: Place | None = None, max_tiles: int = MA
 
 
 def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = None,
-           place: Place | None = None, quantize: bool = False) -> dict:
+           place: Place | None = None, mesh: str = "plain") -> dict:
     """Write tileset.json, tiles/<node>.glb and, for textured materials, textures/ into out_dir,
     atomically: everything is written into a temporary folder beside it and renamed into place,
     replacing an earlier export (`replace_export`). Folders and files get the modes of ordinary
     ones (0o777 / 0o666 less the umask). `platform`: a sys.platform string (default this
     machine's) for replace_export. `place`: where the scene's origin stands on the globe (None: the
-    local frame, as the bake's model space). `quantize`: positions and normals quantized
-    (KHR_mesh_quantization, glb module notes); plain float32 otherwise.
+    local frame, as the bake's model space). `mesh`: the tiles' vertices, "plain" float32,
+    "quantized" (KHR_mesh_quantization) or "draco" (KHR_draco_mesh_compression; glb module notes).
     Returns a summary (tiles, glb files, triangles, bytes, image files, warnings)."""
+    if mesh not in MESH_ENCODINGS:
+        raise InputError(f"3D Tiles export: mesh {mesh!r} is not one of {', '.join(MESH_ENCODINGS)}")
+    if mesh == "draco":
+        require_dracopy()  # before anything is written
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
         os.chmod(staging, umask_mode(0o777))  # mkdtemp makes it 0700; the export is an ordinary folder
         images, warnings = copy_textures(hlod, staging / TEXTURE_FOLDER)
-        written, tris, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images, quantize=quantize)
+        written, tris, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images, mesh=mesh)
         document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb", place=place)
         files = write_tileset(hlod, staging, document, place=place)
         warnings = warnings + replace_export(out_dir, staging, platform=platform)
@@ -280,7 +288,7 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
     return {"format": "3dtiles", "output": str(out_dir), "tiles": _count(document["root"]), "glb_files": written,
             "triangles": tris, "bytes": size, "tileset_geometric_error": document["geometricError"],
             "image_files": len(set(images.values())), "tileset_files": len(files),
-            "tileset_json_bytes": files["tileset.json"], "mesh": "quantized" if quantize else "plain",
+            "tileset_json_bytes": files["tileset.json"], "mesh": mesh,
             "place": None if place is None else place.as_dict(),
             "warnings": warnings}
 
@@ -301,16 +309,16 @@ def write_tileset(hlod: Hlod, folder: Path, document: dict, *, place: Place | No
     return written
 
 
-def _write_tiles(hlod: Hlod, folder: Path, *, images: dict[str, TileImage], quantize: bool) -> tuple[int, int, int]:
+def _write_tiles(hlod: Hlod, folder: Path, *, images: dict[str, TileImage], mesh: str) -> tuple[int, int, int]:
     """folder/<node>.glb for every node with triangles (folder made here); (files, triangles, bytes)."""
     folder.mkdir()
     written, tris, size = 0, 0, 0
     for node in np.flatnonzero(hlod.tri_count > 0).tolist():
-        mesh = node_geometry(hlod, node)
-        data = glb_bytes(mesh.positions, mesh.faces, mesh.normals, uvs=mesh.uvs, colors=mesh.colors,
-                         face_material=mesh.face_material, materials=hlod.materials, images=images, quantize=quantize)
+        geometry = node_geometry(hlod, node)
+        data = glb_bytes(geometry.positions, geometry.faces, geometry.normals, uvs=geometry.uvs, colors=geometry.colors,
+                         face_material=geometry.face_material, materials=hlod.materials, images=images, mesh=mesh)
         (folder / f"{node}.glb").write_bytes(data)
-        written, tris, size = written + 1, tris + mesh.faces.shape[0], size + len(data)
+        written, tris, size = written + 1, tris + geometry.faces.shape[0], size + len(data)
     return written, tris, size
 
 
