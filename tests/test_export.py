@@ -17,6 +17,7 @@ from PIL import Image
 from blender_runs import blender
 from helpers import ROOT, model, textured_scene
 from hlod_core.bake.pipeline import BakeSettings, bake
+from hlod_core.core.errors import InputError
 from hlod_core.export import glb, place, tiles3d
 from hlod_core.io import hlod_file as fileformat
 from hlod_core.io import meshes
@@ -628,3 +629,99 @@ def test_quantized_tiles_decode_to_the_plain_ones_and_pass_the_validators(bakes,
     assert all(r["errors"] == 0 for r in reports["quantized"].values()), reports["quantized"]
     assert all(reports["quantized"][k]["warnings"] <= reports["plain"][k]["warnings"] for k in reports["plain"])
     assert_matches(tmp_path / "quantized", src)
+
+
+# --- Draco tile content (KHR_draco_mesh_compression) ----------------------------------------------
+
+def _draco_rows(gltf: dict, binary: bytes, primitive: dict) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """A Draco primitive decoded with DracoPy: ({glTF attribute: (n, k) float64}, faces (t, 3)),
+    checked against the primitive's accessors (counts; POSITION's bounds)."""
+    import DracoPy
+
+    ext = primitive["extensions"]["KHR_draco_mesh_compression"]
+    view = gltf["bufferViews"][ext["bufferView"]]
+    mesh = DracoPy.decode(binary[view["byteOffset"]:view["byteOffset"] + view["byteLength"]])
+    rows = {}
+    for name, unique_id in ext["attributes"].items():
+        values = np.asarray(mesh.get_attribute_by_unique_id(unique_id)["data"], np.float64)
+        acc = gltf["accessors"][primitive["attributes"][name]]
+        assert "bufferView" not in acc and acc["count"] == values.shape[0]
+        rows[name] = values / 255.0 if acc.get("normalized") else values  # COLOR_0: normalized uint8
+    position = gltf["accessors"][primitive["attributes"]["POSITION"]]
+    bounds = rows["POSITION"]
+    assert np.allclose(position["min"], bounds.min(0)) and np.allclose(position["max"], bounds.max(0))
+    faces = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
+    assert gltf["accessors"][primitive["indices"]]["count"] == faces.size
+    return rows, faces
+
+
+def _rolled(faces: np.ndarray) -> np.ndarray:
+    """Triangles (t, 3) each turned to start at its smallest index (winding kept), sorted by row."""
+    turned = np.stack([np.roll(f, -int(np.argmin(f))) for f in faces]) if len(faces) else faces.reshape(0, 3)
+    return turned[np.lexsort(turned.T[::-1])]
+
+
+def test_draco_tiles_decode_to_the_plain_ones_and_pass_the_validators(tmp_path):
+    """A textured hierarchy (four materials, normals, UVs, colours) exported plain and Draco compressed
+    (`export --mesh draco`): every Draco GLB requires KHR_draco_mesh_compression and has a primitive
+    per material, each decoding (DracoPy) to that material's triangles of the plain GLB, winding kept,
+    every vertex within a step of Draco's quantization of a plain vertex (positions 16 bits of the part's
+    largest side, normals 10 bits, UVs 12 bits of their range; colours half an 8-bit step); the tileset and the images are
+    the plain export's; the glTF validator and 3d-tiles-tools find no error and no warning the plain
+    export does not have, and the triangle counts the hierarchy stores."""
+    png, jpeg = write_textures(tmp_path)
+    src = fileformat.save(with_appearance(literal_hlod(normals=True), png, jpeg), tmp_path / "lit.hlod")
+    plain = last_json(hlod("-q", "export", src, "-o", tmp_path / "plain"))
+    draco = last_json(hlod("-q", "export", src, "-o", tmp_path / "draco", "--mesh", "draco"))
+    assert (draco["mesh"], draco["image_files"]) == ("draco", plain["image_files"])  # bytes: tiny tiles, no gain
+    assert (tmp_path / "plain/tileset.json").read_bytes() == (tmp_path / "draco/tileset.json").read_bytes()
+    h = fileformat.load(src)
+    for node in range(h.node_count):
+        a, a_bin = read_glb(tmp_path / f"plain/tiles/{node}.glb")
+        b, b_bin = read_glb(tmp_path / f"draco/tiles/{node}.glb")
+        assert b["extensionsRequired"] == b["extensionsUsed"] == ["KHR_draco_mesh_compression"]
+        prims_a, prims_b = a["meshes"][0]["primitives"], b["meshes"][0]["primitives"]
+        assert [p["material"] for p in prims_a] == [p["material"] for p in prims_b]
+        assert a["materials"] == b["materials"] and a.get("images") == b.get("images")
+        names = ("POSITION", "NORMAL", "TEXCOORD_0", "COLOR_0")
+        exact = {n: accessor(a, a_bin, prims_a[0]["attributes"][n]).astype(np.float64) for n in names}
+        for pa, pb in zip(prims_a, prims_b):
+            faces = accessor(a, a_bin, pa["indices"]).reshape(-1, 3).astype(np.int64)
+            rows, decoded_faces = _draco_rows(b, b_bin, pb)
+            used = np.unique(faces)
+            steps = {"POSITION": np.ptp(exact["POSITION"][used], axis=0).max() / (2 ** 16 - 1),
+                     "TEXCOORD_0": np.ptp(exact["TEXCOORD_0"][used], axis=0).max() / (2 ** 12 - 1),
+                     "NORMAL": 2.0 / (2 ** 10 - 1), "COLOR_0": 1.0 / 255}
+            # Draco's decoder takes a quantized value q back as lo + q * range / 2^bits: the top of the
+            # range comes back a whole step low, the rest within a step; colours (uint8 in glTF) half a step
+            slack = {"POSITION": 1.0, "TEXCOORD_0": 1.0, "NORMAL": 1.0, "COLOR_0": 0.5}
+            close = np.ones((rows["POSITION"].shape[0], used.size), bool)  # decoded vertex x plain vertex
+            for name in names:
+                gap = np.abs(rows[name][:, None, :] - exact[name][used][None, :, :]).max(axis=2)
+                close &= gap <= steps[name] * slack[name] * (1 + 1e-6) + 1e-9
+            assert close.any(axis=1).all() and (close.sum(axis=1) == 1).all()
+            plain_id = used[close.argmax(axis=1)]
+            assert np.array_equal(_rolled(plain_id[decoded_faces]), _rolled(faces))
+    reports = {kind: validate_with_images(tmp_path / kind) for kind in ("plain", "draco")}
+    assert all(r["errors"] == 0 for r in reports["draco"].values()), reports["draco"]
+    assert all(reports["draco"][k]["warnings"] <= reports["plain"][k]["warnings"] for k in reports["plain"])
+    assert sorted(reports["draco"]["tiles/0.glb"]["images"]) == sorted(reports["plain"]["tiles/0.glb"]["images"])
+    assert_matches(tmp_path / "draco", src)
+
+
+def test_draco_without_dracopy_is_one_line_and_writes_nothing(tmp_path, monkeypatch):
+    """Without the DracoPy package (blocked here) `--mesh draco` fails before anything is written:
+    one line naming the package and how to install it; an earlier export in the folder stays."""
+    h = literal_hlod(normals=True)
+    tiles3d.export(h, tmp_path / "tiles")
+    before = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*"))
+    monkeypatch.setitem(sys.modules, "DracoPy", None)  # `import DracoPy` raises ImportError
+    with pytest.raises(InputError, match=r"--mesh draco needs the DracoPy package \(pip install DracoPy"):
+        tiles3d.export(h, tmp_path / "tiles", mesh="draco")
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == before
+    code = ("import sys; sys.modules['DracoPy'] = None; from hlod_core.cli.main import main; "
+            f"sys.exit(main(['export', {str(fileformat.save(h, tmp_path / 'lit.hlod'))!r}, '-o', "
+            f"{str(tmp_path / 'new')!r}, '--mesh', 'draco']))")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert "DracoPy" in one_line_error(proc) and not (tmp_path / "new").exists()

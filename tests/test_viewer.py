@@ -260,18 +260,33 @@ def test_colour_by_depth_and_boxes_change_the_picture(page, tmp_path):
     assert page.problems == []
 
 
+#: CesiumJS's picture of a compact export (quantized or Draco) against the plain one's, PSNR-Y (the
+#: issue's target).
+MIN_QUANTIZED_PSNR_Y_DB = 40.0
+
+
 # slow: a textured bake (shared with the textured acceptance check) and a second page; the GLBs' materials pass
 # the validators in test_export
 @pytest.mark.slow
 def test_page_shows_the_exports_textures_and_colours(browser, textured_scene_bake, tmp_path):
     """The textured test scene (tests/scenes/textured_scene.py, read from its GLB) exported with its
-    materials, textures and vertex colours: the page draws them (the city above is one grey)."""
+    materials, textures and vertex colours: the page draws them (the city above is one grey). Its
+    Draco export (normals, UVs and colours compressed, a primitive per material) draws the same
+    picture within MIN_QUANTIZED_PSNR_Y_DB."""
+    from hlod_core.report.image_error import psnr
+
     folder = tmp_path / "tiles"
     summary = tiles3d.export(textured_scene_bake[1], folder)
     assert summary["image_files"] >= 2
-    with _open_page(browser, folder) as tab:
-        rgb = _picture(tab, tmp_path, "textured")
-        assert tab.problems == [] and tab.evaluate("hlodViewer.errors") == []
+    tiles3d.export(textured_scene_bake[1], tmp_path / "draco", mesh="draco")
+    pictures = {}
+    for name, source in (("plain", folder), ("draco", tmp_path / "draco")):
+        with _open_page(browser, source) as tab:
+            pictures[name] = _picture(tab, tmp_path, f"textured_{name}")
+            assert tab.problems == [] and tab.evaluate("hlodViewer.errors") == []
+    rgb = pictures["plain"]
+    y_db = float(psnr(rgb.astype(np.uint8), pictures["draco"].astype(np.uint8))[0])
+    assert y_db >= MIN_QUANTIZED_PSNR_Y_DB, y_db
     geometry = np.abs(rgb - np.array(BACKGROUND_RGB)).max(axis=2) > BACKGROUND_TOLERANCE
     assert geometry.mean() > MIN_GEOMETRY_SHARE
     pixels = rgb[geometry]
@@ -348,27 +363,27 @@ def test_a_placed_export_stands_on_a_plain_globe_and_every_tile_is_requested(bro
 
 # --- quantized tile content -----------------------------------------------------------------------
 
-#: CesiumJS's picture of the quantized export against the plain one's, PSNR-Y (the issue's target).
-MIN_QUANTIZED_PSNR_Y_DB = 40.0
-
-
-def test_a_quantized_export_looks_like_the_plain_one(browser, city_hlod, tiles, tmp_path):
-    """The city exported with positions and normals quantized (KHR_mesh_quantization): CesiumJS
-    loads it without an error, and its picture from the same fitted camera at 16 px and at 2 px is
-    within MIN_QUANTIZED_PSNR_Y_DB of the plain export's (measured 60.0 and 60.3 dB)."""
+def test_quantized_and_draco_exports_look_like_the_plain_one(browser, city_hlod, tiles, tmp_path):
+    """The city exported with positions and normals quantized (KHR_mesh_quantization) and Draco
+    compressed (KHR_draco_mesh_compression, decoded by CesiumJS's own Draco decoder): CesiumJS loads
+    each without an error, and its picture from the same fitted camera at 16 px and at 2 px is within
+    MIN_QUANTIZED_PSNR_Y_DB of the plain export's (measured: quantized 60.0 and 60.3 dB)."""
     from hlod_core.report.image_error import psnr
 
-    folder = tmp_path / "quantized"
-    tiles3d.export(city_hlod, folder, mesh="quantized")
+    sources = {"plain": tiles}
+    for mesh in ("quantized", "draco"):
+        sources[mesh] = tmp_path / mesh
+        tiles3d.export(city_hlod, sources[mesh], mesh=mesh)
     pictures = {}
-    for name, source in (("plain", tiles), ("quantized", folder)):
+    for name, source in sources.items():
         with _open_page(browser, source) as tab:
             for sse in (16, 2):
                 tab.evaluate(f"hlodViewer.setMaximumScreenSpaceError({sse})")
                 _wait_loaded(tab)
                 pictures[name, sse] = _picture(tab, tmp_path, f"{name}_{sse}").astype(np.uint8)
             assert tab.problems == [] and tab.evaluate("hlodViewer.errors") == []
-    for sse in (16, 2):
-        y_db = float(psnr(pictures["plain", sse], pictures["quantized", sse])[0])
-        assert y_db >= MIN_QUANTIZED_PSNR_Y_DB, (sse, y_db)
-        assert _geometry_share(pictures["quantized", sse]) > MIN_GEOMETRY_SHARE
+    for mesh in ("quantized", "draco"):
+        for sse in (16, 2):
+            y_db = float(psnr(pictures["plain", sse], pictures[mesh, sse])[0])
+            assert y_db >= MIN_QUANTIZED_PSNR_Y_DB, (mesh, sse, y_db)
+            assert _geometry_share(pictures[mesh, sse]) > MIN_GEOMETRY_SHARE
