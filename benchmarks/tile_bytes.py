@@ -8,15 +8,18 @@ Each file is exported once per encoding (MESH_ENCODINGS, --mesh) into a temporar
 (hlod_core.export.tiles3d.export) and every GLB's buffer views are summed by what they serve:
 POSITION, NORMAL, TEXCOORD_0, COLOR_0, indices, draco (a Draco mesh holds all of them), and the
 rest of the GLB (JSON chunk, headers, padding); the tileset JSON files and the texture files are
-counted apart. Prints one JSON object per file: nodes, stored triangles, and for each encoding the
-bytes by part, the GLB bytes per stored triangle, the whole export's bytes and the export's seconds
-(a rough figure: the machine's load moves it; sizes do not depend on it), and each encoding's GLB
-bytes against plain's.
+counted apart; then the Draco export again with its textures re-encoded (--textures jpeg, webp).
+Prints one JSON object per file: nodes, stored triangles, and for each export the bytes by part,
+the GLB bytes per stored triangle, the triangles the GLBs hold (Draco stores no triangle whose
+corners repeat a vertex), the whole export's bytes and the export's seconds (a rough figure: the
+machine's load moves it; sizes do not depend on it), and the ratios to plain's: GLB bytes, texture
+bytes, the whole export's bytes.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import struct
 import tempfile
 import time
@@ -25,6 +28,8 @@ from pathlib import Path
 from hlod_core.export import tiles3d
 from hlod_core.io import hlod_file
 
+#: The texture encodings measured, each with the compact mesh encoding.
+COMPACT_MESH, COMPACT_TEXTURES = "draco", ("jpeg", "webp")
 PARTS = ("POSITION", "NORMAL", "TEXCOORD_0", "COLOR_0", "indices", "draco", "glb_rest")
 
 
@@ -70,17 +75,26 @@ def main(argv: list[str] | None = None) -> None:
         row = {"file": str(file), "nodes": hlod.node_count, "stored_triangles": int(hlod.tri_count.sum()),
                "normals": hlod.normals is not None, "uvs": hlod.uvs is not None, "colors": hlod.colors is not None}
         with tempfile.TemporaryDirectory(prefix="tile_bytes.") as scratch:
-            for name in tiles3d.MESH_ENCODINGS:
-                folder = Path(scratch) / name
+            for name, textures in [*((m, "original") for m in tiles3d.MESH_ENCODINGS),
+                                   *((COMPACT_MESH, t) for t in COMPACT_TEXTURES)]:
+                key = name if textures == "original" else f"{name}+{textures}"
+                folder = Path(scratch) / key
                 start = time.perf_counter()
-                summary = tiles3d.export(hlod, folder, mesh=name)
+                summary = tiles3d.export(hlod, folder, mesh=name, textures=textures)
                 seconds = time.perf_counter() - start
                 parts = measure(folder)
-                row[name] = {**parts, "glb_bytes": summary["bytes"],
-                             "glb_bytes_per_triangle": summary["bytes"] / row["stored_triangles"],
-                             "export_bytes": summary["bytes"] + parts["tileset_json"] + parts["textures"],
-                             "export_s": round(seconds, 2)}
+                row[key] = {**parts, "glb_bytes": summary["bytes"],
+                            "glb_bytes_per_triangle": summary["bytes"] / row["stored_triangles"],
+                            "glb_triangles": summary["glb_triangles"],
+                            "export_bytes": summary["bytes"] + parts["tileset_json"] + parts["textures"],
+                            "export_s": round(seconds, 2)}
+                shutil.rmtree(folder)
         row["glb_ratio"] = {name: row[name]["glb_bytes"] / row["plain"]["glb_bytes"] for name in tiles3d.MESH_ENCODINGS}
+        if row["plain"]["textures"]:
+            row["texture_ratio"] = {t: row[f"{COMPACT_MESH}+{t}"]["textures"] / row["plain"]["textures"]
+                                    for t in COMPACT_TEXTURES}
+        row["export_ratio"] = {key: row[key]["export_bytes"] / row["plain"]["export_bytes"]
+                               for key in row if isinstance(row[key], dict) and "export_bytes" in row[key]}
         print(json.dumps(row), flush=True)
 
 

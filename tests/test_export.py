@@ -666,8 +666,8 @@ def test_draco_tiles_decode_to_the_plain_ones_and_pass_the_validators(tmp_path):
     (`export --mesh draco`): every Draco GLB requires KHR_draco_mesh_compression and has a primitive
     per material, each decoding (DracoPy) to that material's triangles of the plain GLB, winding kept,
     every vertex within a step of Draco's quantization of a plain vertex (positions 16 bits of the part's
-    largest side, normals 10 bits, UVs 12 bits of their range; colours half an 8-bit step); the tileset and the images are
-    the plain export's; the glTF validator and 3d-tiles-tools find no error and no warning the plain
+    largest side, normals 10 bits, UVs 12 bits of their range; colours half an 8-bit step); the tileset
+    and the images are the plain export's; the glTF validator and 3d-tiles-tools find no error and no warning the plain
     export does not have, and the triangle counts the hierarchy stores."""
     png, jpeg = write_textures(tmp_path)
     src = fileformat.save(with_appearance(literal_hlod(normals=True), png, jpeg), tmp_path / "lit.hlod")
@@ -725,3 +725,57 @@ def test_draco_without_dracopy_is_one_line_and_writes_nothing(tmp_path, monkeypa
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120,
                           env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert "DracoPy" in one_line_error(proc) and not (tmp_path / "new").exists()
+
+
+# --- texture images re-encoded (JPEG, WebP) -------------------------------------------------------
+
+def test_textures_reencoded_as_webp_or_jpeg_are_smaller_valid_and_close(tmp_path, monkeypatch):
+    """`export --textures webp`: an opaque 64x64 PNG becomes a smaller WebP bound through
+    EXT_texture_webp (required), its pixels within 40 dB PSNR of the PNG's, and so does the 8x8 JPEG;
+    the 4x2 PNG with alpha stays as it is (its WebP is not smaller). `--textures jpeg`: the opaque PNG a
+    smaller JPEG, the PNG with alpha a PNG (JPEG has no alpha), the JPEG the same bytes (no second
+    loss). The glTF validator decodes every image and finds no error or warning. Without Pillow
+    (blocked) it is one InputError and nothing is written."""
+    from hlod_core.report.image_error import psnr
+
+    png, jpeg = write_textures(tmp_path)
+    yy, xx = np.mgrid[0:64, 0:64]
+    photo = np.stack([xx * 4, yy * 4, 128 + 100 * np.sin(xx / 5) * np.cos(yy / 7)], axis=2).astype(np.uint8)
+    Image.fromarray(photo, "RGB").save(tmp_path / "photo.png")
+    h = with_appearance(literal_hlod(normals=True), png, jpeg)
+    h = h.replace(materials=(*h.materials[:3], Material("paint", (0.1, 0.6, 0.2, 1.0), 1.0, 0.3,
+                                                        str(tmp_path / "photo.png"))))
+    files = {}
+    for textures in ("original", "webp", "jpeg"):
+        summary = last_json(hlod("-q", "export", fileformat.save(h, tmp_path / "lit.hlod"), "-o",
+                                 tmp_path / textures, "--textures", textures))
+        assert summary["textures"] == textures and summary["warnings"] == []
+        files[textures] = {p.name: p.read_bytes() for p in (tmp_path / textures / "textures").iterdir()}
+    assert sorted(files["original"]) == ["brick_wall.png", "label.jpg", "photo.png"]
+    assert sorted(files["webp"]) == ["brick_wall.png", "label.webp", "photo.webp"]
+    assert sorted(files["jpeg"]) == ["brick_wall.png", "label.jpg", "photo.jpg"]
+    assert files["jpeg"]["label.jpg"] == files["original"]["label.jpg"]
+    assert files["webp"]["brick_wall.png"] == files["original"]["brick_wall.png"]
+    for name in ("photo.webp", "photo.jpg"):
+        assert len(files[name.split(".")[1].replace("jpg", "jpeg")][name]) < len(files["original"]["photo.png"])
+        decoded = np.asarray(Image.open(tmp_path / name.split(".")[1].replace("jpg", "jpeg") / "textures" / name)
+                             .convert("RGB"))
+        assert float(psnr(photo, decoded)[0]) >= 40.0, name
+    for textures in ("webp", "jpeg"):
+        report = validate_with_images(tmp_path / textures)
+        assert all(r["errors"] == 0 and r["warnings"] == 0 for r in report.values()), report
+        read = {uri for r in report.values() for uri in r["images"]}
+        assert read == {f"../textures/{name}" for name in files[textures]}, read
+        for node in range(h.node_count):
+            gltf, _ = read_glb(tmp_path / textures / f"tiles/{node}.glb")
+            webp = [row for row in gltf.get("textures", []) if "extensions" in row]
+            assert [gltf["images"][row["extensions"]["EXT_texture_webp"]["source"]]["mimeType"] for row in webp] == \
+                ["image/webp"] * len(webp)
+            assert bool(webp) == ("EXT_texture_webp" in gltf.get("extensionsRequired", [])) == (
+                textures == "webp" and any(row["mimeType"] == "image/webp" for row in gltf.get("images", [])))
+    assert any("EXT_texture_webp" in read_glb(p)[0].get("extensionsRequired", [])
+               for p in (tmp_path / "webp/tiles").glob("*.glb"))
+    monkeypatch.setitem(sys.modules, "PIL", None)  # `from PIL import Image` raises ImportError
+    with pytest.raises(InputError, match=r"--textures jpeg\|webp needs the Pillow package"):
+        tiles3d.export(h, tmp_path / "blocked", textures="webp")
+    assert not (tmp_path / "blocked").exists()

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..bake import checks
 from ..core.errors import InputError
-from ..export.formats import MESH_ENCODINGS, export_hlod
+from ..export.formats import MESH_ENCODINGS, TEXTURE_ENCODINGS, export_hlod
 from ..export.place import chosen
 from ..io import hlod_file
 from .options import place_text, whole_number
@@ -35,6 +35,9 @@ def add_export(sub) -> None:
                    help="3dtiles: tile content as float32 (plain), with positions and normals quantized "
                         "(KHR_mesh_quantization) or Draco compressed (KHR_draco_mesh_compression; needs "
                         "the DracoPy package)")
+    p.add_argument("--textures", choices=TEXTURE_ENCODINGS, default="original",
+                   help="3dtiles: texture images as they are (original), or re-encoded as JPEG (images with "
+                        "transparency stay PNG) or WebP (EXT_texture_webp), each kept where that is not smaller")
     p.set_defaults(run=export_command)
 
 
@@ -71,7 +74,8 @@ def export_command(args: argparse.Namespace) -> dict:
     if place is not None and args.format != "3dtiles":
         raise InputError(f"--place: only for --format 3dtiles (a .hlod has no place on the globe), not {args.format}")
     hlod = hlod_file.load(args.file)
-    return export_hlod(hlod, args.format, out, stem=Path(args.file).stem, place=place, mesh=args.mesh)
+    return export_hlod(hlod, args.format, out, stem=Path(args.file).stem, place=place, mesh=args.mesh,
+                       textures=args.textures)
 
 
 def view_command(args: argparse.Namespace) -> dict:

@@ -31,15 +31,17 @@ def check_output_file(path: str, option: str = "-o", example: str = "scene.hlod"
         raise InputError(f"{out}: folder {parent} is not writable")
 
 
-MESH_ENCODINGS = tiles3d.MESH_ENCODINGS
+MESH_ENCODINGS, TEXTURE_ENCODINGS = tiles3d.MESH_ENCODINGS, tiles3d.texture_codec.TEXTURE_ENCODINGS
 
 
-def export_hlod(hlod, fmt: str, out_dir, *, stem: str, place: Place | None = None, mesh: str = "plain") -> dict:
+def export_hlod(hlod, fmt: str, out_dir, *, stem: str, place: Place | None = None, mesh: str = "plain",
+                textures: str = "original") -> dict:
     """Export into out_dir in format `fmt` ("3dtiles" or "hlod"): 3D Tiles (tileset.json, tiles/,
-    textures/ when textured; on the globe at `place` when given; `mesh` one of MESH_ENCODINGS) or the
-    native file <stem>.hlod (which has neither). Returns the export's summary."""
+    textures/ when textured; on the globe at `place` when given; `mesh` one of MESH_ENCODINGS,
+    `textures` one of TEXTURE_ENCODINGS) or the native file <stem>.hlod (which has neither). Returns
+    the export's summary."""
     if fmt == "3dtiles":
-        return tiles3d.export(hlod, out_dir, place=place, mesh=mesh)
+        return tiles3d.export(hlod, out_dir, place=place, mesh=mesh, textures=textures)
     target = Path(out_dir) / f"{stem}.hlod"
     check_output_file(str(target))
     hlod_file.save(hlod, target)

@@ -18,6 +18,8 @@ normalized uint16 (glTF core; linear RGBA clamped to 0..1). A position moves at 
 
 Draco (`mesh="draco"`, the glTF extension KHR_draco_mesh_compression): each material part a Draco
 mesh of its own (draco.py: DracoPy, a command-line-only dependency).
+
+A WebP texture (texture_codec) is bound through the glTF extension EXT_texture_webp, required.
 """
 from __future__ import annotations
 
@@ -41,6 +43,7 @@ from ..io.gltf_codes import (
 )
 from ..model.appearance import Material
 from . import draco
+from .texture_codec import WEBP_EXTENSION
 
 GENERATOR = "HLOD Bake & Preview"
 #: The glTF extension each tile content other than plain requires.
@@ -116,9 +119,18 @@ def glb_bytes(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | No
             "meshes": [{"primitives": primitives}],
             "accessors": buffer.accessors, "bufferViews": buffer.views, "buffers": [{"byteLength": len(binary)}],
             **document}
-    if mesh in EXTENSIONS:
-        gltf["extensionsUsed"] = gltf["extensionsRequired"] = [EXTENSIONS[mesh]]
+    required = ([EXTENSIONS[mesh]] if mesh in EXTENSIONS else []) + sorted(
+        {name for row in document.get("textures", []) for name in row.get("extensions", {})})
+    if required:
+        gltf["extensionsUsed"] = gltf["extensionsRequired"] = required
     return container(json.dumps(gltf, separators=(",", ":")).encode(), binary)
+
+
+def triangle_count(data: bytes) -> int:
+    """The triangles a GLB written here holds: its primitives' index counts / 3, from its JSON chunk."""
+    json_len = GLB_CHUNK.unpack_from(data, GLB_HEADER.size)[0]
+    gltf = json.loads(data[GLB_HEADER.size + GLB_CHUNK.size:GLB_HEADER.size + GLB_CHUNK.size + json_len])
+    return sum(gltf["accessors"][p["indices"]]["count"] for p in gltf["meshes"][0]["primitives"]) // 3
 
 
 def container(json_chunk: bytes, binary: bytes) -> bytes:
@@ -281,8 +293,8 @@ def _texture(image: TileImage, document: dict) -> int:
                                       "minFilter": int(SamplerFilter.LINEAR_MIPMAP_LINEAR),
                                       "wrapS": int(WrapMode.REPEAT), "wrapT": int(WrapMode.REPEAT)}])
     textures = document.setdefault("textures", [])
-    texture = next((i for i, row in enumerate(textures) if row["source"] == source), None)
-    if texture is None:
-        textures.append({"sampler": 0, "source": source})
-        texture = len(textures) - 1
-    return texture
+    row = ({"sampler": 0, "extensions": {WEBP_EXTENSION: {"source": source}}} if image.mime_type == "image/webp"
+           else {"sampler": 0, "source": source})  # WebP: EXT_texture_webp, required, no fallback image
+    if row not in textures:
+        textures.append(row)
+    return textures.index(row)

@@ -29,8 +29,9 @@ from ..core.atomic import replace_folder, umask_mode
 from ..core.errors import InputError
 from ..io.texture_folder import unique_file_name
 from ..model.hierarchy import Hlod, node_geometry
+from . import texture_codec
 from .draco import require_dracopy
-from .glb import GENERATOR, TileImage, glb_bytes
+from .glb import GENERATOR, TileImage, glb_bytes, triangle_count
 from .place import Place
 
 log = logging.getLogger(__name__)
@@ -50,10 +51,11 @@ ONE_FILE_MAX_BYTES, MAX_TILES_PER_FILE = 64_000, 128
 MESH_ENCODINGS = ("plain", "quantized", "draco")
 
 
-def copy_textures(hlod: Hlod, folder: Path) -> tuple[dict[str, TileImage], list[str]]:
+def copy_textures(hlod: Hlod, folder: Path, textures: str = "original") -> tuple[dict[str, TileImage], list[str]]:
     """Copy each distinct texture of the materials the HLOD's triangles use into `folder` (made
-    here), once, under a unique name. Returns ({texture path: TileImage}, warnings); a texture that
-    cannot be read or is not PNG/JPEG is left out with one warning naming it and its materials."""
+    here), once, under a unique name, re-encoded as `textures` asks (texture_codec.encode). Returns
+    ({texture path: TileImage}, warnings); a texture that cannot be read or decoded or is not
+    PNG/JPEG is left out with one warning naming it and its materials."""
     users = _texture_users(hlod)
     if not users:
         return {}, []
@@ -66,7 +68,8 @@ def copy_textures(hlod: Hlod, folder: Path) -> tuple[dict[str, TileImage], list[
         if real in by_file:  # the same file under another spelling
             images[path] = by_file[real]
             continue
-        image = _copy_texture(path, folder, names=names, warnings=warnings, materials=material_names)
+        image = _copy_texture(path, folder, names=names, warnings=warnings, materials=material_names,
+                              textures=textures)
         if image is not None:
             images[path] = by_file[real] = image
     for line in warnings:
@@ -86,9 +89,11 @@ def _texture_users(hlod: Hlod) -> dict[str, list[str]]:
     return users
 
 
-def _copy_texture(path: str, folder: Path, *, names: set, warnings: list, materials: list[str]) -> TileImage | None:
-    """Copy one texture file into `folder` under a name not in `names` (added to it); None, with a line
-    in `warnings` naming it and its `materials`, when it cannot be read or is neither PNG nor JPEG."""
+def _copy_texture(path: str, folder: Path, *, names: set, warnings: list, materials: list[str],
+                  textures: str = "original") -> TileImage | None:
+    """Copy one texture file into `folder` under a name not in `names` (added to it), re-encoded as
+    `textures` asks; None, with a line in `warnings` naming it and its `materials`, when it cannot be
+    read or decoded or is neither PNG nor JPEG."""
     which = f"material{'s' if len(materials) > 1 else ''} {', '.join(repr(n) for n in materials)}"
     try:
         data = Path(path).read_bytes()
@@ -101,7 +106,11 @@ def _copy_texture(path: str, folder: Path, *, names: set, warnings: list, materi
         warnings.append(f"{path}: texture of {which} is neither PNG nor JPEG (glTF 2.0 has only those); "
                         "exported without texture")
         return None
-    mime_type, suffix = kind
+    try:
+        data, mime_type, suffix = texture_codec.encode(data, *kind, textures)
+    except (OSError, ValueError) as exc:  # Pillow: a damaged file behind a PNG/JPEG signature
+        warnings.append(f"{path}: texture of {which} cannot be decoded ({exc}); exported without texture")
+        return None
     name = unique_file_name(Path(path).stem, suffix, names)
     folder.mkdir(exist_ok=True)
     (folder / name).write_bytes(data)
@@ -259,7 +268,7 @@ def tileset_files(hlod: Hlod, *, place: Place | None = None, max_tiles: int = MA
 
 
 def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = None,
-           place: Place | None = None, mesh: str = "plain") -> dict:
+           place: Place | None = None, mesh: str = "plain", textures: str = "original") -> dict:
     """Write tileset.json, tiles/<node>.glb and, for textured materials, textures/ into out_dir,
     atomically: everything is written into a temporary folder beside it and renamed into place,
     replacing an earlier export (`replace_export`). Folders and files get the modes of ordinary
@@ -267,18 +276,25 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
     machine's) for replace_export. `place`: where the scene's origin stands on the globe (None: the
     local frame, as the bake's model space). `mesh`: the tiles' vertices, "plain" float32,
     "quantized" (KHR_mesh_quantization) or "draco" (KHR_draco_mesh_compression; glb module notes).
-    Returns a summary (tiles, glb files, triangles, bytes, image files, warnings)."""
+    `textures`: the texture files as they are, or re-encoded as JPEG or WebP (texture_codec).
+    Returns a summary (tiles, glb files, triangles stored and held by the GLBs, bytes, image files,
+    warnings)."""
     if mesh not in MESH_ENCODINGS:
         raise InputError(f"3D Tiles export: mesh {mesh!r} is not one of {', '.join(MESH_ENCODINGS)}")
+    if textures not in texture_codec.TEXTURE_ENCODINGS:
+        raise InputError(f"3D Tiles export: textures {textures!r} is not one of "
+                         f"{', '.join(texture_codec.TEXTURE_ENCODINGS)}")
     if mesh == "draco":
         require_dracopy()  # before anything is written
+    if textures != "original":
+        texture_codec.require_pillow()
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
         os.chmod(staging, umask_mode(0o777))  # mkdtemp makes it 0700; the export is an ordinary folder
-        images, warnings = copy_textures(hlod, staging / TEXTURE_FOLDER)
-        written, tris, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images, mesh=mesh)
+        images, warnings = copy_textures(hlod, staging / TEXTURE_FOLDER, textures)
+        written, tris, held, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images, mesh=mesh)
         document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb", place=place)
         files = write_tileset(hlod, staging, document, place=place)
         warnings = warnings + replace_export(out_dir, staging, platform=platform)
@@ -286,9 +302,10 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
         shutil.rmtree(staging, ignore_errors=True)
         raise
     return {"format": "3dtiles", "output": str(out_dir), "tiles": _count(document["root"]), "glb_files": written,
-            "triangles": tris, "bytes": size, "tileset_geometric_error": document["geometricError"],
+            "triangles": tris, "glb_triangles": held, "bytes": size,
+            "tileset_geometric_error": document["geometricError"],
             "image_files": len(set(images.values())), "tileset_files": len(files),
-            "tileset_json_bytes": files["tileset.json"], "mesh": mesh,
+            "tileset_json_bytes": files["tileset.json"], "mesh": mesh, "textures": textures,
             "place": None if place is None else place.as_dict(),
             "warnings": warnings}
 
@@ -309,17 +326,20 @@ def write_tileset(hlod: Hlod, folder: Path, document: dict, *, place: Place | No
     return written
 
 
-def _write_tiles(hlod: Hlod, folder: Path, *, images: dict[str, TileImage], mesh: str) -> tuple[int, int, int]:
-    """folder/<node>.glb for every node with triangles (folder made here); (files, triangles, bytes)."""
+def _write_tiles(hlod: Hlod, folder: Path, *, images: dict[str, TileImage], mesh: str) -> tuple[int, int, int, int]:
+    """folder/<node>.glb for every node with triangles (folder made here); (files, stored triangles,
+    triangles the GLBs hold, bytes). Draco holds no triangle whose corners repeat a vertex (position
+    and attributes): zero area, nothing drawn."""
     folder.mkdir()
-    written, tris, size = 0, 0, 0
+    written, tris, held, size = 0, 0, 0, 0
     for node in np.flatnonzero(hlod.tri_count > 0).tolist():
         geometry = node_geometry(hlod, node)
         data = glb_bytes(geometry.positions, geometry.faces, geometry.normals, uvs=geometry.uvs, colors=geometry.colors,
                          face_material=geometry.face_material, materials=hlod.materials, images=images, mesh=mesh)
         (folder / f"{node}.glb").write_bytes(data)
         written, tris, size = written + 1, tris + geometry.faces.shape[0], size + len(data)
-    return written, tris, size
+        held += triangle_count(data) if mesh == "draco" else geometry.faces.shape[0]
+    return written, tris, held, size
 
 
 def replace_export(out_dir: Path, staging: Path, *, platform: str | None = None) -> list[str]:
