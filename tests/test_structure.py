@@ -60,7 +60,7 @@ CORE_DEPENDENCIES = {"numpy", "pymeshlab", "moderngl", "glcontext", "xatlas"} | 
 GUARDED = {"hlod_core.report.figures": {"matplotlib"}, "hlod_core.io.textures": {"PIL"},
            "hlod_core.io.gltf": {"trimesh"}, "hlod_core.bake.dask_cluster": {"distributed"},
            "hlod_core.report.figure_style": {"matplotlib"}, "hlod_core.report.label_placement": {"matplotlib"},
-           "hlod_core.export.draco": {"DracoPy"}}
+           "hlod_core.export.draco": {"DracoPy"}, "hlod_core.export.texture_codec": {"PIL"}}
 
 
 def _module_name(path: Path) -> str:
