@@ -271,14 +271,15 @@ MIN_QUANTIZED_PSNR_Y_DB = 40.0
 def test_page_shows_the_exports_textures_and_colours(browser, textured_scene_bake, tmp_path):
     """The textured test scene (tests/scenes/textured_scene.py, read from its GLB) exported with its
     materials, textures and vertex colours: the page draws them (the city above is one grey). Its
-    Draco export (normals, UVs and colours compressed, a primitive per material) draws the same
-    picture within MIN_QUANTIZED_PSNR_Y_DB."""
+    compact export (Draco: normals, UVs and colours compressed, a primitive per material; textures
+    as WebP through EXT_texture_webp) draws the same picture within MIN_QUANTIZED_PSNR_Y_DB."""
     from hlod_core.report.image_error import psnr
 
     folder = tmp_path / "tiles"
     summary = tiles3d.export(textured_scene_bake[1], folder)
     assert summary["image_files"] >= 2
-    tiles3d.export(textured_scene_bake[1], tmp_path / "draco", mesh="draco")
+    compact = tiles3d.export(textured_scene_bake[1], tmp_path / "draco", mesh="draco", textures="webp")
+    assert sorted(p.suffix for p in (tmp_path / "draco/textures").iterdir()) == [".webp"] * compact["image_files"]
     pictures = {}
     for name, source in (("plain", folder), ("draco", tmp_path / "draco")):
         with _open_page(browser, source) as tab:
