@@ -15,7 +15,7 @@ from ..hlod_core.io import hlod_file
 TILES_SUFFIX = "_3dtiles"
 #: Draco-compressed tiles need DracoPy, whose wheels Blender's extension installer cannot take (their
 #: .data folders): the command line only (docs/command-line.md, export --mesh draco).
-DRACO_NOTE = "Draco (5 to 7x smaller): command line, --mesh draco"
+DRACO_NOTE = "Draco (3 to 7x smaller) and WebP/JPEG textures: command line only"
 
 
 class HLOD_OT_export(bpy.types.Operator):
@@ -35,7 +35,8 @@ class HLOD_OT_export(bpy.types.Operator):
         ("quantized", "Quantized", "positions as 16-bit integers, normals 8-bit, colours 16-bit "
                                    "(KHR_mesh_quantization): 12 to 36% smaller tiles"),
     ], default="plain", description="3D Tiles only: how the tiles' vertices are stored. "
-                                     "Draco compression is on the command line only (export --mesh draco)")
+                                     "Draco compression and WebP/JPEG textures are on the command line only "
+                                     "(export --mesh draco --textures webp)")
 
     def draw(self, context):
         """The file browser's options: the format, the tile content and where Draco is."""
