@@ -193,7 +193,8 @@ npm_ci() {
 
 ensure_validators() {
     # The tests' independent readers of the 3D Tiles export (npm: Khronos glTF validator, CesiumGS
-    # 3d-tiles-tools), pinned in tools/validators/package-lock.json; installed once.
+    # 3d-tiles-tools, loaders.gl's Tiles3DLoader with the draco3d decoder), pinned in
+    # tools/validators/package-lock.json; installed once.
     ensure_npm "the export validators"
     npm_ci "$ROOT/tools/validators" "the export validators (npm ci, about 230 MB)"
 }

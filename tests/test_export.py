@@ -18,6 +18,7 @@ from blender_runs import blender
 from helpers import ROOT, model, textured_scene
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.core.errors import InputError
+from hlod_core.export import draco as draco_bits
 from hlod_core.export import glb, place, tiles3d
 from hlod_core.io import hlod_file as fileformat
 from hlod_core.io import meshes
@@ -264,10 +265,22 @@ def test_external_tilesets_hold_the_one_document_tileset_exactly(bakes, max_tile
             assert part["geometricError"] == part["root"]["geometricError"]
 
 
+def second_read(folder) -> dict:
+    """loaders.gl's reading of an export (tools/validators/read_loaders_gl.mjs): {"tilesets": files
+    read, "tiles": {GLB path relative to folder: triangles decoded}}."""
+    proc = subprocess.run(["node", str(VALIDATORS / "read_loaders_gl.mjs"), str(folder)], capture_output=True,
+                          text=True, timeout=600, cwd=VALIDATORS)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 def test_a_big_export_has_a_small_first_file_and_passes_the_readers(city_hlod, tmp_path):
     """The city (445 nodes: 0.3 MB as one indented document) is written as external tilesets: the
     first file at most 64 KB, the independent reader finds every node through them; a small
-    tileset stays one file (test_an_export_without_appearance_is_byte_identical_to_before)."""
+    tileset stays one file (test_an_export_without_appearance_is_byte_identical_to_before). A second
+    reader, loaders.gl's Tiles3DLoader, reads every tileset file and decodes every tile of it and of
+    its Draco export with the triangles the bake stores, less (Draco) those whose corners repeat a
+    vertex: zero area, not stored."""
     src = fileformat.save(city_hlod, tmp_path / "city.hlod")
     summary = tiles3d.export(city_hlod, tmp_path / "tiles")
     first = (tmp_path / "tiles/tileset.json").stat().st_size
@@ -275,6 +288,20 @@ def test_a_big_export_has_a_small_first_file_and_passes_the_readers(city_hlod, t
         tiles3d.tileset(city_hlod, lambda node: f"tiles/{node}.glb"), indent=1))
     assert summary["tileset_files"] == 1 + len(list((tmp_path / "tiles/tiles").glob("*.json"))) > 1
     assert_matches(tmp_path / "tiles", src)
+    draco = tiles3d.export(city_hlod, tmp_path / "draco", mesh="draco")
+    stored, repeated = {}, {}
+    for node in np.flatnonzero(city_hlod.tri_count > 0).tolist():
+        geometry = node_geometry(city_hlod, node)
+        corners = geometry.positions[geometry.faces]  # the city has no other vertex attributes
+        stored[f"tiles/{node}.glb"] = int(city_hlod.tri_count[node])
+        repeated[f"tiles/{node}.glb"] = int(np.count_nonzero(np.all(corners[:, 0] == corners[:, 1], axis=1)
+                                                             | np.all(corners[:, 1] == corners[:, 2], axis=1)
+                                                             | np.all(corners[:, 0] == corners[:, 2], axis=1)))
+    plain_read, draco_read = second_read(tmp_path / "tiles"), second_read(tmp_path / "draco")
+    assert plain_read == {"tilesets": summary["tileset_files"], "tiles": stored}
+    assert draco_read == {"tilesets": summary["tileset_files"],
+                          "tiles": {uri: count - repeated[uri] for uri, count in stored.items()}}
+    assert sum(repeated.values()) == draco["triangles"] - draco["glb_triangles"] > 0
 
 
 @pytest.mark.parametrize("umask", [0o022, 0o027])
@@ -665,8 +692,8 @@ def test_draco_tiles_decode_to_the_plain_ones_and_pass_the_validators(tmp_path):
     """A textured hierarchy (four materials, normals, UVs, colours) exported plain and Draco compressed
     (`export --mesh draco`): every Draco GLB requires KHR_draco_mesh_compression and has a primitive
     per material, each decoding (DracoPy) to that material's triangles of the plain GLB, winding kept,
-    every vertex within a step of Draco's quantization of a plain vertex (positions 16 bits of the part's
-    largest side, normals 10 bits, UVs 12 bits of their range; colours half an 8-bit step); the tileset
+    every vertex within a step of Draco's quantization of a plain vertex (draco.POSITION_BITS of the
+    part's largest side, NORMAL_BITS, UV_BITS of their range; colours half an 8-bit step); the tileset
     and the images are the plain export's; the glTF validator and 3d-tiles-tools find no error and no warning the plain
     export does not have, and the triangle counts the hierarchy stores."""
     png, jpeg = write_textures(tmp_path)
@@ -689,9 +716,9 @@ def test_draco_tiles_decode_to_the_plain_ones_and_pass_the_validators(tmp_path):
             faces = accessor(a, a_bin, pa["indices"]).reshape(-1, 3).astype(np.int64)
             rows, decoded_faces = _draco_rows(b, b_bin, pb)
             used = np.unique(faces)
-            steps = {"POSITION": np.ptp(exact["POSITION"][used], axis=0).max() / (2 ** 16 - 1),
-                     "TEXCOORD_0": np.ptp(exact["TEXCOORD_0"][used], axis=0).max() / (2 ** 12 - 1),
-                     "NORMAL": 2.0 / (2 ** 10 - 1), "COLOR_0": 1.0 / 255}
+            steps = {"POSITION": np.ptp(exact["POSITION"][used], axis=0).max() / (2 ** draco_bits.POSITION_BITS - 1),
+                     "TEXCOORD_0": np.ptp(exact["TEXCOORD_0"][used], axis=0).max() / (2 ** draco_bits.UV_BITS - 1),
+                     "NORMAL": 2.0 / (2 ** draco_bits.NORMAL_BITS - 1), "COLOR_0": 1.0 / 255}
             # Draco's decoder takes a quantized value q back as lo + q * range / 2^bits: the top of the
             # range comes back a whole step low, the rest within a step; colours (uint8 in glTF) half a step
             slack = {"POSITION": 1.0, "TEXCOORD_0": 1.0, "NORMAL": 1.0, "COLOR_0": 0.5}
