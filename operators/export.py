@@ -14,8 +14,9 @@ from ..hlod_core.io import hlod_file
 #: A 3D Tiles export named like a .hlod file goes to this folder instead: NAME.hlod -> NAME_3dtiles.
 TILES_SUFFIX = "_3dtiles"
 #: Draco-compressed tiles need DracoPy, whose wheels Blender's extension installer cannot take (their
-#: .data folders): the command line only (docs/command-line.md, export --mesh draco).
-DRACO_NOTE = "Draco (3 to 7x smaller) and WebP/JPEG textures: command line only"
+#: .data folders), and re-encoded textures Pillow, which Blender lacks: the command line only
+#: (docs/command-line.md, export --mesh draco --textures webp).
+DRACO_NOTE = "Draco (3 to 8x smaller) and WebP/JPEG textures: command line only"
 
 
 class HLOD_OT_export(bpy.types.Operator):
