@@ -806,3 +806,18 @@ def test_textures_reencoded_as_webp_or_jpeg_are_smaller_valid_and_close(tmp_path
     with pytest.raises(InputError, match=r"--textures jpeg\|webp needs the Pillow package"):
         tiles3d.export(h, tmp_path / "blocked", textures="webp")
     assert not (tmp_path / "blocked").exists()
+
+
+def test_a_texture_pillow_cannot_decode_is_one_warning_and_left_out(tmp_path):
+    """A file with a PNG signature and a broken body, re-encoded (`--textures webp`): one warning
+    naming the file and its material, the material exported without it, the other texture kept."""
+    png, jpeg = write_textures(tmp_path)
+    broken = tmp_path / "broken.png"
+    broken.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 64)
+    h = with_appearance(literal_hlod(normals=True), png, jpeg)
+    h = h.replace(materials=(*h.materials[:2], Material("label", (1.0, 1.0, 1.0, 1.0), 0.0, 0.5, str(broken)),
+                             h.materials[3]))
+    summary = tiles3d.export(h, tmp_path / "tiles", textures="webp")
+    assert len(summary["warnings"]) == 1 and summary["image_files"] == 1, summary["warnings"]
+    assert summary["warnings"][0].startswith(f"{broken}: texture of material 'label' cannot be decoded")
+    assert sorted(p.name for p in (tmp_path / "tiles/textures").iterdir()) == ["brick_wall.png"]
