@@ -196,7 +196,7 @@ ensure_validators() {
     # 3d-tiles-tools, loaders.gl's Tiles3DLoader with the draco3d decoder), pinned in
     # tools/validators/package-lock.json; installed once.
     ensure_npm "the export validators"
-    npm_ci "$ROOT/tools/validators" "the export validators (npm ci, about 230 MB)"
+    npm_ci "$ROOT/tools/validators" "the export validators (npm ci, about 290 MB)"
 }
 
 ensure_viewer() {
