@@ -34,15 +34,18 @@ def require_pillow():
 
 def encode(data: bytes, mime_type: str, suffix: str, encoding: str) -> tuple[bytes, str, str]:
     """The image file `data` (of `mime_type`, file `suffix`) for the export: (bytes, mime type,
-    suffix), re-encoded as `encoding` asks unless the module notes keep it. OSError/ValueError from
-    Pillow for a file it cannot decode."""
+    suffix), re-encoded as `encoding` asks unless the module notes keep it. OSError or ValueError for
+    a file Pillow cannot decode (a decompression bomb included)."""
     if encoding == "original" or (encoding == "jpeg" and mime_type == "image/jpeg"):
         return data, mime_type, suffix
     image_module = require_pillow()
-    with image_module.open(io.BytesIO(data)) as image:
-        image.load()
-        has_alpha = image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info
-        rgba = image.convert("RGBA" if has_alpha else "RGB")
+    try:
+        with image_module.open(io.BytesIO(data)) as image:
+            image.load()
+            has_alpha = image.mode in ("RGBA", "LA", "PA") or "transparency" in image.info
+            rgba = image.convert("RGBA" if has_alpha else "RGB")
+    except image_module.DecompressionBombError as exc:  # not an OSError: told as a file it cannot decode
+        raise ValueError(str(exc)) from None
     if has_alpha and rgba.getchannel("A").getextrema()[0] == 255:
         rgba, has_alpha = rgba.convert("RGB"), False
     out = io.BytesIO()
