@@ -421,8 +421,8 @@ def check_make_blends(repo, work) -> dict:
 
 # --- the long session: redraws, file switches, re-bakes, toggles, every method -------------
 
-SESSIONS = 50  # file switches, each followed by a re-bake
-REDRAWS_PER_SESSION = 80  # 50 x 80 = 4,000 redraws: the growth is measured per session (tests/blender/test_addon.py)
+SESSIONS = 30  # file switches, each followed by a re-bake: five periods of the configuration (6 sessions)
+REDRAWS_PER_SESSION = 80  # 30 x 80 = 2,400 redraws: the growth is measured per session (tests/blender/test_addon.py)
 METHOD_EVERY = REDRAWS_PER_SESSION // 4  # redraws between method changes: four methods a session
 TOGGLE_AT = 3 * REDRAWS_PER_SESSION // 4  # the redraw before which the preview is toggled off and on
 LONG_SIZE = (160, 120)  # offscreen pixels: small, so thousands of llvmpipe redraws fit in a minute

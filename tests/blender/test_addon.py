@@ -220,7 +220,7 @@ QUERY_POOL_BLOCK = 64  # QueryPool generates query names 64 at a time
 @pytest.mark.slow
 @pytest.mark.gl
 def test_preview_long_session_is_flat(repo, tmp_path):
-    """4,000 redraws of the draw path with an orbiting camera, 50 file switches (load_pre stops the
+    """2,400 redraws of the draw path with an orbiting camera, 30 file switches (load_pre stops the
     preview) each with a re-bake, every method, the private-context mode flipped in every session,
     the preview toggled off and on (every third time while another GL context is current, as with a
     second window): after warm-up the GL objects in Blender's context (counted with glIs* probes,
@@ -232,12 +232,15 @@ def test_preview_long_session_is_flat(repo, tmp_path):
     rasteriser threads), since with them its RSS jumps once by 20 to 75 MB at a random session and
     then stays flat; without them it stays flat throughout."""
     out = blender(repo, "long_session", tmp_path, timeout_s=1500, env={"LP_NUM_THREADS": "0"})
-    assert out["redraws"] == 4_000 and out["bakes"] == [["FINISHED"]] * 50
+    sessions = out["sessions"]  # five periods of WARMUP_SESSIONS: the growth after warm-up over 24 sessions
+    assert sessions == 5 * WARMUP_SESSIONS and out["redraws"] == 80 * sessions
+    assert out["bakes"] == [["FINISHED"]] * sessions
     assert out["methods_drawn"] == sorted(out["methods"]) and len(out["methods"]) == 6
-    assert 800 < out["private_redraws"] < 3200  # both modes, flipped in every session
+    assert 0.2 * out["redraws"] < out["private_redraws"] < 0.8 * out["redraws"]  # both modes, flipped in every session
     assert out["gl_errors"] == [] and out["turned_off"] == [], (out["gl_errors"], out["turned_off"])
     assert not any(out["running_after_load"])
-    assert len(out["other_context_current"]) == 17 and all(out["other_context_current"])
+    # every third session toggles while another context is current
+    assert len(out["other_context_current"]) == len(range(1, sessions, 3)) and all(out["other_context_current"])
     stopped, running = out["census_stopped"], out["census_running"]
     # with the preview stopped, only Blender's own objects remain: the same after every load
     assert all(census == stopped[0] for census in stopped) and out["census_end"] == stopped[0], stopped
