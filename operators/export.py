@@ -68,7 +68,7 @@ class HLOD_OT_export(bpy.types.Operator):
                 from ..hlod_core.export import tiles3d
 
                 target = target[:-len(".hlod")] + TILES_SUFFIX if target.lower().endswith(".hlod") else target
-                tiles3d.export(hlod, target, place=export_place(context.scene), quantize=self.mesh == "quantized")
+                tiles3d.export(hlod, target, place=export_place(context.scene), mesh=self.mesh)
                 props.tiles_dir = stored_path(target)  # what View in Browser serves
             else:
                 hlod_file.save(hlod, target)
