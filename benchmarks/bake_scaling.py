@@ -308,7 +308,8 @@ def report(result: dict) -> None:
     print("|---|---:|---:|---:|---:|---:|---:|---:|---|")
     for run, check in zip(result["measured"], result["checks"]):
         print(f"| {run['name']} | {check['measured_s']:.1f} | {check['model_s']:.1f} | {100 * check['error']:+.1f}% | "
-              f"{statistics.mean(run['load']):.1f} | {run['cpu_seconds']:.1f} | {run['parent_peak_bytes'] / 2**20:.0f} MiB | "
+              f"{statistics.mean(run['load']):.1f} | {run['cpu_seconds']:.1f} | "
+              f"{run['parent_peak_bytes'] / 2**20:.0f} MiB | "
               f"{run['bytes_per_triangle']:.0f} | {run['same_file']} |")
 
 
