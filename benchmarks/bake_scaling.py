@@ -51,7 +51,7 @@ import numpy as np
 
 from benchmarks import bake_memory
 from benchmarks.dask_bake import WORKER_PROFILE, _noop, _sample_children
-from hlod_core.bake import dask_cluster, hausdorff, schedule, simplify, tasks
+from hlod_core.bake import cell_seams, dask_cluster, hausdorff, schedule, simplify, tasks
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
@@ -71,6 +71,7 @@ def profile(mesh, settings: BakeSettings) -> dict:
     pending: dict = {}
     decimate, measure, measure_children = simplify.decimate_node, tasks.measure_exact, hausdorff.measure_to_children
     submit, build_arrays = schedule._Scheduler._submit, schedule._Scheduler._shared_leaf_arrays
+    build_seams = cell_seams.build
     seen: dict = {}
 
     def timed(fn, sent_of):
@@ -94,6 +95,13 @@ def profile(mesh, settings: BakeSettings) -> dict:
         seen["leaf_arrays_seconds"] = time.perf_counter() - started
         return made
 
+    def timed_seams(layout, lods, **options):
+        started = time.perf_counter()
+        made = build_seams(layout, lods, **options)
+        seen["seams"] = seams_tasks(layout, lods, time.perf_counter() - started)
+        return made
+
+    cell_seams.build = timed_seams
     simplify.decimate_node = timed(decimate, lambda a: a[0])
     tasks.measure_exact = timed(measure, lambda a: a[1])
     hausdorff.measure_to_children = timed(measure_children, lambda a: a)
@@ -105,11 +113,42 @@ def profile(mesh, settings: BakeSettings) -> dict:
     finally:
         simplify.decimate_node, tasks.measure_exact, hausdorff.measure_to_children = decimate, measure, measure_children
         schedule._Scheduler._submit, schedule._Scheduler._shared_leaf_arrays = submit, build_arrays
+        cell_seams.build = build_seams
     layout = seen["layout"]
-    return {"bake_seconds": seconds, "input_tris": mesh.tri_count, "nodes": hlod.node_count,
-            "phase_seconds": hlod.meta["phase_seconds"], "leaf_arrays_seconds": seen.get("leaf_arrays_seconds", 0.0),
+    phases = {**hlod.meta["phase_seconds"], "seams": seen["seams"]["seconds"]}  # less this profile's own sampling
+    return {"bake_seconds": seconds, "input_tris": mesh.tri_count, "nodes": hlod.node_count, "phase_seconds": phases,
+            "seams": seen["seams"],
+            "leaf_arrays_seconds": seen.get("leaf_arrays_seconds", 0.0),
             "tasks": records, "parent": layout.parent.tolist(), "is_leaf": layout.is_leaf.tolist(),
             "depth": layout.depth.tolist(), "node_tris": (layout.tri_end - layout.tri_begin).tolist()}
+
+
+def seams_tasks(layout, lods, seconds: float) -> dict:
+    """The seams phase's split (cell_seams.build took `seconds` inline): each bucket task reads every
+    leaf vertex (h seconds) and sorts its bucket's (s / buckets); timed here on one bucket of 1 and
+    one of 8 (the leaves' positions in memory); the rest of `seconds` is the bake's process's own."""
+    leaves = np.flatnonzero(layout.is_leaf)
+    leaves = leaves[np.argsort(layout.tri_begin[leaves], kind="stable")]
+    ends = np.cumsum([lods[leaf][0].shape[0] for leaf in leaves])
+    positions = cell_seams._concat_positions(lods, leaves, int(ends[-1]), None)
+    timed = {}
+    for buckets in (1, 8):
+        started = time.perf_counter()
+        cell_seams.shared_in_bucket(positions, ends, bucket=0, buckets=buckets)
+        timed[buckets] = time.perf_counter() - started
+    sort = max(timed[1] - timed[8], 0.0) * 8 / 7
+    read = max(timed[1] - sort, 0.0)
+    used = max(1, -(-int(ends[-1]) // cell_seams.BUCKET_VERTICES))  # the profile's buckets (jobs 1)
+    return {"seconds": seconds, "vertices": int(ends[-1]), "leaves": int(leaves.size), "read_s": read,
+            "sort_s": sort, "own_s": max(seconds - used * read - sort, 0.0), "task_bytes": int(8 * leaves.size)}
+
+
+def seams_seconds(seams: dict, workers: int, cost: float) -> float:
+    """The seams phase on `workers` workers: the bake's process's own part, then max(workers, the
+    buckets the size needs) bucket tasks list-scheduled, each read + sort / buckets + cost."""
+    buckets = max(workers, -(-seams["vertices"] // cell_seams.BUCKET_VERTICES))
+    rounds = -(-buckets // workers)
+    return seams["own_s"] + rounds * (seams["read_s"] + seams["sort_s"] / buckets + cost)
 
 
 def _round_trips(executor, payload, *, in_flight: int = 2, count: int = OVERHEAD_TASKS, **options) -> dict:
@@ -172,17 +211,13 @@ def simulate(prof: dict, workers: int, cost: np.ndarray, *, measure_ready: float
                 deferred.append((kind, size, node))
                 continue
             heapq.heappush(running, (now + seconds[(kind, node)], kind, node))
-        if not running:
+        if deferred and (not running or running[0][0] >= measure_ready):  # the leaf arrays come first
             now = max(now, measure_ready)
             for item in deferred:
                 heapq.heappush(ready, item)
             deferred = []
             continue
         now, kind, node = heapq.heappop(running)
-        if now >= measure_ready and deferred:
-            for item in deferred:
-                heapq.heappush(ready, item)
-            deferred = []
         if kind == schedule.TASK_DECIMATE:
             heapq.heappush(ready, (schedule.TASK_MEASURE, -int(node_tris[node]), node))
             up = int(parent[node])
@@ -200,12 +235,19 @@ def model_seconds(prof: dict, over: dict | None, workers: int) -> dict:
     serial = sum(v for k, v in phases.items() if k in SERIAL_PHASES)
     arrays = prof["leaf_arrays_seconds"]
     nbytes = np.array([r["sent"] + r["returned"] for r in prof["tasks"]], np.float64)
+    seams = prof["seams"]
     if workers == 1 and over is None:
         simplify_s = arrays + simulate(prof, 1, np.zeros(nbytes.size), measure_ready=0.0)
+        seams_s = phases["seams"]
     else:
         simplify_s = max(simulate(prof, workers, task_cost(over, nbytes), measure_ready=arrays),
                          len(prof["tasks"]) * over["loaded"]["coordinator_cpu_s"])
-    return {"serial_s": serial + (arrays if workers > 1 else 0.0), "simplify_s": simplify_s,
+        parallel = seams["vertices"] >= cell_seams.PARALLEL_FROM_VERTICES
+        seams_s = seams_seconds(seams, workers, float(task_cost(over, np.array([seams["task_bytes"]]))[0])) \
+            if parallel else phases["seams"]
+    serial = serial - phases["seams"] + seams_s
+    own = serial - (seams_s - seams["own_s"] if workers > 1 else 0.0)  # outside any task
+    return {"serial_s": own + (arrays if workers > 1 else 0.0), "seams_s": seams_s, "simplify_s": simplify_s,
             "seconds": serial + simplify_s}
 
 
@@ -299,10 +341,15 @@ def report(result: dict) -> None:
                   f"{1e3 * o['loaded']['wall_s']:.1f} ms with {o['payload_bytes'] / 1e3:.0f} kB; "
                   f"coordinator CPU {1e3 * o['loaded']['coordinator_cpu_s']:.2f} ms a task")
     one = result["model"]["1"]["seconds"]
-    print("| workers | modelled s | serial s | simplify s | speed-up |")
-    print("|---:|---:|---:|---:|---:|")
+    sm = prof["seams"]
+    print(f"seams: {sm['seconds']:.2f} s inline over {sm['vertices']:,} leaf vertices: a bucket task reads them "
+          f"all ({sm['read_s']:.2f} s) and sorts its share of {sm['sort_s']:.2f} s; {sm['own_s']:.2f} s in the bake's "
+          "process")
+    print("| workers | modelled s | outside tasks s | seams s | simplify s | speed-up |")
+    print("|---:|---:|---:|---:|---:|---:|")
     for n, m in result["model"].items():
-        print(f"| {n} | {m['seconds']:.1f} | {m['serial_s']:.1f} | {m['simplify_s']:.1f} | {one / m['seconds']:.1f}x |")
+        print(f"| {n} | {m['seconds']:.1f} | {m['serial_s']:.2f} | {m['seams_s']:.2f} | {m['simplify_s']:.1f} | "
+              f"{one / m['seconds']:.1f}x |")
     print(f"knee: {knee(result['model'])} workers (the first count whose doubling saves less than a quarter)")
     print("| run | measured s | modelled s | error | load | CPU s | peak RSS | bytes / triangle | same file |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---|")
