@@ -51,7 +51,7 @@ import numpy as np
 
 from benchmarks import bake_memory
 from benchmarks.dask_bake import WORKER_PROFILE, _noop, _sample_children
-from hlod_core.bake import cell_seams, dask_cluster, hausdorff, schedule, simplify, tasks
+from hlod_core.bake import cell_seams, dask_cluster, hausdorff, leaf_arrays, schedule, simplify, tasks
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
@@ -66,59 +66,70 @@ OVERHEAD_TASKS = 200
 
 
 def profile(mesh, settings: BakeSettings) -> dict:
-    """Part 1: a jobs 1 bake, every task of the simplify phase timed in this process."""
+    """Part 1: a jobs 1 bake, every task of the simplify phase timed in this process. A task's node:
+    a decimation's is the parent of its first child, found by the child's positions array (the
+    leaves' from the lods the seams phase reads, the inner nodes' as their decimations return them);
+    an exact measurement's by its ranges into the leaf arrays."""
     records: list[dict] = []
-    pending: dict = {}
     decimate, measure, measure_children = simplify.decimate_node, tasks.measure_exact, hausdorff.measure_to_children
-    submit, build_arrays = schedule._Scheduler._submit, schedule._Scheduler._shared_leaf_arrays
-    build_seams = cell_seams.build
-    seen: dict = {}
+    build_seams, build_arrays = cell_seams.build, leaf_arrays.build
+    seen: dict = {"by_array": {}, "by_ranges": {}}
 
-    def timed(fn, sent_of):
-        def run(*args, **options):
-            started = time.perf_counter()
-            value = fn(*args, **options)
-            pending.update(seconds=time.perf_counter() - started, sent=dask_cluster.array_bytes(sent_of(args)),
-                           returned=dask_cluster.array_bytes(value) if not isinstance(value, float) else 8)
-            return value
-        return run
+    def record(kind: int, node: int, started: float, sent, value) -> None:
+        records.append({"kind": kind, "node": int(node), "seconds": time.perf_counter() - started,
+                        "sent": dask_cluster.array_bytes(sent),
+                        "returned": 8 if isinstance(value, float) else dask_cluster.array_bytes(value)})
 
-    def timed_submit(self, kind, size, node):
-        seen["layout"] = self.layout
-        fut = submit(self, kind, size, node)
-        records.append({"kind": kind, "node": int(node), **pending})
-        return fut
-
-    def timed_arrays(self):
+    def timed_decimate(children, *args, **options):
         started = time.perf_counter()
-        made = build_arrays(self)
+        lod = decimate(children, *args, **options)
+        node = int(seen["layout"].parent[seen["by_array"][id(children[0][0])]])
+        seen["by_array"][id(lod.positions)] = node
+        record(schedule.TASK_DECIMATE, node, started, children, lod)
+        return lod
+
+    def timed_measure(folder, lod, ranges):
+        started = time.perf_counter()
+        value = measure(folder, lod, ranges)
+        record(schedule.TASK_MEASURE, seen["by_ranges"][tuple(ranges)], started, lod, value)
+        return value
+
+    def timed_measure_children(lod, children):
+        started = time.perf_counter()
+        value = measure_children(lod, children)
+        record(schedule.TASK_MEASURE, seen["by_array"][id(lod[0])], started, (lod, children), value)
+        return value
+
+    def timed_arrays(layout, lods, **options):
+        started = time.perf_counter()
+        made = build_arrays(layout, lods, **options)
         seen["leaf_arrays_seconds"] = time.perf_counter() - started
+        seen["by_ranges"] = {made.ranges(int(node)): int(node) for node in np.flatnonzero(~layout.is_leaf)}
         return made
 
     def timed_seams(layout, lods, **options):
         started = time.perf_counter()
         made = build_seams(layout, lods, **options)
-        seen["seams"] = seams_tasks(layout, lods, time.perf_counter() - started)
+        seconds = time.perf_counter() - started
+        seen["layout"] = layout
+        seen["by_array"].update({id(lods[leaf][0]): int(leaf) for leaf in np.flatnonzero(layout.is_leaf)})
+        seen["seams"] = seams_tasks(layout, lods, seconds)
         return made
 
-    cell_seams.build = timed_seams
-    simplify.decimate_node = timed(decimate, lambda a: a[0])
-    tasks.measure_exact = timed(measure, lambda a: a[1])
-    hausdorff.measure_to_children = timed(measure_children, lambda a: a)
-    schedule._Scheduler._submit, schedule._Scheduler._shared_leaf_arrays = timed_submit, timed_arrays
+    cell_seams.build, leaf_arrays.build = timed_seams, timed_arrays
+    simplify.decimate_node, tasks.measure_exact = timed_decimate, timed_measure
+    hausdorff.measure_to_children = timed_measure_children
     try:
         started = time.perf_counter()
         hlod = bake(mesh, BakeSettings(**{**settings.__dict__, "jobs": 1}))
         seconds = time.perf_counter() - started
     finally:
         simplify.decimate_node, tasks.measure_exact, hausdorff.measure_to_children = decimate, measure, measure_children
-        schedule._Scheduler._submit, schedule._Scheduler._shared_leaf_arrays = submit, build_arrays
-        cell_seams.build = build_seams
+        cell_seams.build, leaf_arrays.build = build_seams, build_arrays
     layout = seen["layout"]
     phases = {**hlod.meta["phase_seconds"], "seams": seen["seams"]["seconds"]}  # less this profile's own sampling
     return {"bake_seconds": seconds, "input_tris": mesh.tri_count, "nodes": hlod.node_count, "phase_seconds": phases,
-            "seams": seen["seams"],
-            "leaf_arrays_seconds": seen.get("leaf_arrays_seconds", 0.0),
+            "seams": seen["seams"], "leaf_arrays_seconds": seen.get("leaf_arrays_seconds", 0.0),
             "tasks": records, "parent": layout.parent.tolist(), "is_leaf": layout.is_leaf.tolist(),
             "depth": layout.depth.tolist(), "node_tris": (layout.tri_end - layout.tri_begin).tolist()}
 
@@ -130,7 +141,7 @@ def seams_tasks(layout, lods, seconds: float) -> dict:
     leaves = np.flatnonzero(layout.is_leaf)
     leaves = leaves[np.argsort(layout.tri_begin[leaves], kind="stable")]
     ends = np.cumsum([lods[leaf][0].shape[0] for leaf in leaves])
-    positions = cell_seams._concat_positions(lods, leaves, int(ends[-1]), None)
+    positions = cell_seams.concat_positions(lods, leaves, int(ends[-1]), None)
     timed = {}
     for buckets in (1, 8):
         started = time.perf_counter()

@@ -88,11 +88,11 @@ def build(layout: OctreeLayout, lods: list, *, workers=None, folder: str | os.Pa
     parallel = workers is not None and workers.limit > 1 and total >= PARALLEL_FROM_VERTICES
     buckets = max(1, -(-total // BUCKET_VERTICES), workers.limit if parallel else 1)
     if parallel:
-        source = _concat_positions(lods, leaves, total, os.path.join(workers.scratch, SEAM_POSITIONS))
+        source = concat_positions(lods, leaves, total, os.path.join(workers.scratch, SEAM_POSITIONS))
         found = _run_buckets(workers, source, ends, buckets, cancel)
     else:
         path = os.path.join(folder, SEAM_POSITIONS) if folder is not None else None
-        source = _concat_positions(lods, leaves, total, path)
+        source = concat_positions(lods, leaves, total, path)
         found = [shared_in_bucket(source, ends, bucket=b, buckets=buckets) for b in range(buckets)]
     positions_of = np.load(source, mmap_mode="r") if isinstance(source, str) else source
     # every leaf-vertex row whose position is shared, in row order (depth first), with its
@@ -159,7 +159,7 @@ def shared_in_bucket(source: str | np.ndarray, ends: np.ndarray, *, bucket: int,
     return row[shared], first_row[shared]
 
 
-def _concat_positions(lods: list, leaves: np.ndarray, total: int, path: str | None) -> str | np.ndarray:
+def concat_positions(lods: list, leaves: np.ndarray, total: int, path: str | None) -> str | np.ndarray:
     """The leaves' positions (total,3) float32 concatenated depth first: in memory (path None), or
     written leaf by leaf into the .npy file `path` (returned)."""
     if path is None:
