@@ -16,12 +16,13 @@ In one run, on this machine:
    processes x 1 thread: the round trip per task (wall) and the bake's process's CPU per task.
    Cost of a task of b bytes = round trip(empty) + b x (round trip(loaded) - round trip(empty)) / b_loaded.
 3. Model (`model_seconds`): wall(N) = serial + simplify(N). serial: the phases outside the simplify
-   phase (prepare, octree, leaves, seams, assemble) and the leaf arrays, which the measurements wait
-   for; simplify(N): the profiled tasks list-scheduled on N workers in the bake's own order
-   (schedule.py: decimations deepest first once their children are decimated, then measurements
-   largest first), each task its profiled seconds plus its executor cost (none at N = 1: inline),
-   and at least tasks x the bake's process's CPU per task (its one event loop). The task-size
-   distribution and the dependency chain decide the tail; Amdahl's serial part the limit.
+   phase (prepare, octree, leaves, seams, assemble), the seams' buckets as their tasks on N workers;
+   the leaf arrays, which the measurements wait for, their clusters as their tasks on N workers;
+   simplify(N): the profiled tasks list-scheduled on N workers in the bake's own order (schedule.py:
+   decimations deepest first once their children are decimated, then measurements largest first),
+   each task its profiled seconds plus its executor cost (none at N = 1: inline), and at least
+   tasks x the bake's process's CPU per task (its one event loop). The task-size distribution and
+   the dependency chain decide the tail; Amdahl's serial part the limit.
 4. Check: real bakes by the command line in fresh processes (`python -m hlod_core bake SPEC
    --no-cache`): jobs 1, jobs 2, and `--scheduler` on the LocalCluster (2 workers), each its
    bake_seconds against the model's, the error printed; the coordinating process's peak RSS (VmHWM,
@@ -72,7 +73,7 @@ def profile(mesh, settings: BakeSettings) -> dict:
     an exact measurement's by its ranges into the leaf arrays."""
     records: list[dict] = []
     decimate, measure, measure_children = simplify.decimate_node, tasks.measure_exact, hausdorff.measure_to_children
-    build_seams, build_arrays = cell_seams.build, leaf_arrays.build
+    build_seams, build_arrays, cut = cell_seams.build, leaf_arrays.build, hausdorff.Clusters.build
     seen: dict = {"by_array": {}, "by_ranges": {}}
 
     def record(kind: int, node: int, started: float, sent, value) -> None:
@@ -100,6 +101,13 @@ def profile(mesh, settings: BakeSettings) -> dict:
         record(schedule.TASK_MEASURE, seen["by_array"][id(lod[0])], started, (lod, children), value)
         return value
 
+    def timed_clusters(*args, **options):
+        started = time.perf_counter()
+        made = cut(*args, **options)
+        seen["clusters"] = {"seconds": time.perf_counter() - started, "faces": int(made.faces.shape[0]),
+                            "bytes": int(2 * made.faces.nbytes + np.asarray(args[0]).nbytes)}
+        return made
+
     def timed_arrays(layout, lods, **options):
         started = time.perf_counter()
         made = build_arrays(layout, lods, **options)
@@ -117,6 +125,7 @@ def profile(mesh, settings: BakeSettings) -> dict:
         return made
 
     cell_seams.build, leaf_arrays.build = timed_seams, timed_arrays
+    hausdorff.Clusters.build = staticmethod(timed_clusters)
     simplify.decimate_node, tasks.measure_exact = timed_decimate, timed_measure
     hausdorff.measure_to_children = timed_measure_children
     try:
@@ -126,10 +135,12 @@ def profile(mesh, settings: BakeSettings) -> dict:
     finally:
         simplify.decimate_node, tasks.measure_exact, hausdorff.measure_to_children = decimate, measure, measure_children
         cell_seams.build, leaf_arrays.build = build_seams, build_arrays
+        hausdorff.Clusters.build = staticmethod(cut)
     layout = seen["layout"]
     phases = {**hlod.meta["phase_seconds"], "seams": seen["seams"]["seconds"]}  # less this profile's own sampling
     return {"bake_seconds": seconds, "input_tris": mesh.tri_count, "nodes": hlod.node_count, "phase_seconds": phases,
             "seams": seen["seams"], "leaf_arrays_seconds": seen.get("leaf_arrays_seconds", 0.0),
+            "clusters": seen.get("clusters", {"seconds": 0.0, "faces": 0, "bytes": 0}),
             "tasks": records, "parent": layout.parent.tolist(), "is_leaf": layout.is_leaf.tolist(),
             "depth": layout.depth.tolist(), "node_tris": (layout.tri_end - layout.tri_begin).tolist()}
 
@@ -160,6 +171,18 @@ def seams_seconds(seams: dict, workers: int, cost: float) -> float:
     buckets = max(workers, -(-seams["vertices"] // cell_seams.BUCKET_VERTICES))
     rounds = -(-buckets // workers)
     return seams["own_s"] + rounds * (seams["read_s"] + seams["sort_s"] / buckets + cost)
+
+
+def arrays_seconds(prof: dict, workers: int, over: dict | None) -> float:
+    """The leaf arrays on `workers` workers (leaf_arrays.build): the concatenation in the bake's
+    process, then the clusters in runs of whole leaves as tasks (leaf_arrays.cut_clusters' count),
+    each its share of the profiled cut plus its executor cost."""
+    whole, clusters = prof["leaf_arrays_seconds"], prof["clusters"]
+    if workers < 2 or over is None or clusters["faces"] < leaf_arrays.PARALLEL_FROM_FACES:
+        return whole
+    pieces = int(min(max(2, clusters["faces"] // leaf_arrays.TASK_FACES), 4 * workers))
+    each = clusters["seconds"] / pieces + float(task_cost(over, np.array([clusters["bytes"] / pieces]))[0])
+    return whole - clusters["seconds"] + -(-pieces // workers) * each
 
 
 def _round_trips(executor, payload, *, in_flight: int = 2, count: int = OVERHEAD_TASKS, **options) -> dict:
@@ -244,7 +267,7 @@ def model_seconds(prof: dict, over: dict | None, workers: int) -> dict:
     figures; None at 1 worker: inline)."""
     phases = prof["phase_seconds"]
     serial = sum(v for k, v in phases.items() if k in SERIAL_PHASES)
-    arrays = prof["leaf_arrays_seconds"]
+    arrays = arrays_seconds(prof, workers, over)
     nbytes = np.array([r["sent"] + r["returned"] for r in prof["tasks"]], np.float64)
     seams = prof["seams"]
     if workers == 1 and over is None:
