@@ -10,7 +10,8 @@ checkout's hlod_core (PYTHONPATH=DIR for the baseline: `git worktree add /tmp/ol
 reads the spec and times, in the bake's order: read (meshes.load_inputs), prepare, octree, leaves
 (prepare.leaf_lods), the cell seams in this process (cell_seams.build; on this many leaf vertices
 one bucket per BUCKET_VERTICES), the cell seams as tasks on a pool of 2 worker processes started and
-warmed first (where the checkout has them), and the exact measure's leaf arrays (leaf_arrays.build).
+warmed first (where the checkout has them), and the exact measure's leaf arrays (leaf_arrays.build)
+in this process and with their clusters cut on the 2 workers (where the checkout does that).
 Each run prints the blake2b digest of its CellSeams' arrays: equal digests, the same seams. The
 baseline and this checkout alternate, the first swapped every repeat; the load average is recorded
 with each run.
@@ -83,8 +84,19 @@ def child(spec: str) -> dict:
         if again.hexdigest() != digest.hexdigest():
             raise SystemExit("serial_phases: the seams on the workers differ from the seams inline")
     started = time.perf_counter()
-    leaf_arrays.build(layout, lods)
-    lap("leaf arrays")
+    whole = leaf_arrays.build(layout, lods)
+    lap("leaf arrays inline")
+    if "workers" in inspect.signature(leaf_arrays.build).parameters:
+        from hlod_core.bake.workers import open_workers
+
+        with open_workers(2) as workers:
+            for fut in [workers.executor.submit(time.sleep, 0.5) for _ in range(2)]:
+                fut.result()
+            started = time.perf_counter()
+            chunked = leaf_arrays.build(layout, lods, workers=workers)
+            lap("leaf arrays on 2 workers")
+        if any(not np.array_equal(a, chunked.arrays()[name]) for name, a in whole.arrays().items()):
+            raise SystemExit("serial_phases: the leaf arrays on the workers differ from the leaf arrays inline")
     return {"tris": mesh.tri_count, "leaves": int(layout.is_leaf.sum()),
             "leaf_vertices": int(sum(lods[k][0].shape[0] for k in np.flatnonzero(layout.is_leaf))),
             "seconds": seconds, "seams_digest": digest.hexdigest()}
