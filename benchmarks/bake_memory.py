@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -89,11 +90,13 @@ MODES = ("memory", "out-of-core")
 
 
 def bake_measured(spec: Path, out: Path, jobs: int, *, mode: str = "memory", chunk_tris: int | None = None,
-                  error: str = "exact") -> dict:
-    """One bake in a fresh process, its peaks sampled (module docstring); mode: one of MODES."""
-    started = time.perf_counter()
+                  error: str = "exact", extra: list[str] | tuple = ()) -> dict:
+    """One bake in a fresh process, its peaks sampled (module docstring); mode: one of MODES; extra:
+    more options of `bake`. "summary": the bake's summary line; "cpu_seconds": the CPU seconds of
+    the bake process and of its workers (its reaped children)."""
+    started, cpu = time.perf_counter(), _children_cpu()
     command = [sys.executable, "-m", "hlod_core", "-q", "bake", str(spec), "-o", str(out), "--jobs", str(jobs),
-               "--error", error]
+               "--error", error, *extra]
     if mode == "out-of-core":
         command += ["--out-of-core", "--scratch", str(out.parent)]
         if chunk_tris is not None:
@@ -121,18 +124,26 @@ def bake_measured(spec: Path, out: Path, jobs: int, *, mode: str = "memory", chu
         raise SystemExit(f"bake of {spec} failed with status {proc.returncode}")
     summary = json.loads(stdout.strip().splitlines()[-1])
     return {"mode": mode, "triangles": summary["input_tris"], "seconds": time.perf_counter() - started,
-            "parent_peak_bytes": parent_peak, "worker_peak_bytes": sorted(workers.values(), reverse=True)}
+            "parent_peak_bytes": parent_peak, "worker_peak_bytes": sorted(workers.values(), reverse=True),
+            "summary": summary, "cpu_seconds": _children_cpu() - cpu}
 
 
-def same_file(a: Path, b: Path) -> bool:
-    """Whether two .hlod files hold the same bytes once their volatile meta is left out."""
+def _children_cpu() -> float:
+    """User + system CPU seconds of this process's reaped children, and theirs."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def same_file(a: Path, b: Path, *, meta: bool = True) -> bool:
+    """Whether two .hlod files hold the same bytes once their volatile meta is left out (meta=False:
+    and the rest of the meta too, for bakes whose settings differ only in where the work ran)."""
     from hlod_core.bake.meta import stable_meta
     from hlod_core.io import hlod_file
 
     def stable_bytes(path: Path) -> bytes:
         hlod = hlod_file.load(path)
         out = path.with_name(path.stem + ".stable.hlod")
-        hlod_file.save(hlod.replace(meta=stable_meta(hlod.meta)), out)
+        hlod_file.save(hlod.replace(meta=stable_meta(hlod.meta) if meta else {}), out)
         data = out.read_bytes()
         os.remove(out)
         return data

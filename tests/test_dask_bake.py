@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import sample_meshes
-from helpers import ROOT, file_bytes, model
+from helpers import ROOT, file_bytes, load_model, model
 from hlod_core.bake import dask_cluster, tasks
 from hlod_core.bake.partition import MeshSource
 from hlod_core.bake.pipeline import bake, bake_stream
@@ -66,6 +66,36 @@ def test_a_cluster_bake_writes_the_file_a_local_bake_writes(cluster, herd, error
     assert int((~local.is_leaf).sum()) > 50 and int(local.depth.max()) >= 3
     assert file_bytes(remote, tmp_path / "remote.hlod") == file_bytes(local, tmp_path / "local.hlod")
     assert list(scratch.iterdir()) == []  # the bake's subfolder is gone
+
+
+def test_the_cell_seams_as_tasks_on_the_cluster_are_the_serial_seams_and_file(cluster, monkeypatch, tmp_path):
+    """The cow at 500 triangles a node: its cell seams found in buckets of 500 leaf vertices as tasks
+    on the cluster's workers (cell_seams.build runs them from PARALLEL_FROM_VERTICES on: the test's
+    scenes are smaller), which read the leaves' positions from the bake's scratch subfolder, are
+    the seams found inline in one bucket, array for array; and a cluster bake that finds them so
+    writes the serial bake's file."""
+    from hlod_core.bake import cell_seams, prepare
+    from hlod_core.bake.octree import build_octree
+    from hlod_core.bake.workers import open_workers
+
+    cow, settings = load_model("cow"), BakeSettings(target_tris=500)
+    prepared = prepare.prepare(cow)
+    layout = build_octree(prepared.centroids, target_tris=500, max_depth=12, counted=prepared.counted,
+                          root=prepared.root_cell)
+    lods = prepare.leaf_lods(layout, prepared)
+    inline = cell_seams.build(layout, lods)
+    serial = file_bytes(bake(cow, settings), tmp_path / "serial.hlod")
+    monkeypatch.setattr(cell_seams, "BUCKET_VERTICES", 500)
+    monkeypatch.setattr(cell_seams, "PARALLEL_FROM_VERTICES", 0)
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    with open_workers(1, scheduler=cluster, scratch_dir=scratch) as workers:
+        remote = cell_seams.build(layout, lods, workers=workers)
+    assert inline.positions.shape[0] > 500
+    for name in ("positions", "first_leaf", "last_leaf", "pair_leaf", "pair_position", "pair_start"):
+        assert np.array_equal(getattr(remote, name), getattr(inline, name)), name
+    assert file_bytes(bake(cow, settings, scheduler=cluster, scratch_dir=scratch), tmp_path / "dask.hlod") == serial
+    assert list(scratch.iterdir()) == []
 
 
 @pytest.mark.slow  # robustness beside the cluster bake's path (above), a bake and a worker restart

@@ -48,6 +48,24 @@ def test_lattice_round_trip_is_exact_and_scale_free():
     assert not np.array_equal(stored, rel.astype(np.float32))  # 2 bits coarser than plain float32
 
 
+def test_snap_on_the_bits_is_snap_by_frexp_ties_and_edges_included():
+    """snap rounds the float64 bits; snap_frexp is the definition. Exact ties at random exponents and
+    signs, every decade of magnitude, zeros, subnormals, the largest double (rounds up to inf), inf
+    and NaN: the same bits."""
+    rng = np.random.default_rng(3)
+    dropped = 52 - (lattice.CANONICAL_BITS - 1)
+    kept = rng.integers(0, 1 << 52, 50_000, dtype=np.uint64) >> np.uint64(dropped) << np.uint64(dropped)
+    ties = kept | np.uint64(1 << (dropped - 1)) | rng.integers(1, 2046, 50_000).astype(np.uint64) << np.uint64(52) \
+        | rng.integers(0, 2, 50_000).astype(np.uint64) << np.uint64(63)
+    u = np.concatenate([ties.view(np.float64), rng.standard_normal(50_000) * 10.0 ** rng.integers(-300, 300, 50_000),
+                        [0.0, -0.0, 5e-324, -1e-310, 2.2250738585072014e-308, 1.7976931348623157e308, np.inf,
+                         -np.inf, np.nan, 0.5, -0.5, 1 - 2**-53]])
+    with np.errstate(over="ignore", invalid="ignore"):
+        fast, slow = lattice.snap(u.reshape(-1, 2)).ravel(), lattice.snap_frexp(u)
+    assert np.array_equal(fast.view(np.uint64), slow.view(np.uint64))
+    assert fast[-7] == np.inf and fast[-6] == np.inf and fast[-5] == -np.inf and fast[-2] == -0.5
+
+
 def test_unique_by_first_numbers_keys_by_first_appearance():
     first, inverse = lattice.unique_by_first(np.array([5.0, 2.0, 5.0, 9.0, 2.0]))
     assert first.tolist() == [0, 1, 3] and inverse.tolist() == [0, 1, 0, 2, 1]

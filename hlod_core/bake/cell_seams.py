@@ -12,17 +12,28 @@ Why: docs/how-it-works.md#decimating-a-node
 """
 from __future__ import annotations
 
+import concurrent.futures as cf
 import hashlib
+import os
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
+from ..core.errors import BakeCancelled
 from .octree import OctreeLayout
 
 #: Leaf vertices sorted at a time while the shared positions are found: with more, they are
 #: split into buckets by a hash of their position and each bucket is sorted on its own (an
 #: out-of-core bake's leaves are memory-mapped; about 50 bytes a vertex while a bucket is sorted).
 BUCKET_VERTICES = 1 << 21
+#: Leaf vertices from which the shared positions are found as tasks on the bake's workers (one
+#: bucket at least a worker), where there are several: fewer take less than a task's round trip.
+PARALLEL_FROM_VERTICES = 1 << 18
+#: The file in a scratch folder holding the leaves' positions for those tasks (`build`).
+SEAM_POSITIONS = "seam-positions.npy"
+#: How often (seconds) `build` wakes while its tasks run, to check cancel().
+POLL_SECONDS = 0.25
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,29 +68,43 @@ class CellSeams:
         return hashlib.blake2b(np.ascontiguousarray(self.locked(node)).tobytes(), digest_size=16).digest()
 
 
-def build(layout: OctreeLayout, lods: list) -> CellSeams:
+def build(layout: OctreeLayout, lods: list, *, workers=None, folder: str | os.PathLike | None = None,
+          cancel: Callable[[], bool] | None = None) -> CellSeams:
     """The CellSeams of a bake: lods[leaf] = (positions (k,3) f32, ...) for every leaf (arrays in
-    memory or memory-mapped); the inner nodes' entries are not read."""
+    memory or memory-mapped); the inner nodes' entries are not read.
+
+    The shared positions are found bucket by bucket (`shared_in_bucket`), as tasks on `workers`
+    (workers.Workers) where there are several and the leaves have at least PARALLEL_FROM_VERTICES
+    vertices: at least one bucket a worker, which reads the leaves' positions from one file in the
+    workers' scratch folder. Inline, the leaves' positions are concatenated in memory, or into a file
+    in `folder` (an out-of-core bake's scratch folder: not in memory). The buckets partition the
+    positions, so every count of them gives the same CellSeams. cancel: checked while tasks run
+    (BakeCancelled once true)."""
     leaves = np.flatnonzero(layout.is_leaf)
     leaves = leaves[np.argsort(layout.tri_begin[leaves], kind="stable")]  # depth first
     counts = np.array([lods[leaf][0].shape[0] for leaf in leaves], np.int64)
-    total = int(counts.sum())
-    buckets = max(1, -(-total // BUCKET_VERTICES))
-    rows, names = [], []
-    for bucket in range(buckets):
-        row, first = _shared_in_bucket(lods, leaves, counts, bucket=bucket, buckets=buckets)
-        rows.append(row)
-        names.append(first)
+    ends = np.cumsum(counts)
+    total = int(ends[-1]) if ends.size else 0
+    parallel = workers is not None and workers.limit > 1 and total >= PARALLEL_FROM_VERTICES
+    buckets = max(1, -(-total // BUCKET_VERTICES), workers.limit if parallel else 1)
+    if parallel:
+        source = concat_positions(lods, leaves, total, os.path.join(workers.scratch, SEAM_POSITIONS))
+        found = _run_buckets(workers, source, ends, buckets, cancel)
+    else:
+        path = os.path.join(folder, SEAM_POSITIONS) if folder is not None else None
+        source = concat_positions(lods, leaves, total, path)
+        found = [shared_in_bucket(source, ends, bucket=b, buckets=buckets) for b in range(buckets)]
+    positions_of = np.load(source, mmap_mode="r") if isinstance(source, str) else source
     # every leaf-vertex row whose position is shared, in row order (depth first), with its
     # position named by the row of its first use: unique across buckets, and numbered by it
-    row, name = np.concatenate(rows), np.concatenate(names)
-    del rows, names
+    row = np.concatenate([f[0] for f in found]) if found else np.zeros(0, np.int64)
+    name = np.concatenate([f[1] for f in found]) if found else np.zeros(0, np.int64)
+    del found
     order = np.argsort(row, kind="stable")
     row, name = row[order], name[order]
     number, pair_position = np.unique(name, return_inverse=True)
     pair_position = pair_position.reshape(-1)
-    leaf_of_row = np.repeat(np.arange(leaves.size, dtype=np.int64), counts)
-    pair_leaf = leaf_of_row[row]
+    pair_leaf = np.searchsorted(ends, row, side="right").astype(np.int64)  # the leaf of each row
     keep = np.ones(row.size, bool)  # one pair per (leaf, position): a leaf may list a position twice
     keep[1:] = (np.diff(pair_leaf) != 0) | (np.diff(pair_position) != 0)
     pair_leaf, pair_position = pair_leaf[keep], pair_position[keep]
@@ -88,10 +113,86 @@ def build(layout: OctreeLayout, lods: list) -> CellSeams:
     last_leaf = np.full(s, -1, np.int64)
     np.minimum.at(first_leaf, pair_position, pair_leaf)
     np.maximum.at(last_leaf, pair_position, pair_leaf)
-    positions = _rows(lods, leaves, counts, number)
+    positions = np.asarray(positions_of[number], np.float32).reshape(-1, 3)
+    del positions_of
     pair_start = np.searchsorted(pair_leaf, np.arange(leaves.size + 1), side="left").astype(np.int64)
     return CellSeams(positions=positions, first_leaf=first_leaf, last_leaf=last_leaf, pair_leaf=pair_leaf,
                      pair_position=pair_position, pair_start=pair_start, **_leaf_ranges(layout, leaves))
+
+
+def shared_in_bucket(source: str | np.ndarray, ends: np.ndarray, *, bucket: int,
+                     buckets: int) -> tuple[np.ndarray, np.ndarray]:
+    """A task of `build`: the leaf-vertex rows (global, depth first) of bucket `bucket` (of
+    `buckets`, by a hash of the position's bits) whose position more than one leaf uses, and the
+    first row using the same position: (row, first) (r,) int64 each, rows ascending within a
+    position. source: the leaves' positions (V,3) float32 concatenated depth first, or the .npy
+    file holding them (memory-mapped, read BUCKET_VERTICES rows at a time); ends (L,) int64: each
+    leaf's last row + 1."""
+    positions = np.load(source, mmap_mode="r") if isinstance(source, str) else source
+    total = int(positions.shape[0])
+    xs, zs, row_ids = [], [], []
+    for start in range(0, total, BUCKET_VERTICES):
+        xy, z = _keys(np.asarray(positions[start:start + BUCKET_VERTICES]))
+        ids = np.arange(start, start + xy.shape[0], dtype=np.int64)
+        if buckets > 1:
+            mine = _bucket_of(xy, z, buckets) == bucket
+            xy, z, ids = xy[mine], z[mine], ids[mine]
+        xs.append(xy)
+        zs.append(z)
+        row_ids.append(ids)
+    del positions
+    if not xs:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    xy, z, row = np.concatenate(xs), np.concatenate(zs), np.concatenate(row_ids)
+    del xs, zs, row_ids
+    order = np.lexsort((z, xy))  # by position; stable, so rows (depth first) stay ascending within one
+    xy, z, row = xy[order], z[order], row[order]
+    new = np.ones(row.size, bool)
+    new[1:] = (xy[1:] != xy[:-1]) | (z[1:] != z[:-1])
+    group = np.cumsum(new) - 1
+    starts = np.flatnonzero(new)
+    last = np.append(starts[1:], row.size) - 1
+    first_row, last_row = row[starts][group], row[last][group]
+    ends = np.asarray(ends, np.int64)
+    leaf_of = np.repeat(np.arange(ends.size, dtype=np.int32), np.diff(ends, prepend=0))
+    shared = leaf_of[first_row] != leaf_of[last_row]
+    return row[shared], first_row[shared]
+
+
+def concat_positions(lods: list, leaves: np.ndarray, total: int, path: str | None) -> str | np.ndarray:
+    """The leaves' positions (total,3) float32 concatenated depth first: in memory (path None), or
+    written leaf by leaf into the .npy file `path` (returned)."""
+    if path is None:
+        if leaves.size == 0:
+            return np.zeros((0, 3), np.float32)
+        return np.concatenate([np.asarray(lods[leaf][0], np.float32) for leaf in leaves])
+    out = np.lib.format.open_memmap(path, mode="w+", dtype=np.float32, shape=(total, 3))
+    start = 0
+    for leaf in leaves:
+        part = lods[leaf][0]
+        out[start:start + part.shape[0]] = part
+        start += part.shape[0]
+    out.flush()
+    del out
+    return path
+
+
+def _run_buckets(workers, source: str | np.ndarray, ends: np.ndarray, buckets: int,
+                 cancel: Callable[[], bool] | None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """shared_in_bucket of every bucket as tasks on `workers`, in bucket order; BakeCancelled once
+    cancel() turns true (checked every POLL_SECONDS while they run)."""
+    futures = [workers.submit((0, 0), shared_in_bucket, source, ends, bucket=b, buckets=buckets)
+               for b in range(buckets)]
+    try:
+        waiting = set(futures)
+        while waiting:
+            _, waiting = cf.wait(waiting, timeout=POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
+            if cancel is not None and cancel():
+                raise BakeCancelled("bake cancelled")
+        return [fut.result() for fut in futures]
+    finally:
+        for fut in futures:
+            fut.cancel()
 
 
 def _keys(positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -104,48 +205,6 @@ def _bucket_of(xy: np.ndarray, z: np.ndarray, buckets: int) -> np.ndarray:
     """(k,) int64: a hash of each position's bits, mod `buckets` (equal positions, equal buckets)."""
     h = xy * np.uint64(0x9E3779B97F4A7C15) ^ z.astype(np.uint64) * np.uint64(0xC2B2AE3D27D4EB4F)
     return ((h >> np.uint64(29)) % np.uint64(buckets)).astype(np.int64)
-
-
-def _shared_in_bucket(lods: list, leaves: np.ndarray, counts: np.ndarray, *, bucket: int, buckets: int):
-    """The leaf-vertex rows (global, depth first) of bucket `bucket` whose position more than one
-    leaf uses, and the first row using the same position: (row, first) (r,) int64."""
-    xs, zs, row_ids = [], [], []
-    start = 0
-    for leaf, count in zip(leaves, counts):
-        xy, z = _keys(lods[leaf][0])
-        ids = np.arange(start, start + int(count), dtype=np.int64)
-        if buckets > 1:
-            mine = _bucket_of(xy, z, buckets) == bucket
-            xy, z, ids = xy[mine], z[mine], ids[mine]
-        xs.append(xy)
-        zs.append(z)
-        row_ids.append(ids)
-        start += int(count)
-    xy, z, row = np.concatenate(xs), np.concatenate(zs), np.concatenate(row_ids)
-    del xs, zs, row_ids
-    order = np.lexsort((z, xy))  # by position; stable, so rows (depth first) stay ascending within one
-    xy, z, row = xy[order], z[order], row[order]
-    new = np.ones(row.size, bool)
-    new[1:] = (xy[1:] != xy[:-1]) | (z[1:] != z[:-1])
-    group = np.cumsum(new) - 1
-    starts = np.flatnonzero(new)
-    ends = np.append(starts[1:], row.size)
-    first_row, last_row = row[starts][group], row[ends - 1][group]
-    leaf_of = np.repeat(np.arange(leaves.size, dtype=np.int64), counts)
-    shared = leaf_of[first_row] != leaf_of[last_row]
-    return row[shared], first_row[shared]
-
-
-def _rows(lods: list, leaves: np.ndarray, counts: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """(r,3) float32: the positions of the given global leaf-vertex rows (ascending)."""
-    ends = np.cumsum(counts)
-    cut = np.searchsorted(rows, ends, side="left")  # rows[cut[j-1]:cut[j]] lie in leaf j
-    out = np.empty((rows.size, 3), np.float32)
-    start = 0
-    for j in np.flatnonzero(np.diff(np.concatenate([[0], cut])) > 0):
-        out[start:cut[j]] = np.asarray(lods[leaves[j]][0])[rows[start:cut[j]] - (ends[j] - counts[j])]
-        start = cut[j]
-    return out
 
 
 def _leaf_ranges(layout: OctreeLayout, leaves: np.ndarray) -> dict[str, np.ndarray]:

@@ -184,7 +184,9 @@ class Clusters:
             cell = np.clip(middle, 0, MORTON_CELLS - 1).astype(np.int64)
             key[lo:hi] = (seg << 30) | _morton10(cell)
         del face_min, face_max, segment
-        order = np.argsort(key)  # ties in any fixed order: a cluster's face set is what counts
+        # stable: ties in face order, so that runs of whole segments cut apart (leaf_arrays.cut_clusters)
+        # give the clusters of the whole
+        order = np.argsort(key, kind="stable")
         del key
         faces = np.asarray(faces)[order].astype(index_type, copy=False)
         del order

@@ -21,6 +21,8 @@ import numpy as np
 #: u apart from its neighbours with a margin of 4x its rounding error, and `canonical` recovers u
 #: exactly; the stored positions are 2 bits coarser than plain float32.
 CANONICAL_BITS = 22
+#: The float64 fraction bits `snap` drops (52 stored, 1 implicit: CANONICAL_BITS - 1 of them kept).
+_DROPPED_BITS = 52 - (CANONICAL_BITS - 1)
 
 
 def unit_length(lo: np.ndarray, hi: np.ndarray) -> float:
@@ -31,7 +33,25 @@ def unit_length(lo: np.ndarray, hi: np.ndarray) -> float:
 
 
 def snap(u: np.ndarray) -> np.ndarray:
-    """u (...) float64 rounded to CANONICAL_BITS significant bits (ties to even); 0 stays 0."""
+    """u (...) float64 rounded to CANONICAL_BITS significant bits (ties to even); 0 stays 0. On the
+    bits of normal numbers: the dropped fraction bits rounded to even into the kept ones (a carry
+    moves into the exponent, as rounding up to the next power of two does); zeros, subnormals and
+    non-finite numbers by `snap_frexp`. The same floats as snap_frexp, in about half its time."""
+    u = np.ascontiguousarray(u, np.float64)
+    bits = u.view(np.uint64)
+    out = bits + np.uint64((1 << (_DROPPED_BITS - 1)) - 1)
+    out += (bits >> np.uint64(_DROPPED_BITS)) & np.uint64(1)  # ties to even: the kept last bit
+    out &= ~np.uint64((1 << _DROPPED_BITS) - 1)
+    out = out.view(np.float64)
+    exponent = (bits >> np.uint64(52)) & np.uint64(0x7FF)
+    odd = (exponent == 0) | (exponent == 0x7FF)
+    if odd.any():
+        out[odd] = snap_frexp(u[odd])
+    return out
+
+
+def snap_frexp(u: np.ndarray) -> np.ndarray:
+    """`snap` by its definition: the mantissa scaled to CANONICAL_BITS bits and rounded (np.rint)."""
     mantissa, exponent = np.frexp(np.asarray(u, np.float64))
     return np.ldexp(np.rint(np.ldexp(mantissa, CANONICAL_BITS)), exponent - CANONICAL_BITS)
 

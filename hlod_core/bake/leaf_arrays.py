@@ -1,20 +1,31 @@
 """The leaves' triangles as the exact error measure reads them (tasks.measure_exact): every leaf's
-vertices and faces concatenated in depth-first order, cut into hausdorff.Clusters once per bake,
-and each node's ranges into them.
+vertices and faces concatenated in depth-first order, cut into hausdorff.Clusters once per bake
+(on the bake's workers, runs of whole leaves a task: `cut_clusters`), and each node's ranges into
+them.
 
 Data form: positions (V,3) float32, faces (F,3) int32 (int64 from 2**31 vertices) rows into them,
 in memory or (an out-of-core bake) memory-mapped .npy files in a scratch folder.
 """
 from __future__ import annotations
 
+import concurrent.futures as cf
 import os
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from ..core.arrays import concat_indexed
+from ..core.errors import BakeCancelled
 from . import hausdorff
 from .octree import OctreeLayout
+
+#: Faces from which the clusters are cut as tasks on the bake's workers, where there are several.
+PARALLEL_FROM_FACES = 1 << 19
+#: Faces a cluster task cuts at least (whole leaves: about that many).
+TASK_FACES = 1 << 17
+#: How often (seconds) `cut_clusters` wakes while its tasks run, to check cancel().
+POLL_SECONDS = 0.25
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,10 +52,12 @@ class LeafArrays:
                 int(self.cluster_end[node]))
 
 
-def build(layout: OctreeLayout, lods: list, *, folder: str | os.PathLike | None = None) -> LeafArrays:
+def build(layout: OctreeLayout, lods: list, *, folder: str | os.PathLike | None = None,
+          workers=None, cancel: Callable[[], bool] | None = None) -> LeafArrays:
     """LeafArrays of the bake's leaves (lods[leaf] = (positions, local faces, ...)). folder: the
     leaves' positions and faces are concatenated into memory-mapped files there (an out-of-core
-    bake: `concat_mapped`) instead of this process's memory; the same arrays either way."""
+    bake: `concat_mapped`) instead of this process's memory; the same arrays either way. workers
+    (workers.Workers) and cancel: where the clusters are cut, and when to stop (`cut_clusters`)."""
     leaves = np.flatnonzero(layout.is_leaf)
     leaves = leaves[np.argsort(layout.tri_begin[leaves], kind="stable")]  # depth-first
     if folder is None:
@@ -53,8 +66,8 @@ def build(layout: OctreeLayout, lods: list, *, folder: str | os.PathLike | None 
         positions, faces = concat_mapped([lods[leaf] for leaf in leaves], folder)
     counts = np.array([lods[leaf][0].shape[0] for leaf in leaves], np.int64)
     segments = np.concatenate([[0], np.cumsum([lods[leaf][1].shape[0] for leaf in leaves])]).astype(np.int64)
-    clusters = hausdorff.Clusters.build(positions, faces, segments)
     ends = np.cumsum(counts)
+    clusters = cut_clusters(positions, faces, segments, vertex_start=ends - counts, workers=workers, cancel=cancel)
     n = layout.node_count
     ranges = np.zeros((4, n), np.int64)  # vertex begin, end; cluster begin, end
     ranges[0, leaves], ranges[1, leaves] = ends - counts, ends
@@ -66,6 +79,47 @@ def build(layout: OctreeLayout, lods: list, *, folder: str | os.PathLike | None 
         ranges[1, nodes], ranges[3, nodes] = ranges[1, last], ranges[3, last]
     return LeafArrays(positions=positions, clusters=clusters, vertex_begin=ranges[0], vertex_end=ranges[1],
                       cluster_begin=ranges[2], cluster_end=ranges[3])
+
+
+def cut_clusters(positions: np.ndarray, faces: np.ndarray, segments: np.ndarray, *, vertex_start: np.ndarray,
+                 workers=None, cancel: Callable[[], bool] | None = None) -> hausdorff.Clusters:
+    """hausdorff.Clusters.build(positions, faces, segments) of the leaves (segments (S+1,): each
+    leaf's faces; vertex_start (S,) int64: each leaf's first vertex, its faces using its own
+    vertices only). On `workers` (workers.Workers) where there are several and at least
+    PARALLEL_FROM_FACES faces: runs of whole leaves of about TASK_FACES faces or more, one task each
+    (their vertices and faces sent with it), the results put together; the same arrays, since a
+    cluster never crosses a leaf and the faces' order within a leaf is a stable sort's. cancel:
+    checked while the tasks run."""
+    count = faces.shape[0]
+    if workers is None or workers.limit < 2 or count < PARALLEL_FROM_FACES:
+        return hausdorff.Clusters.build(positions, faces, segments)
+    pieces = int(min(max(2, count // TASK_FACES), 4 * workers.limit))
+    cuts = np.unique(np.searchsorted(segments, np.linspace(0, count, pieces + 1)[1:-1]))
+    bounds = np.concatenate([[0], cuts[(cuts > 0) & (cuts < segments.size - 1)], [segments.size - 1]])
+    vertex_end = np.append(vertex_start[1:], positions.shape[0])
+    futures = []
+    for first, last in zip(bounds[:-1], bounds[1:]):
+        v0, v1, f0, f1 = int(vertex_start[first]), int(vertex_end[last - 1]), int(segments[first]), int(segments[last])
+        futures.append(workers.submit((0, 0), hausdorff.Clusters.build, np.asarray(positions[v0:v1]),
+                                      np.asarray(faces[f0:f1], np.int64) - v0, segments[first:last + 1] - f0))
+    waiting = set(futures)
+    while waiting:
+        _, waiting = cf.wait(waiting, timeout=POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
+        if cancel is not None and cancel():
+            raise BakeCancelled("bake cancelled")
+    parts = [fut.result() for fut in futures]
+    index_type = np.int32 if positions.shape[0] < 2**31 else np.int64
+    v0 = vertex_start[bounds[:-1]].astype(np.int64)
+    f0 = segments[bounds[:-1]].astype(np.int64)
+    k0 = np.concatenate([[0], np.cumsum([p.radius.size for p in parts])])
+    return hausdorff.Clusters(
+        faces=np.concatenate([p.faces.astype(np.int64) + v for p, v in zip(parts, v0)]).astype(index_type),
+        start=np.concatenate([p.start[:-1] + f for p, f in zip(parts, f0)] + [[count]]).astype(np.int64),
+        first_cluster=np.concatenate([p.first_cluster[:-1] + k for p, k in zip(parts, k0)] + [[k0[-1]]]).astype(
+            np.int64),
+        box_min=np.concatenate([p.box_min for p in parts]), box_max=np.concatenate([p.box_max for p in parts]),
+        centre=np.concatenate([p.centre for p in parts]), radius=np.concatenate([p.radius for p in parts]),
+        surface_vertex=np.concatenate([p.surface_vertex + v for p, v in zip(parts, v0)]).astype(np.int64))
 
 
 def concat_mapped(parts: list[tuple], folder: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:

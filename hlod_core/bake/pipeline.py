@@ -204,7 +204,7 @@ def _baked_nodes(source: BakeSource, settings: BakeSettings, run: _Callbacks, *,
         nodes = _Nodes(tree=tree, lods=source.leaf_lods(layout, clock), hausdorff_error=np.zeros(n, np.float64),
                        made={})
         clock.lap("leaves")
-        seams = cell_seams.build(layout, nodes.lods)
+        seams = cell_seams.build(layout, nodes.lods, workers=workers, folder=source.leaf_folder, cancel=run.cancel)
         clock.lap("seams")
         if cache is not None:
             for node, (lod, error) in cache.reuse(layout, nodes.lods, origin=tree.origin,

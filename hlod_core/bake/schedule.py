@@ -25,6 +25,7 @@ import concurrent.futures as cf
 import contextlib
 import heapq
 import os
+import threading
 from dataclasses import dataclass
 from typing import Callable
 
@@ -153,7 +154,9 @@ class _Scheduler:
             if not self.bound and self.workers.scratch:
                 builder = stack.enter_context(cf.ThreadPoolExecutor(max_workers=1,
                                                                     thread_name_prefix="hlod-leaf-arrays"))
-                building = builder.submit(self._shared_leaf_arrays)
+                leaving = threading.Event()  # set first when the loop ends: the builder stops waiting on its tasks
+                stack.callback(leaving.set)
+                building = builder.submit(self._shared_leaf_arrays, leaving.is_set)
             elif not self.bound:
                 self.leaves = self._shared_leaf_arrays()
             while self.heap or self.running:
@@ -168,9 +171,11 @@ class _Scheduler:
                     else:
                         self._finish(fut, node_done=node_done)
 
-    def _shared_leaf_arrays(self) -> LeafArrays:
-        """The leaf arrays (the leaves' entries of lods only: final), shared with the workers."""
-        arrays = leaf_arrays.build(self.layout, self.lods, folder=self.source.leaf_folder)
+    def _shared_leaf_arrays(self, cancel: CancelFn | None = None) -> LeafArrays:
+        """The leaf arrays (the leaves' entries of lods only: final), their clusters cut on the
+        workers (leaf_arrays.cut_clusters), shared with the workers."""
+        arrays = leaf_arrays.build(self.layout, self.lods, folder=self.source.leaf_folder, workers=self.workers,
+                                   cancel=cancel)
         self.workers.share(arrays.arrays())
         return arrays
 

@@ -1,0 +1,148 @@
+"""The bake's phases outside the simplify phase, timed one by one on a large scene, for this checkout
+and (--baseline DIR) another version's, interleaved; and whether both find the same cell seams.
+
+    PYTHONPATH=. .venv/bin/python -m benchmarks.serial_phases [--tris 10000000] [--baseline DIR]
+        [--repeat 1]
+
+The scene: benchmarks/bake_memory.py's city of statues (the crowd's statues from the repository's
+models, copies side by side) of at least --tris triangles. Each run is a fresh process of the
+checkout's hlod_core (PYTHONPATH=DIR for the baseline: `git worktree add /tmp/old COMMIT`) that
+reads the spec and times, in the bake's order: read (meshes.load_inputs), prepare, octree, leaves
+(prepare.leaf_lods), the cell seams in this process (cell_seams.build; on this many leaf vertices
+one bucket per BUCKET_VERTICES), the cell seams as tasks on a pool of 2 worker processes started and
+warmed first (where the checkout has them), and the exact measure's leaf arrays (leaf_arrays.build)
+in this process and with their clusters cut on the 2 workers (where the checkout does that).
+Each run prints the blake2b digest of its CellSeams' arrays: equal digests, the same seams. The
+baseline and this checkout alternate, the first swapped every repeat; the load average is recorded
+with each run.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import inspect
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SEAM_ARRAYS = ("positions", "first_leaf", "last_leaf", "pair_leaf", "pair_position", "pair_start", "leaf_begin",
+               "leaf_end")
+
+
+def child(spec: str) -> dict:
+    """One run (module docstring), in the checkout on sys.path."""
+    import numpy as np
+
+    from hlod_core.bake import cell_seams, leaf_arrays, prepare
+    from hlod_core.bake.octree import build_octree
+    from hlod_core.bake.settings import BakeSettings
+    from hlod_core.io import meshes
+
+    settings = BakeSettings()
+    seconds: dict[str, float] = {}
+    started = time.perf_counter()
+
+    def lap(name: str) -> None:
+        nonlocal started
+        now = time.perf_counter()
+        seconds[name] = now - started
+        started = now
+
+    mesh = meshes.load_inputs([spec])
+    lap("read")
+    prepared = prepare.prepare(mesh, None)
+    lap("prepare")
+    layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
+                          counted=prepared.counted, root=prepared.root_cell)
+    lap("octree")
+    lods = prepare.leaf_lods(layout, prepared)
+    lap("leaves")
+    seams = cell_seams.build(layout, lods)
+    lap("seams inline")
+    digest = hashlib.blake2b(digest_size=16)
+    for name in SEAM_ARRAYS:
+        digest.update(np.ascontiguousarray(getattr(seams, name)).tobytes())
+    del seams
+    if "workers" in inspect.signature(cell_seams.build).parameters:
+        from hlod_core.bake.workers import open_workers
+
+        with open_workers(2) as workers:
+            for fut in [workers.executor.submit(time.sleep, 0.5) for _ in range(2)]:
+                fut.result()  # started and warm
+            started = time.perf_counter()
+            on_workers = cell_seams.build(layout, lods, workers=workers)
+            lap("seams on 2 workers")
+        again = hashlib.blake2b(digest_size=16)
+        for name in SEAM_ARRAYS:
+            again.update(np.ascontiguousarray(getattr(on_workers, name)).tobytes())
+        del on_workers
+        if again.hexdigest() != digest.hexdigest():
+            raise SystemExit("serial_phases: the seams on the workers differ from the seams inline")
+    started = time.perf_counter()
+    whole = leaf_arrays.build(layout, lods)
+    lap("leaf arrays inline")
+    if "workers" in inspect.signature(leaf_arrays.build).parameters:
+        from hlod_core.bake.workers import open_workers
+
+        with open_workers(2) as workers:
+            for fut in [workers.executor.submit(time.sleep, 0.5) for _ in range(2)]:
+                fut.result()
+            started = time.perf_counter()
+            chunked = leaf_arrays.build(layout, lods, workers=workers)
+            lap("leaf arrays on 2 workers")
+        if any(not np.array_equal(a, chunked.arrays()[name]) for name, a in whole.arrays().items()):
+            raise SystemExit("serial_phases: the leaf arrays on the workers differ from the leaf arrays inline")
+    return {"tris": mesh.tri_count, "leaves": int(layout.is_leaf.sum()),
+            "leaf_vertices": int(sum(lods[k][0].shape[0] for k in np.flatnonzero(layout.is_leaf))),
+            "seconds": seconds, "seams_digest": digest.hexdigest()}
+
+
+def run(checkout: Path, spec: Path) -> dict:
+    """child() in a fresh process of `checkout`'s hlod_core."""
+    load = os.getloadavg()[0]
+    done = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", str(spec)], cwd=checkout,
+                          env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True, text=True, check=False)
+    if done.returncode:
+        raise SystemExit(f"serial_phases: {checkout}: {done.stderr.strip()[-2000:]}")
+    return {"checkout": str(checkout), "load": [load, os.getloadavg()[0]],
+            **json.loads(done.stdout.strip().splitlines()[-1])}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tris", type=int, default=10_000_000)
+    parser.add_argument("--baseline", type=Path, default=None, help="another checkout, run alternately")
+    parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(child(args.child)))
+        return
+    sys.path.insert(0, str(ROOT))
+    from benchmarks import bake_memory
+
+    checkouts = [ROOT] + ([args.baseline.resolve()] if args.baseline else [])
+    runs = []
+    with tempfile.TemporaryDirectory(prefix="serial-phases-") as scratch:
+        spec = bake_memory.spec_of(args.tris, Path(scratch))
+        for rep in range(args.repeat):
+            for checkout in (checkouts if rep % 2 == 0 else checkouts[::-1]):
+                runs.append(run(checkout, spec))
+                print(json.dumps(runs[-1]), flush=True)
+    names = list(dict.fromkeys(name for r in runs for name in r["seconds"]))
+    print(f"{runs[0]['tris']:,} triangles, {runs[0]['leaves']:,} leaves, {runs[0]['leaf_vertices']:,} leaf vertices")
+    print("| checkout | load average | " + " | ".join(names) + " | seams digest |")
+    print("|---|---:|" + "---:|" * len(names) + "---|")
+    for r in runs:
+        cells = [f"{r['seconds'][n]:.2f} s" if n in r["seconds"] else "-" for n in names]
+        print(f"| {Path(r['checkout']).name} | {sum(r['load']) / 2:.1f} | " + " | ".join(cells)
+              + f" | {r['seams_digest'][:12]} |")
+
+
+if __name__ == "__main__":
+    main()
