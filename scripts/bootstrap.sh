@@ -85,6 +85,7 @@ install_requirements() {
         fi
         say "uv could not install $req: trying pip"
     fi
+    "$python" -m pip --version >/dev/null 2>&1 || "$python" -m ensurepip -q >&2  # made without pip (uv's)
     "$python" -m pip install --disable-pip-version-check -q -r "$req" >&2
 }
 
@@ -128,7 +129,9 @@ ensure_blender_venv() {
             exit 1
         }
         say "creating $dir (Blender $version, Python $python)"
-        "$interp" -m venv "$dir"
+        # without pip where uv installs (pip's own install is 3 s of CPU each); install_requirements adds it
+        # if uv fails
+        if [ -x "$VENV/bin/uv" ]; then "$interp" -m venv --without-pip "$dir"; else "$interp" -m venv "$dir"; fi
     fi
     stamp="$dir/.requirements.sha256"
     want="$(sha256sum "$req" | cut -d' ' -f1)"
