@@ -85,7 +85,7 @@ install_requirements() {
         fi
         say "uv could not install $req: trying pip"
     fi
-    "$python" -m pip --version >/dev/null 2>&1 || "$python" -m ensurepip -q >&2  # made without pip (uv's)
+    "$python" -m pip --version >/dev/null 2>&1 || "$python" -m ensurepip >&2  # made without pip (uv's)
     "$python" -m pip install --disable-pip-version-check -q -r "$req" >&2
 }
 
