@@ -8,9 +8,11 @@ top row first, written as `proxy_<node>.png` into the bake's texture folder.
 """
 from __future__ import annotations
 
+import atexit
 import dataclasses
 import logging
 import os
+import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -200,7 +202,8 @@ def proxy_plan(mesh, settings, *, images: dict | None, textures) -> PlannedBake 
     texture. images: material row -> its texture image; None: read from the materials' files
     (io.textures.load_material_images). A material naming a texture without an image there (the
     loader warned) shows its base colour in the proxies. textures: where the PNGs go (its `scratch` folder, named by
-    the file as its `final` one); None: a temporary folder."""
+    the file as its `final` one); None: a temporary folder of this process's own, which the bake's
+    file names and which is removed when the process exits."""
     materials = tuple(getattr(mesh, "materials", ()) or ())
     if not settings.proxy_materials or mesh.material_ids is None or not materials:
         return None
@@ -216,6 +219,7 @@ def proxy_plan(mesh, settings, *, images: dict | None, textures) -> PlannedBake 
     layout = AttributeLayout(material=True, uv=True, color=mesh.colors is not None)
     if textures is None:
         folder = Path(tempfile.mkdtemp(prefix="hlod-proxies-"))
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
         write, reference = folder, folder
     else:
         write, reference = Path(textures.scratch), Path(textures.final)
