@@ -20,8 +20,8 @@ import numpy as np
 PADDING_TEXELS = 2
 #: Longest chart boundary xatlas grows, in units of the square root of the LOD's area: its charting
 #: time grows faster than a chart's size (parametrising one large chart is most of it), and on the
-#: statue square's nodes this bound made xatlas 3 to 4x faster for about 8% more texels (more,
-#: smaller charts, each with its padding) (docs/performance.md#with-proxy-materials).
+#: statue square's deepest nodes this bound made xatlas 4 to 5x faster for 12% more texels (more,
+#: smaller charts, each with its padding; 7% over the whole bench size) (docs/performance.md#with-proxy-materials).
 MAX_BOUNDARY_PER_SQRT_AREA = 2.0
 #: xatlas's chart-growing iterations after the first pass (its default 1): 0 halves the charting
 #: time there, the packed texels within 1%.
