@@ -8,7 +8,11 @@ variant gives each half an image; the stiff cases bake tiny meshes whose expecte
 from __future__ import annotations
 
 import logging
+import os
+import subprocess
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -87,6 +91,30 @@ def test_the_quality_gate_is_recorded_per_node(sphere_bakes):
     for node, db in zip(proxies["nodes"], proxies["psnr_y"]):
         named = [line for line in log if line.startswith(f"node {node}: proxy PSNR-Y")]
         assert bool(named) == (db < 25.0)  # a node under the gate is named, with its reason
+
+
+#: A bake without a texture folder, in a process of its own: prints the folder its proxies' PNGs are in
+#: and whether they are there before the process exits.
+_OWN_FOLDER_BAKE = """
+from pathlib import Path
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.settings import BakeSettings
+from sample_meshes import SPHERE_TARGET_TRIS, textured_sphere
+hlod = bake(textured_sphere(), BakeSettings(target_tris=SPHERE_TARGET_TRIS, jobs=1, texture_cap=16, texture_floor=8))
+files = [Path(m.texture) for m in hlod.materials if m.texture and Path(m.texture).name.startswith("proxy_")]
+print(files[0].parent, all(f.is_file() for f in files))
+"""
+
+
+def test_a_bake_without_a_texture_folder_removes_its_own_when_the_process_exits(tmp_path):
+    tests = Path(__file__).resolve().parent
+    done = subprocess.run([sys.executable, "-c", _OWN_FOLDER_BAKE], capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "TMPDIR": str(tmp_path),
+                               "PYTHONPATH": os.pathsep.join([str(tests.parent), str(tests)])})
+    assert done.returncode == 0, done.stderr[-2000:]
+    folder, there = done.stdout.split()[-2:]
+    assert Path(folder).parent == tmp_path and there == "True"  # the file's materials named them while it ran
+    assert not list(tmp_path.glob("hlod-proxies-*"))
 
 
 def test_keep_materials_bakes_without_proxies():

@@ -85,7 +85,8 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     inner nodes' proxy materials are baked from; None: read from the materials' texture files
     (io.textures.load_material_images)
     (appearance/); textures: where their PNGs go (`scratch`, written, and `final`, what the file's
-    materials name: io.texture_folder.EmbeddedTextures; None: a temporary folder of their own)."""
+    materials name: io.texture_folder.EmbeddedTextures; None: a temporary folder of their own, removed
+    when the process exits)."""
     with stop_signals_held():
         check_extra_meta(extra_meta)
         plan = proxy_plan(mesh, settings, images=images, textures=textures)

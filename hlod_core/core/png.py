@@ -17,8 +17,9 @@ def write_png(path: str | os.PathLike, rgb: np.ndarray) -> Path:
     return path
 
 
-def png_bytes(rgb: np.ndarray) -> bytes:
-    """The PNG file of (H, W, 3 or 4) uint8 pixels, top row first."""
+def png_bytes(rgb: np.ndarray, *, level: int = 6) -> bytes:
+    """The PNG file of (H, W, 3 or 4) uint8 pixels, top row first; level: zlib's compression level
+    (0 to 9)."""
     rgb = np.ascontiguousarray(rgb, np.uint8)
     h, w, channels = rgb.shape
     raw = np.concatenate([np.zeros((h, 1), np.uint8), rgb.reshape(h, w * channels)], axis=1).tobytes()
@@ -28,4 +29,4 @@ def png_bytes(rgb: np.ndarray) -> bytes:
 
     colour_type = {3: 2, 4: 6}[channels]  # PNG's truecolour, truecolour with alpha
     return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, colour_type, 0, 0, 0))
-            + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b""))
+            + chunk(b"IDAT", zlib.compress(raw, level)) + chunk(b"IEND", b""))

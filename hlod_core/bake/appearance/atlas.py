@@ -18,6 +18,14 @@ import numpy as np
 #: Texels of padding around each chart, so bilinear filtering and the first mip levels of one chart
 #: do not read its neighbours (the texture bake fills the padding from the chart's border).
 PADDING_TEXELS = 2
+#: Longest chart boundary xatlas grows, in units of the square root of the LOD's area: its charting
+#: time grows faster than a chart's size (parametrising one large chart is most of it), and on the
+#: statue square's deepest nodes this bound made xatlas 4 to 5x faster for 12% more texels (more,
+#: smaller charts, each with its padding; 7% over the whole bench size) (docs/performance.md#with-proxy-materials).
+MAX_BOUNDARY_PER_SQRT_AREA = 2.0
+#: xatlas's chart-growing iterations after the first pass (its default 1): 0 halves the charting
+#: time there, the packed texels within 1%.
+CHART_ITERATIONS = 0
 #: Packs tried per node: a pack whose longer side is over the cap (or whose shorter side is under
 #: the floor) is made again with the density scaled to fit.
 MAX_PACKS = 3
@@ -81,6 +89,10 @@ def node_atlas(positions: np.ndarray, faces: np.ndarray, *, texels_per_unit: flo
     local = ((p - 0.5 * (lo + hi)) / diagonal).astype(np.float32)
     density = max(float(texels_per_unit), 1e-12) * diagonal  # texels per local unit
     charts = xatlas.ChartOptions()
+    charts.max_iterations = CHART_ITERATIONS
+    local_area = surface_area(local, f)
+    if local_area > 0:
+        charts.max_boundary_length = float(MAX_BOUNDARY_PER_SQRT_AREA * np.sqrt(local_area))
     for _ in range(MAX_PACKS):
         atlas = xatlas.Atlas()
         atlas.add_mesh(local, f)

@@ -185,11 +185,12 @@ def bake_proxy(lod: tuple, error: float, sources: list[tuple], *, node: int, lay
     lod_vertex = atlas.vertex_of[vertex]
     image = np.ascontiguousarray(image[::-1])
     mode = alpha_mode if alpha_face.any() else None
+    chain = MipChain.of(image)  # one chain for both parts: its levels are built once
     looks_of_proxy = Surface(positions=p[vertex], faces=split_faces, uvs=atlas.uvs[vertex], colors=None,
                              face_material=corner_alpha[split_faces[:, 0]].astype(np.int64),
                              materials=(Material("proxy", base_color=WHITE),
                                         Material("proxy alpha", base_color=WHITE, alpha_mode=mode or "OPAQUE")),
-                             images={0: MipChain.of(image), 1: MipChain.of(image)})
+                             images={0: chain, 1: chain})
     psnr, reason = node_psnr(looks_of_proxy, surface, error=error, tau_px=settings.tau_px,
                              directions=GATE_DIRECTIONS)
     return Proxy(positions=np.asarray(positions, np.float32)[lod_vertex], faces=split_faces,

@@ -8,9 +8,11 @@ top row first, written as `proxy_<node>.png` into the bake's texture folder.
 """
 from __future__ import annotations
 
+import atexit
 import dataclasses
 import logging
 import os
+import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +26,10 @@ from .proxy import Proxy, ProxySettings, proxy_of_id
 from .proxy_task import share_images
 
 log = logging.getLogger(__name__)
+
+#: zlib level of the proxies' PNGs: level 1 compresses 2.5x faster than the default 6 and its files
+#: were 2% larger on the statue square's proxies (docs/performance.md#with-proxy-materials).
+PNG_LEVEL = 1
 
 
 @dataclass(frozen=True)
@@ -100,7 +106,7 @@ class ProxyPlan:
         self._images[int(node)] = (proxy.image, proxy.alpha_mode)
         self.folder.mkdir(parents=True, exist_ok=True)
         name = f"proxy_{int(node)}.png"
-        write_bytes_atomic(self.folder / name, png_bytes(proxy.image))
+        write_bytes_atomic(self.folder / name, png_bytes(proxy.image, level=PNG_LEVEL))
         h, w, _ = proxy.image.shape
         self.made_proxies[int(node)] = ProxyMade(file=str(self.reference / name), width=w, height=h,
                                                  texel_size=proxy.texel_size, utilization=proxy.utilization,
@@ -196,7 +202,8 @@ def proxy_plan(mesh, settings, *, images: dict | None, textures) -> PlannedBake 
     texture. images: material row -> its texture image; None: read from the materials' files
     (io.textures.load_material_images). A material naming a texture without an image there (the
     loader warned) shows its base colour in the proxies. textures: where the PNGs go (its `scratch` folder, named by
-    the file as its `final` one); None: a temporary folder."""
+    the file as its `final` one); None: a temporary folder of this process's own, which the bake's
+    file names and which is removed when the process exits."""
     materials = tuple(getattr(mesh, "materials", ()) or ())
     if not settings.proxy_materials or mesh.material_ids is None or not materials:
         return None
@@ -212,6 +219,7 @@ def proxy_plan(mesh, settings, *, images: dict | None, textures) -> PlannedBake 
     layout = AttributeLayout(material=True, uv=True, color=mesh.colors is not None)
     if textures is None:
         folder = Path(tempfile.mkdtemp(prefix="hlod-proxies-"))
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
         write, reference = folder, folder
     else:
         write, reference = Path(textures.scratch), Path(textures.final)

@@ -18,6 +18,7 @@ no material at all) gives alpha 1 and the colour of the texture's visible texels
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -190,6 +191,12 @@ class Surface:
     materials: tuple = ()
     images: dict | None = None
 
+    @functools.cached_property
+    def uv_stretch(self) -> np.ndarray:
+        """(m,) float64 UV units per model unit of each face, sqrt(uv_area / area_3d), made once (the
+        arrays are not to change after): 0 without UVs or without area."""
+        return np.zeros(len(self.faces)) if self.uvs is None else _uv_stretch(self)
+
 
 def texture_texels_per_unit(surface: Surface) -> np.ndarray:
     """(m,) float64 texels per model unit of each face's texture, sqrt(uv_area w h / area_3d) with
@@ -250,8 +257,6 @@ def _density(surface: Surface, faces: np.ndarray, *, chain: MipChain | None = No
     out = np.zeros(len(faces), np.float64)
     if surface.uvs is None or surface.face_material is None or not surface.images or not len(faces):
         return out
-    if len(faces) > len(surface.faces):  # more points than faces: every face once, then looked up
-        return _density(surface, np.arange(len(surface.faces)), chain=chain)[faces]
     texels = np.zeros(len(faces), np.float64)  # w h of each face's image
     if chain is not None:
         texels[:] = chain.width * chain.height
@@ -259,13 +264,20 @@ def _density(surface: Surface, faces: np.ndarray, *, chain: MipChain | None = No
         material = np.asarray(surface.face_material, np.int64)[faces]
         for row, image in surface.images.items():
             texels[material == row] = image.width * image.height
-    corners = np.asarray(surface.faces, np.int64)[faces]
+    return surface.uv_stretch[faces] * np.sqrt(texels)
+
+
+def _uv_stretch(surface: Surface) -> np.ndarray:
+    """(m,) float64 sqrt(uv_area / area_3d) of every face (UV units per model unit); 0 where a face
+    has no area in model space or UV space."""
+    corners = np.asarray(surface.faces, np.int64)
     p = np.asarray(surface.positions, np.float64)[corners]
     t = np.asarray(surface.uvs, np.float64)[corners]
     area_3d = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
     e1, e2 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
     area_uv = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    out = np.zeros(len(corners), np.float64)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        density = np.sqrt(area_uv * texels / area_3d)
-    np.copyto(out, density, where=np.isfinite(density) & (area_3d > 0.0))
+        stretch = np.sqrt(area_uv / area_3d)
+    np.copyto(out, stretch, where=np.isfinite(stretch) & (area_3d > 0.0))
     return out

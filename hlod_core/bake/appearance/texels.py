@@ -99,20 +99,23 @@ def closest_on_sources(points: np.ndarray, sources: tuple[np.ndarray, np.ndarray
 def barycentric(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(s,3) barycentric coordinates of points (s,3) projected into triangles (s,3,3), clamped to
     the triangle and summing to 1; a degenerate triangle gives its first corner."""
-    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
-    v0, v1, v2 = b - a, c - a, points - a
-    d00 = (v0 * v0).sum(axis=1)
-    d01 = (v0 * v1).sum(axis=1)
-    d11 = (v1 * v1).sum(axis=1)
-    d20 = (v2 * v0).sum(axis=1)
-    d21 = (v2 * v1).sum(axis=1)
+    a = triangles[:, 0]
+    v0, v1, v2 = triangles[:, 1] - a, triangles[:, 2] - a, points - a
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    d20 = np.einsum("ij,ij->i", v2, v0)
+    d21 = np.einsum("ij,ij->i", v2, v1)
     denominator = d00 * d11 - d01 * d01
     ok = denominator > 1e-30 * np.maximum(d00 * d11, 1e-300)
     safe = np.where(ok, denominator, 1.0)
-    v = np.where(ok, (d11 * d20 - d01 * d21) / safe, 0.0)
-    w = np.where(ok, (d00 * d21 - d01 * d20) / safe, 0.0)
-    out = np.clip(np.stack([1.0 - v - w, v, w], axis=1), 0.0, 1.0)
-    out /= np.maximum(out.sum(axis=1, keepdims=True), 1e-300)
+    out = np.empty((points.shape[0], 3))
+    out[:, 1] = (d11 * d20 - d01 * d21) / safe
+    out[:, 2] = (d00 * d21 - d01 * d20) / safe
+    out[:, 0] = 1.0 - out[:, 1] - out[:, 2]
+    np.maximum(out, 0.0, out=out)
+    np.minimum(out, 1.0, out=out)
+    out /= np.maximum(out.sum(axis=1), 1e-300)[:, None]
     out[~ok] = (1.0, 0.0, 0.0)
     return out
 
