@@ -20,6 +20,9 @@ Draco (`mesh="draco"`, the glTF extension KHR_draco_mesh_compression): each mate
 mesh of its own (draco.py: DracoPy, a command-line-only dependency).
 
 A WebP texture (texture_codec) is bound through the glTF extension EXT_texture_webp, required.
+
+Compact content (quantized, draco) writes a lean JSON (_lean): no field at its default, no generator
+or material names, float32 bounds as their shortest decimals; plain content's JSON is as it was.
 """
 from __future__ import annotations
 
