@@ -403,7 +403,7 @@ def accessor(gltf: dict, binary: bytes, index: int) -> np.ndarray:
     view = gltf["bufferViews"][acc["bufferView"]]
     dtype = {5126: np.float32, 5123: np.uint16, 5125: np.uint32}[acc["componentType"]]  # FLOAT, USHORT, UINT
     width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[acc["type"]]
-    values = np.frombuffer(binary, dtype, acc["count"] * width, view["byteOffset"] + acc.get("byteOffset", 0))
+    values = np.frombuffer(binary, dtype, acc["count"] * width, view.get("byteOffset", 0) + acc.get("byteOffset", 0))
     return values.reshape(acc["count"], width) if width > 1 else values
 
 
@@ -603,7 +603,7 @@ def _decoded(gltf: dict, binary: bytes, index: int) -> np.ndarray:
                       5126: np.float32}[acc["componentType"]])
     width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[acc["type"]]
     stride = view.get("byteStride", dtype.itemsize * width) // dtype.itemsize
-    start = view["byteOffset"] + acc.get("byteOffset", 0)
+    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
     rows = np.frombuffer(binary, dtype, acc["count"] * stride, start).reshape(acc["count"], stride)[:, :width]
     values = rows.astype(np.float64)
     if acc.get("normalized"):
@@ -667,7 +667,7 @@ def _draco_rows(gltf: dict, binary: bytes, primitive: dict) -> tuple[dict[str, n
 
     ext = primitive["extensions"]["KHR_draco_mesh_compression"]
     view = gltf["bufferViews"][ext["bufferView"]]
-    mesh = DracoPy.decode(binary[view["byteOffset"]:view["byteOffset"] + view["byteLength"]])
+    mesh = DracoPy.decode(binary[view.get("byteOffset", 0):view.get("byteOffset", 0) + view["byteLength"]])
     rows = {}
     for name, unique_id in ext["attributes"].items():
         values = np.asarray(mesh.get_attribute_by_unique_id(unique_id)["data"], np.float64)
@@ -676,10 +676,18 @@ def _draco_rows(gltf: dict, binary: bytes, primitive: dict) -> tuple[dict[str, n
         rows[name] = values / 255.0 if acc.get("normalized") else values  # COLOR_0: normalized uint8
     position = gltf["accessors"][primitive["attributes"]["POSITION"]]
     bounds = rows["POSITION"]
-    assert np.allclose(position["min"], bounds.min(0)) and np.allclose(position["max"], bounds.max(0))
+    assert np.array_equal(np.float32(position["min"]), bounds.min(0).astype(np.float32))  # float32 exact
+    assert np.array_equal(np.float32(position["max"]), bounds.max(0).astype(np.float32))
     faces = np.asarray(mesh.faces, np.int64).reshape(-1, 3)
     assert gltf["accessors"][primitive["indices"]]["count"] == faces.size
     return rows, faces
+
+
+def _with_defaults(material: dict) -> dict:
+    """A glTF material row with its defaults filled in (glb.DEFAULTS) and no name, as a reader sees it."""
+    pbr = {**glb.DEFAULTS["pbrMetallicRoughness"], **material.get("pbrMetallicRoughness", {})}
+    return {**glb.DEFAULTS["materials"], **{k: v for k, v in material.items() if k != "name"},
+            "pbrMetallicRoughness": pbr}
 
 
 def _rolled(faces: np.ndarray) -> np.ndarray:
@@ -709,7 +717,12 @@ def test_draco_tiles_decode_to_the_plain_ones_and_pass_the_validators(tmp_path):
         assert b["extensionsRequired"] == b["extensionsUsed"] == ["KHR_draco_mesh_compression"]
         prims_a, prims_b = a["meshes"][0]["primitives"], b["meshes"][0]["primitives"]
         assert [p["material"] for p in prims_a] == [p["material"] for p in prims_b]
-        assert a["materials"] == b["materials"] and a.get("images") == b.get("images")
+        assert [_with_defaults(m) for m in a["materials"]] == [_with_defaults(m) for m in b["materials"]]
+        assert a.get("images") == b.get("images") and "generator" not in b["asset"]
+        rows = {**{name: b.get(name, []) for name in glb.DEFAULTS}, "primitives": prims_b,
+                "pbrMetallicRoughness": [m["pbrMetallicRoughness"] for m in b["materials"]]}
+        assert not any(row.get(key) == default for name, table in rows.items() for row in table
+                       for key, default in glb.DEFAULTS[name].items())  # no field at its glTF default
         names = ("POSITION", "NORMAL", "TEXCOORD_0", "COLOR_0")
         exact = {n: accessor(a, a_bin, prims_a[0]["attributes"][n]).astype(np.float64) for n in names}
         for pa, pb in zip(prims_a, prims_b):

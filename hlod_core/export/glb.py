@@ -20,6 +20,9 @@ Draco (`mesh="draco"`, the glTF extension KHR_draco_mesh_compression): each mate
 mesh of its own (draco.py: DracoPy, a command-line-only dependency).
 
 A WebP texture (texture_codec) is bound through the glTF extension EXT_texture_webp, required.
+
+Compact content (quantized, draco) writes a lean JSON (_lean): no field at its default, no generator
+or material names, float32 bounds as their shortest decimals; plain content's JSON is as it was.
 """
 from __future__ import annotations
 
@@ -123,7 +126,44 @@ def glb_bytes(positions: np.ndarray, faces: np.ndarray, normals: np.ndarray | No
         {name for row in document.get("textures", []) for name in row.get("extensions", {})})
     if required:
         gltf["extensionsUsed"] = gltf["extensionsRequired"] = required
+    if mesh != "plain":
+        _lean(gltf)
     return container(json.dumps(gltf, separators=(",", ":")).encode(), binary)
+
+
+#: Fields a compact GLB leaves out at their glTF 2.0 defaults (the schema's "default"), by the
+#: document's array holding them; a material's pbrMetallicRoughness is checked as its own row.
+DEFAULTS = {"bufferViews": {"byteOffset": 0}, "accessors": {"byteOffset": 0, "normalized": False},
+            "samplers": {"wrapS": int(WrapMode.REPEAT), "wrapT": int(WrapMode.REPEAT)},
+            "materials": {"alphaMode": "OPAQUE", "alphaCutoff": 0.5, "doubleSided": False},
+            "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 1.0,
+                                     "roughnessFactor": 1.0},
+            "primitives": {"mode": int(PrimitiveMode.TRIANGLES)}}
+
+
+def _lean(gltf: dict) -> None:
+    """A compact GLB's JSON, in place: no field at its default (DEFAULTS), no generator and no material
+    names (readers draw nothing of them), and a float accessor's bounds as the shortest decimals that
+    read back as the same float32 (a whole number without ".0"). Every reader gets the same glTF."""
+    gltf["asset"].pop("generator", None)
+    rows = {name: gltf.get(name, []) for name in DEFAULTS}
+    rows["primitives"] = [p for m in gltf["meshes"] for p in m["primitives"]]
+    rows["pbrMetallicRoughness"] = [m["pbrMetallicRoughness"] for m in rows["materials"] if "pbrMetallicRoughness" in m]
+    for name, row in ((name, row) for name, table in rows.items() for row in table):
+        for key, default in DEFAULTS[name].items():
+            if key in row and row[key] == default:
+                del row[key]
+    for row in rows["materials"]:
+        row.pop("name", None)
+    for row in gltf["accessors"]:
+        if row["componentType"] == ComponentType.FLOAT:
+            row.update({key: _float32_decimals(row[key]) for key in ("min", "max") if key in row})
+
+
+def _float32_decimals(values: list[float]) -> list[float | int]:
+    """`values` as float32's shortest round-trip decimals (numpy's), whole ones as ints."""
+    out = [float(str(v)) for v in np.asarray(values, np.float32)]
+    return [int(v) if v.is_integer() else v for v in out]
 
 
 def triangle_count(data: bytes) -> int:
