@@ -212,10 +212,11 @@ def check_kinds(repo, work) -> dict:
     bpy.context.scene.hlod.source = "SELECTED"
     plan = bake_plan.count_line(bpy.context)
     layers_before = [layer.name for layer in bpy.context.scene.view_layers]
-    status, summary, stderr = _cli(cli, "bake", "--target-tris", "20000", "--max-depth", "3",
-                                   "-o", str(work / "kinds.hlod"))
-    status_h, summary_h, stderr_h = _cli(cli, "bake", "--target-tris", "20000", "--max-depth", "3", "--include-hidden",
-                                         "-o", str(work / "hidden.hlod"))
+    # what is gathered, counted and named is checked, not the levels: one node (a target over the scene's
+    # triangles), baked in this process (--jobs 1)
+    bake = ("bake", "--target-tris", str(10 * sum(drawn.values())), "--jobs", "1")
+    status, summary, stderr = _cli(cli, *bake, "-o", str(work / "kinds.hlod"))
+    status_h, summary_h, stderr_h = _cli(cli, *bake, "--include-hidden", "-o", str(work / "hidden.hlod"))
     return {"known": known, "drawn": drawn, "converted": converted, "ours": ours, "objects": len(every),
             "mirrored_outward": _outward(mirrored, np.array([8.0, 0.0, 0.0])),
             "plan": plan, "cli": {"status": status, "summary": summary, "stderr": stderr},
