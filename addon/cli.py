@@ -43,9 +43,9 @@ from pathlib import Path
 
 import bpy
 
-from ..hlod_core.cli.options import bake_options, bake_settings_of, place_text
+from ..hlod_core.cli.options import add_mesh_option, bake_options, bake_settings_of, place_text
 from ..hlod_core.core.errors import HlodError, InputError
-from ..hlod_core.export.formats import MESH_ENCODINGS, export_hlod
+from ..hlod_core.export.formats import export_hlod
 from ..hlod_core.export.place import chosen
 from ..hlod_core.io import hlod_file
 from .bake.from_scene import start_bake
@@ -93,10 +93,7 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _export_arguments(p) -> None:
-    p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
-                   help="3dtiles: tile content as float32 (plain), with positions and normals quantized "
-                        "(KHR_mesh_quantization) or Draco compressed (KHR_draco_mesh_compression; needs "
-                        "the DracoPy package)")
+    add_mesh_option(p)
     p.add_argument("--place", type=place_text, metavar="LON,LAT,HEIGHT[,HEADING]",
                    help="3dtiles: stand the scene's origin at this WGS84 point (degrees, degrees, metres; heading "
                         "in degrees clockwise from north; --place=-122.4,... for a negative longitude); none: the "

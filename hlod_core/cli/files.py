@@ -8,10 +8,10 @@ from pathlib import Path
 
 from ..bake import checks
 from ..core.errors import InputError
-from ..export.formats import MESH_ENCODINGS, TEXTURE_ENCODINGS, export_hlod
+from ..export.formats import TEXTURE_ENCODINGS, export_hlod
 from ..export.place import chosen
 from ..io import hlod_file
-from .options import place_text, whole_number
+from .options import add_mesh_option, place_text, whole_number
 
 
 def add_info(sub) -> None:
@@ -31,10 +31,7 @@ def add_export(sub) -> None:
                    help="3dtiles: stand the scene's origin at this WGS84 point (degrees, degrees, metres; "
                         "heading in degrees clockwise from north); write --place=-122.4,37.8,0 for a "
                         "negative longitude; none: the local frame (default)")
-    p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
-                   help="3dtiles: tile content as float32 (plain), with positions and normals quantized "
-                        "(KHR_mesh_quantization) or Draco compressed (KHR_draco_mesh_compression; needs "
-                        "the DracoPy package)")
+    add_mesh_option(p)
     p.add_argument("--textures", choices=TEXTURE_ENCODINGS, default="original",
                    help="3dtiles: texture images as they are (original), or re-encoded as JPEG (images with "
                         "transparency stay PNG) or WebP (EXT_texture_webp), each kept where that is not smaller")

@@ -55,6 +55,17 @@ def place_text(text: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def add_mesh_option(p: argparse.ArgumentParser) -> None:
+    """--mesh, the 3D Tiles tile content's encoding (export.formats.MESH_ENCODINGS), on parser `p`: the
+    core's export command and the Blender background command share it."""
+    from ..export.formats import MESH_ENCODINGS
+
+    p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
+                   help="3dtiles: tile content as float32 (plain), with positions and normals quantized "
+                        "(KHR_mesh_quantization) or Draco compressed (KHR_draco_mesh_compression; needs "
+                        "the DracoPy package)")
+
+
 def seconds(text: str) -> float:
     """argparse type: a finite number of seconds > 0."""
     try:
