@@ -11,6 +11,7 @@ import logging
 import os
 import subprocess
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -18,7 +19,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from hlod_core.bake.appearance.atlas import texture_side
+from hlod_core.bake.appearance import atlas as atlas_module
+from hlod_core.bake.appearance.atlas import node_atlas, texture_side
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import InputError
@@ -138,6 +140,23 @@ def test_the_texture_side_follows_the_error_and_stays_within_floor_and_cap():
     assert texture_side(100.0 * 100.0, 0.001, efficiency=0.5, floor=16, cap=1024) == 1024  # capped
     assert texture_side(1.0, 10.0, efficiency=0.5, floor=16, cap=1024) == 16  # floored
     assert texture_side(1.0, 0.0, efficiency=0.5, floor=16, cap=1024) == 1024  # a lossless node: the cap
+
+
+def test_an_xatlas_atlas_is_freed_only_once_it_has_been_idle(monkeypatch):
+    # freeing an Atlas right after generate() can hang in xatlas's scheduler (atlas.py's docstring)
+    monkeypatch.setattr(atlas_module, "retired", [])
+    monkeypatch.setattr(atlas_module, "IDLE_BEFORE_FREE_SECONDS", 0.3)
+    grid = np.stack(np.meshgrid(np.arange(4.0), np.arange(4.0), indexing="ij"), -1).reshape(-1, 2)
+    positions = np.column_stack([grid, np.zeros(16)]).astype(np.float32)
+    quads = [(4 * i + j, 4 * i + j + 4, 4 * i + j + 5, 4 * i + j + 1) for i in range(3) for j in range(3)]
+    faces = np.array([t for a, b, c, d in quads for t in ((a, b, c), (a, c, d))], np.int32)
+    first = node_atlas(positions, faces, texels_per_unit=8.0, floor=16, cap=64)
+    assert first.width > 0 and len(atlas_module.retired) == 1  # kept alive
+    node_atlas(positions, faces, texels_per_unit=8.0, floor=16, cap=64)
+    assert len(atlas_module.retired) == 2  # the first is not yet idle long enough
+    time.sleep(0.35)
+    node_atlas(positions, faces, texels_per_unit=8.0, floor=16, cap=64)
+    assert len(atlas_module.retired) == 1  # both earlier ones freed, the newest kept
 
 
 def _two_halves(images: dict, *, uv_scale: float = 1.0):

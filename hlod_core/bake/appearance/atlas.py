@@ -8,9 +8,18 @@ bottom-left, v up), over a width x height image.
 
 xatlas (Castaño, https://github.com/jpcy/xatlas; the `xatlas` wheel) segments the surface into
 charts of low distortion, parametrises them and packs them; it is deterministic for a given input.
+
+Freeing an xatlas Atlas can hang. Its task scheduler's destructor sets each worker thread's wake-up
+flag and notifies the thread without holding the thread's mutex: a thread that has just found the
+flag clear and is about to sleep misses the notification, and the destructor waits for it forever.
+A worker thread is in that window right after `generate()` returns, going back to sleep, and on a
+loaded machine it can be pre-empted there. So an Atlas is freed here only once it has been idle for
+IDLE_BEFORE_FREE_SECONDS (`_retire`): by then its threads sleep, and the notification reaches them.
 """
 from __future__ import annotations
 
+import threading
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +38,24 @@ CHART_ITERATIONS = 0
 #: Packs tried per node: a pack whose longer side is over the cap (or whose shorter side is under
 #: the floor) is made again with the density scaled to fit.
 MAX_PACKS = 3
+#: How long an xatlas Atlas stays alive after its last use before it is freed (module docstring):
+#: far longer than a runnable thread waits for a core on a loaded machine.
+IDLE_BEFORE_FREE_SECONDS = 0.5
+
+#: Atlases done with, each with the monotonic time it was retired: freed by `_retire` once idle.
+retired: list[tuple[float, object]] = []
+RETIRED_LOCK = threading.Lock()
+
+
+def _retire(atlas: object | None) -> None:
+    """Keep `atlas` (None: none) alive, and free the retired atlases idle for IDLE_BEFORE_FREE_SECONDS."""
+    now = time.monotonic()
+    with RETIRED_LOCK:
+        idle = [entry for entry in retired if now - entry[0] >= IDLE_BEFORE_FREE_SECONDS]
+        retired[:] = [entry for entry in retired if now - entry[0] < IDLE_BEFORE_FREE_SECONDS]
+        if atlas is not None:
+            retired.append((now, atlas))
+    del idle  # the idle atlases are freed here, outside the lock
 
 
 @dataclass(frozen=True, eq=False)
@@ -93,7 +120,9 @@ def node_atlas(positions: np.ndarray, faces: np.ndarray, *, texels_per_unit: flo
     local_area = surface_area(local, f)
     if local_area > 0:
         charts.max_boundary_length = float(MAX_BOUNDARY_PER_SQRT_AREA * np.sqrt(local_area))
+    atlas = None
     for _ in range(MAX_PACKS):
+        _retire(atlas)
         atlas = xatlas.Atlas()
         atlas.add_mesh(local, f)
         pack = xatlas.PackOptions()
@@ -108,13 +137,19 @@ def node_atlas(positions: np.ndarray, faces: np.ndarray, *, texels_per_unit: flo
     vertex_of, atlas_faces, uvs = atlas[0]
     uvs = np.asarray(uvs, np.float32)
     side = max(atlas.width, atlas.height)
-    if side == 0 or np.asarray(atlas_faces).size != f.size:  # every face too thin to chart: one colour
+    width_texels, height_texels = atlas.width, atlas.height
+    charted = side > 0 and atlas.atlas_count > 0 and np.asarray(atlas_faces).size == f.size
+    packed_density = float(atlas.texels_per_unit)
+    utilization = float(atlas.utilization) if charted else 0.0
+    _retire(atlas)
+    del atlas
+    if not charted:  # every face too thin to chart: one colour
         return Atlas(vertex_of=np.arange(p.shape[0], dtype=np.int64), faces=np.asarray(f, np.int32),
                      uvs=np.full((p.shape[0], 2), 0.5, np.float32), width=floor, height=floor, texels_per_unit=0.0,
                      utilization=0.0)
     # the UVs are in [0, 1] of the image: an image within [floor, cap] holds the same charts scaled
     scale = min(cap, max(floor, side)) / side
-    width, height = (max(1, min(cap, int(round(n * scale)))) for n in (atlas.width, atlas.height))
+    width, height = (max(1, min(cap, int(round(n * scale)))) for n in (width_texels, height_texels))
     return Atlas(vertex_of=np.asarray(vertex_of, np.int64), faces=np.asarray(atlas_faces, np.int32).reshape(-1, 3),
                  uvs=np.ascontiguousarray(uvs), width=width, height=height,
-                 texels_per_unit=float(atlas.texels_per_unit) * scale / diagonal, utilization=float(atlas.utilization))
+                 texels_per_unit=packed_density * scale / diagonal, utilization=utilization)
