@@ -32,21 +32,28 @@ def unit_length(lo: np.ndarray, hi: np.ndarray) -> float:
     return extent if extent > 0 else 1.0
 
 
-def snap(u: np.ndarray) -> np.ndarray:
+def snap(u: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
     """u (...) float64 rounded to CANONICAL_BITS significant bits (ties to even); 0 stays 0. On the
     bits of normal numbers: the dropped fraction bits rounded to even into the kept ones (a carry
     moves into the exponent, as rounding up to the next power of two does); zeros, subnormals and
-    non-finite numbers by `snap_frexp`. The same floats as snap_frexp, in about half its time."""
-    u = np.ascontiguousarray(u, np.float64)
-    bits = u.view(np.uint64)
-    out = bits + np.uint64((1 << (_DROPPED_BITS - 1)) - 1)
-    out += (bits >> np.uint64(_DROPPED_BITS)) & np.uint64(1)  # ties to even: the kept last bit
-    out &= ~np.uint64((1 << _DROPPED_BITS) - 1)
-    out = out.view(np.float64)
-    exponent = (bits >> np.uint64(52)) & np.uint64(0x7FF)
-    odd = (exponent == 0) | (exponent == 0x7FF)
-    if odd.any():
-        out[odd] = snap_frexp(u[odd])
+    non-finite numbers by `snap_frexp`. The same floats as snap_frexp, in about half its time.
+    out: u itself (C-contiguous float64) to round in place, with two temporaries instead of six."""
+    if out is None:
+        out = np.array(u, np.float64, order="C")
+    elif out is not u or out.dtype != np.float64 or not out.flags.c_contiguous:
+        raise ValueError("snap: out must be u itself, a C-contiguous float64 array")
+    bits = out.view(np.uint64)
+    scratch = bits >> np.uint64(52)  # the exponent: 0 (zero, subnormal) and 0x7FF (inf, nan) are odd
+    scratch &= np.uint64(0x7FF)
+    odd = np.flatnonzero((scratch == 0) | (scratch == 0x7FF))
+    kept = out.reshape(-1)[odd]
+    np.right_shift(bits, np.uint64(_DROPPED_BITS), out=scratch)
+    scratch &= np.uint64(1)  # ties to even: the kept last bit
+    bits += np.uint64((1 << (_DROPPED_BITS - 1)) - 1)
+    bits += scratch
+    bits &= ~np.uint64((1 << _DROPPED_BITS) - 1)
+    if odd.size:
+        out.reshape(-1)[odd] = snap_frexp(kept)
     return out
 
 
@@ -56,10 +63,16 @@ def snap_frexp(u: np.ndarray) -> np.ndarray:
     return np.ldexp(np.rint(np.ldexp(mantissa, CANONICAL_BITS)), exponent - CANONICAL_BITS)
 
 
-def stored(relative: np.ndarray, length: float) -> np.ndarray:
+def stored(relative: np.ndarray, length: float, *, overwrite: bool = False) -> np.ndarray:
     """Origin-relative float64 positions (..., 3), model units -> the float32 lattice points the
-    bake stores: float32(snap(relative / length) * length)."""
-    return (snap(np.asarray(relative, np.float64) / length) * length).astype(np.float32)
+    bake stores: float32(snap(relative / length) * length). overwrite: `relative` (C-contiguous
+    float64) is the scratch space, its values lost (no temporary of its size)."""
+    if not overwrite:
+        return (snap(np.asarray(relative, np.float64) / length) * length).astype(np.float32)
+    relative /= length
+    snap(relative, out=relative)
+    relative *= length
+    return relative.astype(np.float32)
 
 
 def stored_input(positions: np.ndarray, faces: np.ndarray, origin: np.ndarray) -> np.ndarray:

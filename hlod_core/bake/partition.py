@@ -371,5 +371,7 @@ class Partition:
 
 
 def _centroids(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """prepare.triangle_centroids of corners (t,3,3) float32: centroids (t,3) float64, counted (t,) bool."""
-    return triangle_centroids(corners[:, 0], corners[:, 1], corners[:, 2])
+    """prepare.triangle_centroids of corners (t,3,3) float32: centroids (t,3) float64 (C-ordered, whose
+    min(axis=0) picks the same zero a C-ordered array always did), counted (t,) bool."""
+    centroids, counted = triangle_centroids(corners[:, 0], corners[:, 1], corners[:, 2])
+    return np.ascontiguousarray(centroids), counted

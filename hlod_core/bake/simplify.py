@@ -110,8 +110,18 @@ def collapsed(positions: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def collapsed_corners(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """`collapsed` of the triangles with corners a, b, c (f,3) float32."""
-    return np.all(a == b, axis=1) | np.all(b == c, axis=1) | np.all(a == c, axis=1)
+    """`collapsed` of the triangles with corners a, b, c (f,3) float32 (any strides): column by
+    column, as (a == b).all(axis=1) is several times slower on rows of three."""
+    def same(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+        equal = p[:, 0] == q[:, 0]
+        equal &= p[:, 1] == q[:, 1]
+        equal &= p[:, 2] == q[:, 2]
+        return equal
+
+    collapsed_tris = same(a, b)
+    collapsed_tris |= same(b, c)
+    collapsed_tris |= same(a, c)
+    return collapsed_tris
 
 
 def decimate_node(child_lods: list[tuple], settings: DecimationSettings, *, with_normals: bool,
