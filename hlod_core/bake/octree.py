@@ -94,47 +94,61 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
     counted_ids = np.ones(f, bool) if counted is None else np.asarray(counted, bool)
 
     rows, chain = _LevelRows.of(root), GrowthChain.of(root)
-    node_of = np.zeros(f, np.int64)  # each triangle's node; its leaf at the end
-    # the triangles in splitting nodes of the current depth, ascending, with their centroids by axis
+    node_of = np.zeros(f, np.int64)  # each triangle's leaf, set as it leaves the splitting cells
+    # the triangles in splitting cells of the current depth, ascending, with their centroids by axis
     tris = np.arange(f, dtype=np.int64)
     axes = [np.ascontiguousarray(centroids[:, a]) for a in range(3)]
-    where = np.zeros(f, np.int64)  # their node, as an index into the current depth
+    uncounted = None if counted is None or counted_ids.all() else ~counted_ids  # theirs (None: all count)
+    cell8 = np.zeros(f, np.int64)  # 8 x their cell's index in `splitting`
     first, n = 0, 1  # id of the first node of the current depth, nodes so far
-    n_counted = np.array([int(counted_ids.sum())])
+    # the current depth's nodes that split (indices from `first`)
+    splitting = np.flatnonzero(np.array([int(counted_ids.sum())]) > target_tris) if max_depth > 0 else np.zeros(0, int)
     d = 0
-    while d < max_depth:
-        splitting = np.flatnonzero(n_counted > target_tris)  # among the current depth's nodes
-        if splitting.size == 0:
-            break
-        w_of = np.full(n - first, -1, np.int64)
-        w_of[splitting] = np.arange(splitting.size)
-        w = w_of[where]
-        if splitting.size < n - first:
-            keep = w >= 0
-            tris, w, axes = tris[keep], w[keep], [a[keep] for a in axes]
-        counts, split_center, split_half, shrinks, code = _split_cells(axes, w, center=rows.center[-1][splitting],
-                                                                        half=rows.half[-1][splitting], chain=chain)
+    while splitting.size:
+        counts, split_center, split_half, shrinks, key = _split_cells(axes, cell8, center=rows.center[-1][splitting],
+                                                                       half=rows.half[-1][splitting], chain=chain)
         split = np.flatnonzero(counts.any(axis=1))  # (k,) split nodes; the others stay leaves
         occupied = counts[split] > 0
         ids = first + splitting[split]
         offsets, m = rows.add_children(ids, occupied, d=d, first=first, n=n, cell_center=split_center[split],
                                        cell_half=split_half[split],
                                        child_level=rows.level[-1][splitting[split]] + shrinks[split] + 1, chain=chain)
-        child_local = np.full((splitting.size, 8), -1, np.int64)  # child id - n
-        child_local[split] = np.where(occupied, offsets[:, None] - n + np.cumsum(occupied, axis=1) - 1, -1)
-        where = child_local[w, code]
-        if not np.all(where >= 0):  # triangles of unsplittable cells stay in their leaf
-            keep = where >= 0
-            tris, where, axes = tris[keep], where[keep], [a[keep] for a in axes]
-        node_of[tris] = where + n
-        first, n = n, n + m
-        n_counted = np.bincount(where, weights=counted_ids[tris], minlength=m) if counted is not None \
-            else np.bincount(where, minlength=m)
         d += 1
+        # the children's triangles and counted triangles, in their order (row-major over `occupied`)
+        n_counted = counts[split][occupied]
+        if uncounted is not None:
+            n_counted = n_counted - np.bincount(key[uncounted], minlength=counts.size).reshape(counts.shape)[split][
+                occupied]
+        after = np.flatnonzero(n_counted > target_tris) if d < max_depth else np.zeros(0, np.int64)
+        # per key (8 x cell + octant): the node a triangle is in now (its child; an unsplittable
+        # cell's triangles stay in it), and 8 x its cell's index in `after` (-1: it is a leaf)
+        node_at = np.repeat(first + splitting, 8)
+        child = np.full(counts.size, -1, np.int64)
+        child.reshape(-1, 8)[split] = np.where(occupied, offsets[:, None] - n + np.cumsum(occupied, axis=1) - 1, -1)
+        has = np.flatnonzero(child >= 0)
+        node_at[has] = n + child[has]
+        cell8_at = np.full(counts.size, -1, np.int64)
+        rank8 = np.full(m, -1, np.int64)
+        rank8[after] = 8 * np.arange(after.size)
+        cell8_at[has] = rank8[child[has]]
+        cell8 = cell8_at[key]
+        done = cell8 < 0
+        if done.any():  # triangles in leaves leave the loop
+            gone = np.flatnonzero(done)
+            node_of[tris[gone]] = node_at[key[gone]]
+            tris, cell8, axes, uncounted = _kept(~done, tris, cell8, axes, uncounted)
+        first, n, splitting = n, n + m, after
 
     _, child_offset_a, child_count_a, depth_a = rows.tree()
     tri_order, tri_begin, tri_end = _depth_first_ranges(child_offset_a, child_count_a, depth=depth_a, node_of=node_of)
     return rows.layout(tri_order, tri_begin, tri_end)
+
+
+def _kept(keep: np.ndarray, tris: np.ndarray, index: np.ndarray, axes: list[np.ndarray],
+          uncounted: np.ndarray | None) -> tuple:
+    """The rows `keep` (t,) bool of the loop's per-triangle arrays: tris, index (t,) int64, axes
+    (three (t,) float64) and uncounted ((t,) bool or None)."""
+    return (tris[keep], index[keep], [a[keep] for a in axes], None if uncounted is None else uncounted[keep])
 
 
 class _LevelRows:
@@ -190,40 +204,40 @@ class _LevelRows:
                             cell_level=np.concatenate(self.level))
 
 
-def _split_cells(axes: list[np.ndarray], w: np.ndarray, *, center: np.ndarray, half: np.ndarray,
+def _split_cells(axes: list[np.ndarray], cell8: np.ndarray, *, center: np.ndarray, half: np.ndarray,
                  chain: GrowthChain | None = None):
     """Split k cells at once. axes: three (t,) float64, the x, y, z of their triangles' centroids;
-    w (t,) int64: each triangle's cell in 0..k-1; center (k,3), half (k,): the cells. A cell whose
+    cell8 (t,) int64: 8 x each triangle's cell in 0..k-1; center (k,3), half (k,): the cells. A cell whose
     centroids share one octant shrinks into it and tries again (at most _MAX_SHRINKS times). A grown
     root cube (chain) splits at its plane, and shrinks into the cube it grew from exactly.
 
     Returns counts (k,8) int64 per octant of the cell that split (all zero: it could not),
     split_center (k,3) and split_half (k,): that (shrunk) cell, shrinks (k,) int32: how often it
-    shrank, code (t,) uint8: each triangle's octant in it."""
+    shrank, key (t,) int64: cell8 + each triangle's octant in it."""
     k = center.shape[0]
     center, half = center.copy(), half.copy()
     counts = np.zeros((k, 8), np.int64)
     shrinks = np.zeros(k, np.int32)
-    code = np.zeros(w.shape[0], np.uint8)
+    key = None
     pending = np.arange(k)  # cells not yet split
     rows = None  # their triangles (None: all)
-    local = w  # each row's index into pending
+    local = None  # each row's index into pending
     for _ in range(_MAX_SHRINKS):
         if pending.size == 0:
             break
-        cell = w if rows is None else w[rows]
         plane = center if chain is None else chain.planes(center, half)
-        octant = np.zeros(cell.shape[0], np.uint8)
-        for a in range(3):  # bit a: on the + side of axis a
-            coordinate = axes[a] if rows is None else axes[a][rows]
-            octant |= (coordinate >= plane[cell, a]).view(np.uint8) << np.uint8(a)
-        per = np.bincount(local * 8 + octant, minlength=8 * pending.size).reshape(-1, 8)
+        if rows is None:  # every triangle: the planes looked up by 8 x cell, as they come
+            spread = np.zeros((8 * k, 3))
+            spread[::8] = plane
+            key = cell8 + _octant_codes(axes, None, cell8, spread)
+            per = np.bincount(key, minlength=8 * k).reshape(-1, 8)
+        else:
+            cell = cell8[rows] >> 3
+            octant = _octant_codes(axes, rows, cell, plane)
+            key[rows] = 8 * cell + octant
+            per = np.bincount(local * 8 + octant, minlength=8 * pending.size).reshape(-1, 8)
         splits_now = np.count_nonzero(per, axis=1) > 1
         counts[pending[splits_now]] = per[splits_now]
-        if rows is None:
-            code = octant
-        else:
-            code[rows] = octant
         shrink = pending[~splits_now]
         if shrink.size == 0:
             break
@@ -236,13 +250,29 @@ def _split_cells(axes: list[np.ndarray], w: np.ndarray, *, center: np.ndarray, h
             chain.enter_inner(grown, first_octant, shrunk_center, shrunk_half)
             center[shrink], half[shrink] = shrunk_center, shrunk_half
         shrinks[shrink] += 1
-        still = ~splits_now[local]
+        still = ~splits_now[cell8 >> 3 if rows is None else local]
         rows = np.flatnonzero(still) if rows is None else rows[still]
         local_of = np.full(k, -1, np.int64)
         local_of[shrink] = np.arange(shrink.size)
-        local = local_of[w[rows]]
+        local = local_of[cell8[rows] >> 3]
         pending = shrink
-    return counts, center, half, shrinks, code
+    return counts, center, half, shrinks, key
+
+
+def _octant_codes(axes: list[np.ndarray], rows: np.ndarray | None, index: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """(r,) uint8 octant of the triangles `rows` (None: all) of axes in the cell whose planes are
+    row index (r,) int64 of plane (.,3): bit a set on the + side of axis a (a centroid on a plane
+    on its + side)."""
+    octant = None
+    for a in range(3):
+        coordinate = axes[a] if rows is None else axes[a][rows]
+        bit = (coordinate >= np.ascontiguousarray(plane[:, a]).take(index)).view(np.uint8)
+        if octant is None:
+            octant = bit
+        else:
+            bit <<= np.uint8(a)
+            octant |= bit
+    return octant
 
 
 def _depth_first_ranges(child_offset, child_count, *, depth, node_of):
