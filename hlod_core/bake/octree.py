@@ -37,13 +37,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .octree_passes import MAX_SHRINKS as _MAX_SHRINKS
+from .octree_passes import OCTANT_SIGNS as _OCTANT_SIGNS
+from .octree_passes import ActiveTriangles, split_cells
 from .root_cube import GrowthChain, RootCube, tight_cube
 
-# A cell may shrink this many times in a row while all centroids stay in one octant; float64 has a
-# 52-bit mantissa, so distinct centroids always separate well before this.
-_MAX_SHRINKS = 128
-# Octant o has bit a set when it lies on the + side of axis a: its centre moves by sign * half / 2.
-_OCTANT_SIGNS = np.array([[(o >> a) & 1 for a in range(3)] for o in range(8)], np.float64) * 2.0 - 1.0
 # A stable sort of keys of at most 16 bits is numpy's radix sort (linear); wider keys sort by timsort.
 _RADIX_KEYS = 2**16
 
@@ -95,18 +93,14 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
 
     rows, chain = _LevelRows.of(root), GrowthChain.of(root)
     node_of = np.zeros(f, np.int64)  # each triangle's leaf, set as it leaves the splitting cells
-    # the triangles in splitting cells of the current depth, ascending, with their centroids by axis
-    tris = np.arange(f, dtype=np.int64)
-    axes = [np.ascontiguousarray(centroids[:, a]) for a in range(3)]
-    uncounted = None if counted is None or counted_ids.all() else ~counted_ids  # theirs (None: all count)
-    cell8 = np.zeros(f, np.int64)  # 8 x their cell's index in `splitting`
+    active = ActiveTriangles(centroids, None if counted is None or counted_ids.all() else ~counted_ids)
     first, n = 0, 1  # id of the first node of the current depth, nodes so far
     # the current depth's nodes that split (indices from `first`)
     splitting = np.flatnonzero(np.array([int(counted_ids.sum())]) > target_tris) if max_depth > 0 else np.zeros(0, int)
     d = 0
     while splitting.size:
-        counts, split_center, split_half, shrinks, key = _split_cells(axes, cell8, center=rows.center[-1][splitting],
-                                                                       half=rows.half[-1][splitting], chain=chain)
+        counts, split_center, split_half, shrinks = split_cells(active, center=rows.center[-1][splitting],
+                                                                half=rows.half[-1][splitting], chain=chain)
         split = np.flatnonzero(counts.any(axis=1))  # (k,) split nodes; the others stay leaves
         occupied = counts[split] > 0
         ids = first + splitting[split]
@@ -114,11 +108,11 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
                                        cell_half=split_half[split],
                                        child_level=rows.level[-1][splitting[split]] + shrinks[split] + 1, chain=chain)
         d += 1
-        # the children's triangles and counted triangles, in their order (row-major over `occupied`)
+        # the children's counted triangles, in their order (row-major over `occupied`)
         n_counted = counts[split][occupied]
+        uncounted = active.uncounted_per_key(counts.size)
         if uncounted is not None:
-            n_counted = n_counted - np.bincount(key[uncounted], minlength=counts.size).reshape(counts.shape)[split][
-                occupied]
+            n_counted = n_counted - uncounted.reshape(counts.shape)[split][occupied]
         after = np.flatnonzero(n_counted > target_tris) if d < max_depth else np.zeros(0, np.int64)
         # per key (8 x cell + octant): the node a triangle is in now (its child; an unsplittable
         # cell's triangles stay in it), and 8 x its cell's index in `after` (-1: it is a leaf)
@@ -131,24 +125,12 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
         rank8 = np.full(m, -1, np.int64)
         rank8[after] = 8 * np.arange(after.size)
         cell8_at[has] = rank8[child[has]]
-        cell8 = cell8_at[key]
-        done = cell8 < 0
-        if done.any():  # triangles in leaves leave the loop
-            gone = np.flatnonzero(done)
-            node_of[tris[gone]] = node_at[key[gone]]
-            tris, cell8, axes, uncounted = _kept(~done, tris, cell8, axes, uncounted)
+        active.advance(cell8_at, node_at, node_of)
         first, n, splitting = n, n + m, after
 
     _, child_offset_a, child_count_a, depth_a = rows.tree()
     tri_order, tri_begin, tri_end = _depth_first_ranges(child_offset_a, child_count_a, depth=depth_a, node_of=node_of)
     return rows.layout(tri_order, tri_begin, tri_end)
-
-
-def _kept(keep: np.ndarray, tris: np.ndarray, index: np.ndarray, axes: list[np.ndarray],
-          uncounted: np.ndarray | None) -> tuple:
-    """The rows `keep` (t,) bool of the loop's per-triangle arrays: tris, index (t,) int64, axes
-    (three (t,) float64) and uncounted ((t,) bool or None)."""
-    return (tris[keep], index[keep], [a[keep] for a in axes], None if uncounted is None else uncounted[keep])
 
 
 class _LevelRows:
@@ -202,77 +184,6 @@ class _LevelRows:
                             tri_order=tri_order, tri_begin=tri_begin, tri_end=tri_end,
                             cell_center=np.concatenate(self.center), cell_half=np.concatenate(self.half),
                             cell_level=np.concatenate(self.level))
-
-
-def _split_cells(axes: list[np.ndarray], cell8: np.ndarray, *, center: np.ndarray, half: np.ndarray,
-                 chain: GrowthChain | None = None):
-    """Split k cells at once. axes: three (t,) float64, the x, y, z of their triangles' centroids;
-    cell8 (t,) int64: 8 x each triangle's cell in 0..k-1; center (k,3), half (k,): the cells. A cell whose
-    centroids share one octant shrinks into it and tries again (at most _MAX_SHRINKS times). A grown
-    root cube (chain) splits at its plane, and shrinks into the cube it grew from exactly.
-
-    Returns counts (k,8) int64 per octant of the cell that split (all zero: it could not),
-    split_center (k,3) and split_half (k,): that (shrunk) cell, shrinks (k,) int32: how often it
-    shrank, key (t,) int64: cell8 + each triangle's octant in it."""
-    k = center.shape[0]
-    center, half = center.copy(), half.copy()
-    counts = np.zeros((k, 8), np.int64)
-    shrinks = np.zeros(k, np.int32)
-    key = None
-    pending = np.arange(k)  # cells not yet split
-    rows = None  # their triangles (None: all)
-    local = None  # each row's index into pending
-    for _ in range(_MAX_SHRINKS):
-        if pending.size == 0:
-            break
-        plane = center if chain is None else chain.planes(center, half)
-        if rows is None:  # every triangle: the planes looked up by 8 x cell, as they come
-            spread = np.zeros((8 * k, 3))
-            spread[::8] = plane
-            key = cell8 + _octant_codes(axes, None, cell8, spread)
-            per = np.bincount(key, minlength=8 * k).reshape(-1, 8)
-        else:
-            cell = cell8[rows] >> 3
-            octant = _octant_codes(axes, rows, cell, plane)
-            key[rows] = 8 * cell + octant
-            per = np.bincount(local * 8 + octant, minlength=8 * pending.size).reshape(-1, 8)
-        splits_now = np.count_nonzero(per, axis=1) > 1
-        counts[pending[splits_now]] = per[splits_now]
-        shrink = pending[~splits_now]
-        if shrink.size == 0:
-            break
-        first_octant = np.argmax(per[~splits_now] > 0, axis=1)
-        grown = None if chain is None else chain.index(center[shrink], half[shrink])
-        half[shrink] *= 0.5
-        center[shrink] += _OCTANT_SIGNS[first_octant] * half[shrink, None]
-        if grown is not None:
-            shrunk_center, shrunk_half = center[shrink], half[shrink]
-            chain.enter_inner(grown, first_octant, shrunk_center, shrunk_half)
-            center[shrink], half[shrink] = shrunk_center, shrunk_half
-        shrinks[shrink] += 1
-        still = ~splits_now[cell8 >> 3 if rows is None else local]
-        rows = np.flatnonzero(still) if rows is None else rows[still]
-        local_of = np.full(k, -1, np.int64)
-        local_of[shrink] = np.arange(shrink.size)
-        local = local_of[cell8[rows] >> 3]
-        pending = shrink
-    return counts, center, half, shrinks, key
-
-
-def _octant_codes(axes: list[np.ndarray], rows: np.ndarray | None, index: np.ndarray, plane: np.ndarray) -> np.ndarray:
-    """(r,) uint8 octant of the triangles `rows` (None: all) of axes in the cell whose planes are
-    row index (r,) int64 of plane (.,3): bit a set on the + side of axis a (a centroid on a plane
-    on its + side)."""
-    octant = None
-    for a in range(3):
-        coordinate = axes[a] if rows is None else axes[a][rows]
-        bit = (coordinate >= np.ascontiguousarray(plane[:, a]).take(index)).view(np.uint8)
-        if octant is None:
-            octant = bit
-        else:
-            bit <<= np.uint8(a)
-            octant |= bit
-    return octant
 
 
 def _depth_first_ranges(child_offset, child_count, *, depth, node_of):
@@ -364,7 +275,7 @@ def _octants(xyz: np.ndarray, center: np.ndarray) -> np.ndarray:
 class OctantQuery:
     """One counting pass: the splitting cells `nodes` (k,) int64 at their current cell, center
     (k,3) float64 and half (k,) float64, each evaluated at `levels` successive octant levels (a
-    level's cell is the previous level's octant holding the centroid, as `_split_cells` shrinks)."""
+    level's cell is the previous level's octant holding the centroid, as `octree_passes.split_cells` shrinks)."""
 
     router: OctantRouter
     nodes: np.ndarray
@@ -387,7 +298,7 @@ class OctantQuery:
         for level in range(levels):
             octant = _octants(xyz, center)
             key[level] = (local * levels + level) * 8 + octant
-            half = half * 0.5  # the octant as _split_cells shrinks into it: half *= 0.5; center += sign * half
+            half = half * 0.5  # the octant as split_cells shrinks into it: half *= 0.5; center += sign * half
             center = center + _OCTANT_SIGNS[octant] * half[:, None]
         size = k * levels * 8
         every = np.bincount(key.ravel(), minlength=size).reshape(k, levels, 8)
@@ -458,7 +369,7 @@ def build_octree_counted(count_pass, *, root: RootCube, tri_count: int, counted_
 
 def _resolve_splits(count_pass, router: OctantRouter, ids: np.ndarray, *, center: np.ndarray, half: np.ndarray,
                     levels: int):
-    """_split_cells from counts: for the k cells `ids` (center (k,3), half (k,)), passes of
+    """octree_passes.split_cells from counts: for the k cells `ids` (center (k,3), half (k,)), passes of
     `levels` octant levels until each splits or has shrunk _MAX_SHRINKS times. Returns counts and
     counted counts (k,8) int64 of the octants of the cell each split at (all zero: it could not),
     that cell's center (k,3) and half (k,), and shrinks (k,) int32."""
@@ -476,7 +387,7 @@ def _resolve_splits(count_pass, router: OctantRouter, ids: np.ndarray, *, center
         splits_at = np.count_nonzero(every, axis=2) > 1  # (p, step)
         splits = splits_at.any(axis=1)
         first = np.where(splits, np.argmax(splits_at, axis=1), step)  # shrinks in this pass
-        for lv in range(step):  # shrink into the one occupied octant, as _split_cells does
+        for lv in range(step):  # shrink into the one occupied octant, as split_cells does
             going = pending[first > lv]
             if going.size == 0:
                 break
