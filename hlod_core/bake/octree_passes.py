@@ -2,10 +2,11 @@
 triangle's octant in its splitting cell, the counts per (cell, octant), and the triangles that go
 on to the next depth, compacted in place.
 
-Data form: `ActiveTriangles`, the triangles in splitting cells: tris (t,) int64 input ids, xyz
-three (t,) float64 centroid axes, cell8 (t,) int64 (8 x their cell's index among the splitting
-cells), key (t,) int64 (cell8 + octant), uncounted (t,) bool or None (None: every triangle
-counts), each the first t rows of an array of the input's length, allocated once.
+Data form: `ActiveTriangles`, the triangles in splitting cells: tris (t,) int64 input ids, cell8
+(t,) int64 (8 x their cell's index among the splitting cells), key (t,) int64 (cell8 + octant),
+uncounted (t,) bool or None (None: every triangle counts), each the first t rows of an array of
+the input's length, allocated once; the centroids' axes xyz (three (f,) float64, the caller's
+columns, never copied whole) are read by tris.
 
 Why in chunks of CHUNK rows: a whole-array pass allocates a new array of the input's length for
 every temporary, and numpy asks Linux for those in huge pages, whose first touch can cost the
@@ -34,7 +35,7 @@ class ActiveTriangles:
         f = centroids.shape[0]
         self.t = f
         self.tris = np.arange(f, dtype=np.int64)
-        self.xyz = [np.array(centroids[:, a], np.float64) for a in range(3)]  # copies: compacted in place
+        self.xyz = [np.ascontiguousarray(centroids[:, a], np.float64) for a in range(3)]  # views of F-ordered ones
         self.cell8 = np.zeros(f, np.int64)
         self.key = np.empty(f, np.int64)
         self.uncounted = None if uncounted is None else np.array(uncounted, bool)
@@ -49,11 +50,18 @@ class ActiveTriangles:
         for start in range(0, self.t, CHUNK):
             end = min(self.t, start + CHUNK)
             cell8 = self.cell8[start:end]
-            octant = octant_codes([a[start:end] for a in self.xyz], cell8, spread)
+            octant = octant_codes(self.points(start, end), cell8, spread)
             key = self.key[start:end]
             np.add(cell8, octant, out=key)
             per += np.bincount(key, minlength=8 * k)
         return per.reshape(k, 8)
+
+    def points(self, start: int, end: int) -> list[np.ndarray]:
+        """The centroids' axes of active rows start..end: three (end - start,) float64."""
+        if self.t == self.xyz[0].shape[0]:  # every triangle is active: tris is 0..f-1
+            return [a[start:end] for a in self.xyz]
+        tris = self.tris[start:end]
+        return [a.take(tris) for a in self.xyz]
 
     def uncounted_per_key(self, size: int) -> np.ndarray | None:
         """(size,) int64: the uncounted active triangles per key (None: every triangle counts)."""
@@ -65,7 +73,7 @@ class ActiveTriangles:
     def advance(self, cell8_at: np.ndarray, node_at: np.ndarray, node_of: np.ndarray) -> None:
         """To the next depth: by key, cell8_at (8k,) int64 the triangle's next cell8 (-1: it is in
         a leaf now, node_at (8k,) int64: which, recorded in node_of (f,)); the others compacted."""
-        live = [self.cell8, self.tris, *self.xyz] + ([] if self.uncounted is None else [self.uncounted])
+        live = [self.cell8, self.tris] + ([] if self.uncounted is None else [self.uncounted])
         kept = 0
         for start in range(0, self.t, CHUNK):
             end = min(self.t, start + CHUNK)
@@ -124,7 +132,7 @@ def split_cells(active: ActiveTriangles, *, center: np.ndarray, half: np.ndarray
             per = active.octants(plane)
         else:  # the triangles of cells that shrank: few
             cell = active.cell8[:t][rows] >> 3
-            octant = octant_codes([a[:t][rows] for a in active.xyz], cell, np.ascontiguousarray(plane.T))
+            octant = octant_codes([a.take(active.tris[rows]) for a in active.xyz], cell, np.ascontiguousarray(plane.T))
             active.key[rows] = 8 * cell + octant
             per = np.bincount(local * 8 + octant, minlength=8 * pending.size).reshape(-1, 8)
         splits_now = np.count_nonzero(per, axis=1) > 1
