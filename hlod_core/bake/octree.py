@@ -39,11 +39,8 @@ import numpy as np
 
 from .octree_passes import MAX_SHRINKS as _MAX_SHRINKS
 from .octree_passes import OCTANT_SIGNS as _OCTANT_SIGNS
-from .octree_passes import ActiveTriangles, split_cells
+from .octree_passes import ActiveTriangles, sort_by_leaf, split_cells
 from .root_cube import GrowthChain, RootCube, tight_cube
-
-# A stable sort of keys of at most 16 bits is numpy's radix sort (linear); wider keys sort by timsort.
-_RADIX_KEYS = 2**16
 
 
 @dataclass(frozen=True, eq=False)
@@ -190,10 +187,8 @@ def _depth_first_ranges(child_offset, child_count, *, depth, node_of):
     """tri_order (f,) int64 and tri_begin/tri_end (n,) int64: triangles sorted (stably) by their
     leaf's rank in depth-first order, so every subtree is one range."""
     leaf_rank, rank = _leaf_ranks(child_offset, child_count)
-    key = leaf_rank[node_of]
-    tri_order = np.argsort(key.astype(np.uint16) if rank <= _RADIX_KEYS else key, kind="stable").astype(np.int64)
-    begin, end = _ranges(child_offset, child_count, depth=depth, leaf_rank=leaf_rank,
-                         per_rank=np.bincount(key, minlength=rank))
+    tri_order, per_rank = sort_by_leaf(leaf_rank, rank, node_of)
+    begin, end = _ranges(child_offset, child_count, depth=depth, leaf_rank=leaf_rank, per_rank=per_rank)
     return tri_order, begin, end
 
 

@@ -21,6 +21,8 @@ from .root_cube import GrowthChain
 
 #: Rows a pass handles at a time (0.5 MB a float64 temporary).
 CHUNK = 1 << 16
+# A stable sort of keys of at most 16 bits is numpy's radix sort (linear); wider keys sort by timsort.
+_RADIX_KEYS = 2**16
 # A cell may shrink this many times in a row while all centroids stay in one octant; float64 has a
 # 52-bit mantissa, so distinct centroids always separate well before this.
 MAX_SHRINKS = 128
@@ -156,3 +158,26 @@ def split_cells(active: ActiveTriangles, *, center: np.ndarray, half: np.ndarray
         local = local_of[active.cell8[:t][rows] >> 3]
         pending = shrink
     return counts, center, half, shrinks
+
+
+def sort_by_leaf(leaf_rank: np.ndarray, rank: int, node_of: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The triangles (node_of (f,) int64: each one's leaf) sorted stably by their leaf's rank
+    (leaf_rank (n,) int64, rank leaves): tri_order (f,) int64 and per_rank (rank,) int64, each
+    rank's triangles. A counting sort, a chunk at a time: each chunk's rows sorted stably among
+    themselves, then placed after the rows of earlier chunks of the same rank."""
+    f = node_of.shape[0]
+    per_rank = np.zeros(rank, np.int64)
+    for start in range(0, f, CHUNK):
+        per_rank += np.bincount(leaf_rank.take(node_of[start:start + CHUNK]), minlength=rank)
+    place = np.cumsum(per_rank) - per_rank  # where each rank's next triangle goes
+    tri_order = np.empty(f, np.int64)
+    for start in range(0, f, CHUNK):
+        key = leaf_rank.take(node_of[start:start + CHUNK])
+        order = np.argsort(key.astype(np.uint16) if rank <= _RADIX_KEYS else key, kind="stable")
+        ranks = key[order]
+        first = np.flatnonzero(np.concatenate([[True], ranks[1:] != ranks[:-1]]))  # each rank's first row
+        size = np.diff(np.append(first, ranks.shape[0]))
+        within = np.arange(ranks.shape[0]) - np.repeat(first, size)
+        tri_order[place[ranks] + within] = order + start
+        place[ranks[first]] += size
+    return tri_order, per_rank
