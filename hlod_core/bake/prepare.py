@@ -77,7 +77,7 @@ def prepare(mesh: TriangleMesh, prior: frames.Prior | None = None) -> Prepared:
     centroids); float32 positions relative to the origin, points of the lattice (lattice.py);
     triangle centroids of those positions; with appearance, the vertices become attribute rows
     (`pack_rows`). InputError for a mesh without triangles or with non-finite coordinates.
-    Whole-array passes, most in place: no temporary of the positions' size but one."""
+    The positions and centroids are made CENTROID_CHUNK rows at a time."""
     if mesh.tri_count == 0:
         raise InputError(f"{mesh.name}: the mesh has no triangles")
     used = np.zeros(mesh.positions.shape[0], bool)
@@ -89,12 +89,14 @@ def prepare(mesh: TriangleMesh, prior: frames.Prior | None = None) -> Prepared:
     lo, hi = box(p_used)
     del p_used
     origin, length, lattice_why = frames.choose_lattice(prior, lo, hi)
-    rel = np.empty(mesh.positions.shape, np.float64)
-    np.subtract(mesh.positions, origin, out=rel)
-    if not every:
-        rel[~used] = 0.0  # unused vertices may hold anything (even NaN); they are never stored
-    positions = lattice.stored(rel, length, overwrite=True)
-    del rel
+    positions = np.empty(mesh.positions.shape, np.float32)
+    for start in range(0, positions.shape[0], CENTROID_CHUNK):  # small temporaries, reused
+        end = min(positions.shape[0], start + CENTROID_CHUNK)
+        rel = np.empty((end - start, 3), np.float64)
+        np.subtract(mesh.positions[start:end], origin, out=rel)
+        if not every:
+            rel[~used[start:end]] = 0.0  # unused vertices may hold anything (even NaN); they are never stored
+        positions[start:end] = lattice.stored(rel, length, overwrite=True)
     if not np.all(np.isfinite(positions)):
         raise InputError(f"{mesh.name}: coordinates exceed the float32 range after centring")
     faces = mesh.faces
@@ -124,7 +126,8 @@ def box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-#: Triangles `face_centroids` gathers at a time (its temporaries: 64 bytes a triangle).
+#: Vertices `prepare` stores and triangles `face_centroids` gathers at a time (temporaries of at
+#: most 64 bytes a row, reused from chunk to chunk instead of new arrays of the input's length).
 CENTROID_CHUNK = 1 << 18
 
 
