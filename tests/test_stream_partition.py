@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from helpers import ROOT, file_bytes, model
-from hlod_core.bake import octree, partition
+from hlod_core.bake import octree, octree_passes, partition
 from hlod_core.bake.pipeline import bake, bake_stream
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.cli import main as cli
@@ -65,11 +65,17 @@ def _counted_octree(c, counted, *, target_tris, max_depth, chunk, levels):
 
 
 @pytest.mark.parametrize("seed", range(12))
-def test_octree_from_counts_is_build_octree_float_for_float(seed):
+def test_octree_from_counts_is_build_octree_float_for_float(seed, monkeypatch):
     """Clusters at scales from 1e-6 to 10 (cells shrink many times before they split), centroids
     on splitting planes (rounded), coincident ones (an unsplittable leaf), uncounted ones; chunks
     and levels per pass varied: every node, cell and range equal, and every centroid routes to
-    the leaf build_octree put it in."""
+    the leaf build_octree put it in. build_octree's own passes (octree_passes) run in chunks of
+    a few dozen rows in odd seeds, with their sort by leaf as a wide-key sort in some, and read
+    F-ordered centroids in others (as prepare makes them)."""
+    if seed % 2:
+        monkeypatch.setattr(octree_passes, "CHUNK", 37 + seed)
+    if seed % 4 == 1:
+        monkeypatch.setattr(octree_passes, "RADIX_KEYS", 3)
     rng = np.random.default_rng(seed)
     parts = [rng.normal(size=(int(rng.integers(50, 1500)), 3)) * 10.0 ** rng.uniform(-6, 1) + rng.uniform(-50, 50, 3)
              for _ in range(int(rng.integers(1, 5)))]
@@ -82,7 +88,8 @@ def test_octree_from_counts_is_build_octree_float_for_float(seed):
     target, depth = int(rng.integers(5, 200)), int(rng.integers(0, 14))
     root, got = _counted_octree(c, counted, target_tris=target, max_depth=depth, chunk=int(rng.integers(7, 400)),
                                 levels=int(rng.integers(1, 9)))
-    ref = octree.build_octree(c, target_tris=target, max_depth=depth, counted=counted, root=root)
+    ref = octree.build_octree(np.asfortranarray(c) if seed % 3 == 1 else c, target_tris=target, max_depth=depth,
+                              counted=counted, root=root)
     for name in ("parent", "child_offset", "child_count", "depth", "tri_begin", "tri_end", "cell_center",
                  "cell_half", "cell_level"):
         a, b = getattr(ref, name), getattr(got.layout, name)

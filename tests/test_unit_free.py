@@ -62,7 +62,10 @@ def test_snap_on_the_bits_is_snap_by_frexp_ties_and_edges_included():
                          -np.inf, np.nan, 0.5, -0.5, 1 - 2**-53]])
     with np.errstate(over="ignore", invalid="ignore"):
         fast, slow = lattice.snap(u.reshape(-1, 2)).ravel(), lattice.snap_frexp(u)
+        in_place = u.reshape(-1, 2).copy()
+        assert lattice.snap(in_place, out=in_place) is in_place
     assert np.array_equal(fast.view(np.uint64), slow.view(np.uint64))
+    assert np.array_equal(in_place.ravel().view(np.uint64), slow.view(np.uint64))
     assert fast[-7] == np.inf and fast[-6] == np.inf and fast[-5] == -np.inf and fast[-2] == -0.5
 
 

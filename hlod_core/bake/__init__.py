@@ -3,7 +3,8 @@
 Entry points: pipeline.bake (a mesh in memory) and pipeline.bake_stream (an input bigger than
 memory), with settings.BakeSettings. The phases: sources (prepare, partition; every position on
 the input's lattice, in the frame of frame: an earlier bake's while the input fits it), octree
-(its root_cube, which may grow), cell_seams (the positions each node shares with cells outside it),
+(its root_cube, which may grow; octree_passes, its per-triangle passes in chunks), cell_seams
+(the positions each node shares with cells outside it),
 schedule (simplify, seams, collapse, pieces and meshlab for the LODs, hausdorff,
 leaf_arrays and tasks for the errors, on workers or a Dask cluster: dask_cluster), assemble, meta;
 the cache (cache, cache_files) beside them; appearance/ (the inner nodes' proxy materials: atlases,

@@ -21,8 +21,8 @@ from .root_cube import GrowthChain
 
 #: Rows a pass handles at a time (0.5 MB a float64 temporary).
 CHUNK = 1 << 16
-# A stable sort of keys of at most 16 bits is numpy's radix sort (linear); wider keys sort by timsort.
-_RADIX_KEYS = 2**16
+#: A stable sort of keys of at most 16 bits is numpy's radix sort (linear); wider keys sort by timsort.
+RADIX_KEYS = 2**16
 # A cell may shrink this many times in a row while all centroids stay in one octant; float64 has a
 # 52-bit mantissa, so distinct centroids always separate well before this.
 MAX_SHRINKS = 128
@@ -173,7 +173,7 @@ def sort_by_leaf(leaf_rank: np.ndarray, rank: int, node_of: np.ndarray) -> tuple
     tri_order = np.empty(f, np.int64)
     for start in range(0, f, CHUNK):
         key = leaf_rank.take(node_of[start:start + CHUNK])
-        order = np.argsort(key.astype(np.uint16) if rank <= _RADIX_KEYS else key, kind="stable")
+        order = np.argsort(key.astype(np.uint16) if rank <= RADIX_KEYS else key, kind="stable")
         ranks = key[order]
         first = np.flatnonzero(np.concatenate([[True], ranks[1:] != ranks[:-1]]))  # each rank's first row
         size = np.diff(np.append(first, ranks.shape[0]))
