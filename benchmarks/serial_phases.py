@@ -2,7 +2,7 @@
 and (--baseline DIR) another version's, interleaved; and whether both find the same cell seams.
 
     PYTHONPATH=. .venv/bin/python -m benchmarks.serial_phases [--tris 10000000] [--baseline DIR]
-        [--repeat 1]
+        [--repeat 1] [--bakes N]
 
 The scene: benchmarks/bake_memory.py's city of statues (the crowd's statues from the repository's
 models, copies side by side) of at least --tris triangles. Each run is a fresh process of the
@@ -15,6 +15,12 @@ in this process and with their clusters cut on the 2 workers (where the checkout
 Each run prints the blake2b digest of its CellSeams' arrays: equal digests, the same seams. The
 baseline and this checkout alternate, the first swapped every repeat; the load average is recorded
 with each run.
+
+--bakes N (with --baseline): instead, the whole bake of the city of at least N triangles by the
+command line of each checkout (`bake --no-cache`, in a fresh process run from the checkout) with
+jobs 1, jobs 2 and `--scheduler` on a Dask LocalCluster of 2 worker processes, and whether each
+file equals the baseline's of the same run, byte for byte once meta.VOLATILE_META is left out
+(bake_memory.same_file).
 """
 from __future__ import annotations
 
@@ -113,20 +119,65 @@ def run(checkout: Path, spec: Path) -> dict:
             **json.loads(done.stdout.strip().splitlines()[-1])}
 
 
+def same_bakes(checkouts: list[Path], tris: int) -> None:
+    """--bakes (module docstring): prints one JSON line per bake, then whether the files match."""
+    from benchmarks import bake_memory
+
+    with tempfile.TemporaryDirectory(prefix="serial-phases-bakes-") as scratch:
+        spec = bake_memory.spec_of(tris, Path(scratch))
+        runs = {"jobs1": ["--jobs", "1"], "jobs2": ["--jobs", "2"], "dask2": ["--dask"]}
+        files: dict[tuple[str, int], Path] = {}
+        for name, options in runs.items():
+            for k, checkout in enumerate(checkouts):
+                out = Path(scratch) / f"{name}-{k}.hlod"
+                started, load = time.perf_counter(), os.getloadavg()[0]
+                command = [sys.executable, "-m", "hlod_core", "-q", "bake", str(spec), "-o", str(out), "--no-cache",
+                           *options]
+                if name == "dask2":  # a cluster of the checkout's own code (workers check the client's)
+                    command = [sys.executable, str(Path(__file__).resolve()), "--dask-bake", str(spec), str(out)]
+                subprocess.run(command, cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, check=True,
+                               stdout=subprocess.DEVNULL)
+                files[name, k] = out
+                print(json.dumps({"bake": name, "checkout": str(checkout), "seconds": time.perf_counter() - started,
+                                  "load": load}), flush=True)
+        for name in runs:
+            print(f"{name}: the same file as the baseline's: {bake_memory.same_file(files[name, 1], files[name, 0])}")
+
+
+def dask_bake(spec: str, out: str) -> None:
+    """`bake --scheduler` on a LocalCluster of 2 worker processes of the checkout on PYTHONPATH."""
+    import distributed
+
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address="127.0.0.1:0") as cluster:
+        subprocess.run([sys.executable, "-m", "hlod_core", "-q", "bake", spec, "-o", out, "--no-cache", "--jobs", "1",
+                        "--scheduler", cluster.scheduler_address], check=True, stdout=subprocess.DEVNULL)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tris", type=int, default=10_000_000)
     parser.add_argument("--baseline", type=Path, default=None, help="another checkout, run alternately")
     parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--bakes", type=int, default=None, help="whole bakes of this many triangles, compared")
     parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--dask-bake", nargs=2, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(args.child)))
+        return
+    if args.dask_bake:
+        dask_bake(*args.dask_bake)
         return
     sys.path.insert(0, str(ROOT))
     from benchmarks import bake_memory
 
     checkouts = [ROOT] + ([args.baseline.resolve()] if args.baseline else [])
+    if args.bakes:
+        if len(checkouts) < 2:
+            raise SystemExit("serial_phases: --bakes compares against --baseline")
+        same_bakes(checkouts, args.bakes)
+        return
     runs = []
     with tempfile.TemporaryDirectory(prefix="serial-phases-") as scratch:
         spec = bake_memory.spec_of(args.tris, Path(scratch))
