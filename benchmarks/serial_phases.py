@@ -12,9 +12,11 @@ reads the spec and times, in the bake's order: read (meshes.load_inputs), prepar
 one bucket per BUCKET_VERTICES), the cell seams as tasks on a pool of 2 worker processes started and
 warmed first (where the checkout has them), and the exact measure's leaf arrays (leaf_arrays.build)
 in this process and with their clusters cut on the 2 workers (where the checkout does that).
-Each run prints the blake2b digest of its CellSeams' arrays: equal digests, the same seams. The
-baseline and this checkout alternate, the first swapped every repeat; the load average is recorded
-with each run.
+Each run prints the blake2b digest of its CellSeams' arrays: equal digests, the same seams, and
+each phase's wall seconds and CPU seconds of the run's process (on a machine others load, the CPU
+seconds move less; with workers, the workers' CPU is not counted: what is left is the bake
+process's part). The baseline and this checkout alternate, the first swapped every repeat; the load
+average is recorded with each run.
 
 --bakes N (with --baseline): instead, the whole bake of the city of at least N triangles by the
 command line of each checkout (`bake --no-cache`, in a fresh process run from the checkout) with
@@ -51,13 +53,14 @@ def child(spec: str) -> dict:
 
     settings = BakeSettings()
     seconds: dict[str, float] = {}
-    started = time.perf_counter()
+    cpu: dict[str, float] = {}
+    started, cpu_started = time.perf_counter(), time.process_time()
 
     def lap(name: str) -> None:
-        nonlocal started
-        now = time.perf_counter()
-        seconds[name] = now - started
-        started = now
+        nonlocal started, cpu_started
+        now, cpu_now = time.perf_counter(), time.process_time()
+        seconds[name], cpu[name] = now - started, cpu_now - cpu_started
+        started, cpu_started = now, cpu_now
 
     mesh = meshes.load_inputs([spec])
     lap("read")
@@ -80,7 +83,7 @@ def child(spec: str) -> dict:
         with open_workers(2) as workers:
             for fut in [workers.executor.submit(time.sleep, 0.5) for _ in range(2)]:
                 fut.result()  # started and warm
-            started = time.perf_counter()
+            started, cpu_started = time.perf_counter(), time.process_time()
             on_workers = cell_seams.build(layout, lods, workers=workers)
             lap("seams on 2 workers")
         again = hashlib.blake2b(digest_size=16)
@@ -89,7 +92,7 @@ def child(spec: str) -> dict:
         del on_workers
         if again.hexdigest() != digest.hexdigest():
             raise SystemExit("serial_phases: the seams on the workers differ from the seams inline")
-    started = time.perf_counter()
+    started, cpu_started = time.perf_counter(), time.process_time()
     whole = leaf_arrays.build(layout, lods)
     lap("leaf arrays inline")
     if "workers" in inspect.signature(leaf_arrays.build).parameters:
@@ -98,14 +101,14 @@ def child(spec: str) -> dict:
         with open_workers(2) as workers:
             for fut in [workers.executor.submit(time.sleep, 0.5) for _ in range(2)]:
                 fut.result()
-            started = time.perf_counter()
+            started, cpu_started = time.perf_counter(), time.process_time()
             chunked = leaf_arrays.build(layout, lods, workers=workers)
             lap("leaf arrays on 2 workers")
         if any(not np.array_equal(a, chunked.arrays()[name]) for name, a in whole.arrays().items()):
             raise SystemExit("serial_phases: the leaf arrays on the workers differ from the leaf arrays inline")
     return {"tris": mesh.tri_count, "leaves": int(layout.is_leaf.sum()),
             "leaf_vertices": int(sum(lods[k][0].shape[0] for k in np.flatnonzero(layout.is_leaf))),
-            "seconds": seconds, "seams_digest": digest.hexdigest()}
+            "seconds": seconds, "cpu_seconds": cpu, "seams_digest": digest.hexdigest()}
 
 
 def run(checkout: Path, spec: Path) -> dict:
@@ -189,10 +192,12 @@ def main() -> None:
     print(f"{runs[0]['tris']:,} triangles, {runs[0]['leaves']:,} leaves, {runs[0]['leaf_vertices']:,} leaf vertices")
     print("| checkout | load average | " + " | ".join(names) + " | seams digest |")
     print("|---|---:|" + "---:|" * len(names) + "---|")
-    for r in runs:
-        cells = [f"{r['seconds'][n]:.2f} s" if n in r["seconds"] else "-" for n in names]
-        print(f"| {Path(r['checkout']).name} | {sum(r['load']) / 2:.1f} | " + " | ".join(cells)
-              + f" | {r['seams_digest'][:12]} |")
+    for key in ("seconds", "cpu_seconds"):
+        print(f"{key} (cpu_seconds: this process's CPU, the workers' not counted)")
+        for r in runs:
+            cells = [f"{r[key][n]:.2f} s" if n in r[key] else "-" for n in names]
+            print(f"| {Path(r['checkout']).name} | {sum(r['load']) / 2:.1f} | " + " | ".join(cells)
+                  + f" | {r['seams_digest'][:12]} |")
 
 
 if __name__ == "__main__":

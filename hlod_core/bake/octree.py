@@ -22,8 +22,9 @@ falls in one octant, the cell shrinks to that octant without creating a node (a 
 child would only repeat its child's LOD). A cell whose centroids all coincide (or still share one
 octant after _MAX_SHRINKS shrinks) cannot be split and becomes a leaf over the budget.
 
-Vectorised by depth: each depth costs a few passes over the triangles still in splitting nodes
-(their octant codes, counts per (node, octant)), and one stable sort by leaf at the end.
+Vectorised by depth (octree_passes.py): each depth costs two passes, in chunks, over the triangles
+still in splitting cells (their octant codes and counts per (cell, octant); then their next cell,
+those in leaves leaving), and a counting sort by leaf at the end.
 
 From counts (`build_octree_counted`, the out-of-core bakes of partition.py): the same layout,
 float for float, without an (f,3) array of centroids: one counting pass over a stream of triangles
