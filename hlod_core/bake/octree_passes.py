@@ -10,8 +10,9 @@ columns, never copied whole) are read by tris.
 
 Why in chunks of CHUNK rows: a whole-array pass allocates a new array of the input's length for
 every temporary, and numpy asks Linux for those in huge pages, whose first touch can cost the
-kernel several times the pass itself (a 120 MB copy: 0.03 s to 0.7 s of system time on the Xeon,
-as its memory is fragmented); a chunk's temporaries are small, reused, and stay in the cache.
+kernel several times the pass itself (three 40 MB copies on the Xeon, its memory fragmented by
+other work: 0.06 to 0.72 s, up to 0.32 s of it system time); a chunk's temporaries are small,
+reused, and stay in the cache.
 """
 from __future__ import annotations
 
