@@ -1,8 +1,8 @@
 """Octree partition on tiny literal inputs with exact expected layouts."""
 import numpy as np
 
-from hlod_core.bake import cache
-from hlod_core.bake.octree import RootCube, build_octree, tight_cube
+from hlod_core.bake import cache, octree_passes
+from hlod_core.bake.octree import RootCube, build_octree, build_octree_counted, tight_cube
 
 
 def _corner_centroids():
@@ -163,3 +163,24 @@ def test_a_root_grows_toward_the_side_the_centroids_leave_it_on():
     assert base.grown_to(np.array([-5.0, 0.0, 0.0]), np.ones(3), most=2) is None  # beyond two doublings
     top = grown.top
     assert top.side == 4.0 and top.contains(np.array([-0.1, 0.0, 0.0]), np.array([1.2, 1.0, 1.0]))
+
+
+def test_passes_over_chunks_of_one_cell_give_the_octree_from_counts(monkeypatch):
+    """Each leaf's centroids in a row (as an object's triangles come) and chunks of 40 rows: most
+    chunks lie in one cell, hundreds of cells deep down, and take its planes as scalars
+    (octree_passes.ActiveTriangles.octants). The same layout as the octree from counts, and the
+    triangles already in leaf order."""
+    rng = np.random.default_rng(11)
+    c = np.concatenate([rng.normal(size=(4000, 3)) * scale + offset for scale, offset in ((0.1, 0.0), (1.0, 5.0),
+                                                                                         (3.0, -8.0))])
+    c = c[build_octree(c, target_tris=12, max_depth=12).tri_order]
+    root = tight_cube(c.min(axis=0), c.max(axis=0))
+    monkeypatch.setattr(octree_passes, "CHUNK", 40)
+    got = build_octree(c, target_tris=12, max_depth=12, root=root)
+    want = build_octree_counted(lambda query: query.count(c, np.ones(c.shape[0], bool)), root=root,
+                                tri_count=c.shape[0], counted_count=c.shape[0], target_tris=12, max_depth=12).layout
+    assert got.node_count > 1000
+    for name in ("parent", "child_offset", "child_count", "depth", "tri_begin", "tri_end", "cell_center",
+                 "cell_half", "cell_level"):
+        assert np.array_equal(getattr(got, name), getattr(want, name)), name
+    assert np.array_equal(got.tri_order, np.arange(c.shape[0]))

@@ -70,7 +70,8 @@ def test_octree_from_counts_is_build_octree_float_for_float(seed, monkeypatch):
     on splitting planes (rounded), coincident ones (an unsplittable leaf), uncounted ones; chunks
     and levels per pass varied: every node, cell and range equal, and every centroid routes to
     the leaf build_octree put it in. build_octree's own passes (octree_passes) run in chunks of
-    a few dozen rows in odd seeds, with their sort by leaf as a wide-key sort in some, and read
+    a few dozen rows in odd seeds (in some over centroids in the order of their leaves, so that
+    many chunks lie in one cell), with their sort by leaf as a wide-key sort in some, and read
     F-ordered centroids in others (as prepare makes them)."""
     if seed % 2:
         monkeypatch.setattr(octree_passes, "CHUNK", 37 + seed)
@@ -86,6 +87,8 @@ def test_octree_from_counts_is_build_octree_float_for_float(seed, monkeypatch):
         c = np.round(c, 1)
     counted = rng.random(c.shape[0]) > 0.1
     target, depth = int(rng.integers(5, 200)), int(rng.integers(0, 14))
+    if seed % 4 == 3:  # each leaf's centroids in a row, as an object's come: many chunks of one cell, deep down too
+        c = c[octree.build_octree(c, target_tris=target, max_depth=depth, counted=counted).tri_order]
     root, got = _counted_octree(c, counted, target_tris=target, max_depth=depth, chunk=int(rng.integers(7, 400)),
                                 levels=int(rng.integers(1, 9)))
     ref = octree.build_octree(np.asfortranarray(c) if seed % 3 == 1 else c, target_tris=target, max_depth=depth,

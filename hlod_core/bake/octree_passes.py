@@ -53,6 +53,12 @@ class ActiveTriangles:
         for start in range(0, self.t, CHUNK):
             end = min(self.t, start + CHUNK)
             cell8 = self.cell8[start:end]
+            one = int(cell8[0])
+            if (cell8 == one).all():  # one cell (shallow depths, or an object's run): its planes as scalars
+                octant = octant_codes(self.points(start, end), one, spread)
+                np.add(octant, one, out=self.key[start:end], dtype=np.int64)  # int64 under any promotion rules
+                per[one:one + 8] += np.bincount(octant, minlength=8)
+                continue
             octant = octant_codes(self.points(start, end), cell8, spread)
             key = self.key[start:end]
             np.add(cell8, octant, out=key)
@@ -96,10 +102,10 @@ class ActiveTriangles:
         self.t = kept
 
 
-def octant_codes(xyz: list[np.ndarray], index: np.ndarray, plane: np.ndarray) -> np.ndarray:
+def octant_codes(xyz: list[np.ndarray], index: np.ndarray | int, plane: np.ndarray) -> np.ndarray:
     """(r,) uint8 octant of the points xyz (three (r,) float64) in the cells whose planes are column
-    index (r,) int64 of plane (3,.): bit a set on the + side of axis a (a point on a plane on its +
-    side)."""
+    index (r,) int64 (or one int for all) of plane (3,.): bit a set on the + side of axis a (a point
+    on a plane on its + side)."""
     octant = None
     for a in range(3):
         bit = (xyz[a] >= plane[a].take(index)).view(np.uint8)
