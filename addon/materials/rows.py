@@ -72,7 +72,8 @@ def material_row(material) -> Material:
         metallic, roughness = 0.0, 1.0
     return Material(name=material.name_full, base_color=tuple(float(np.clip(c, 0.0, 1.0)) for c in base),
                     metallic=float(np.clip(metallic, 0.0, 1.0)), roughness=float(np.clip(roughness, 0.0, 1.0)),
-                    texture=texture, image=image, alpha_mode=alpha_mode, alpha_cutoff=float(alpha_cutoff))
+                    texture=texture, image=image, alpha_mode=alpha_mode, alpha_cutoff=float(alpha_cutoff),
+                    double_sided=not material.use_backface_culling)
 
 
 def uses_nodes(material) -> bool:
@@ -99,6 +100,7 @@ def material_from_row(row: Material):
         return material
     material = bpy.data.materials.new(row.name)
     material.diffuse_color, material.metallic, material.roughness = row.base_color, row.metallic, row.roughness
+    material.use_backface_culling = not row.double_sided
     if material.node_tree is None:  # Blender 4: a new material has no nodes until asked
         material.use_nodes = True
     principled = principled_node(material)
