@@ -451,6 +451,7 @@ def check_scene_reading(repo, work) -> dict:
                                                                    double_sided=sided)) for sided in (True, False)}
     out["double_sided"] = {"read": {"clip": rows[True].double_sided, "blend": rows[False].double_sided},
                            "made_culls": {str(k): m.use_backface_culling for k, m in made.items()}}
+    out["made_alpha_mode"] = materials.material_row(made[True]).alpha_mode  # Materialize's cut-out read back
     placed = _placed(material_texture, dataclasses.replace(mesh, materials=(rows[True], rows[False])),
                      Path(work) / "out.hlod")
     out["placed"] = sorted(str(Path(m.texture).relative_to(Path(work).resolve())) for m in placed.materials)

@@ -46,7 +46,8 @@ def test_scene_reading_carries_uv_maps_colour_attributes_and_alpha(versioned_rep
     the triangles' UVs; a Color Attribute node naming a non-active attribute, multiplied by a tint,
     becomes the vertex colours (exactly attribute x tint, base colour white); a clipped image alpha
     gives MASK, a smooth one BLEND; Backface Culling gives a one-sided row and a one-sided row a
-    material with Backface Culling (Materialize); the written textures are placed in OUT.textures/."""
+    material with Backface Culling, and a MASK row a material whose cut-out reads back as MASK
+    (Materialize); the written textures are placed in OUT.textures/."""
     out = blender(versioned_repo, "scene_reading", tmp_path, script="blender_material_checks.py")
     all_hold(out, mapping=out["mapping"]["uv_error"] < 1e-6 and not out["mapping"]["identity"],
              uv_map=out["uv_map"]["uv_error"] < 1e-6,
@@ -54,6 +55,7 @@ def test_scene_reading_carries_uv_maps_colour_attributes_and_alpha(versioned_rep
              alpha=out["alpha_modes"] == {"clip": "MASK", "blend": "BLEND"},
              double_sided=out["double_sided"] == {"read": {"clip": False, "blend": True},
                                                   "made_culls": {"True": False, "False": True}},
+             made_alpha=out["made_alpha_mode"] == "MASK",
              placed=out["placed"] == ["out.textures/alpha_False.png", "out.textures/alpha_True.png"])
 
 
