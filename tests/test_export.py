@@ -616,7 +616,7 @@ def test_quantized_tiles_decode_to_the_plain_ones_and_pass_the_validators(bakes,
     quantized GLB requires KHR_mesh_quantization, its positions through the node's translation and
     uniform scale are the plain ones within half a step (the largest side / 65534) and inside the
     tile's box, its normals within half an int8 step, its colours half a uint16 step; indices and the
-    tileset are the plain export's; the glTF
+    tileset are the plain export's (the tileset's extras.mesh names the encoding); the glTF
     validator finds no error and no warning the plain GLB does not have; bytes go down."""
     _, h = bakes.baked("cow", target_tris=300)
     rng = np.random.default_rng(7)
@@ -628,7 +628,9 @@ def test_quantized_tiles_decode_to_the_plain_ones_and_pass_the_validators(bakes,
     plain = last_json(hlod("-q", "export", src, "-o", tmp_path / "plain"))
     quantized = last_json(hlod("-q", "export", src, "-o", tmp_path / "quantized", "--mesh", "quantized"))
     assert (plain["mesh"], quantized["mesh"]) == ("plain", "quantized") and quantized["bytes"] < plain["bytes"]
-    assert (tmp_path / "plain/tileset.json").read_bytes() == (tmp_path / "quantized/tileset.json").read_bytes()
+    tileset, plain_tileset = (json.loads((tmp_path / f"{name}/tileset.json").read_text())
+                              for name in ("quantized", "plain"))
+    assert tileset.pop("extras") == {"mesh": "quantized"} and "extras" not in plain_tileset and tileset == plain_tileset
     h = fileformat.load(src)
     origin = np.asarray(h.origin)
     for node in range(h.node_count):
@@ -703,13 +705,16 @@ def test_draco_tiles_decode_to_the_plain_ones_and_pass_the_validators(tmp_path):
     every vertex within a step of Draco's quantization of a plain vertex (draco.POSITION_BITS of the
     part's largest side, NORMAL_BITS, UV_BITS of their range; colours half an 8-bit step); the tileset
     and the images are the plain export's; the glTF validator and 3d-tiles-tools find no error and no warning the plain
-    export does not have, and the triangle counts the hierarchy stores."""
+    export does not have, and the triangle counts the hierarchy stores. The tileset is the plain
+    export's with extras.mesh naming the encoding (the viewer starts CesiumJS's Draco decoder on it)."""
     png, jpeg = write_textures(tmp_path)
     src = fileformat.save(with_appearance(literal_hlod(normals=True), png, jpeg), tmp_path / "lit.hlod")
     plain = last_json(hlod("-q", "export", src, "-o", tmp_path / "plain"))
     draco = last_json(hlod("-q", "export", src, "-o", tmp_path / "draco", "--mesh", "draco"))
     assert (draco["mesh"], draco["image_files"]) == ("draco", plain["image_files"])  # bytes: tiny tiles, no gain
-    assert (tmp_path / "plain/tileset.json").read_bytes() == (tmp_path / "draco/tileset.json").read_bytes()
+    tileset, plain_tileset = (json.loads((tmp_path / f"{name}/tileset.json").read_text())
+                              for name in ("draco", "plain"))
+    assert tileset.pop("extras") == {"mesh": "draco"} and "extras" not in plain_tileset and tileset == plain_tileset
     h = fileformat.load(src)
     for node in range(h.node_count):
         a, a_bin = read_glb(tmp_path / f"plain/tiles/{node}.glb")

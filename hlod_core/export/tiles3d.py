@@ -214,13 +214,22 @@ class _Tiles:
         return [node, *(n for c in self.children[node] for n in self._subtree(c))]
 
 
-def tileset(hlod: Hlod, content_uri, *, place: Place | None = None) -> dict:
+def tileset(hlod: Hlod, content_uri, *, place: Place | None = None, mesh: str = "plain") -> dict:
     """The tileset JSON of the whole tree in one document; content_uri(node) names each node's GLB.
     The root's transform is `root_transform` (on the globe at `place` when given, which the
-    document's extras.place also names). InputError without triangles."""
+    document's extras.place also names; `_extras`). InputError without triangles."""
     tiles = _tiles(hlod)
-    extras = None if place is None else {"place": place.as_dict()}
-    return tiles.document(tiles.tile(0, content_uri), root_transform(hlod, place), extras)
+    return tiles.document(tiles.tile(0, content_uri), root_transform(hlod, place), _extras(place, mesh))
+
+
+def _extras(place: Place | None, mesh: str) -> dict | None:
+    """The first tileset's extras: `place` (where it stands on the globe) and `mesh` (the tiles'
+    encoding, where it is not plain: a viewer that knows its tiles are Draco starts its decoder
+    while it loads the tileset); None when there is neither."""
+    extras = {} if place is None else {"place": place.as_dict()}
+    if mesh != "plain":
+        extras["mesh"] = mesh
+    return extras or None
 
 
 def _tiles(hlod: Hlod) -> _Tiles:
@@ -239,14 +248,15 @@ def root_transform(hlod: Hlod, place: Place | None = None) -> np.ndarray:
     return transform if place is None else place.frame() @ transform
 
 
-def tileset_files(hlod: Hlod, *, place: Place | None = None, max_tiles: int = MAX_TILES_PER_FILE) -> dict[str, dict]:
+def tileset_files(hlod: Hlod, *, place: Place | None = None, max_tiles: int = MAX_TILES_PER_FILE,
+                  mesh: str = "plain") -> dict[str, dict]:
     """The tileset split into external tilesets: {path in the export: tileset JSON}. "tileset.json"
     holds the top of the tree (at most `max_tiles` tiles, `chunks`); a subtree cut off is
     tiles/<node>.json, referred to by a tile with its node's box and error whose content is that
     file (3D Tiles 1.1 "external tileset"; the referring tile's transform applies to it). GLBs are
     tiles/<node>.glb as in one document. Boxes, errors, the root's transform and extras are tileset()'s."""
     tiles = _tiles(hlod)
-    transform, extras = root_transform(hlod, place), None if place is None else {"place": place.as_dict()}
+    transform, extras = root_transform(hlod, place), _extras(place, mesh)
     files = {}
     for top, held in tiles.chunks(max_tiles).items():
         prefix = f"{TILE_FOLDER}/" if top == 0 else ""  # URIs are relative to the file that holds them
@@ -295,8 +305,8 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
         os.chmod(staging, umask_mode(0o777))  # mkdtemp makes it 0700; the export is an ordinary folder
         images, warnings = copy_textures(hlod, staging / TEXTURE_FOLDER, textures)
         written, tris, held, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images, mesh=mesh)
-        document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb", place=place)
-        files = write_tileset(hlod, staging, document, place=place)
+        document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb", place=place, mesh=mesh)
+        files = write_tileset(hlod, staging, document, place=place, mesh=mesh)
         warnings = warnings + replace_export(out_dir, staging, platform=platform)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -310,16 +320,17 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
             "warnings": warnings}
 
 
-def write_tileset(hlod: Hlod, folder: Path, document: dict, *, place: Place | None = None) -> dict[str, int]:
+def write_tileset(hlod: Hlod, folder: Path, document: dict, *, place: Place | None = None,
+                  mesh: str = "plain") -> dict[str, int]:
     """Write the tileset JSON into `folder` (its tiles/ made): `document` (tileset()) as one indented
     tileset.json while that is at most ONE_FILE_MAX_BYTES, else split into external tilesets
-    (tileset_files at `place`, the document's), compact. Returns {path: bytes written}."""
+    (tileset_files at `place` and `mesh`, the document's), compact. Returns {path: bytes written}."""
     text = json.dumps(document, indent=1).encode()
     if len(text) <= ONE_FILE_MAX_BYTES:
         (folder / "tileset.json").write_bytes(text)
         return {"tileset.json": len(text)}
     written = {}
-    for path, part in tileset_files(hlod, place=place).items():
+    for path, part in tileset_files(hlod, place=place, mesh=mesh).items():
         data = json.dumps(part, separators=(",", ":")).encode()
         (folder / path).write_bytes(data)
         written[path] = len(data)
