@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from helpers import file_bytes
-from hlod_core.bake import cache_keys, cache_proxies
+from hlod_core.bake import cache_files, cache_keys, cache_proxies
 from hlod_core.bake.appearance import proxy_task
 from hlod_core.bake.appearance.proxy import ProxySettings
 from hlod_core.bake.cache_files import CorruptEntry
@@ -110,8 +110,11 @@ def test_a_warm_cache_gives_the_file_and_textures_of_a_bake_from_scratch(row, tm
     expected = file_bytes(row.scratch, tmp_path / "scratch.hlod")
     assert file_bytes(row.first, tmp_path / "first.hlod") == expected == file_bytes(warm, tmp_path / "warm.hlod")
     assert row.textures.files("first") == row.textures.files("scratch") == textures.files("warm")
-    # the budget counts the textures: the folder holds at least every PNG the bake wrote
-    assert warm.meta["cache"]["size_mb"] * 2**20 >= sum(len(b) for b in textures.files("warm").values())
+    # the budget counts the textures: they are inside the node entries, whose bytes the folder's size counts
+    stored = [cache_files.unpack(p.read_bytes(), bytes.fromhex(p.stem), "node")[1].get(cache_proxies.PNG)
+              for p in folder.glob("*.hlodc")]
+    assert sorted(a.tobytes() for a in stored if a is not None) == sorted(textures.files("warm").values())
+    assert warm.meta["cache"]["size_mb"] == round(sum(p.stat().st_size for p in folder.iterdir()) / 2**20, 3)
 
 
 def test_a_moved_sphere_reuses_the_others_proxies_renumbered(row, tmp_path, monkeypatch):

@@ -37,7 +37,8 @@ Size: entries are kept across bakes within a budget (`DEFAULT_BUDGET_MB`, settab
 complete bake the least recently used entries (file modification times: a bake touches every entry
 it reads) are removed until the folder fits, never one the bake used (`prune`). So an undo re-bakes
 from the cache, and bakes of different scenes sharing one folder keep each other's entries while
-they fit. One bake's entries take about 1.5 times its .hlod.
+they fit. One bake's entries take about 1.5 times its .hlod, plus its proxies' textures, which the
+budget counts.
 """
 from __future__ import annotations
 
