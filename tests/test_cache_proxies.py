@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from helpers import file_bytes
-from hlod_core.bake import cache_files, cache_keys, cache_proxies
+from hlod_core.bake import cache, cache_files, cache_keys, cache_proxies
 from hlod_core.bake.appearance import proxy_task
 from hlod_core.bake.appearance.proxy import ProxySettings
 from hlod_core.bake.cache_files import CorruptEntry
@@ -213,3 +213,13 @@ def test_png_pixels_reads_back_what_png_bytes_writes():
         assert np.array_equal(png_pixels(png_bytes(image, level=1)), image)
     with pytest.raises(ValueError):
         png_pixels(b"not a png")
+
+
+def test_a_hit_counts_only_where_every_inner_node_below_it_is_a_hit():
+    """With proxies a parent's task reads its children's textures: a hit above an inner node that
+    missed (an entry evicted or spoilt) is rebuilt too, with every node between them."""
+    layout = _layout()
+    hits = {0: "root", 2: "inner"}
+    assert cache._whole_subtrees(layout, hits) == hits
+    assert cache._whole_subtrees(layout, {0: "root"}) == {}  # node 2 missed: the root is rebuilt
+    assert cache._whole_subtrees(layout, {2: "inner"}) == {2: "inner"}
