@@ -220,6 +220,6 @@ def test_a_hit_counts_only_where_every_inner_node_below_it_is_a_hit():
     missed (an entry evicted or spoilt) is rebuilt too, with every node between them."""
     layout = _layout()
     hits = {0: "root", 2: "inner"}
-    assert cache._whole_subtrees(layout, hits) == hits
-    assert cache._whole_subtrees(layout, {0: "root"}) == {}  # node 2 missed: the root is rebuilt
-    assert cache._whole_subtrees(layout, {2: "inner"}) == {2: "inner"}
+    assert cache.whole_subtrees(layout, hits) == hits
+    assert cache.whole_subtrees(layout, {0: "root"}) == {}  # node 2 missed: the root is rebuilt
+    assert cache.whole_subtrees(layout, {2: "inner"}) == {2: "inner"}

@@ -229,7 +229,7 @@ class BakeCache:
             if hit is not None:
                 hits[int(node)] = hit
         if self._plan is not None:
-            hits = _whole_subtrees(layout, hits)
+            hits = whole_subtrees(layout, hits)
             for node, (_, _, proxy) in hits.items():
                 if proxy is not None:
                     self._plan.restore(node, *proxy)
@@ -431,7 +431,7 @@ class BakeCache:
                         len(self.rejected), name, why)
 
 
-def _whole_subtrees(layout: OctreeLayout, hits: dict) -> dict:
+def whole_subtrees(layout: OctreeLayout, hits: dict) -> dict:
     """The hits every inner node below which is a hit too (deepest first: children have larger ids)."""
     whole = dict(hits)
     for node in sorted(hits, reverse=True):
