@@ -4,7 +4,8 @@ without pickle and checked before anything in it is used.
 Data form: preamble (magic, CACHE_VERSION, reserved 0, payload length, blake2b-256 digest of the
 payload), then the payload: a JSON header (the key, the kind, the arrays' table, extra entries)
 and the raw little-endian arrays. A node entry holds a LOD (positions, faces, normals, attribute
-rows), its error and SUMMARY_FIELDS; a result entry an Hlod's arrays and the meta.DERIVED_META
+rows), its error, SUMMARY_FIELDS and, in a bake with proxy materials, the node's proxy
+(cache_proxies.py); a result entry an Hlod's arrays and the meta.DERIVED_META
 entries. An entry that fails a check raises `CorruptEntry`, whose message says why.
 """
 from __future__ import annotations
@@ -22,7 +23,7 @@ from .meta import DERIVED_META
 from .simplify import NodeLod
 
 #: Version of the entry format and of the keys' recipe; any change to either bumps it.
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 MAGIC = b"HLODCACH"
 #: Bytes of a key and of a digest (blake2b).
 KEY_BYTES = 32
