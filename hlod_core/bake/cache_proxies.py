@@ -9,7 +9,7 @@ the node itself), which a hit walks in the new bake's octree. An entry of a node
 holds its texture (the PNG bytes the bake wrote, array "proxy_png" (b,) uint8) and its
 proxy_plan.ProxyMade fields but the file (extra "proxy"); the texture's bytes count in the
 folder's budget like every other entry's.
-Why: docs/how-it-works.md#re-bakes-and-the-cache-keys
+Why: docs/how-it-works.md#proxy-materials-in-the-cache
 """
 from __future__ import annotations
 
