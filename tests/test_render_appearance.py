@@ -370,7 +370,8 @@ def test_textures_are_shared_per_image_and_released(gl_ctx, checker):
     renderer = Renderer(gl_ctx, twice, size=SIZE, images={0: image, 1: image})
     made = [r for r in renderer.gl_objects if isinstance(r, moderngl.Texture)]
     names = [t.glo for t in made]
-    assert len(made) == 1 and renderer.appearance.texture[0] is renderer.appearance.texture[1] is made[0]
+    look = renderer.appearance
+    assert len(made) == 1 and look.row_texture[0] == look.row_texture[1] == 0 and look.textures[0] is made[0]
     is_texture = _gl_function(gl_ctx, "glIsTexture", ctypes.c_uint8, ctypes.c_uint32)
     _draw(renderer, _front_view())
     assert all(is_texture(n) for n in names)

@@ -44,8 +44,8 @@ class FrameStats:
     probes: int = 0         # of `queries`, those of a probe while the queries were off (query_gate)
     substitutions: int = 0  # nodes drawn in place of children whose geometry was not resident yet
     waiting: int = 0        # nodes wanted and still not resident after the frame's uploads
-    resident_bytes: int = 0  # node geometry on the GPU after the frame
-    upload_bytes: int = 0    # node geometry uploaded after the frame
+    resident_bytes: int = 0  # node geometry and textures on the GPU after the frame
+    upload_bytes: int = 0    # node geometry and textures uploaded after the frame
     upload_ms: float = 0.0   # of frame_ms, the evictions and uploads after the frame
     depth_import_ms: float = 0.0  # of frame_ms, the host's depth uploaded and written at the frame's start
     drawn: list = field(default_factory=list)       # node ids in draw order (not counters)
