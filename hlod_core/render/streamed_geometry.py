@@ -35,6 +35,16 @@ def node_bytes(hlod: Hlod, *, with_uv: bool, with_colour: bool) -> np.ndarray:
             + np.asarray(hlod.tri_count, np.int64) * INDEX_BYTES)
 
 
+def node_residency(hlod: Hlod, *, textures: TextureTable, with_uv: bool, with_colour: bool,
+                   settings: StreamingSettings) -> Residency:
+    """The residency of `hlod`'s nodes under `settings`: each node's geometry (node_bytes) and the
+    textures of `textures` it draws with."""
+    return Residency(child_offset=hlod.child_offset, child_count=hlod.child_count, depth=hlod.depth,
+                     node_bytes=node_bytes(hlod, with_uv=with_uv, with_colour=with_colour),
+                     node_textures=textures.node_textures(hlod), texture_bytes=textures.texture_bytes,
+                     settings=settings)
+
+
 class _NodeBuffers:
     """One resident node's GL objects: `vao` (node program) and `parts_vao` (appearance program or None)."""
 
@@ -56,10 +66,8 @@ class StreamedGeometry:
         self.parts_program = None if appearance is None else appearance.program
         self.with_uv = appearance is not None and appearance.has_uv
         self.with_colour = appearance is not None and appearance.has_color
-        self.residency = Residency(child_offset=hlod.child_offset, child_count=hlod.child_count, depth=hlod.depth,
-                                   node_bytes=node_bytes(hlod, with_uv=self.with_uv, with_colour=self.with_colour),
-                                   node_textures=textures.node_textures(hlod), texture_bytes=textures.texture_bytes,
-                                   settings=settings)
+        self.residency = node_residency(hlod, textures=textures, with_uv=self.with_uv, with_colour=self.with_colour,
+                                        settings=settings)
         self._textures: dict[int, object] = {}  # texture number -> moderngl.Texture (the appearance's ones)
         self._vertex_offset = np.asarray(hlod.vertex_offset, np.int64).tolist()
         self._vertex_count = np.asarray(hlod.vertex_count, np.int64).tolist()

@@ -77,7 +77,8 @@ def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, *, path: Camera
 def streaming_summary(renderer: Renderer, stats: list[FrameStats], *, first_frame_ms: float) -> dict:
     """The GPU budget's summary of a run, node geometry and textures counted together:
     gpu_budget_bytes (0: unlimited), gpu_resident_bytes_peak, uploaded_bytes (the start's uploads
-    included), ancestor_substitutions (over all frames), upload_ms_max (the most a frame spent on evictions and uploads) and first_frame_ms."""
+    included), ancestor_substitutions (over all frames), upload_ms_max (the most a frame spent on
+    evictions and uploads) and first_frame_ms."""
     residency = renderer.residency
     if residency is None:
         whole = renderer.gpu_bytes
