@@ -108,6 +108,24 @@ def test_an_eviction_frees_the_textures_no_resident_node_uses():
     assert residency.resident_bytes == 50 + 110 and residency.texture_resident.tolist() == [True, False, True]
 
 
+def test_a_texture_the_next_upload_draws_with_is_kept_through_its_users_eviction():
+    """Budget 165 holds the root and leaf 1 (160); leaf 2 shares leaf 1's texture, so making room
+    for it evicts leaf 1's geometry alone, and texture 1 stays: not freed and made again."""
+    residency = _tree(165)
+    residency.uploaded(0)
+    residency.uploaded(1)
+    residency.begin_frame()
+    residency.use(0)
+    assert not residency.can_refine(0, visible=True, error_over_tau=2.0, needed=lambda leaf: leaf == 2)
+    plan = residency.plan()
+    assert plan.evict == (1,) and plan.upload == (2,)
+    assert residency.evicted(1) == () and residency.texture_resident[1]
+    assert residency.textures_to_make(2) == ()
+    residency.uploaded(2)
+    assert residency.resident_bytes == 160 and residency.uploaded_bytes == 50 + 110 + 10
+    assert residency.evicted(2) == (1,)  # its last user gone, no upload planned: freed
+
+
 # --- on the GPU --------------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

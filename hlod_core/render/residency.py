@@ -101,6 +101,8 @@ class Residency:
         self._textures = [()] * n if node_textures is None else [tuple(t) for t in node_textures]
         self._texture_size = self.texture_bytes.tolist()
         self.texture_users = np.zeros(self.texture_bytes.shape[0], np.int64)  # resident nodes using each
+        self._planned_textures: set[int] = set()  # the textures the last plan's uploads draw with
+        self._held: set[int] = set()  # of those, the ones whose last user was evicted before they came
         self._child_offset = np.asarray(child_offset, np.int64).tolist()
         self._child_count = np.asarray(child_count, np.int64).tolist()
         self._bytes = self.node_bytes.tolist()
@@ -142,13 +144,15 @@ class Residency:
 
     @property
     def texture_resident(self) -> np.ndarray:
-        """(k,) bool: the textures some resident node uses."""
-        return self.texture_users > 0
+        """(k,) bool: the textures some resident node uses (or a planned upload will)."""
+        resident = self.texture_users > 0
+        resident[list(self._held)] = True
+        return resident
 
     def textures_to_make(self, node: int) -> tuple[int, ...]:
         """The textures `node` uses that are not resident: the owner makes them with it."""
-        users = self.texture_users
-        return tuple(t for t in self._textures[node] if users[t] == 0)
+        users, held = self.texture_users, self._held
+        return tuple(t for t in self._textures[node] if users[t] == 0 and t not in held)
 
     # --- the start ---------------------------------------------------------------------------------
 
@@ -157,18 +161,21 @@ class Residency:
         return tuple(int(i) for i in np.flatnonzero(self.pinned))
 
     def uploaded(self, node: int) -> None:
-        """The owner uploaded `node` and made its `textures_to_make`."""
+        """The owner uploaded `node` and made its `textures_to_make` (after a plan's evictions)."""
+        self._planned_textures = set()  # the plan's evictions are done
         if not self.resident[node]:
             size = self._bytes[node] + sum(self._texture_size[t] for t in self.textures_to_make(node))
             for t in self._textures[node]:
                 self.texture_users[t] += 1
+                self._held.discard(t)
             self.resident[node] = True
             self.resident_bytes += size
             self.uploaded_bytes += size
             self.resident_bytes_peak = max(self.resident_bytes_peak, self.resident_bytes)
 
     def evicted(self, node: int) -> tuple[int, ...]:
-        """The owner freed `node`; the textures no resident node uses now (the owner frees them)."""
+        """The owner freed `node`; the textures no resident node uses now (the owner frees them).
+        A texture that a node the plan uploads draws with is kept for it, not freed and made again."""
         if not self.resident[node]:
             return ()
         self.resident[node] = False
@@ -176,7 +183,11 @@ class Residency:
         unused = []
         for t in self._textures[node]:
             self.texture_users[t] -= 1
-            if self.texture_users[t] == 0:
+            if self.texture_users[t] > 0:
+                continue
+            if t in self._planned_textures:
+                self._held.add(t)
+            else:
                 unused.append(t)
                 self.resident_bytes -= self._texture_size[t]
         return tuple(unused)
@@ -277,4 +288,5 @@ class Residency:
             upload.append(node)
             projected += size
             sent += size
+        self._planned_textures = {t for node in upload for t in self._textures[node]}
         return Plan(evict=tuple(evict), upload=tuple(upload))
