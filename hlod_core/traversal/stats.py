@@ -16,7 +16,7 @@ LATER_COUNTERS = {"queries_off": 0.0}
 #: FrameStats' counters of the query stream (CHC++), after COUNTERS: not columns of the
 #: evaluation's per-frame files, which keep the counters they were saved with.
 QUERY_COUNTERS = ("multiqueries", "state_changes", "predicted", "probes")
-#: FrameStats' counters of streamed node geometry (render.residency), 0 without a GPU budget.
+#: FrameStats' counters of streamed node geometry and textures (render.residency), 0 without a GPU budget.
 STREAM_COUNTERS = ("substitutions", "waiting", "resident_bytes", "upload_bytes", "upload_ms")
 #: FrameStats' counter of a host's depth imported into the frame (the renderer's `depth_import_ms`;
 #: render.depth_import), 0 without one.
