@@ -186,6 +186,6 @@ class StreamedGeometry:
         self._release_textures(self.residency.evicted(node))
 
     def release(self) -> None:
-        """Free every resident node's buffers (idempotent)."""
+        """Free every resident node's buffers and every texture (idempotent)."""
         for node in list(self._nodes):
             self._evict(node)
