@@ -92,17 +92,24 @@ def test_a_budget_that_holds_the_geometry_but_not_the_textures_holds_fewer_nodes
     assert residency.substitutions == 1 and residency.waiting == 1
 
 
-def test_an_eviction_frees_the_textures_no_resident_node_uses():
-    """Budget 160, leaves wanted one at a time: leaf 3 needs 110 and only leaf 1's eviction with
-    texture 1 (110) makes room."""
-    residency = _tree(160)
+def _leaf_one_then(budget: int, wanted: int) -> Residency:
+    """The tree with the root and leaf 1 resident and leaf `wanted` asked for (the only one in
+    view) after a frame; its plan must evict leaf 1 and upload `wanted`."""
+    residency = _tree(budget)
     residency.uploaded(0)
     residency.uploaded(1)
     residency.begin_frame()
     residency.use(0)
-    assert not residency.can_refine(0, visible=True, error_over_tau=2.0, needed=lambda leaf: leaf == 3)
+    assert not residency.can_refine(0, visible=True, error_over_tau=2.0, needed=lambda leaf: leaf == wanted)
     plan = residency.plan()
-    assert plan.evict == (1,) and plan.upload == (3,)
+    assert plan.evict == (1,) and plan.upload == (wanted,)
+    return residency
+
+
+def test_an_eviction_frees_the_textures_no_resident_node_uses():
+    """Budget 160, leaves wanted one at a time: leaf 3 needs 110 and only leaf 1's eviction with
+    texture 1 (110) makes room."""
+    residency = _leaf_one_then(160, 3)
     assert residency.evicted(1) == (1,)
     residency.uploaded(3)
     assert residency.resident_bytes == 50 + 110 and residency.texture_resident.tolist() == [True, False, True]
@@ -111,14 +118,7 @@ def test_an_eviction_frees_the_textures_no_resident_node_uses():
 def test_a_texture_the_next_upload_draws_with_is_kept_through_its_users_eviction():
     """Budget 165 holds the root and leaf 1 (160); leaf 2 shares leaf 1's texture, so making room
     for it evicts leaf 1's geometry alone, and texture 1 stays: not freed and made again."""
-    residency = _tree(165)
-    residency.uploaded(0)
-    residency.uploaded(1)
-    residency.begin_frame()
-    residency.use(0)
-    assert not residency.can_refine(0, visible=True, error_over_tau=2.0, needed=lambda leaf: leaf == 2)
-    plan = residency.plan()
-    assert plan.evict == (1,) and plan.upload == (2,)
+    residency = _leaf_one_then(165, 2)
     assert residency.evicted(1) == () and residency.texture_resident[1]
     assert residency.textures_to_make(2) == ()
     residency.uploaded(2)
