@@ -92,6 +92,27 @@ def test_a_budget_that_holds_the_geometry_but_not_the_textures_holds_fewer_nodes
     assert residency.substitutions == 1 and residency.waiting == 1
 
 
+def test_a_node_over_the_budget_with_its_texture_waits_and_the_root_stays():
+    """As for geometry alone: leaf 3 with a texture of 10,000 bytes never comes under a budget of
+    300 (the root stands in for its leaves); a root over the budget with its texture is still
+    uploaded at the start and stays, the one node's slack."""
+    residency = Residency(child_offset=np.array([1, -1, -1, -1]), child_count=np.array([3, 0, 0, 0]),
+                          depth=np.array([0, 1, 1, 1]), node_bytes=np.array([10, 10, 10, 10]),
+                          node_textures=[(0,), (1,), (1,), (2,)], texture_bytes=np.array([40, 100, 10_000]),
+                          settings=StreamingSettings(budget_bytes=300, upload_bytes_per_frame=1000))
+    residency.uploaded(0)
+    for _ in range(4):
+        _frame(residency, refine=True)
+        assert residency.resident_bytes <= 300
+    assert residency.resident.tolist() == [True, True, True, False] and residency.waiting == 1
+    over = _tree(30)
+    assert over.initial_uploads() == (0,)
+    over.uploaded(0)
+    for _ in range(3):
+        _frame(over, refine=True)
+    assert over.resident.tolist() == [True, False, False, False] and over.resident_bytes == 50
+
+
 def _leaf_one_then(budget: int, wanted: int) -> Residency:
     """The tree with the root and leaf 1 resident and leaf `wanted` asked for (the only one in
     view) after a frame; its plan must evict leaf 1 and upload `wanted`."""
