@@ -216,11 +216,12 @@ def runtime_settings_of(args: argparse.Namespace, *, bias: str = "P") -> Runtime
 
 
 def gpu_budget_option(p: argparse.ArgumentParser) -> None:
-    """--gpu-budget: node geometry streamed under a GPU memory budget (render.residency)."""
+    """--gpu-budget: node geometry and textures streamed under a GPU memory budget (render.residency)."""
     p.add_argument("--gpu-budget", type=megabytes, default=0.0, metavar="MB",
-                   help="GPU memory for node geometry, MB (2^20 bytes): nodes are uploaded as the traversal wants "
-                        "them and the least recently used evicted; a coarser resident node stands in until they "
-                        "arrive. 0 (default): unlimited, the whole file uploaded at the start")
+                   help="GPU memory for node geometry and textures, MB (2^20 bytes): nodes are uploaded with their "
+                        "textures as the traversal wants them and the least recently used evicted; a coarser "
+                        "resident node stands in until they arrive. 0 (default): unlimited, the whole file uploaded "
+                        "at the start")
 
 
 def megabytes(text: str) -> float:
