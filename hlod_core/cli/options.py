@@ -56,14 +56,17 @@ def place_text(text: str):
 
 
 def add_mesh_option(p: argparse.ArgumentParser) -> None:
-    """--mesh, the 3D Tiles tile content's encoding (export.formats.MESH_ENCODINGS), on parser `p`: the
-    core's export command and the Blender background command share it."""
+    """--mesh, the 3D Tiles tile content's encoding (export.formats.MESH_ENCODINGS), and --merge-leaves,
+    on parser `p`: the core's export command and the Blender background command share them."""
     from ..export.formats import MESH_ENCODINGS
 
     p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
                    help="3dtiles: tile content as float32 (plain), with positions and normals quantized "
                         "(KHR_mesh_quantization) or Draco compressed (KHR_draco_mesh_compression; needs "
                         "the DracoPy package)")
+    p.add_argument("--merge-leaves", action="store_true",
+                   help="3dtiles: a node's leaf children share one tile (fewer, bigger tiles: less JSON per "
+                        "triangle and fewer requests; frustum culling of the leaves by their union box)")
 
 
 def seconds(text: str) -> float:
