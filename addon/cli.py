@@ -138,7 +138,7 @@ def execute(argv: list[str]) -> int:
         try:
             place = scene_place(args.place, bpy.context.scene) if args.format == "3dtiles" else None
             summary = export_hlod(hlod_file.load(args.file), args.format, Path(args.output), stem=Path(args.file).stem,
-                                  place=place, mesh=args.mesh)
+                                  place=place, mesh=args.mesh, merge_leaves=args.merge_leaves)
         except (HlodError, OSError) as exc:
             print(f"hlod: error: {exc}", file=sys.stderr)
             return 1
@@ -218,7 +218,8 @@ def _bake_current(args, target: Path, tiles_dir: Path | None) -> dict:
         if "3dtiles" in args.format:
             tiles_dir = tiles_dir or target.with_name(target.stem + "_3dtiles")
             outputs["3dtiles"] = export_hlod(hlod_file.load(target), "3dtiles", tiles_dir, stem=target.stem,
-                                             place=place, mesh=args.mesh)["output"]
+                                             place=place, mesh=args.mesh,
+                                             merge_leaves=args.merge_leaves)["output"]
     except Exception as exc:  # noqa: BLE001 - one line per failed file, and the batch goes on
         message = _one_line(exc)
         print(f"hlod: {blend}: {message}", file=sys.stderr)

@@ -173,10 +173,10 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
                                               "Metal and Vulkan; without any GL context the queries run on the "
                                               "CPU)")
     gpu_budget_mb: FloatProperty(name="GPU Memory (MB)", default=512.0, min=0.0, max=1e6, precision=0,
-                                 description="GPU memory the preview's node geometry may take: nodes are uploaded "
-                                             "as the view wants them and the least recently used freed; a coarser "
-                                             "node stands in until they arrive. 0 = unlimited, the whole file "
-                                             "uploaded at the start")
+                                 description="GPU memory the preview's node geometry and textures may take: nodes "
+                                             "are uploaded with their textures as the view wants them and the "
+                                             "least recently used freed; a coarser node stands in until they "
+                                             "arrive. 0 = unlimited, the whole file uploaded at the start")
     # --- overlay ------------------------------------------------------------------------------
     show_modulation: BoolProperty(name="Modulation Colours", default=True,
                                   description="Blue weak, magenta moderate, red strong occlusion-driven LOD change")
@@ -205,9 +205,9 @@ class HLOD_PG_settings(bpy.types.PropertyGroup):
     stat_frame_ms: FloatProperty(name="Frame ms", get=_stat("frame_ms"))
     stat_resident_mb: FloatProperty(name="GPU Memory (MB)",
                                     get=lambda self: PREVIEW.statistic("resident_bytes") / 2**20,
-                                    description="Node geometry on the GPU after the last frame")
+                                    description="Node geometry and textures on the GPU after the last frame")
     stat_waiting: IntProperty(name="Nodes Waiting", get=_stat("waiting"),
-                              description="Nodes the view wants whose geometry is not on the GPU yet")
+                              description="Nodes the view wants that are not on the GPU yet")
     stat_changed: IntProperty(name="Changed Since Bake", get=_changed_sources,
                               description="Baked objects that changed since the bake (while the preview runs)")
     status: StringProperty(name="Status", get=lambda self: PREVIEW.status())

@@ -30,5 +30,5 @@ def runtime_settings(props) -> RuntimeSettings:
 
 
 def streaming_settings(props) -> StreamingSettings:
-    """scene.hlod -> the preview's GPU budget for node geometry (0 MB: unlimited)."""
+    """scene.hlod -> the preview's GPU budget for node geometry and textures (0 MB: unlimited)."""
     return StreamingSettings.from_megabytes(float(props.gpu_budget_mb))

@@ -19,8 +19,10 @@ made absolute). Times are bake() alone, as in bake_throughput.py (reading the in
 against its children's LODs, not every original below it); the figures go to rebake.json
 (exact) or rebake-bound.json.
 --verify also bakes the modified spec from scratch (no cache) in the full bake's frame (as
-`--frame-from` does) and checks that the re-bake gave the same arrays and the same meta but
-meta.VOLATILE_META (byte-identity).
+`--frame-from` does) and checks that the re-bake gave the same arrays, the same meta but
+meta.VOLATILE_META and the same texture files (byte-identity). A spec of textured materials (the
+statue square, tests/scenes/statue_square.py) bakes proxy materials (BakeSettings' defaults), each
+bake's textures in a temporary folder of its own.
 --work also measures what the moved re-bake cannot do without (tests/rebake_work.py): the cache is put
 back to the spec's state (a bake of the spec), then the moved spec is re-baked with jobs 1, where
 every task runs in this process, each decimation and measurement timed (wall seconds of each call,
@@ -78,9 +80,15 @@ def moved_spec(spec_path: Path, instance: int, offset: np.ndarray, *, folder: Pa
 
 
 def identical(a, b) -> bool:
+    """The same arrays, meta but meta.VOLATILE_META, and texture files byte for byte (a bake with
+    proxy materials writes their PNGs into a folder of its own: the files are compared, not the paths)."""
     arrays = all(np.array_equal(x, getattr(b, name)) for name, x in a.node_arrays().items())
     geometry = all(np.array_equal(getattr(a, name), getattr(b, name)) for name in ("origin", "positions", "indices"))
-    return arrays and geometry and stable_meta(a.meta) == stable_meta(b.meta)
+    textures = len(a.materials) == len(b.materials) and all(
+        (x.texture is None) == (y.texture is None) and (x.texture is None or x.texture == y.texture
+                                                        or Path(x.texture).read_bytes() == Path(y.texture).read_bytes())
+        for x, y in zip(a.materials, b.materials))
+    return arrays and geometry and textures and stable_meta(a.meta) == stable_meta(b.meta)
 
 
 def main() -> None:

@@ -8,7 +8,8 @@ Each file is exported once per encoding (MESH_ENCODINGS, --mesh) into a temporar
 (hlod_core.export.tiles3d.export) and every GLB's buffer views are summed by what they serve:
 POSITION, NORMAL, TEXCOORD_0, COLOR_0, indices, draco (a Draco mesh holds all of them), and the
 rest of the GLB (JSON chunk, headers, padding); the tileset JSON files and the texture files are
-counted apart; then the Draco export again with its textures re-encoded (--textures jpeg, webp).
+counted apart; then the Draco export again with its textures re-encoded (--textures jpeg, webp), and
+with each node's leaves in one tile (--merge-leaves).
 Prints one JSON object per file: nodes, stored triangles, and for each export the bytes by part,
 the GLB bytes per stored triangle, the triangles the GLBs hold (Draco stores no triangle whose
 corners repeat a vertex), the whole export's bytes and the export's seconds (a rough figure: the
@@ -75,21 +76,24 @@ def main(argv: list[str] | None = None) -> None:
         row = {"file": str(file), "nodes": hlod.node_count, "stored_triangles": int(hlod.tri_count.sum()),
                "normals": hlod.normals is not None, "uvs": hlod.uvs is not None, "colors": hlod.colors is not None}
         with tempfile.TemporaryDirectory(prefix="tile_bytes.") as scratch:
-            for name, textures in [*((m, "original") for m in tiles3d.MESH_ENCODINGS),
-                                   *((COMPACT_MESH, t) for t in COMPACT_TEXTURES)]:
+            for name, textures, merge in [*((m, "original", False) for m in tiles3d.MESH_ENCODINGS),
+                                          *((COMPACT_MESH, t, False) for t in COMPACT_TEXTURES),
+                                          (COMPACT_MESH, "original", True)]:
                 key = name if textures == "original" else f"{name}+{textures}"
+                key += "+merged_leaves" if merge else ""
                 folder = Path(scratch) / key
                 start = time.perf_counter()
-                summary = tiles3d.export(hlod, folder, mesh=name, textures=textures)
+                summary = tiles3d.export(hlod, folder, mesh=name, textures=textures, merge_leaves=merge)
                 seconds = time.perf_counter() - start
                 parts = measure(folder)
-                row[key] = {**parts, "glb_bytes": summary["bytes"],
+                row[key] = {**parts, "tiles": summary["tiles"], "glb_bytes": summary["bytes"],
                             "glb_bytes_per_triangle": summary["bytes"] / row["stored_triangles"],
                             "glb_triangles": summary["glb_triangles"],
                             "export_bytes": summary["bytes"] + parts["tileset_json"] + parts["textures"],
                             "export_s": round(seconds, 2)}
                 shutil.rmtree(folder)
-        row["glb_ratio"] = {name: row[name]["glb_bytes"] / row["plain"]["glb_bytes"] for name in tiles3d.MESH_ENCODINGS}
+        row["glb_ratio"] = {name: row[name]["glb_bytes"] / row["plain"]["glb_bytes"]
+                            for name in (*tiles3d.MESH_ENCODINGS, f"{COMPACT_MESH}+merged_leaves")}
         if row["plain"]["textures"]:
             row["texture_ratio"] = {t: row[f"{COMPACT_MESH}+{t}"]["textures"] / row["plain"]["textures"]
                                     for t in COMPACT_TEXTURES}

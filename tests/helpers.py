@@ -11,6 +11,7 @@ use it, not the collection of every test.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import hashlib
 import importlib.util
 import json
@@ -243,3 +244,10 @@ def extension_package(name: str = "hlod_extension"):
     sys.modules[name] = package
     spec.loader.exec_module(package)
     return package
+
+
+def gl_function(ctx, name: str, restype, *argtypes):
+    """A GL entry point of moderngl context `ctx` that moderngl does not wrap, as a ctypes function."""
+    loader = ctx.mglo._context
+    load = getattr(loader, "load", None) or loader.load_opengl_function
+    return ctypes.CFUNCTYPE(restype, *argtypes)(load(name))

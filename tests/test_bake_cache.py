@@ -14,7 +14,7 @@ import pytest
 
 import rebake_work
 from helpers import file_bytes, load_model, model
-from hlod_core.bake import cache, cache_files, checks, hausdorff, meshlab, prepare, simplify, tasks
+from hlod_core.bake import cache, cache_files, cache_keys, checks, hausdorff, meshlab, prepare, simplify, tasks
 from hlod_core.bake.frame import Frame
 from hlod_core.bake.meta import VOLATILE_META
 from hlod_core.bake.octree import build_octree
@@ -452,15 +452,15 @@ def test_every_module_that_computes_lods_or_errors_keys_the_cache():
     """The cache key holds the source of RESULT_MODULES, so a change to any module that computes
     LODs or errors invalidates every entry (a stale subtree is never served). Every hlod_core module
     those modules import is one of them or names nothing a result depends on."""
-    seen, todo = set(), list(cache.RESULT_MODULES)
+    seen, todo = set(), list(cache_keys.RESULT_MODULES)
     while todo:
         name = todo.pop()
         if name in seen:
             continue
         seen.add(name)
         for module in _core_imports(name, ast.parse((CORE / f"{name.replace('.', '/')}.py").read_text())):
-            assert module in cache.RESULT_MODULES or module in _NOT_RESULT_MODULES, (name, module)
-            todo.extend([module] if module in cache.RESULT_MODULES else [])
+            assert module in cache_keys.RESULT_MODULES or module in _NOT_RESULT_MODULES, (name, module)
+            todo.extend([module] if module in cache_keys.RESULT_MODULES else [])
     assert "bake.hausdorff" in seen
 
 

@@ -213,16 +213,16 @@ def test_nodes_of_one_level_meet_bit_for_bit_along_their_seams(which, pieces_bak
 
 
 def _keys_of(mesh, *, with_seams: bool) -> list[bytes]:
-    """The bake cache's node keys of `mesh` at 4 triangles per leaf (cache.node_keys)."""
-    from hlod_core.bake import cache
+    """The bake cache's node keys of `mesh` at 4 triangles per leaf (cache_keys.node_keys)."""
+    from hlod_core.bake import cache_keys
 
     prepared = prepare.prepare(mesh)
     layout = build_octree(prepared.centroids, target_tris=4, max_depth=12, counted=prepared.counted,
                           root=prepared.root_cell)
     lods = prepare.leaf_lods(layout, prepared)
     seams = cell_seams.build(layout, lods) if with_seams else None
-    return cache.node_keys(layout, lods, origin=prepared.origin, context=bytes(32), unit_length=prepared.unit_length,
-                           seams=seams)
+    return cache_keys.node_keys(layout, lods, origin=prepared.origin, context=bytes(32),
+                                unit_length=prepared.unit_length, seams=seams)
 
 
 def test_the_cache_keys_an_inner_node_by_its_seams_too():

@@ -265,6 +265,40 @@ def test_external_tilesets_hold_the_one_document_tileset_exactly(bakes, max_tile
             assert part["geometricError"] == part["root"]["geometricError"]
 
 
+def test_merge_leaves_puts_a_nodes_leaves_in_one_tile_with_their_triangles(bakes, tmp_path):
+    """`export --merge-leaves`: the two leaves of the literal hierarchy are one tile, tiles/0-leaves.glb,
+    whose box is their boxes' union and whose error is 0, holding their triangles (positions as the
+    plain export's two GLBs, the first leaf's then the second's vertices renumbered); the root is
+    as without it; the merged tileset of a bake, split into external tilesets, is its one document."""
+    h = literal_hlod(normals=True)
+    plain, merged = (tiles3d.export(h, tmp_path / name, merge_leaves=(name == "merged"))
+                     for name in ("plain", "merged"))
+    assert (plain["tiles"], merged["tiles"], merged["glb_files"], merged["triangles"]) == (3, 2, 2, plain["triangles"])
+    docs = {name: json.loads((tmp_path / f"{name}/tileset.json").read_text()) for name in ("plain", "merged")}
+    leaves, (tile,) = docs["plain"]["root"].pop("children"), docs["merged"]["root"].pop("children")
+    assert docs["merged"] == docs["plain"]  # the root, its box, error and transform
+    boxes = np.array([c["boundingVolume"]["box"] for c in leaves])
+    lo = (boxes[:, :3] - boxes[:, [3, 7, 11]]).min(axis=0)
+    hi = (boxes[:, :3] + boxes[:, [3, 7, 11]]).max(axis=0)
+    assert tile["content"] == {"uri": "tiles/0-leaves.glb"} and tile["geometricError"] == 0.0
+    assert np.allclose(tile["boundingVolume"]["box"], [*(lo + hi) / 2, (hi - lo)[0] / 2, 0, 0, 0, (hi - lo)[1] / 2,
+                                                      0, 0, 0, (hi - lo)[2] / 2])
+    gltf, binary = read_glb(tmp_path / "merged/tiles/0-leaves.glb")
+    primitive = gltf["meshes"][0]["primitives"][0]
+    corners = accessor(gltf, binary, primitive["attributes"]["POSITION"])[accessor(gltf, binary, primitive["indices"])]
+    want = []
+    for node in (1, 2):
+        g, b = read_glb(tmp_path / f"plain/tiles/{node}.glb")
+        q = g["meshes"][0]["primitives"][0]
+        want.append(accessor(g, b, q["attributes"]["POSITION"])[accessor(g, b, q["indices"])])
+    assert np.array_equal(corners.reshape(-1, 3, 3), np.concatenate(want).reshape(-1, 3, 3))
+    _, baked = bakes.baked("cow", target_tris=200)
+    whole = tiles3d.tileset(baked, lambda tile: f"tiles/{tiles3d.tile_name(tile)}.glb", merge_leaves=True)
+    files = tiles3d.tileset_files(baked, max_tiles=20, merge_leaves=True)
+    assert len(files) > 1 and _flatten(files) == whole and "-leaves.glb" in json.dumps(whole)
+    assert _tile_count(whole["root"]) < _tile_count(tiles3d.tileset(baked, lambda node: f"tiles/{node}.glb")["root"])
+
+
 def second_read(folder) -> dict:
     """loaders.gl's reading of an export (tools/validators/read_loaders_gl.mjs): {"tilesets": files
     read, "tiles": {GLB path relative to folder: triangles decoded}}."""
@@ -279,8 +313,8 @@ def test_a_big_export_has_a_small_first_file_and_passes_the_readers(city_hlod, t
     first file at most 64 KB, the independent reader finds every node through them; a small
     tileset stays one file (test_an_export_without_appearance_is_byte_identical_to_before). A second
     reader, loaders.gl's Tiles3DLoader, reads every tileset file and decodes every tile of it and of
-    its Draco export with the triangles the bake stores, less (Draco) those whose corners repeat a
-    vertex: zero area, not stored."""
+    its Draco export with merged leaves (a node's leaves in one tile) with the triangles the bake
+    stores, less (Draco) those whose corners repeat a vertex: zero area, not stored."""
     src = fileformat.save(city_hlod, tmp_path / "city.hlod")
     summary = tiles3d.export(city_hlod, tmp_path / "tiles")
     first = (tmp_path / "tiles/tileset.json").stat().st_size
@@ -288,19 +322,22 @@ def test_a_big_export_has_a_small_first_file_and_passes_the_readers(city_hlod, t
         tiles3d.tileset(city_hlod, lambda node: f"tiles/{node}.glb"), indent=1))
     assert summary["tileset_files"] == 1 + len(list((tmp_path / "tiles/tiles").glob("*.json"))) > 1
     assert_matches(tmp_path / "tiles", src)
-    draco = tiles3d.export(city_hlod, tmp_path / "draco", mesh="draco")
+    draco = tiles3d.export(city_hlod, tmp_path / "draco", mesh="draco", merge_leaves=True)
     stored, repeated = {}, {}
     for node in np.flatnonzero(city_hlod.tri_count > 0).tolist():
         geometry = node_geometry(city_hlod, node)
         corners = geometry.positions[geometry.faces]  # the city has no other vertex attributes
-        stored[f"tiles/{node}.glb"] = int(city_hlod.tri_count[node])
-        repeated[f"tiles/{node}.glb"] = int(np.count_nonzero(np.all(corners[:, 0] == corners[:, 1], axis=1)
-                                                             | np.all(corners[:, 1] == corners[:, 2], axis=1)
-                                                             | np.all(corners[:, 0] == corners[:, 2], axis=1)))
+        stored[node] = int(city_hlod.tri_count[node])
+        repeated[node] = int(np.count_nonzero(np.all(corners[:, 0] == corners[:, 1], axis=1)
+                                              | np.all(corners[:, 1] == corners[:, 2], axis=1)
+                                              | np.all(corners[:, 0] == corners[:, 2], axis=1)))
     plain_read, draco_read = second_read(tmp_path / "tiles"), second_read(tmp_path / "draco")
-    assert plain_read == {"tilesets": summary["tileset_files"], "tiles": stored}
-    assert draco_read == {"tilesets": summary["tileset_files"],
-                          "tiles": {uri: count - repeated[uri] for uri, count in stored.items()}}
+    assert plain_read == {"tilesets": summary["tileset_files"],
+                          "tiles": {f"tiles/{n}.glb": c for n, c in stored.items()}}
+    merged = tiles3d.content_tiles(city_hlod, merge_leaves=True)  # its leaves share tiles
+    assert draco_read["tiles"] == {f"tiles/{name}.glb": sum(stored[n] - repeated[n] for n in nodes)
+                                   for name, nodes in merged.items()}
+    assert draco_read["tilesets"] == draco["tileset_files"] and len(merged) == draco["glb_files"] < len(stored)
     assert sum(repeated.values()) == draco["triangles"] - draco["glb_triangles"] > 0
 
 
@@ -616,7 +653,7 @@ def test_quantized_tiles_decode_to_the_plain_ones_and_pass_the_validators(bakes,
     quantized GLB requires KHR_mesh_quantization, its positions through the node's translation and
     uniform scale are the plain ones within half a step (the largest side / 65534) and inside the
     tile's box, its normals within half an int8 step, its colours half a uint16 step; indices and the
-    tileset are the plain export's; the glTF
+    tileset are the plain export's (the tileset's extras.mesh names the encoding); the glTF
     validator finds no error and no warning the plain GLB does not have; bytes go down."""
     _, h = bakes.baked("cow", target_tris=300)
     rng = np.random.default_rng(7)
@@ -628,7 +665,9 @@ def test_quantized_tiles_decode_to_the_plain_ones_and_pass_the_validators(bakes,
     plain = last_json(hlod("-q", "export", src, "-o", tmp_path / "plain"))
     quantized = last_json(hlod("-q", "export", src, "-o", tmp_path / "quantized", "--mesh", "quantized"))
     assert (plain["mesh"], quantized["mesh"]) == ("plain", "quantized") and quantized["bytes"] < plain["bytes"]
-    assert (tmp_path / "plain/tileset.json").read_bytes() == (tmp_path / "quantized/tileset.json").read_bytes()
+    tileset, plain_tileset = (json.loads((tmp_path / f"{name}/tileset.json").read_text())
+                              for name in ("quantized", "plain"))
+    assert tileset.pop("extras") == {"mesh": "quantized"} and "extras" not in plain_tileset and tileset == plain_tileset
     h = fileformat.load(src)
     origin = np.asarray(h.origin)
     for node in range(h.node_count):
@@ -703,13 +742,16 @@ def test_draco_tiles_decode_to_the_plain_ones_and_pass_the_validators(tmp_path):
     every vertex within a step of Draco's quantization of a plain vertex (draco.POSITION_BITS of the
     part's largest side, NORMAL_BITS, UV_BITS of their range; colours half an 8-bit step); the tileset
     and the images are the plain export's; the glTF validator and 3d-tiles-tools find no error and no warning the plain
-    export does not have, and the triangle counts the hierarchy stores."""
+    export does not have, and the triangle counts the hierarchy stores. The tileset is the plain
+    export's with extras.mesh naming the encoding (the viewer starts CesiumJS's Draco decoder on it)."""
     png, jpeg = write_textures(tmp_path)
     src = fileformat.save(with_appearance(literal_hlod(normals=True), png, jpeg), tmp_path / "lit.hlod")
     plain = last_json(hlod("-q", "export", src, "-o", tmp_path / "plain"))
     draco = last_json(hlod("-q", "export", src, "-o", tmp_path / "draco", "--mesh", "draco"))
     assert (draco["mesh"], draco["image_files"]) == ("draco", plain["image_files"])  # bytes: tiny tiles, no gain
-    assert (tmp_path / "plain/tileset.json").read_bytes() == (tmp_path / "draco/tileset.json").read_bytes()
+    tileset, plain_tileset = (json.loads((tmp_path / f"{name}/tileset.json").read_text())
+                              for name in ("draco", "plain"))
+    assert tileset.pop("extras") == {"mesh": "draco"} and "extras" not in plain_tileset and tileset == plain_tileset
     h = fileformat.load(src)
     for node in range(h.node_count):
         a, a_bin = read_glb(tmp_path / f"plain/tiles/{node}.glb")

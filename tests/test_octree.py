@@ -1,7 +1,7 @@
 """Octree partition on tiny literal inputs with exact expected layouts."""
 import numpy as np
 
-from hlod_core.bake import cache, octree_passes
+from hlod_core.bake import cache_keys, octree_passes
 from hlod_core.bake.octree import RootCube, build_octree, build_octree_counted, tight_cube
 
 
@@ -84,7 +84,7 @@ def _keys_of(layout, centroids, *, owner, which):
     for leaf in np.flatnonzero(layout.child_count == 0):
         tris = layout.tri_order[layout.tri_begin[leaf]:layout.tri_end[leaf]]
         lods[leaf] = (centroids[tris].astype(np.float32), np.arange(tris.size, dtype=np.int32), None, None)
-    keys = cache.node_keys(layout, lods, origin=np.zeros(3), context=b"context")
+    keys = cache_keys.node_keys(layout, lods, origin=np.zeros(3), context=b"context")
     return {keys[n] for n in range(layout.node_count)
             if np.all(owner[layout.tri_order[layout.tri_begin[n]:layout.tri_end[n]]] == which)}
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import ROOT, ScriptedAvailability
+from helpers import ROOT, ScriptedAvailability, gl_function
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.core.colour import OVERLAY_RAMP_STEPS, overlay_ramp, srgb_from_linear, srgb_to_linear
 from hlod_core.core.errors import InputError
@@ -50,12 +50,6 @@ FRAMES_BEFORE = {"overlay": "e485d44211be50b763d4ea2af7969d07bd4fc6813dc9ef2732f
 
 def _digest(frames) -> str:
     return hashlib.sha256(b"".join(np.ascontiguousarray(f).tobytes() for f in frames)).hexdigest()
-
-
-def _gl_function(ctx, name, restype, *argtypes):
-    loader = ctx.mglo._context
-    load = getattr(loader, "load", None) or loader.load_opengl_function
-    return ctypes.CFUNCTYPE(restype, *argtypes)(load(name))
 
 
 def _integer(gl: GLFunctions, pname: int) -> int:
@@ -370,8 +364,9 @@ def test_textures_are_shared_per_image_and_released(gl_ctx, checker):
     renderer = Renderer(gl_ctx, twice, size=SIZE, images={0: image, 1: image})
     made = [r for r in renderer.gl_objects if isinstance(r, moderngl.Texture)]
     names = [t.glo for t in made]
-    assert len(made) == 1 and renderer.appearance.texture[0] is renderer.appearance.texture[1] is made[0]
-    is_texture = _gl_function(gl_ctx, "glIsTexture", ctypes.c_uint8, ctypes.c_uint32)
+    look = renderer.appearance
+    assert len(made) == 1 and look.row_texture[0] == look.row_texture[1] == 0 and look.textures[0] is made[0]
+    is_texture = gl_function(gl_ctx, "glIsTexture", ctypes.c_uint8, ctypes.c_uint32)
     _draw(renderer, _front_view())
     assert all(is_texture(n) for n in names)
     renderer.release()
@@ -386,8 +381,8 @@ def test_the_hosts_texture_unit_is_given_back(gl_ctx, checker):
     texture, sampler and active unit are what they were."""
     hlod, _, image = checker
     gl = GLFunctions(gl_ctx)
-    bind_texture = _gl_function(gl_ctx, "glBindTexture", None, ctypes.c_uint32, ctypes.c_uint32)
-    bind_sampler = _gl_function(gl_ctx, "glBindSampler", None, ctypes.c_uint32, ctypes.c_uint32)
+    bind_texture = gl_function(gl_ctx, "glBindTexture", None, ctypes.c_uint32, ctypes.c_uint32)
+    bind_sampler = gl_function(gl_ctx, "glBindSampler", None, ctypes.c_uint32, ctypes.c_uint32)
     host = gl_ctx.texture((2, 2), 4)
     sampler = gl_ctx.sampler()
     units = sorted({TEXTURE_UNIT, gl_ctx.default_texture_unit})

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from helpers import ROOT, model, textured_scene
+from helpers import ROOT, file_bytes, model, textured_scene
 from hlod_core.bake.pipeline import BakeSettings, bake
 from hlod_core.cli import main as cli
 from hlod_core.core.errors import InputError
@@ -728,17 +728,25 @@ def test_cli_bake_writes_embedded_images_beside_the_output(tmp_path, scene, caps
 
 def test_cli_bake_writes_proxies_beside_the_output(tmp_path, scene, capsys):
     """bake X.obj -o OUT.hlod with proxy materials (the default): the inner nodes' textures are
-    OUT.textures/proxy_<node>.png, which the .hlod refers to relative to itself; the bake says it
-    used no cache (a bake that makes proxies runs without one)."""
+    OUT.textures/proxy_<node>.png, which the .hlod refers to relative to itself. The same command
+    again takes every inner node and its proxy from the bake cache beside the output and writes the
+    same file and texture files."""
     out = tmp_path / "proxies.hlod"
-    assert cli.main(["-q", "bake", str(scene["obj"]), "-o", str(out), "--target-tris", "20000"]) == 0
+    command = ["-q", "bake", str(scene["obj"]), "-o", str(out), "--target-tris", "20000"]
+    assert cli.main(command) == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     folder = tmp_path / "proxies.textures"
     hlod = hlod_file.load(out)
     proxies = [m for m in hlod.materials if m.name.startswith("HLOD proxy")]
-    assert summary["texture_folder"] == str(folder) and summary["cache"] is None and proxies
+    assert summary["texture_folder"] == str(folder) and summary["cache"]["reused_nodes"] == 0 and proxies
     assert sorted(Path(m.texture).name for m in proxies) == sorted(p.name for p in folder.iterdir())
     assert b'"proxies.textures/proxy_' in out.read_bytes()
+    textures = {p.name: p.read_bytes() for p in folder.iterdir()}
+    assert cli.main(command) == 0
+    again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["cache"]
+    assert again["reused_nodes"] == again["nodes"] == summary["cache"]["nodes"] > 0
+    assert file_bytes(hlod_file.load(out), tmp_path / "a.hlod") == file_bytes(hlod, tmp_path / "b.hlod")
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} == textures
 
 
 def test_interrupted_bake_leaves_no_texture_folder(tmp_path, scene):

@@ -38,7 +38,7 @@ def _frames(hlod, renderer, method: str, path, *, lag: int | None = None):
 def _run(gl_ctx, hlod, method, path, *, streaming=None, lag=None):
     renderer = Renderer(gl_ctx, hlod, size=SIZE, streaming=streaming)
     try:
-        return _frames(hlod, renderer, method, path, lag=lag), renderer.geometry_bytes
+        return _frames(hlod, renderer, method, path, lag=lag), renderer.gpu_bytes
     finally:
         renderer.release()
 

@@ -1,6 +1,7 @@
 """Blender material datablocks and the core's material table (model.appearance.Material), both ways:
 a row from a material's Principled BSDF (or its viewport values), and a material for a row
-(the source's datablock by name where it exists, else a new Principled material).
+(the source's datablock by name where it exists, else a new Principled material, its image's alpha
+cut out or blended as the row's alpha mode says).
 
 Data form: a Material row holds linear RGBA base colour, metallic, roughness, the base-colour
 texture's file (`texture`) and the image datablock name the preview draws (`image`), and glTF's
@@ -72,7 +73,8 @@ def material_row(material) -> Material:
         metallic, roughness = 0.0, 1.0
     return Material(name=material.name_full, base_color=tuple(float(np.clip(c, 0.0, 1.0)) for c in base),
                     metallic=float(np.clip(metallic, 0.0, 1.0)), roughness=float(np.clip(roughness, 0.0, 1.0)),
-                    texture=texture, image=image, alpha_mode=alpha_mode, alpha_cutoff=float(alpha_cutoff))
+                    texture=texture, image=image, alpha_mode=alpha_mode, alpha_cutoff=float(alpha_cutoff),
+                    double_sided=not material.use_backface_culling)
 
 
 def uses_nodes(material) -> bool:
@@ -93,12 +95,14 @@ def principled_node(material):
 
 def material_from_row(row: Material):
     """The source's material datablock of that name, else a new Principled material from the row
-    (with an Image Texture node into Base Color when the row's image or texture file exists)."""
+    (with an Image Texture node into Base Color when the row's image or texture file exists, and its
+    alpha into Alpha for a MASK or BLEND row), Backface Culling on for a one-sided row."""
     material = bpy.data.materials.get(row.name)
     if material is not None:
         return material
     material = bpy.data.materials.new(row.name)
     material.diffuse_color, material.metallic, material.roughness = row.base_color, row.metallic, row.roughness
+    material.use_backface_culling = not row.double_sided
     if material.node_tree is None:  # Blender 4: a new material has no nodes until asked
         material.use_nodes = True
     principled = principled_node(material)
@@ -110,9 +114,28 @@ def material_from_row(row: Material):
     image = bpy.data.images.get(row.image) if row.image else None
     if image is None and row.texture and os.path.isfile(row.texture):
         image = bpy.data.images.load(row.texture, check_existing=True)
+    principled.inputs["Alpha"].default_value = row.base_color[3]
     if image is not None:
         node = material.node_tree.nodes.new("ShaderNodeTexImage")
         node.image = image
         node.location = (principled.location.x - TEXTURE_NODE_OFFSET_X, principled.location.y)
         material.node_tree.links.new(node.outputs["Color"], principled.inputs["Base Color"])
+        if row.alpha_mode != "OPAQUE":
+            _link_alpha(material, node, principled, row)
+    if row.alpha_mode == "BLEND" and hasattr(material, "surface_render_method"):
+        material.surface_render_method = "BLENDED"
     return material
+
+
+def _link_alpha(material, image_node, principled, row: Material) -> None:
+    """The image's alpha into the Principled BSDF's Alpha: through alpha > cutoff for MASK (glTF's
+    cut-out, as the add-on reads a clipped alpha back), as it is for BLEND."""
+    alpha = image_node.outputs["Alpha"]
+    if row.alpha_mode == "MASK":
+        step = material.node_tree.nodes.new("ShaderNodeMath")
+        step.operation = "GREATER_THAN"
+        step.inputs[1].default_value = row.alpha_cutoff
+        step.location = (principled.location.x - TEXTURE_NODE_OFFSET_X / 2, principled.location.y - 300.0)
+        material.node_tree.links.new(alpha, step.inputs[0])
+        alpha = step.outputs[0]
+    material.node_tree.links.new(alpha, principled.inputs["Alpha"])

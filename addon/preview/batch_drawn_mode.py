@@ -67,7 +67,8 @@ class BatchDrawnMode(PreviewMode):
         """Blender's depth read, one frame traversed where the tests run (`_frame`), the chosen nodes
         drawn with the gpu module into the bound framebuffer (in modulation colours with `overlay`,
         else in their appearance or the default colour). Under a GPU budget a batch is kept only
-        while its node is resident in the renderer's bookkeeping."""
+        while its node is resident in the renderer's bookkeeping, a texture while a resident node
+        draws with it."""
         started = time.perf_counter()
         depth = self._blender_depth((view.width, view.height))
         read_ms = (time.perf_counter() - started) * MS_PER_S
@@ -79,7 +80,8 @@ class BatchDrawnMode(PreviewMode):
         self._draw_nodes(stats.drawn, colours=colours, view=view)
         residency = getattr(self.renderer, "residency", None)
         if residency is not None:
-            self.batches.keep_only(residency.resident)
+            self.batches.keep_only(residency.resident, self.renderer.texture_table.rows_resident(
+                residency.texture_resident))
         return stats
 
     def _frame(self, view: View, *, depth: np.ndarray | None, contexts: GLContexts, method: str,

@@ -42,7 +42,8 @@ def corner_lines(*, label: str, stats, source_tris: int, where: str,
     the bake took; where: where the queries ran ("" in Blender's context, else the mode's words:
     "private context", "CPU occlusion test"); changed: baked objects changed since the bake (None: not tracked);
     recorded: baked objects on record (0: the file's sources are not recorded); budget_bytes: the
-    GPU budget for node geometry (0: unlimited, no line about it)."""
+    GPU budget for node geometry and textures (0: unlimited, no line about it; the line's resident
+    MB counts both)."""
     if stats is None:
         lines = [(f"HLOD {label}: no frame drawn yet", False)]
     else:

@@ -18,8 +18,9 @@ from ...hlod_core.core.errors import HlodError
 from ...hlod_core.model.hierarchy import Hlod
 from ...hlod_core.model.view import View
 from ...hlod_core.render.cpu_occlusion import CpuOcclusion
-from ...hlod_core.render.residency import Residency, StreamingSettings
-from ...hlod_core.render.streamed_geometry import node_bytes
+from ...hlod_core.render.residency import StreamingSettings
+from ...hlod_core.render.streamed_geometry import node_residency
+from ...hlod_core.render.texture_table import TextureTable
 from ...hlod_core.traversal.settings import RuntimeSettings
 from ...hlod_core.traversal.stats import MS_PER_S
 from .batch_drawn_mode import BatchDrawnMode
@@ -29,18 +30,19 @@ from .gl_contexts import GLContexts
 class BudgetedCpuOcclusion(CpuOcclusion):
     """CpuOcclusion for frames of `size` with the GPU budget's bookkeeping for the gpu batches that
     draw the nodes: under a budget (`streaming`, not unlimited) `residency` says which nodes may
-    have batches, and the traversal holds back where they may not, as with the private renderer's
-    streamed geometry (render.residency); a node becomes resident when the plan after a frame
-    says so (its batch is made when it is first drawn). Without a budget, `residency` is None."""
+    have batches, and which of `images`' textures (`texture_table`) are in use, and the traversal
+    holds back where they may not, as with the private renderer's streamed geometry
+    (render.residency); a node becomes resident when the plan after a frame says so (its batch is
+    made when it is first drawn). Without a budget, `residency` is None."""
 
-    def __init__(self, hlod: Hlod, size: tuple[int, int], *, streaming: StreamingSettings | None):
+    def __init__(self, hlod: Hlod, size: tuple[int, int], *, streaming: StreamingSettings | None,
+                 images: dict[int, np.ndarray]):
         super().__init__(hlod, size)
         self.residency = None
+        self.texture_table = TextureTable.of(hlod, images) if hlod.materials else TextureTable.none(hlod)
         if streaming is not None and not streaming.unlimited:
-            self.residency = Residency(
-                child_offset=hlod.child_offset, child_count=hlod.child_count, depth=hlod.depth,
-                node_bytes=node_bytes(hlod, with_uv=hlod.uvs is not None, with_colour=hlod.colors is not None),
-                settings=streaming)
+            self.residency = node_residency(hlod, textures=self.texture_table, with_uv=hlod.uvs is not None,
+                                            with_colour=hlod.colors is not None, settings=streaming)
             for node in self.residency.initial_uploads():
                 self.residency.uploaded(node)
 
@@ -95,7 +97,7 @@ class CpuContextMode(BatchDrawnMode):
         size = (view.width, view.height)
         self.keep_renderer_for((size, streaming))
         traversal = self.traversal(method=method, settings=settings, make_renderer=lambda: BudgetedCpuOcclusion(
-            self.hlod, size, streaming=streaming))
+            self.hlod, size, streaming=streaming, images=self.images))
         started = time.perf_counter()
         self.renderer.set_scene_depth(depth)  # reduced here to the test's resolution
         handed_ms = (time.perf_counter() - started) * MS_PER_S

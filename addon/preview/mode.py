@@ -44,7 +44,7 @@ class PreviewMode:
              streaming: StreamingSettings | None, overlay: bool) -> FrameStats:
         """One frame of `method` for `view`, drawn into the bound framebuffer (Blender's context is
         current before and after). overlay: the nodes in their modulation colours; streaming: the
-        GPU budget for node geometry (None: unlimited)."""
+        GPU budget for node geometry and textures (None: unlimited)."""
         raise NotImplementedError
 
     def status_line(self, file_name: str, *, xray: bool) -> str:

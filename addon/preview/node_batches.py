@@ -13,6 +13,7 @@ from ...hlod_core.core.colour import DEFAULT_COLOUR
 from ...hlod_core.model.appearance import NO_MATERIAL_BASE_COLOR
 from ...hlod_core.model.hierarchy import Hlod, node_geometry
 from ...hlod_core.render.glsl import FLAT_LIGHT, SRGB_FROM_LINEAR
+from ..materials.images import WRITTEN_TEXTURE_KEY
 
 # The one-colour shader: u_colour lit by the renderer's flat term (shaders.NODE_FS), the colour
 # written as the renderer writes it (and Blender's UNIFORM_COLOR shader), as is into a framebuffer
@@ -55,9 +56,10 @@ void main() {
 
 class NodeBatches:
     """The gpu module objects of one preview, made in Blender's context at first use and kept: the
-    nodes' batches, the appearance shader with its white 1x1 texture and the materials' textures.
-    `images`: material row -> (h, w, 4) uint8, the rows whose bpy image becomes a texture.
-    release() drops them all (Blender frees their GPU objects then: its context must be current)."""
+    nodes' batches, the appearance shader with its white 1x1 texture and the materials' textures
+    (each made when a node drawn with it is first drawn). `images`: material row -> (h, w, 4)
+    uint8, the rows whose bpy image becomes a texture. release() drops them all (Blender frees
+    their GPU objects then: its context must be current)."""
 
     def __init__(self, hlod: Hlod, *, images: dict[int, np.ndarray]):
         self.hlod = hlod
@@ -65,11 +67,13 @@ class NodeBatches:
         self._flat: dict[int, object] = {}  # node -> batch (the one-colour shader)
         self._flat_shader = None
         self._looks: dict[int, list] = {}  # node -> [(material row or -1, batch)]
-        self._look = None  # (shader, white texture, {material row: texture})
+        self._look = None  # (shader, white texture)
+        self._textures: dict[int, object] = {}  # material row -> gpu texture of its bpy image
 
     @property
     def empty(self) -> bool:
-        return not self._flat and self._flat_shader is None and not self._looks and self._look is None
+        return (not self._flat and self._flat_shader is None and not self._looks and self._look is None
+                and not self._textures)
 
     def draw_flat(self, nodes, colours: np.ndarray | None, view_z: tuple[float, float, float]) -> None:
         """`nodes` in one colour each, lit: colours (n, 3) float RGB as the renderer takes them, or
@@ -89,8 +93,8 @@ class NodeBatches:
         """`nodes` in their materials, vertex colours and textures; view_z: the view matrix's third
         row (x, y, z), the view's z axis in world space (the flat lighting term)."""
         if self._look is None:
-            self._look = (*_look_shader(), self._textures())
-        shader, white, textures = self._look
+            self._look = _look_shader()
+        shader, white = self._look
         shader.bind()
         shader.uniform_float("u_view_z", view_z)
         for node in nodes:
@@ -98,21 +102,33 @@ class NodeBatches:
             if node not in self._looks:
                 self._looks[node] = _look_batches(shader, self.hlod, node)
             for material, batch in self._looks[node]:
-                shader.uniform_sampler("u_image", textures.get(material, white))
+                shader.uniform_sampler("u_image", self._texture(material) or white)
                 batch.draw(shader)
 
-    def _textures(self) -> dict:
-        """material row -> gpu texture of its bpy image, for the rows `images` holds."""
-        import gpu
+    def _texture(self, row: int):
+        """The gpu texture of material row `row`'s bpy image (None for a row `images` does not hold)."""
+        if row not in self._textures and row in self.images:
+            import gpu
 
-        return {row: gpu.texture.from_image(bpy.data.images[material.image])
-                for row, material in enumerate(self.hlod.materials) if row in self.images}
+            self._textures[row] = gpu.texture.from_image(bpy.data.images[self.hlod.materials[row].image])
+        return self._textures.get(row)
 
-    def keep_only(self, resident: np.ndarray) -> None:
-        """Drop the batches of nodes not `resident` ((n,) bool: the private renderer's GPU budget)."""
+    def keep_only(self, resident: np.ndarray, rows_resident: np.ndarray) -> None:
+        """Drop the batches of nodes not `resident` ((n,) bool) and the textures of material rows
+        not `rows_resident` ((m,) bool): what the GPU budget's bookkeeping no longer holds. An image
+        the bake wrote (a proxy's, loaded by the preview) is freed from the GPU at once; Blender
+        keeps a scene image's texture while it draws it elsewhere, and frees it on its time-out."""
         for cache in (self._flat, self._looks):
             for node in [node for node in cache if not resident[node]]:
                 del cache[node]
+        dropped = [row for row in self._textures if not rows_resident[row]]
+        for row in dropped:
+            del self._textures[row]
+        names = {self.hlod.materials[row].image for row in self._textures}
+        for name in {self.hlod.materials[row].image for row in dropped} - names:
+            image = bpy.data.images.get(name)
+            if image is not None and WRITTEN_TEXTURE_KEY in image:
+                image.gl_free()
 
     def release(self) -> None:
         """Drop every gpu object, the latest made first. Idempotent. Blender's builtin shader is
@@ -124,6 +140,7 @@ class NodeBatches:
 
             gpu.shader.from_builtin("UNIFORM_COLOR").bind()
         self._looks.clear()
+        self._textures.clear()
         self._look = None
         self._flat.clear()
         self._flat_shader = None

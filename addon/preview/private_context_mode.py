@@ -37,7 +37,7 @@ class PrivateContextMode(BatchDrawnMode):
         ctx = contexts.private()
         with gl_platform.keep_current(), ctx:
             traversal = self.traversal(method=method, settings=settings, make_renderer=lambda: Renderer(
-                ctx, self.hlod, size=size, streaming=streaming))
+                ctx, self.hlod, size=size, streaming=streaming, counted_images=self.images))  # the batches draw them
             started = time.perf_counter()
             self.renderer.set_scene_depth(depth)  # checked here, uploaded and written at the frame's start
             handed_ms = (time.perf_counter() - started) * MS_PER_S

@@ -7,7 +7,7 @@ the input's lattice, in the frame of frame: an earlier bake's while the input fi
 (the positions each node shares with cells outside it),
 schedule (simplify, seams, collapse, pieces and meshlab for the LODs, hausdorff,
 leaf_arrays and tasks for the errors, on workers or a Dask cluster: dask_cluster), assemble, meta;
-the cache (cache, cache_files) beside them; appearance/ (the inner nodes' proxy materials: atlases,
-texture bakes, their quality gate); child runs a bake in a child process, checks verifies
-a baked file's invariants.
+the cache (cache, cache_keys, cache_files, cache_proxies) beside them; appearance/ (the inner
+nodes' proxy materials: atlases, texture bakes, their quality gate); child runs a bake in a child
+process, checks verifies a baked file's invariants.
 """

@@ -8,21 +8,22 @@ Data form: a folder (by default `OUT.hlod.cache/` beside the output; safe to del
 the next bake is then a bake from scratch) holding a CACHEDIR.TAG and
 - one file per inner node, `<key>.hlodc`: the node's LOD (positions (k,3) float32 origin-relative,
   faces (m,3) int32, normals (k,3) float32 and attribute rows (k,A) float32 when the bake has
-  them), its error (float64, model units: the Hausdorff error, or its bound) and what the bake log
-  says of it (`SUMMARY_FIELDS`);
+  them), its error (float64, model units: the Hausdorff error, or its bound), what the bake log
+  says of it (`SUMMARY_FIELDS`) and its proxy material, if it made one;
 - one file per whole result, `<result key>.hlodr`: every array of a bake's Hlod, the meta entries
   the bake derives (meta.DERIVED_META) and the keys of the node entries it used, keyed by the whole
   input and the bake's frame (`input_key`, `result_key`);
 - `frame.json`: the frames of the last bakes (frame.Frame.to_meta), the latest first: the next
   bake starts from the latest, and takes a whole result baked in any of them.
 
-Keys (blake2b, 32 bytes) are a Merkle tree over the octree (`node_keys`): a leaf's key hashes its
-triangles as the bake sees them (origin-relative lattice points); an inner node's, its children's
-keys; both hash the lattice (origin and unit) and `context_digest` (the formats, every setting that
-changes a LOD or an error, the versions of pymeshlab and numpy, and the source of RESULT_MODULES).
-Equal keys mean equal results. No key holds a cell or its level: a root cube that grew puts the
-same subtrees one level down.
+Keys (cache_keys.py): a Merkle tree over the octree, equal keys for equal results.
 Why: docs/how-it-works.md#re-bakes-and-the-cache-keys
+
+Proxy materials (cache_proxies.py): in a bake that makes them, a node entry also holds the node's
+proxy (its texture's PNG bytes and the gate's figures; the atlas UVs are its rows) and its rows
+name proxies by their path below the node, so a hit is renumbered into the new bake's nodes. A hit
+counts only where every inner node below it is a hit too (a parent's proxy task reads its
+children's textures), and such a bake keeps no whole results: every node comes from its entry.
 
 Integrity: a file starts with magic, CACHE_VERSION, the payload's length and its blake2b digest;
 `load` and `load_result` check all of them, the key and kind recorded inside, and every array's
@@ -36,14 +37,13 @@ Size: entries are kept across bakes within a budget (`DEFAULT_BUDGET_MB`, settab
 complete bake the least recently used entries (file modification times: a bake touches every entry
 it reads) are removed until the folder fits, never one the bake used (`prune`). So an undo re-bakes
 from the cache, and bakes of different scenes sharing one folder keep each other's entries while
-they fit. One bake's entries take about 1.5 times its .hlod.
+they fit. One bake's entries take about 1.5 times its .hlod, plus its proxies' textures, which the
+budget counts.
 """
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import hashlib
-import importlib.metadata
 import json
 import logging
 import os
@@ -55,12 +55,14 @@ import numpy as np
 
 from ..core.errors import InputError
 from ..core.jsonutil import JsonError, loads
-from ..io import hlod_file
 from ..io.meshes import TriangleMesh
 from ..model.appearance import AttributeLayout
 from ..model.hierarchy import Hlod
-from . import cache_files
-from .cache_files import KEY_BYTES, CorruptEntry
+from . import cache_files, cache_proxies
+from .appearance.proxy import ProxySettings
+from .appearance.proxy_plan import ProxyPlan
+from .cache_files import CorruptEntry
+from .cache_keys import context_digest, input_key, material_digests, node_keys, result_key
 from .frame import Frame, Prior
 from .meshlab import DecimationSettings
 from .octree import OctreeLayout
@@ -77,17 +79,6 @@ RECENT_FRAMES = 8
 #: The folder's size budget (MB, 2^20 bytes) unless the bake sets one: about 25 bakes of a
 #: 1.5M-triangle scene.
 DEFAULT_BUDGET_MB = 1024.0
-#: Modules whose code computes LODs, errors or the result's arrays and meta (their source is part
-#: of every key: editing one retires every entry).
-RESULT_MODULES = ("bake.simplify", "bake.collapse", "bake.meshlab", "bake.seams", "bake.cell_seams", "bake.pieces",
-                  "bake.hausdorff", "model.appearance", "model.hierarchy", "core.arrays", "bake.octree",
-                  "bake.settings", "bake.prepare", "bake.sources", "bake.partition", "bake.leaf_arrays", "bake.tasks",
-                  "bake.schedule",
-                  "bake.assemble", "bake.meta", "bake.pipeline", "bake.cache", "bake.cache_files", "bake.lattice",
-                  "bake.frame", "bake.root_cube", "bake.appearance.proxy", "bake.appearance.atlas",
-                  "bake.appearance.texels", "bake.appearance.surface_colour", "bake.appearance.quality",
-                  "bake.appearance.proxy_task", "bake.appearance.proxy_plan", "core.cpu_raster", "core.colour",
-                  "core.png", "io.textures")
 #: Temporary files older than this (seconds) are a crashed writer's: prune removes them.
 _STALE_TEMP_SECONDS = 3600.0
 _CACHEDIR_TAG = (b"Signature: 8a477f597d28d172789f06886806bc55\n"
@@ -118,106 +109,18 @@ def check_folder(folder: str | os.PathLike | None) -> None:
         raise InputError(f"{folder}: is a file; the bake cache is a folder (give another with --cache, or --no-cache)")
 
 
-def context_digest(settings: DecimationSettings, *, with_normals: bool,
-                   row_layout: AttributeLayout | None, error: str = "exact") -> bytes:
-    """32 bytes: everything besides a subtree's triangles that its LODs and errors depend on;
-    error: the error measure (BakeSettings.error), so a bound is never served for an exact error
-    nor the other way round."""
-    core = Path(__file__).resolve().parent.parent
-    code = hashlib.blake2b(digest_size=KEY_BYTES)
-    for name in RESULT_MODULES:
-        try:
-            code.update((core / f"{name.replace('.', '/')}.py").read_bytes())
-        except OSError:  # not installed as source files: the versions below still key it
-            code.update(name.encode())
-    described = {
-        "cache_version": cache_files.CACHE_VERSION,
-        "hlod_format": hlod_file.FORMAT_VERSION,
-        "decimation": dataclasses.asdict(settings),
-        "with_normals": bool(with_normals),
-        "error": str(error),
-        "rows": None if row_layout is None or row_layout.empty else [row_layout.material, row_layout.uv,
-                                                                     row_layout.color],
-        "pymeshlab": _version("pymeshlab"),
-        "numpy": np.__version__,
-        "code": code.hexdigest(),
-    }
-    return hashlib.blake2b(json.dumps(described, sort_keys=True).encode(), digest_size=KEY_BYTES).digest()
-
-
-def _version(package: str) -> str:
-    try:
-        return importlib.metadata.version(package)
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"
-
-
-def _hash_array(h, part: np.ndarray | None) -> None:
-    if part is None:
-        h.update(b"\0")
-        return
-    part = np.ascontiguousarray(part)
-    h.update(part.dtype.str.encode() + np.asarray(part.shape, "<i8").tobytes())
-    h.update(memoryview(part).cast("B"))
-
-
-def input_key(mesh, *, max_depth: int, context: bytes) -> bytes:
-    """32 bytes keying a bake's whole input: the mesh's arrays and materials, max_depth and
-    `context` (the settings and versions); `result_key` adds the frame."""
-    h = hashlib.blake2b(context, digest_size=KEY_BYTES, person=b"hlod input")
-    h.update(np.asarray([max_depth], "<i8").tobytes())
-    for part in (mesh.positions, mesh.faces, mesh.normals, mesh.uvs, mesh.colors, mesh.material_ids):
-        _hash_array(h, part)
-    h.update(json.dumps([m.to_json() for m in mesh.materials], sort_keys=True).encode())
-    return h.digest()
-
-
-def result_key(input_digest: bytes, frame: Frame) -> bytes:
-    """32 bytes keying a whole result: the input (`input_key`) baked in `frame`."""
-    h = hashlib.blake2b(input_digest, digest_size=KEY_BYTES, person=b"hlod result")
-    h.update(json.dumps(frame.to_meta(), sort_keys=True).encode())
-    return h.digest()
-
-
-def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: bytes,
-              unit_length: float = 0.0, seams=None) -> list[bytes]:
-    """(n,) 32-byte keys, one per node (module docstring). lods: per node (positions, faces,
-    normals or None, attribute rows or None); only the leaves' are read; unit_length: the lattice
-    the positions are points of (lattice.py), which the decimations snap to; seams
-    (cell_seams.CellSeams or None): an inner node's key hashes the positions it shares with the
-    cells around it too, which its decimation keeps in place."""
-    n = layout.node_count
-    keys: list[bytes] = [b""] * n
-    # the stored positions' frame; not the cells: a LOD is made from the leaves' positions and the
-    # tree's shape below it, whatever cell holds them (a grown root cube puts them one level down)
-    lattice = np.array([*np.asarray(origin, np.float64).reshape(3), unit_length], "<f8").tobytes()
-    for node in range(n - 1, -1, -1):  # children have larger ids than their parent
-        if layout.child_count[node] == 0:
-            h = hashlib.blake2b(context, digest_size=KEY_BYTES, person=b"hlod leaf")
-            h.update(lattice)
-            for part in lods[node]:
-                _hash_array(h, part)
-        else:
-            h = hashlib.blake2b(context, digest_size=KEY_BYTES, person=b"hlod node")
-            h.update(lattice)
-            first = int(layout.child_offset[node])
-            h.update(b"".join(keys[first:first + int(layout.child_count[node])]))
-            if seams is not None:
-                h.update(seams.digest(node))
-        keys[node] = h.digest()
-    return keys
-
-
 class BakeCache:
     """One bake's view of a cache folder. The pipeline's entry points: `open`, `prior`,
     `whole_result`, `reuse`, `finish` (module docstring). Below them: `load` node entries and `store`
     the bake's new ones, `load_result` / `store_result` whole results, `prune`. with_normals /
     row_layout: what the bake carries (part of the keys; every entry must match it); error: the error
-    measure (part of the keys); budget_mb: the folder's size budget (MB). Statistics for the bake's
+    measure (part of the keys); budget_mb: the folder's size budget (MB); proxies: the proxy
+    materials' settings of a bake that makes them (part of the keys). Statistics for the bake's
     meta: reused_nodes, reused_tris, rejected (entries ignored: (file name, why))."""
 
     def __init__(self, folder: str | os.PathLike, *, decimation: DecimationSettings, with_normals: bool,
-                 row_layout: AttributeLayout, error: str = "exact", budget_mb: float = DEFAULT_BUDGET_MB):
+                 row_layout: AttributeLayout, error: str = "exact", budget_mb: float = DEFAULT_BUDGET_MB,
+                 proxies: ProxySettings | None = None):
         check_folder(folder)
         if not (budget_mb >= 0 and np.isfinite(budget_mb)):
             raise InputError(f"bake cache budget {budget_mb} MB: expected a number of MB >= 0")
@@ -225,7 +128,8 @@ class BakeCache:
         self.with_normals = with_normals
         self.row_width = row_layout.width
         self.budget_mb = float(budget_mb)
-        self.context = context_digest(decimation, with_normals=with_normals, row_layout=row_layout, error=error)
+        self.context = context_digest(decimation, with_normals=with_normals, row_layout=row_layout, error=error,
+                                      proxies=proxies)
         self.reused_nodes = 0
         self.reused_tris = 0
         self.rejected: list[tuple[str, str]] = []
@@ -235,18 +139,27 @@ class BakeCache:
         self._keys: list[bytes] = []
         self._inner = np.zeros(0, np.int64)
         self._reused: set[int] = set()
+        # a bake that makes proxy materials (open): its plan, the leaves' material looks, the octree (reuse)
+        self._plan: ProxyPlan | None = None
+        self._looks: tuple[int, np.ndarray] | None = None
+        self._layout: OctreeLayout | None = None
 
     @classmethod
     def open(cls, folder: str | os.PathLike | None, *, mesh: TriangleMesh, settings: BakeSettings,
-             budget_mb: float = DEFAULT_BUDGET_MB) -> "BakeCache | None":
-        """The cache of a bake of `mesh` at `settings` in `folder`; None without a folder.
-        InputError when `folder` is a file or the budget is not a number of MB >= 0."""
+             budget_mb: float = DEFAULT_BUDGET_MB, plan: ProxyPlan | None = None) -> "BakeCache | None":
+        """The cache of a bake of `mesh` at `settings` in `folder`; None without a folder. plan: the
+        bake's proxy materials (module docstring; None: it makes none). InputError when `folder`
+        is a file or the budget is not a number of MB >= 0."""
         if folder is None:
             return None
         row_layout = AttributeLayout(material=mesh.material_ids is not None, uv=mesh.uvs is not None,
                                      color=mesh.colors is not None)
         cache = cls(folder, decimation=settings.decimation(), with_normals=mesh.normals is not None,
-                    row_layout=row_layout, error=settings.error, budget_mb=budget_mb)
+                    row_layout=row_layout, error=settings.error, budget_mb=budget_mb,
+                    proxies=None if plan is None else plan.settings)
+        if plan is not None:
+            cache._plan = plan
+            cache._looks = (plan.material_column, material_digests(plan.scene_materials, plan.images))
         cache._input_digest = input_key(mesh, max_depth=settings.max_depth, context=cache.context)
         cache._materials = tuple(mesh.materials) if mesh.has_appearance else ()
         cache._recent = cache._read_frames()
@@ -279,8 +192,11 @@ class BakeCache:
     def whole_result(self, prior: Prior | None) -> tuple[Hlod, dict, dict, Frame] | None:
         """The whole result of an unchanged input (the bake is then skipped): in the `prior` frame of
         a file, or in any recent frame of the folder's (`prior`). (Hlod without meta, its derived
-        meta entries, meta["cache"], its frame); None when the folder holds none."""
-        frames = [] if prior is None else [prior.frame] if prior.source != "cache" else self._recent
+        meta entries, meta["cache"], its frame); None when the folder holds none, and in a bake that
+        makes proxy materials."""
+        if prior is None or self._plan is not None:
+            return None
+        frames = [prior.frame] if prior.source != "cache" else self._recent
         for frame in frames:
             key = result_key(self._input_digest, frame)
             found = self.load_result(key, self._materials)
@@ -300,28 +216,40 @@ class BakeCache:
               unit_length: float, seams=None) -> dict[int, tuple[NodeLod, float]]:
         """The inner nodes whose subtree the folder holds: node -> (LOD, error). lods: per node, the
         leaves' (positions, faces, normals, rows) (the keys hash them); origin (3,) float64;
-        unit_length: the lattice's (lattice.py); seams: cell_seams.CellSeams (node_keys)."""
+        unit_length: the lattice's (lattice.py); seams: cell_seams.CellSeams (node_keys). With proxy
+        materials, a node whose inner nodes below are not all hits is not one, and each hit's proxy
+        goes to the plan (ProxyPlan.restore: its texture is written)."""
         self._keys = node_keys(layout, lods, origin=origin, context=self.context, unit_length=unit_length,
-                               seams=seams)
+                               seams=seams, looks=self._looks)
         self._inner = np.flatnonzero(~layout.is_leaf)
+        self._layout = layout
         hits = {}
         for node in self._inner:
-            hit = self.load(self._keys[node])
+            hit = self._entry(self._keys[node], int(node))
             if hit is not None:
                 hits[int(node)] = hit
+        if self._plan is not None:
+            hits = whole_subtrees(layout, hits)
+            for node, (_, _, proxy) in hits.items():
+                if proxy is not None:
+                    self._plan.restore(node, *proxy)
         self._reused = set(hits)
-        return hits
+        self._touch([self.path(self._keys[node]) for node in hits])
+        self.reused_nodes += len(hits)
+        self.reused_tris += sum(int(lod.faces.shape[0]) for lod, _, _ in hits.values())
+        return {node: (lod, error) for node, (lod, error, _) in hits.items()}
 
     def finish(self, hlod: Hlod, derived: dict, *, made: dict[int, NodeLod], hausdorff_error: np.ndarray,
                frame: Frame) -> dict:
         """Once the bake is complete: write the inner nodes it made (made: node -> LOD, with
         hausdorff_error (n,) float64), its whole result (hlod, derived meta entries) and its frame,
         evict the least recently used entries over the budget; returns meta["cache"]."""
-        self.store({self._keys[node]: (made[int(node)], float(hausdorff_error[node])) for node in self._inner
-                    if int(node) not in self._reused})
+        self.store({self._keys[node]: self._entry_parts(int(node), made[int(node)], float(hausdorff_error[node]))
+                    for node in self._inner if int(node) not in self._reused})
         used = [self._keys[node] for node in self._inner]
         key = result_key(self._input_digest, frame)
-        self.store_result(key, hlod, derived, node_keys=used)
+        if self._plan is None:
+            self.store_result(key, hlod, derived, node_keys=used)
         self._record_frame(frame)
         folder = self.prune(set(used), key)
         return self._stats(nodes=int(self._inner.size), reused=len(self._reused), whole=False, folder=folder)
@@ -350,18 +278,50 @@ class BakeCache:
 
     def load(self, key: bytes) -> tuple[NodeLod, float] | None:
         """A node entry's (LOD, Hausdorff error), or None: absent, or rejected (counted)."""
+        hit = self._entry(key)
+        if hit is None:
+            return None
+        self._touch([self.path(key)])
+        self.reused_nodes += 1
+        self.reused_tris += int(hit[0].faces.shape[0])
+        return hit[0], hit[1]
+
+    def _entry(self, key: bytes, node: int | None = None) -> tuple[NodeLod, float, tuple | None] | None:
+        """A node entry's (LOD, Hausdorff error, its own proxy: (ProxyMade fields, PNG bytes) or None),
+        or None: absent, or rejected (recorded). node: where it goes in this bake, with proxy
+        materials: its rows' proxies are renumbered (cache_proxies.decode)."""
         found = self._read(key, ENTRY_SUFFIX, "node")
         if found is None:
             return None
         try:
             lod, error = cache_files.node_entry(*found, with_normals=self.with_normals, row_width=self.row_width)
+            proxy = None
+            if self._plan is not None and node is not None:
+                extra, arrays = found
+                rows = cache_proxies.decode(lod.attributes, extra.get(cache_proxies.PATHS, []), node, self._layout,
+                                            scene_materials=len(self._plan.scene_materials),
+                                            column=self._plan.material_column)
+                lod, proxy = dataclasses.replace(lod, attributes=rows), cache_proxies.own_proxy(extra, arrays)
         except CorruptEntry as exc:
             self.rejected.append((self.path(key).name, str(exc)))
             return None
-        self._touch([self.path(key)])
-        self.reused_nodes += 1
-        self.reused_tris += int(lod.faces.shape[0])
-        return lod, error
+        return lod, error, proxy
+
+    def _entry_parts(self, node: int, lod: NodeLod, error: float) -> tuple:
+        """What node_entry_bytes writes of a node this bake made: (LOD, error) and, with proxy
+        materials, the LOD with its proxies' ids relative to the node, the entry's extra and arrays
+        (cache_proxies)."""
+        if self._plan is None:
+            return lod, error
+        plan = self._plan
+        rows, paths = cache_proxies.encode(lod.attributes, node, self._layout,
+                                           scene_materials=len(plan.scene_materials), column=plan.material_column)
+        extra, arrays = {cache_proxies.PATHS: paths}, {}
+        made = plan.made_proxies.get(node)
+        if made is not None:
+            extra[cache_proxies.FIELDS] = cache_proxies.own_extra(made)
+            arrays[cache_proxies.PNG] = np.frombuffer(plan.texture_bytes(node), np.uint8)
+        return dataclasses.replace(lod, attributes=rows), error, extra, arrays
 
     def load_result(self, key: bytes, materials: tuple) -> tuple[Hlod, dict, list[bytes]] | None:
         """A result entry's (Hlod with `materials`, empty meta; the DERIVED_META it keeps; the keys
@@ -393,10 +353,9 @@ class BakeCache:
             self.rejected.append((path.name, str(exc)))
             return None
 
-    def store(self, entries: dict[bytes, tuple[NodeLod, float]]) -> None:
-        """Write node entries (key -> (LOD, error)), each atomically."""
-        self._write((self.path(key), cache_files.node_entry_bytes(key, lod, error))
-                    for key, (lod, error) in entries.items())
+    def store(self, entries: dict[bytes, tuple]) -> None:
+        """Write node entries (key -> (LOD, error[, extra, arrays]): node_entry_bytes), each atomically."""
+        self._write((self.path(key), cache_files.node_entry_bytes(key, *parts)) for key, parts in entries.items())
 
     def store_result(self, key: bytes, hlod: Hlod, meta: dict, *, node_keys: list[bytes]) -> None:
         """Write the result entry of a bake: its arrays, its DERIVED_META entries found in `meta` and
@@ -470,6 +429,16 @@ class BakeCache:
             name, why = self.rejected[0]
             log.warning("bake cache %s: %d entries ignored and rebuilt (first: %s: %s)", self.folder,
                         len(self.rejected), name, why)
+
+
+def whole_subtrees(layout: OctreeLayout, hits: dict) -> dict:
+    """The hits every inner node below which is a hit too (deepest first: children have larger ids)."""
+    whole = dict(hits)
+    for node in sorted(hits, reverse=True):
+        first, count = int(layout.child_offset[node]), int(layout.child_count[node])
+        if any(not layout.is_leaf[child] and child not in whole for child in range(first, first + count)):
+            del whole[node]
+    return whole
 
 
 def _age(entry: os.DirEntry, now: float) -> float:

@@ -4,7 +4,8 @@ without pickle and checked before anything in it is used.
 Data form: preamble (magic, CACHE_VERSION, reserved 0, payload length, blake2b-256 digest of the
 payload), then the payload: a JSON header (the key, the kind, the arrays' table, extra entries)
 and the raw little-endian arrays. A node entry holds a LOD (positions, faces, normals, attribute
-rows), its error and SUMMARY_FIELDS; a result entry an Hlod's arrays and the meta.DERIVED_META
+rows), its error, SUMMARY_FIELDS and, in a bake with proxy materials, the node's proxy
+(cache_proxies.py); a result entry an Hlod's arrays and the meta.DERIVED_META
 entries. An entry that fails a check raises `CorruptEntry`, whose message says why.
 """
 from __future__ import annotations
@@ -22,7 +23,7 @@ from .meta import DERIVED_META
 from .simplify import NodeLod
 
 #: Version of the entry format and of the keys' recipe; any change to either bumps it.
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 MAGIC = b"HLODCACH"
 #: Bytes of a key and of a digest (blake2b).
 KEY_BYTES = 32
@@ -105,8 +106,10 @@ def _expect(arrays: dict[str, np.ndarray], name: str, *, dtype: str, shape: tupl
 
 # --- node entries ---------------------------------------------------------------------------------
 
-def node_entry_bytes(key: bytes, lod: NodeLod, error: float) -> bytes:
-    """The bytes of a node entry under `key`: the LOD and its error (model units)."""
+def node_entry_bytes(key: bytes, lod: NodeLod, error: float, extra: dict | None = None,
+                     more: dict | None = None) -> bytes:
+    """The bytes of a node entry under `key`: the LOD and its error (model units); extra, more: the
+    header's extra entries and arrays of its proxy material (cache_proxies.py)."""
     arrays = {"positions": np.asarray(lod.positions, "<f4"), "faces": np.asarray(lod.faces, "<i4"),
               "hausdorff": np.array([error], "<f8"),
               "summary": np.array([int(getattr(lod, name)) for name in SUMMARY_FIELDS], "<i8")}
@@ -114,7 +117,7 @@ def node_entry_bytes(key: bytes, lod: NodeLod, error: float) -> bytes:
         arrays["normals"] = np.asarray(lod.normals, "<f4")
     if lod.attributes is not None:
         arrays["attributes"] = np.asarray(lod.attributes, "<f4")
-    return _pack(key, "node", arrays)
+    return _pack(key, "node", {**arrays, **(more or {})}, extra=extra)
 
 
 def node_entry(extra: dict, arrays: dict, *, with_normals: bool, row_width: int) -> tuple[NodeLod, float]:
@@ -122,7 +125,7 @@ def node_entry(extra: dict, arrays: dict, *, with_normals: bool, row_width: int)
     row_width attribute columns); CorruptEntry otherwise."""
     expected = {"positions", "faces", "hausdorff", "summary"} | ({"normals"} if with_normals else set()) \
         | ({"attributes"} if row_width else set())
-    if set(arrays) != expected:
+    if set(arrays) - {"proxy_png"} != expected:
         raise CorruptEntry(f"arrays {sorted(arrays)}, expected {sorted(expected)}")
     positions = _expect(arrays, "positions", dtype="<f4", shape=(None, 3))
     k = positions.shape[0]

@@ -23,7 +23,7 @@ Dask task costs about 7 ms of CPU here beside its 30-45 ms of work) are in
 docs/performance.md#baking-on-a-dask-cluster.
 
 Before a bake uses a cluster, `check_cluster` asks every worker for the versions and sources that
-decide LODs and errors (cache.context_digest) and reads a probe file in the scratch folder:
+decide LODs and errors (cache_keys.context_digest) and reads a probe file in the scratch folder:
 a worker with other code or without the shared folder is refused before anything is baked.
 
 Command line only: Dask (`dask[distributed]`) is an optional dependency of `python -m hlod_core`;
@@ -130,11 +130,11 @@ def connect(address: str, *, timeout_s: float = CONNECT_TIMEOUT_S):
 
 def fingerprint() -> str:
     """What decides a task's result besides its arguments: the Python version and, through
-    cache.context_digest, the sources of the modules that compute LODs and errors and the
+    cache_keys.context_digest, the sources of the modules that compute LODs and errors and the
     pymeshlab and numpy versions. Runs on each worker (check_cluster) and here."""
-    from . import cache, simplify
+    from . import cache_keys, simplify
 
-    digest = cache.context_digest(simplify.DecimationSettings(), with_normals=False, row_layout=None)
+    digest = cache_keys.context_digest(simplify.DecimationSettings(), with_normals=False, row_layout=None)
     return f"python {sys.version_info[0]}.{sys.version_info[1]} {digest.hex()}"
 
 

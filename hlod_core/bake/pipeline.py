@@ -92,10 +92,8 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
         plan = proxy_plan(mesh, settings, images=images, textures=textures)
         if plan is not None:
             mesh = plan.mesh
-            if cache_dir is not None and mesh.tri_count > settings.target_tris:  # inner nodes: proxies
-                log.info("proxy materials: the bake cache is not used for a bake that makes them")
-                cache_dir = None
-        cache = BakeCache.open(cache_dir, mesh=mesh, settings=settings, budget_mb=cache_budget_mb)
+        cache = BakeCache.open(cache_dir, mesh=mesh, settings=settings, budget_mb=cache_budget_mb,
+                               plan=None if plan is None else plan.plan)
         prior = Prior(frame_from, "file") if frame_from is not None else cache.prior() if cache is not None else None
         return _bake(InMemorySource(mesh, prior), settings, _Callbacks(progress, cancel), cache=cache,
                      scheduler=scheduler, scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta, prior=prior,

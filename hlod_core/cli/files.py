@@ -72,7 +72,7 @@ def export_command(args: argparse.Namespace) -> dict:
         raise InputError(f"--place: only for --format 3dtiles (a .hlod has no place on the globe), not {args.format}")
     hlod = hlod_file.load(args.file)
     return export_hlod(hlod, args.format, out, stem=Path(args.file).stem, place=place, mesh=args.mesh,
-                       textures=args.textures)
+                       textures=args.textures, merge_leaves=args.merge_leaves)
 
 
 def view_command(args: argparse.Namespace) -> dict:

@@ -56,14 +56,17 @@ def place_text(text: str):
 
 
 def add_mesh_option(p: argparse.ArgumentParser) -> None:
-    """--mesh, the 3D Tiles tile content's encoding (export.formats.MESH_ENCODINGS), on parser `p`: the
-    core's export command and the Blender background command share it."""
+    """--mesh, the 3D Tiles tile content's encoding (export.formats.MESH_ENCODINGS), and --merge-leaves,
+    on parser `p`: the core's export command and the Blender background command share them."""
     from ..export.formats import MESH_ENCODINGS
 
     p.add_argument("--mesh", choices=MESH_ENCODINGS, default="plain",
                    help="3dtiles: tile content as float32 (plain), with positions and normals quantized "
                         "(KHR_mesh_quantization) or Draco compressed (KHR_draco_mesh_compression; needs "
                         "the DracoPy package)")
+    p.add_argument("--merge-leaves", action="store_true",
+                   help="3dtiles: a node's leaf children share one tile (fewer, bigger tiles: less JSON per "
+                        "triangle and fewer requests; frustum culling of the leaves by their union box)")
 
 
 def seconds(text: str) -> float:
@@ -216,11 +219,12 @@ def runtime_settings_of(args: argparse.Namespace, *, bias: str = "P") -> Runtime
 
 
 def gpu_budget_option(p: argparse.ArgumentParser) -> None:
-    """--gpu-budget: node geometry streamed under a GPU memory budget (render.residency)."""
+    """--gpu-budget: node geometry and textures streamed under a GPU memory budget (render.residency)."""
     p.add_argument("--gpu-budget", type=megabytes, default=0.0, metavar="MB",
-                   help="GPU memory for node geometry, MB (2^20 bytes): nodes are uploaded as the traversal wants "
-                        "them and the least recently used evicted; a coarser resident node stands in until they "
-                        "arrive. 0 (default): unlimited, the whole file uploaded at the start")
+                   help="GPU memory for node geometry and textures, MB (2^20 bytes): nodes are uploaded with their "
+                        "textures as the traversal wants them and the least recently used evicted; a coarser "
+                        "resident node stands in until they arrive. 0 (default): unlimited, the whole file uploaded "
+                        "at the start")
 
 
 def megabytes(text: str) -> float:

@@ -35,13 +35,13 @@ MESH_ENCODINGS, TEXTURE_ENCODINGS = tiles3d.MESH_ENCODINGS, tiles3d.texture_code
 
 
 def export_hlod(hlod, fmt: str, out_dir, *, stem: str, place: Place | None = None, mesh: str = "plain",
-                textures: str = "original") -> dict:
+                textures: str = "original", merge_leaves: bool = False) -> dict:
     """Export into out_dir in format `fmt` ("3dtiles" or "hlod"): 3D Tiles (tileset.json, tiles/,
     textures/ when textured; on the globe at `place` when given; `mesh` one of MESH_ENCODINGS,
-    `textures` one of TEXTURE_ENCODINGS) or the native file <stem>.hlod (which has neither). Returns
-    the export's summary."""
+    `textures` one of TEXTURE_ENCODINGS, `merge_leaves` a node's leaves in one tile) or the native
+    file <stem>.hlod (which has none of these). Returns the export's summary."""
     if fmt == "3dtiles":
-        return tiles3d.export(hlod, out_dir, place=place, mesh=mesh, textures=textures)
+        return tiles3d.export(hlod, out_dir, place=place, mesh=mesh, textures=textures, merge_leaves=merge_leaves)
     target = Path(out_dir) / f"{stem}.hlod"
     check_output_file(str(target))
     hlod_file.save(hlod, target)

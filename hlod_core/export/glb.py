@@ -316,6 +316,8 @@ def _material(material: Material, document: dict, images: dict[str, TileImage] |
         row["alphaMode"] = material.alpha_mode
         if material.alpha_mode == "MASK":
             row["alphaCutoff"] = float(material.alpha_cutoff)
+    if material.double_sided:  # as the preview and Blender draw it (no backface culling)
+        row["doubleSided"] = True
     rows = document.setdefault("materials", [])
     rows.append(row)
     return len(rows) - 1

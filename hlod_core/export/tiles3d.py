@@ -1,4 +1,5 @@
-"""3D Tiles 1.1 export of a baked hierarchy: one tile per node, one GLB per node (`glb`).
+"""3D Tiles 1.1 export of a baked hierarchy: one tile per node, one GLB per node (`glb`); with
+`merge_leaves`, a node's leaf children share one tile and one GLB (`tile_name`).
 
 Specification: OGC 3D Tiles 1.1 (tileset JSON, bounding volumes, geometricError, REPLACE
 refinement, glTF content). The tileset is in the bake's model space (Z up, metres), translated by
@@ -28,7 +29,7 @@ import numpy as np
 from ..core.atomic import replace_folder, umask_mode
 from ..core.errors import InputError
 from ..io.texture_folder import unique_file_name
-from ..model.hierarchy import Hlod, node_geometry
+from ..model.hierarchy import Hlod, nodes_geometry
 from . import texture_codec
 from .draco import require_dracopy
 from .glb import GENERATOR, TileImage, glb_bytes, triangle_count
@@ -124,18 +125,55 @@ def _box(lo: np.ndarray, hi: np.ndarray, floor: float) -> list[float]:
     return [*centre.tolist(), half[0], 0.0, 0.0, 0.0, half[1], 0.0, 0.0, 0.0, half[2]]
 
 
+def tile_name(tile: int) -> str:
+    """A tile's file name without suffix: its node's number, or for a tile of a node's leaf children
+    (a negative id, -1 - node) `<node>-leaves`."""
+    return str(tile) if tile >= 0 else f"{-1 - tile}-leaves"
+
+
 class _Tiles:
     """The tiles of an HLOD: a tile per node with triangles or with a tile below it (an empty node is
-    absent), each with its box (model space less the bake's origin) and its node's error."""
+    absent), each with its box (model space less the bake's origin) and its node's error. With
+    `merge_leaves`, the leaf children of a node that has two or more are one tile instead, id
+    -1 - node (`members` lists its leaves): the union of their boxes, error 0, their triangles."""
 
-    def __init__(self, hlod: Hlod):
+    def __init__(self, hlod: Hlod, merge_leaves: bool = False):
         self.hlod = hlod
         origin = np.asarray(hlod.origin, np.float64)
         self.lo, self.hi = hlod.box_min - origin, hlod.box_max - origin
         self.diagonal = float(np.linalg.norm(self.hi[0] - self.lo[0]))
         self.floor = max(MIN_HALF_SIZE_OF_DIAGONAL * self.diagonal, MIN_HALF_SIZE)
         self.children: dict[int, list[int]] = {}
+        self.members: dict[int, list[int]] = {}
         self.present = self._present(0)
+        if merge_leaves:
+            self._merge_leaves()
+
+    def _merge_leaves(self) -> None:
+        """Each node's two or more leaf children (with triangles) become one tile, placed where the
+        first of them was among the node's children."""
+        for node, kids in list(self.children.items()):
+            leaves = [c for c in kids if self.hlod.child_count[c] == 0 and self.hlod.tri_count[c] > 0]
+            if len(leaves) < 2:
+                continue
+            group = -1 - node
+            self.members[group], self.children[group] = leaves, []
+            first = kids.index(leaves[0])
+            self.children[node] = [c for c in kids[:first] if c not in leaves] + [group] + \
+                [c for c in kids[first:] if c not in leaves]
+            for leaf in leaves:
+                del self.children[leaf]
+
+    def content(self) -> list[int]:
+        """The tiles with content, in node order, a tile of leaves where its first leaf was."""
+        first_of = {members[0]: group for group, members in self.members.items()}
+        merged = {leaf for members in self.members.values() for leaf in members}
+        return [first_of.get(n, n) for n in np.flatnonzero(self.hlod.tri_count > 0).tolist()
+                if n not in merged or n in first_of]
+
+    def nodes_of(self, tile: int) -> list[int]:
+        """The nodes whose triangles a tile holds."""
+        return self.members.get(tile, [tile])
 
     def _present(self, node: int) -> bool:
         """Whether `node` is a tile; fills self.children (its tiles' children) on the way."""
@@ -145,15 +183,17 @@ class _Tiles:
         return bool(kept) or self.hlod.tri_count[node] > 0
 
     def fields(self, node: int) -> dict:
-        """A tile's boundingVolume and geometricError."""
-        return {"boundingVolume": {"box": _box(self.lo[node], self.hi[node], self.floor)},
-                "geometricError": float(self.hlod.error[node])}
+        """A tile's boundingVolume and geometricError (a tile of leaves: their boxes' union, error 0)."""
+        nodes = self.nodes_of(node)
+        lo, hi = self.lo[nodes].min(axis=0), self.hi[nodes].max(axis=0)
+        return {"boundingVolume": {"box": _box(lo, hi, self.floor)},
+                "geometricError": float(self.hlod.error[nodes].max())}
 
     def tile(self, node: int, content_uri, external=None) -> dict:
         """The tile of `node` with its subtree; content_uri(node) names a GLB. `external(child)`, when
         given, names the external tileset of a child written in another file (None: in this one)."""
         out = self.fields(node)
-        if self.hlod.tri_count[node] > 0:
+        if self.hlod.tri_count[self.nodes_of(node)].sum() > 0:
             out["content"] = {"uri": content_uri(node)}
         children = []
         for child in self.children[node]:
@@ -214,17 +254,34 @@ class _Tiles:
         return [node, *(n for c in self.children[node] for n in self._subtree(c))]
 
 
-def tileset(hlod: Hlod, content_uri, *, place: Place | None = None) -> dict:
-    """The tileset JSON of the whole tree in one document; content_uri(node) names each node's GLB.
+def tileset(hlod: Hlod, content_uri, *, place: Place | None = None, mesh: str = "plain",
+            merge_leaves: bool = False) -> dict:
+    """The tileset JSON of the whole tree in one document; content_uri(tile) names each tile's GLB
+    (a tile is a node, or with `merge_leaves` a node's leaves: `tile_name`).
     The root's transform is `root_transform` (on the globe at `place` when given, which the
-    document's extras.place also names). InputError without triangles."""
-    tiles = _tiles(hlod)
-    extras = None if place is None else {"place": place.as_dict()}
-    return tiles.document(tiles.tile(0, content_uri), root_transform(hlod, place), extras)
+    document's extras.place also names; `_extras`). InputError without triangles."""
+    tiles = _tiles(hlod, merge_leaves)
+    return tiles.document(tiles.tile(0, content_uri), root_transform(hlod, place), _extras(place, mesh))
 
 
-def _tiles(hlod: Hlod) -> _Tiles:
-    tiles = _Tiles(hlod)
+def _extras(place: Place | None, mesh: str) -> dict | None:
+    """The first tileset's extras: `place` (where it stands on the globe) and `mesh` (the tiles'
+    encoding, where it is not plain: a viewer that knows its tiles are Draco starts its decoder
+    while it loads the tileset); None when there is neither."""
+    extras = {} if place is None else {"place": place.as_dict()}
+    if mesh != "plain":
+        extras["mesh"] = mesh
+    return extras or None
+
+
+def content_tiles(hlod: Hlod, *, merge_leaves: bool = False) -> dict[str, list[int]]:
+    """{a tile's GLB name without suffix (`tile_name`): the nodes whose triangles it holds}."""
+    tiles = _tiles(hlod, merge_leaves)
+    return {tile_name(t): tiles.nodes_of(t) for t in tiles.content()}
+
+
+def _tiles(hlod: Hlod, merge_leaves: bool = False) -> _Tiles:
+    tiles = _Tiles(hlod, merge_leaves)
     if not tiles.present:
         raise InputError("3D Tiles export: the hierarchy has no triangles")
     return tiles
@@ -239,36 +296,38 @@ def root_transform(hlod: Hlod, place: Place | None = None) -> np.ndarray:
     return transform if place is None else place.frame() @ transform
 
 
-def tileset_files(hlod: Hlod, *, place: Place | None = None, max_tiles: int = MAX_TILES_PER_FILE) -> dict[str, dict]:
+def tileset_files(hlod: Hlod, *, place: Place | None = None, max_tiles: int = MAX_TILES_PER_FILE,
+                  mesh: str = "plain", merge_leaves: bool = False) -> dict[str, dict]:
     """The tileset split into external tilesets: {path in the export: tileset JSON}. "tileset.json"
     holds the top of the tree (at most `max_tiles` tiles, `chunks`); a subtree cut off is
     tiles/<node>.json, referred to by a tile with its node's box and error whose content is that
     file (3D Tiles 1.1 "external tileset"; the referring tile's transform applies to it). GLBs are
     tiles/<node>.glb as in one document. Boxes, errors, the root's transform and extras are tileset()'s."""
-    tiles = _tiles(hlod)
-    transform, extras = root_transform(hlod, place), None if place is None else {"place": place.as_dict()}
+    tiles = _tiles(hlod, merge_leaves)
+    transform, extras = root_transform(hlod, place), _extras(place, mesh)
     files = {}
     for top, held in tiles.chunks(max_tiles).items():
         prefix = f"{TILE_FOLDER}/" if top == 0 else ""  # URIs are relative to the file that holds them
 
         def glb_uri(node, prefix=prefix):
-            return f"{prefix}{node}.glb"
+            return f"{prefix}{tile_name(node)}.glb"
 
         def external(node, prefix=prefix, held=held):
-            return None if node in held else f"{prefix}{node}.json"
+            return None if node in held else f"{prefix}{tile_name(node)}.json"
 
         root = tiles.tile(top, glb_uri, external)
         if top == 0:
             files["tileset.json"] = tiles.document(root, transform, extras)
         else:
             root["refine"] = "REPLACE"
-            files[f"{TILE_FOLDER}/{top}.json"] = {"asset": {"version": "1.1", "generator": GENERATOR},
+            files[f"{TILE_FOLDER}/{tile_name(top)}.json"] = {"asset": {"version": "1.1", "generator": GENERATOR},
                                                   "geometricError": root["geometricError"], "root": root}
     return files
 
 
 def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = None,
-           place: Place | None = None, mesh: str = "plain", textures: str = "original") -> dict:
+           place: Place | None = None, mesh: str = "plain", textures: str = "original",
+           merge_leaves: bool = False) -> dict:
     """Write tileset.json, tiles/<node>.glb and, for textured materials, textures/ into out_dir,
     atomically: everything is written into a temporary folder beside it and renamed into place,
     replacing an earlier export (`replace_export`). Folders and files get the modes of ordinary
@@ -277,6 +336,7 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
     local frame, as the bake's model space). `mesh`: the tiles' vertices, "plain" float32,
     "quantized" (KHR_mesh_quantization) or "draco" (KHR_draco_mesh_compression; glb module notes).
     `textures`: the texture files as they are, or re-encoded as JPEG or WebP (texture_codec).
+    `merge_leaves`: a node's leaf children share one tile (fewer, bigger tiles: `_Tiles`).
     Returns a summary (tiles, glb files, triangles stored and held by the GLBs, bytes, image files,
     warnings)."""
     if mesh not in MESH_ENCODINGS:
@@ -294,9 +354,11 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
     try:
         os.chmod(staging, umask_mode(0o777))  # mkdtemp makes it 0700; the export is an ordinary folder
         images, warnings = copy_textures(hlod, staging / TEXTURE_FOLDER, textures)
-        written, tris, held, size = _write_tiles(hlod, staging / TILE_FOLDER, images=images, mesh=mesh)
-        document = tileset(hlod, lambda node: f"{TILE_FOLDER}/{node}.glb", place=place)
-        files = write_tileset(hlod, staging, document, place=place)
+        tiles = _tiles(hlod, merge_leaves)
+        written, tris, held, size = _write_tiles(tiles, staging / TILE_FOLDER, images=images, mesh=mesh)
+        document = tileset(hlod, lambda tile: f"{TILE_FOLDER}/{tile_name(tile)}.glb", place=place, mesh=mesh,
+                           merge_leaves=merge_leaves)
+        files = write_tileset(hlod, staging, document, place=place, mesh=mesh, merge_leaves=merge_leaves)
         warnings = warnings + replace_export(out_dir, staging, platform=platform)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
@@ -310,33 +372,35 @@ def export(hlod: Hlod, out_dir: str | os.PathLike, *, platform: str | None = Non
             "warnings": warnings}
 
 
-def write_tileset(hlod: Hlod, folder: Path, document: dict, *, place: Place | None = None) -> dict[str, int]:
+def write_tileset(hlod: Hlod, folder: Path, document: dict, *, place: Place | None = None,
+                  mesh: str = "plain", merge_leaves: bool = False) -> dict[str, int]:
     """Write the tileset JSON into `folder` (its tiles/ made): `document` (tileset()) as one indented
     tileset.json while that is at most ONE_FILE_MAX_BYTES, else split into external tilesets
-    (tileset_files at `place`, the document's), compact. Returns {path: bytes written}."""
+    (tileset_files at the document's `place`, `mesh` and `merge_leaves`), compact. Returns {path: bytes written}."""
     text = json.dumps(document, indent=1).encode()
     if len(text) <= ONE_FILE_MAX_BYTES:
         (folder / "tileset.json").write_bytes(text)
         return {"tileset.json": len(text)}
     written = {}
-    for path, part in tileset_files(hlod, place=place).items():
+    for path, part in tileset_files(hlod, place=place, mesh=mesh, merge_leaves=merge_leaves).items():
         data = json.dumps(part, separators=(",", ":")).encode()
         (folder / path).write_bytes(data)
         written[path] = len(data)
     return written
 
 
-def _write_tiles(hlod: Hlod, folder: Path, *, images: dict[str, TileImage], mesh: str) -> tuple[int, int, int, int]:
-    """folder/<node>.glb for every node with triangles (folder made here); (files, stored triangles,
-    triangles the GLBs hold, bytes). Draco holds no triangle whose corners repeat a vertex (position
-    and attributes): zero area, nothing drawn."""
+def _write_tiles(tiles: _Tiles, folder: Path, *, images: dict[str, TileImage], mesh: str) -> tuple[int, int, int, int]:
+    """folder/<tile>.glb for every tile with triangles (folder made here; `tile_name`); (files, stored
+    triangles, triangles the GLBs hold, bytes). Draco holds no triangle whose corners repeat a vertex
+    (position and attributes): zero area, nothing drawn."""
+    hlod = tiles.hlod
     folder.mkdir()
     written, tris, held, size = 0, 0, 0, 0
-    for node in np.flatnonzero(hlod.tri_count > 0).tolist():
-        geometry = node_geometry(hlod, node)
+    for tile in tiles.content():
+        geometry = nodes_geometry(hlod, tiles.nodes_of(tile))
         data = glb_bytes(geometry.positions, geometry.faces, geometry.normals, uvs=geometry.uvs, colors=geometry.colors,
                          face_material=geometry.face_material, materials=hlod.materials, images=images, mesh=mesh)
-        (folder / f"{node}.glb").write_bytes(data)
+        (folder / f"{tile_name(tile)}.glb").write_bytes(data)
         written, tris, size = written + 1, tris + geometry.faces.shape[0], size + len(data)
         held += triangle_count(data) if mesh == "draco" else geometry.faces.shape[0]
     return written, tris, held, size

@@ -4,9 +4,10 @@ images as files.
 Data form: the file's JSON header (and a GLB's BIN chunk) in; a tuple of appearance.Material out.
 Per material: baseColorFactor (linear RGBA), metallicFactor, roughnessFactor (glTF's defaults 1,
 1, 1), clipped to [0, 1], alphaMode and alphaCutoff (defaults OPAQUE, 0.5; trimesh refuses another
-mode, this module a cutoff outside [0, 1]), and baseColorTexture as an image file: an image given by URI is the
-file itself; one embedded in the file (a bufferView or a data: URI) is written once, with its
-original bytes, into the caller's texture folder as NAME-<sha256 prefix>.png/.jpg/.webp
+mode, this module a cutoff outside [0, 1]), doubleSided (default false), and baseColorTexture as an
+image file: an image given by URI is the file itself; one embedded in the file (a bufferView or a
+data: URI) is written once, with its original bytes, into the caller's texture folder as
+NAME-<sha256 prefix>.png/.jpg/.webp
 (content-named, so equal images are one file) and referenced there. No folder given, or a missing
 image: the material is read without its texture, with a warning naming the file.
 """
@@ -128,10 +129,13 @@ def _materials(images: _Images) -> tuple[Material, ...]:
         alpha_mode, cutoff = mat.get("alphaMode", "OPAQUE"), mat.get("alphaCutoff", 0.5)
         if isinstance(cutoff, bool) or not isinstance(cutoff, (int, float)) or not 0.0 <= cutoff <= 1.0:
             raise InputError(f"{where}.alphaCutoff must be a number in [0, 1]")
+        double_sided = mat.get("doubleSided", False)
+        if not isinstance(double_sided, bool):
+            raise InputError(f"{where}.doubleSided must be true or false")
         out.append(Material(name=name if isinstance(name, str) and name else f"material.{i}",
                             base_color=tuple(float(c) for c in color), metallic=float(metallic[0]),
                             roughness=float(roughness[0]), texture=texture, alpha_mode=alpha_mode,
-                            alpha_cutoff=float(cutoff)))
+                            alpha_cutoff=float(cutoff), double_sided=double_sided))
     return tuple(out)
 
 

@@ -5,7 +5,9 @@ Data form:
   RGBA base colour factor, metallic and roughness factors, the base-colour texture as an image
   file path (`texture`, absolute in memory; relative to the .hlod file where it can be in a file)
   and, for a bake from Blender, the name of the image datablock (`image`) the preview draws there;
-  glTF's alpha mode ("OPAQUE", "MASK": alpha below `alpha_cutoff` is not drawn, "BLEND").
+  glTF's alpha mode ("OPAQUE", "MASK": alpha below `alpha_cutoff` is not drawn, "BLEND"), and
+  whether both faces of a triangle are drawn (`double_sided`: Blender's default, no backface culling,
+  and so the default here; glTF's doubleSided, whose default is one face).
 - Per vertex, optional: `uvs` (v,2) float32 in Blender's and OpenGL's convention (origin at the
   image's bottom-left, v up; glTF's v is 1 - v), `colors` (v,4) float32 linear RGBA in [0, 1].
 - Per triangle, optional: a material id (row of the material table).
@@ -53,6 +55,7 @@ class Material:
     image: str | None = None
     alpha_mode: str = "OPAQUE"
     alpha_cutoff: float = 0.5
+    double_sided: bool = True
 
     def to_json(self, *, relative_to: str | os.PathLike | None = None) -> dict:
         """A JSON object; `texture` relative to the folder `relative_to` when it is below it or
@@ -69,6 +72,8 @@ class Material:
                "texture": texture, "image": self.image}
         if self.alpha_mode != "OPAQUE":  # files of opaque materials stay as they were
             out.update(alpha_mode=self.alpha_mode, alpha_cutoff=float(self.alpha_cutoff))
+        if not self.double_sided:  # files of double-sided materials stay as they were
+            out["double_sided"] = False
         return out
 
     @staticmethod
@@ -98,9 +103,12 @@ class Material:
             raise InputError(f"{where}.alpha_mode must be one of {', '.join(ALPHA_MODES)}")
         if not _unit_number(alpha_cutoff):
             raise InputError(f"{where}.alpha_cutoff must be a number in [0, 1]")
+        double_sided = value.get("double_sided", True)
+        if not isinstance(double_sided, bool):
+            raise InputError(f"{where}.double_sided must be true or false")
         return Material(name=name, base_color=tuple(float(c) for c in colour), metallic=float(factors["metallic"]),
                         roughness=float(factors["roughness"]), texture=texture, image=image, alpha_mode=alpha_mode,
-                        alpha_cutoff=float(alpha_cutoff))
+                        alpha_cutoff=float(alpha_cutoff), double_sided=double_sided)
 
 
 def _unit_number(value) -> bool:

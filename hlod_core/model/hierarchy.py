@@ -199,14 +199,21 @@ class NodeGeometry:
 def node_geometry(hlod: Hlod, node: int) -> NodeGeometry:
     """One node's own LOD (or leaf) triangles as a standalone mesh (NodeGeometry): the vertices its
     triangles use, renumbered in the order of their rows in the shared buffer."""
-    first, count = int(hlod.tri_offset[node]), int(hlod.tri_count[node])
-    rows = np.asarray(hlod.indices[first:first + count], np.int64)
+    return nodes_geometry(hlod, [node])
+
+
+def nodes_geometry(hlod: Hlod, nodes) -> NodeGeometry:
+    """Several nodes' own triangles as one standalone mesh (node_geometry's, the nodes' triangles in
+    the order given): what a 3D Tiles tile of several leaves holds."""
+    spans = [(int(hlod.tri_offset[n]), int(hlod.tri_count[n])) for n in nodes]
+    rows = np.concatenate([np.asarray(hlod.indices[a:a + k], np.int64) for a, k in spans])
     used, local = np.unique(rows, return_inverse=True)
 
     def per_vertex(arr):
         return None if arr is None else np.asarray(arr[used], np.float32)
 
-    material = None if hlod.tri_material is None else np.asarray(hlod.tri_material[first:first + count], np.int32)
+    material = None if hlod.tri_material is None else np.concatenate(
+        [np.asarray(hlod.tri_material[a:a + k], np.int32) for a, k in spans])
     return NodeGeometry(positions=np.asarray(hlod.positions[used], np.float32), faces=local.reshape(-1, 3),
                         normals=per_vertex(hlod.normals), uvs=per_vertex(hlod.uvs), colors=per_vertex(hlod.colors),
                         face_material=material)

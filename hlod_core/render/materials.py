@@ -6,26 +6,24 @@ lists; per material a base colour (linear RGBA, the uniform's bytes) and an opti
 vertex buffers beside the positions: UVs (only when some material has an image) and colours (when
 the HLOD has them); no material table counts as glTF's default material (NO_MATERIAL_BASE_COLOR).
 
-Images (`images`: material row -> (h, w, 4) uint8 RGBA, top row first, sRGB-encoded) become
-sRGB8_ALPHA8 textures: one per distinct array object, rows uploaded bottom row first (UV origin
-bottom-left), mipmapped, repeat wrap, trilinear. Colour spaces:
+Images (a texture_table.TextureTable of material row -> (h, w, 4) uint8 RGBA, top row first,
+sRGB-encoded) become sRGB8_ALPHA8 textures: one per distinct array object, rows uploaded bottom row
+first (UV origin bottom-left), mipmapped, repeat wrap, trilinear; all at the start, or under a GPU
+budget each with the first resident node that uses it (streamed_geometry.py). Colour spaces:
 docs/how-it-works.md#colours-in-the-renderer-linear-in-srgb-out
 """
 from __future__ import annotations
 
 import contextlib
-import logging
 
 import numpy as np
 
-from ..core.errors import InputError
 from ..model.appearance import NO_MATERIAL_BASE_COLOR
 from ..model.hierarchy import Hlod
 from .gl_functions import GL, GLFunctions
 from .gl_state import draw_framebuffer_encodes_srgb, restore_texture_unit, save_texture_unit
 from .shaders import parts_sources
-
-log = logging.getLogger(__name__)
+from .texture_table import TextureTable
 
 #: The texture unit the appearance program samples; its previous binding is restored after each frame.
 TEXTURE_UNIT = 0
@@ -35,13 +33,15 @@ class MaterialParts:
     """The appearance program, its extra vertex buffers and textures, and every node's parts:
     node i draws parts part_first[i] .. part_end[i] - 1; part j is index_count[j] indices from
     index_first[j] in material[j]. Per material m: base[m] (the base-colour uniform's bytes) and
-    texture[m] (moderngl.Texture or None); with no material table, row 0 is glTF's default
-    material. GL objects go to `keep` (the owner releases them)."""
+    row_texture[m], its texture's number in `textures` (-1: none), textures[t] the
+    moderngl.Texture while it is made; with no material table, row 0 is glTF's default material.
+    GL objects go to `keep` (the owner releases them); with `vbo` None (streamed geometry) no
+    texture is made here: the owner makes and releases them (make_texture, forget_texture)."""
 
-    def __init__(self, ctx, hlod: Hlod, *, vbo, ibo, gl: GLFunctions, images: dict | None, keep):
-        self.gl = gl
-        textures = _textures(ctx, hlod, images=images or {}, gl=gl, keep=keep)
-        self.has_uv = any(t is not None for t in textures)
+    def __init__(self, ctx, hlod: Hlod, *, vbo, ibo, gl: GLFunctions, textures: TextureTable, keep):
+        self.ctx, self.gl = ctx, gl
+        self.table = textures
+        self.has_uv = textures.count > 0
         self.has_color = hlod.colors is not None
         vertex_shader, fragment_shader = parts_sources(has_uv=self.has_uv, has_color=self.has_color)
         self.program = keep(ctx.program(vertex_shader=vertex_shader, fragment_shader=fragment_shader))
@@ -62,7 +62,11 @@ class MaterialParts:
         self.material = parts.material.tolist()
         bases = [m.base_color for m in hlod.materials] or [NO_MATERIAL_BASE_COLOR]
         self.base = [np.asarray(b, np.float32).tobytes() for b in bases]
-        self.texture = textures or [None]
+        self.row_texture = textures.row_texture.tolist()  # material row (-1: none) -> texture number or -1
+        self.textures: list = [None] * textures.count  # texture number -> moderngl.Texture while made
+        if vbo is not None:  # the whole file at the start; streamed nodes make theirs (make_texture)
+            for number in range(textures.count):
+                keep(self.make_texture(number))
         self.u_base = self.program["u_base_color"]
         self.u_encode = self.program["u_encode_srgb"]
         self.u_textured = self.program["u_textured"] if self.has_uv else None
@@ -94,7 +98,8 @@ class MaterialParts:
         """Set material row `material`'s uniforms and bind its texture (saving the host's first)."""
         self.u_base.write(self.base[material])
         if self.has_uv:
-            texture = self.texture[material]
+            number = self.row_texture[material]
+            texture = self.textures[number] if number >= 0 else None
             if (texture is not None) is not self.textured:
                 self.textured = texture is not None
                 self.u_textured.value = self.textured
@@ -105,6 +110,20 @@ class MaterialParts:
                 texture.use(TEXTURE_UNIT)
                 self.bound = texture
         self.current_material = material
+
+    def make_texture(self, number: int):
+        """Make texture `number` of the table (the host's binding on the default unit kept) and
+        return it; the caller owns it and hands it to `forget_texture` before releasing it."""
+        with _default_unit_kept(self.ctx, self.gl):
+            texture = _texture(self.ctx, self.table.images[number])
+        self.textures[number] = texture
+        return texture
+
+    def forget_texture(self, number: int) -> None:
+        """Texture `number` is being released: draw its materials in their base colours until made again."""
+        if self.bound is self.textures[number]:
+            self.bound = None
+        self.textures[number] = None
 
     def draw(self, node: int, *, triangles: int, vao=None, index_base: int = 0) -> None:
         """Draw node `node`'s parts, each in its material (`triangles`: moderngl.TRIANGLES); vao:
@@ -118,48 +137,10 @@ class MaterialParts:
             render(triangles, vertices=self.index_count[j], first=self.index_first[j] - index_base)
 
 
-def _textures(ctx, hlod: Hlod, *, images: dict, gl: GLFunctions, keep) -> list:
-    """Per material row: its moderngl.Texture (one per distinct image array) or None."""
-    n = len(hlod.materials)
-    out = [None] * n
-    bad = [k for k in images if not isinstance(k, (int, np.integer)) or not 0 <= k < n]
-    if bad:
-        raise InputError(f"images: key {bad[0]!r} is not a material row of this HLOD (it has {n} materials)")
-    given = {int(k): v for k, v in images.items() if v is not None}
-    if not given:
-        return out
-    if hlod.uvs is None:
-        log.warning("%d material images given but the HLOD has no UVs: drawn in base colours", len(given))
-        return out
-    max_side = int(ctx.info["GL_MAX_TEXTURE_SIZE"])
-    made = {}
-    with _default_unit_kept(ctx, gl):
-        for index, image in given.items():
-            name = hlod.materials[index].name
-            _check_image(index, name, image)
-            if max(image.shape[:2]) > max_side:
-                log.warning("image of material %d (%r) is %dx%d, larger than this GL's %d: drawn in its base "
-                            "colour", index, name, image.shape[1], image.shape[0], max_side)
-                continue
-            if id(image) not in made:
-                made[id(image)] = _texture(ctx, image, keep=keep)
-            out[index] = made[id(image)]
-    return out
-
-
-def _check_image(index: int, name: str, image) -> None:
-    """InputError unless `image` is (h, w, 4) uint8 with h, w > 0."""
-    if not (isinstance(image, np.ndarray) and image.dtype == np.uint8 and image.ndim == 3
-            and image.shape[2] == 4 and image.shape[0] > 0 and image.shape[1] > 0):
-        got = f"{image.dtype}{list(image.shape)}" if isinstance(image, np.ndarray) else type(image).__name__
-        raise InputError(f"image of material {index} ({name!r}): expected (h, w, 4) uint8 RGBA, got {got}")
-
-
-def _texture(ctx, image: np.ndarray, *, keep):
+def _texture(ctx, image: np.ndarray):
     """(h, w, 4) uint8 sRGB RGBA, top row first -> an sRGB8_ALPHA8 texture, bottom row first."""
     height, width = image.shape[:2]
-    texture = keep(ctx.texture((width, height), 4, np.ascontiguousarray(image[::-1]),
-                               internal_format=GL.SRGB8_ALPHA8))
+    texture = ctx.texture((width, height), 4, np.ascontiguousarray(image[::-1]), internal_format=GL.SRGB8_ALPHA8)
     texture.repeat_x = texture.repeat_y = True
     texture.build_mipmaps()
     texture.filter = (ctx.LINEAR_MIPMAP_LINEAR, ctx.LINEAR)

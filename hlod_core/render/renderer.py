@@ -4,8 +4,9 @@ read-back and release.
 Data form: all node geometry in one vertex buffer (float32 positions relative to the file's
 origin) and one index buffer (uint32); node i is the ranged draw of indices
 [3 tri_offset[i], 3 (tri_offset[i] + tri_count[i])). Under a GPU budget (`streaming`) node geometry
-is uploaded node by node instead, as the traversal wants it (streamed_geometry.py, residency.py):
-`residency` then says which nodes are resident and holds the traversal back where they are not.
+and textures are uploaded node by node instead, as the traversal wants them (streamed_geometry.py,
+residency.py): `residency` then says which nodes are resident and holds the traversal back where
+they are not.
 The renderer works on a standalone context (`create_standalone`, the platform's own GL:
 gl_platform.py; Mesa llvmpipe on machines without a GPU) or on a context handed in by the caller
 (Blender's, in the add-on), drawing into the caller's framebuffer.
@@ -47,6 +48,7 @@ from .residency import Residency, StreamingSettings
 from .resources import GLObjects
 from .shaders import NODE_FS, NODE_VS
 from .streamed_geometry import StreamedGeometry, node_bytes
+from .texture_table import TextureTable
 
 log = logging.getLogger(__name__)
 
@@ -67,11 +69,13 @@ class Renderer:
     frame with a GL timer query (False inside a host that may run its own timer queries).
     `images`: material row -> (h, w, 4) uint8 RGBA, top row first, sRGB-encoded (materials.py);
     InputError for an image of another form or a key that is no material row. `streaming`: a GPU
-    budget for node geometry (None or an unlimited one: the whole file is uploaded at the start)."""
+    budget for node geometry and textures (None or an unlimited one: everything uploaded at the
+    start). `counted_images`: instead of `images`, images someone else draws for these nodes (the
+    preview's gpu batches): the budget counts their textures as this renderer's; none is made."""
 
     def __init__(self, ctx, hlod: Hlod, *, size: tuple[int, int] | None = None, owns_context: bool = False,
                  time_gpu: bool = True, overlay: bool = False, images: dict[int, np.ndarray] | None = None,
-                 streaming: StreamingSettings | None = None):
+                 streaming: StreamingSettings | None = None, counted_images: dict[int, np.ndarray] | None = None):
         import moderngl
 
         self._triangles, self._depth_test = moderngl.TRIANGLES, moderngl.DEPTH_TEST
@@ -86,7 +90,7 @@ class Renderer:
         self._gl_objects = GLObjects()
         self.streamed: StreamedGeometry | None = None
         try:
-            self._make_gl_objects(ctx, hlod, size=size, images=images, streaming=streaming)
+            self._make_gl_objects(ctx, hlod, size=size, images=images, streaming=streaming, counted=counted_images)
         except BaseException:
             self._release_geometry()
             raise
@@ -102,7 +106,7 @@ class Renderer:
         self._scene_depth: tuple[np.ndarray, int] | None = None  # (depth, reduction), uploaded at begin_frame
         self.depth_import_ms = 0.0  # the last begin_frame's upload and write of the scene depth
 
-    def _make_gl_objects(self, ctx, hlod: Hlod, *, size, images, streaming) -> None:
+    def _make_gl_objects(self, ctx, hlod: Hlod, *, size, images, streaming, counted) -> None:
         """Programs, buffers, the query boxes, the own framebuffer, the appearance and (under a
         budget) the streamed node geometry, in that order."""
         keep = self._gl_objects.keep
@@ -124,16 +128,18 @@ class Renderer:
             depth = keep(ctx.depth_renderbuffer(size))
             self.fbo = keep(ctx.framebuffer(color_attachments=[colour], depth_attachment=depth))
         self.appearance: MaterialParts | None = None
+        self.texture_table = TextureTable.none(hlod)  # the textures made (images) or counted (counted_images)
         if hlod.colors is not None or hlod.materials:
-            self.appearance = MaterialParts(ctx, hlod, vbo=self.vbo, ibo=self.ibo, gl=self.gl, images=images,
+            self.texture_table = TextureTable.of(hlod, images or counted,
+                                                 max_side=int(ctx.info["GL_MAX_TEXTURE_SIZE"]))
+            drawn = self.texture_table if images else TextureTable.none(hlod)
+            self.appearance = MaterialParts(ctx, hlod, vbo=self.vbo, ibo=self.ibo, gl=self.gl, textures=drawn,
                                             keep=keep)
         elif images:
             log.warning("%d material images given but the HLOD has no materials: not drawn", len(images))
         if streamed:
-            parts = None if self.appearance is None else (self.appearance.program, self.appearance.has_uv,
-                                                          self.appearance.has_color)
-            self.streamed = StreamedGeometry(ctx, hlod, node_program=self.node_program, parts=parts,
-                                             settings=streaming)
+            self.streamed = StreamedGeometry(ctx, hlod, node_program=self.node_program, appearance=self.appearance,
+                                             textures=self.texture_table, settings=streaming)
 
     @property
     def residency(self) -> Residency | None:
@@ -141,13 +147,14 @@ class Renderer:
         return None if self.streamed is None else self.streamed.residency
 
     @property
-    def geometry_bytes(self) -> int:
-        """GPU bytes of node geometry now: the resident nodes' under a budget, else the whole file's."""
+    def gpu_bytes(self) -> int:
+        """GPU bytes of node geometry and textures now: the resident nodes' under a budget, else all of them."""
         if self.streamed is not None:
             return self.streamed.residency.resident_bytes
-        with_uv = self.appearance is not None and self.appearance.has_uv
-        with_colour = self.appearance is not None and self.appearance.has_color
-        return int(node_bytes(self.hlod, with_uv=with_uv, with_colour=with_colour).sum())
+        look = self.appearance
+        geometry = node_bytes(self.hlod, with_uv=look is not None and look.has_uv, with_colour=look is not None
+                              and look.has_color)
+        return int(geometry.sum() + self.texture_table.texture_bytes.sum())
 
     @classmethod
     def create_standalone(cls, hlod: Hlod, size: tuple[int, int], *, images: dict[int, np.ndarray] | None = None,

@@ -1,10 +1,15 @@
-"""Which nodes' geometry is on the GPU, under a byte budget: the bookkeeping of streamed node
-geometry (docs/how-it-works.md#streaming-node-geometry). No GL here: the renderer's
+"""Which nodes' geometry and textures are on the GPU, under a byte budget: the bookkeeping of
+streamed nodes (docs/how-it-works.md#streaming-node-geometry). No GL here: the renderer's
 `StreamedGeometry` uploads and frees what this decides.
 
 Data form: node table arrays (n,) from hlod_core.model.hierarchy.Hlod; `node_bytes` (n,) int64 is
-what node i takes on the GPU (its vertex buffers and its index buffer). Per node: resident,
-pinned (the root and the top levels, never evicted) and the frame it was last used in.
+what node i's geometry takes on the GPU (its vertex buffers and its index buffer); `node_textures`
+per node the numbers of the textures it draws with, of `texture_bytes` (k,) int64 (texture_table.py).
+A texture is resident while a resident node uses it (a count of them per texture): it comes with
+the first such node and goes with the last, so a proxy texture, which one node uses, comes and goes
+with its node, and a source texture shared by many leaves is counted once. A node's bytes are its
+geometry and the textures it would bring. Per node: resident, pinned (the root and the top levels,
+never evicted) and the frame it was last used in.
 
 A frame: the traversal calls `use(node)` for every node it visits and `can_refine(node, ...)`
 before it descends into a node's children: False when a child is not resident, and then that node
@@ -14,8 +19,10 @@ the traversal's priority (visible first, then screen-space error over tau). Afte
 `plan()` says which nodes to evict and which to upload: requests in priority order, at most
 `upload_bytes_per_frame` a frame (at least one node, so a node larger than that still comes), room
 made by evicting the least recently used nodes that this frame did not use and that are not
-pinned; a request that cannot fit waits. Resident bytes never exceed the budget, except that the
-root is always resident (one node's slack when the budget is below the root's size).
+pinned (with the textures no other resident node uses); a request that cannot fit waits, and a
+node larger than the budget by itself waits for ever (its ancestor stands in). Resident bytes
+never exceed the budget, except that the root is always resident (one node's slack when the
+budget is below the root's size with its textures).
 
 When the whole file fits in the budget every node is made resident at the start (`preload_all`):
 no node is ever waited for, and the frames are those of an unlimited budget.
@@ -44,8 +51,8 @@ PREFETCH_EVICTS_AFTER_FRAMES = 8
 
 @dataclass(frozen=True)
 class StreamingSettings:
-    """budget_bytes: the GPU bytes node geometry may take (0: unlimited, everything uploaded at the
-    start); upload_bytes_per_frame: the most bytes uploaded after one frame."""
+    """budget_bytes: the GPU bytes node geometry and textures may take (0: unlimited, everything
+    uploaded at the start); upload_bytes_per_frame: the most bytes uploaded after one frame."""
 
     budget_bytes: int = 0
     upload_bytes_per_frame: int = UPLOAD_BYTES_PER_FRAME
@@ -79,16 +86,23 @@ class Plan:
 
 
 class Residency:
-    """Residency of node geometry under `settings.budget_bytes` (module docstring).
-    child_offset, child_count, depth: (n,) node table arrays; node_bytes (n,) int64."""
+    """Residency of node geometry and textures under `settings.budget_bytes` (module docstring).
+    child_offset, child_count, depth: (n,) node table arrays; node_bytes (n,) int64; node_textures:
+    per node a tuple of texture numbers, of texture_bytes (k,) int64 (None: no textures)."""
 
     def __init__(self, *, child_offset: np.ndarray, child_count: np.ndarray, depth: np.ndarray,
-                 node_bytes: np.ndarray, settings: StreamingSettings):
+                 node_bytes: np.ndarray, settings: StreamingSettings, node_textures=None, texture_bytes=None):
         if settings.unlimited:
             raise InputError("Residency needs a GPU budget (an unlimited budget uploads every node at the start)")
         self.settings = settings
         self.node_bytes = np.asarray(node_bytes, np.int64)
         n = self.node_bytes.shape[0]
+        self.texture_bytes = np.zeros(0, np.int64) if texture_bytes is None else np.asarray(texture_bytes, np.int64)
+        self._textures = [()] * n if node_textures is None else [tuple(t) for t in node_textures]
+        self._texture_size = self.texture_bytes.tolist()
+        self.texture_users = np.zeros(self.texture_bytes.shape[0], np.int64)  # resident nodes using each
+        self._planned_textures: set[int] = set()  # the textures the last plan's uploads draw with
+        self._held: set[int] = set()  # of those, the ones whose last user was evicted before they came
         self._child_offset = np.asarray(child_offset, np.int64).tolist()
         self._child_count = np.asarray(child_count, np.int64).tolist()
         self._bytes = self.node_bytes.tolist()
@@ -102,17 +116,43 @@ class Residency:
         self.substitutions = 0  # this frame: refinements held back by a child not yet resident
         self.upload_seconds = 0.0  # the owner's evictions and uploads after the last frame
         self._requests: dict[int, tuple[float, float]] = {}
-        self.preload_all = int(self.node_bytes.sum()) <= settings.budget_bytes
-        self.pinned[self._pinned_levels(np.asarray(depth))] = True
+        depth = np.asarray(depth, np.int64)
+        per_level = self._bytes_per_level(depth)
+        self.preload_all = int(per_level.sum()) <= settings.budget_bytes
+        self.pinned[self._pinned_levels(depth, per_level)] = True
 
-    def _pinned_levels(self, depth: np.ndarray) -> np.ndarray:
+    def _bytes_per_level(self, depth: np.ndarray) -> np.ndarray:
+        """(depth.max() + 1,) float64: each level's geometry, and each texture once, at the
+        shallowest level that uses it (so levels 0..d together hold their textures once)."""
+        levels = int(depth.max()) + 1 if depth.size else 1
+        per_level = np.bincount(depth, weights=self.node_bytes.astype(np.float64), minlength=levels)
+        shallowest = np.full(self.texture_bytes.shape[0], levels, np.int64)
+        users = np.repeat(np.arange(len(self._textures)), [len(t) for t in self._textures])
+        np.minimum.at(shallowest, np.fromiter((t for ts in self._textures for t in ts), np.int64), depth[users])
+        used = shallowest < levels
+        per_level += np.bincount(shallowest[used], weights=self.texture_bytes[used].astype(np.float64),
+                                 minlength=levels)
+        return per_level
+
+    def _pinned_levels(self, depth: np.ndarray, per_level: np.ndarray) -> np.ndarray:
         """Every node when the file fits; else the root and whole top levels within PINNED_SHARE."""
         if self.preload_all:
             return np.ones(depth.shape[0], bool)
         share = PINNED_SHARE * self.settings.budget_bytes
-        per_level = np.bincount(depth, weights=self.node_bytes.astype(np.float64))
         levels = int(np.searchsorted(np.cumsum(per_level), share, side="right"))
         return depth < max(1, levels)
+
+    @property
+    def texture_resident(self) -> np.ndarray:
+        """(k,) bool: the textures some resident node uses (or a planned upload will)."""
+        resident = self.texture_users > 0
+        resident[list(self._held)] = True
+        return resident
+
+    def textures_to_make(self, node: int) -> tuple[int, ...]:
+        """The textures `node` uses that are not resident: the owner makes them with it."""
+        users, held = self.texture_users, self._held
+        return tuple(t for t in self._textures[node] if users[t] == 0 and t not in held)
 
     # --- the start ---------------------------------------------------------------------------------
 
@@ -121,18 +161,36 @@ class Residency:
         return tuple(int(i) for i in np.flatnonzero(self.pinned))
 
     def uploaded(self, node: int) -> None:
-        """The owner uploaded `node`."""
+        """The owner uploaded `node` and made its `textures_to_make` (after a plan's evictions)."""
+        self._planned_textures = set()  # the plan's evictions are done
         if not self.resident[node]:
+            size = self._bytes[node] + sum(self._texture_size[t] for t in self.textures_to_make(node))
+            for t in self._textures[node]:
+                self.texture_users[t] += 1
+                self._held.discard(t)
             self.resident[node] = True
-            self.resident_bytes += self._bytes[node]
-            self.uploaded_bytes += self._bytes[node]
+            self.resident_bytes += size
+            self.uploaded_bytes += size
             self.resident_bytes_peak = max(self.resident_bytes_peak, self.resident_bytes)
 
-    def evicted(self, node: int) -> None:
-        """The owner freed `node`."""
-        if self.resident[node]:
-            self.resident[node] = False
-            self.resident_bytes -= self._bytes[node]
+    def evicted(self, node: int) -> tuple[int, ...]:
+        """The owner freed `node`; the textures no resident node uses now (the owner frees them).
+        A texture that a node the plan uploads draws with is kept for it, not freed and made again."""
+        if not self.resident[node]:
+            return ()
+        self.resident[node] = False
+        self.resident_bytes -= self._bytes[node]
+        unused = []
+        for t in self._textures[node]:
+            self.texture_users[t] -= 1
+            if self.texture_users[t] > 0:
+                continue
+            if t in self._planned_textures:
+                self._held.add(t)
+            else:
+                unused.append(t)
+                self.resident_bytes -= self._texture_size[t]
+        return tuple(unused)
 
     # --- a frame ---------------------------------------------------------------------------------
 
@@ -190,28 +248,45 @@ class Residency:
         order = sorted(self._requests, key=lambda node: self._requests[node], reverse=True)
         candidates = [int(i) for i in np.flatnonzero(self.resident & ~self.pinned & (self.last_used < self.frame))]
         candidates.sort(key=lambda i: (int(self.last_used[i]), -i))  # least recently used first, deepest id first
+        users = self.texture_users
+        planned: dict[int, int] = {}  # texture -> its users after this plan, where they change
+
+        def users_of(texture: int) -> int:
+            return planned.get(texture, users[texture])
+
         evict, upload = [], []
         projected = self.resident_bytes
         sent = 0
         for node in order:
-            size = self._bytes[node]
+            textures = self._textures[node]
+            size = self._bytes[node] + sum(self._texture_size[t] for t in textures if users_of(t) == 0)
             if upload and sent + size > cap:
                 break
             # a node wanted now pushes out nodes unused this frame and the last (a cut that does not
             # fit then settles instead of alternating); a prefetched one only nodes unused for a while
             unused_frames = EVICTS_AFTER_FRAMES if self._requests[node][1] == 0.0 else PREFETCH_EVICTS_AFTER_FRAMES
             oldest = self.frame - unused_frames
-            taken, freed = 0, 0
+            taken, freed, dropped = 0, 0, {}  # dropped: texture -> users the evictions take away
             while projected - freed + size > budget and taken < len(candidates) \
                     and self.last_used[candidates[taken]] < oldest:
-                freed += self._bytes[candidates[taken]]
+                victim = candidates[taken]
+                freed += self._bytes[victim]
+                for t in self._textures[victim]:  # its textures go with the last user (not one `node` needs)
+                    dropped[t] = dropped.get(t, 0) + 1
+                    if dropped[t] == users_of(t) and t not in textures:
+                        freed += self._texture_size[t]
                 taken += 1
             if projected - freed + size > budget:
                 continue  # no room can be made for it this frame (a nearer request may still fit)
+            for t, count in dropped.items():
+                planned[t] = users_of(t) - count
+            for t in textures:
+                planned[t] = users_of(t) + 1
             evict.extend(candidates[:taken])
             del candidates[:taken]
             projected -= freed
             upload.append(node)
             projected += size
             sent += size
+        self._planned_textures = {t for node in upload for t in self._textures[node]}
         return Plan(evict=tuple(evict), upload=tuple(upload))

@@ -100,7 +100,7 @@ def evaluate(hlod: Hlod, path: CameraPath, size: tuple[int, int], *, methods: li
     """Runs, measures and writes report.json, per_frame.npz, report.md, report.html and (with
     `figures`, which needs matplotlib) the figures into out_dir; returns the report (the JSON
     contents). InputError for an unknown method or sweep, or repeat < 1, before any GL work.
-    streaming: a GPU budget for node geometry, shared by every method (render.residency)."""
+    streaming: a GPU budget for node geometry and textures, shared by every method (render.residency)."""
     _check_arguments(methods, repeat=repeat, sweep=sweep)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -75,12 +75,13 @@ def run_path(hlod: Hlod, method: str, settings: RuntimeSettings, *, path: Camera
 
 
 def streaming_summary(renderer: Renderer, stats: list[FrameStats], *, first_frame_ms: float) -> dict:
-    """The GPU budget's summary of a run: gpu_budget_bytes (0: unlimited), gpu_resident_bytes_peak,
-    uploaded_bytes (the start's uploads included), ancestor_substitutions (over all frames),
-    upload_ms_max (the most a frame spent on evictions and uploads) and first_frame_ms."""
+    """The GPU budget's summary of a run, node geometry and textures counted together:
+    gpu_budget_bytes (0: unlimited), gpu_resident_bytes_peak, uploaded_bytes (the start's uploads
+    included), ancestor_substitutions (over all frames), upload_ms_max (the most a frame spent on
+    evictions and uploads) and first_frame_ms."""
     residency = renderer.residency
     if residency is None:
-        whole = renderer.geometry_bytes
+        whole = renderer.gpu_bytes
         return {"gpu_budget_bytes": 0, "gpu_resident_bytes_peak": whole, "uploaded_bytes": whole,
                 "ancestor_substitutions": 0, "upload_ms_max": 0.0, "first_frame_ms": first_frame_ms}
     return {"gpu_budget_bytes": residency.settings.budget_bytes,

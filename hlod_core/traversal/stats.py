@@ -16,7 +16,7 @@ LATER_COUNTERS = {"queries_off": 0.0}
 #: FrameStats' counters of the query stream (CHC++), after COUNTERS: not columns of the
 #: evaluation's per-frame files, which keep the counters they were saved with.
 QUERY_COUNTERS = ("multiqueries", "state_changes", "predicted", "probes")
-#: FrameStats' counters of streamed node geometry (render.residency), 0 without a GPU budget.
+#: FrameStats' counters of streamed node geometry and textures (render.residency), 0 without a GPU budget.
 STREAM_COUNTERS = ("substitutions", "waiting", "resident_bytes", "upload_bytes", "upload_ms")
 #: FrameStats' counter of a host's depth imported into the frame (the renderer's `depth_import_ms`;
 #: render.depth_import), 0 without one.
@@ -44,8 +44,8 @@ class FrameStats:
     probes: int = 0         # of `queries`, those of a probe while the queries were off (query_gate)
     substitutions: int = 0  # nodes drawn in place of children whose geometry was not resident yet
     waiting: int = 0        # nodes wanted and still not resident after the frame's uploads
-    resident_bytes: int = 0  # node geometry on the GPU after the frame
-    upload_bytes: int = 0    # node geometry uploaded after the frame
+    resident_bytes: int = 0  # node geometry and textures on the GPU after the frame
+    upload_bytes: int = 0    # node geometry and textures uploaded after the frame
     upload_ms: float = 0.0   # of frame_ms, the evictions and uploads after the frame
     depth_import_ms: float = 0.0  # of frame_ms, the host's depth uploaded and written at the frame's start
     drawn: list = field(default_factory=list)       # node ids in draw order (not counters)

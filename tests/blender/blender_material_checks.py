@@ -443,9 +443,15 @@ def check_scene_reading(repo, work) -> dict:
     ramp = np.ones((SIDE_PX, SIDE_PX, 4), np.float32)
     ramp[..., 3] = np.linspace(0.0, 1.0, SIDE_PX)[None, :]
     alpha_image.pixels.foreach_set(ramp.ravel())
-    rows = {clip: materials.material_row(_alpha_material(f"alpha {clip}", alpha_image, clip=clip))
-            for clip in (True, False)}
+    alpha_materials = {clip: _alpha_material(f"alpha {clip}", alpha_image, clip=clip) for clip in (True, False)}
+    alpha_materials[True].use_backface_culling = True  # one face drawn
+    rows = {clip: materials.material_row(material) for clip, material in alpha_materials.items()}
     out["alpha_modes"] = {"clip": rows[True].alpha_mode, "blend": rows[False].alpha_mode}
+    made = {sided: materials.material_from_row(dataclasses.replace(rows[True], name=f"made {sided}",
+                                                                   double_sided=sided)) for sided in (True, False)}
+    out["double_sided"] = {"read": {"clip": rows[True].double_sided, "blend": rows[False].double_sided},
+                           "made_culls": {str(k): m.use_backface_culling for k, m in made.items()}}
+    out["made_alpha_mode"] = materials.material_row(made[True]).alpha_mode  # Materialize's cut-out read back
     placed = _placed(material_texture, dataclasses.replace(mesh, materials=(rows[True], rows[False])),
                      Path(work) / "out.hlod")
     out["placed"] = sorted(str(Path(m.texture).relative_to(Path(work).resolve())) for m in placed.materials)

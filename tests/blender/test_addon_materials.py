@@ -1,7 +1,7 @@
 """Materials as other people build them, read with the real bpy module (tests/blender/blender_material_checks.py,
 in every Blender the extension supports): the base colour through colour nodes, node groups,
 Mapping and UV Map nodes, an Emission-only (unlit) surface, a colour attribute, alpha; and, without
-Blender, the alpha mode carried by the material table and the glTF export.
+Blender, the alpha mode and the faces drawn carried by the material table and the glTF export.
 """
 import json
 
@@ -45,12 +45,17 @@ def test_scene_reading_carries_uv_maps_colour_attributes_and_alpha(versioned_rep
     """Through the scene's gathering (addon/scene/gather.py): a Mapping node's transform and a UV Map node's map become
     the triangles' UVs; a Color Attribute node naming a non-active attribute, multiplied by a tint,
     becomes the vertex colours (exactly attribute x tint, base colour white); a clipped image alpha
-    gives MASK, a smooth one BLEND; the written textures are placed in OUT.textures/."""
+    gives MASK, a smooth one BLEND; Backface Culling gives a one-sided row and a one-sided row a
+    material with Backface Culling, and a MASK row a material whose cut-out reads back as MASK
+    (Materialize); the written textures are placed in OUT.textures/."""
     out = blender(versioned_repo, "scene_reading", tmp_path, script="blender_material_checks.py")
     all_hold(out, mapping=out["mapping"]["uv_error"] < 1e-6 and not out["mapping"]["identity"],
              uv_map=out["uv_map"]["uv_error"] < 1e-6,
              attribute=out["attribute"] == {"colour_error": 0.0, "base_color": [1.0, 1.0, 1.0, 1.0]},
              alpha=out["alpha_modes"] == {"clip": "MASK", "blend": "BLEND"},
+             double_sided=out["double_sided"] == {"read": {"clip": False, "blend": True},
+                                                  "made_culls": {"True": False, "False": True}},
+             made_alpha=out["made_alpha_mode"] == "MASK",
              placed=out["placed"] == ["out.textures/alpha_False.png", "out.textures/alpha_True.png"])
 
 
@@ -107,6 +112,24 @@ def test_unreadable_trees_baked_by_cycles(versioned_repo, tmp_path):
              operator=out["operator"]["result"] == ["FINISHED"]
              and sum(line in printed for printed in out["operator"]["printed"]) == 1
              and out["operator"]["textures"] == sorted(textures))
+
+
+def test_double_sided_round_trips_and_reaches_gltf(tmp_path):
+    """Blender's default (both faces) is the table's: written as before, and glTF's doubleSided true;
+    a one-sided material keeps its flag through the JSON and writes none (glTF's default, one face);
+    a glTF source's doubleSided is read, its absence as one face."""
+    one_sided = Material("closed", double_sided=False)
+    assert Material.from_json(one_sided.to_json(), where="m") == one_sided
+    assert "double_sided" not in Material("plain").to_json() and Material("plain").double_sided
+    positions = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float32)
+    data = glb_bytes(positions, np.array([[0, 1, 2], [1, 3, 2]]), None, face_material=np.array([0, 1]),
+                     materials=(Material("card"), one_sided), uvs=None, colors=None, images=None)
+    document = json.loads(data[20:20 + int.from_bytes(data[12:16], "little")])
+    assert [m.get("doubleSided") for m in document["materials"]] == [True, None]
+    from hlod_core.io import gltf_materials
+    header = {"asset": {"version": "2.0"}, "materials": [{"doubleSided": True}, {}]}
+    read = gltf_materials.read_materials(tmp_path / "two.gltf", header, binary=None, texture_dir=None)
+    assert [m.double_sided for m in read] == [True, False]
 
 
 def test_alpha_mode_round_trips_and_reaches_gltf():

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ...core.atomic import write_bytes_atomic
-from ...core.png import png_bytes
+from ...core.png import png_bytes, png_pixels
 from ...model.appearance import AttributeLayout, Material
 from .proxy import Proxy, ProxySettings, proxy_of_id
 from .proxy_task import share_images
@@ -60,7 +60,8 @@ class ProxyPlan:
         self.material_column = layout.columns()["material"].start if layout.material else None
         self.free: set[int] = set()
         self.made_proxies: dict[int, ProxyMade] = {}
-        self._images: dict[int, tuple[np.ndarray, str | None]] = {}
+        # node -> (image or, restored from the bake cache, its PNG bytes, alpha mode): what a parent reads
+        self._images: dict[int, tuple[np.ndarray | bytes, str | None]] = {}
 
     def share(self, workers) -> None:
         """The scene's images to every worker (proxy_task.share_images)."""
@@ -97,23 +98,38 @@ class ProxyPlan:
             for material in self._ids(rows):
                 if material >= len(self.scene_materials):
                     node, _ = proxy_of_id(np.array([material]), scene_materials=len(self.scene_materials))
-                    out[int(material)] = self._images[int(node[0])]
+                    image, mode = self._images[int(node[0])]
+                    if isinstance(image, bytes):  # restored from the cache: decoded once a parent reads it
+                        image = png_pixels(image)
+                        self._images[int(node[0])] = (image, mode)
+                    out[int(material)] = (image, mode)
         return out
 
     def made(self, node: int, proxy: Proxy, lod):
         """Record node's proxy: its image kept for its parent's task and written as a PNG; returns
         `lod` (simplify.NodeLod) with the proxy's arrays."""
-        self._images[int(node)] = (proxy.image, proxy.alpha_mode)
-        self.folder.mkdir(parents=True, exist_ok=True)
-        name = f"proxy_{int(node)}.png"
-        write_bytes_atomic(self.folder / name, png_bytes(proxy.image, level=PNG_LEVEL))
         h, w, _ = proxy.image.shape
-        self.made_proxies[int(node)] = ProxyMade(file=str(self.reference / name), width=w, height=h,
-                                                 texel_size=proxy.texel_size, utilization=proxy.utilization,
-                                                 alpha_mode=proxy.alpha_mode, psnr_y=proxy.psnr_y,
-                                                 psnr_reason=proxy.psnr_reason)
+        self._record(node, png_bytes(proxy.image, level=PNG_LEVEL), image=proxy.image,
+                     width=w, height=h, texel_size=proxy.texel_size, utilization=proxy.utilization,
+                     alpha_mode=proxy.alpha_mode, psnr_y=proxy.psnr_y, psnr_reason=proxy.psnr_reason)
         return dataclasses.replace(lod, positions=proxy.positions, faces=proxy.faces, normals=proxy.normals,
                                    attributes=proxy.rows)
+
+    def restore(self, node: int, fields: dict, png: bytes) -> None:
+        """Record node's proxy as the bake cache holds it (bake/cache_proxies.py): its texture's PNG bytes
+        written, decoded only if a parent's task reads it; fields: ProxyMade's but the file."""
+        self._record(node, png, image=None, **fields)
+
+    def _record(self, node: int, png: bytes, *, image: np.ndarray | None, **fields) -> None:
+        self._images[int(node)] = (png if image is None else image, fields["alpha_mode"])
+        self.folder.mkdir(parents=True, exist_ok=True)
+        name = f"proxy_{int(node)}.png"
+        write_bytes_atomic(self.folder / name, png)
+        self.made_proxies[int(node)] = ProxyMade(file=str(self.reference / name), **fields)
+
+    def texture_bytes(self, node: int) -> bytes:
+        """The PNG file of node's proxy, as written (the bake cache stores it)."""
+        return (self.folder / f"proxy_{int(node)}.png").read_bytes()
 
     def release_children(self, node: int, layout, lods: list) -> None:
         """Drop the images of node's children that its own rows no longer name."""

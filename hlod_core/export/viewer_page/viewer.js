@@ -36,8 +36,19 @@
   window.addEventListener("unhandledrejection", (e) => fail(e.reason && e.reason.message ? e.reason.message : e.reason));
 
   // the tileset's place first: it decides the frame and whether a globe is drawn
-  fetch("/tiles/tileset.json").then((r) => r.json()).then((doc) => start((doc.extras && doc.extras.place) || null))
-    .catch(fail);
+  fetch("/tiles/tileset.json").then((r) => r.json()).then((doc) => {
+    if (doc.extras && doc.extras.mesh === "draco") startDracoDecoder();
+    start((doc.extras && doc.extras.place) || null);
+  }).catch(fail);
+
+  // CesiumJS starts its Draco decoder (a web worker compiling the decoder's WebAssembly) when the first
+  // Draco tile arrives, and that tile waits for it; the export names Draco tiles in extras.mesh, so the
+  // decoder starts here, while the viewer and the tileset load. DracoLoader is CesiumJS's own, not
+  // documented: without it the decoder starts as before.
+  function startDracoDecoder() {
+    const loader = Cesium.DracoLoader;
+    if (loader && typeof loader._getDecoderTaskProcessor === "function") loader._getDecoderTaskProcessor();
+  }
 
   // model space -> Cesium's world (ECEF): the place's east-north-up frame turned clockwise by its
   // heading (the export's root transform, recomputed here), or the local frame at 0, 0, 0
