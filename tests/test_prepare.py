@@ -43,7 +43,8 @@ def _made(mesh: TriangleMesh) -> dict[str, np.ndarray]:
 
 def _scene(seed: int) -> TriangleMesh:
     """Objects at scales 1e-3 to 10 far apart, a few collapsed triangles (two corners at one
-    position, or one vertex twice), vertices no face uses (one of them NaN)."""
+    position, or one vertex twice), three that are not (two corners apart on one axis only),
+    vertices no face uses (one of them NaN)."""
     rng = np.random.default_rng(seed)
     parts, faces, offset = [], [], 0
     for _ in range(4):
@@ -51,6 +52,13 @@ def _scene(seed: int) -> TriangleMesh:
         parts.append(rng.normal(size=(v, 3)) * 10.0 ** rng.uniform(-3, 1) + rng.uniform(-100, 100, 3))
         faces.append(rng.integers(0, v, (int(rng.integers(30, 900)), 3)) + offset)
         offset += v
+    for axis in range(3):  # two corners apart on this axis only: not collapsed
+        corners = rng.normal(size=(3, 3)) * 5.0
+        corners[1] = corners[0]
+        corners[1, axis] += 0.25
+        parts.append(corners)
+        faces.append(np.arange(3)[None, :] + offset)
+        offset += 3
     positions = np.concatenate(parts + [np.array([[np.nan, 0.0, 1.0], [1e9, -1e9, 3.0]])])
     faces = np.concatenate(faces)
     faces[:5, 1] = faces[:5, 0]
