@@ -36,8 +36,8 @@ import sys
 import time
 from pathlib import Path
 
-from hlod_core.bake import workers
 from hlod_core.bake.pipeline import bake
+from hlod_core.bake.run import workers
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
 
@@ -150,7 +150,8 @@ DECIMATE_BINS = (0, 4_000, 8_000, 16_000)
 
 def task_cpu(path: Path, target_tris: int) -> dict:
     """CPU seconds of a jobs 1 bake's decimations and measures, by node size (module docstring)."""
-    from hlod_core.bake import simplify, tasks
+    from hlod_core.bake.decimate import simplify
+    from hlod_core.bake.run import tasks
 
     spent = {"measure": [], "decimate": []}  # (size, cpu seconds) per task
     measure_exact, decimate_node = tasks.measure_exact, simplify.decimate_node

@@ -52,8 +52,10 @@ import numpy as np
 
 from benchmarks import bake_memory
 from benchmarks.dask_bake import WORKER_PROFILE, _noop, _sample_children
-from hlod_core.bake import cell_seams, dask_cluster, hausdorff, leaf_arrays, schedule, simplify, tasks
+from hlod_core.bake.decimate import cell_seams, simplify
+from hlod_core.bake.measure import hausdorff, leaf_arrays
 from hlod_core.bake.pipeline import bake
+from hlod_core.bake.run import dask_cluster, schedule, tasks
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
 

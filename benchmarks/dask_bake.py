@@ -60,9 +60,11 @@ from pathlib import Path
 import numpy as np
 import psutil  # a dependency of distributed
 
-from hlod_core.bake import dask_cluster, hausdorff, leaf_arrays, simplify, tasks
+from hlod_core.bake.decimate import simplify
+from hlod_core.bake.measure import hausdorff, leaf_arrays
 from hlod_core.bake.meta import stable_meta
 from hlod_core.bake.pipeline import bake
+from hlod_core.bake.run import dask_cluster, tasks
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
 
@@ -107,8 +109,8 @@ class _Stats(logging.Handler):
 def compare(mesh, settings: BakeSettings, client, *, repeat: int) -> dict:
     """Part 1: alternated bakes, jobs 1 / jobs 2 / the cluster."""
     stats = _Stats()
-    logging.getLogger("hlod_core.bake.dask_cluster").addHandler(stats)
-    logging.getLogger("hlod_core.bake.dask_cluster").setLevel(logging.INFO)
+    logging.getLogger("hlod_core.bake.run.dask_cluster").addHandler(stats)
+    logging.getLogger("hlod_core.bake.run.dask_cluster").setLevel(logging.INFO)
     kinds = ("jobs1", "jobs2", "dask2")
     runs: dict[str, list[float]] = {k: [] for k in kinds}
     cpu: dict[str, list[float]] = {k: [] for k in kinds}

@@ -47,10 +47,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core.bake.frame import Frame
 from hlod_core.bake.meta import stable_meta
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space.frame import Frame
 from hlod_core.io import meshes
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))

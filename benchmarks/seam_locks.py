@@ -32,8 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hlod_core.bake import hausdorff, meshlab, simplify
-from hlod_core.bake.cell_seams import node_borders
+from hlod_core.bake.decimate import meshlab, simplify
+from hlod_core.bake.decimate.cell_seams import node_borders
+from hlod_core.bake.measure import hausdorff
 from hlod_core.core.arrays import compact
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))

@@ -46,9 +46,11 @@ def child(spec: str) -> dict:
     """One run (module docstring), in the checkout on sys.path."""
     import numpy as np
 
-    from hlod_core.bake import cell_seams, leaf_arrays, prepare
-    from hlod_core.bake.octree import build_octree
+    from hlod_core.bake import prepare
+    from hlod_core.bake.decimate import cell_seams
+    from hlod_core.bake.measure import leaf_arrays
     from hlod_core.bake.settings import BakeSettings
+    from hlod_core.bake.space.octree import build_octree
     from hlod_core.io import meshes
 
     settings = BakeSettings()
@@ -78,7 +80,7 @@ def child(spec: str) -> dict:
         digest.update(np.ascontiguousarray(getattr(seams, name)).tobytes())
     del seams
     if "workers" in inspect.signature(cell_seams.build).parameters:
-        from hlod_core.bake.workers import open_workers
+        from hlod_core.bake.run.workers import open_workers
 
         with open_workers(2) as workers:
             for fut in [workers.executor.submit(time.sleep, 0.5) for _ in range(2)]:
@@ -96,7 +98,7 @@ def child(spec: str) -> dict:
     whole = leaf_arrays.build(layout, lods)
     lap("leaf arrays inline")
     if "workers" in inspect.signature(leaf_arrays.build).parameters:
-        from hlod_core.bake.workers import open_workers
+        from hlod_core.bake.run.workers import open_workers
 
         with open_workers(2) as workers:
             for fut in [workers.executor.submit(time.sleep, 0.5) for _ in range(2)]:

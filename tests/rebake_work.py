@@ -16,7 +16,9 @@ def rebuilt_work(mesh, settings: BakeSettings, cache_dir) -> dict:
     (module docstring): {"seconds", "rebuilt_nodes", "decimations", "decimate_s",
     "measurements", "measure_s", "before_tasks_s"}. The bake's own functions are wrapped in
     place for the call (jobs 1 runs every task in this process) and restored after."""
-    from hlod_core.bake import hausdorff, simplify, tasks
+    from hlod_core.bake.decimate import simplify
+    from hlod_core.bake.measure import hausdorff
+    from hlod_core.bake.run import tasks
 
     spent = {"decimate": [], "measure": []}
     decimate, measure = simplify.decimate_node, tasks.measure_exact  # the scheduler's task functions

@@ -7,7 +7,8 @@ import hashlib
 
 import numpy as np
 
-from hlod_core.bake import simplify, tasks
+from hlod_core.bake.decimate import simplify
+from hlod_core.bake.run import tasks
 
 
 class Counted:

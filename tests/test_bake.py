@@ -8,9 +8,12 @@ import numpy as np
 import pytest
 
 from helpers import load_model
-from hlod_core.bake import checks, hausdorff, lattice, meshlab, simplify
+from hlod_core.bake import checks
+from hlod_core.bake.decimate import meshlab, simplify
+from hlod_core.bake.measure import hausdorff
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space import lattice
 from hlod_core.core import arrays
 from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.core.signals import Terminated, deliver_held, signals_as_exceptions, stop_signals_held

@@ -22,9 +22,10 @@ import numpy as np
 import pytest
 
 from helpers import numeric_library_env, without_frame_meta
-from hlod_core.bake import lattice, meshlab, seams, simplify
+from hlod_core.bake.decimate import meshlab, seams, simplify
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space import lattice
 from hlod_core.core import arrays
 from hlod_core.core.errors import InputError
 from hlod_core.io import hlod_file, meshes

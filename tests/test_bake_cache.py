@@ -14,12 +14,15 @@ import pytest
 
 import rebake_work
 from helpers import file_bytes, load_model, model
-from hlod_core.bake import cache, cache_files, cache_keys, checks, hausdorff, meshlab, prepare, simplify, tasks
-from hlod_core.bake.frame import Frame
+from hlod_core.bake import checks, prepare
+from hlod_core.bake.decimate import meshlab, simplify
+from hlod_core.bake.measure import hausdorff
 from hlod_core.bake.meta import VOLATILE_META
-from hlod_core.bake.octree import build_octree
 from hlod_core.bake.pipeline import bake
+from hlod_core.bake.run import cache, cache_files, cache_keys, tasks
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space.frame import Frame
+from hlod_core.bake.space.octree import build_octree
 from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.io import hlod_file, meshes
 from hlod_core.model.appearance import AttributeLayout
@@ -27,7 +30,7 @@ from processes import hlod, last_json, one_line_error
 from rebuilt_nodes import Counted, dfs_ranges, inner_count, subtree_signatures
 from sample_meshes import SPHERE_TARGET_TRIS, herd, textured_sphere
 
-CORE = Path(cache.__file__).resolve().parent.parent
+CORE = Path(cache.__file__).resolve().parents[2]
 
 COW = BakeSettings(target_tris=300)
 HERD = BakeSettings(target_tris=600)
@@ -226,11 +229,11 @@ def test_corrupt_entries_are_ignored_logged_once_and_rebuilt(jobs, tmp_path, cap
     folder = tmp_path / "cache"
     bake(cow, settings, cache_dir=folder)
     spoiled = _corrupt(folder)
-    with caplog.at_level(logging.WARNING, logger="hlod_core.bake.cache"):
+    with caplog.at_level(logging.WARNING, logger="hlod_core.bake.run.cache"):
         warm = bake(cow, settings, cache_dir=folder)
     assert warm.meta["cache"]["rejected_entries"] == len(spoiled) == warm.meta["cache"]["rebuilt_nodes"] + 1
     assert not warm.meta["cache"]["reused_result"]
-    warnings = [r for r in caplog.records if r.name == "hlod_core.bake.cache"]
+    warnings = [r for r in caplog.records if r.name == "hlod_core.bake.run.cache"]
     assert len(warnings) == 1 and f"{len(spoiled)} entries ignored and rebuilt" in warnings[0].getMessage()
     _assert_same_file(scratch, warm, tmp_path)
     _remove_results(folder)
@@ -430,7 +433,7 @@ def test_command_line_keeps_the_cache_beside_the_output(tmp_path):
 
 #: hlod_core modules the bake's code imports that compute nothing a LOD or an error depends on.
 _NOT_RESULT_MODULES = {"core.errors", "core.signals", "core.jsonutil", "io.meshes", "io.hlod_file",
-                       "bake.workers", "bake.dask_cluster",  # workers, dask_cluster: where tasks run
+                       "bake.run.workers", "bake.run.dask_cluster",  # workers, dask_cluster: where tasks run
                        "core.atomic"}  # how files are written
 
 
@@ -461,7 +464,7 @@ def test_every_module_that_computes_lods_or_errors_keys_the_cache():
         for module in _core_imports(name, ast.parse((CORE / f"{name.replace('.', '/')}.py").read_text())):
             assert module in cache_keys.RESULT_MODULES or module in _NOT_RESULT_MODULES, (name, module)
             todo.extend([module] if module in cache_keys.RESULT_MODULES else [])
-    assert "bake.hausdorff" in seen
+    assert "bake.measure.hausdorff" in seen
 
 
 def test_rebuilt_work_times_every_rebuilt_task_and_restores_the_bake(tmp_path):

@@ -12,11 +12,13 @@ import numpy as np
 import pytest
 
 from helpers import file_bytes, load_model
-from hlod_core.bake import cell_seams, leaf_arrays, prepare
-from hlod_core.bake.octree import build_octree
+from hlod_core.bake import prepare
+from hlod_core.bake.decimate import cell_seams
+from hlod_core.bake.measure import leaf_arrays
 from hlod_core.bake.pipeline import bake
+from hlod_core.bake.run.workers import open_workers
 from hlod_core.bake.settings import BakeSettings
-from hlod_core.bake.workers import open_workers
+from hlod_core.bake.space.octree import build_octree
 
 #: Leaf vertices a bucket holds in the chunked runs here (the cow's leaves: 8 buckets).
 SMALL_BUCKET = 500

@@ -14,15 +14,15 @@ import numpy as np
 import pytest
 
 from helpers import file_bytes
-from hlod_core.bake import cache, cache_files, cache_keys, cache_proxies
 from hlod_core.bake.appearance import proxy_task
 from hlod_core.bake.appearance.proxy import ProxySettings
-from hlod_core.bake.cache_files import CorruptEntry
-from hlod_core.bake.frame import Frame
-from hlod_core.bake.meshlab import DecimationSettings
-from hlod_core.bake.octree import OctreeLayout
+from hlod_core.bake.decimate.meshlab import DecimationSettings
 from hlod_core.bake.pipeline import bake
+from hlod_core.bake.run import cache, cache_files, cache_keys, cache_proxies
+from hlod_core.bake.run.cache_files import CorruptEntry
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space.frame import Frame
+from hlod_core.bake.space.octree import OctreeLayout
 from hlod_core.core.png import png_bytes, png_pixels
 from hlod_core.io import meshes
 from hlod_core.model.appearance import Material

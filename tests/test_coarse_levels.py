@@ -6,11 +6,12 @@ target_tris. Inputs are procedural (hlod_core.io.procedural), so they need no fi
 import numpy as np
 import pytest
 
-from hlod_core.bake import cell_seams, meshlab, pieces, prepare, simplify
-from hlod_core.bake.collapse import OVER_BUDGET_FACTOR
-from hlod_core.bake.octree import build_octree
+from hlod_core.bake import prepare
+from hlod_core.bake.decimate import cell_seams, meshlab, pieces, simplify
+from hlod_core.bake.decimate.collapse import OVER_BUDGET_FACTOR
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space.octree import build_octree
 from hlod_core.core.arrays import compact, concat_indexed
 from hlod_core.io import meshes, procedural
 
@@ -214,7 +215,7 @@ def test_nodes_of_one_level_meet_bit_for_bit_along_their_seams(which, pieces_bak
 
 def _keys_of(mesh, *, with_seams: bool) -> list[bytes]:
     """The bake cache's node keys of `mesh` at 4 triangles per leaf (cache_keys.node_keys)."""
-    from hlod_core.bake import cache_keys
+    from hlod_core.bake.run import cache_keys
 
     prepared = prepare.prepare(mesh)
     layout = build_octree(prepared.centroids, target_tris=4, max_depth=12, counted=prepared.counted,

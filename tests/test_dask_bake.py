@@ -1,4 +1,4 @@
-"""Bakes on a Dask cluster (hlod_core/bake/dask_cluster.py): a real distributed.LocalCluster of
+"""Bakes on a Dask cluster (hlod_core/bake/run/dask_cluster.py): a real distributed.LocalCluster of
 two worker processes on this machine (localhost only, no dashboard) bakes the file a local bake
 writes, byte for byte, with the exact and the bound error; a worker killed in the middle of a bake
 has its tasks retried and the file is still the same; the command line's --scheduler and --scratch,
@@ -19,10 +19,10 @@ import pytest
 
 import sample_meshes
 from helpers import ROOT, file_bytes, load_model, model
-from hlod_core.bake import dask_cluster, tasks
-from hlod_core.bake.partition import MeshSource
 from hlod_core.bake.pipeline import bake, bake_stream
+from hlod_core.bake.run import dask_cluster, tasks
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space.partition import MeshSource
 from hlod_core.core.errors import BakeCancelled
 from hlod_core.io import hlod_file
 from processes import group_is_gone, hlod, last_json, one_line_error, wait_for
@@ -74,9 +74,10 @@ def test_the_cell_seams_as_tasks_on_the_cluster_are_the_serial_seams_and_file(cl
     scenes are smaller), which read the leaves' positions from the bake's scratch subfolder, are
     the seams found inline in one bucket, array for array; and a cluster bake that finds them so
     writes the serial bake's file."""
-    from hlod_core.bake import cell_seams, prepare
-    from hlod_core.bake.octree import build_octree
-    from hlod_core.bake.workers import open_workers
+    from hlod_core.bake import prepare
+    from hlod_core.bake.decimate import cell_seams
+    from hlod_core.bake.run.workers import open_workers
+    from hlod_core.bake.space.octree import build_octree
 
     cow, settings = load_model("cow"), BakeSettings(target_tris=500)
     prepared = prepare.prepare(cow)

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from helpers import load_model, model, numeric_library_env
-from hlod_core.bake import hausdorff
+from hlod_core.bake.measure import hausdorff
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.core.errors import InputError

@@ -1,4 +1,4 @@
-"""The bake's frame (hlod_core/bake/frame.py): a re-bake keeps the earlier bake's origin, lattice and
+"""The bake's frame (hlod_core/bake/space/frame.py): a re-bake keeps the earlier bake's origin, lattice and
 root cube while the edited input fits them, so an edit at the scene's edge keeps every cell and
 stored position it does not touch; and a re-bake equals a bake from scratch given that frame.
 Real bakes of a small yard: cows on a 3 x 3 grid, edited as an artist would at its edge."""
@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 
 from helpers import file_bytes
-from hlod_core.bake import frame as frames
 from hlod_core.bake import prepare
-from hlod_core.bake.frame import Frame, Prior
-from hlod_core.bake.octree import build_octree
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space import frame as frames
+from hlod_core.bake.space.frame import Frame, Prior
+from hlod_core.bake.space.octree import build_octree
 from hlod_core.core.errors import InputError
 from hlod_core.io import hlod_file, meshes
 from processes import hlod, last_json, one_line_error
@@ -232,7 +232,7 @@ def test_the_cache_folder_keeps_the_last_frames_and_ignores_a_spoiled_list(tmp_p
     """frame.json lists the last frames, the latest first (at most RECENT_FRAMES); a bake with
     --frame-from records its frame first and keeps the others; a spoiled frame.json is named in the
     log and the bake takes the input's frame."""
-    from hlod_core.bake import cache
+    from hlod_core.bake.run import cache
 
     folder = tmp_path / "cache"
     first = bake(_yard(GRID), YARD, cache_dir=folder)
@@ -243,7 +243,7 @@ def test_the_cache_folder_keeps_the_last_frames_and_ignores_a_spoiled_list(tmp_p
     assert again.meta["cache"]["reused_result"] and again.meta["frame_source"]["from"] == "file"
     assert json.loads((folder / cache.FRAME_FILE).read_text())["frames"] == [first.meta["frame"], far.meta["frame"]]
     (folder / cache.FRAME_FILE).write_text('{"frames": [{"origin": "x"}]}')
-    with caplog.at_level("WARNING", logger="hlod_core.bake.cache"):
+    with caplog.at_level("WARNING", logger="hlod_core.bake.run.cache"):
         fresh = bake(_yard(_edit("move")[0]), YARD, cache_dir=folder)
     assert fresh.meta["frame_source"] == frames.FROM_SCRATCH.to_meta()
     assert any("frame.json ignored" in r.getMessage() for r in caplog.records)

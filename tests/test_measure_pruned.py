@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from helpers import load_model
-from hlod_core.bake import hausdorff, tasks
+from hlod_core.bake.measure import hausdorff
 from hlod_core.bake.pipeline import bake
+from hlod_core.bake.run import tasks
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.io import meshes
 from sample_meshes import herd_cow

@@ -1,8 +1,9 @@
 """Octree partition on tiny literal inputs with exact expected layouts."""
 import numpy as np
 
-from hlod_core.bake import cache_keys, octree_passes
-from hlod_core.bake.octree import RootCube, build_octree, build_octree_counted, tight_cube
+from hlod_core.bake.run import cache_keys
+from hlod_core.bake.space import octree_passes
+from hlod_core.bake.space.octree import RootCube, build_octree, build_octree_counted, tight_cube
 
 
 def _corner_centroids():

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 from helpers import ROOT, model
-from hlod_core.bake import child
+from hlod_core.bake.run import child
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.core import atomic, process_tree
 from hlod_core.core.errors import InputError
@@ -125,7 +125,7 @@ WINDOWS_CHILD = ("import sys\n"
                  "from hlod_core.core import process_tree\n"
                  "stop_self = process_tree.stop_self\n"
                  "process_tree.stop_self = lambda platform=None: stop_self(platform='win32')\n"
-                 "from hlod_core.bake import child\n"
+                 "from hlod_core.bake.run import child\n"
                  "sys.exit(child.main(sys.argv[1:]))\n")
 
 

@@ -10,9 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hlod_core.bake import lattice, prepare
-from hlod_core.bake.frame import Frame, Prior
-from hlod_core.bake.root_cube import RootCube, tight_cube
+from hlod_core.bake import prepare
+from hlod_core.bake.space import lattice
+from hlod_core.bake.space.frame import Frame, Prior
+from hlod_core.bake.space.root_cube import RootCube, tight_cube
 from hlod_core.io.meshes import TriangleMesh
 
 

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from helpers import ROOT, file_bytes, model
-from hlod_core.bake import octree, octree_passes, partition
 from hlod_core.bake.pipeline import bake, bake_stream
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space import octree, octree_passes, partition
 from hlod_core.cli import main as cli
 from hlod_core.core.errors import BakeCancelled, InputError
 from hlod_core.io import hlod_file, meshes
@@ -165,7 +165,7 @@ def test_normals_unused_vertices_and_chunks_cut_in_pieces(tmp_path):
 PARTITION_MEMORY = """
 import json, sys, tracemalloc
 import numpy as np
-from hlod_core.bake import partition
+from hlod_core.bake.space import partition
 
 spec, scratch, chunk = sys.argv[1], sys.argv[2], int(sys.argv[3])
 source = partition.SceneSource([spec])

@@ -58,7 +58,7 @@ CORE_DEPENDENCIES = {"numpy", "pymeshlab", "moderngl", "glcontext", "xatlas"} | 
 #: Modules the extension reaches that may touch a command-line-only library, each behind a guard
 #: that works without it (and the test suite runs that path with the library blocked).
 GUARDED = {"hlod_core.report.figures": {"matplotlib"}, "hlod_core.io.textures": {"PIL"},
-           "hlod_core.io.gltf": {"trimesh"}, "hlod_core.bake.dask_cluster": {"distributed"},
+           "hlod_core.io.gltf": {"trimesh"}, "hlod_core.bake.run.dask_cluster": {"distributed"},
            "hlod_core.report.figure_style": {"matplotlib"}, "hlod_core.report.label_placement": {"matplotlib"},
            "hlod_core.export.draco": {"DracoPy"}, "hlod_core.export.texture_codec": {"PIL"}}
 
@@ -454,11 +454,11 @@ def test_the_extension_reaches_no_command_line_only_library(graph):
 
 
 def test_dask_is_imported_only_by_a_bake_given_a_scheduler(graph):
-    """Dask is a command-line-only dependency. Only hlod_core.bake.dask_cluster imports dask or
+    """Dask is a command-line-only dependency. Only hlod_core.bake.run.dask_cluster imports dask or
     distributed, and only inside its functions; every import of dask_cluster is deferred (inside a
     function), and without those imports the extension reaches neither. In a fresh interpreter a
     bake without a scheduler (jobs 1 and 2) leaves both out of sys.modules."""
-    dask, cluster = {"dask", "distributed"}, "hlod_core.bake.dask_cluster"
+    dask, cluster = {"dask", "distributed"}, "hlod_core.bake.run.dask_cluster"
     modules = _modules()
     assert sorted(name for name, (_, external) in graph.items() if external & dask) == [cluster]
     importers = [name for name, (project, _) in graph.items() if cluster in project]
@@ -502,9 +502,9 @@ def test_the_graph_sees_known_edges(graph):
         "tests.test_x: hlod_core.bake.pipeline._y", "tests.test_x: hlod_core.model.hierarchy._z",
         "tests.test_x: hlod_core.bake.pipeline._v (a string)"])
     # inside one room a module may use its neighbours' private names
-    assert private_uses("hlod_core.bake.cache", ROOT / "hlod_core/bake/cache.py", sample, known) == sorted([
-        "hlod_core.bake.cache: from hlod_core.io.hlod_file import _x",
-        "hlod_core.bake.cache: hlod_core.model.hierarchy._z"])
+    assert private_uses("hlod_core.bake.run.cache", ROOT / "hlod_core/bake/run/cache.py", sample, known) == sorted([
+        "hlod_core.bake.run.cache: from hlod_core.io.hlod_file import _x",
+        "hlod_core.bake.run.cache: hlod_core.model.hierarchy._z"])
 
 
 #: Each core module imported first in a process of its own: forked from one interpreter that has

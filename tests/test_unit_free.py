@@ -1,5 +1,5 @@
 """The same model in other units bakes to the same LODs, scaled: every position the bake stores is a
-point of one lattice fixed by the input's box (hlod_core/bake/lattice.py), so pymeshlab sees the
+point of one lattice fixed by the input's box (hlod_core/bake/space/lattice.py), so pymeshlab sees the
 same numbers in the same order at every scale."""
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from helpers import load_model
-from hlod_core.bake import lattice
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space import lattice
 from hlod_core.io import meshes
 from hlod_core.model.hierarchy import node_geometry
 

@@ -1,4 +1,4 @@
-"""The bake's worker pool (hlod_core/bake/workers.py) when a worker dies while it sends its
+"""The bake's worker pool (hlod_core/bake/run/workers.py) when a worker dies while it sends its
 result: a cancel stops the whole process group, so a worker can be killed half-way through
 writing a result to the pool's pipe. The pool's manager thread then waited for the rest of that
 message forever, and the bake's exit with it (a Blender bake's child outlived Blender, holding its
@@ -15,7 +15,7 @@ EXIT_TIMEOUT_S = 120
 SCRIPT = textwrap.dedent("""
     import os, signal, sys, time
     import numpy as np
-    from hlod_core.bake import workers
+    from hlod_core.bake.run import workers
 
     class Stop(Exception):
         pass

@@ -4,8 +4,8 @@ main thread.
 
 `start_bake` runs, in order:
 1. the cache folder: OUT.hlod.cache beside the output, or the folder given, none when the cache is
-   off (hlod_core.bake.cache.folder_for, the rule every front end of the core asks too); the bake
-   keeps the frame the last bake left there while the scene fits it (hlod_core/bake/frame.py), or
+   off (hlod_core.bake.run.cache.folder_for, the rule every front end of the core asks too); the bake
+   keeps the frame the last bake left there while the scene fits it (hlod_core/bake/space/frame.py), or
    an earlier .hlod file's when one is given;
 2. the scene gathered in one pass (scene/gather.py), the colours no node tree reading gives
    baked by Cycles on each object that draws them on the way (scene/surface_bakes.py);
@@ -20,9 +20,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from ...hlod_core.bake import cache
-from ...hlod_core.bake import frame as frames
+from ...hlod_core.bake.run import cache
 from ...hlod_core.bake.settings import BakeSettings
+from ...hlod_core.bake.space import frame as frames
 from ...hlod_core.core.errors import InputError
 from ...hlod_core.io.texture_folder import EmbeddedTextures
 from ..materials.cycles_bake import CyclesBake

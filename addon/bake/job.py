@@ -3,7 +3,7 @@
 thread first.
 
 `BakeJob` writes the mesh into a private scratch folder (`hlod-blender-*` in the temp folder;
-hlod_core/bake/child.py says what is in it), then runs `python -m hlod_core.bake.child` with
+hlod_core/bake/run/child.py says what is in it), then runs `python -m hlod_core.bake.run.child` with
 Blender's own Python, which bakes with `settings.jobs` worker processes, started as the root of
 a process tree that can be stopped on every platform (hlod_core.core.process_tree: its own process
 group on POSIX; a new process group without a console on Windows, where stdin is the stop).
@@ -44,7 +44,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ...hlod_core.bake import child
+from ...hlod_core.bake.run import child
 from ...hlod_core.bake.settings import BakeSettings
 from ...hlod_core.core import atomic, process_tree
 from ...hlod_core.core.errors import BakeCancelled, HlodError
@@ -52,8 +52,8 @@ from ...hlod_core.io.meshes import TriangleMesh
 
 log = logging.getLogger(__name__)
 
-#: The folder holding this extension's packages: the one hlod_core is in (hlod_core/bake/child.py).
-EXTENSION_DIR = Path(child.__file__).resolve().parents[2]
+#: The folder holding this extension's packages: the one hlod_core is in (hlod_core/bake/run/child.py).
+EXTENSION_DIR = Path(child.__file__).resolve().parents[3]
 #: Modules the bake imports besides hlod_core and the standard library: their folders go on the
 #: child's path (in Blender, pymeshlab comes from the extension's wheels, numpy with Blender).
 CHILD_MODULES = ("pymeshlab", "numpy")

@@ -14,7 +14,7 @@ import numpy as np
 from ..core.errors import InputError
 from ..model import appearance
 from ..model.hierarchy import Hlod, cube_sides, query_box_pad
-from .octree import OctreeLayout
+from .space.octree import OctreeLayout
 
 #: Vertices `assemble` turns into float64 world coordinates at a time (whole nodes; a node of more
 #: vertices is one block): its working memory, 24 bytes a vertex and a few copies.

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..core.arrays import segment_ranges
 from ..model.hierarchy import Hlod
-from .simplify import collapsed
+from .decimate.simplify import collapsed
 
 TOLERANCE_REL = 1e-9
 

@@ -12,10 +12,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..core.errors import InputError
-from .collapse import OVER_BUDGET_FACTOR
-from .octree import OctreeLayout
+from .decimate.collapse import OVER_BUDGET_FACTOR
+from .decimate.simplify import NodeLod
 from .settings import BakeSettings
-from .simplify import NodeLod
+from .space.octree import OctreeLayout
 
 #: Lines the bake log keeps (the others are counted in "log_lines_dropped").
 MAX_LOG_LINES = 200
@@ -29,7 +29,7 @@ MAX_LOG_LINES = 200
 VOLATILE_META = ("bake_seconds", "phase_seconds", "cache", "frame_source")
 
 #: The meta entries the bake derives from its nodes (`derived_meta`), with their JSON types: what a
-#: cached whole result keeps (cache.py); uv_seams_crossed_nodes only with appearance; frame: the
+#: cached whole result keeps (bake/run/cache.py); uv_seams_crossed_nodes only with appearance; frame: the
 #: bake's frame (frame.Frame.to_meta).
 DERIVED_META = {"leaves_over_budget": int, "collapsed_input_tris": int, "nodes_over_budget": int, "pruned_pieces": int,
                 "pruned_tris": int, "log": list, "log_lines_dropped": int, "uv_seams_crossed_nodes": int,

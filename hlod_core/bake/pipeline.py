@@ -1,18 +1,18 @@
 """Bake an octree HLOD from triangles (docs/how-it-works.md#the-bake), as one pipeline of named phases over an input
 source (sources.py: a mesh in memory, or a stream bigger than memory):
 
-    cache    -> with a cache folder (cache.py): an input it holds the whole result of, in the frame
+    cache    -> with a cache folder (bake/run/cache.py): an input it holds the whole result of, in the frame
                 the last bake left there, comes back from it at once
-    prepare  -> the frame (frame.py: an earlier bake's while the input fits it, else the input's
+    prepare  -> the frame (bake/space/frame.py: an earlier bake's while the input fits it, else the input's
                 own), file-relative float32 positions, triangle centroids, the root cell (a
-                streamed input: the "scan" passes; partition.py)
-    octree   -> top-down partition of the root cell, split at cell centres (octree.py)
+                streamed input: the "scan" passes; bake/space/partition.py)
+    octree   -> top-down partition of the root cell, split at cell centres (bake/space/octree.py)
     leaves   -> each leaf keeps its original triangles (and their exact attribute rows)
-    seams    -> the positions each node shares with the cells around it (cell_seams.py), which
+    seams    -> the positions each node shares with the cells around it (bake/decimate/cell_seams.py), which
                 its decimation keeps in place
     cache    -> the inner nodes whose subtree the cache holds take their LODs and errors from it
-    simplify -> the other inner nodes bottom-up: weld, quadric decimation, error (schedule.py), as
-                tasks on worker processes or a Dask cluster (workers.py)
+    simplify -> the other inner nodes bottom-up: weld, quadric decimation, error (bake/run/schedule.py), as
+                tasks on worker processes or a Dask cluster (bake/run/workers.py)
     assemble -> one vertex and one index buffer, node ranges, appearance arrays, nested bounds
                 and monotone errors (assemble.py)
 
@@ -39,18 +39,18 @@ import numpy as np
 from ..core.signals import deliver_held, stop_signals_held
 from ..io.meshes import TriangleMesh
 from ..model.hierarchy import Hlod
-from . import cell_seams
 from .appearance.proxy_plan import ProxyPlan, proxy_plan
 from .assemble import assemble
-from .cache import DEFAULT_BUDGET_MB, BakeCache
-from .frame import Frame, FrameChoice, Prior
+from .decimate import cell_seams
+from .decimate.simplify import NodeLod
 from .meta import VOLATILE_META, PhaseClock, bake_meta, check_extra_meta, derived_meta, stable_meta
-from .partition import CHUNK_TRIS, Partition, PartitionStats, TriangleSource
-from .schedule import CancelFn, ProgressFn, SimplifyInput, simplify_phase
+from .run.cache import DEFAULT_BUDGET_MB, BakeCache
+from .run.schedule import CancelFn, ProgressFn, SimplifyInput, simplify_phase
+from .run.workers import open_workers
 from .settings import ERROR_MEASURES, BakeSettings
-from .simplify import NodeLod
 from .sources import BakeSource, InMemorySource, SourceOctree, StreamedSource
-from .workers import open_workers
+from .space.frame import Frame, FrameChoice, Prior
+from .space.partition import CHUNK_TRIS, Partition, PartitionStats, TriangleSource
 
 log = logging.getLogger(__name__)
 
@@ -66,10 +66,10 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
          cache_budget_mb: float = DEFAULT_BUDGET_MB, images: dict | None = None, textures=None) -> Hlod:
     """Bake `mesh` into an Hlod. Raises InputError for unusable input, BakeCancelled if `cancel()`
     turns true (checked between nodes). Writes nothing to disk except worker scratch files and,
-    with `cache_dir`, once the bake is complete, the cache folder (cache.py: what it did not
+    with `cache_dir`, once the bake is complete, the cache folder (bake/run/cache.py: what it did not
     hold is added, with the bake's frame; the least recently used entries over `cache_budget_mb`
     are removed).
-    The frame (frame.py): `frame_from`'s (an earlier bake's, frame.Frame.from_meta of its file's
+    The frame (bake/space/frame.py): `frame_from`'s (an earlier bake's, frame.Frame.from_meta of its file's
     meta["frame"]) while the input fits it, else the cache folder's last one while the input fits
     it, else the input's own; meta["frame"] records it and meta["frame_source"] says which and why.
     extra_meta: JSON-serialisable entries added to the HLOD's meta (the Blender side records the
@@ -77,7 +77,7 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     bake's own entries. The HLOD carries uvs / colors / tri_material and mesh.materials exactly
     when the mesh has them.
     scheduler: a Dask scheduler's address ("tcp://host:8786") or a distributed.Client: the simplify
-    phase's tasks run on its workers instead of `settings.jobs` local processes (dask_cluster.py),
+    phase's tasks run on its workers instead of `settings.jobs` local processes (bake/run/dask_cluster.py),
     for the same file; scratch_dir: a folder every worker reads (shared storage on a cluster;
     default the temporary folder), where the bake writes its shared arrays into a subfolder of its
     own, removed at the end. Neither is a setting: they change where the work runs, not the file.
@@ -105,7 +105,7 @@ def bake_stream(source: TriangleSource, settings: BakeSettings = BakeSettings(),
                 extra_meta: dict | None = None, scheduler=None, scratch_dir: str | os.PathLike | None = None,
                 chunk_tris: int = CHUNK_TRIS, stats: PartitionStats | None = None) -> Hlod:
     """Bake `source` (a partition.TriangleSource) out of core: never loaded whole, streamed through
-    per-cell scratch files (partition.py) in a folder `hlod-partition-*` inside `scratch_dir`
+    per-cell scratch files (bake/space/partition.py) in a folder `hlod-partition-*` inside `scratch_dir`
     (default the temporary folder), removed however the bake ends. The result is the file `bake`
     makes of the merged input, byte for byte except meta.VOLATILE_META. Geometry only (normals
     kept); no cache. chunk_tris: the memory budget (partition.CHUNK_TRIS); stats: filled with what

@@ -1,12 +1,12 @@
 """The bake's input as the octree and the leaves see it (an in-memory TriangleMesh): the frame
-(frame.py: the origin, the lattice, the root cube), file-relative float32 positions, triangle
+(bake/space/frame.py: the origin, the lattice, the root cube), file-relative float32 positions, triangle
 centroids and counted (not collapsed) triangles, and with appearance the vertices turned into
 attribute rows; then each leaf's triangles.
 
 Data form: positions (r,3) float32 relative to the origin (3,) float64 (from scratch the centre of
-the used vertices' box), each a point of the bake's lattice (lattice.py, unit_length: from scratch
+the used vertices' box), each a point of the bake's lattice (bake/space/lattice.py, unit_length: from scratch
 the box's longest extent); faces (f,3) int64; centroids (f,3) float64 of the float32 corners
-(what is stored is what is split); counted (f,) bool. The streamed input (partition.py) computes
+(what is stored is what is split); counted (f,) bool. The streamed input (bake/space/partition.py) computes
 the same floats piece by piece with `triangle_centroids`.
 """
 from __future__ import annotations
@@ -20,10 +20,10 @@ from ..core.arrays import compact
 from ..core.errors import InputError
 from ..io.meshes import TriangleMesh
 from ..model import appearance
-from . import frame as frames
-from . import lattice
-from .octree import OctreeLayout, RootCube
-from .simplify import collapsed_corners
+from .decimate.simplify import collapsed_corners
+from .space import frame as frames
+from .space import lattice
+from .space.octree import OctreeLayout, RootCube
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +31,7 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True, eq=False)
 class Prepared:
     """root_cell (octree.RootCube, model units, origin-relative) and origin (3,) f64; unit_length
-    (model units) of the lattice the positions are points of (lattice.py); frame_choice: where
+    (model units) of the lattice the positions are points of (bake/space/lattice.py); frame_choice: where
     that frame came from (frame.FrameChoice); positions
     (r,3) f32 relative to the origin, faces (f,3) int64, normals (r,3) f32 or None and attribute
     rows (r,A) f32 or None (with appearance the rows of appearance.pack, else the vertices);
@@ -72,9 +72,9 @@ def triangle_centroids(a: np.ndarray, b: np.ndarray, c: np.ndarray, *,
 
 
 def prepare(mesh: TriangleMesh, prior: frames.Prior | None = None) -> Prepared:
-    """The frame (frame.py: `prior`'s while the input fits it, else the input's own: the origin
+    """The frame (bake/space/frame.py: `prior`'s while the input fits it, else the input's own: the origin
     the centre of the used vertices' box, the lattice its longest extent, the root cube around the
-    centroids); float32 positions relative to the origin, points of the lattice (lattice.py);
+    centroids); float32 positions relative to the origin, points of the lattice (bake/space/lattice.py);
     triangle centroids of those positions; with appearance, the vertices become attribute rows
     (`pack_rows`). InputError for a mesh without triangles or with non-finite coordinates.
     The positions and centroids are made CENTROID_CHUNK rows at a time."""

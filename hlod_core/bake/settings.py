@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from ..core.errors import InputError
 from .appearance.proxy import ProxySettings
-from .meshlab import DecimationSettings
+from .decimate.meshlab import DecimationSettings
 
 #: Largest side of a proxy texture (texels) a bake may ask for.
 MAX_TEXTURE_SIDE = 16384

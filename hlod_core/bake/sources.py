@@ -2,7 +2,7 @@
 phases once: a TriangleMesh in memory (`InMemorySource`) and a stream of triangle chunks bigger
 than memory, partitioned through scratch files (`StreamedSource`, over partition.Partition).
 Where the tasks run (this process, worker processes, a Dask cluster) is not a source's business
-but the workers' (workers.py).
+but the workers' (bake/run/workers.py).
 
 Each source computes the same floats from the same triangles (the origin, the root cell, the
 octree, each leaf's compacted vertices), so both bake the same file, byte for byte except
@@ -20,11 +20,11 @@ import numpy as np
 from ..io.meshes import TriangleMesh
 from ..model.appearance import AttributeLayout
 from . import prepare
-from .frame import FROM_SCRATCH, Frame, FrameChoice, Prior
 from .meta import InputSize, PhaseClock, counted_per_node
-from .octree import OctreeLayout, build_octree
-from .partition import Partition
 from .settings import BakeSettings
+from .space.frame import FROM_SCRATCH, Frame, FrameChoice, Prior
+from .space.octree import OctreeLayout, build_octree
+from .space.partition import Partition
 
 log = logging.getLogger(__name__)
 
@@ -36,7 +36,7 @@ NO_ROWS = AttributeLayout(False, False, False)
 class SourceOctree:
     """A source's octree: layout; frame (frame.Frame: its origin (3,) float64, model units, which
     positions are stored relative to, its unit_length, model units, whose lattice the stored
-    positions are points of (lattice.py), its root cube) and frame_choice (where the frame came
+    positions are points of (bake/space/lattice.py), its root cube) and frame_choice (where the frame came
     from); counted_per_node (n,) int64 (each node's triangles that are not collapsed) and
     collapsed_tris (the input's collapsed triangles)."""
 
@@ -82,7 +82,7 @@ class BakeSource(Protocol):
 
 
 class InMemorySource:
-    """A TriangleMesh (prepare.py), in the frame of `prior` while it fits (frame.py): phases
+    """A TriangleMesh (prepare.py), in the frame of `prior` while it fits (bake/space/frame.py): phases
     "prepare" and "octree"; the leaves from its arrays."""
 
     log_note = ""

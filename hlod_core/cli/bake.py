@@ -9,10 +9,11 @@ import logging
 import time
 from pathlib import Path
 
-from ..bake import cache, partition
-from ..bake import frame as frames
-from ..bake.frame import Frame
 from ..bake.pipeline import bake, bake_stream
+from ..bake.run import cache
+from ..bake.space import frame as frames
+from ..bake.space import partition
+from ..bake.space.frame import Frame
 from ..core.errors import InputError
 from ..export.formats import check_output_file
 from ..io import hlod_file, meshes, procedural
@@ -165,7 +166,7 @@ def _cluster(args: argparse.Namespace):
                 raise InputError(f"{name}: only with --scheduler (a local bake's workers use $TMPDIR)")
         yield None
         return
-    from ..bake import dask_cluster
+    from ..bake.run import dask_cluster
 
     # distributed's own INFO lines (one per connection) stay off stderr; its warnings show, not under -q
     logging.getLogger("distributed").setLevel(max(logging.WARNING, logging.getLogger().level))

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import math
 
-from ..bake import partition
-from ..bake.cache import DEFAULT_BUDGET_MB
+from ..bake.run.cache import DEFAULT_BUDGET_MB
 from ..bake.settings import ERROR_MEASURES, BakeSettings, bake_settings
+from ..bake.space import partition
 from ..core.errors import InputError
 from ..render.residency import StreamingSettings
 from ..traversal.settings import (

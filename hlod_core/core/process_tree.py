@@ -1,7 +1,7 @@
 """A child process and every process it starts, stopped together, on every platform
 (docs/how-it-works.md#stopping-a-bake-on-every-platform).
 
-The Blender extension bakes in a child process (bake/child.py) that starts worker processes. A
+The Blender extension bakes in a child process (bake/run/child.py) that starts worker processes. A
 cancel must end them all, and a child whose parent has gone must end them itself:
 
 - POSIX (Linux, macOS): the child leads a process group of its own (`start_new_session`); a stop is

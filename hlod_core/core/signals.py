@@ -1,5 +1,5 @@
 """Stop signals as exceptions, for the processes that bake: the command line (`python -m
-hlod_core`) and the Blender bake's child process (`python -m hlod_core.bake.child`).
+hlod_core`) and the Blender bake's child process (`python -m hlod_core.bake.run.child`).
 
 SIGTERM (a parent's cancel, `kill`) and SIGHUP (a closed terminal) raise `Terminated` in the main
 thread, like Ctrl-C's KeyboardInterrupt and like it not an Exception, so no `except Exception`

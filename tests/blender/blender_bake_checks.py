@@ -7,7 +7,7 @@ REPO_DIR is an extension repository made by `blender_ext.py install-files` from 
 add-on is enabled from it as Blender does (bl_ext.r.hlod). Prints one JSON object as its last line.
 
 What the add-on does is watched from outside it, through /proc (Linux): the bake's child is a
-process whose parent is this one and whose command line runs hlod_core.bake.child; its workers are
+process whose parent is this one and whose command line runs hlod_core.bake.run.child; its workers are
 the processes of its process group. A process counts as gone when /proc has no entry for it or it
 is a zombie (it has ended; only its exit status waits for its parent). Every check points Python's
 temp folder (tempfile.tempdir, which the add-on's scratch folder and, through it, the child's
@@ -41,7 +41,7 @@ import blender_preview
 import bpy
 
 NAME = "bl_ext.r.hlod"
-CHILD_MODULE = "hlod_core.bake.child"
+CHILD_MODULE = "hlod_core.bake.run.child"
 GONE_WITHIN_SECONDS = 1.0  # the requirement: the child and its workers are gone within 1 s of Esc
 SPY_SECONDS = 0.02  # how often the spy reads /proc (every process's stat: not too often)
 TIMING_KEYS = ("bake_seconds", "phase_seconds")  # meta entries that differ between any two bakes

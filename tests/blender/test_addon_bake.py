@@ -4,7 +4,7 @@ its own bpy process (tests/blender/blender_bake_checks.py), watching the bake's 
 
 The operator and the background command gather the mesh in Blender, write it to a private scratch
 folder and bake in a child process of Blender's Python with worker processes (addon/bake/job.py,
-hlod_core/bake/child.py). Checked: the child is another process, run by Blender's interpreter with
+hlod_core/bake/run/child.py). Checked: the child is another process, run by Blender's interpreter with
 the extension's folder first on its path, and its file equals an in-process bake; cancel ends the
 child and its workers within 1 s and writes nothing; a child killed from outside is reported with
 its signal and last messages while Blender goes on; `--jobs 2` in the background command; every
@@ -30,7 +30,7 @@ def bake_check(installed, check: str, tmp_path, *arguments: str, timeout_s: floa
 
 
 def test_the_operator_bakes_in_a_child_process_with_workers(repo, tmp_path):
-    """Bake with jobs 2: one child of the Blender process runs `python -m hlod_core.bake.child` with
+    """Bake with jobs 2: one child of the Blender process runs `python -m hlod_core.bake.run.child` with
     Blender's interpreter, with the extension's folder first on its PYTHONPATH and TMPDIR in its
     scratch folder, and starts 2 workers; the file equals an in-process jobs-1 bake of the same
     mesh in every array and in its meta (timings, jobs and cache statistics aside) and records
@@ -43,7 +43,7 @@ def test_the_operator_bakes_in_a_child_process_with_workers(repo, tmp_path):
     all_hold(out,
              finished=out["result"] == ["FINISHED"],
              one_child=len(children) == 1 and str(out["blender_pid"]) not in children,
-             blenders_python=child["cmdline"].startswith(out["executable"] + " -m hlod_core.bake.child "),
+             blenders_python=child["cmdline"].startswith(out["executable"] + " -m hlod_core.bake.run.child "),
              two_workers=child["max_workers"] == 2,
              extension_first_on_path=out["child_pythonpath"][:1] == [out["extension_dir"]],
              tmpdir_in_scratch=Path(out["child_tmpdir"] or "/").parent == tmp_path / "tmp",

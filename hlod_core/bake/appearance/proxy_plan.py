@@ -116,7 +116,7 @@ class ProxyPlan:
                                    attributes=proxy.rows)
 
     def restore(self, node: int, fields: dict, png: bytes) -> None:
-        """Record node's proxy as the bake cache holds it (bake/cache_proxies.py): its texture's PNG bytes
+        """Record node's proxy as the bake cache holds it (bake/run/cache_proxies.py): its texture's PNG bytes
         written, decoded only if a parent's task reads it; fields: ProxyMade's but the file."""
         self._record(node, png, image=None, **fields)
 

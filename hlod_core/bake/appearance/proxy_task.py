@@ -1,4 +1,4 @@
-"""The proxy task that runs on a worker (bake/schedule.py): decide whether an inner node needs a proxy
+"""The proxy task that runs on a worker (bake/run/schedule.py): decide whether an inner node needs a proxy
 material and bake it (proxy.py), reading the scene's texture images that the bake shares with its
 workers.
 

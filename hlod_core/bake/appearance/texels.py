@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..meshlab import UNIT_DIAGONAL, NodeFrame
+from ..decimate.meshlab import UNIT_DIAGONAL, NodeFrame
 
 #: Texel centres this far outside a triangle (in barycentric units) still count as inside it, so a
 #: texel on a shared chart edge is covered once or twice, never dropped.

@@ -1,6 +1,6 @@
 """The bake cache: inner nodes' LODs and errors, keyed by what they were made from, the whole
 results of earlier bakes and the last bake's frame. The cache owns its policy: `BakeCache.open` (no
-folder: no cache), `prior` (the frame a re-bake starts from, frame.py), `whole_result` (an unchanged
+folder: no cache), `prior` (the frame a re-bake starts from, bake/space/frame.py), `whole_result` (an unchanged
 input skips the bake), `reuse` (the inner nodes whose subtree is unchanged), `finish` (writing,
 evicting, meta["cache"]); `folder_for` says where it lives.
 
@@ -53,21 +53,21 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import InputError
-from ..core.jsonutil import JsonError, loads
-from ..io.meshes import TriangleMesh
-from ..model.appearance import AttributeLayout
-from ..model.hierarchy import Hlod
+from ...core.errors import InputError
+from ...core.jsonutil import JsonError, loads
+from ...io.meshes import TriangleMesh
+from ...model.appearance import AttributeLayout
+from ...model.hierarchy import Hlod
+from ..appearance.proxy import ProxySettings
+from ..appearance.proxy_plan import ProxyPlan
+from ..decimate.meshlab import DecimationSettings
+from ..decimate.simplify import NodeLod
+from ..settings import BakeSettings
+from ..space.frame import Frame, Prior
+from ..space.octree import OctreeLayout
 from . import cache_files, cache_proxies
-from .appearance.proxy import ProxySettings
-from .appearance.proxy_plan import ProxyPlan
 from .cache_files import CorruptEntry
 from .cache_keys import context_digest, input_key, material_digests, node_keys, result_key
-from .frame import Frame, Prior
-from .meshlab import DecimationSettings
-from .octree import OctreeLayout
-from .settings import BakeSettings
-from .simplify import NodeLod
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +82,7 @@ DEFAULT_BUDGET_MB = 1024.0
 #: Temporary files older than this (seconds) are a crashed writer's: prune removes them.
 _STALE_TEMP_SECONDS = 3600.0
 _CACHEDIR_TAG = (b"Signature: 8a477f597d28d172789f06886806bc55\n"
-                 b"# An HLOD bake cache (hlod_core.bake.cache): safe to delete; the next bake rebuilds it.\n")
+                 b"# An HLOD bake cache (hlod_core.bake.run.cache): safe to delete; the next bake rebuilds it.\n")
 
 
 def default_folder(output: str | os.PathLike) -> Path:
@@ -216,7 +216,7 @@ class BakeCache:
               unit_length: float, seams=None) -> dict[int, tuple[NodeLod, float]]:
         """The inner nodes whose subtree the folder holds: node -> (LOD, error). lods: per node, the
         leaves' (positions, faces, normals, rows) (the keys hash them); origin (3,) float64;
-        unit_length: the lattice's (lattice.py); seams: cell_seams.CellSeams (node_keys). With proxy
+        unit_length: the lattice's (bake/space/lattice.py); seams: cell_seams.CellSeams (node_keys). With proxy
         materials, a node whose inner nodes below are not all hits is not one, and each hit's proxy
         goes to the plan (ProxyPlan.restore: its texture is written)."""
         self._keys = node_keys(layout, lods, origin=origin, context=self.context, unit_length=unit_length,

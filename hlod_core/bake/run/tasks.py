@@ -18,7 +18,7 @@ import threading
 
 import numpy as np
 
-from . import hausdorff
+from ..measure import hausdorff
 
 #: The shared arrays' names: the leaves' positions and the Clusters over their faces.
 SHARED_ARRAYS = ("positions", *hausdorff.Clusters.ARRAYS)

@@ -16,7 +16,7 @@ vertex. pymeshlab only ever sees a node in its own unit frame (meshlab.NodeFrame
   place and each LOD vertex takes the row of the input vertex it sits on (seams.row_sources). A
   LOD whose seams keep it above SEAM_CROSSING_FACTOR x target_tris is made again across its UV
   seams (seams.py).
-- The error (MSE, and the bound's h) is hausdorff.py's, in the same unit frame.
+- The error (MSE, and the bound's h) is bake/measure/hausdorff.py's, in the same unit frame.
 Why: docs/how-it-works.md#decimating-a-node
 """
 from __future__ import annotations
@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.arrays import compact, concat_indexed, distinct_corners
-from ..model.appearance import AttributeLayout
+from ...core.arrays import compact, concat_indexed, distinct_corners
+from ...model.appearance import AttributeLayout
+from ..space.lattice import unique_by_first
 from .collapse import Cut, collapse_node
-from .lattice import unique_by_first
 from .meshlab import DecimationSettings, NodeFrame, mesh_set, row_keys, unit_normals
 from .seams import decimate_across_uv_seams, row_sources
 
@@ -129,7 +129,7 @@ def decimate_node(child_lods: list[tuple], settings: DecimationSettings, *, with
                   seams: np.ndarray | None = None) -> NodeLod:
     """child_lods: [(positions f32, faces)] or [(positions f32, faces, attribute rows (k,A) f32 or
     None)] of the children, all with rows or all without; layout: the rows' columns (None: every
-    column is kept exact, as a UV); unit_length: the bake's lattice unit (lattice.py; the children's
+    column is kept exact, as a UV); unit_length: the bake's lattice unit (bake/space/lattice.py; the children's
     positions are its points and so is the LOD's every vertex), 0 for positions off any lattice;
     seams (s,3) float32: the positions the node shares with the cells around it
     (cell_seams.CellSeams.locked), kept in place; None: its neighbours are unknown, and every

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.errors import InputError
-from ..io import hlod_file
+from ...core.errors import InputError
+from ...io import hlod_file
 from . import lattice
 from .root_cube import RootCube, tight_cube
 

@@ -16,11 +16,11 @@ import struct
 
 import numpy as np
 
-from ..core.errors import FormatError
-from ..io import hlod_file
-from ..model.hierarchy import NODE_ARRAYS, Hlod
-from .meta import DERIVED_META
-from .simplify import NodeLod
+from ...core.errors import FormatError
+from ...io import hlod_file
+from ...model.hierarchy import NODE_ARRAYS, Hlod
+from ..decimate.simplify import NodeLod
+from ..meta import DERIVED_META
 
 #: Version of the entry format and of the keys' recipe; any change to either bumps it.
 CACHE_VERSION = 3
@@ -141,7 +141,7 @@ def node_entry(extra: dict, arrays: dict, *, with_normals: bool, row_width: int)
         raise CorruptEntry("a face refers to a vertex outside the LOD")
     if not np.all(np.isfinite(positions)):
         raise CorruptEntry("non-finite positions")
-    if error < 0 or np.isinf(error):  # NaN is allowed: pymeshlab gave no distance (assemble.py bounds it)
+    if error < 0 or np.isinf(error):  # NaN is allowed: pymeshlab gave no distance (bake/assemble.py bounds it)
         raise CorruptEntry(f"bad error {error}")
     if any(summary[name] not in (0, 1) for name in _FLAG_FIELDS) or any(v < 0 for v in summary.values()):
         raise CorruptEntry(f"bad summary {summary}")

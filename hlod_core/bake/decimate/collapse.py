@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..space.lattice import unique_by_first
 from .cell_seams import node_borders
-from .lattice import unique_by_first
 from .meshlab import DecimationSettings, quadric_collapse, row_keys
 from .pieces import choose, pieces_of
 

@@ -15,10 +15,10 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.arrays import concat_indexed
-from ..core.errors import BakeCancelled
+from ...core.arrays import concat_indexed
+from ...core.errors import BakeCancelled
+from ..space.octree import OctreeLayout
 from . import hausdorff
-from .octree import OctreeLayout
 
 #: Faces from which the clusters are cut as tasks on the bake's workers, where there are several.
 PARALLEL_FROM_FACES = 1 << 19

@@ -43,10 +43,10 @@ from typing import Callable, Iterator, Protocol
 
 import numpy as np
 
-from ..core.errors import BakeCancelled, InputError
-from ..io import meshes
+from ...core.errors import BakeCancelled, InputError
+from ...io import meshes
+from ..prepare import triangle_centroids
 from . import lattice, octree
-from .prepare import triangle_centroids
 
 log = logging.getLogger(__name__)
 

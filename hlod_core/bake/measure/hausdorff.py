@@ -25,8 +25,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.arrays import compact, concat_indexed
-from .meshlab import UNIT_DIAGONAL, NodeFrame
+from ...core.arrays import compact, concat_indexed
+from ..decimate.meshlab import UNIT_DIAGONAL, NodeFrame
 
 #: Barycentric sample points per LOD face for the LOD -> original direction: centroid, three
 #: inner points and the edge midpoints. Fixed, so a bake is reproducible (pymeshlab's own face

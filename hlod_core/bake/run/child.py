@@ -1,4 +1,4 @@
-"""A bake in a child process: `python -m hlod_core.bake.child JOB.json`.
+"""A bake in a child process: `python -m hlod_core.bake.run.child JOB.json`.
 
 The Blender extension gathers the mesh on Blender's main thread, writes it with `write_job` into a
 private scratch folder and starts this module in a child process of Blender's own Python, which bakes
@@ -52,22 +52,22 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core import process_tree
-from ..core.atomic import atomic_file, write_text_atomic
-from ..core.errors import FormatError, HlodError, InputError
-from ..core.signals import Terminated, signals_as_exceptions
-from ..io import hlod_file, meshes
-from ..model.appearance import materials_from_json
+from ...core import process_tree
+from ...core.atomic import atomic_file, write_text_atomic
+from ...core.errors import FormatError, HlodError, InputError
+from ...core.signals import Terminated, signals_as_exceptions
+from ...io import hlod_file, meshes
+from ...model.appearance import materials_from_json
+from ..pipeline import bake
+from ..settings import BakeSettings
+from ..space.frame import Frame
 from .cache import DEFAULT_BUDGET_MB
-from .frame import Frame
-from .pipeline import bake
-from .settings import BakeSettings
 
 log = logging.getLogger("hlod_core")
 
 JOB_VERSION = 1
 JOB_FILE, MESH_FILE, IMAGES_FILE = "job.json", "mesh.npz", "images.npz"
-MODULE = "hlod_core.bake.child"  # what `python -m` runs
+MODULE = "hlod_core.bake.run.child"  # what `python -m` runs
 PARENT_STDIN = "--parent-stdin"  # the option saying stdin is the parent's pipe (module notes)
 #: Optional per-vertex / per-face arrays of a TriangleMesh carried in the npz when present.
 OPTIONAL_ARRAYS = ("normals", "uvs", "colors", "material_ids")

@@ -12,7 +12,7 @@ cube as an octant; a cell splits at its centre into octants (a grown cube at the
 face, its octant there being exactly the earlier cube: root_cube.GrowthChain), so every cell is
 fixed by the root cell and its path. A node's cell (`cell_center`, `cell_half`, `cell_level`) is
 the octant it was made as (the root: the root cube). An edit keeps every cell it does not overlap,
-which is what the bake cache (cache.py) reuses.
+which is what the bake cache (bake/run/cache.py) reuses.
 Why: docs/how-it-works.md#octree-cells-that-stay-put
 
 Rules: a cell splits into its 8 octants while it holds more than `target_tris` (counted) triangles

@@ -46,7 +46,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.errors import InputError
+from ...core.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +132,8 @@ def fingerprint() -> str:
     """What decides a task's result besides its arguments: the Python version and, through
     cache_keys.context_digest, the sources of the modules that compute LODs and errors and the
     pymeshlab and numpy versions. Runs on each worker (check_cluster) and here."""
-    from . import cache_keys, simplify
+    from ..decimate import simplify
+    from . import cache_keys
 
     digest = cache_keys.context_digest(simplify.DecimationSettings(), with_normals=False, row_layout=None)
     return f"python {sys.version_info[0]}.{sys.version_info[1]} {digest.hex()}"

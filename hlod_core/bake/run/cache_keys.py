@@ -19,27 +19,30 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import hlod_file
-from ..model.appearance import AttributeLayout
+from ...io import hlod_file
+from ...model.appearance import AttributeLayout
+from ..appearance.proxy import ProxySettings
+from ..decimate.meshlab import DecimationSettings
+from ..space.frame import Frame
+from ..space.octree import OctreeLayout
 from . import cache_files
-from .appearance.proxy import ProxySettings
 from .cache_files import KEY_BYTES
-from .frame import Frame
-from .meshlab import DecimationSettings
-from .octree import OctreeLayout
 
 #: Modules whose code computes LODs, errors or the result's arrays and meta (their source is part
 #: of every key: editing one retires every entry).
-RESULT_MODULES = ("bake.simplify", "bake.collapse", "bake.meshlab", "bake.seams", "bake.cell_seams", "bake.pieces",
-                  "bake.hausdorff", "model.appearance", "model.hierarchy", "core.arrays", "bake.octree",
-                  "bake.settings", "bake.prepare", "bake.sources", "bake.partition", "bake.leaf_arrays", "bake.tasks",
-                  "bake.schedule", "bake.octree_passes",
-                  "bake.assemble", "bake.meta", "bake.pipeline", "bake.cache", "bake.cache_files", "bake.lattice",
-                  "bake.cache_keys", "bake.cache_proxies",
-                  "bake.frame", "bake.root_cube", "bake.appearance.proxy", "bake.appearance.atlas",
-                  "bake.appearance.texels", "bake.appearance.surface_colour", "bake.appearance.quality",
-                  "bake.appearance.proxy_task", "bake.appearance.proxy_plan", "core.cpu_raster", "core.colour",
-                  "core.png", "io.textures")
+RESULT_MODULES = ("bake.decimate.simplify", "bake.decimate.collapse", "bake.decimate.meshlab",
+                  "bake.decimate.seams", "bake.decimate.cell_seams", "bake.decimate.pieces",
+                  "bake.measure.hausdorff", "model.appearance", "model.hierarchy", "core.arrays",
+                  "bake.space.octree", "bake.settings", "bake.prepare", "bake.sources",
+                  "bake.space.partition", "bake.measure.leaf_arrays", "bake.run.tasks",
+                  "bake.run.schedule", "bake.space.octree_passes", "bake.assemble", "bake.meta",
+                  "bake.pipeline", "bake.run.cache", "bake.run.cache_files", "bake.space.lattice",
+                  "bake.run.cache_keys", "bake.run.cache_proxies", "bake.space.frame",
+                  "bake.space.root_cube", "bake.appearance.proxy", "bake.appearance.atlas",
+                  "bake.appearance.texels", "bake.appearance.surface_colour",
+                  "bake.appearance.quality", "bake.appearance.proxy_task",
+                  "bake.appearance.proxy_plan", "core.cpu_raster", "core.colour", "core.png",
+                  "io.textures")
 
 
 def context_digest(settings: DecimationSettings, *, with_normals: bool,
@@ -49,7 +52,7 @@ def context_digest(settings: DecimationSettings, *, with_normals: bool,
     error: the error measure (BakeSettings.error), so a bound is never served for an exact error
     nor the other way round; proxies: the proxy materials' settings of a bake that makes them
     (texture cap and floor, tau; None: a bake without them, keep-materials included)."""
-    core = Path(__file__).resolve().parent.parent
+    core = Path(__file__).resolve().parents[2]
     code = hashlib.blake2b(digest_size=KEY_BYTES)
     for name in RESULT_MODULES:
         try:
@@ -110,7 +113,7 @@ def node_keys(layout: OctreeLayout, lods: list, *, origin: np.ndarray, context: 
               unit_length: float = 0.0, seams=None, looks: tuple[int, np.ndarray] | None = None) -> list[bytes]:
     """(n,) 32-byte keys, one per node (module docstring). lods: per node (positions, faces,
     normals or None, attribute rows or None); only the leaves' are read; unit_length: the lattice
-    the positions are points of (lattice.py), which the decimations snap to; seams
+    the positions are points of (bake/space/lattice.py), which the decimations snap to; seams
     (cell_seams.CellSeams or None): an inner node's key hashes the positions it shares with the
     cells around it too, which its decimation keeps in place; looks: (the rows' material column,
     (materials, 32) uint8 `material_digests`) in a bake that makes proxy materials: a leaf's key

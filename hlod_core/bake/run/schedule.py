@@ -4,7 +4,7 @@ children's LODs exist and then measured, as tasks on `workers.Workers`.
 Three kinds of task: DECIMATE a node (simplify.decimate_node), MEASURE its error (exact:
 tasks.measure_exact over the leaves' shared arrays; bound: hausdorff.measure_to_children against
 its children's LODs, the bounds composed after the phase, `compose_bounds`) and, where the node's
-sources need one, bake its PROXY material (appearance/proxy_task.py; `ProxyPlan`). Priority:
+sources need one, bake its PROXY material (bake/appearance/proxy_task.py; `ProxyPlan`). Priority:
 decimations first, deepest first (they unlock the rest), then measurements, largest first, then
 proxies; at most `workers.limit` tasks are in flight, so the priority holds. With proxies, a node is
 decimated once its children are complete (their proxies made: its sources and its decision whether
@@ -31,17 +31,19 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.arrays import segment_ranges
-from ..core.errors import BakeCancelled
-from ..core.signals import deliver_held
-from ..model.appearance import AttributeLayout
-from . import hausdorff, leaf_arrays, simplify, tasks
-from .appearance import proxy_task
-from .appearance.proxy_plan import ProxyPlan
-from .cell_seams import CellSeams
-from .leaf_arrays import LeafArrays
-from .octree import OctreeLayout
-from .settings import BakeSettings
+from ...core.arrays import segment_ranges
+from ...core.errors import BakeCancelled
+from ...core.signals import deliver_held
+from ...model.appearance import AttributeLayout
+from ..appearance import proxy_task
+from ..appearance.proxy_plan import ProxyPlan
+from ..decimate import simplify
+from ..decimate.cell_seams import CellSeams
+from ..measure import hausdorff, leaf_arrays
+from ..measure.leaf_arrays import LeafArrays
+from ..settings import BakeSettings
+from ..space.octree import OctreeLayout
+from . import tasks
 from .workers import Workers
 
 #: progress(done_nodes, total_nodes, phase)
@@ -60,7 +62,7 @@ class SimplifyInput:
     """What the phase decimates: with_normals (the LODs carry normals), row_layout (the attribute
     rows' columns; None without rows), leaf_folder (a folder for the exact measure's leaf
     arrays, memory-mapped: an out-of-core bake; None: in memory), unit_length (the lattice the
-    positions are points of, lattice.py; 0: none) and seams (what each node shares with the cells
+    positions are points of, bake/space/lattice.py; 0: none) and seams (what each node shares with the cells
     around it, kept in place; None: every open boundary is kept)."""
 
     with_normals: bool

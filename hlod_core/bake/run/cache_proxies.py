@@ -19,10 +19,10 @@ import struct
 
 import numpy as np
 
-from .appearance.proxy import proxy_of_id
-from .appearance.proxy_plan import ProxyMade
+from ..appearance.proxy import proxy_of_id
+from ..appearance.proxy_plan import ProxyMade
+from ..space.octree import OctreeLayout
 from .cache_files import CorruptEntry
-from .octree import OctreeLayout
 
 #: The entry's extra keys and array of the proxies (module docstring).
 PATHS, FIELDS, PNG = "proxy_paths", "proxy", "proxy_png"

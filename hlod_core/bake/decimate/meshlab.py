@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import lattice
+from ..space import lattice
 
 #: Fewest triangles asked of pymeshlab. An edge collapse removes the edge's two triangles, so a
 #: closed surface decimated to 1 triangle goes from 2 to 0 and pymeshlab returns an empty mesh.
@@ -43,7 +43,7 @@ class NodeFrame:
     """The unit frame pymeshlab works in: local = (x - center) * scale, with the node's box
     centred on the origin and its diagonal UNIT_DIAGONAL (scale = 1 for a node of one point).
     x is the model position, or with unit_length > 0 the canonical coordinate of a bake's stored
-    position (lattice.py), so the frame and every local coordinate are the same numbers at every
+    position (bake/space/lattice.py), so the frame and every local coordinate are the same numbers at every
     scale. It makes pymeshlab's absolute thresholds scale-free, so a model baked in millimetres
     gives the LODs of the same model in metres, scaled.
     Why: docs/how-it-works.md#the-unit-frame-of-a-node"""
@@ -55,7 +55,7 @@ class NodeFrame:
     @staticmethod
     def of(positions: np.ndarray, *, unit_length: float = 0.0) -> "NodeFrame":
         """The unit frame of positions (k,3), k >= 1, finite; with unit_length, stored lattice
-        positions (lattice.py) framed by their canonical coordinates."""
+        positions (bake/space/lattice.py) framed by their canonical coordinates."""
         p = lattice.canonical(positions, unit_length) if unit_length > 0 else np.asarray(positions, np.float64)
         frame = NodeFrame.of_box(p.min(axis=0), p.max(axis=0))
         return NodeFrame(center=frame.center, scale=frame.scale, unit_length=unit_length)

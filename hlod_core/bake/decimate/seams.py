@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..core.arrays import distinct_corners, segment_ranges
+from ...core.arrays import distinct_corners, segment_ranges
+from ..space.lattice import unique_by_first
 from .cell_seams import node_borders
-from .lattice import unique_by_first
 from .meshlab import DecimationSettings, quadric_collapse, row_keys
 
 

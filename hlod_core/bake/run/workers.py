@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.signals import stop_signals_held
+from ...core.signals import stop_signals_held
 from . import tasks
 
 #: How long a stopped pool waits for each killed worker to be gone (seconds; a kill takes milliseconds).

@@ -22,7 +22,7 @@ each piece), and its error e0 = the largest distance of an input vertex to L0:
    keeps its piece of most input triangles (then the lowest id): at the first h whose binned-out
    pieces would free enough triangles (or where one cell holds the node), just enough of them go,
    those nearest their cell's kept piece first.
-The node's error is measured afterwards against every original vertex below it (hausdorff.py,
+The node's error is measured afterwards against every original vertex below it (bake/measure/hausdorff.py,
 or its bound against the children's vertices), the dropped pieces' too: it bounds what was dropped.
 """
 from __future__ import annotations

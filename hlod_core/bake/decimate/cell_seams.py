@@ -20,8 +20,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..core.errors import BakeCancelled
-from .octree import OctreeLayout
+from ...core.errors import BakeCancelled
+from ..space.octree import OctreeLayout
 
 #: Leaf vertices sorted at a time while the shared positions are found: with more, they are
 #: split into buckets by a hash of their position and each bucket is sorted on its own (an

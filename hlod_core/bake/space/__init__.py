@@ -1,0 +1,5 @@
+"""The bake's space (docs/how-it-works.md#the-bake): the frame every position is made in and the octree that cuts
+it.
+
+Modules: frame, lattice, octree, octree_passes, partition, root_cube.
+"""
