@@ -4,7 +4,7 @@ says (addon/scene/place.py); a 3D Tiles export is what View in Browser serves ne
 from __future__ import annotations
 
 import bpy
-from bpy.props import EnumProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, StringProperty
 
 from ..addon.properties import BLEND_RELATIVE_PATH, stored_path
 from ..addon.scene.place import export_place
@@ -38,6 +38,9 @@ class HLOD_OT_export(bpy.types.Operator):
     ], default="plain", description="3D Tiles only: how the tiles' vertices are stored. "
                                      "Draco compression and WebP/JPEG textures are on the command line only "
                                      "(export --mesh draco --textures webp)")
+    merge_leaves: BoolProperty(name="Merge Leaves", default=False,
+                               description="3D Tiles only: the leaf children of a node share one tile "
+                                           "(fewer, bigger tiles: fewer requests and less JSON; culled together)")
 
     def draw(self, context):
         """The file browser's options: the format, the tile content and where Draco is."""
@@ -46,6 +49,7 @@ class HLOD_OT_export(bpy.types.Operator):
         col = layout.column()
         col.active = self.format == "3DTILES"
         col.prop(self, "mesh")
+        col.prop(self, "merge_leaves")
         col.label(text=DRACO_NOTE, icon="INFO")
 
     def invoke(self, context, event):
@@ -68,7 +72,8 @@ class HLOD_OT_export(bpy.types.Operator):
                 from ..hlod_core.export import tiles3d
 
                 target = target[:-len(".hlod")] + TILES_SUFFIX if target.lower().endswith(".hlod") else target
-                tiles3d.export(hlod, target, place=export_place(context.scene), mesh=self.mesh)
+                tiles3d.export(hlod, target, place=export_place(context.scene), mesh=self.mesh,
+                               merge_leaves=self.merge_leaves)
                 props.tiles_dir = stored_path(target)  # what View in Browser serves
             else:
                 hlod_file.save(hlod, target)

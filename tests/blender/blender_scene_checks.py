@@ -460,6 +460,12 @@ def check_place(repo, work) -> dict:
     props.place_mode = "NONE"
     bpy.ops.hlod.export(filepath=str(work / "button_quantized"), format="3DTILES", mesh="quantized")
     out["quantized"] = [status, *(_required_extensions(work / name) for name in ("quantized", "button_quantized"))]
+    # a node's leaves in one tile, from the background command and from the button
+    status, stdout, stderr = _run_cli(cli, "export", str(work / "ball.hlod"), "--format", "3dtiles", "-o",
+                                      str(work / "merged"), "--place=none", "--merge-leaves")
+    bpy.ops.hlod.export(filepath=str(work / "button_merged"), format="3DTILES", merge_leaves=True)
+    out["merged"] = [status, *(sorted(p.name for p in (work / name / "tiles").glob("*.glb"))
+                               for name in ("merged", "button_merged", "button_quantized"))]
     return out
 
 

@@ -126,7 +126,8 @@ def test_a_georeferenced_scene_is_placed_and_a_projected_crs_is_one_line(version
     Tiles (its root origin 6.37e6 m from the Earth's centre, extras.place the scene's); --place
     wins; the panel's typed place is read in double precision and Local Frame is not placed; a
     projected CRS alone is refused by the button and by `hlod export`, one line, nothing written;
-    a latitude of 95 likewise; --mesh quantized and the button's Tile Content write quantized GLBs."""
+    a latitude of 95 likewise; --mesh quantized and the button's Tile Content write quantized GLBs;
+    --merge-leaves and the button's Merge Leaves write the same fewer GLBs, a node's leaves in one."""
     out = scene_check(versioned_repo, "place", tmp_path)
     zurich = {"longitude_deg": 8.5417, "latitude_deg": 47.3769, "height_m": 0.0, "heading_deg": 0.0}
     manhattan = {"longitude_deg": -73.98513, "latitude_deg": 40.7589, "height_m": 12.5, "heading_deg": 90.0}
@@ -154,4 +155,7 @@ def test_a_georeferenced_scene_is_placed_and_a_projected_crs_is_one_line(version
              cli_bad_latitude=out["cli_bad_latitude"][0] == 2 and len(out["cli_bad_latitude"][1]) == 1
              and "latitude 95 is beyond +-90 degrees" in out["cli_bad_latitude"][1][0]
              and not out["cli_bad_latitude"][2],
-             quantized=out["quantized"] == [0, ["KHR_mesh_quantization"], ["KHR_mesh_quantization"]])
+             quantized=out["quantized"] == [0, ["KHR_mesh_quantization"], ["KHR_mesh_quantization"]],
+             merged=out["merged"][0] == 0 and out["merged"][1] == out["merged"][2]
+             and any(name.endswith("-leaves.glb") for name in out["merged"][1])
+             and len(out["merged"][1]) < len(out["merged"][3]))
