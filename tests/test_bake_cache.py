@@ -451,6 +451,15 @@ def _core_imports(name: str, tree) -> set[str]:
     return out
 
 
+def test_the_cache_key_reads_the_source_of_every_result_module(monkeypatch):
+    """context_digest hashes each RESULT_MODULES file it finds (a module it cannot read counts by its
+    name only): every path it reads is a file, so none is keyed by its name alone."""
+    read, original = [], Path.read_bytes
+    monkeypatch.setattr(Path, "read_bytes", lambda self: read.append(self) or original(self))
+    cache_keys.context_digest(meshlab.DecimationSettings(), with_normals=False, row_layout=None)
+    assert len(read) == len(cache_keys.RESULT_MODULES) and all(path.is_file() for path in read), read
+
+
 def test_every_module_that_computes_lods_or_errors_keys_the_cache():
     """The cache key holds the source of RESULT_MODULES, so a change to any module that computes
     LODs or errors invalidates every entry (a stale subtree is never served). Every hlod_core module
