@@ -152,15 +152,14 @@ class _Tiles:
     def _merge_leaves(self) -> None:
         """Each node's two or more leaf children (with triangles) become one tile, placed where the
         first of them was among the node's children."""
+        merges = (self.hlod.child_count == 0) & (self.hlod.tri_count > 0)  # (n,) leaves with triangles
         for node, kids in list(self.children.items()):
-            leaves = [c for c in kids if self.hlod.child_count[c] == 0 and self.hlod.tri_count[c] > 0]
+            leaves = [c for c in kids if merges[c]]
             if len(leaves) < 2:
                 continue
-            group = -1 - node
+            group, first = -1 - node, kids.index(leaves[0])
             self.members[group], self.children[group] = leaves, []
-            first = kids.index(leaves[0])
-            self.children[node] = [c for c in kids[:first] if c not in leaves] + [group] + \
-                [c for c in kids[first:] if c not in leaves]
+            self.children[node] = kids[:first] + [group] + [c for c in kids[first:] if not merges[c]]
             for leaf in leaves:
                 del self.children[leaf]
 
