@@ -302,7 +302,7 @@ def test_a_whole_result_that_fails_a_check_writes_none_of_its_textures(row, tmp_
     extra, arrays = cache_files.unpack(result.read_bytes(), key, "result")
     last = f"{cache_proxies.PNG}_{len(extra[cache_proxies.RESULT]['textures']) - 1}"
     arrays[last] = arrays[last][::-1].copy()
-    result.write_bytes(cache_files._pack(key, "result", arrays, extra=extra))
+    result.write_bytes(cache_files.pack(key, "result", arrays, extra=extra))
     restored = []
     monkeypatch.setattr(ProxyPlan, "restore", lambda plan, node, *a: restored.append(node))
     again = bake(row.mesh, SETTINGS, images=row.images, textures=textures("again"), cache_dir=folder)

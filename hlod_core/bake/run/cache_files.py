@@ -45,7 +45,9 @@ class CorruptEntry(Exception):
     """An entry that must not be used; the message says why."""
 
 
-def _pack(key: bytes, kind: str, arrays: dict[str, np.ndarray], *, extra: dict | None = None) -> bytes:
+def pack(key: bytes, kind: str, arrays: dict[str, np.ndarray], *, extra: dict | None = None) -> bytes:
+    """The bytes of an entry of `kind` ("node", "result") under `key`: its arrays and extra entries
+    (module docstring's data form); `unpack` reads it back."""
     table, offset = [], 0
     arrays = {name: np.ascontiguousarray(a, a.dtype.newbyteorder("<")) for name, a in arrays.items()}
     for name, a in arrays.items():
@@ -118,7 +120,7 @@ def node_entry_bytes(key: bytes, lod: NodeLod, error: float, extra: dict | None 
         arrays["normals"] = np.asarray(lod.normals, "<f4")
     if lod.attributes is not None:
         arrays["attributes"] = np.asarray(lod.attributes, "<f4")
-    return _pack(key, "node", {**arrays, **(more or {})}, extra=extra)
+    return pack(key, "node", {**arrays, **(more or {})}, extra=extra)
 
 
 def node_entry(extra: dict, arrays: dict, *, with_normals: bool, row_width: int) -> tuple[NodeLod, float]:
@@ -161,7 +163,7 @@ def result_entry_bytes(key: bytes, hlod: Hlod, meta: dict, *, node_keys: list[by
     arrays = {name: getattr(hlod, name) for name in _RESULT_ARRAYS if getattr(hlod, name) is not None}
     entries = {name: meta[name] for name in DERIVED_META if name in meta}
     entries["node_keys"] = [k.hex() for k in node_keys]
-    return _pack(key, "result", {**arrays, **(more or {})}, extra={**entries, **(extra or {})})
+    return pack(key, "result", {**arrays, **(more or {})}, extra={**entries, **(extra or {})})
 
 
 def result_entry(extra: dict, arrays: dict, *, materials: tuple, with_normals: bool,

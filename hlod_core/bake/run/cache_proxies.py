@@ -143,7 +143,8 @@ def result_parts(plan: ProxyPlan, materials: tuple, proxies_meta: dict | None) -
     return {RESULT: {"textures": textures, "materials": own, "meta": proxies_meta}}, arrays
 
 
-def result_proxies(extra: dict, arrays: dict, *, reference: Path) -> tuple[list[tuple[int, dict, bytes]], tuple[Material, ...], dict | None]:
+def result_proxies(extra: dict, arrays: dict, *,
+                   reference: Path) -> tuple[list[tuple[int, dict, bytes]], tuple[Material, ...], dict | None]:
     """A whole result's proxies, checked, their arrays taken out of `arrays`: ([(node, ProxyMade
     fields but the file, PNG bytes)], the proxy materials naming their textures in `reference` (the
     folder this bake's file names), meta["proxies"] or None); CorruptEntry. The caller checks the
