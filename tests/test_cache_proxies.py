@@ -27,6 +27,7 @@ from hlod_core.bake.run.cache_files import CorruptEntry
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.bake.space.frame import Frame
 from hlod_core.bake.space.octree import OctreeLayout
+from hlod_core.core.errors import BakeCancelled
 from hlod_core.core.png import png_bytes, png_pixels
 from hlod_core.io import meshes
 from hlod_core.io.texture_folder import EmbeddedTextures
@@ -355,3 +356,20 @@ def test_a_failed_write_leaves_no_partial_whole_result_nor_output(row, tmp_path,
     with pytest.raises(OSError), EmbeddedTextures(output) as published, _files_limited_to(pngs[len(pngs) // 2]):
         bake(row.mesh, SETTINGS, images=row.images, textures=published, cache_dir=folder)
     assert list(output.parent.iterdir()) == []
+
+
+def test_a_cancelled_bake_with_proxies_writes_no_entry(row, tmp_path):
+    """Cancelled once some proxies are made (their PNGs already in the bake's texture folder): no
+    node entry and no whole result; a bake into that folder afterwards is a bake from scratch."""
+    textures, folder, done = _Textures(tmp_path, row.textures.final), tmp_path / "cache", []
+
+    def progress(finished, total, phase):
+        done.append(phase)
+
+    with pytest.raises(BakeCancelled):
+        bake(row.mesh, SETTINGS, images=row.images, textures=textures("cancelled"), cache_dir=folder,
+             progress=progress, cancel=lambda: done.count("simplify") >= 2)
+    assert list((tmp_path / "cancelled").glob("proxy_*.png")) and not folder.exists()
+    again = bake(row.mesh, SETTINGS, images=row.images, textures=textures("again"), cache_dir=folder)
+    assert again.meta["cache"]["reused_nodes"] == 0 and not again.meta["cache"]["reused_result"]
+    assert file_bytes(again, tmp_path / "again.hlod") == file_bytes(row.scratch, tmp_path / "scratch.hlod")
