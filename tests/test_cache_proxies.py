@@ -5,7 +5,10 @@ of textured spheres (sample_meshes.textured_sphere), jobs 1, the proxy tasks cou
 the real function."""
 from __future__ import annotations
 
+import contextlib
+import resource
 import shutil
+import signal
 from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -16,6 +19,7 @@ import pytest
 from helpers import file_bytes
 from hlod_core.bake.appearance import proxy_task
 from hlod_core.bake.appearance.proxy import ProxySettings
+from hlod_core.bake.appearance.proxy_plan import ProxyPlan
 from hlod_core.bake.decimate.meshlab import DecimationSettings
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.run import cache, cache_files, cache_keys, cache_proxies
@@ -23,8 +27,10 @@ from hlod_core.bake.run.cache_files import CorruptEntry
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.bake.space.frame import Frame
 from hlod_core.bake.space.octree import OctreeLayout
+from hlod_core.core.errors import BakeCancelled
 from hlod_core.core.png import png_bytes, png_pixels
 from hlod_core.io import meshes
+from hlod_core.io.texture_folder import EmbeddedTextures
 from hlod_core.model.appearance import Material
 from sample_meshes import SPHERE_TARGET_TRIS, textured_sphere
 
@@ -99,8 +105,11 @@ def _warm(row, tmp_path: Path) -> tuple[Path, _Textures]:
 
 
 def test_a_warm_cache_gives_the_file_and_textures_of_a_bake_from_scratch(row, tmp_path, monkeypatch):
+    """Every inner node from its entry (the whole result removed: an unchanged input takes that)."""
     assert "cache" not in row.scratch.meta and len(row.scratch.meta["proxies"]["nodes"]) >= 3
     folder, textures = _warm(row, tmp_path)
+    for result in folder.glob("*.hlodr"):
+        result.unlink()
     made = _proxies_made(monkeypatch)
     warm = bake(row.mesh, SETTINGS, images=row.images, textures=textures("warm"), cache_dir=folder)
     inner = int((warm.child_count > 0).sum())
@@ -149,7 +158,7 @@ def test_a_repainted_texture_misses_the_nodes_above_it_and_only_those(row, tmp_p
     made = _proxies_made(monkeypatch)
     again = bake(row.mesh, SETTINGS, images=repainted, textures=textures("again"), cache_dir=folder)
     stats = again.meta["cache"]
-    assert stats["reused_nodes"] > 0 and stats["rebuilt_nodes"] > 0 and made
+    assert stats["reused_nodes"] > 0 and stats["rebuilt_nodes"] > 0 and made and not stats["reused_result"]
     # every node above a leaf that shows material 0 is rebuilt, and no other
     leaves_of_0 = [n for n in range(again.node_count) if again.child_count[n] == 0 and np.any(
         again.tri_material[again.tri_offset[n]:again.tri_offset[n] + again.tri_count[n]] == 0)]
@@ -171,6 +180,7 @@ def test_changed_texture_settings_miss(change, row, tmp_path):
                 "keep materials": replace(SETTINGS, proxy_materials=False)}[change]
     again = bake(row.mesh, settings, images=row.images, textures=textures("again"), cache_dir=folder)
     assert again.meta["cache"]["reused_nodes"] == 0 and again.meta["cache"]["rejected_entries"] == 0
+    assert not again.meta["cache"]["reused_result"]
 
 
 def test_every_proxy_setting_is_in_the_key():
@@ -223,3 +233,143 @@ def test_a_hit_counts_only_where_every_inner_node_below_it_is_a_hit():
     assert cache.whole_subtrees(layout, hits) == hits
     assert cache.whole_subtrees(layout, {0: "root"}) == {}  # node 2 missed: the root is rebuilt
     assert cache.whole_subtrees(layout, {2: "inner"}) == {2: "inner"}
+
+
+# --- the whole result of a bake with proxy materials ---------------------------------------------
+
+def test_an_unchanged_input_takes_the_whole_result_with_its_textures(row, tmp_path, monkeypatch):
+    """No node is read nor baked: the result entry gives the file and every texture file of a bake
+    from scratch, byte for byte, named from the texture folder of this bake (another output's)."""
+    folder, textures = _warm(row, tmp_path)
+    made = _proxies_made(monkeypatch)
+    warm = bake(row.mesh, SETTINGS, images=row.images, textures=textures("warm"), cache_dir=folder)
+    stats = warm.meta["cache"]
+    assert stats["reused_result"] and stats["rejected_entries"] == 0 and made == []
+    assert file_bytes(warm, tmp_path / "warm.hlod") == file_bytes(row.scratch, tmp_path / "scratch.hlod")
+    assert textures.files("warm") == row.textures.files("scratch")
+    other = _Textures(tmp_path / "other")  # another output: its file's materials name its own folder
+    hit = bake(row.mesh, SETTINGS, images=row.images, textures=other("hit"), cache_dir=folder)
+    assert hit.meta["cache"]["reused_result"] and made == []
+    monkeypatch.undo()
+    scratch = bake(row.mesh, SETTINGS, images=row.images, textures=other("scratch"))
+    assert file_bytes(hit, tmp_path / "hit.hlod") == file_bytes(scratch, tmp_path / "scratch2.hlod")
+    assert other.files("hit") == other.files("scratch") == row.textures.files("scratch")
+    proxies = hit.materials[len(row.mesh.materials):]
+    assert proxies and all(Path(m.texture).parent == other.final.resolve() for m in proxies)
+
+
+def test_a_changed_material_field_misses_the_whole_result(row, tmp_path):
+    folder, textures = _warm(row, tmp_path)
+    changed = replace(row.mesh, materials=(replace(row.mesh.materials[0], base_color=(1.0, 0.5, 0.5, 1.0)),
+                                           *row.mesh.materials[1:]))
+    again = bake(changed, SETTINGS, images=row.images, textures=textures("again"), cache_dir=folder)
+    stats = again.meta["cache"]
+    assert not stats["reused_result"] and stats["rebuilt_nodes"] > 0 and stats["reused_nodes"] > 0
+    scratch = bake(changed, SETTINGS, images=row.images, textures=textures("scratch"))
+    assert file_bytes(again, tmp_path / "again.hlod") == file_bytes(scratch, tmp_path / "scratch.hlod")
+    assert textures.files("again") == textures.files("scratch") != row.textures.files("first")
+
+
+def _result_pngs(path: Path) -> list[bytes]:
+    _, arrays = cache_files.unpack(path.read_bytes(), bytes.fromhex(path.stem), "result")
+    return sorted(a.tobytes() for name, a in arrays.items() if name.startswith(cache_proxies.PNG))
+
+
+def test_the_whole_result_holds_the_textures_and_the_budget_counts_them(row, tmp_path):
+    """The result entry holds every texture file the bake wrote (so the folder's size, which the
+    budget holds, counts them); a bake of another input with a budget of 0 evicts it whole."""
+    folder, textures = _warm(row, tmp_path)
+    (result,) = folder.glob("*.hlodr")
+    assert _result_pngs(result) == sorted(row.textures.files("first").values())
+    moved, _ = _row(moved_by=0.6)
+    again = bake(moved, SETTINGS, images=row.images, textures=textures("again"), cache_dir=folder, cache_budget_mb=0)
+    stats = again.meta["cache"]
+    (kept,) = folder.glob("*.hlodr")
+    assert kept != result and stats["evicted_entries"] >= 1
+    assert _result_pngs(kept) == sorted(textures.files("again").values())
+    assert stats["size_mb"] == round(sum(p.stat().st_size for p in folder.iterdir()) / 2**20, 3)
+    assert len(list(folder.glob("*.hlodc"))) == stats["nodes"]  # the entries it used, nothing else
+
+
+def test_a_whole_result_that_fails_a_check_writes_none_of_its_textures(row, tmp_path, monkeypatch):
+    """A result entry with a spoilt texture (its digest redone: only the PNG check finds it) is a
+    miss before any of its textures is written; the bake then makes them and gives a bake from
+    scratch's files."""
+    folder, textures = _warm(row, tmp_path)
+    for entry in folder.glob("*.hlodc"):
+        entry.unlink()
+    (result,) = folder.glob("*.hlodr")
+    key = bytes.fromhex(result.stem)
+    extra, arrays = cache_files.unpack(result.read_bytes(), key, "result")
+    last = f"{cache_proxies.PNG}_{len(extra[cache_proxies.RESULT]['textures']) - 1}"
+    arrays[last] = arrays[last][::-1].copy()
+    result.write_bytes(cache_files.pack(key, "result", arrays, extra=extra))
+    restored = []
+    monkeypatch.setattr(ProxyPlan, "restore", lambda plan, node, *a: restored.append(node))
+    again = bake(row.mesh, SETTINGS, images=row.images, textures=textures("again"), cache_dir=folder)
+    assert again.meta["cache"]["rejected_entries"] == 1 and not again.meta["cache"]["reused_result"]
+    assert restored == [] and textures.files("again") == row.textures.files("scratch")
+    assert file_bytes(again, tmp_path / "again.hlod") == file_bytes(row.scratch, tmp_path / "scratch.hlod")
+
+
+@contextlib.contextmanager
+def _files_limited_to(size: int):
+    """Writes past `size` bytes of a file fail (EFBIG) in this process: a full disk, for real writes."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    handler = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (size, hard))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        signal.signal(signal.SIGXFSZ, handler)
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGXFSZ"), reason="file size limits are POSIX")
+def test_a_failed_write_leaves_no_partial_whole_result_nor_output(row, tmp_path, monkeypatch):
+    """Writing the result entry fails (its file over the limit, as on a full disk): the bake keeps its
+    node entries, no result entry nor temporary file is left, and the next bake takes every node from
+    its entry. A hit whose texture write fails leaves the output as it was."""
+    entries = [p.stat().st_size for p in row.folder.glob("*.hlodc")]
+    (result,) = row.folder.glob("*.hlodr")
+    assert result.stat().st_size > max(entries) + 1
+    finish = cache.BakeCache.finish
+
+    def finish_on_a_full_disk(self, *args, **kwargs):
+        with _files_limited_to(max(entries) + 1):
+            return finish(self, *args, **kwargs)
+
+    monkeypatch.setattr(cache.BakeCache, "finish", finish_on_a_full_disk)
+    textures = _Textures(tmp_path, row.textures.final)
+    folder = tmp_path / "cache"
+    bake(row.mesh, SETTINGS, images=row.images, textures=textures("first"), cache_dir=folder)
+    monkeypatch.undo()
+    assert not list(folder.glob("*.hlodr")) and not list(folder.glob(".*"))
+    assert len(list(folder.glob("*.hlodc"))) == len(entries)
+    again = bake(row.mesh, SETTINGS, images=row.images, textures=textures("again"), cache_dir=folder)
+    assert not again.meta["cache"]["reused_result"] and again.meta["cache"]["rejected_entries"] == 0
+    assert file_bytes(again, tmp_path / "again.hlod") == file_bytes(row.scratch, tmp_path / "scratch.hlod")
+    # the hit's texture writes fail part way: nothing is published beside the output
+    pngs = sorted(len(data) for data in row.textures.files("scratch").values())
+    output = tmp_path / "out" / "scene.hlod"
+    output.parent.mkdir()
+    with pytest.raises(OSError), EmbeddedTextures(output) as published, _files_limited_to(pngs[len(pngs) // 2]):
+        bake(row.mesh, SETTINGS, images=row.images, textures=published, cache_dir=folder)
+    assert list(output.parent.iterdir()) == []
+
+
+def test_a_cancelled_bake_with_proxies_writes_no_entry(row, tmp_path):
+    """Cancelled once some proxies are made (their PNGs already in the bake's texture folder): no
+    node entry and no whole result; a bake into that folder afterwards is a bake from scratch."""
+    textures, folder, done = _Textures(tmp_path, row.textures.final), tmp_path / "cache", []
+
+    def progress(finished, total, phase):
+        done.append(phase)
+
+    with pytest.raises(BakeCancelled):
+        bake(row.mesh, SETTINGS, images=row.images, textures=textures("cancelled"), cache_dir=folder,
+             progress=progress, cancel=lambda: done.count("simplify") >= 2)
+    assert list((tmp_path / "cancelled").glob("proxy_*.png")) and not folder.exists()
+    again = bake(row.mesh, SETTINGS, images=row.images, textures=textures("again"), cache_dir=folder)
+    assert again.meta["cache"]["reused_nodes"] == 0 and not again.meta["cache"]["reused_result"]
+    assert file_bytes(again, tmp_path / "again.hlod") == file_bytes(row.scratch, tmp_path / "scratch.hlod")

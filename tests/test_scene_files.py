@@ -729,8 +729,8 @@ def test_cli_bake_writes_embedded_images_beside_the_output(tmp_path, scene, caps
 def test_cli_bake_writes_proxies_beside_the_output(tmp_path, scene, capsys):
     """bake X.obj -o OUT.hlod with proxy materials (the default): the inner nodes' textures are
     OUT.textures/proxy_<node>.png, which the .hlod refers to relative to itself. The same command
-    again takes every inner node and its proxy from the bake cache beside the output and writes the
-    same file and texture files."""
+    again takes the whole result, every inner node and its proxy, from the bake cache beside the
+    output and writes the same file and texture files."""
     out = tmp_path / "proxies.hlod"
     command = ["-q", "bake", str(scene["obj"]), "-o", str(out), "--target-tris", "20000"]
     assert cli.main(command) == 0
@@ -744,7 +744,7 @@ def test_cli_bake_writes_proxies_beside_the_output(tmp_path, scene, capsys):
     textures = {p.name: p.read_bytes() for p in folder.iterdir()}
     assert cli.main(command) == 0
     again = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["cache"]
-    assert again["reused_nodes"] == again["nodes"] == summary["cache"]["nodes"] > 0
+    assert again["reused_nodes"] == again["nodes"] == summary["cache"]["nodes"] > 0 and again["reused_result"]
     assert file_bytes(hlod_file.load(out), tmp_path / "a.hlod") == file_bytes(hlod, tmp_path / "b.hlod")
     assert {p.name: p.read_bytes() for p in folder.iterdir()} == textures
 

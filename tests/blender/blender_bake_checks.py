@@ -448,7 +448,7 @@ def check_cache_mixed_scene(repo, work) -> dict:
 
     def bake(path: Path, *extra: str) -> dict:
         with contextlib.redirect_stdout(io.StringIO()) as stdout:
-            # the sources' materials on every level: a bake with proxy materials keeps no whole result (relinked)
+            # the sources' materials on every level, as this check was written (proxy bakes' cache: test_cache_proxies)
             status = cli.execute(["bake", "--target-tris", "300", "--keep-materials", *extra, "-o", str(path)])
         summary = json.loads(stdout.getvalue().strip().splitlines()[-1])["files"][0]
         return {"status": status, "cache": summary.get("cache"), "error": summary.get("error"),

@@ -12,7 +12,8 @@ the next bake is then a bake from scratch) holding a CACHEDIR.TAG and
   says of it (`SUMMARY_FIELDS`) and its proxy material, if it made one;
 - one file per whole result, `<result key>.hlodr`: every array of a bake's Hlod, the meta entries
   the bake derives (meta.DERIVED_META) and the keys of the node entries it used, keyed by the whole
-  input and the bake's frame (`input_key`, `result_key`);
+  input and the bake's frame (`input_key`, `result_key`), and with proxy materials every texture
+  the bake wrote with its node, the proxy materials and meta["proxies"];
 - `frame.json`: the frames of the last bakes (frame.Frame.to_meta), the latest first: the next
   bake starts from the latest, and takes a whole result baked in any of them.
 
@@ -23,7 +24,9 @@ Proxy materials (cache_proxies.py): in a bake that makes them, a node entry also
 proxy (its texture's PNG bytes and the gate's figures; the atlas UVs are its rows) and its rows
 name proxies by their path below the node, so a hit is renumbered into the new bake's nodes. A hit
 counts only where every inner node below it is a hit too (a parent's proxy task reads its
-children's textures), and such a bake keeps no whole results: every node comes from its entry.
+children's textures). A whole result holds the bake's textures too, and its key the materials'
+digests (pixels included): a hit writes the textures into this bake's texture folder, once the
+whole entry has passed its checks, and names them from there.
 
 Integrity: a file starts with magic, CACHE_VERSION, the payload's length and its blake2b digest;
 `load` and `load_result` check all of them, the key and kind recorded inside, and every array's
@@ -37,8 +40,8 @@ Size: entries are kept across bakes within a budget (`DEFAULT_BUDGET_MB`, settab
 complete bake the least recently used entries (file modification times: a bake touches every entry
 it reads) are removed until the folder fits, never one the bake used (`prune`). So an undo re-bakes
 from the cache, and bakes of different scenes sharing one folder keep each other's entries while
-they fit. One bake's entries take about 1.5 times its .hlod, plus its proxies' textures, which the
-budget counts.
+they fit. One bake's entries take about 1.5 times its .hlod, plus its proxies' textures twice (in
+the node entries and in the whole result), which the budget counts.
 """
 from __future__ import annotations
 
@@ -160,7 +163,8 @@ class BakeCache:
         if plan is not None:
             cache._plan = plan
             cache._looks = (plan.material_column, material_digests(plan.scene_materials, plan.images))
-        cache._input_digest = input_key(mesh, max_depth=settings.max_depth, context=cache.context)
+        cache._input_digest = input_key(mesh, max_depth=settings.max_depth, context=cache.context,
+                                        looks=None if cache._looks is None else cache._looks[1])
         cache._materials = tuple(mesh.materials) if mesh.has_appearance else ()
         cache._recent = cache._read_frames()
         return cache
@@ -192,9 +196,10 @@ class BakeCache:
     def whole_result(self, prior: Prior | None) -> tuple[Hlod, dict, dict, Frame] | None:
         """The whole result of an unchanged input (the bake is then skipped): in the `prior` frame of
         a file, or in any recent frame of the folder's (`prior`). (Hlod without meta, its derived
-        meta entries, meta["cache"], its frame); None when the folder holds none, and in a bake that
-        makes proxy materials."""
-        if prior is None or self._plan is not None:
+        meta entries, meta["cache"], its frame); None when the folder holds none. With proxy
+        materials the result's textures are written as the bake writes them (ProxyPlan.restore),
+        once the entry has passed every check, and meta["proxies"] is a derived entry."""
+        if prior is None:
             return None
         frames = [prior.frame] if prior.source != "cache" else self._recent
         for frame in frames:
@@ -204,7 +209,9 @@ class BakeCache:
                 break
         else:
             return None
-        hlod, derived, used = found
+        hlod, derived, used, textures = found
+        for node, fields, png in textures:
+            self._plan.restore(node, fields, png)
         self._touch([self.path(k) for k in used])
         self._record_frame(frame)
         inner = int((~hlod.is_leaf).sum())
@@ -248,8 +255,9 @@ class BakeCache:
                     for node in self._inner if int(node) not in self._reused})
         used = [self._keys[node] for node in self._inner]
         key = result_key(self._input_digest, frame)
-        if self._plan is None:
-            self.store_result(key, hlod, derived, node_keys=used)
+        proxies = ({}, {}) if self._plan is None else cache_proxies.result_parts(self._plan, hlod.materials,
+                                                                               derived.get("proxies"))
+        self.store_result(key, hlod, derived, node_keys=used, proxies=proxies)
         self._record_frame(frame)
         folder = self.prune(set(used), key)
         return self._stats(nodes=int(self._inner.size), reused=len(self._reused), whole=False, folder=folder)
@@ -323,20 +331,30 @@ class BakeCache:
             arrays[cache_proxies.PNG] = np.frombuffer(plan.texture_bytes(node), np.uint8)
         return dataclasses.replace(lod, attributes=rows), error, extra, arrays
 
-    def load_result(self, key: bytes, materials: tuple) -> tuple[Hlod, dict, list[bytes]] | None:
-        """A result entry's (Hlod with `materials`, empty meta; the DERIVED_META it keeps; the keys
-        of the node entries its bake used), or None. A result read is touched (`prune`)."""
+    def load_result(self, key: bytes, materials: tuple) -> tuple[Hlod, dict, list[bytes], list] | None:
+        """A result entry's (Hlod with `materials` and its proxy materials, empty meta; the
+        DERIVED_META it keeps, and meta["proxies"]; the keys of the node entries its bake used; its
+        textures: [(node, ProxyMade fields but the file, PNG bytes)]), or None. A result read is
+        touched (`prune`). Every check passes before anything is written."""
         found = self._read(key, RESULT_SUFFIX, "result")
         if found is None:
             return None
+        textures, proxies_meta = [], None
         try:
-            result = cache_files.result_entry(*found, materials=materials, with_normals=self.with_normals,
-                                              has_rows=self.row_width > 0)
+            if self._plan is not None:
+                textures, own, proxies_meta = cache_proxies.result_proxies(*found, reference=self._plan.reference)
+                materials = tuple(materials) + own
+            hlod, derived, used = cache_files.result_entry(*found, materials=materials, with_normals=self.with_normals,
+                                                           has_rows=self.row_width > 0)
+            if any(node >= hlod.node_count or hlod.is_leaf[node] for node, _, _ in textures):
+                raise CorruptEntry("a proxy texture of a node that is not an inner node")
         except CorruptEntry as exc:
             self.rejected.append((self.path(key, RESULT_SUFFIX).name, str(exc)))
             return None
+        if proxies_meta is not None:
+            derived["proxies"] = proxies_meta
         self._touch([self.path(key, RESULT_SUFFIX)])
-        return result
+        return hlod, derived, used, textures
 
     def _read(self, key: bytes, suffix: str, kind: str):
         path = self.path(key, suffix)
@@ -357,11 +375,12 @@ class BakeCache:
         """Write node entries (key -> (LOD, error[, extra, arrays]): node_entry_bytes), each atomically."""
         self._write((self.path(key), cache_files.node_entry_bytes(key, *parts)) for key, parts in entries.items())
 
-    def store_result(self, key: bytes, hlod: Hlod, meta: dict, *, node_keys: list[bytes]) -> None:
-        """Write the result entry of a bake: its arrays, its DERIVED_META entries found in `meta` and
-        the keys of the node entries it used."""
-        self._write([(self.path(key, RESULT_SUFFIX), cache_files.result_entry_bytes(key, hlod, meta,
-                                                                                    node_keys=node_keys))])
+    def store_result(self, key: bytes, hlod: Hlod, meta: dict, *, node_keys: list[bytes],
+                     proxies: tuple[dict, dict] = ({}, {})) -> None:
+        """Write the result entry of a bake: its arrays, its DERIVED_META entries found in `meta`, the
+        keys of the node entries it used and its proxies' (extra, arrays) (cache_proxies.result_parts)."""
+        data = cache_files.result_entry_bytes(key, hlod, meta, node_keys=node_keys, extra=proxies[0], more=proxies[1])
+        self._write([(self.path(key, RESULT_SUFFIX), data)])
 
     @staticmethod
     def _touch(paths: list[Path]) -> None:

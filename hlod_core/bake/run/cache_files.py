@@ -5,8 +5,9 @@ Data form: preamble (magic, CACHE_VERSION, reserved 0, payload length, blake2b-2
 payload), then the payload: a JSON header (the key, the kind, the arrays' table, extra entries)
 and the raw little-endian arrays. A node entry holds a LOD (positions, faces, normals, attribute
 rows), its error, SUMMARY_FIELDS and, in a bake with proxy materials, the node's proxy
-(cache_proxies.py); a result entry an Hlod's arrays and the meta.DERIVED_META
-entries. An entry that fails a check raises `CorruptEntry`, whose message says why.
+(cache_proxies.py); a result entry an Hlod's arrays, the meta.DERIVED_META entries and, in a
+bake with proxy materials, every texture it wrote (cache_proxies.py). An entry that fails a check
+raises `CorruptEntry`, whose message says why.
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ from ..decimate.simplify import NodeLod
 from ..meta import DERIVED_META
 
 #: Version of the entry format and of the keys' recipe; any change to either bumps it.
-CACHE_VERSION = 3
+CACHE_VERSION = 4
 MAGIC = b"HLODCACH"
 #: Bytes of a key and of a digest (blake2b).
 KEY_BYTES = 32
@@ -44,7 +45,9 @@ class CorruptEntry(Exception):
     """An entry that must not be used; the message says why."""
 
 
-def _pack(key: bytes, kind: str, arrays: dict[str, np.ndarray], *, extra: dict | None = None) -> bytes:
+def pack(key: bytes, kind: str, arrays: dict[str, np.ndarray], *, extra: dict | None = None) -> bytes:
+    """The bytes of an entry of `kind` ("node", "result") under `key`: its arrays and extra entries
+    (module docstring's data form); `unpack` reads it back."""
     table, offset = [], 0
     arrays = {name: np.ascontiguousarray(a, a.dtype.newbyteorder("<")) for name, a in arrays.items()}
     for name, a in arrays.items():
@@ -117,7 +120,7 @@ def node_entry_bytes(key: bytes, lod: NodeLod, error: float, extra: dict | None 
         arrays["normals"] = np.asarray(lod.normals, "<f4")
     if lod.attributes is not None:
         arrays["attributes"] = np.asarray(lod.attributes, "<f4")
-    return _pack(key, "node", {**arrays, **(more or {})}, extra=extra)
+    return pack(key, "node", {**arrays, **(more or {})}, extra=extra)
 
 
 def node_entry(extra: dict, arrays: dict, *, with_normals: bool, row_width: int) -> tuple[NodeLod, float]:
@@ -152,13 +155,15 @@ def node_entry(extra: dict, arrays: dict, *, with_normals: bool, row_width: int)
 
 # --- result entries -------------------------------------------------------------------------------
 
-def result_entry_bytes(key: bytes, hlod: Hlod, meta: dict, *, node_keys: list[bytes]) -> bytes:
+def result_entry_bytes(key: bytes, hlod: Hlod, meta: dict, *, node_keys: list[bytes], extra: dict | None = None,
+                       more: dict | None = None) -> bytes:
     """The bytes of a result entry under `key`: the Hlod's arrays, meta's DERIVED_META entries and
-    the keys of the node entries the bake used (a whole result taken from the cache keeps them)."""
+    the keys of the node entries the bake used (a whole result taken from the cache keeps them);
+    extra, more: the header's extra entries and arrays of its proxy materials (cache_proxies.py)."""
     arrays = {name: getattr(hlod, name) for name in _RESULT_ARRAYS if getattr(hlod, name) is not None}
-    extra = {name: meta[name] for name in DERIVED_META if name in meta}
-    extra["node_keys"] = [k.hex() for k in node_keys]
-    return _pack(key, "result", arrays, extra=extra)
+    entries = {name: meta[name] for name in DERIVED_META if name in meta}
+    entries["node_keys"] = [k.hex() for k in node_keys]
+    return pack(key, "result", {**arrays, **(more or {})}, extra={**entries, **(extra or {})})
 
 
 def result_entry(extra: dict, arrays: dict, *, materials: tuple, with_normals: bool,

@@ -6,6 +6,8 @@ materials, the looks of the materials its rows use (`material_digests`: their fi
 texture images' pixels); an inner node's, its children's keys; both hash the lattice (origin and
 unit) and `context_digest` (the formats, every setting that changes a LOD, an error or a proxy, the
 versions of pymeshlab and numpy, and the source of RESULT_MODULES). Equal keys mean equal results.
+A whole input's key (`input_key`) hashes the mesh's arrays and materials and, with proxy
+materials, the same digests of every material; `result_key` adds the frame.
 No key holds a cell or its level: a root cube that grew puts the same subtrees one level down.
 Why: docs/how-it-works.md#re-bakes-and-the-cache-keys
 """
@@ -91,14 +93,18 @@ def _hash_array(h, part: np.ndarray | None) -> None:
     h.update(memoryview(part).cast("B"))
 
 
-def input_key(mesh, *, max_depth: int, context: bytes) -> bytes:
+def input_key(mesh, *, max_depth: int, context: bytes, looks: np.ndarray | None = None) -> bytes:
     """32 bytes keying a bake's whole input: the mesh's arrays and materials, max_depth and
-    `context` (the settings and versions); `result_key` adds the frame."""
+    `context` (the settings and versions); looks: (materials, 32) uint8 `material_digests` in a bake
+    that makes proxy materials (their textures' pixels: a texture re-painted under the same file
+    name changes the key). `result_key` adds the frame."""
     h = hashlib.blake2b(context, digest_size=KEY_BYTES, person=b"hlod input")
     h.update(np.asarray([max_depth], "<i8").tobytes())
     for part in (mesh.positions, mesh.faces, mesh.normals, mesh.uvs, mesh.colors, mesh.material_ids):
         _hash_array(h, part)
     h.update(json.dumps([m.to_json() for m in mesh.materials], sort_keys=True).encode())
+    if looks is not None:
+        _hash_array(h, looks)
     return h.digest()
 
 

@@ -9,6 +9,13 @@ the node itself), which a hit walks in the new bake's octree. An entry of a node
 holds its texture (the PNG bytes the bake wrote, array "proxy_png" (b,) uint8) and its
 proxy_plan.ProxyMade fields but the file (extra "proxy"); the texture's bytes count in the
 folder's budget like every other entry's.
+
+A whole result (`result_parts`, `result_proxies`) holds every texture the bake wrote, node by node
+(the octree is the same: it is keyed by the input and its frame), as arrays "proxy_png_<i>" (b,)
+uint8 with extra "proxy_result": {"textures": [[node, ProxyMade fields but the file], ...], "materials":
+the proxy materials' JSON with their texture's file name alone, "meta": meta["proxies"] or None}.
+A hit writes the textures into this bake's folder and names them from there (the folder a file's
+materials name differs by output), so its file and textures are those of a bake from scratch.
 Why: docs/how-it-works.md#proxy-materials-in-the-cache
 """
 from __future__ import annotations
@@ -16,16 +23,21 @@ from __future__ import annotations
 import dataclasses
 import math
 import struct
+from pathlib import Path
 
 import numpy as np
 
+from ...core.errors import InputError
+from ...model.appearance import Material
 from ..appearance.proxy import proxy_of_id
-from ..appearance.proxy_plan import ProxyMade
+from ..appearance.proxy_plan import ProxyMade, ProxyPlan, proxy_image_name
 from ..space.octree import OctreeLayout
 from .cache_files import CorruptEntry
 
 #: The entry's extra keys and array of the proxies (module docstring).
 PATHS, FIELDS, PNG = "proxy_paths", "proxy", "proxy_png"
+#: A whole result's extra key of its proxies (module docstring).
+RESULT = "proxy_result"
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _ALPHA_MODES = (None, "MASK", "BLEND")
 
@@ -115,3 +127,52 @@ def own_proxy(extra: dict, arrays: dict) -> tuple[dict, bytes] | None:
             or fields["alpha_mode"] not in _ALPHA_MODES or not isinstance(fields["psnr_reason"], (str, type(None))):
         raise CorruptEntry(f"proxy fields {fields}")
     return fields, data
+
+
+def result_parts(plan: ProxyPlan, materials: tuple, proxies_meta: dict | None) -> tuple[dict, dict]:
+    """(extra, arrays) of a whole result's proxies: every texture `plan` wrote, the proxy materials
+    (`materials` past the scene's) and meta["proxies"] (None where the bake made none)."""
+    nodes = sorted(plan.made_proxies)
+    arrays = {f"{PNG}_{i}": np.frombuffer(plan.texture_bytes(node), np.uint8) for i, node in enumerate(nodes)}
+    own = []
+    for material in materials[len(plan.scene_materials):]:
+        value = material.to_json()
+        value["texture"], value["image"] = Path(material.texture).name, None
+        own.append(value)
+    textures = [[int(node), own_extra(plan.made_proxies[node])] for node in nodes]
+    return {RESULT: {"textures": textures, "materials": own, "meta": proxies_meta}}, arrays
+
+
+def result_proxies(extra: dict, arrays: dict, *,
+                   reference: Path) -> tuple[list[tuple[int, dict, bytes]], tuple[Material, ...], dict | None]:
+    """A whole result's proxies, checked, their arrays taken out of `arrays`: ([(node, ProxyMade
+    fields but the file, PNG bytes)], the proxy materials naming their textures in `reference` (the
+    folder this bake's file names), meta["proxies"] or None); CorruptEntry. The caller checks the
+    nodes against the result's octree."""
+    part = extra.get(RESULT)
+    if not isinstance(part, dict) or set(part) != {"textures", "materials", "meta"} \
+            or not isinstance(part["textures"], list) or not isinstance(part["materials"], list) \
+            or not isinstance(part["meta"], (dict, type(None))):
+        raise CorruptEntry("a whole result without its proxies")
+    textures = []
+    for i, item in enumerate(part["textures"]):
+        if not (isinstance(item, list) and len(item) == 2 and isinstance(item[0], int) and item[0] >= 0):
+            raise CorruptEntry(f"proxy texture {i}: {item!r:.80}")
+        found = own_proxy({FIELDS: item[1]}, {PNG: arrays.pop(f"{PNG}_{i}", None)})
+        if found is None:
+            raise CorruptEntry(f"proxy texture {i} without its fields")
+        textures.append((item[0], *found))
+    if len({node for node, _, _ in textures}) != len(textures) or any(name.startswith(PNG) for name in arrays):
+        raise CorruptEntry("proxy textures named twice or without their fields")
+    materials = []
+    for i, value in enumerate(part["materials"]):
+        name = value.get("texture") if isinstance(value, dict) else None
+        if not isinstance(name, str) or name != Path(name).name or name in ("", ".", ".."):
+            raise CorruptEntry(f"proxy material {i}: texture {name!r:.80}")
+        try:
+            material = Material.from_json(value, where=f"proxy material {i}")
+        except InputError as exc:
+            raise CorruptEntry(str(exc)) from None
+        file = str(reference / name)
+        materials.append(dataclasses.replace(material, texture=file, image=proxy_image_name(file)))
+    return textures, tuple(materials), part["meta"]
