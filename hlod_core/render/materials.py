@@ -25,6 +25,10 @@ from .gl_state import draw_framebuffer_encodes_srgb, restore_texture_unit, save_
 from .shaders import parts_sources
 from .texture_table import TextureTable
 
+#: (height, width) of the textures `MaterialParts.warm_mipmaps` makes: one power-of-two, one not,
+#: each with three mip levels (two levels compiled too few of llvmpipe's blits to spare a 512 x 512).
+WARM_SHAPES = ((4, 4), (3, 5))
+
 #: The texture unit the appearance program samples; its previous binding is restored after each frame.
 TEXTURE_UNIT = 0
 
@@ -118,6 +122,17 @@ class MaterialParts:
             texture = _texture(self.ctx, self.table.images[number])
         self.textures[number] = texture
         return texture
+
+    def warm_mipmaps(self) -> None:
+        """Make and free one small texture of each shape class GL drivers generate mipmaps for with
+        their own compiled blit (power-of-two sides, other sides), so that streaming's first texture
+        of a class does not stall a frame while the driver compiles it (Mesa's llvmpipe: 0.2 to 0.3 s
+        each on first use, docs/performance.md#streaming-under-a-gpu-budget). Nothing without textures."""
+        if not self.has_uv:
+            return
+        with _default_unit_kept(self.ctx, self.gl):
+            for height, width in WARM_SHAPES:
+                _texture(self.ctx, np.zeros((height, width, 4), np.uint8)).release()
 
     def forget_texture(self, number: int) -> None:
         """Texture `number` is being released: draw its materials in their base colours until made again."""

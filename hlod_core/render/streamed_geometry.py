@@ -75,6 +75,8 @@ class StreamedGeometry:
         self._tri_count = np.asarray(hlod.tri_count, np.int64).tolist()
         self._nodes: dict[int, _NodeBuffers] = {}
         self.uploads_this_frame = 0
+        if self.with_uv:
+            appearance.warm_mipmaps()
         for node in self.residency.initial_uploads():
             self._upload(node)
 
