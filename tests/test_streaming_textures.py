@@ -233,3 +233,37 @@ def test_the_report_counts_textures_and_counted_images_make_none(gl_ctx, texture
             hlod, with_uv=False, with_colour=False)[counted.residency.resident].sum()
     finally:
         counted.release()
+
+
+@pytest.mark.gl
+def test_a_streamed_preview_warms_each_mipmap_class_and_frees_what_it_made(gl_ctx, textured_bake, monkeypatch):
+    """Streaming makes a node's textures between frames: their first mipmap generation of each shape
+    class (the driver's blit compiled on first use) is done once when the preview starts, on small
+    textures freed at once; an unlimited preview, which makes every texture at the start, makes none."""
+    from hlod_core.render import materials
+
+    hlod, images = textured_bake
+    made = []
+
+    def recorded(ctx, image):
+        texture = real(ctx, image)
+        made.append((image.shape[:2], texture.glo))
+        return texture
+
+    real = materials._texture
+    monkeypatch.setattr(materials, "_texture", recorded)
+    is_texture = gl_function(gl_ctx, "glIsTexture", ctypes.c_uint8, ctypes.c_uint32)
+    budget = int(node_bytes(hlod, with_uv=True, with_colour=False).sum())
+    renderer = Renderer(gl_ctx, hlod, size=SIZE, images=images, streaming=StreamingSettings(budget_bytes=budget))
+    try:
+        warm = [(shape, name) for shape, name in made if shape in materials.WARM_SHAPES]
+        assert [shape for shape, _ in warm] == list(materials.WARM_SHAPES)
+        assert made[:len(warm)] == warm  # before the first node's textures
+        kept = {t.glo for t in renderer.streamed._textures.values()}
+        assert not any(is_texture(name) and name not in kept for _, name in warm)
+    finally:
+        renderer.release()
+    made.clear()
+    renderer = Renderer(gl_ctx, hlod, size=SIZE, images=images)
+    renderer.release()
+    assert made and not any(shape in materials.WARM_SHAPES for shape, _ in made)
