@@ -21,6 +21,7 @@ from ..core.errors import InputError
 from ..io.meshes import TriangleMesh
 from ..model import appearance
 from .decimate.simplify import collapsed_corners
+from .space import chunk_store
 from .space import frame as frames
 from .space import lattice
 from .space.octree import OctreeLayout, RootCube
@@ -71,13 +72,15 @@ def triangle_centroids(a: np.ndarray, b: np.ndarray, c: np.ndarray, *,
     return out.T, ~collapsed_corners(a, b, c)
 
 
-def prepare(mesh: TriangleMesh, prior: frames.Prior | None = None) -> Prepared:
+def prepare(mesh: TriangleMesh, prior: frames.Prior | None = None, *,
+            store: chunk_store.ChunkStore | None = None) -> Prepared:
     """The frame (bake/space/frame.py: `prior`'s while the input fits it, else the input's own: the origin
     the centre of the used vertices' box, the lattice its longest extent, the root cube around the
     centroids); float32 positions relative to the origin, points of the lattice (bake/space/lattice.py);
     triangle centroids of those positions; with appearance, the vertices become attribute rows
     (`pack_rows`). InputError for a mesh without triangles or with non-finite coordinates.
-    The positions and centroids are made CENTROID_CHUNK rows at a time."""
+    The positions and centroids are made CENTROID_CHUNK rows at a time; store: where the octree's
+    tasks read the centroids (bake/space/chunk_store.py: its "centroids" array, written in place)."""
     if mesh.tri_count == 0:
         raise InputError(f"{mesh.name}: the mesh has no triangles")
     used = np.zeros(mesh.positions.shape[0], bool)
@@ -100,7 +103,8 @@ def prepare(mesh: TriangleMesh, prior: frames.Prior | None = None) -> Prepared:
     if not np.all(np.isfinite(positions)):
         raise InputError(f"{mesh.name}: coordinates exceed the float32 range after centring")
     faces = mesh.faces
-    centroids, counted = face_centroids(positions, faces)
+    out = None if store is None else store.create("centroids", (3, faces.shape[0]), np.float64)
+    centroids, counted = face_centroids(positions, faces, out=out)
     root_prior = prior if lattice_why is None else None
     root_cell, root_why = frames.choose_root(root_prior, *box(centroids))
     choice = frames.choice_of(prior, lattice_why=lattice_why, root_why=root_why,
@@ -131,16 +135,19 @@ def box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 CENTROID_CHUNK = 1 << 18
 
 
-def face_centroids(positions: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def face_centroids(positions: np.ndarray, faces: np.ndarray, *,
+                   out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """triangle_centroids of the triangles faces (f,3) of positions (r,3) float32: centroids (f,3)
     float64 (a transposed (3,f): each axis contiguous, as the octree reads them) and counted (f,)
     bool. The corners are gathered CENTROID_CHUNK triangles at a time as one 16-byte item a vertex
-    (positions padded to 4 floats), a 1-D gather about 3x faster than rows of 3 floats."""
+    (positions padded to 4 floats), a 1-D gather about 3x faster than rows of 3 floats.
+    out: (3,f) float64 to write the centroids into."""
     padded = np.zeros((positions.shape[0], 4), np.float32)
     padded[:, :3] = positions
     items = padded.view(np.complex128).reshape(-1)
     f = faces.shape[0]
-    centroids, counted = np.empty((3, f), np.float64), np.empty(f, bool)
+    centroids = np.empty((3, f), np.float64) if out is None else out
+    counted = np.empty(f, bool)
     for start in range(0, f, CENTROID_CHUNK):
         end = min(f, start + CENTROID_CHUNK)
         a, b, c = (items[faces[start:end, k]].view(np.float32).reshape(-1, 4) for k in range(3))

@@ -23,6 +23,7 @@ from . import prepare
 from .meta import InputSize, PhaseClock, counted_per_node
 from .settings import BakeSettings
 from .space.frame import FROM_SCRATCH, Frame, FrameChoice, Prior
+from .space.chunk_store import open_store
 from .space.octree import OctreeLayout, build_octree
 from .space.partition import Partition
 
@@ -73,8 +74,9 @@ class BakeSource(Protocol):
     def count(self, clock: PhaseClock) -> int:
         """The input's triangles."""
 
-    def octree(self, settings: BakeSettings, clock: PhaseClock) -> SourceOctree:
-        """The octree of the input at `settings`."""
+    def octree(self, settings: BakeSettings, clock: PhaseClock, workers=None) -> SourceOctree:
+        """The octree of the input at `settings`; workers (bake/run/workers.Workers or None): where
+        its passes over the triangles may run as tasks."""
 
     def leaf_lods(self, layout: OctreeLayout, clock: PhaseClock) -> list[tuple | None]:
         """Per node, None for inner nodes, for each leaf (positions (k,3) f32, faces (m,3) int32,
@@ -103,12 +105,13 @@ class InMemorySource:
     def count(self, clock: PhaseClock) -> int:
         return self.mesh.tri_count
 
-    def octree(self, settings: BakeSettings, clock: PhaseClock) -> SourceOctree:
-        prepared = prepare.prepare(self.mesh, self.prior)
-        clock.lap("prepare")
-        layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
-                              counted=prepared.counted, root=prepared.root_cell)
-        self._prepared = replace(prepared, centroids=None)  # only the octree reads them: 24 bytes a triangle
+    def octree(self, settings: BakeSettings, clock: PhaseClock, workers=None) -> SourceOctree:
+        with open_store(workers) as store:  # the centroids and the passes' arrays, shared with their tasks
+            prepared = prepare.prepare(self.mesh, self.prior, store=store)
+            clock.lap("prepare")
+            layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
+                                  counted=prepared.counted, root=prepared.root_cell, store=store)
+            self._prepared = prepared = replace(prepared, centroids=None)  # only the octree reads them
         clock.lap("octree")
         return SourceOctree(layout=layout, frame=prepared.frame, frame_choice=prepared.frame_choice,
                             counted_per_node=counted_per_node(layout, prepared.counted),
@@ -142,7 +145,7 @@ class StreamedSource:
         self.with_normals = scan.with_normals
         return scan.tri_count
 
-    def octree(self, settings: BakeSettings, clock: PhaseClock) -> SourceOctree:
+    def octree(self, settings: BakeSettings, clock: PhaseClock, workers=None) -> SourceOctree:
         tree = self.partition.build_octree(target_tris=settings.target_tris, max_depth=settings.max_depth)
         clock.lap("octree")
         scan = self.partition.scan_result

@@ -1,0 +1,119 @@
+"""The in-memory octree's passes as tasks over index chunks of the triangles (octree_passes,
+chunk_store): every cut of the rows into task regions gives the layout of the octree from counts
+(build_octree_counted, which shares none of the passes' code), float for float: one region, an
+uneven last one, regions of a few rows (cells split across regions, regions left empty as their
+triangles reach leaves, shrinking cells whose rows lie in some regions only); on a pool of 2 worker
+processes through mapped files, the layout of the passes in this process; and a bake of the cow
+with regions of 700 triangles at jobs 1 and 2, the file of a bake in one region, byte for byte."""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from helpers import file_bytes, load_model
+from hlod_core.bake.pipeline import bake
+from hlod_core.bake.run.workers import open_workers
+from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space import chunk_store, octree_passes
+from hlod_core.bake.space.octree import build_octree, build_octree_counted, tight_cube
+
+FIELDS = ("parent", "child_offset", "child_count", "depth", "tri_begin", "tri_end", "cell_center", "cell_half",
+          "cell_level")
+
+
+def _cloud(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids (f,3): clusters at scales from 1e-6 to 10 (cells shrink many times before they
+    split), some coincident (an unsplittable leaf), rounded onto splitting planes in some seeds;
+    counted (f,) bool with about a tenth uncounted."""
+    rng = np.random.default_rng(seed)
+    parts = [rng.normal(size=(int(rng.integers(50, 900)), 3)) * 10.0 ** rng.uniform(-6, 1) + rng.uniform(-50, 50, 3)
+             for _ in range(int(rng.integers(2, 5)))]
+    c = np.concatenate(parts)
+    c[:120] = c[0]
+    if seed % 2:
+        c = np.round(c, 1)
+    return c, rng.random(c.shape[0]) > 0.1
+
+
+def _from_counts(c: np.ndarray, counted: np.ndarray, *, target: int, depth: int):
+    root = tight_cube(c.min(axis=0), c.max(axis=0))
+    return root, build_octree_counted(lambda query: query.count(c, counted), root=root, tri_count=c.shape[0],
+                                      counted_count=int(counted.sum()), target_tris=target, max_depth=depth).layout
+
+
+def _same(got, want) -> None:
+    for name in FIELDS:
+        a, b = getattr(got, name), getattr(want, name)
+        assert a.dtype == b.dtype and np.array_equal(a, b), name
+
+
+def _leaf_of(layout, f: int) -> np.ndarray:
+    leaf_of = np.full(f, -1, np.int64)
+    for leaf in np.flatnonzero(layout.is_leaf):
+        leaf_of[layout.tri_order[layout.tri_begin[leaf]:layout.tri_end[leaf]]] = leaf
+    return leaf_of
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("task_rows", [1 << 30, 997, 64, 5])
+def test_any_cut_into_regions_gives_the_octree_from_counts(seed, task_rows, monkeypatch):
+    """Regions of every size (one; an uneven last one; a few rows, most emptied as their triangles
+    reach leaves, cells and shrinking cells across many regions), passes of 16 rows within a task:
+    the layout of the octree from counts, and the triangles in each leaf in input order."""
+    c, counted = _cloud(seed)
+    monkeypatch.setattr(chunk_store, "TASK_ROWS", task_rows)
+    monkeypatch.setattr(octree_passes, "CHUNK", 16)
+    root, want = _from_counts(c, counted, target=25, depth=12)
+    got = build_octree(c, target_tris=25, max_depth=12, counted=counted, root=root)
+    assert want.node_count > 50
+    _same(got, want)
+    assert np.array_equal(np.sort(got.tri_order), np.arange(c.shape[0]))
+    for leaf in np.flatnonzero(got.is_leaf):  # input order within a leaf
+        assert np.all(np.diff(got.tri_order[got.tri_begin[leaf]:got.tri_end[leaf]]) > 0)
+
+
+def test_regions_of_one_row_and_a_root_that_never_splits(monkeypatch):
+    """A region per triangle, every count; and a root at max_depth 0 (no pass; every triangle its leaf)."""
+    c, counted = _cloud(7)
+    c, counted = c[:300], counted[:300]
+    monkeypatch.setattr(chunk_store, "TASK_ROWS", 1)
+    root, want = _from_counts(c, counted, target=10, depth=12)
+    _same(build_octree(c, target_tris=10, max_depth=12, counted=counted, root=root), want)
+    flat = build_octree(c, target_tris=10, max_depth=0, counted=counted, root=root)
+    assert flat.node_count == 1 and np.array_equal(flat.tri_order, np.arange(300))
+
+
+def test_regions_split_on_a_pool_through_mapped_files_give_the_inline_layout(tmp_path, monkeypatch):
+    """The passes as tasks on 2 spawned workers (their arrays mapped from the store's files) and
+    inline: the same layout and tri_order; the store's folder removed when it closes."""
+    c, counted = _cloud(2)
+    monkeypatch.setattr(chunk_store, "TASK_ROWS", 211)
+    root = tight_cube(c.min(axis=0), c.max(axis=0))
+    inline = build_octree(c, target_tris=25, max_depth=12, counted=counted, root=root)
+    with open_workers(2, scratch_dir=tmp_path) as workers:
+        with chunk_store.open_store(workers) as store:
+            assert store.folder and os.path.isdir(store.folder)
+            folder = store.folder
+            pooled = build_octree(c, target_tris=25, max_depth=12, counted=counted, root=root, store=store)
+        assert not os.path.exists(folder)
+    _same(pooled, inline)
+    assert np.array_equal(pooled.tri_order, inline.tri_order)
+    assert not isinstance(pooled.tri_order, np.memmap)  # copied out before the files go
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_bake_in_regions_is_the_bake_in_one_region(jobs, tmp_path, monkeypatch):
+    """The cow at 500 triangles a node (about 5,800 triangles): its octree's passes in regions of
+    700 triangles (9 tasks a pass, the last one shorter), at jobs 1 and jobs 2: the file of the
+    passes over all triangles at once, byte for byte."""
+    cow = load_model("cow")
+    settings = BakeSettings(target_tris=500, jobs=jobs)
+    monkeypatch.setattr(chunk_store, "TASK_ROWS", 1 << 30)
+    whole = file_bytes(bake(cow, BakeSettings(target_tris=500)), tmp_path / "whole.hlod")
+    monkeypatch.setattr(chunk_store, "TASK_ROWS", 700)
+    assert len(chunk_store.regions(cow.tri_count)) > 5
+    got = bake(cow, settings)
+    got = got.replace(meta={**got.meta, "settings": {**got.meta["settings"], "jobs": 1}})  # the one setting apart
+    assert file_bytes(got, tmp_path / "regions.hlod") == whole
