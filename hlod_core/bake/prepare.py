@@ -21,9 +21,8 @@ from ..core.errors import InputError
 from ..io.meshes import TriangleMesh
 from ..model import appearance
 from .decimate.simplify import collapsed_corners
-from .space import chunk_store
+from .space import chunk_store, lattice
 from .space import frame as frames
-from .space import lattice
 from .space.octree import OctreeLayout, RootCube
 
 log = logging.getLogger(__name__)

@@ -22,8 +22,8 @@ from ..model.appearance import AttributeLayout
 from . import prepare
 from .meta import InputSize, PhaseClock, counted_per_node
 from .settings import BakeSettings
-from .space.frame import FROM_SCRATCH, Frame, FrameChoice, Prior
 from .space.chunk_store import open_store
+from .space.frame import FROM_SCRATCH, Frame, FrameChoice, Prior
 from .space.octree import OctreeLayout, build_octree
 from .space.partition import Partition
 

@@ -38,9 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .chunk_store import ChunkStore
 from .octree_passes import MAX_SHRINKS as _MAX_SHRINKS
 from .octree_passes import OCTANT_SIGNS as _OCTANT_SIGNS
-from .chunk_store import ChunkStore
 from .octree_passes import ActiveTriangles, split_cells
 from .root_cube import GrowthChain, RootCube, tight_cube
 
