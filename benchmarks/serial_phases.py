@@ -71,6 +71,9 @@ def child(spec: str) -> dict:
     layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
                           counted=prepared.counted, root=prepared.root_cell)
     lap("octree")
+    if _has_module("hlod_core.bake.space.chunk_store"):
+        layout_tasks(mesh, layout, settings, seconds, cpu)
+        started, cpu_started = time.perf_counter(), time.process_time()
     lods = prepare.leaf_lods(layout, prepared)
     lap("leaves")
     seams = cell_seams.build(layout, lods)
@@ -111,6 +114,43 @@ def child(spec: str) -> dict:
     return {"tris": mesh.tri_count, "leaves": int(layout.is_leaf.sum()),
             "leaf_vertices": int(sum(lods[k][0].shape[0] for k in np.flatnonzero(layout.is_leaf))),
             "seconds": seconds, "cpu_seconds": cpu, "seams_digest": digest.hexdigest()}
+
+
+def _has_module(name: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(name) is not None
+
+
+def layout_tasks(mesh, layout, settings, seconds: dict, cpu: dict) -> None:
+    """Prepare (its centroids written into the store's mapped file) and the octree's passes as
+    tasks over index chunks on a pool of 2 worker processes (started and warmed first): "prepare
+    into the store" and "octree on 2 workers", wall and this process's CPU; SystemExit unless the
+    layout is the one built inline."""
+    import numpy as np
+
+    from hlod_core.bake import prepare
+    from hlod_core.bake.run.workers import open_workers
+    from hlod_core.bake.space import chunk_store
+    from hlod_core.bake.space.octree import build_octree
+
+    with open_workers(2) as workers:
+        for fut in [workers.executor.submit(time.sleep, 0.5) for _ in range(2)]:
+            fut.result()
+        with chunk_store.open_store(workers) as store:
+            started, cpu_started = time.perf_counter(), time.process_time()
+            prepared = prepare.prepare(mesh, None, store=store)
+            now, cpu_now = time.perf_counter(), time.process_time()
+            seconds["prepare into the store"], cpu["prepare into the store"] = now - started, cpu_now - cpu_started
+            on_workers = build_octree(prepared.centroids, target_tris=settings.target_tris,
+                                      max_depth=settings.max_depth, counted=prepared.counted,
+                                      root=prepared.root_cell, store=store)
+            del prepared
+        seconds["octree on 2 workers"] = time.perf_counter() - now
+        cpu["octree on 2 workers"] = time.process_time() - cpu_now
+    for name in ("parent", "child_offset", "tri_begin", "tri_end", "cell_center", "tri_order"):
+        if not np.array_equal(getattr(layout, name), getattr(on_workers, name)):
+            raise SystemExit(f"serial_phases: the octree on the workers differs from the one inline ({name})")
 
 
 def run(checkout: Path, spec: Path) -> dict:

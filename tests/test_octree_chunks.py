@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from helpers import file_bytes, load_model
+from hlod_core.bake import prepare
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.run.workers import open_workers
 from hlod_core.bake.settings import BakeSettings
@@ -117,3 +118,22 @@ def test_bake_in_regions_is_the_bake_in_one_region(jobs, tmp_path, monkeypatch):
     got = bake(cow, settings)
     got = got.replace(meta={**got.meta, "settings": {**got.meta["settings"], "jobs": 1}})  # the one setting apart
     assert file_bytes(got, tmp_path / "regions.hlod") == whole
+
+
+def test_prepare_on_a_pool_through_mapped_files_gives_the_inline_arrays(tmp_path, monkeypatch):
+    """Prepare's centroids as tasks of 400 triangles on 2 spawned workers (the faces and corners
+    copied into the store's files, the centroids and counted written there): the floats, counted
+    and root cube of prepare in this process, bit for bit."""
+    cow = load_model("cow")
+    monkeypatch.setattr(chunk_store, "TASK_ROWS", 400)
+    inline = prepare.prepare(cow)
+    with open_workers(2, scratch_dir=tmp_path) as workers:
+        with chunk_store.open_store(workers) as store:
+            pooled = prepare.prepare(cow, store=store)
+            assert isinstance(store.get("centroids"), np.memmap)
+            for name in ("positions", "faces", "centroids", "counted"):
+                a, b = getattr(inline, name), getattr(pooled, name)
+                assert a.dtype == b.dtype and np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes(), name
+    assert not isinstance(pooled.counted, np.memmap)
+    assert np.array_equal(inline.root_cell.corner, pooled.root_cell.corner)
+    assert inline.root_cell.side == pooled.root_cell.side

@@ -102,10 +102,9 @@ def prepare(mesh: TriangleMesh, prior: frames.Prior | None = None, *,
     if not np.all(np.isfinite(positions)):
         raise InputError(f"{mesh.name}: coordinates exceed the float32 range after centring")
     faces = mesh.faces
-    out = None if store is None else store.create("centroids", (3, faces.shape[0]), np.float64)
-    centroids, counted = face_centroids(positions, faces, out=out)
+    centroids, counted, (lo, hi) = face_centroids(positions, faces, store=store)
     root_prior = prior if lattice_why is None else None
-    root_cell, root_why = frames.choose_root(root_prior, *box(centroids))
+    root_cell, root_why = frames.choose_root(root_prior, lo, hi)
     choice = frames.choice_of(prior, lattice_why=lattice_why, root_why=root_why,
                               grew=len(root_cell.growths) - len(prior.frame.root.growths) if root_prior else 0)
     normals, rows, row_layout = mesh.normals, None, appearance.AttributeLayout(False, False, False)
@@ -134,24 +133,45 @@ def box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 CENTROID_CHUNK = 1 << 18
 
 
-def face_centroids(positions: np.ndarray, faces: np.ndarray, *,
-                   out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def face_centroids(positions: np.ndarray, faces: np.ndarray, *, store: chunk_store.ChunkStore | None = None):
     """triangle_centroids of the triangles faces (f,3) of positions (r,3) float32: centroids (f,3)
-    float64 (a transposed (3,f): each axis contiguous, as the octree reads them) and counted (f,)
-    bool. The corners are gathered CENTROID_CHUNK triangles at a time as one 16-byte item a vertex
-    (positions padded to 4 floats), a 1-D gather about 3x faster than rows of 3 floats.
-    out: (3,f) float64 to write the centroids into."""
-    padded = np.zeros((positions.shape[0], 4), np.float32)
+    float64 (a transposed (3,f): each axis contiguous, as the octree reads them), counted (f,)
+    bool and the centroids' box (lo, hi) (3,) float64 (`box`'s). As tasks over index chunks of the
+    triangles (`centroid_task`, chunk_store.regions) on the store's workers (None: inline, here),
+    which write the store's "centroids" and "counted"; the faces and the padded positions are
+    shared with them (copied into the store's files for workers: 16 bytes a vertex, 24 a triangle)."""
+    store = chunk_store.ChunkStore() if store is None else store
+    padded = store.create("corners", (positions.shape[0], 4), np.float32, zeros=True)
     padded[:, :3] = positions
-    items = padded.view(np.complex128).reshape(-1)
+    store.put("faces", faces)
     f = faces.shape[0]
-    centroids = np.empty((3, f), np.float64) if out is None else out
-    counted = np.empty(f, bool)
-    for start in range(0, f, CENTROID_CHUNK):
-        end = min(f, start + CENTROID_CHUNK)
-        a, b, c = (items[faces[start:end, k]].view(np.float32).reshape(-1, 4) for k in range(3))
-        counted[start:end] = triangle_centroids(a, b, c, out=centroids[:, start:end])[1]
-    return centroids.T, counted
+    centroids = store.create("centroids", (3, f), np.float64)
+    counted = store.create("counted", (f,), bool)
+    bounds = [b for b in store.run(centroid_task, chunk_store.regions(f)) if b is not None]
+    lo = np.min([b[0] for b in bounds], axis=0)
+    hi = np.max([b[1] for b in bounds], axis=0)
+    if np.any(lo == 0.0) or np.any(hi == 0.0):  # a zero's sign depends on the reduction's order
+        lo, hi = box(centroids.T)
+    for name in ("corners", "faces"):
+        store.drop(name)
+    return centroids.T, (np.array(counted) if store.folder else counted), (lo, hi)
+
+
+def centroid_task(store: chunk_store.ChunkStore, start: int, end: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """face_centroids' task over the triangles start..end-1: their centroids and counted written,
+    CENTROID_CHUNK triangles at a time, the corners gathered as one 16-byte item a vertex (the
+    store's "corners", positions padded to 4 floats: a 1-D gather about 3x faster than rows of 3
+    floats); returns their centroids' (lo, hi) (3,) float64 per axis (None for no triangles)."""
+    items = store.get("corners").view(np.complex128).reshape(-1)
+    faces, centroids, counted = store.get("faces"), store.get("centroids"), store.get("counted")
+    for begin in range(start, end, CENTROID_CHUNK):
+        stop = min(end, begin + CENTROID_CHUNK)
+        a, b, c = (items[faces[begin:stop, k]].view(np.float32).reshape(-1, 4) for k in range(3))
+        counted[begin:stop] = triangle_centroids(a, b, c, out=centroids[:, begin:stop])[1]
+    if end == start:
+        return None
+    return (np.array([centroids[k, start:end].min() for k in range(3)], np.float64),
+            np.array([centroids[k, start:end].max() for k in range(3)], np.float64))
 
 
 def pack_rows(mesh: TriangleMesh, positions: np.ndarray, normals: np.ndarray | None):
