@@ -133,7 +133,8 @@ def test_prepare_on_a_pool_through_mapped_files_gives_the_inline_arrays(tmp_path
             assert isinstance(store.get("centroids"), np.memmap)
             for name in ("positions", "faces", "centroids", "counted"):
                 a, b = getattr(inline, name), getattr(pooled, name)
-                assert a.dtype == b.dtype and np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes(), name
+                assert a.dtype == b.dtype, name
+                assert np.ascontiguousarray(a).tobytes() == np.ascontiguousarray(b).tobytes(), name
     assert not isinstance(pooled.counted, np.memmap)
     assert np.array_equal(inline.root_cell.corner, pooled.root_cell.corner)
     assert inline.root_cell.side == pooled.root_cell.side

@@ -141,8 +141,9 @@ def face_centroids(positions: np.ndarray, faces: np.ndarray, *, store: chunk_sto
     which write the store's "centroids" and "counted"; the faces and the padded positions are
     shared with them (copied into the store's files for workers: 16 bytes a vertex, 24 a triangle)."""
     store = chunk_store.ChunkStore() if store is None else store
-    padded = store.create("corners", (positions.shape[0], 4), np.float32, zeros=True)
+    padded = np.zeros((positions.shape[0], 4), np.float32)
     padded[:, :3] = positions
+    store.put("corners", padded)
     store.put("faces", faces)
     f = faces.shape[0]
     centroids = store.create("centroids", (3, f), np.float64)

@@ -106,7 +106,7 @@ class InMemorySource:
         return self.mesh.tri_count
 
     def octree(self, settings: BakeSettings, clock: PhaseClock, workers=None) -> SourceOctree:
-        with open_store(workers) as store:  # the centroids and the passes' arrays, shared with their tasks
+        with open_store(workers, rows=self.mesh.tri_count) as store:  # the arrays the tasks share
             prepared = prepare.prepare(self.mesh, self.prior, store=store)
             clock.lap("prepare")
             layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,

@@ -28,6 +28,10 @@ import numpy as np
 
 #: Rows (triangles) per task of a pass: about 8 MB of centroids and 24 MB of the passes' state a task.
 TASK_ROWS = 1 << 20
+#: The most bytes a store holds per triangle at once: centroids 24, faces 24, corners (16 a vertex,
+#: about 10 a triangle), the octree's tris, cell8, key, node_of, pending and tri_order 48, counted,
+#: uncounted 2.
+BYTES_PER_ROW = 108
 
 
 class ChunkStore:
@@ -56,12 +60,13 @@ class ChunkStore:
         return array
 
     def put(self, name: str, values: np.ndarray) -> np.ndarray:
-        """`values` as the shared array `name` (inline: itself, with no copy)."""
+        """`values` as the shared array `name` (inline: itself, with no copy; else written to its
+        file in its own memory order, one sequential write, and mapped)."""
         if not self.folder:
             self.arrays[name] = values
             return values
-        array = self.create(name, values.shape, values.dtype)
-        array[...] = values
+        np.save(self._path(name), values)
+        self.arrays[name] = array = np.load(self._path(name), mmap_mode="r+")
         return array
 
     def get(self, name: str) -> np.ndarray:
@@ -72,8 +77,11 @@ class ChunkStore:
         return array
 
     def drop(self, name: str) -> None:
-        """Forget `name` (its file goes when the store closes)."""
+        """Forget `name` and remove its file (where a map still holds it open, when the store closes)."""
         self.arrays.pop(name, None)
+        if self.folder:
+            with contextlib.suppress(OSError):
+                os.remove(self._path(name))
 
     def run(self, fn: Callable, calls: Iterable[tuple]) -> list:
         """fn(self, *call) for every call, as tasks on the workers (inline: here, in order); their
@@ -89,10 +97,15 @@ class ChunkStore:
 
 
 @contextlib.contextmanager
-def open_store(workers=None):
-    """A ChunkStore for `workers` (bake/run/workers.Workers; None or jobs 1: inline), its folder
-    `hlod-chunks-*` inside their scratch folder, removed however the block exits."""
+def open_store(workers=None, *, rows: int = 0):
+    """A ChunkStore for `workers` (bake/run/workers.Workers; None or jobs 1: inline) over `rows`
+    triangles, its folder `hlod-chunks-*` removed however the block exits: in the workers' shared
+    memory folder (`Workers.memory`, a local pool's) where it has room for BYTES_PER_ROW x rows twice
+    over, else in their scratch folder (a Dask cluster's shared one)."""
     scratch = getattr(workers, "scratch", "") if workers is not None else ""
+    memory = getattr(workers, "memory", "") if workers is not None else ""
+    if memory and _free_bytes(memory) >= 2 * BYTES_PER_ROW * rows:
+        scratch = memory
     if not scratch:
         store = ChunkStore()
         try:
@@ -107,6 +120,15 @@ def open_store(workers=None):
     finally:
         store.arrays.clear()
         shutil.rmtree(folder, ignore_errors=True)
+
+
+def _free_bytes(folder: str) -> int:
+    """Bytes free in `folder`'s file system (0 where it cannot be asked)."""
+    try:
+        stat = os.statvfs(folder)
+    except (OSError, AttributeError):  # no statvfs (Windows): no shared memory folder there either
+        return 0
+    return stat.f_bavail * stat.f_frsize
 
 
 def regions(rows: int, task_rows: int | None = None) -> list[tuple[int, int]]:
