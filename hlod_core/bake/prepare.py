@@ -148,7 +148,7 @@ def face_centroids(positions: np.ndarray, faces: np.ndarray, *, store: chunk_sto
     f = faces.shape[0]
     centroids = store.create("centroids", (3, f), np.float64)
     counted = store.create("counted", (f,), bool)
-    bounds = [b for b in store.run(centroid_task, chunk_store.regions(f)) if b is not None]
+    bounds = [b for b in store.run(centroid_task, store.regions(f)) if b is not None]
     lo = np.min([b[0] for b in bounds], axis=0)
     hi = np.max([b[1] for b in bounds], axis=0)
     if np.any(lo == 0.0) or np.any(hi == 0.0):  # a zero's sign depends on the reduction's order

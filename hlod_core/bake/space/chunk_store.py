@@ -28,6 +28,8 @@ import numpy as np
 
 #: Rows (triangles) per task of a pass: about 8 MB of centroids and 24 MB of the passes' state a task.
 TASK_ROWS = 1 << 20
+#: Rows a task has at least when the regions are cut smaller for many workers (`regions`).
+MIN_TASK_ROWS = 1 << 16
 #: The most bytes a store holds per triangle at once: centroids 24, faces 24, corners (16 a vertex,
 #: about 10 a triangle), the octree's tris, cell8, key, node_of, pending and tri_order 48, counted,
 #: uncounted 2.
@@ -83,6 +85,10 @@ class ChunkStore:
             with contextlib.suppress(OSError):
                 os.remove(self._path(name))
 
+    def regions(self, rows: int) -> list[tuple[int, int]]:
+        """`regions` of `rows` rows for this store's workers."""
+        return regions(rows, getattr(self.workers, "limit", 1) if self.folder else 1)
+
     def run(self, fn: Callable, calls: Iterable[tuple]) -> list:
         """fn(self, *call) for every call, as tasks on the workers (inline: here, in order); their
         results in the calls' order. A task's exception is raised here."""
@@ -131,8 +137,10 @@ def _free_bytes(folder: str) -> int:
     return stat.f_bavail * stat.f_frsize
 
 
-def regions(rows: int, task_rows: int | None = None) -> list[tuple[int, int]]:
-    """(start, end) of each task's rows over `rows` rows: TASK_ROWS each, the last one shorter,
-    at least one (empty for no rows)."""
-    size = max(1, int(TASK_ROWS if task_rows is None else task_rows))
+def regions(rows: int, workers: int = 1) -> list[tuple[int, int]]:
+    """(start, end) of each task's rows over `rows` rows: at most TASK_ROWS each, and on `workers`
+    workers (the tasks they may hold: Workers.limit) small enough that each has two, but not under
+    MIN_TASK_ROWS; the last one shorter; at least one (empty for no rows)."""
+    size = min(TASK_ROWS, max(MIN_TASK_ROWS, -(-rows // (2 * max(1, workers)))))
+    size = max(1, size)
     return [(start, min(rows, start + size)) for start in range(0, rows, size)] or [(0, 0)]

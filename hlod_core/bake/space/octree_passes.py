@@ -59,7 +59,7 @@ class ActiveTriangles:
         self.with_uncounted = uncounted is not None
         if self.with_uncounted:
             store.put("uncounted", np.array(uncounted, bool))
-        self.regions = chunk_store.regions(f)
+        self.regions = store.regions(f)
         self.live = [end - start for start, end in self.regions]  # active rows per region
         self.unc_per: np.ndarray | None = None
 
