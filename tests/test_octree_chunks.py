@@ -93,6 +93,7 @@ def test_regions_split_on_a_pool_through_mapped_files_give_the_inline_layout(tmp
     monkeypatch.setattr(chunk_store, "TASK_ROWS", 211)
     root = tight_cube(c.min(axis=0), c.max(axis=0))
     inline = build_octree(c, target_tris=25, max_depth=12, counted=counted, root=root)
+    monkeypatch.setattr(chunk_store, "WORKERS_FROM_ROWS", 0)
     with open_workers(2, scratch_dir=tmp_path) as workers:
         with chunk_store.open_store(workers) as store:
             assert store.folder and os.path.isdir(store.folder)
@@ -114,8 +115,17 @@ def test_bake_in_regions_is_the_bake_in_one_region(jobs, tmp_path, monkeypatch):
     monkeypatch.setattr(chunk_store, "TASK_ROWS", 1 << 30)
     whole = file_bytes(bake(cow, BakeSettings(target_tris=500)), tmp_path / "whole.hlod")
     monkeypatch.setattr(chunk_store, "TASK_ROWS", 700)
+    monkeypatch.setattr(chunk_store, "WORKERS_FROM_ROWS", 0)  # on the workers at this size too
     assert len(chunk_store.regions(cow.tri_count)) > 5
+    where, run = [], chunk_store.ChunkStore.run
+
+    def spied(store, fn, calls):
+        where.append(store.folder)
+        return run(store, fn, calls)
+
+    monkeypatch.setattr(chunk_store.ChunkStore, "run", spied)
     got = bake(cow, settings)
+    assert where and all(bool(folder) == (jobs > 1) for folder in where)  # on the pool's workers at jobs 2
     got = got.replace(meta={**got.meta, "settings": {**got.meta["settings"], "jobs": 1}})  # the one setting apart
     assert file_bytes(got, tmp_path / "regions.hlod") == whole
 
@@ -127,6 +137,7 @@ def test_prepare_on_a_pool_through_mapped_files_gives_the_inline_arrays(tmp_path
     cow = load_model("cow")
     monkeypatch.setattr(chunk_store, "TASK_ROWS", 400)
     inline = prepare.prepare(cow)
+    monkeypatch.setattr(chunk_store, "WORKERS_FROM_ROWS", 0)
     with open_workers(2, scratch_dir=tmp_path) as workers:
         with chunk_store.open_store(workers) as store:
             pooled = prepare.prepare(cow, store=store)

@@ -28,6 +28,9 @@ import numpy as np
 
 #: Rows (triangles) per task of a pass: about 8 MB of centroids and 24 MB of the passes' state a task.
 TASK_ROWS = 1 << 20
+#: Rows from which the tasks go to the workers: a smaller input is one task a pass, which would
+#: only add the store's copies and a round trip a pass to an inline bake.
+WORKERS_FROM_ROWS = 1 << 17
 #: Rows a task has at least when the regions are cut smaller for many workers (`regions`).
 MIN_TASK_ROWS = 1 << 16
 #: The most bytes a store holds per triangle at once: centroids 24, faces 24, corners (16 a vertex,
@@ -104,11 +107,12 @@ class ChunkStore:
 
 @contextlib.contextmanager
 def open_store(workers=None, *, rows: int = 0):
-    """A ChunkStore for `workers` (bake/run/workers.Workers; None or jobs 1: inline) over `rows`
-    triangles, its folder `hlod-chunks-*` removed however the block exits: in the workers' shared
+    """A ChunkStore for `workers` (bake/run/workers.Workers; None, jobs 1 or fewer than
+    WORKERS_FROM_ROWS rows: inline) over `rows` triangles, its folder `hlod-chunks-*` removed however the block exits: in the workers' shared
     memory folder (`Workers.memory`, a local pool's) where it has room for BYTES_PER_ROW x rows twice
     over, else in their scratch folder (a Dask cluster's shared one)."""
-    scratch = getattr(workers, "scratch", "") if workers is not None else ""
+    on_workers = workers is not None and rows >= WORKERS_FROM_ROWS
+    scratch = getattr(workers, "scratch", "") if on_workers else ""
     memory = getattr(workers, "memory", "") if workers is not None else ""
     if memory and _free_bytes(memory) >= 2 * BYTES_PER_ROW * rows:
         scratch = memory
