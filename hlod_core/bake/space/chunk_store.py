@@ -108,9 +108,10 @@ class ChunkStore:
 @contextlib.contextmanager
 def open_store(workers=None, *, rows: int = 0):
     """A ChunkStore for `workers` (bake/run/workers.Workers; None, jobs 1 or fewer than
-    WORKERS_FROM_ROWS rows: inline) over `rows` triangles, its folder `hlod-chunks-*` removed however the block exits: in the workers' shared
-    memory folder (`Workers.memory`, a local pool's) where it has room for BYTES_PER_ROW x rows twice
-    over, else in their scratch folder (a Dask cluster's shared one)."""
+    WORKERS_FROM_ROWS rows: inline) over `rows` triangles, its folder `hlod-chunks-*` removed
+    however the block exits: in the workers' shared memory folder (`Workers.memory`, a local
+    pool's) where it has room for BYTES_PER_ROW x rows twice over, else in their scratch folder (a
+    Dask cluster's shared one)."""
     on_workers = workers is not None and rows >= WORKERS_FROM_ROWS
     scratch = getattr(workers, "scratch", "") if on_workers else ""
     memory = getattr(workers, "memory", "") if workers is not None else ""
