@@ -19,6 +19,7 @@ from hlod_core.bake.run.workers import open_workers
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.bake.space import chunk_store, octree_passes
 from hlod_core.bake.space.octree import build_octree, build_octree_counted, tight_cube
+from hlod_core.io.meshes import TriangleMesh
 
 FIELDS = ("parent", "child_offset", "child_count", "depth", "tri_begin", "tri_end", "cell_center", "cell_half",
           "cell_level")
@@ -149,3 +150,31 @@ def test_prepare_on_a_pool_through_mapped_files_gives_the_inline_arrays(tmp_path
     assert not isinstance(pooled.counted, np.memmap)
     assert np.array_equal(inline.root_cell.corner, pooled.root_cell.corner)
     assert inline.root_cell.side == pooled.root_cell.side
+
+
+@pytest.mark.parametrize("task_rows", [1 << 30, 900, 37])
+def test_leaves_made_by_tasks_over_runs_of_leaves_are_the_leaves_made_here(task_rows, tmp_path, monkeypatch):
+    """The cow (with normals) at 300 triangles a node, its leaves made on 2 workers in runs of the
+    leaves whose first triangle lies in one region (one run; runs of a few leaves, the last one
+    shorter; regions of fewer triangles than a leaf, a run per leaf): every leaf's positions, faces and normals those made here leaf by
+    leaf, dtype and bytes; inner nodes None."""
+    cow = load_model("cow")
+    cow = TriangleMesh(positions=cow.positions, faces=cow.faces, name="cow",
+                       normals=np.random.default_rng(0).random(cow.positions.shape).astype(np.float32))
+    monkeypatch.setattr(chunk_store, "TASK_ROWS", task_rows)
+    monkeypatch.setattr(chunk_store, "WORKERS_FROM_ROWS", 0)
+    with open_workers(2, scratch_dir=tmp_path) as workers:
+        with chunk_store.open_store(workers) as store:
+            prepared = prepare.prepare(cow, store=store)
+            layout = build_octree(prepared.centroids, target_tris=300, max_depth=12, counted=prepared.counted,
+                                  root=prepared.root_cell, store=store)
+            made = prepare.leaf_lods(layout, prepared, store)
+    here = prepare.leaf_lods(layout, prepared)
+    assert layout.is_leaf.sum() > 10
+    for node, (got, want) in enumerate(zip(made, here)):
+        assert (got is None) == (want is None) == (not layout.is_leaf[node])
+        if want is None:
+            continue
+        assert got[3] is None and want[3] is None
+        for a, b in zip(got[:3], want[:3]):
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), node

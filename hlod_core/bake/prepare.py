@@ -139,7 +139,8 @@ def face_centroids(positions: np.ndarray, faces: np.ndarray, *, store: chunk_sto
     bool and the centroids' box (lo, hi) (3,) float64 (`box`'s). As tasks over index chunks of the
     triangles (`centroid_task`, chunk_store.regions) on the store's workers (None: inline, here),
     which write the store's "centroids" and "counted"; the faces and the padded positions are
-    shared with them (copied into the store's files for workers: 16 bytes a vertex, 24 a triangle)."""
+    shared with them (copied into the store's files for workers: 16 bytes a vertex, 24 a triangle),
+    and stay there for the leaves (`leaf_lods`)."""
     store = chunk_store.ChunkStore() if store is None else store
     padded = np.zeros((positions.shape[0], 4), np.float32)
     padded[:, :3] = positions
@@ -153,8 +154,6 @@ def face_centroids(positions: np.ndarray, faces: np.ndarray, *, store: chunk_sto
     hi = np.max([b[1] for b in bounds], axis=0)
     if np.any(lo == 0.0) or np.any(hi == 0.0):  # a zero's sign depends on the reduction's order
         lo, hi = box(centroids.T)
-    for name in ("corners", "faces"):
-        store.drop(name)
     return centroids.T, (np.array(counted) if store.folder else counted), (lo, hi)
 
 
@@ -187,10 +186,17 @@ def pack_rows(mesh: TriangleMesh, positions: np.ndarray, normals: np.ndarray | N
     return layout, positions[vertex], faces, None if normals is None else normals[vertex], rows
 
 
-def leaf_lods(layout: OctreeLayout, prepared: Prepared) -> list[tuple | None]:
+def leaf_lods(layout: OctreeLayout, prepared: Prepared,
+              store: chunk_store.ChunkStore | None = None) -> list[tuple | None]:
     """Per node, None for inner nodes and for each leaf (positions (k,3) f32, faces (m,3) int32
     local to them, normals (k,3) f32 or None, rows (k,A) f32 or None) of the vertices its triangles
-    use, in ascending input order (arrays.compact): leaves keep their original triangles."""
+    use, in ascending input order (arrays.compact): leaves keep their original triangles.
+    store: the one prepare and the octree used; on workers (its folder set) and without attribute
+    rows, the leaves are made by tasks over runs of whole leaves (`leaf_task`: the leaves whose
+    first triangle lies in one of the store's regions) from its "faces", "corners" and "tri_order",
+    each run's arrays sent back once and each leaf a view of them; else here, leaf by leaf."""
+    if store is not None and store.folder and prepared.rows is None and "tri_order" in store:
+        return _leaf_lods_of_tasks(layout, prepared, store)
     lods: list[tuple | None] = [None] * layout.node_count
     ordered_faces = prepared.faces[layout.tri_order]
     normals, rows = prepared.normals, prepared.rows
@@ -198,3 +204,44 @@ def leaf_lods(layout: OctreeLayout, prepared: Prepared) -> list[tuple | None]:
         p, f, used = compact(prepared.positions, ordered_faces[layout.tri_begin[node]:layout.tri_end[node]])
         lods[node] = (p, f, None if normals is None else normals[used], None if rows is None else rows[used])
     return lods
+
+
+def _leaf_lods_of_tasks(layout: OctreeLayout, prepared: Prepared, store: chunk_store.ChunkStore) -> list:
+    """leaf_lods as tasks on the store's workers (its docstring)."""
+    lods: list[tuple | None] = [None] * layout.node_count
+    leaves = np.flatnonzero(layout.is_leaf)
+    leaves = leaves[np.argsort(layout.tri_begin[leaves], kind="stable")]
+    begin, end = layout.tri_begin[leaves], layout.tri_end[leaves]
+    starts = np.array([start for start, _ in store.regions(int(layout.tri_order.shape[0]))])
+    run_of = np.searchsorted(starts, begin, side="right") - 1
+    cuts = np.flatnonzero(np.diff(run_of)) + 1
+    runs = np.split(np.arange(leaves.size), cuts)
+    with_normals = prepared.normals is not None
+    if with_normals:
+        store.put("normals", prepared.normals)
+    made = store.run(leaf_task, [(begin[run], end[run], with_normals) for run in runs])
+    for run, (positions, faces, normals, vertices) in zip(runs, made):
+        v_end, f_end = np.cumsum(vertices), np.cumsum(end[run] - begin[run])
+        for leaf, v1, v0, f1, f0 in zip(leaves[run], v_end, v_end - vertices, f_end, f_end - (end[run] - begin[run])):
+            lods[leaf] = (positions[v0:v1], faces[f0:f1], None if normals is None else normals[v0:v1], None)
+    return lods
+
+
+def leaf_task(store: chunk_store.ChunkStore, begin: np.ndarray, end: np.ndarray, with_normals: bool):
+    """The leaves of one run, each of the triangles tri_order[begin:end] ((k,) int64 each) of the
+    store's "tri_order", "faces" and "corners" (and "normals"), compacted as leaf_lods does: their
+    positions (V,3) f32, faces (F,3) int32 local to each leaf, normals (V,3) f32 or None, leaf
+    after leaf, and vertices (k,) int64, each leaf's."""
+    order, faces, corners = store.get("tri_order"), store.get("faces"), store.get("corners")
+    normals = store.get("normals") if with_normals else None
+    points, local, kept, vertices = [], [], [], np.zeros(begin.shape[0], np.int64)
+    for i, (b, e) in enumerate(zip(begin, end)):
+        p, f, used = compact(corners, faces[np.asarray(order[b:e])])
+        points.append(p[:, :3])
+        local.append(f)
+        vertices[i] = used.shape[0]
+        if normals is not None:
+            kept.append(normals[used])
+    return (np.concatenate(points) if points else np.zeros((0, 3), np.float32),
+            np.concatenate(local) if local else np.zeros((0, 3), np.int32),
+            np.concatenate(kept) if kept else (np.zeros((0, 3), np.float32) if with_normals else None), vertices)

@@ -85,7 +85,8 @@ class BakeSource(Protocol):
 
 class InMemorySource:
     """A TriangleMesh (prepare.py), in the frame of `prior` while it fits (bake/space/frame.py): phases
-    "prepare" and "octree"; the leaves from its arrays."""
+    "prepare" and "octree", then the leaves from its arrays (the "leaves" phase: made by `octree`,
+    while the chunk store its tasks read is open; handed over by `leaf_lods`)."""
 
     log_note = ""
     leaf_folder = None
@@ -97,6 +98,7 @@ class InMemorySource:
         self.with_normals = mesh.normals is not None
         self.materials = tuple(mesh.materials) if mesh.has_appearance else ()
         self._prepared: prepare.Prepared | None = None
+        self._leaves: list | None = None
 
     @property
     def row_layout(self) -> AttributeLayout:
@@ -112,13 +114,15 @@ class InMemorySource:
             layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
                                   counted=prepared.counted, root=prepared.root_cell, store=store)
             self._prepared = prepared = replace(prepared, centroids=None)  # only the octree reads them
-        clock.lap("octree")
+            clock.lap("octree")
+            self._leaves = prepare.leaf_lods(layout, prepared, store)  # the "leaves" phase, while the store is open
         return SourceOctree(layout=layout, frame=prepared.frame, frame_choice=prepared.frame_choice,
                             counted_per_node=counted_per_node(layout, prepared.counted),
                             collapsed_tris=int((~prepared.counted).sum()))
 
     def leaf_lods(self, layout: OctreeLayout, clock: PhaseClock) -> list[tuple | None]:
-        return prepare.leaf_lods(layout, self._prepared)
+        leaves, self._leaves = self._leaves, None
+        return leaves
 
 
 class StreamedSource:
