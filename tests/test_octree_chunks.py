@@ -156,8 +156,8 @@ def test_prepare_on_a_pool_through_mapped_files_gives_the_inline_arrays(tmp_path
 def test_leaves_made_by_tasks_over_runs_of_leaves_are_the_leaves_made_here(task_rows, tmp_path, monkeypatch):
     """The cow (with normals) at 300 triangles a node, its leaves made on 2 workers in runs of the
     leaves whose first triangle lies in one region (one run; runs of a few leaves, the last one
-    shorter; regions of fewer triangles than a leaf, a run per leaf): every leaf's positions, faces and normals those made here leaf by
-    leaf, dtype and bytes; inner nodes None."""
+    shorter; regions of fewer triangles than a leaf, a run per leaf): every leaf's positions, faces
+    and normals those made here leaf by leaf, dtype and bytes; inner nodes None."""
     cow = load_model("cow")
     cow = TriangleMesh(positions=cow.positions, faces=cow.faces, name="cow",
                        normals=np.random.default_rng(0).random(cow.positions.shape).astype(np.float32))
