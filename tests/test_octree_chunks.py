@@ -19,6 +19,7 @@ from hlod_core.bake.run.workers import open_workers
 from hlod_core.bake.settings import BakeSettings
 from hlod_core.bake.space import chunk_store, octree_passes
 from hlod_core.bake.space.octree import build_octree, build_octree_counted, tight_cube
+from hlod_core.core.errors import InputError
 from hlod_core.io.meshes import TriangleMesh
 
 FIELDS = ("parent", "child_offset", "child_count", "depth", "tri_begin", "tri_end", "cell_center", "cell_half",
@@ -178,3 +179,25 @@ def test_leaves_made_by_tasks_over_runs_of_leaves_are_the_leaves_made_here(task_
         assert got[3] is None and want[3] is None
         for a, b in zip(got[:3], want[:3]):
             assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), node
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_bad_input_met_by_the_tasks_gets_the_errors_of_the_bake_in_one_process(jobs, monkeypatch):
+    """A used vertex at NaN in the last region of vertices, and one so far out that its coordinates
+    exceed float32 after centring: prepare's tasks (regions of 500 rows, on 2 workers at jobs 2)
+    find them, and the bake raises the one-process bake's InputError naming the mesh; an unused NaN
+    vertex is no error."""
+    cow = load_model("cow")
+    monkeypatch.setattr(chunk_store, "TASK_ROWS", 500)
+    monkeypatch.setattr(chunk_store, "WORKERS_FROM_ROWS", 0)
+    settings = BakeSettings(target_tris=500, jobs=jobs)
+    nan = cow.positions.copy()
+    nan[cow.faces[-1, 2]] = np.nan
+    with pytest.raises(InputError, match="^bad: vertices used by faces have NaN or infinite coordinates$"):
+        bake(TriangleMesh(positions=nan, faces=cow.faces, name="bad"), settings)
+    far = cow.positions.copy()
+    far[cow.faces[-1, 2]] = 1e300
+    with pytest.raises(InputError, match="^far: coordinates exceed the float32 range after centring$"):
+        bake(TriangleMesh(positions=far, faces=cow.faces, name="far"), settings)
+    unused = np.concatenate([cow.positions, [[np.nan, np.nan, np.nan]]])
+    assert bake(TriangleMesh(positions=unused, faces=cow.faces, name="unused"), settings).node_count > 1

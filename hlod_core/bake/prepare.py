@@ -82,26 +82,29 @@ def prepare(mesh: TriangleMesh, prior: frames.Prior | None = None, *,
     tasks read the centroids (bake/space/chunk_store.py: its "centroids" array, written in place)."""
     if mesh.tri_count == 0:
         raise InputError(f"{mesh.name}: the mesh has no triangles")
-    used = np.zeros(mesh.positions.shape[0], bool)
-    used[mesh.faces.ravel(order="K")] = True  # no copy of C- or F-ordered faces
-    every = bool(used.all())
-    p_used = mesh.positions if every else mesh.positions[used]
-    if not np.all(np.isfinite(p_used)):
-        raise InputError(f"{mesh.name}: vertices used by faces have NaN or infinite coordinates")
-    lo, hi = box(p_used)
-    del p_used
-    origin, length, lattice_why = frames.choose_lattice(prior, lo, hi)
-    positions = np.empty(mesh.positions.shape, np.float32)
-    for start in range(0, positions.shape[0], CENTROID_CHUNK):  # small temporaries, reused
-        end = min(positions.shape[0], start + CENTROID_CHUNK)
-        rel = np.empty((end - start, 3), np.float64)
-        np.subtract(mesh.positions[start:end], origin, out=rel)
-        if not every:
-            rel[~used[start:end]] = 0.0  # unused vertices may hold anything (even NaN); they are never stored
-        positions[start:end] = lattice.stored(rel, length, overwrite=True)
-    if not np.all(np.isfinite(positions)):
-        raise InputError(f"{mesh.name}: coordinates exceed the float32 range after centring")
+    store = chunk_store.ChunkStore() if store is None else store
     faces = mesh.faces
+    store.put("faces", faces)
+    store.put("source", mesh.positions)
+    store.create("used", (mesh.positions.shape[0],), bool, zeros=True)
+    store.run(mark_used_task, store.regions(faces.shape[0]))
+    every = bool(store.get("used").all())
+    vertices = store.regions(mesh.positions.shape[0])
+    boxes = store.run(used_box_task, [(start, end, every) for start, end in vertices])
+    if not all(finite for finite, _, _ in boxes):
+        raise InputError(f"{mesh.name}: vertices used by faces have NaN or infinite coordinates")
+    lo = np.min([b for _, b, _ in boxes if b is not None], axis=0)
+    hi = np.max([b for _, _, b in boxes if b is not None], axis=0)
+    if np.any(lo == 0.0) or np.any(hi == 0.0):  # a zero's sign depends on the reduction's order
+        lo, hi = box(mesh.positions if every else mesh.positions[np.asarray(store.get("used"))])
+    origin, length, lattice_why = frames.choose_lattice(prior, lo, hi)
+    corners = store.create("corners", (mesh.positions.shape[0], 4), np.float32, zeros=True)
+    finite = store.run(position_task, [(start, end, origin, length, every) for start, end in vertices])
+    for name in ("source", "used"):
+        store.drop(name)
+    if not all(finite):
+        raise InputError(f"{mesh.name}: coordinates exceed the float32 range after centring")
+    positions = np.ascontiguousarray(corners[:, :3])
     centroids, counted, (lo, hi) = face_centroids(positions, faces, store=store)
     root_prior = prior if lattice_why is None else None
     root_cell, root_why = frames.choose_root(root_prior, lo, hi)
@@ -113,6 +116,48 @@ def prepare(mesh: TriangleMesh, prior: frames.Prior | None = None, *,
     return Prepared(origin=origin, unit_length=length, root_cell=root_cell, positions=positions, faces=faces,
                     normals=normals, rows=rows,
                     row_layout=row_layout, centroids=centroids, counted=counted, frame_choice=choice)
+
+
+def mark_used_task(store: chunk_store.ChunkStore, start: int, end: int) -> None:
+    """prepare's task over the triangles start..end-1: the vertices they use marked in the store's
+    "used" (every task writes only True: tasks that share a vertex write the same byte)."""
+    used, faces = store.get("used"), store.get("faces")
+    for begin in range(start, end, CENTROID_CHUNK):
+        used[np.asarray(faces[begin:min(end, begin + CENTROID_CHUNK)]).ravel(order="K")] = True
+
+
+def used_box_task(store: chunk_store.ChunkStore, start: int, end: int, every: bool):
+    """prepare's task over the vertices start..end-1 of the store's "source" (the input's positions):
+    (whether the used ones are finite, their box's lo and hi (3,) float64 per axis, None for none)."""
+    points = np.asarray(store.get("source")[start:end])
+    if not every:
+        points = points[np.asarray(store.get("used")[start:end])]
+    if points.shape[0] == 0:
+        return True, None, None
+    if not np.all(np.isfinite(points)):
+        return False, None, None
+    return (True, np.array([points[:, k].min() for k in range(3)], np.float64),
+            np.array([points[:, k].max() for k in range(3)], np.float64))
+
+
+def position_task(store: chunk_store.ChunkStore, start: int, end: int, origin: np.ndarray, length: float,
+                  every: bool) -> bool:
+    """prepare's task over the vertices start..end-1: their stored positions (float32, origin-relative,
+    lattice points: lattice.stored) written into the store's "corners" (padded to 4 floats), an unused
+    vertex at the origin, CENTROID_CHUNK at a time; returns whether all are finite."""
+    source, corners = store.get("source"), store.get("corners")
+    used = None if every else store.get("used")
+    finite = True
+    for begin in range(start, end, CENTROID_CHUNK):  # small temporaries, reused
+        stop = min(end, begin + CENTROID_CHUNK)
+        rel = np.empty((stop - begin, 3), np.float64)
+        np.subtract(source[begin:stop], origin, out=rel)
+        if used is not None:
+            rel[~np.asarray(used[begin:stop])] = 0.0  # unused vertices may hold anything (even NaN); never stored
+        stored = lattice.stored(rel, length, overwrite=True)
+        finite = finite and bool(np.all(np.isfinite(stored)))
+        corners[begin:stop, :3] = stored
+    return finite
 
 
 def box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -142,10 +187,12 @@ def face_centroids(positions: np.ndarray, faces: np.ndarray, *, store: chunk_sto
     shared with them (copied into the store's files for workers: 16 bytes a vertex, 24 a triangle),
     and stay there for the leaves (`leaf_lods`)."""
     store = chunk_store.ChunkStore() if store is None else store
-    padded = np.zeros((positions.shape[0], 4), np.float32)
-    padded[:, :3] = positions
-    store.put("corners", padded)
-    store.put("faces", faces)
+    if "corners" not in store:  # prepare's position tasks made them
+        padded = np.zeros((positions.shape[0], 4), np.float32)
+        padded[:, :3] = positions
+        store.put("corners", padded)
+    if "faces" not in store:
+        store.put("faces", faces)
     f = faces.shape[0]
     centroids = store.create("centroids", (3, f), np.float64)
     counted = store.create("counted", (f,), bool)
