@@ -18,7 +18,7 @@ In one run, on this machine:
    rate at which a chunk store takes an array (written to shared memory and mapped).
    Cost of a task of b bytes = round trip(empty) + b x (round trip(loaded) - round trip(empty)) / b_loaded.
 3. Model (`model_seconds`): wall(N) = serial + simplify(N). serial: the phases outside the simplify
-   phase (prepare, octree, leaves, seams, assemble), prepare's and the octree's passes as their
+   phase (prepare, octree, leaves, seams, assemble), prepare's, the octree's and the leaves' passes as their
    tasks over index chunks on N workers (`chunk_phases`: each pass's profiled work re-cut into the
    regions the bake makes for N workers, plus the executor's cost a task and the store's copies),
    the seams' buckets as their tasks on N workers;
@@ -71,6 +71,9 @@ ROOT = Path(__file__).resolve().parents[1]
 WORKERS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 #: The phases of a bake outside its parallel tasks (phase_seconds' names); "simplify" holds the tasks.
 SERIAL_PHASES = ("scan", "prepare", "octree", "route", "leaves", "seams", "cache", "assemble", "cache_write")
+#: The phase each chunk task belongs to (chunk_store.ChunkStore.run's tasks; the others are the octree's).
+CHUNK_PHASE = {"mark_used_task": "prepare", "used_box_task": "prepare", "position_task": "prepare",
+               "centroid_task": "prepare", "leaf_task": "leaves"}
 #: Tasks timed per executor for its per-task cost.
 OVERHEAD_TASKS = 200
 
@@ -213,24 +216,32 @@ def arrays_seconds(prof: dict, workers: int, over: dict | None) -> float:
 
 
 def chunk_phases(prof: dict, workers: int, over: dict | None) -> dict:
-    """Prepare and the octree on `workers` workers (chunk_store.py): per phase, its own part (the
-    profiled phase less its passes' tasks), each pass's tasks re-cut into the regions the bake
-    makes for that many workers (chunk_store.regions), list-scheduled, each its share of the pass's
-    profiled work plus its executor cost; with workers, the store's copies (faces, corners in, the
-    counted and tri_order out) at the measured copy rate. "own_s": the phases' time outside tasks."""
+    """Prepare, the octree and the leaves on `workers` workers (chunk_store.py): per phase, its own
+    part (the profiled phase less its passes' tasks), each pass's tasks re-cut into the regions the
+    bake makes for that many workers (chunk_store.regions), list-scheduled, each its share of the
+    pass's profiled work plus its executor cost for its bytes (the leaves, made leaf by leaf in the
+    inline profile, as one pass of their whole time, each task sending back its leaves' positions
+    and faces, 12 bytes a leaf vertex and a face); with workers, the store's copies (the
+    faces and the input's positions in; the positions, counted and tri_order out) at the measured
+    copy rate. "own_s": the phases' time outside tasks."""
     phases = prof["phase_seconds"]
     out = {"own_s": 0.0}
-    work = {"prepare": [p for p in prof["chunk_passes"] if p["fn"] == "centroid_task"],
-            "octree": [p for p in prof["chunk_passes"] if p["fn"] != "centroid_task"]}
+    work = {phase: [p for p in prof["chunk_passes"] if CHUNK_PHASE.get(p["fn"], "octree") == phase]
+            for phase in ("prepare", "octree", "leaves")}
+    if not work["leaves"]:  # made leaf by leaf in the inline profile: one pass of tasks, each sending its leaves back
+        count = len(chunk_store.regions(prof["input_tris"], max(workers, 1)))
+        work["leaves"] = [{"fn": "leaf_task", "tasks": count, "seconds": phases.get("leaves", 0.0),
+                           "bytes": 12.0 * (prof["seams"]["vertices"] + prof["input_tris"]) / count}]
+    on_workers = workers > 1 and over is not None and prof["input_tris"] >= chunk_store.WORKERS_FROM_ROWS
+    copied = {"prepare": 25 * prof["input_tris"] + 36 * prof["input_vertices"], "octree": 8 * prof["input_tris"],
+              "leaves": 0}  # in: faces, positions (float64); out: positions (float32), counted; tri_order
     for phase, passes in work.items():
         own = max(phases.get(phase, 0.0) - sum(p["seconds"] for p in passes), 0.0)
-        if workers > 1 and over is not None:
+        if on_workers:
             count = len(chunk_store.regions(prof["input_tris"], workers))
             cost = float(task_cost(over, np.array([np.mean([p["bytes"] for p in passes]) if passes else 0.0]))[0])
             tasks = sum(-(-count // workers) * (p["seconds"] / count + cost) for p in passes)
-            tris = prof["input_tris"]
-            copied = 24 * tris + 16 * prof["input_vertices"] if phase == "prepare" else 9 * tris
-            own += over.get("copy_s_per_byte", 0.0) * copied
+            own += over.get("copy_s_per_byte", 0.0) * copied[phase]
         else:
             tasks = sum(p["seconds"] for p in passes)
         out[phase] = own + tasks
@@ -352,9 +363,10 @@ def model_seconds(prof: dict, over: dict | None, workers: int) -> dict:
             if parallel else phases["seams"]
     serial = serial - phases["seams"] + seams_s
     own = serial - (seams_s - seams["own_s"] if workers > 1 else 0.0)  # outside any task
-    own -= chunked["prepare"] + chunked["octree"] - chunked["own_s"] if workers > 1 else 0.0
+    own -= chunked["prepare"] + chunked["octree"] + chunked["leaves"] - chunked["own_s"] if workers > 1 else 0.0
     return {"serial_s": own + (arrays if workers > 1 else 0.0), "seams_s": seams_s, "simplify_s": simplify_s,
-            "prepare_s": chunked["prepare"], "octree_s": chunked["octree"], "seconds": serial + simplify_s}
+            "prepare_s": chunked["prepare"], "octree_s": chunked["octree"], "leaves_s": chunked["leaves"],
+            "seconds": serial + simplify_s}
 
 
 def measured(spec: Path, out: Path, *, jobs: int, scheduler: str | None = None) -> dict:
@@ -455,11 +467,12 @@ def report(result: dict) -> None:
         print(f"chunk passes: {len(prof['chunk_passes'])}, {sum(q['seconds'] for q in prof['chunk_passes']):.2f} s "
               f"of tasks inline ({sum(q['tasks'] for q in prof['chunk_passes'])} tasks); copy into the store "
               f"{1e9 * result['overhead']['pool']['copy_s_per_byte']:.2f} s/GB")
-    print("| workers | modelled s | outside tasks s | prepare s | octree s | seams s | simplify s | speed-up |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("| workers | modelled s | outside tasks s | prepare s | octree s | leaves s | seams s | simplify s | "
+          "speed-up |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n, m in result["model"].items():
         print(f"| {n} | {m['seconds']:.1f} | {m['serial_s']:.2f} | {m['prepare_s']:.2f} | {m['octree_s']:.2f} | "
-              f"{m['seams_s']:.2f} | {m['simplify_s']:.1f} | {one / m['seconds']:.1f}x |")
+              f"{m['leaves_s']:.2f} | {m['seams_s']:.2f} | {m['simplify_s']:.1f} | {one / m['seconds']:.1f}x |")
     print(f"knee: {knee(result['model'])} workers (the first count whose doubling saves less than a quarter)")
     print("| run | measured s | modelled s | error | load | CPU s | peak RSS | bytes / triangle | same file |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---|")
