@@ -8,6 +8,12 @@ the used vertices' box), each a point of the bake's lattice (bake/space/lattice.
 the box's longest extent); faces (f,3) int64; centroids (f,3) float64 of the float32 corners
 (what is stored is what is split); counted (f,) bool. The streamed input (bake/space/partition.py) computes
 the same floats piece by piece with `triangle_centroids`.
+
+The passes over every vertex and triangle (the used vertices, their box, the stored positions, the
+centroids; the leaves' compaction) are tasks over index chunks (`*_task`), run by a chunk store
+(bake/space/chunk_store.py) on the bake's workers or inline; this process takes the regions' boxes'
+minimum and maximum and raises the input's errors. The same floats wherever they run.
+Why: docs/how-it-works.md#the-early-phases-as-chunk-tasks
 """
 from __future__ import annotations
 

@@ -24,7 +24,9 @@ octant after _MAX_SHRINKS shrinks) cannot be split and becomes a leaf over the b
 
 Vectorised by depth (octree_passes.py): each depth costs two passes, in chunks, over the triangles
 still in splitting cells (their octant codes and counts per (cell, octant); then their next cell,
-those in leaves leaving), and a counting sort by leaf at the end.
+those in leaves leaving), and a counting sort by leaf at the end; each pass is one task per region
+of the triangles (chunk_store.py: on the bake's workers, or inline), the same layout for any regions.
+Why: docs/how-it-works.md#the-early-phases-as-chunk-tasks
 
 From counts (`build_octree_counted`, the out-of-core bakes of partition.py): the same layout,
 float for float, without an (f,3) array of centroids: one counting pass over a stream of triangles
