@@ -107,6 +107,28 @@ def test_regions_split_on_a_pool_through_mapped_files_give_the_inline_layout(tmp
     assert not isinstance(pooled.tri_order, np.memmap)  # copied out before the files go
 
 
+def test_a_small_input_keeps_its_tasks_in_the_bake_process(monkeypatch):
+    """Below WORKERS_FROM_ROWS triangles a pool's bake runs the chunk tasks inline, on its own arrays
+    (no store folder, in shared memory or elsewhere); from it on, on the pool in shared memory."""
+    cow = load_model("cow")
+    where, run = [], chunk_store.ChunkStore.run
+
+    def spied(store, fn, calls):
+        where.append(store.folder)
+        return run(store, fn, calls)
+
+    monkeypatch.setattr(chunk_store.ChunkStore, "run", spied)
+    monkeypatch.setattr(chunk_store, "WORKERS_FROM_ROWS", cow.tri_count + 1)
+    bake(cow, BakeSettings(target_tris=500, jobs=2))
+    assert where and not any(where)
+    where.clear()
+    monkeypatch.setattr(chunk_store, "WORKERS_FROM_ROWS", cow.tri_count)
+    bake(cow, BakeSettings(target_tris=500, jobs=2))
+    assert where and all(where)
+    if os.path.isdir("/dev/shm"):
+        assert all(folder.startswith("/dev/shm/hlod-chunks-") for folder in where)
+
+
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_bake_in_regions_is_the_bake_in_one_region(jobs, tmp_path, monkeypatch):
     """The cow at 500 triangles a node (about 5,800 triangles): its octree's passes in regions of

@@ -114,8 +114,8 @@ def open_store(workers=None, *, rows: int = 0):
     Dask cluster's shared one)."""
     on_workers = workers is not None and rows >= WORKERS_FROM_ROWS
     scratch = getattr(workers, "scratch", "") if on_workers else ""
-    memory = getattr(workers, "memory", "") if workers is not None else ""
-    if memory and _free_bytes(memory) >= 2 * BYTES_PER_ROW * rows:
+    memory = getattr(workers, "memory", "") if on_workers else ""
+    if scratch and memory and _free_bytes(memory) >= 2 * BYTES_PER_ROW * rows:
         scratch = memory
     if not scratch:
         store = ChunkStore()
