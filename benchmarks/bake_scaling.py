@@ -10,13 +10,18 @@ default (this 2-core machine), 20M for the issue's target scene (a bake of sever
 In one run, on this machine:
 1. Profile: one jobs 1 bake in this process with every parallel task timed as it runs (no worker,
    no transfer): per task its kind, node, seconds and the numpy bytes it sends and returns; the
-   bake's own phase_seconds; the leaf arrays' build (serial, in the bake's process).
+   bake's own phase_seconds; the leaf arrays' build (serial, in the bake's process); per pass of
+   prepare's and the octree's chunk tasks (chunk_store.ChunkStore.run), its tasks' seconds and bytes.
 2. Per-task cost of the executors: tasks that do nothing, empty and carrying a typical decimation's
    arrays, 2 in flight on a local pool of 2 spawned processes and on a LocalCluster of 2 worker
-   processes x 1 thread: the round trip per task (wall) and the bake's process's CPU per task.
+   processes x 1 thread: the round trip per task (wall) and the bake's process's CPU per task; the
+   rate at which a chunk store takes an array (written to shared memory and mapped).
    Cost of a task of b bytes = round trip(empty) + b x (round trip(loaded) - round trip(empty)) / b_loaded.
 3. Model (`model_seconds`): wall(N) = serial + simplify(N). serial: the phases outside the simplify
-   phase (prepare, octree, leaves, seams, assemble), the seams' buckets as their tasks on N workers;
+   phase (prepare, octree, leaves, seams, assemble), prepare's, the octree's and the leaves' passes as their
+   tasks over index chunks on N workers (`chunk_phases`: each pass's profiled work re-cut into the
+   regions the bake makes for N workers, plus the executor's cost a task and the store's copies),
+   the seams' buckets as their tasks on N workers;
    the leaf arrays, which the measurements wait for, their clusters as their tasks on N workers;
    simplify(N): the profiled tasks list-scheduled on N workers in the bake's own order (schedule.py:
    decimations deepest first once their children are decimated, then measurements largest first),
@@ -56,7 +61,9 @@ from hlod_core.bake.decimate import cell_seams, simplify
 from hlod_core.bake.measure import hausdorff, leaf_arrays
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.run import dask_cluster, schedule, tasks
+from hlod_core.bake.run import workers as workers_module
 from hlod_core.bake.settings import BakeSettings
+from hlod_core.bake.space import chunk_store
 from hlod_core.io import meshes
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,6 +71,9 @@ ROOT = Path(__file__).resolve().parents[1]
 WORKERS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 #: The phases of a bake outside its parallel tasks (phase_seconds' names); "simplify" holds the tasks.
 SERIAL_PHASES = ("scan", "prepare", "octree", "route", "leaves", "seams", "cache", "assemble", "cache_write")
+#: The phase each chunk task belongs to (chunk_store.ChunkStore.run's tasks; the others are the octree's).
+CHUNK_PHASE = {"mark_used_task": "prepare", "used_box_task": "prepare", "position_task": "prepare",
+               "centroid_task": "prepare", "leaf_task": "leaves"}
 #: Tasks timed per executor for its per-task cost.
 OVERHEAD_TASKS = 200
 
@@ -126,6 +136,22 @@ def profile(mesh, settings: BakeSettings) -> dict:
         seen["seams"] = seams_tasks(layout, lods, seconds)
         return made
 
+    passes: list[dict] = []
+    run_chunks = chunk_store.ChunkStore.run
+
+    def timed_run(store, fn, calls):
+        out, seconds = [], []
+        calls = list(calls)
+        for call in calls:
+            started = time.perf_counter()
+            out.append(fn(store, *call))
+            seconds.append(time.perf_counter() - started)
+        moved = [dask_cluster.array_bytes(call) + dask_cluster.array_bytes(value) for call, value in zip(calls, out)]
+        passes.append({"fn": fn.__name__, "tasks": len(calls), "seconds": float(sum(seconds)),
+                       "max_s": float(max(seconds, default=0.0)), "bytes": float(np.mean(moved)) if moved else 0.0})
+        return out
+
+    chunk_store.ChunkStore.run = timed_run
     cell_seams.build, leaf_arrays.build = timed_seams, timed_arrays
     hausdorff.Clusters.build = staticmethod(timed_clusters)
     simplify.decimate_node, tasks.measure_exact = timed_decimate, timed_measure
@@ -138,9 +164,11 @@ def profile(mesh, settings: BakeSettings) -> dict:
         simplify.decimate_node, tasks.measure_exact, hausdorff.measure_to_children = decimate, measure, measure_children
         cell_seams.build, leaf_arrays.build = build_seams, build_arrays
         hausdorff.Clusters.build = staticmethod(cut)
+        chunk_store.ChunkStore.run = run_chunks
     layout = seen["layout"]
     phases = {**hlod.meta["phase_seconds"], "seams": seen["seams"]["seconds"]}  # less this profile's own sampling
-    return {"bake_seconds": seconds, "input_tris": mesh.tri_count, "nodes": hlod.node_count, "phase_seconds": phases,
+    return {"bake_seconds": seconds, "input_tris": mesh.tri_count, "input_vertices": int(mesh.positions.shape[0]),
+            "chunk_passes": passes, "nodes": hlod.node_count, "phase_seconds": phases,
             "seams": seen["seams"], "leaf_arrays_seconds": seen.get("leaf_arrays_seconds", 0.0),
             "clusters": seen.get("clusters", {"seconds": 0.0, "faces": 0, "bytes": 0}),
             "tasks": records, "parent": layout.parent.tolist(), "is_leaf": layout.is_leaf.tolist(),
@@ -187,6 +215,56 @@ def arrays_seconds(prof: dict, workers: int, over: dict | None) -> float:
     return whole - clusters["seconds"] + -(-pieces // workers) * each
 
 
+def chunk_phases(prof: dict, workers: int, over: dict | None) -> dict:
+    """Prepare, the octree and the leaves on `workers` workers (chunk_store.py): per phase, its own
+    part (the profiled phase less its passes' tasks), each pass's tasks re-cut into the regions the
+    bake makes for that many workers (chunk_store.regions), list-scheduled, each its share of the
+    pass's profiled work plus its executor cost for its bytes (the leaves, made leaf by leaf in the
+    inline profile, as one pass of their whole time, each task sending back its leaves' positions
+    and faces, 12 bytes a leaf vertex and a face); with workers, the store's copies (the
+    faces and the input's positions in; the positions, counted and tri_order out) at the measured
+    copy rate. "own_s": the phases' time outside tasks."""
+    phases = prof["phase_seconds"]
+    out = {"own_s": 0.0}
+    work = {phase: [p for p in prof["chunk_passes"] if CHUNK_PHASE.get(p["fn"], "octree") == phase]
+            for phase in ("prepare", "octree", "leaves")}
+    if not work["leaves"]:  # made leaf by leaf in the inline profile: one pass of tasks, each sending its leaves back
+        count = len(chunk_store.regions(prof["input_tris"], max(workers, 1)))
+        work["leaves"] = [{"fn": "leaf_task", "tasks": count, "seconds": phases.get("leaves", 0.0),
+                           "bytes": 12.0 * (prof["seams"]["vertices"] + prof["input_tris"]) / count}]
+    on_workers = workers > 1 and over is not None and prof["input_tris"] >= chunk_store.WORKERS_FROM_ROWS
+    copied = {"prepare": 25 * prof["input_tris"] + 36 * prof["input_vertices"], "octree": 8 * prof["input_tris"],
+              "leaves": 0}  # in: faces, positions (float64); out: positions (float32), counted; tri_order
+    for phase, passes in work.items():
+        own = max(phases.get(phase, 0.0) - sum(p["seconds"] for p in passes), 0.0)
+        if on_workers:
+            count = len(chunk_store.regions(prof["input_tris"], workers))
+            cost = float(task_cost(over, np.array([np.mean([p["bytes"] for p in passes]) if passes else 0.0]))[0])
+            tasks = sum(-(-count // workers) * (p["seconds"] / count + cost) for p in passes)
+            own += over.get("copy_s_per_byte", 0.0) * copied[phase]
+        else:
+            tasks = sum(p["seconds"] for p in passes)
+        out[phase] = own + tasks
+        out["own_s"] += own
+    return out
+
+
+def copy_rate() -> float:
+    """Seconds per byte to write an array into a chunk store's folder in shared memory (or the
+    temporary folder) and map it back, as prepare's store copies do: 48 MB, the best of 3."""
+    folder = workers_module.SHARED_MEMORY if os.path.isdir(workers_module.SHARED_MEMORY) else None
+    values = np.ones((2_000_000, 3), np.int64)
+    best = float("inf")
+    with tempfile.TemporaryDirectory(prefix="bake-scaling-copy-", dir=folder) as scratch:
+        store = chunk_store.ChunkStore(scratch)
+        for _ in range(3):
+            started = time.perf_counter()
+            store.put("values", values)
+            best = min(best, time.perf_counter() - started)
+            store.drop("values")
+    return best / values.nbytes
+
+
 def _round_trips(executor, payload, *, in_flight: int = 2, count: int = OVERHEAD_TASKS, **options) -> dict:
     """Wall and this process's CPU per task of `count` tasks doing nothing with `payload`."""
     running: set = set()
@@ -209,11 +287,12 @@ def overheads(client) -> dict:
     with pool:
         cf.wait([pool.submit(_noop) for _ in range(4)])  # started
         out["pool"] = {"empty": _round_trips(pool, None), "loaded": _round_trips(pool, payload),
-                       "payload_bytes": nbytes}
+                       "payload_bytes": nbytes, "copy_s_per_byte": copy_rate()}
     if client is not None:
         executor = dask_cluster.DaskExecutor(client)
         out["dask"] = {"empty": _round_trips(executor, None, priority=0),
-                       "loaded": _round_trips(executor, payload, priority=0), "payload_bytes": nbytes}
+                       "loaded": _round_trips(executor, payload, priority=0), "payload_bytes": nbytes,
+                       "copy_s_per_byte": out["pool"]["copy_s_per_byte"]}
     return out
 
 
@@ -268,7 +347,8 @@ def model_seconds(prof: dict, over: dict | None, workers: int) -> dict:
     """Part 3: the modelled bake_seconds on `workers` workers of an executor (over: its part 2
     figures; None at 1 worker: inline)."""
     phases = prof["phase_seconds"]
-    serial = sum(v for k, v in phases.items() if k in SERIAL_PHASES)
+    chunked = chunk_phases(prof, workers, over)
+    serial = sum(chunked.get(k, v) for k, v in phases.items() if k in SERIAL_PHASES)
     arrays = arrays_seconds(prof, workers, over)
     nbytes = np.array([r["sent"] + r["returned"] for r in prof["tasks"]], np.float64)
     seams = prof["seams"]
@@ -283,7 +363,9 @@ def model_seconds(prof: dict, over: dict | None, workers: int) -> dict:
             if parallel else phases["seams"]
     serial = serial - phases["seams"] + seams_s
     own = serial - (seams_s - seams["own_s"] if workers > 1 else 0.0)  # outside any task
+    own -= chunked["prepare"] + chunked["octree"] + chunked["leaves"] - chunked["own_s"] if workers > 1 else 0.0
     return {"serial_s": own + (arrays if workers > 1 else 0.0), "seams_s": seams_s, "simplify_s": simplify_s,
+            "prepare_s": chunked["prepare"], "octree_s": chunked["octree"], "leaves_s": chunked["leaves"],
             "seconds": serial + simplify_s}
 
 
@@ -381,11 +463,16 @@ def report(result: dict) -> None:
     print(f"seams: {sm['seconds']:.2f} s inline over {sm['vertices']:,} leaf vertices: a bucket task reads them "
           f"all ({sm['read_s']:.2f} s) and sorts its share of {sm['sort_s']:.2f} s; {sm['own_s']:.2f} s in the bake's "
           "process")
-    print("| workers | modelled s | outside tasks s | seams s | simplify s | speed-up |")
-    print("|---:|---:|---:|---:|---:|---:|")
+    for p in prof["chunk_passes"][:1]:
+        print(f"chunk passes: {len(prof['chunk_passes'])}, {sum(q['seconds'] for q in prof['chunk_passes']):.2f} s "
+              f"of tasks inline ({sum(q['tasks'] for q in prof['chunk_passes'])} tasks); copy into the store "
+              f"{1e9 * result['overhead']['pool']['copy_s_per_byte']:.2f} s/GB")
+    print("| workers | modelled s | outside tasks s | prepare s | octree s | leaves s | seams s | simplify s | "
+          "speed-up |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n, m in result["model"].items():
-        print(f"| {n} | {m['seconds']:.1f} | {m['serial_s']:.2f} | {m['seams_s']:.2f} | {m['simplify_s']:.1f} | "
-              f"{one / m['seconds']:.1f}x |")
+        print(f"| {n} | {m['seconds']:.1f} | {m['serial_s']:.2f} | {m['prepare_s']:.2f} | {m['octree_s']:.2f} | "
+              f"{m['leaves_s']:.2f} | {m['seams_s']:.2f} | {m['simplify_s']:.1f} | {one / m['seconds']:.1f}x |")
     print(f"knee: {knee(result['model'])} workers (the first count whose doubling saves less than a quarter)")
     print("| run | measured s | modelled s | error | load | CPU s | peak RSS | bytes / triangle | same file |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---|")

@@ -7,8 +7,11 @@ and (--baseline DIR) another version's, interleaved; and whether both find the s
 The scene: benchmarks/bake_memory.py's city of statues (the crowd's statues from the repository's
 models, copies side by side) of at least --tris triangles. Each run is a fresh process of the
 checkout's hlod_core (PYTHONPATH=DIR for the baseline: `git worktree add /tmp/old COMMIT`) that
-reads the spec and times, in the bake's order: read (meshes.load_inputs), prepare, octree, leaves
-(prepare.leaf_lods), the cell seams in this process (cell_seams.build; on this many leaf vertices
+reads the spec and times, in the bake's order: read (meshes.load_inputs), prepare, octree (in this
+process), then, where the checkout has them, the three as tasks over chunks on a pool of 2 worker
+processes started and warmed first (bake/space/chunk_store.py: "prepare into the store", "octree on
+2 workers", "leaves on 2 workers"; the same layout and leaves as inline, checked), leaves
+(prepare.leaf_lods, in this process), the cell seams in this process (cell_seams.build; on this many leaf vertices
 one bucket per BUCKET_VERTICES), the cell seams as tasks on a pool of 2 worker processes started and
 warmed first (where the checkout has them), and the exact measure's leaf arrays (leaf_arrays.build)
 in this process and with their clusters cut on the 2 workers (where the checkout does that).
@@ -71,8 +74,15 @@ def child(spec: str) -> dict:
     layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
                           counted=prepared.counted, root=prepared.root_cell)
     lap("octree")
+    tasks = None
+    if _has_module("hlod_core.bake.space.chunk_store"):
+        tasks = layout_tasks(mesh, settings, seconds, cpu)
+        started, cpu_started = time.perf_counter(), time.process_time()
     lods = prepare.leaf_lods(layout, prepared)
     lap("leaves")
+    if tasks is not None:
+        check_tasks(layout, *tasks[:1], lods, tasks[1])
+        del tasks
     seams = cell_seams.build(layout, lods)
     lap("seams inline")
     digest = hashlib.blake2b(digest_size=16)
@@ -111,6 +121,54 @@ def child(spec: str) -> dict:
     return {"tris": mesh.tri_count, "leaves": int(layout.is_leaf.sum()),
             "leaf_vertices": int(sum(lods[k][0].shape[0] for k in np.flatnonzero(layout.is_leaf))),
             "seconds": seconds, "cpu_seconds": cpu, "seams_digest": digest.hexdigest()}
+
+
+def _has_module(name: str) -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec(name) is not None
+
+
+def layout_tasks(mesh, settings, seconds: dict, cpu: dict) -> tuple:
+    """Prepare (its centroids written into the store's mapped file) and the octree's passes as
+    tasks over index chunks on a pool of 2 worker processes (started and warmed first), then the
+    leaves as tasks over runs of leaves: "prepare into the store", "octree on 2 workers" and
+    "leaves on 2 workers", wall and this process's CPU. Returns (layout, leaf lods) to check."""
+    from hlod_core.bake import prepare
+    from hlod_core.bake.run.workers import open_workers
+    from hlod_core.bake.space import chunk_store
+    from hlod_core.bake.space.octree import build_octree
+
+    with open_workers(2) as workers:
+        for fut in [workers.executor.submit(time.sleep, 0.5) for _ in range(2)]:
+            fut.result()
+        with chunk_store.open_store(workers) as store:
+            started, cpu_started = time.perf_counter(), time.process_time()
+            prepared = prepare.prepare(mesh, None, store=store)
+            now, cpu_now = time.perf_counter(), time.process_time()
+            seconds["prepare into the store"], cpu["prepare into the store"] = now - started, cpu_now - cpu_started
+            on_workers = build_octree(prepared.centroids, target_tris=settings.target_tris,
+                                      max_depth=settings.max_depth, counted=prepared.counted,
+                                      root=prepared.root_cell, store=store)
+            seconds["octree on 2 workers"] = time.perf_counter() - now
+            cpu["octree on 2 workers"] = time.process_time() - cpu_now
+            now, cpu_now = time.perf_counter(), time.process_time()
+            leaves = prepare.leaf_lods(on_workers, prepared, store)
+            del prepared
+        seconds["leaves on 2 workers"] = time.perf_counter() - now
+        cpu["leaves on 2 workers"] = time.process_time() - cpu_now
+    return on_workers, leaves
+
+def check_tasks(layout, on_workers, lods, leaves) -> None:
+    """SystemExit unless the octree and the leaves made by tasks (layout_tasks) are those made inline."""
+    import numpy as np
+
+    for name in ("parent", "child_offset", "tri_begin", "tri_end", "cell_center", "tri_order"):
+        if not np.array_equal(getattr(layout, name), getattr(on_workers, name)):
+            raise SystemExit(f"serial_phases: the octree on the workers differs from the one inline ({name})")
+    for leaf in np.flatnonzero(layout.is_leaf):
+        if any(not np.array_equal(a, b) for a, b in zip(lods[leaf][:2], leaves[leaf][:2])):
+            raise SystemExit(f"serial_phases: leaf {leaf} made on the workers differs from the one made inline")
 
 
 def run(checkout: Path, spec: Path) -> dict:

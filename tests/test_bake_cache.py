@@ -434,6 +434,7 @@ def test_command_line_keeps_the_cache_beside_the_output(tmp_path):
 #: hlod_core modules the bake's code imports that compute nothing a LOD or an error depends on.
 _NOT_RESULT_MODULES = {"core.errors", "core.signals", "core.jsonutil", "io.meshes", "io.hlod_file",
                        "bake.run.workers", "bake.run.dask_cluster",  # workers, dask_cluster: where tasks run
+                       "bake.space.chunk_store",  # where the early phases' tasks run and how their rows are cut
                        "core.atomic"}  # how files are written
 
 

@@ -100,6 +100,32 @@ def test_the_cell_seams_as_tasks_on_the_cluster_are_the_serial_seams_and_file(cl
 
 
 @pytest.mark.slow  # robustness beside the cluster bake's path (above), a bake and a worker restart
+def test_prepare_octree_and_leaves_as_chunk_tasks_on_the_cluster_write_the_serial_file(cluster, monkeypatch,
+                                                                                          tmp_path):
+    """The cow at 500 triangles a node, its prepare, octree and leaves as tasks over regions of 700
+    triangles (bake/space/chunk_store.py) on the cluster's workers, through mapped files in the
+    bake's scratch subfolder: the file of a bake in this process, and the scratch folder empty after."""
+    from hlod_core.bake.space import chunk_store
+
+    cow, settings = load_model("cow"), BakeSettings(target_tris=500)
+    serial = file_bytes(bake(cow, settings), tmp_path / "serial.hlod")
+    monkeypatch.setattr(chunk_store, "TASK_ROWS", 700)
+    monkeypatch.setattr(chunk_store, "WORKERS_FROM_ROWS", 0)
+    where, run = [], chunk_store.ChunkStore.run
+
+    def spied(store, fn, calls):
+        where.append((store.folder, fn.__name__))
+        return run(store, fn, calls)
+
+    monkeypatch.setattr(chunk_store.ChunkStore, "run", spied)
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    assert file_bytes(bake(cow, settings, scheduler=cluster, scratch_dir=scratch), tmp_path / "dask.hlod") == serial
+    assert {name for _, name in where} >= {"centroid_task", "octant_task", "advance_task", "leaf_task"}
+    assert all(folder.startswith(str(scratch)) for folder, _ in where)
+    assert list(scratch.iterdir()) == []
+
+
 def test_a_worker_killed_mid_bake_has_its_tasks_retried(cluster, herd, tmp_path):
     """SIGKILL of a worker process that is running a task, a third of the way through the inner
     nodes: the scheduler gives its tasks to the other worker (and to the one its nanny restarts),

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hlod_core.bake import prepare
-from hlod_core.bake.space import lattice
+from hlod_core.bake.space import chunk_store, lattice
 from hlod_core.bake.space.frame import Frame, Prior
 from hlod_core.bake.space.root_cube import RootCube, tight_cube
 from hlod_core.io.meshes import TriangleMesh
@@ -73,6 +73,7 @@ def test_prepare_makes_the_floats_of_its_definition(seed, monkeypatch):
     if seed % 2:  # F-ordered faces, as meshes.merge concatenates pymeshlab's; chunks of a few rows
         mesh = TriangleMesh(positions=mesh.positions, faces=np.asfortranarray(mesh.faces), name=mesh.name)
         monkeypatch.setattr(prepare, "CENTROID_CHUNK", 29 + seed)
+        monkeypatch.setattr(chunk_store, "TASK_ROWS", 50 + seed)  # tasks of a few chunks, the last one shorter
     want, got = _definition(mesh), _made(mesh)
     assert not want["counted"].all()
     for name, array in want.items():
@@ -81,7 +82,7 @@ def test_prepare_makes_the_floats_of_its_definition(seed, monkeypatch):
 
 
 @pytest.mark.parametrize("seed", range(8))
-def test_a_zero_root_corner_keeps_the_sign_the_whole_array_reduction_gives_it(seed):
+def test_a_zero_root_corner_keeps_the_sign_the_whole_array_reduction_gives_it(seed, monkeypatch):
     """A re-bake in a frame whose origin is 0.0: triangles at x = -0.0, 0.0, 1 or 2 (their
     centroids too), so the centroids' lowest x is a zero of either sign; the root cube is the
     input's own (the prior's lies far away). Its corner, which meta["frame"] records, is the
@@ -93,6 +94,7 @@ def test_a_zero_root_corner_keeps_the_sign_the_whole_array_reduction_gives_it(se
     positions = np.concatenate([np.repeat(x, 3)[:, None], rng.random((3 * t, 2)) * 2.0], axis=1)
     mesh = TriangleMesh(positions=positions, faces=np.arange(3 * t).reshape(t, 3), name="signs")
     prior = Prior(Frame(origin=np.zeros(3), unit_length=3.0, root=RootCube(np.full(3, 100.0), 0.001)), "file")
+    monkeypatch.setattr(chunk_store, "TASK_ROWS", 1 + seed)  # each task's box of a few centroids
     got = prepare.prepare(mesh, prior)
     assert got.frame_choice.reason.startswith("the file frame's lattice, a new root cube")
     want = np.ascontiguousarray(got.centroids).min(axis=0)

@@ -195,7 +195,7 @@ def _baked_nodes(source: BakeSource, settings: BakeSettings, run: _Callbacks, *,
     several = source.count(clock) > settings.target_tris
     with open_workers(settings.jobs if several else 1, scheduler=scheduler if several else None,
                       scratch_dir=scratch_dir) as workers:
-        tree = source.octree(settings, clock)
+        tree = source.octree(settings, clock, workers)
         layout, n = tree.layout, tree.layout.node_count
         run.progress(0, n, "octree")
         log.info("octree: %d nodes, %d leaves%s", n, int(layout.is_leaf.sum()), source.log_note)

@@ -22,6 +22,7 @@ from ..model.appearance import AttributeLayout
 from . import prepare
 from .meta import InputSize, PhaseClock, counted_per_node
 from .settings import BakeSettings
+from .space.chunk_store import open_store
 from .space.frame import FROM_SCRATCH, Frame, FrameChoice, Prior
 from .space.octree import OctreeLayout, build_octree
 from .space.partition import Partition
@@ -73,8 +74,9 @@ class BakeSource(Protocol):
     def count(self, clock: PhaseClock) -> int:
         """The input's triangles."""
 
-    def octree(self, settings: BakeSettings, clock: PhaseClock) -> SourceOctree:
-        """The octree of the input at `settings`."""
+    def octree(self, settings: BakeSettings, clock: PhaseClock, workers=None) -> SourceOctree:
+        """The octree of the input at `settings`; workers (bake/run/workers.Workers or None): where
+        its passes over the triangles may run as tasks."""
 
     def leaf_lods(self, layout: OctreeLayout, clock: PhaseClock) -> list[tuple | None]:
         """Per node, None for inner nodes, for each leaf (positions (k,3) f32, faces (m,3) int32,
@@ -83,7 +85,8 @@ class BakeSource(Protocol):
 
 class InMemorySource:
     """A TriangleMesh (prepare.py), in the frame of `prior` while it fits (bake/space/frame.py): phases
-    "prepare" and "octree"; the leaves from its arrays."""
+    "prepare" and "octree", then the leaves from its arrays (the "leaves" phase: made by `octree`,
+    while the chunk store its tasks read is open; handed over by `leaf_lods`)."""
 
     log_note = ""
     leaf_folder = None
@@ -95,6 +98,7 @@ class InMemorySource:
         self.with_normals = mesh.normals is not None
         self.materials = tuple(mesh.materials) if mesh.has_appearance else ()
         self._prepared: prepare.Prepared | None = None
+        self._leaves: list | None = None
 
     @property
     def row_layout(self) -> AttributeLayout:
@@ -103,19 +107,22 @@ class InMemorySource:
     def count(self, clock: PhaseClock) -> int:
         return self.mesh.tri_count
 
-    def octree(self, settings: BakeSettings, clock: PhaseClock) -> SourceOctree:
-        prepared = prepare.prepare(self.mesh, self.prior)
-        clock.lap("prepare")
-        layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
-                              counted=prepared.counted, root=prepared.root_cell)
-        self._prepared = replace(prepared, centroids=None)  # only the octree reads them: 24 bytes a triangle
-        clock.lap("octree")
+    def octree(self, settings: BakeSettings, clock: PhaseClock, workers=None) -> SourceOctree:
+        with open_store(workers, rows=self.mesh.tri_count) as store:  # the arrays the tasks share
+            prepared = prepare.prepare(self.mesh, self.prior, store=store)
+            clock.lap("prepare")
+            layout = build_octree(prepared.centroids, target_tris=settings.target_tris, max_depth=settings.max_depth,
+                                  counted=prepared.counted, root=prepared.root_cell, store=store)
+            self._prepared = prepared = replace(prepared, centroids=None)  # only the octree reads them
+            clock.lap("octree")
+            self._leaves = prepare.leaf_lods(layout, prepared, store)  # the "leaves" phase, while the store is open
         return SourceOctree(layout=layout, frame=prepared.frame, frame_choice=prepared.frame_choice,
                             counted_per_node=counted_per_node(layout, prepared.counted),
                             collapsed_tris=int((~prepared.counted).sum()))
 
     def leaf_lods(self, layout: OctreeLayout, clock: PhaseClock) -> list[tuple | None]:
-        return prepare.leaf_lods(layout, self._prepared)
+        leaves, self._leaves = self._leaves, None
+        return leaves
 
 
 class StreamedSource:
@@ -142,7 +149,7 @@ class StreamedSource:
         self.with_normals = scan.with_normals
         return scan.tri_count
 
-    def octree(self, settings: BakeSettings, clock: PhaseClock) -> SourceOctree:
+    def octree(self, settings: BakeSettings, clock: PhaseClock, workers=None) -> SourceOctree:
         tree = self.partition.build_octree(target_tris=settings.target_tris, max_depth=settings.max_depth)
         clock.lap("octree")
         scan = self.partition.scan_result

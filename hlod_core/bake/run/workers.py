@@ -23,6 +23,10 @@ import numpy as np
 from ...core.signals import stop_signals_held
 from . import tasks
 
+#: A memory-backed file system that processes of this machine share (Linux's tmpfs): writing through a
+#: map costs about a third of writing a file of the disk-backed temporary folder (0.2 to 0.3 s
+#: against 0.7 s for 240 MB on the Xeon).
+SHARED_MEMORY = "/dev/shm"
 #: How long a stopped pool waits for each killed worker to be gone (seconds; a kill takes milliseconds).
 STOP_JOIN_SECONDS = 5.0
 
@@ -56,12 +60,15 @@ class Workers:
     """Where the simplify phase's tasks run: executor (submit(fn, *args, **kwargs) -> Future), at
     most `limit` in flight, and `scratch`, a folder every worker reads the shared arrays from (""
     inline: this process's own arrays). prioritised: the executor takes submit(..., priority=int)
-    (a Dask cluster, whose scheduler orders the tasks it queues)."""
+    (a Dask cluster, whose scheduler orders the tasks it queues). memory: a folder in shared memory
+    (SHARED_MEMORY) that every worker maps too ("" where there is none: a cluster's workers on
+    other machines), where the early phases' chunk stores go (bake/space/chunk_store.py)."""
 
     executor: object
     limit: int
     scratch: str
     prioritised: bool = False
+    memory: str = ""
 
     def submit(self, order: tuple[int, int], fn, *args, **kwargs) -> cf.Future:
         """fn(*args, **kwargs) as a task; order: the scheduling loop's heap key (kind, size),
@@ -109,7 +116,7 @@ def open_workers(jobs: int, *, scheduler=None, scratch_dir: str | os.PathLike | 
             for _ in range(jobs):
                 executor.submit(warm_up)
             try:
-                yield Workers(executor, jobs, scratch)
+                yield Workers(executor, jobs, scratch, memory=SHARED_MEMORY if os.path.isdir(SHARED_MEMORY) else "")
             except BaseException:
                 stop_pool(executor)
                 raise

@@ -1,5 +1,5 @@
 """The bake's space (docs/how-it-works.md#the-bake): the frame every position is made in and the octree that cuts
 it.
 
-Modules: frame, lattice, octree, octree_passes, partition, root_cube.
+Modules: chunk_store, frame, lattice, octree, octree_passes, partition, root_cube.
 """

@@ -24,7 +24,9 @@ octant after _MAX_SHRINKS shrinks) cannot be split and becomes a leaf over the b
 
 Vectorised by depth (octree_passes.py): each depth costs two passes, in chunks, over the triangles
 still in splitting cells (their octant codes and counts per (cell, octant); then their next cell,
-those in leaves leaving), and a counting sort by leaf at the end.
+those in leaves leaving), and a counting sort by leaf at the end; each pass is one task per region
+of the triangles (chunk_store.py: on the bake's workers, or inline), the same layout for any regions.
+Why: docs/how-it-works.md#the-early-phases-as-chunk-tasks
 
 From counts (`build_octree_counted`, the out-of-core bakes of partition.py): the same layout,
 float for float, without an (f,3) array of centroids: one counting pass over a stream of triangles
@@ -38,9 +40,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .chunk_store import ChunkStore
 from .octree_passes import MAX_SHRINKS as _MAX_SHRINKS
 from .octree_passes import OCTANT_SIGNS as _OCTANT_SIGNS
-from .octree_passes import ActiveTriangles, sort_by_leaf, split_cells
+from .octree_passes import ActiveTriangles, split_cells
 from .root_cube import GrowthChain, RootCube, tight_cube
 
 
@@ -76,11 +79,14 @@ class OctreeLayout:
 
 
 def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
-                 counted: np.ndarray | None = None, root: RootCube | None = None) -> OctreeLayout:
+                 counted: np.ndarray | None = None, root: RootCube | None = None,
+                 store: ChunkStore | None = None) -> OctreeLayout:
     """Partition triangles by centroid. centroids: (f,3) float64, finite, f >= 1.
     counted: (f,) bool, the triangles that count toward `target_tris` (default all); the bake
     leaves out collapsed triangles, which welding drops and no LOD could ever reduce.
-    root: the root cell, in the centroids' frame (default: `tight_cube` of the centroids' box)."""
+    root: the root cell, in the centroids' frame (default: `tight_cube` of the centroids' box).
+    store: where the passes' arrays live and their tasks run (chunk_store.py: the bake's workers;
+    None: in this process); the same layout wherever they run."""
     if target_tris < 1 or max_depth < 0:
         raise ValueError("target_tris must be >= 1 and max_depth >= 0")
     centroids = np.asarray(centroids, np.float64)
@@ -90,8 +96,7 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
     counted_ids = np.ones(f, bool) if counted is None else np.asarray(counted, bool)
 
     rows, chain = _LevelRows.of(root), GrowthChain.of(root)
-    node_of = np.zeros(f, np.int64)  # each triangle's leaf, set as it leaves the splitting cells
-    active = ActiveTriangles(centroids, None if counted is None or counted_ids.all() else ~counted_ids)
+    active = ActiveTriangles(centroids, None if counted is None or counted_ids.all() else ~counted_ids, store)
     first, n = 0, 1  # id of the first node of the current depth, nodes so far
     # the current depth's nodes that split (indices from `first`)
     splitting = np.flatnonzero(np.array([int(counted_ids.sum())]) > target_tris) if max_depth > 0 else np.zeros(0, int)
@@ -123,11 +128,11 @@ def build_octree(centroids: np.ndarray, *, target_tris: int, max_depth: int,
         rank8 = np.full(m, -1, np.int64)
         rank8[after] = 8 * np.arange(after.size)
         cell8_at[has] = rank8[child[has]]
-        active.advance(cell8_at, node_at, node_of)
+        active.advance(cell8_at, node_at)
         first, n, splitting = n, n + m, after
 
     _, child_offset_a, child_count_a, depth_a = rows.tree()
-    tri_order, tri_begin, tri_end = _depth_first_ranges(child_offset_a, child_count_a, depth=depth_a, node_of=node_of)
+    tri_order, tri_begin, tri_end = _depth_first_ranges(child_offset_a, child_count_a, depth=depth_a, active=active)
     return rows.layout(tri_order, tri_begin, tri_end)
 
 
@@ -184,11 +189,11 @@ class _LevelRows:
                             cell_level=np.concatenate(self.level))
 
 
-def _depth_first_ranges(child_offset, child_count, *, depth, node_of):
+def _depth_first_ranges(child_offset, child_count, *, depth, active: ActiveTriangles):
     """tri_order (f,) int64 and tri_begin/tri_end (n,) int64: triangles sorted (stably) by their
     leaf's rank in depth-first order, so every subtree is one range."""
     leaf_rank, rank = _leaf_ranks(child_offset, child_count)
-    tri_order, per_rank = sort_by_leaf(leaf_rank, rank, node_of)
+    tri_order, per_rank = active.sort_by_leaf(leaf_rank, rank)
     begin, end = _ranges(child_offset, child_count, depth=depth, leaf_rank=leaf_rank, per_rank=per_rank)
     return tri_order, begin, end
 
