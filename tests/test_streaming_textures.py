@@ -250,8 +250,8 @@ def test_a_streamed_preview_warms_each_mipmap_class_and_frees_what_it_made(gl_ct
         made.append((image.shape[:2], texture.glo))
         return texture
 
-    real = materials._texture
-    monkeypatch.setattr(materials, "_texture", recorded)
+    real = materials.gl_texture
+    monkeypatch.setattr(materials, "gl_texture", recorded)
     is_texture = gl_function(gl_ctx, "glIsTexture", ctypes.c_uint8, ctypes.c_uint32)
     budget = int(node_bytes(hlod, with_uv=True, with_colour=False).sum())
     renderer = Renderer(gl_ctx, hlod, size=SIZE, images=images, streaming=StreamingSettings(budget_bytes=budget))

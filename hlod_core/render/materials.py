@@ -119,7 +119,7 @@ class MaterialParts:
         """Make texture `number` of the table (the host's binding on the default unit kept) and
         return it; the caller owns it and hands it to `forget_texture` before releasing it."""
         with _default_unit_kept(self.ctx, self.gl):
-            texture = _texture(self.ctx, self.table.images[number])
+            texture = gl_texture(self.ctx, self.table.images[number])
         self.textures[number] = texture
         return texture
 
@@ -132,7 +132,7 @@ class MaterialParts:
             return
         with _default_unit_kept(self.ctx, self.gl):
             for height, width in WARM_SHAPES:
-                _texture(self.ctx, np.zeros((height, width, 4), np.uint8)).release()
+                gl_texture(self.ctx, np.zeros((height, width, 4), np.uint8)).release()
 
     def forget_texture(self, number: int) -> None:
         """Texture `number` is being released: draw its materials in their base colours until made again."""
@@ -152,7 +152,7 @@ class MaterialParts:
             render(triangles, vertices=self.index_count[j], first=self.index_first[j] - index_base)
 
 
-def _texture(ctx, image: np.ndarray):
+def gl_texture(ctx, image: np.ndarray):
     """(h, w, 4) uint8 sRGB RGBA, top row first -> an sRGB8_ALPHA8 texture, bottom row first."""
     height, width = image.shape[:2]
     texture = ctx.texture((width, height), 4, np.ascontiguousarray(image[::-1]), internal_format=GL.SRGB8_ALPHA8)
