@@ -16,7 +16,7 @@ from ..bake.space import partition
 from ..bake.space.frame import Frame
 from ..core.errors import InputError
 from ..export.formats import check_output_file
-from ..io import hlod_file, meshes, procedural
+from ..io import meshes, procedural
 from ..io.texture_folder import EmbeddedTextures
 from ..io.textures import load_material_images
 from .options import bake_options, bake_settings_of, cluster_options, out_of_core_options, whole_number
@@ -130,15 +130,15 @@ def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_
     started = time.perf_counter()
     if streamed:
         hlod = bake_stream(mesh, settings, progress=_Progress(), sources=sources, scheduler=scheduler,
-                           scratch_dir=args.scratch, chunk_tris=args.chunk_tris or partition.CHUNK_TRIS)
+                           scratch_dir=args.scratch, chunk_tris=args.chunk_tris or partition.CHUNK_TRIS,
+                           output=args.output)
     else:
         budget = cache.DEFAULT_BUDGET_MB if args.cache_budget is None else args.cache_budget
         if images is None:
             images = load_material_images(mesh.materials) if settings.proxy_materials else {}
         hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
                     scratch_dir=getattr(args, "scratch", None), frame_from=frame_from, cache_budget_mb=budget,
-                    images=images, textures=textures)
-    hlod_file.save(hlod, args.output)
+                    images=images, textures=textures, output=args.output)
     seconds = time.perf_counter() - started
     for line in hlod.meta["log"]:
         log.info(line)
