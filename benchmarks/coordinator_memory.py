@@ -13,7 +13,8 @@ each part: the resident bytes at its end and the largest sampled while it ran, a
 high-water mark VmHWM at the end, all per input triangle. With --trace, tracemalloc runs too (it
 slows the bake; its seconds do not count) and each part's end lists the allocation sites that hold
 the most (file:line, bytes per input triangle). --baseline DIR: the same runs with another checkout
-(PYTHONPATH=DIR), alternated. The bake's own phase seconds (meta["phase_seconds"]) and the run's
+(PYTHONPATH=DIR), alternated, and whether its file is this checkout's, byte for byte but the
+volatile meta (bake_memory.same_file; "same_file"). The bake's own phase seconds (meta["phase_seconds"]) and the run's
 load average come with each run.
 
 Data form: out/bench/coordinator_memory.json, {"runs": [{"checkout", "triangles", "load",
@@ -113,6 +114,14 @@ def child(spec: str, out: str, jobs: int, trace: bool) -> dict:
             return result
         setattr(hlod_file, name, marked)
 
+    from hlod_core.bake import assemble
+    if hasattr(assemble, "Assembled"):  # the streamed write
+        streamed = assemble.Assembled.write
+
+        def marked_write(*args, **options):
+            streamed(*args, **options)
+            recorder.mark("write")
+        assemble.Assembled.write = marked_write
     meta.PhaseClock.lap = marked_lap
     cli_bake.meshes.load_inputs = marked_load
     for name in ("save", "write_streamed"):
@@ -152,7 +161,8 @@ def report(result: dict) -> None:
     tris = result["triangles"]
     print(f"{result['checkout']}: {tris:,} triangles, peak {result['peak_bytes'] / tris:.0f} bytes a triangle "
           f"(VmHWM {result['peak_bytes'] / 2**20:.0f} MiB), {result['seconds']:.1f} s, load "
-          f"{result['load'][0]:.1f} to {result['load'][1]:.1f}; bytes an input triangle:")
+          f"{result['load'][0]:.1f} to {result['load'][1]:.1f}"
+          + (f", the same file: {result['same_file']}" if "same_file" in result else "") + "; bytes an input triangle:")
     print("| part | seconds | resident at its end (anonymous, files) | largest while it ran | high-water mark "
           "| traced at its end, largest while it ran |")
     print("|---|---:|---:|---:|---:|---:|")
@@ -191,7 +201,10 @@ def main() -> None:
         checkouts = [ROOT] + ([args.baseline.resolve()] if args.baseline else [])
         for k in range(args.repeat):
             for checkout in checkouts if k % 2 == 0 else checkouts[::-1]:
-                result = run(checkout, spec, Path(scratch) / "out.hlod", jobs=args.jobs, trace=args.trace)
+                out = Path(scratch) / f"out-{checkouts.index(checkout)}.hlod"
+                result = run(checkout, spec, out, jobs=args.jobs, trace=args.trace)
+                if len(checkouts) > 1 and (Path(scratch) / "out-0.hlod").exists() and out.name != "out-0.hlod":
+                    result["same_file"] = bake_memory.same_file(Path(scratch) / "out-0.hlod", out)
                 report(result)
                 runs.append(result)
     (args.out / "coordinator_memory.json").write_text(json.dumps({"runs": runs}, indent=1))

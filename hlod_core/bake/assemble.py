@@ -4,7 +4,9 @@ triangles sorted by material: one draw per (node, material)), and the bounds, ve
 level: tight nested boxes, nested spheres, monotone errors, cube sides.
 
 Data form in: lods, per node (positions (k,3) f32 origin-relative, faces (m,3) int32 local,
-normals (k,3) f32 or None, attribute rows (k,A) f32 or None); errors (n,) float64 model units.
+normals (k,3) f32 or None, attribute rows (k,A) f32 or None; any of them may be spilled to the
+bake's scratch file, run/lod_spill.py, and is read back a block of nodes at a time); errors (n,)
+float64 model units.
 Bounds are float64 world coordinates (positions + origin), computed a block of nodes at a time.
 """
 from __future__ import annotations
@@ -17,6 +19,7 @@ from ..core.errors import InputError
 from ..io import hlod_file
 from ..model import appearance
 from ..model.hierarchy import NODE_ARRAYS, Hlod, cube_sides, query_box_pad
+from .run.lod_spill import loaded
 from .space.octree import OctreeLayout
 
 #: Vertices `assemble` handles at a time (whole nodes; a node of more vertices is one block): the
@@ -41,7 +44,8 @@ def _vertex_blocks(vertex_offset: np.ndarray, vertex_count: np.ndarray) -> list[
 def _block_world(lods, origin, *, vertex_offset, first: int, last: int):
     """The vertices of nodes first..last-1 as float64 world coordinates (their float32 positions +
     origin), and each node's start in them (for reduceat)."""
-    world = np.concatenate([lod[0] for lod in lods[first:last]]).astype(np.float32, copy=False).astype(np.float64)
+    world = np.concatenate([loaded(lod[0]) for lod in lods[first:last]]).astype(np.float32, copy=False)
+    world = world.astype(np.float64)
     world += origin
     return world, vertex_offset[first:last] - vertex_offset[first]
 
@@ -76,7 +80,7 @@ class Assembled:
         colors, and tri_material uint16 with each node's triangles sorted by material (stable)."""
         offsets = self.table["vertex_offset"]
         for first, last in _vertex_blocks(offsets, self.table["vertex_count"]):
-            lods = self.lods[first:last]
+            lods = [tuple(loaded(a) for a in lod) for lod in self.lods[first:last]]  # spilled ones read back
             rows = {"positions": np.concatenate([lod[0] for lod in lods]).astype(np.float32, copy=False)}
             if self.normals:
                 rows["normals"] = np.concatenate([lod[2] for lod in lods]).astype(np.float32, copy=False)

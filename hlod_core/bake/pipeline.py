@@ -46,6 +46,7 @@ from .decimate import cell_seams
 from .decimate.simplify import NodeLod
 from .meta import VOLATILE_META, PhaseClock, bake_meta, check_extra_meta, derived_meta, stable_meta
 from .run.cache import DEFAULT_BUDGET_MB, BakeCache
+from .run.lod_spill import LodSpill
 from .run.schedule import CancelFn, ProgressFn, SimplifyInput, simplify_phase
 from .run.workers import open_workers
 from .settings import ERROR_MEASURES, BakeSettings
@@ -239,7 +240,8 @@ def _baked_nodes(source: BakeSource, settings: BakeSettings, run: _Callbacks, *,
             clock.lap("cache")
         what = SimplifyInput(with_normals=source.with_normals,
                              row_layout=None if source.row_layout.empty else source.row_layout,
-                             leaf_folder=source.leaf_folder, unit_length=tree.unit_length, seams=seams, proxies=plan)
+                             leaf_folder=source.leaf_folder, unit_length=tree.unit_length, seams=seams, proxies=plan,
+                             spill=LodSpill(scratch_dir) if cache is None and plan is None else None)
         simplify_phase(layout, nodes.lods, hausdorff_error=nodes.hausdorff_error, made=nodes.made, settings=settings,
                        source=what, workers=workers, cancel=run.cancel, progress=run.progress)
         clock.lap("simplify")
