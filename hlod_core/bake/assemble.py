@@ -25,7 +25,7 @@ from .space.octree import OctreeLayout
 #: Vertices `assemble` handles at a time (whole nodes; a node of more vertices is one block): the
 #: block it turns into float64 world coordinates for the bounds, and the geometry rows it makes and
 #: writes at a time; its working memory, about 24 bytes a vertex and a few copies.
-BLOCK_VERTICES = 1 << 20
+BLOCK_VERTICES = 1 << 18
 
 
 def _vertex_blocks(vertex_offset: np.ndarray, vertex_count: np.ndarray) -> list[tuple[int, int]]:

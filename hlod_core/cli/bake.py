@@ -14,6 +14,7 @@ from ..bake.run import cache
 from ..bake.space import frame as frames
 from ..bake.space import partition
 from ..bake.space.frame import Frame
+from ..core import heap
 from ..core.errors import InputError
 from ..export.formats import check_output_file
 from ..io import meshes, procedural
@@ -52,6 +53,7 @@ def add_scene(sub) -> None:
 def bake_command(args: argparse.Namespace) -> dict:
     """`bake`: the summary line (hlod.summary() with the output, jobs, timings, cache and texture folder)."""
     check_output_file(args.output)
+    heap.return_freed_buffers()
     if args.out_of_core:
         return _bake_out_of_core(args)
     if args.chunk_tris is not None:
@@ -93,6 +95,7 @@ def _bake_out_of_core(args: argparse.Namespace) -> dict:
 def scene_command(args: argparse.Namespace) -> dict:
     """`scene`: the summary line of the bake of a procedural scene (procedural.SCENES)."""
     check_output_file(args.output)
+    heap.return_freed_buffers()
     cache_dir, frame_from = _cache_dir(args), _frame_from(args)
     if not 0 < args.scale <= 64:
         raise InputError(f"--scale {args.scale}: expected a factor in (0, 64]")
