@@ -127,7 +127,7 @@ class StreamedWriter:
         if self.written[name] + data.nbytes > entry["nbytes"]:
             raise RuntimeError(f"hlod: more rows of '{name}' than its {entry['shape']} in the header")
         self._file.seek(entry["offset"] + self.written[name])
-        self._file.write(memoryview(data).cast("B"))
+        self._file.write(data.reshape(-1).view(np.uint8))
         self.written[name] += data.nbytes
 
     def __exit__(self, kind, value, traceback) -> bool:

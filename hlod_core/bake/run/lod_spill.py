@@ -47,13 +47,13 @@ class LodSpill:
     def put(self, lod: tuple) -> tuple:
         """`lod` (positions, faces, normals, rows; arrays or None) written to the file: the same
         tuple of Spilled entries. An entry already spilled stays where it is."""
-        return tuple(None if a is None or isinstance(a, Spilled) else self._write(np.ascontiguousarray(a))
+        return tuple(a if a is None or isinstance(a, Spilled) else self._write(np.ascontiguousarray(a))
                      for a in lod)
 
     def _write(self, array: np.ndarray) -> Spilled:
         with self._lock:
             self._file.seek(self._end)
-            self._file.write(memoryview(array).cast("B"))
+            self._file.write(array.reshape(-1).view(np.uint8))
             entry = Spilled(self, self._end, array.dtype, array.shape)
             self._end += array.nbytes
             self.nbytes += array.nbytes
@@ -61,12 +61,12 @@ class LodSpill:
 
     def read(self, entry: Spilled) -> np.ndarray:
         out = np.empty(entry.shape, entry.dtype)
-        view = memoryview(out).cast("B")
+        view = out.reshape(-1).view(np.uint8)
         with self._lock:
             self._file.seek(entry.offset)
-            got = self._file.readinto(view)
-        if got != view.nbytes:
-            raise OSError(f"the bake's LOD spill file ended early ({got} of {view.nbytes} bytes)")
+            got = self._file.readinto(view) if view.size else 0
+        if got != view.size:
+            raise OSError(f"the bake's LOD spill file ended early ({got} of {view.size} bytes)")
         return out
 
     def close(self) -> None:
