@@ -434,7 +434,8 @@ def test_command_line_keeps_the_cache_beside_the_output(tmp_path):
 #: hlod_core modules the bake's code imports that compute nothing a LOD or an error depends on.
 _NOT_RESULT_MODULES = {"core.errors", "core.signals", "core.jsonutil", "io.meshes", "io.hlod_file",
                        "bake.run.workers", "bake.run.dask_cluster",  # workers, dask_cluster: where tasks run
-                       "core.atomic"}  # how files are written
+                       "core.atomic",  # how files are written
+                       "bake.run.lod_spill"}  # where LODs wait, bytes unchanged; never in a bake with a cache
 
 
 def _core_imports(name: str, tree) -> set[str]:

@@ -1,13 +1,17 @@
 """The bake's streamed write (bake/assemble.py's Assembled, io/hlod_file.py's StreamedWriter) and its
 LOD spill (bake/run/lod_spill.py): the file written a block of nodes at a time is, byte for byte,
 the file of the whole arrays in memory; its geometry is the whole-array concatenation the bake made
-before it streamed; a failed write leaves no file, and an earlier one untouched."""
+before it streamed; a failed write leaves no file, and an earlier one untouched; an input handed
+over to the bake is freed once the leaves are cut."""
 from __future__ import annotations
+
+import gc
+import weakref
 
 import numpy as np
 import pytest
 
-from hlod_core.bake import pipeline
+from hlod_core.bake import pipeline, prepare
 from hlod_core.bake.pipeline import bake
 from hlod_core.bake.run import lod_spill
 from hlod_core.bake.settings import BakeSettings
@@ -152,3 +156,29 @@ def test_a_failed_write_leaves_the_earlier_file(tmp_path):
         with hlod_file.StreamedWriter(path, _shapes(4), meta={}) as out:
             out.append("positions", np.ones((2, 3)))
     assert path.read_bytes() == b"the earlier bake" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_a_mesh_handed_over_is_freed_once_the_leaves_are_cut(monkeypatch):
+    """bake([mesh]) empties the list; with no other reference the input's arrays are gone when the
+    simplify phase starts (the leaves hold what the bake reads from there on)."""
+    mesh = textured_sphere(uvs=False)
+    faces, positions = weakref.ref(mesh.faces), weakref.ref(mesh.positions)  # the prepared ones below
+    handed = [mesh]
+    del mesh
+    alive, prepared = [], []
+    simplify_phase, prepare_mesh = pipeline.simplify_phase, prepare.prepare
+
+    def prepared_refs(*args, **kwargs):
+        out = prepare_mesh(*args, **kwargs)
+        prepared.extend(weakref.ref(a) for a in (out.positions, out.faces, out.rows))
+        return out
+
+    def seen(*args, **kwargs):
+        gc.collect()
+        alive.append([ref() is not None for ref in (faces, positions, *prepared)])
+        return simplify_phase(*args, **kwargs)
+
+    monkeypatch.setattr(prepare, "prepare", prepared_refs)
+    monkeypatch.setattr(pipeline, "simplify_phase", seen)
+    hlod = bake(handed, BakeSettings(target_tris=SPHERE_TARGET_TRIS, jobs=1, proxy_materials=False))
+    assert handed == [] and alive == [[False] * 5] and hlod.node_count > 1

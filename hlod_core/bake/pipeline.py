@@ -60,17 +60,18 @@ log = logging.getLogger(__name__)
 __all__ = ["bake", "bake_stream", "BakeSettings", "ERROR_MEASURES", "VOLATILE_META", "stable_meta"]
 
 
-def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
+def bake(mesh: TriangleMesh | list[TriangleMesh], settings: BakeSettings = BakeSettings(), *,
          progress: ProgressFn | None = None, cancel: CancelFn | None = None,
          sources: list[str] | None = None, extra_meta: dict | None = None,
          cache_dir: str | os.PathLike | None = None, scheduler=None,
          scratch_dir: str | os.PathLike | None = None, frame_from: Frame | None = None,
          cache_budget_mb: float = DEFAULT_BUDGET_MB, images: dict | None = None, textures=None,
          output: str | os.PathLike | None = None) -> Hlod:
-    """Bake `mesh` into an Hlod. Raises InputError for unusable input, BakeCancelled if `cancel()`
-    turns true (checked between nodes). Writes nothing to disk except worker scratch files and,
-    with `cache_dir`, once the bake is complete, the cache folder (bake/run/cache.py: what it did not
-    hold is added, with the bake's frame; the least recently used entries over `cache_budget_mb`
+    """Bake `mesh` into an Hlod (a one-item list holding it: handed over, the bake empties the list and, holding the
+    only reference, lets the input go once the leaves are cut). Raises InputError for unusable input, BakeCancelled
+    if `cancel()` turns true (checked between nodes). Writes nothing to disk except worker scratch files and, with
+    `cache_dir`, once the bake is complete, the cache folder (bake/run/cache.py: what it did not hold is added, with
+    the bake's frame; the least recently used entries over `cache_budget_mb`
     are removed).
     The frame (bake/space/frame.py): `frame_from`'s (an earlier bake's, frame.Frame.from_meta of its file's
     meta["frame"]) while the input fits it, else the cache folder's last one while the input fits
@@ -95,13 +96,16 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     returned is mapped from it; None: the Hlod in memory, nothing written."""
     with stop_signals_held():
         check_extra_meta(extra_meta)
+        mesh = mesh.pop() if isinstance(mesh, list) else mesh
         plan = proxy_plan(mesh, settings, images=images, textures=textures)
         if plan is not None:
             mesh = plan.mesh
         cache = BakeCache.open(cache_dir, mesh=mesh, settings=settings, budget_mb=cache_budget_mb,
                                plan=None if plan is None else plan.plan)
         prior = Prior(frame_from, "file") if frame_from is not None else cache.prior() if cache is not None else None
-        return _bake(InMemorySource(mesh, prior), settings, _Callbacks(progress, cancel), cache=cache,
+        source = InMemorySource(mesh, prior)
+        del mesh
+        return _bake(source, settings, _Callbacks(progress, cancel), cache=cache,
                      scheduler=scheduler, scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta, prior=prior,
                      plan=None if plan is None else plan.plan, output=output)
 

@@ -83,7 +83,8 @@ class BakeSource(Protocol):
 
 class InMemorySource:
     """A TriangleMesh (prepare.py), in the frame of `prior` while it fits (bake/space/frame.py): phases
-    "prepare" and "octree"; the leaves from its arrays."""
+    "prepare" and "octree"; the leaves from its arrays, after which it lets the mesh and its prepared
+    arrays go (freed where the caller handed the mesh over: pipeline.bake)."""
 
     log_note = ""
     leaf_folder = None
@@ -115,7 +116,11 @@ class InMemorySource:
                             collapsed_tris=int((~prepared.counted).sum()))
 
     def leaf_lods(self, layout: OctreeLayout, clock: PhaseClock) -> list[tuple | None]:
-        return prepare.leaf_lods(layout, self._prepared)
+        lods = prepare.leaf_lods(layout, self._prepared)
+        # the leaves hold what the bake reads from here on: the input goes with this source's references
+        self.mesh = None
+        self._prepared = replace(self._prepared, positions=None, faces=None, normals=None, rows=None)
+        return lods
 
 
 class StreamedSource:

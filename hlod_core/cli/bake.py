@@ -65,9 +65,10 @@ def bake_command(args: argparse.Namespace) -> dict:
             loaded = meshes.load_inputs(args.inputs, texture_dir=textures.scratch)
             # the proxies' sources, read while the embedded images are still where the bake wrote them
             images = load_material_images(loaded.materials) if not args.keep_materials else {}
-            mesh = textures.relocate(loaded)
+            handed = [textures.relocate(loaded)]  # the bake takes the only reference: the input goes after the leaves
+            del loaded
             load_seconds = time.perf_counter() - started
-            summary = _bake_and_save(mesh, args, sources=[str(p) for p in args.inputs], cache_dir=cache_dir,
+            summary = _bake_and_save(handed, args, sources=[str(p) for p in args.inputs], cache_dir=cache_dir,
                                      scheduler=client, frame_from=frame_from, textures=textures, images=images)
             summary["texture_folder"] = textures.publish()
     summary["load_seconds"] = load_seconds
@@ -123,13 +124,13 @@ def _frame_from(args: argparse.Namespace) -> Frame | None:
 def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_dir: Path | None = None,
                    scheduler=None, frame_from: Frame | None = None, textures: EmbeddedTextures | None = None,
                    images: dict | None = None) -> dict:
-    """Bake, save to --output and summarise. mesh: a TriangleMesh, or a partition.TriangleSource
-    (--out-of-core: bake_stream, no cache); scheduler: the distributed.Client of `_cluster` (None:
-    local workers); frame_from: --frame-from's frame; textures: the bake's texture folder (the proxy
-    materials' textures go there); images: the materials' texture images the proxies are baked from
-    (None: read from the materials' files with Pillow, io.textures)."""
+    """Bake, save to --output and summarise. mesh: a TriangleMesh or a one-item list holding one (handed over:
+    pipeline.bake), or a partition.TriangleSource (--out-of-core: bake_stream, no cache); scheduler: the
+    distributed.Client of `_cluster` (None: local workers); frame_from: --frame-from's frame; textures: the bake's
+    texture folder (the proxy materials' textures go there); images: the materials' texture images the proxies are
+    baked from (None: read from the materials' files with Pillow, io.textures)."""
     settings = bake_settings_of(args)
-    streamed = not isinstance(mesh, meshes.TriangleMesh)
+    streamed = not isinstance(mesh, (meshes.TriangleMesh, list))
     started = time.perf_counter()
     if streamed:
         hlod = bake_stream(mesh, settings, progress=_Progress(), sources=sources, scheduler=scheduler,
@@ -138,7 +139,8 @@ def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_
     else:
         budget = cache.DEFAULT_BUDGET_MB if args.cache_budget is None else args.cache_budget
         if images is None:
-            images = load_material_images(mesh.materials) if settings.proxy_materials else {}
+            materials = (mesh[0] if isinstance(mesh, list) else mesh).materials
+            images = load_material_images(materials) if settings.proxy_materials else {}
         hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
                     scratch_dir=getattr(args, "scratch", None), frame_from=frame_from, cache_budget_mb=budget,
                     images=images, textures=textures, output=args.output)
