@@ -9,13 +9,14 @@ a fresh process (`python -m hlod_core -q bake SPEC -o OUT --jobs J --no-cache`, 
 small driver) that samples its own VmRSS every 10 ms from /proc/self/status and marks the end of
 each part: reading the input (`read`), every phase of the bake's clock (meta.PhaseClock.lap:
 prepare, octree, leaves, seams, simplify, assemble, ...) and writing the file (`write`). For
-each part: the resident bytes at its end and the largest sampled while it ran, and the kernel's
-high-water mark VmHWM at the end, all per input triangle. With --trace, tracemalloc runs too (it
+each part: its seconds (the bake's phase_seconds; reading: the command line's load_seconds; the
+write: since the mark before it), the resident bytes at its end (anonymous, and files' pages)
+and the largest sampled while it ran, and the kernel's high-water mark VmHWM at its end, all per
+input triangle. With --trace, tracemalloc runs too (it
 slows the bake; its seconds do not count) and each part's end lists the allocation sites that hold
 the most (file:line, bytes per input triangle). --baseline DIR: the same runs with another checkout
 (PYTHONPATH=DIR), alternated, and whether its file is this checkout's, byte for byte but the
-volatile meta (bake_memory.same_file; "same_file"). The bake's own phase seconds (meta["phase_seconds"]) and the run's
-load average come with each run.
+volatile meta (bake_memory.same_file; "same_file"). The run's load average comes with it.
 
 Data form: out/bench/coordinator_memory.json, {"runs": [{"checkout", "triangles", "load",
 "peak_bytes" (VmHWM), "parts": [{"part", "end_bytes", "peak_bytes", "hwm_bytes", "top": [[site,
@@ -69,8 +70,9 @@ class _Recorder:
         rss = _status("VmRSS")
         with self.lock:
             peak, self.peak = max(self.peak, rss), rss
-        entry = {"part": part, "end_bytes": rss, "peak_bytes": peak, "hwm_bytes": _status("VmHWM"),
-                 "anon_bytes": _status("RssAnon"), "file_bytes": _status("RssFile") + _status("RssShmem")}
+        entry = {"part": part, "at": time.perf_counter(), "end_bytes": rss, "peak_bytes": peak,
+                 "hwm_bytes": _status("VmHWM"), "anon_bytes": _status("RssAnon"),
+                 "file_bytes": _status("RssFile") + _status("RssShmem")}
         if self.trace:
             entry["traced_bytes"], entry["traced_peak_bytes"] = tracemalloc.get_traced_memory()
             tracemalloc.reset_peak()
@@ -139,7 +141,7 @@ def child(spec: str, out: str, jobs: int, trace: bool) -> dict:
         raise SystemExit(f"bake failed with status {status}")
     summary = json.loads(captured.getvalue().strip().splitlines()[-1])
     return {"triangles": summary["input_tris"], "peak_bytes": _status("VmHWM"), "parts": recorder.parts,
-            "phase_seconds": summary["phase_seconds"], "seconds": seconds}
+            "phase_seconds": summary["phase_seconds"], "seconds": seconds, "load_seconds": summary["load_seconds"]}
 
 
 def run(checkout: Path, spec: Path, out: Path, *, jobs: int, trace: bool) -> dict:
@@ -166,8 +168,10 @@ def report(result: dict) -> None:
     print("| part | seconds | resident at its end (anonymous, files) | largest while it ran | high-water mark "
           "| traced at its end, largest while it ran |")
     print("|---|---:|---:|---:|---:|---:|")
-    for part in result["parts"]:
+    for k, part in enumerate(result["parts"]):
         s = result["phase_seconds"].get(part["part"])
+        if part["part"] in ("read", "write"):  # not bake phases: the command line's reading, the file's write
+            s = result["load_seconds"] if part["part"] == "read" else part["at"] - result["parts"][k - 1]["at"]
         traced = "-"
         if "traced_bytes" in part:
             traced = f"{part['traced_bytes'] / tris:.0f}, {part['traced_peak_bytes'] / tris:.0f}"
