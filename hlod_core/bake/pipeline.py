@@ -193,15 +193,15 @@ def _bake(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache:
 
 def _result(hlod: Hlod | None, assembled: Assembled, *, meta: dict, materials: tuple,
             output: str | os.PathLike | None) -> Hlod:
-    """The bake's Hlod with its meta: in memory (`hlod`, or made now), or written to `output` (one
-    write: atomic, the same bytes either way) and mapped from it, no array read (hlod_file.load,
-    check=False): the whole file's arrays never in this process's memory when there is no `hlod`."""
-    if output is None:
-        return hlod.replace(meta=meta)
+    """The bake's Hlod with its meta: `hlod` (in memory; saved to `output` if given), or, without
+    one, `assembled` written to `output` a block of nodes at a time (the same bytes) and mapped
+    from it, no array read (hlod_file.load, check=False): the file's arrays never whole in memory."""
     if hlod is not None:
-        hlod_file.save(hlod.replace(meta=meta), output)
-    else:
-        assembled.write(output, meta=meta, materials=materials)
+        hlod = hlod.replace(meta=meta)
+        if output is not None:
+            hlod_file.save(hlod, output)
+        return hlod
+    assembled.write(output, meta=meta, materials=materials)
     assembled.lods = None
     return hlod_file.load(output, mmap=True, check=False)
 
