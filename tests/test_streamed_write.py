@@ -129,6 +129,9 @@ def test_spilled_arrays_come_back_the_same(tmp_path):
             again = after.load()
             assert again.dtype == before.dtype and again.shape == before.shape and np.array_equal(again, before)
     assert list(tmp_path.iterdir()) == []  # unlinked from the start
+    mapped = np.memmap(tmp_path / "leaf.bin", dtype=np.float32, mode="w+", shape=(4, 3))
+    view = mapped[1:3]
+    assert spill.put((view, None, None, None))[0] is view  # already in a file: left there
     spill.close()
 
 

@@ -46,8 +46,9 @@ class LodSpill:
 
     def put(self, lod: tuple) -> tuple:
         """`lod` (positions, faces, normals, rows; arrays or None) written to the file: the same
-        tuple of Spilled entries. An entry already spilled stays where it is."""
-        return tuple(a if a is None or isinstance(a, Spilled) else self._write(np.ascontiguousarray(a))
+        tuple of Spilled entries. An entry already spilled, or already in a file (a memory map: an
+        out-of-core bake's leaves), stays where it is."""
+        return tuple(a if a is None or isinstance(a, (Spilled, np.memmap)) else self._write(np.ascontiguousarray(a))
                      for a in lod)
 
     def _write(self, array: np.ndarray) -> Spilled:
