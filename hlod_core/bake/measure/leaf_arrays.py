@@ -99,29 +99,43 @@ def cut_clusters(positions: np.ndarray, faces: np.ndarray, segments: np.ndarray,
     cuts = np.unique(np.searchsorted(segments, np.linspace(0, count, pieces + 1)[1:-1]))
     bounds = np.concatenate([[0], cuts[(cuts > 0) & (cuts < segments.size - 1)], [segments.size - 1]])
     vertex_end = np.append(vertex_start[1:], positions.shape[0])
-    futures = []
-    for first, last in zip(bounds[:-1], bounds[1:]):
-        v0, v1, f0, f1 = int(vertex_start[first]), int(vertex_end[last - 1]), int(segments[first]), int(segments[last])
-        part = np.array(faces[f0:f1])  # the faces' own index type: Clusters.build stores that type either way
-        part -= part.dtype.type(v0)
-        futures.append(workers.submit((0, 0), hausdorff.Clusters.build, np.asarray(positions[v0:v1]), part,
-                                      segments[first:last + 1] - f0))
-        del part
-    waiting = set(futures)
-    while waiting:
-        _, waiting = cf.wait(waiting, timeout=POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
-        if cancel is not None and cancel():
-            raise BakeCancelled("bake cancelled")
-    parts = [fut.result() for fut in futures]
     index_type = np.int32 if positions.shape[0] < 2**31 else np.int64
     v0 = vertex_start[bounds[:-1]].astype(np.int64)
     f0 = segments[bounds[:-1]].astype(np.int64)
-    k0 = np.concatenate([[0], np.cumsum([p.radius.size for p in parts])])
     out_faces = np.empty((count, 3), index_type)  # each part's faces shifted in place, no int64 copy of them all
-    for p, v, f in zip(parts, v0, f0):
-        rows = out_faces[f:f + p.faces.shape[0]]
-        rows[:] = p.faces
-        rows += index_type(v)
+
+    def submit(i: int) -> cf.Future:
+        first, last = bounds[i], bounds[i + 1]
+        v1, f1 = int(vertex_end[last - 1]), int(segments[last])
+        part = np.array(faces[f0[i]:f1])  # the faces' own index type: Clusters.build stores that type either way
+        part -= part.dtype.type(v0[i])
+        return workers.submit((0, 0), hausdorff.Clusters.build, np.asarray(positions[v0[i]:v1]), part,
+                              segments[first:last + 1] - f0[i])
+
+    # at most workers.limit pieces in flight, each one's faces copied out as it comes back: the
+    # process holds a few pieces' faces, not every piece's sent and returned copies at once
+    parts: list = [None] * (bounds.size - 1)
+    running: dict[cf.Future, int] = {}
+    queued = iter(range(bounds.size - 1))
+    for i in queued:
+        running[submit(i)] = i
+        if len(running) >= workers.limit:
+            break
+    while running:
+        finished, _ = cf.wait(running, timeout=POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
+        if cancel is not None and cancel():
+            raise BakeCancelled("bake cancelled")
+        for fut in finished:
+            i = running.pop(fut)
+            p = fut.result()
+            rows = out_faces[f0[i]:f0[i] + p.faces.shape[0]]
+            rows[:] = p.faces
+            rows += index_type(v0[i])
+            parts[i] = dataclasses.replace(p, faces=None)
+            following = next(queued, None)
+            if following is not None:
+                running[submit(following)] = following
+    k0 = np.concatenate([[0], np.cumsum([p.radius.size for p in parts])])
     return hausdorff.Clusters(
         faces=out_faces,
         start=np.concatenate([p.start[:-1] + f for p, f in zip(parts, f0)] + [[count]]).astype(np.int64),
