@@ -67,12 +67,12 @@ def bake(mesh: TriangleMesh | list[TriangleMesh], settings: BakeSettings = BakeS
          scratch_dir: str | os.PathLike | None = None, frame_from: Frame | None = None,
          cache_budget_mb: float = DEFAULT_BUDGET_MB, images: dict | None = None, textures=None,
          output: str | os.PathLike | None = None) -> Hlod:
-    """Bake `mesh` into an Hlod (a one-item list holding it: handed over, the bake empties the list and, holding the
-    only reference, lets the input go once the leaves are cut). Raises InputError for unusable input, BakeCancelled
-    if `cancel()` turns true (checked between nodes). Writes nothing to disk except worker scratch files and, with
-    `cache_dir`, once the bake is complete, the cache folder (bake/run/cache.py: what it did not hold is added, with
-    the bake's frame; the least recently used entries over `cache_budget_mb`
-    are removed).
+    """Bake `mesh` into an Hlod (a one-item list holding it: handed over, the bake empties the list
+    and, holding the only reference, lets the input go once the leaves are cut). Raises InputError
+    for unusable input, BakeCancelled if `cancel()` turns true (checked between nodes). Writes
+    nothing to disk except worker scratch files, `output` and, with `cache_dir`, once the bake is
+    complete, the cache folder (bake/run/cache.py: what it did not hold is added, with the bake's
+    frame; the least recently used entries over `cache_budget_mb` are removed).
     The frame (bake/space/frame.py): `frame_from`'s (an earlier bake's, frame.Frame.from_meta of its file's
     meta["frame"]) while the input fits it, else the cache folder's last one while the input fits
     it, else the input's own; meta["frame"] records it and meta["frame_source"] says which and why.
