@@ -435,7 +435,8 @@ def test_command_line_keeps_the_cache_beside_the_output(tmp_path):
 _NOT_RESULT_MODULES = {"core.errors", "core.signals", "core.jsonutil", "io.meshes", "io.hlod_file",
                        "bake.run.workers", "bake.run.dask_cluster",  # workers, dask_cluster: where tasks run
                        "bake.space.chunk_store",  # where the early phases' tasks run and how their rows are cut
-                       "core.atomic"}  # how files are written
+                       "core.atomic",  # how files are written
+                       "bake.run.lod_spill"}  # where LODs wait, bytes unchanged; never in a bake with a cache
 
 
 def _core_imports(name: str, tree) -> set[str]:

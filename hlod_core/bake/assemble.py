@@ -4,35 +4,28 @@ triangles sorted by material: one draw per (node, material)), and the bounds, ve
 level: tight nested boxes, nested spheres, monotone errors, cube sides.
 
 Data form in: lods, per node (positions (k,3) f32 origin-relative, faces (m,3) int32 local,
-normals (k,3) f32 or None, attribute rows (k,A) f32 or None); errors (n,) float64 model units.
+normals (k,3) f32 or None, attribute rows (k,A) f32 or None; any of them may be spilled to the
+bake's scratch file, run/lod_spill.py, and is read back a block of nodes at a time); errors (n,)
+float64 model units.
 Bounds are float64 world coordinates (positions + origin), computed a block of nodes at a time.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..core.errors import InputError
+from ..io import hlod_file
 from ..model import appearance
-from ..model.hierarchy import Hlod, cube_sides, query_box_pad
+from ..model.hierarchy import NODE_ARRAYS, Hlod, cube_sides, query_box_pad
+from .run.lod_spill import loaded
 from .space.octree import OctreeLayout
 
-#: Vertices `assemble` turns into float64 world coordinates at a time (whole nodes; a node of more
-#: vertices is one block): its working memory, 24 bytes a vertex and a few copies.
-BLOCK_VERTICES = 1 << 20
-
-
-def _concat_nodes(lods, vertex_offset: np.ndarray, tri_offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """concat_indexed of the nodes' (positions, faces), written straight into the file's arrays:
-    positions (V,3) float32 and indices (F,3) uint32 (V < 2**32, checked by the caller)."""
-    vertices = int(vertex_offset[-1]) + lods[-1][0].shape[0]
-    tris = int(tri_offset[-1]) + lods[-1][1].shape[0]
-    positions = np.empty((vertices, 3), np.float32)
-    indices = np.empty((tris, 3), np.uint32)
-    for lod, v, t in zip(lods, vertex_offset, tri_offset):
-        positions[v:v + lod[0].shape[0]] = lod[0]
-        indices[t:t + lod[1].shape[0]] = lod[1]
-        indices[t:t + lod[1].shape[0]] += np.uint32(v)
-    return positions, indices
+#: Vertices `assemble` handles at a time (whole nodes; a node of more vertices is one block): the
+#: block it turns into float64 world coordinates for the bounds, and the geometry rows it makes and
+#: writes at a time; its working memory, about 24 bytes a vertex and a few copies.
+BLOCK_VERTICES = 1 << 18
 
 
 def _vertex_blocks(vertex_offset: np.ndarray, vertex_count: np.ndarray) -> list[tuple[int, int]]:
@@ -48,22 +41,105 @@ def _vertex_blocks(vertex_offset: np.ndarray, vertex_count: np.ndarray) -> list[
     return out
 
 
-def _block_world(positions, origin, *, vertex_offset, vertex_count, first: int, last: int):
-    """The vertices of nodes first..last-1 as float64 world coordinates (positions + origin), and
-    each node's start in them (for reduceat)."""
-    begin, end = int(vertex_offset[first]), int(vertex_offset[last - 1] + vertex_count[last - 1])
-    world = positions[begin:end].astype(np.float64)
+def _block_world(lods, origin, *, vertex_offset, first: int, last: int):
+    """The vertices of nodes first..last-1 as float64 world coordinates (their float32 positions +
+    origin), and each node's start in them (for reduceat)."""
+    world = np.concatenate([loaded(lod[0]) for lod in lods[first:last]]).astype(np.float32, copy=False)
+    world = world.astype(np.float64)
     world += origin
-    return world, vertex_offset[first:last] - begin
+    return world, vertex_offset[first:last] - vertex_offset[first]
+
+
+@dataclass(eq=False)
+class Assembled:
+    """The baked nodes as the file holds them (hierarchy.Hlod): the node table (`table`: NODE_ARRAYS'
+    arrays) and origin (3,) float64 in memory, the geometry made from `lods` a block of nodes at a
+    time (`blocks`): the same rows whether they go into arrays in memory (`hlod`) or straight into
+    the file (`write`, io.hlod_file.StreamedWriter), never the whole buffers at once."""
+
+    table: dict[str, np.ndarray]
+    origin: np.ndarray
+    lods: list
+    normals: bool
+    row_layout: appearance.AttributeLayout
+
+    def shapes(self) -> dict[str, tuple[int, ...]]:
+        """Every array's shape, in the file's order (io/hlod_file.py)."""
+        vertices, tris = int(self.table["vertex_count"].sum()), int(self.table["tri_count"].sum())
+        shapes = {name: array.shape for name, array in self.table.items()}
+        shapes.update(origin=(3,), positions=(vertices, 3), indices=(tris, 3))
+        columns = {} if self.row_layout.empty else self.row_layout.columns()
+        optional = {"normals": ((vertices, 3), self.normals), "uvs": ((vertices, 2), "uv" in columns),
+                    "colors": ((vertices, 4), "color" in columns), "tri_material": ((tris,), "material" in columns)}
+        shapes.update({name: shape for name, (shape, present) in optional.items() if present})
+        return shapes
+
+    def blocks(self):
+        """Yield, for each run of nodes of about BLOCK_VERTICES vertices, their rows of every
+        geometry array (name -> rows): positions float32, indices uint32 (global), normals, uvs,
+        colors, and tri_material uint16 with each node's triangles sorted by material (stable)."""
+        offsets = self.table["vertex_offset"]
+        for first, last in _vertex_blocks(offsets, self.table["vertex_count"]):
+            lods = [tuple(loaded(a) for a in lod) for lod in self.lods[first:last]]  # spilled ones read back
+            rows = {"positions": np.concatenate([lod[0] for lod in lods]).astype(np.float32, copy=False)}
+            if self.normals:
+                rows["normals"] = np.concatenate([lod[2] for lod in lods]).astype(np.float32, copy=False)
+            indices, materials, uvs, colors = [], [], [], []
+            for lod, start in zip(lods, offsets[first:last]):
+                faces = np.asarray(lod[1]).astype(np.uint32)
+                faces += np.uint32(start)
+                if not self.row_layout.empty:
+                    uv, color, face_material = appearance.unpack(self.row_layout, lod[3], lod[1])
+                    uvs.append(uv)
+                    colors.append(color)
+                    if face_material is not None:
+                        order = np.argsort(face_material, kind="stable")
+                        faces, face_material = faces[order], face_material[order].astype(np.uint16)
+                        materials.append(face_material)
+                indices.append(faces)
+            rows["indices"] = np.concatenate(indices)
+            for name, parts in (("uvs", uvs), ("colors", colors), ("tri_material", materials)):
+                if parts and parts[0] is not None:
+                    rows[name] = np.concatenate(parts)
+            yield rows
+
+    def hlod(self, *, meta: dict | None = None, materials: tuple = ()) -> Hlod:
+        """The Hlod in memory."""
+        shapes = self.shapes()
+        geometry = {name: np.empty(shapes[name], HLOD_DTYPES[name]) for name in GEOMETRY if name in shapes}
+        done = dict.fromkeys(geometry, 0)
+        for rows in self.blocks():
+            for name, part in rows.items():
+                geometry[name][done[name]:done[name] + part.shape[0]] = part
+                done[name] += part.shape[0]
+        return Hlod(**self.table, origin=np.asarray(self.origin, np.float64), meta=meta or {}, materials=materials,
+                    **geometry)
+
+    def write(self, path, *, meta: dict, materials: tuple = ()) -> None:
+        """Write the file to `path` a block of nodes at a time (io.hlod_file.StreamedWriter: atomic,
+        no file left by a failed write): the bytes hlod_file.save(self.hlod(meta=..., ...)) writes."""
+        with hlod_file.StreamedWriter(path, self.shapes(), meta=meta, materials=materials) as out:
+            for name, array in self.table.items():
+                out.append(name, array)
+            out.append("origin", np.asarray(self.origin, np.float64))
+            for rows in self.blocks():
+                for name, part in rows.items():
+                    out.append(name, part)
+
+
+#: The geometry arrays, in the file's order, and their dtypes in an Hlod.
+GEOMETRY = ("positions", "indices", "normals", "uvs", "colors", "tri_material")
+HLOD_DTYPES = {"positions": np.float32, "indices": np.uint32, "normals": np.float32, "uvs": np.float32,
+               "colors": np.float32, "tri_material": np.uint16}
 
 
 def assemble(layout: OctreeLayout, lods, origin, *, hausdorff_error: np.ndarray, normals: bool,
-             row_layout: appearance.AttributeLayout) -> Hlod:
-    """The Hlod of the baked nodes: lods per node (module docstring), origin (3,) float64,
+             row_layout: appearance.AttributeLayout) -> Assembled:
+    """The file of the baked nodes (Assembled: its node table made here, its geometry a block at a
+    time when it is written): lods per node (module docstring), origin (3,) float64,
     hausdorff_error (n,) float64 (NaN: unavailable, bounded by the node's box diagonal; leaves 0);
     normals: the LODs carry them; row_layout: the rows' columns (empty: none). InputError for an
     empty LOD or more vertices than 32-bit indices address."""
-    n = layout.node_count
     vertex_count = np.array([lod[0].shape[0] for lod in lods], np.int64)
     tri_count = np.array([lod[1].shape[0] for lod in lods], np.int64)
     if np.any(tri_count == 0):
@@ -72,24 +148,16 @@ def assemble(layout: OctreeLayout, lods, origin, *, hausdorff_error: np.ndarray,
     tri_offset = np.concatenate([[0], np.cumsum(tri_count)[:-1]])
     if vertex_count.sum() >= 2**32:
         raise InputError(f"the HLOD would need {int(vertex_count.sum())} vertices, more than 32-bit indices address")
-    positions, indices = _concat_nodes(lods, vertex_offset, tri_offset)
-    node_normals = np.concatenate([lod[2] for lod in lods]).astype(np.float32) if normals else None
-    uvs = colors = tri_material = None
-    if not row_layout.empty:
-        uvs, colors, face_material = appearance.unpack(row_layout, np.concatenate([lod[3] for lod in lods]), indices)
-        if face_material is not None:
-            order = np.lexsort((face_material, np.repeat(np.arange(n), tri_count)))  # node, then material
-            indices, tri_material = indices[order], face_material[order].astype(np.uint16)
-
-    bounds = _bounds(layout, positions, origin, vertex_offset=vertex_offset, vertex_count=vertex_count,
+    bounds = _bounds(layout, lods, origin, vertex_offset=vertex_offset, vertex_count=vertex_count,
                      hausdorff_error=hausdorff_error)
-    return Hlod(parent=layout.parent, child_offset=layout.child_offset, child_count=layout.child_count,
-                depth=layout.depth, **bounds, tri_offset=tri_offset, tri_count=tri_count, vertex_offset=vertex_offset,
-                vertex_count=vertex_count, origin=np.asarray(origin, np.float64), positions=positions,
-                indices=indices, normals=node_normals, uvs=uvs, colors=colors, tri_material=tri_material)
+    table = dict(parent=layout.parent, child_offset=layout.child_offset, child_count=layout.child_count,
+                 depth=layout.depth, **bounds, tri_offset=tri_offset, tri_count=tri_count, vertex_offset=vertex_offset,
+                 vertex_count=vertex_count)
+    return Assembled(table={name: table[name] for name in NODE_ARRAYS}, origin=np.asarray(origin, np.float64),
+                     lods=lods, normals=normals, row_layout=row_layout)
 
 
-def _bounds(layout: OctreeLayout, positions: np.ndarray, origin, *, vertex_offset: np.ndarray,
+def _bounds(layout: OctreeLayout, lods, origin, *, vertex_offset: np.ndarray,
             vertex_count: np.ndarray, hausdorff_error: np.ndarray) -> dict[str, np.ndarray]:
     """The node table's bounds (float64, world coordinates): LOD boxes, subtree boxes nested
     deepest level first, spheres around them that contain their children's, errors made monotone
@@ -99,8 +167,7 @@ def _bounds(layout: OctreeLayout, positions: np.ndarray, origin, *, vertex_offse
     lod_box_min = np.empty((n, 3), np.float64)
     lod_box_max = np.empty((n, 3), np.float64)
     for first, last in blocks:
-        world, starts = _block_world(positions, origin, vertex_offset=vertex_offset, vertex_count=vertex_count,
-                                     first=first, last=last)
+        world, starts = _block_world(lods, origin, vertex_offset=vertex_offset, first=first, last=last)
         lod_box_min[first:last] = np.minimum.reduceat(world, starts, axis=0)
         lod_box_max[first:last] = np.maximum.reduceat(world, starts, axis=0)
     box_min, box_max = lod_box_min.copy(), lod_box_max.copy()
@@ -113,8 +180,7 @@ def _bounds(layout: OctreeLayout, positions: np.ndarray, origin, *, vertex_offse
     # np.linalg.norm sums it, and the max taken before the root (sqrt is monotone: the same float)
     radius = np.empty(n, np.float64)
     for first, last in blocks:
-        world, starts = _block_world(positions, origin, vertex_offset=vertex_offset, vertex_count=vertex_count,
-                                     first=first, last=last)
+        world, starts = _block_world(lods, origin, vertex_offset=vertex_offset, first=first, last=last)
         world -= np.repeat(center[first:last], vertex_count[first:last], axis=0)
         world *= world
         squared = world[:, 0] + world[:, 1]

@@ -37,14 +37,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core.signals import deliver_held, stop_signals_held
+from ..io import hlod_file
 from ..io.meshes import TriangleMesh
 from ..model.hierarchy import Hlod
 from .appearance.proxy_plan import ProxyPlan, proxy_plan
-from .assemble import assemble
+from .assemble import Assembled, assemble
 from .decimate import cell_seams
 from .decimate.simplify import NodeLod
 from .meta import VOLATILE_META, PhaseClock, bake_meta, check_extra_meta, derived_meta, stable_meta
 from .run.cache import DEFAULT_BUDGET_MB, BakeCache
+from .run.lod_spill import LodSpill
 from .run.schedule import CancelFn, ProgressFn, SimplifyInput, simplify_phase
 from .run.workers import open_workers
 from .settings import ERROR_MEASURES, BakeSettings
@@ -58,17 +60,19 @@ log = logging.getLogger(__name__)
 __all__ = ["bake", "bake_stream", "BakeSettings", "ERROR_MEASURES", "VOLATILE_META", "stable_meta"]
 
 
-def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
+def bake(mesh: TriangleMesh | list[TriangleMesh], settings: BakeSettings = BakeSettings(), *,
          progress: ProgressFn | None = None, cancel: CancelFn | None = None,
          sources: list[str] | None = None, extra_meta: dict | None = None,
          cache_dir: str | os.PathLike | None = None, scheduler=None,
          scratch_dir: str | os.PathLike | None = None, frame_from: Frame | None = None,
-         cache_budget_mb: float = DEFAULT_BUDGET_MB, images: dict | None = None, textures=None) -> Hlod:
-    """Bake `mesh` into an Hlod. Raises InputError for unusable input, BakeCancelled if `cancel()`
-    turns true (checked between nodes). Writes nothing to disk except worker scratch files and,
-    with `cache_dir`, once the bake is complete, the cache folder (bake/run/cache.py: what it did not
-    hold is added, with the bake's frame; the least recently used entries over `cache_budget_mb`
-    are removed).
+         cache_budget_mb: float = DEFAULT_BUDGET_MB, images: dict | None = None, textures=None,
+         output: str | os.PathLike | None = None) -> Hlod:
+    """Bake `mesh` into an Hlod (a one-item list holding it: handed over, the bake empties the list
+    and, holding the only reference, lets the input go once the leaves are cut). Raises InputError
+    for unusable input, BakeCancelled if `cancel()` turns true (checked between nodes). Writes
+    nothing to disk except worker scratch files, `output` and, with `cache_dir`, once the bake is
+    complete, the cache folder (bake/run/cache.py: what it did not hold is added, with the bake's
+    frame; the least recently used entries over `cache_budget_mb` are removed).
     The frame (bake/space/frame.py): `frame_from`'s (an earlier bake's, frame.Frame.from_meta of its file's
     meta["frame"]) while the input fits it, else the cache folder's last one while the input fits
     it, else the input's own; meta["frame"] records it and meta["frame_source"] says which and why.
@@ -86,37 +90,44 @@ def bake(mesh: TriangleMesh, settings: BakeSettings = BakeSettings(), *,
     (io.textures.load_material_images)
     (appearance/); textures: where their PNGs go (`scratch`, written, and `final`, what the file's
     materials name: io.texture_folder.EmbeddedTextures; None: a temporary folder of their own, removed
-    when the process exits)."""
+    when the process exits).
+    output: the .hlod file to write (io/hlod_file.py's format, atomically): without a cache it is
+    written as it is assembled, a block of nodes at a time, never whole in memory, and the Hlod
+    returned is mapped from it; None: the Hlod in memory, nothing written."""
     with stop_signals_held():
         check_extra_meta(extra_meta)
+        mesh = mesh.pop() if isinstance(mesh, list) else mesh
         plan = proxy_plan(mesh, settings, images=images, textures=textures)
         if plan is not None:
             mesh = plan.mesh
         cache = BakeCache.open(cache_dir, mesh=mesh, settings=settings, budget_mb=cache_budget_mb,
                                plan=None if plan is None else plan.plan)
         prior = Prior(frame_from, "file") if frame_from is not None else cache.prior() if cache is not None else None
-        return _bake(InMemorySource(mesh, prior), settings, _Callbacks(progress, cancel), cache=cache,
+        source = InMemorySource(mesh, prior)
+        del mesh
+        return _bake(source, settings, _Callbacks(progress, cancel), cache=cache,
                      scheduler=scheduler, scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta, prior=prior,
-                     plan=None if plan is None else plan.plan)
+                     plan=None if plan is None else plan.plan, output=output)
 
 
 def bake_stream(source: TriangleSource, settings: BakeSettings = BakeSettings(), *,
                 progress: ProgressFn | None = None, cancel: CancelFn | None = None, sources: list[str] | None = None,
                 extra_meta: dict | None = None, scheduler=None, scratch_dir: str | os.PathLike | None = None,
-                chunk_tris: int = CHUNK_TRIS, stats: PartitionStats | None = None) -> Hlod:
+                chunk_tris: int = CHUNK_TRIS, stats: PartitionStats | None = None,
+                output: str | os.PathLike | None = None) -> Hlod:
     """Bake `source` (a partition.TriangleSource) out of core: never loaded whole, streamed through
     per-cell scratch files (bake/space/partition.py) in a folder `hlod-partition-*` inside `scratch_dir`
     (default the temporary folder), removed however the bake ends. The result is the file `bake`
     makes of the merged input, byte for byte except meta.VOLATILE_META. Geometry only (normals
     kept); no cache. chunk_tris: the memory budget (partition.CHUNK_TRIS); stats: filled with what
-    the partition did. progress, cancel, sources, extra_meta, scheduler: as for `bake`."""
+    the partition did. progress, cancel, sources, extra_meta, scheduler, output: as for `bake`."""
     with stop_signals_held():
         check_extra_meta(extra_meta)
         callbacks = _Callbacks(progress, cancel)
         with Partition(source, scratch_dir=scratch_dir, chunk_tris=chunk_tris, cancel=callbacks.cancel,
                        stats=stats) as partition:
             return _bake(StreamedSource(partition), settings, callbacks, cache=None, scheduler=scheduler,
-                         scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta)
+                         scratch_dir=scratch_dir, sources=sources, extra_meta=extra_meta, output=output)
 
 
 class _Callbacks:
@@ -135,9 +146,10 @@ class _Callbacks:
 
 def _bake(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache: BakeCache | None, scheduler,
           scratch_dir: str | os.PathLike | None, sources: list[str] | None, extra_meta: dict | None,
-          prior: Prior | None = None, plan: ProxyPlan | None = None) -> Hlod:
-    """The phases (module docstring), once for every source; scheduler, scratch_dir: as for `bake`;
-    prior: the frame the bake starts from (None: the input's own)."""
+          prior: Prior | None = None, plan: ProxyPlan | None = None,
+          output: str | os.PathLike | None = None) -> Hlod:
+    """The phases (module docstring), once for every source; scheduler, scratch_dir, output: as for
+    `bake`; prior: the frame the bake starts from (None: the input's own)."""
     clock = run.clock
     found = cache.whole_result(prior) if cache is not None else None
     if found is not None:  # the input is unchanged: the cache holds the whole result in the prior frame
@@ -146,16 +158,20 @@ def _bake(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache:
         run.progress(hlod.node_count, hlod.node_count, "done")
         which = "that" if frame is prior.frame else "an earlier"
         choice = FrameChoice(prior.source, f"the input is unchanged: its whole result in {which} {prior.source} frame")
-        return hlod.replace(meta=bake_meta(source.size, settings, derived, cache_stats=stats, sources=sources,
+        hlod = hlod.replace(meta=bake_meta(source.size, settings, derived, cache_stats=stats, sources=sources,
                                            extra_meta=extra_meta, clock=clock, frame_source=choice.to_meta()))
+        if output is not None:
+            hlod_file.save(hlod, output)
+        return hlod
     nodes = _baked_nodes(source, settings, run, cache=cache, scheduler=scheduler, scratch_dir=scratch_dir, plan=plan)
     layout, n = nodes.tree.layout, nodes.tree.layout.node_count
     proxy_materials = plan.finish(nodes.lods) if plan is not None else ()
-    hlod = assemble(layout, nodes.lods, nodes.tree.origin, hausdorff_error=nodes.hausdorff_error,
-                    normals=source.with_normals, row_layout=source.row_layout)
+    assembled = assemble(layout, nodes.lods, nodes.tree.origin, hausdorff_error=nodes.hausdorff_error,
+                         normals=source.with_normals, row_layout=source.row_layout)
+    materials = tuple(source.materials) + proxy_materials if source.materials else ()
+    # in memory: the whole file's arrays (a cache keeps them); streamed into `output`: only its node table
+    hlod = assembled.hlod(materials=materials) if output is None or cache is not None else None
     del nodes.lods
-    if source.materials:
-        hlod = hlod.replace(materials=tuple(source.materials) + proxy_materials)
     clock.lap("assemble")
     derived = derived_meta(layout, nodes.made, nodes.hausdorff_error, counted_per_node=nodes.tree.counted_per_node,
                            settings=settings, collapsed_tris=nodes.tree.collapsed_tris,
@@ -170,9 +186,24 @@ def _bake(source: BakeSource, settings: BakeSettings, run: _Callbacks, *, cache:
         clock.lap("cache_write")
     run.progress(n, n, "done")
     log.info("frame from %s: %s", nodes.tree.frame_choice.source, nodes.tree.frame_choice.reason)
-    return hlod.replace(meta=bake_meta(source.size, settings, derived, cache_stats=stats, sources=sources,
-                                       extra_meta=extra_meta, clock=clock,
-                                       frame_source=nodes.tree.frame_choice.to_meta()))
+    meta = bake_meta(source.size, settings, derived, cache_stats=stats, sources=sources, extra_meta=extra_meta,
+                     clock=clock, frame_source=nodes.tree.frame_choice.to_meta())
+    return _result(hlod, assembled, meta=meta, materials=materials, output=output)
+
+
+def _result(hlod: Hlod | None, assembled: Assembled, *, meta: dict, materials: tuple,
+            output: str | os.PathLike | None) -> Hlod:
+    """The bake's Hlod with its meta: `hlod` (in memory; saved to `output` if given), or, without
+    one, `assembled` written to `output` a block of nodes at a time (the same bytes) and mapped
+    from it, no array read (hlod_file.load, check=False): the file's arrays never whole in memory."""
+    if hlod is not None:
+        hlod = hlod.replace(meta=meta)
+        if output is not None:
+            hlod_file.save(hlod, output)
+        return hlod
+    assembled.write(output, meta=meta, materials=materials)
+    assembled.lods = None
+    return hlod_file.load(output, mmap=True, check=False)
 
 
 @dataclass(eq=False)
@@ -213,7 +244,8 @@ def _baked_nodes(source: BakeSource, settings: BakeSettings, run: _Callbacks, *,
             clock.lap("cache")
         what = SimplifyInput(with_normals=source.with_normals,
                              row_layout=None if source.row_layout.empty else source.row_layout,
-                             leaf_folder=source.leaf_folder, unit_length=tree.unit_length, seams=seams, proxies=plan)
+                             leaf_folder=source.leaf_folder, unit_length=tree.unit_length, seams=seams, proxies=plan,
+                             spill=LodSpill(scratch_dir) if cache is None and plan is None else None)
         simplify_phase(layout, nodes.lods, hausdorff_error=nodes.hausdorff_error, made=nodes.made, settings=settings,
                        source=what, workers=workers, cancel=run.cancel, progress=run.progress)
         clock.lap("simplify")

@@ -86,7 +86,8 @@ class BakeSource(Protocol):
 class InMemorySource:
     """A TriangleMesh (prepare.py), in the frame of `prior` while it fits (bake/space/frame.py): phases
     "prepare" and "octree", then the leaves from its arrays (the "leaves" phase: made by `octree`,
-    while the chunk store its tasks read is open; handed over by `leaf_lods`)."""
+    while the chunk store its tasks read is open; handed over by `leaf_lods`, after which it lets the
+    mesh and its prepared arrays go: freed where the caller handed the mesh over, pipeline.bake)."""
 
     log_note = ""
     leaf_folder = None
@@ -122,6 +123,9 @@ class InMemorySource:
 
     def leaf_lods(self, layout: OctreeLayout, clock: PhaseClock) -> list[tuple | None]:
         leaves, self._leaves = self._leaves, None
+        # the leaves hold what the bake reads from here on: the input goes with this source's references
+        self.mesh = None
+        self._prepared = replace(self._prepared, positions=None, faces=None, normals=None, rows=None)
         return leaves
 
 

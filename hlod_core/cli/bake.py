@@ -14,9 +14,10 @@ from ..bake.run import cache
 from ..bake.space import frame as frames
 from ..bake.space import partition
 from ..bake.space.frame import Frame
+from ..core import heap
 from ..core.errors import InputError
 from ..export.formats import check_output_file
-from ..io import hlod_file, meshes, procedural
+from ..io import meshes, procedural
 from ..io.texture_folder import EmbeddedTextures
 from ..io.textures import load_material_images
 from .options import bake_options, bake_settings_of, cluster_options, out_of_core_options, whole_number
@@ -52,6 +53,7 @@ def add_scene(sub) -> None:
 def bake_command(args: argparse.Namespace) -> dict:
     """`bake`: the summary line (hlod.summary() with the output, jobs, timings, cache and texture folder)."""
     check_output_file(args.output)
+    heap.return_freed_buffers()
     if args.out_of_core:
         return _bake_out_of_core(args)
     if args.chunk_tris is not None:
@@ -63,9 +65,10 @@ def bake_command(args: argparse.Namespace) -> dict:
             loaded = meshes.load_inputs(args.inputs, texture_dir=textures.scratch)
             # the proxies' sources, read while the embedded images are still where the bake wrote them
             images = load_material_images(loaded.materials) if not args.keep_materials else {}
-            mesh = textures.relocate(loaded)
+            handed = [textures.relocate(loaded)]  # the bake takes the only reference: the input goes after the leaves
+            del loaded
             load_seconds = time.perf_counter() - started
-            summary = _bake_and_save(mesh, args, sources=[str(p) for p in args.inputs], cache_dir=cache_dir,
+            summary = _bake_and_save(handed, args, sources=[str(p) for p in args.inputs], cache_dir=cache_dir,
                                      scheduler=client, frame_from=frame_from, textures=textures, images=images)
             summary["texture_folder"] = textures.publish()
     summary["load_seconds"] = load_seconds
@@ -93,6 +96,7 @@ def _bake_out_of_core(args: argparse.Namespace) -> dict:
 def scene_command(args: argparse.Namespace) -> dict:
     """`scene`: the summary line of the bake of a procedural scene (procedural.SCENES)."""
     check_output_file(args.output)
+    heap.return_freed_buffers()
     cache_dir, frame_from = _cache_dir(args), _frame_from(args)
     if not 0 < args.scale <= 64:
         raise InputError(f"--scale {args.scale}: expected a factor in (0, 64]")
@@ -120,25 +124,26 @@ def _frame_from(args: argparse.Namespace) -> Frame | None:
 def _bake_and_save(mesh, args: argparse.Namespace, *, sources: list[str], cache_dir: Path | None = None,
                    scheduler=None, frame_from: Frame | None = None, textures: EmbeddedTextures | None = None,
                    images: dict | None = None) -> dict:
-    """Bake, save to --output and summarise. mesh: a TriangleMesh, or a partition.TriangleSource
-    (--out-of-core: bake_stream, no cache); scheduler: the distributed.Client of `_cluster` (None:
-    local workers); frame_from: --frame-from's frame; textures: the bake's texture folder (the proxy
-    materials' textures go there); images: the materials' texture images the proxies are baked from
-    (None: read from the materials' files with Pillow, io.textures)."""
+    """Bake, save to --output and summarise. mesh: a TriangleMesh or a one-item list holding one (handed over:
+    pipeline.bake), or a partition.TriangleSource (--out-of-core: bake_stream, no cache); scheduler: the
+    distributed.Client of `_cluster` (None: local workers); frame_from: --frame-from's frame; textures: the bake's
+    texture folder (the proxy materials' textures go there); images: the materials' texture images the proxies are
+    baked from (None: read from the materials' files with Pillow, io.textures)."""
     settings = bake_settings_of(args)
-    streamed = not isinstance(mesh, meshes.TriangleMesh)
+    streamed = not isinstance(mesh, (meshes.TriangleMesh, list))
     started = time.perf_counter()
     if streamed:
         hlod = bake_stream(mesh, settings, progress=_Progress(), sources=sources, scheduler=scheduler,
-                           scratch_dir=args.scratch, chunk_tris=args.chunk_tris or partition.CHUNK_TRIS)
+                           scratch_dir=args.scratch, chunk_tris=args.chunk_tris or partition.CHUNK_TRIS,
+                           output=args.output)
     else:
         budget = cache.DEFAULT_BUDGET_MB if args.cache_budget is None else args.cache_budget
         if images is None:
-            images = load_material_images(mesh.materials) if settings.proxy_materials else {}
+            materials = (mesh[0] if isinstance(mesh, list) else mesh).materials
+            images = load_material_images(materials) if settings.proxy_materials else {}
         hlod = bake(mesh, settings, progress=_Progress(), sources=sources, cache_dir=cache_dir, scheduler=scheduler,
                     scratch_dir=getattr(args, "scratch", None), frame_from=frame_from, cache_budget_mb=budget,
-                    images=images, textures=textures)
-    hlod_file.save(hlod, args.output)
+                    images=images, textures=textures, output=args.output)
     seconds = time.perf_counter() - started
     for line in hlod.meta["log"]:
         log.info(line)

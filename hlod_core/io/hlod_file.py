@@ -23,6 +23,7 @@ them. A version 1 file is a version 2 file without them, and loads as an HLOD wi
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -76,7 +77,6 @@ def _aligned(n: int) -> int:
 def save(hlod: Hlod, path: str | os.PathLike) -> Path:
     """Write `hlod` to `path` atomically (atomic.atomic_file: temp file in the same folder, fsync,
     the umask's mode, rename). A failed write raises OSError naming `path`."""
-    path = Path(path)
     arrays: dict[str, np.ndarray] = dict(hlod.node_arrays())
     arrays["origin"] = hlod.origin
     arrays["positions"] = hlod.positions
@@ -84,24 +84,80 @@ def save(hlod: Hlod, path: str | os.PathLike) -> Path:
     for name in _OPTIONAL_ARRAYS:
         if getattr(hlod, name) is not None:
             arrays[name] = getattr(hlod, name)
-    wanted = {**{k: v[0] for k, v in NODE_ARRAYS.items()}, **{k: v[0] for k, v in _GEOMETRY_ARRAYS.items()}}
-    arrays = {k: np.ascontiguousarray(v, dtype=np.dtype(wanted[k])) for k, v in arrays.items()}
+    with StreamedWriter(path, {k: v.shape for k, v in arrays.items()}, meta=hlod.meta,
+                        materials=hlod.materials) as out:
+        for name, arr in arrays.items():
+            out.append(name, arr)
+    return Path(path)
 
-    table = {}
-    header = b""
-    # The header size depends on the offsets it records: iterate until the layout is stable.
-    data_start = 0
+
+class StreamedWriter:
+    """A .hlod written array by array, a chunk at a time, atomically (`save` is one chunk an array):
+    the header from the arrays' shapes (name -> shape, in the file's order: the node arrays, origin,
+    positions, indices, then the optional ones present), `meta` and `materials`; then `append(name,
+    rows)` any number of times, in any order across arrays, each array's rows in order. Used as a
+    context manager: on a clean exit every array must be complete (else RuntimeError) and the file
+    replaces `path`; on an exception the temporary file is removed and no file is left. Two writes
+    of the same arrays, however chunked, are the same bytes."""
+
+    def __init__(self, path: str | os.PathLike, shapes: dict[str, tuple[int, ...]], *, meta: dict,
+                 materials: tuple = ()):
+        self.path = Path(path)
+        wanted = {**{k: v[0] for k, v in NODE_ARRAYS.items()}, **{k: v[0] for k, v in _GEOMETRY_ARRAYS.items()}}
+        self.dtypes = {name: np.dtype(wanted[name]) for name in shapes}
+        self.table = _table(self.path, {name: (self.dtypes[name], tuple(shape)) for name, shape in shapes.items()},
+                            meta=meta, materials=materials)
+        self.header = self.table.pop("")
+        self.written = dict.fromkeys(shapes, 0)
+        self._stack = contextlib.ExitStack()
+        self._file = None
+
+    def __enter__(self) -> "StreamedWriter":
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = self._stack.enter_context(atomic_file(self.path))
+        self._file.write(_PREAMBLE.pack(MAGIC, FORMAT_VERSION, 0, len(self.header)))
+        self._file.write(self.header)
+        return self
+
+    def append(self, name: str, rows: np.ndarray) -> None:
+        """The next rows of array `name` (any dtype numpy casts to the file's: float32 positions,
+        uint32 indices, ...)."""
+        data = np.ascontiguousarray(rows, dtype=self.dtypes[name])
+        entry = self.table[name]
+        if self.written[name] + data.nbytes > entry["nbytes"]:
+            raise RuntimeError(f"hlod: more rows of '{name}' than its {entry['shape']} in the header")
+        self._file.seek(entry["offset"] + self.written[name])
+        self._file.write(data.reshape(-1).view(np.uint8))
+        self.written[name] += data.nbytes
+
+    def __exit__(self, kind, value, traceback) -> bool:
+        if kind is None:
+            short = [name for name, done in self.written.items() if done != self.table[name]["nbytes"]]
+            if short:
+                error = RuntimeError(f"hlod: arrays {', '.join(short)} written short of their header's shapes")
+                self._stack.__exit__(RuntimeError, error, None)
+                raise error
+            self._file.truncate(max(e["offset"] + e["nbytes"] for e in self.table.values()))
+        return self._stack.__exit__(kind, value, traceback)
+
+
+def _table(path: Path, arrays: dict[str, tuple[np.dtype, tuple[int, ...]]], *, meta: dict,
+           materials: tuple) -> dict:
+    """name -> {"dtype", "shape", "offset", "nbytes"} of every array, and "" -> the header's bytes.
+    The header's size depends on the offsets it records: iterated until the layout is stable."""
+    table, header, data_start = {}, b"", 0
     for _ in range(4):
         cursor = _aligned(_PREAMBLE.size + len(header)) if data_start == 0 else data_start
         table = {}
-        for name, arr in arrays.items():
-            table[name] = {"dtype": arr.dtype.str, "shape": list(arr.shape), "offset": cursor, "nbytes": arr.nbytes}
-            cursor = _aligned(cursor + arr.nbytes)
+        for name, (dtype, shape) in arrays.items():
+            nbytes = dtype.itemsize * math.prod(shape)
+            table[name] = {"dtype": dtype.str, "shape": list(shape), "offset": cursor, "nbytes": nbytes}
+            cursor = _aligned(cursor + nbytes)
         try:  # allow_nan=False: what is written must load (the reader refuses NaN and Infinity)
-            content = {"meta": hlod.meta, "arrays": table}
-            if hlod.materials:
+            content = {"meta": meta, "arrays": table}
+            if materials:
                 folder = path.resolve().parent
-                content["materials"] = [m.to_json(relative_to=folder) for m in hlod.materials]
+                content["materials"] = [m.to_json(relative_to=folder) for m in materials]
             header = json.dumps(content, sort_keys=True, allow_nan=False).encode("utf-8")
         except (TypeError, ValueError) as exc:
             raise FormatError(f"{path}: cannot write the HLOD's meta as JSON ({exc})") from None
@@ -111,16 +167,7 @@ def save(hlod: Hlod, path: str | os.PathLike) -> Path:
         data_start = needed
     else:
         raise RuntimeError("hlod: header layout did not converge")  # offsets only ever grow by digits
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_file(path) as f:
-        f.write(_PREAMBLE.pack(MAGIC, FORMAT_VERSION, 0, len(header)))
-        f.write(header)
-        for name, arr in arrays.items():
-            f.seek(table[name]["offset"])
-            f.write(memoryview(arr).cast("B"))
-        f.truncate(max(e["offset"] + e["nbytes"] for e in table.values()))
-    return path
+    return {**table, "": header}
 
 
 def maps_files(platform: str | None = None) -> bool:
@@ -132,9 +179,11 @@ def maps_files(platform: str | None = None) -> bool:
     return (sys.platform if platform is None else platform) != "win32"
 
 
-def load(path: str | os.PathLike, *, mmap: bool | None = None) -> Hlod:
+def load(path: str | os.PathLike, *, mmap: bool | None = None, check: bool = True) -> Hlod:
     """Open a .hlod file, its arrays memory-mapped or read into memory (`mmap`; None: `maps_files()`).
-    Raises FormatError naming the file and what is wrong."""
+    Raises FormatError naming the file and what is wrong. check=False: the header's checks only, not
+    `validate` (which reads every array): for a file this process has just written, mapped and
+    nothing read (the bake's streamed write, bake/pipeline.py)."""
     mmap = maps_files() if mmap is None else mmap
     path = Path(path)
     size, header_end, raw = _read_header(path)
@@ -146,7 +195,8 @@ def load(path: str | os.PathLike, *, mmap: bool | None = None) -> Hlod:
                 indices=arrays["indices"], normals=arrays.get("normals"), meta=meta,
                 uvs=arrays.get("uvs"), colors=arrays.get("colors"), tri_material=arrays.get("tri_material"),
                 materials=materials)
-    validate(hlod, source=str(path))
+    if check:
+        validate(hlod, source=str(path))
     return hlod
 
 

@@ -9,13 +9,13 @@ in memory or (an out-of-core bake) memory-mapped .npy files in a scratch folder.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import dataclasses
 import os
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from ...core.arrays import concat_indexed
 from ...core.errors import BakeCancelled
 from ..space.octree import OctreeLayout
 from . import hausdorff
@@ -46,6 +46,11 @@ class LeafArrays:
         """The arrays workers share (tasks.SHARED_ARRAYS)."""
         return {"positions": self.positions, **self.clusters.arrays()}
 
+    def ranges_only(self) -> "LeafArrays":
+        """These ranges without the arrays (positions and clusters None): what the bake's process
+        keeps once the workers read the arrays from their scratch folder."""
+        return dataclasses.replace(self, positions=None, clusters=None)
+
     def ranges(self, node: int) -> tuple[int, int, int, int]:
         """(vertex_begin, vertex_end, cluster_begin, cluster_end) of `node` (tasks.measure_exact)."""
         return (int(self.vertex_begin[node]), int(self.vertex_end[node]), int(self.cluster_begin[node]),
@@ -60,10 +65,7 @@ def build(layout: OctreeLayout, lods: list, *, folder: str | os.PathLike | None 
     (workers.Workers) and cancel: where the clusters are cut, and when to stop (`cut_clusters`)."""
     leaves = np.flatnonzero(layout.is_leaf)
     leaves = leaves[np.argsort(layout.tri_begin[leaves], kind="stable")]  # depth-first
-    if folder is None:
-        positions, faces = concat_indexed((lods[leaf][0], lods[leaf][1]) for leaf in leaves)
-    else:
-        positions, faces = concat_mapped([lods[leaf] for leaf in leaves], folder)
+    positions, faces = concat_mapped([lods[leaf] for leaf in leaves], folder)
     counts = np.array([lods[leaf][0].shape[0] for leaf in leaves], np.int64)
     segments = np.concatenate([[0], np.cumsum([lods[leaf][1].shape[0] for leaf in leaves])]).astype(np.int64)
     ends = np.cumsum(counts)
@@ -97,23 +99,45 @@ def cut_clusters(positions: np.ndarray, faces: np.ndarray, segments: np.ndarray,
     cuts = np.unique(np.searchsorted(segments, np.linspace(0, count, pieces + 1)[1:-1]))
     bounds = np.concatenate([[0], cuts[(cuts > 0) & (cuts < segments.size - 1)], [segments.size - 1]])
     vertex_end = np.append(vertex_start[1:], positions.shape[0])
-    futures = []
-    for first, last in zip(bounds[:-1], bounds[1:]):
-        v0, v1, f0, f1 = int(vertex_start[first]), int(vertex_end[last - 1]), int(segments[first]), int(segments[last])
-        futures.append(workers.submit((0, 0), hausdorff.Clusters.build, np.asarray(positions[v0:v1]),
-                                      np.asarray(faces[f0:f1], np.int64) - v0, segments[first:last + 1] - f0))
-    waiting = set(futures)
-    while waiting:
-        _, waiting = cf.wait(waiting, timeout=POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
-        if cancel is not None and cancel():
-            raise BakeCancelled("bake cancelled")
-    parts = [fut.result() for fut in futures]
     index_type = np.int32 if positions.shape[0] < 2**31 else np.int64
     v0 = vertex_start[bounds[:-1]].astype(np.int64)
     f0 = segments[bounds[:-1]].astype(np.int64)
+    out_faces = np.empty((count, 3), index_type)  # each part's faces shifted in place, no int64 copy of them all
+
+    def submit(i: int) -> cf.Future:
+        first, last = bounds[i], bounds[i + 1]
+        v1, f1 = int(vertex_end[last - 1]), int(segments[last])
+        part = np.array(faces[f0[i]:f1])  # the faces' own index type: Clusters.build stores that type either way
+        part -= part.dtype.type(v0[i])
+        return workers.submit((0, 0), hausdorff.Clusters.build, np.asarray(positions[v0[i]:v1]), part,
+                              segments[first:last + 1] - f0[i])
+
+    # at most workers.limit pieces in flight, each one's faces copied out as it comes back: the
+    # process holds a few pieces' faces, not every piece's sent and returned copies at once
+    parts: list = [None] * (bounds.size - 1)
+    running: dict[cf.Future, int] = {}
+    queued = iter(range(bounds.size - 1))
+    for i in queued:
+        running[submit(i)] = i
+        if len(running) >= workers.limit:
+            break
+    while running:
+        finished, _ = cf.wait(running, timeout=POLL_SECONDS, return_when=cf.FIRST_COMPLETED)
+        if cancel is not None and cancel():
+            raise BakeCancelled("bake cancelled")
+        for fut in finished:
+            i = running.pop(fut)
+            p = fut.result()
+            rows = out_faces[f0[i]:f0[i] + p.faces.shape[0]]
+            rows[:] = p.faces
+            rows += index_type(v0[i])
+            parts[i] = dataclasses.replace(p, faces=None)
+            following = next(queued, None)
+            if following is not None:
+                running[submit(following)] = following
     k0 = np.concatenate([[0], np.cumsum([p.radius.size for p in parts])])
     return hausdorff.Clusters(
-        faces=np.concatenate([p.faces.astype(np.int64) + v for p, v in zip(parts, v0)]).astype(index_type),
+        faces=out_faces,
         start=np.concatenate([p.start[:-1] + f for p, f in zip(parts, f0)] + [[count]]).astype(np.int64),
         first_cluster=np.concatenate([p.first_cluster[:-1] + k for p, k in zip(parts, k0)] + [[k0[-1]]]).astype(
             np.int64),
@@ -122,17 +146,21 @@ def cut_clusters(positions: np.ndarray, faces: np.ndarray, segments: np.ndarray,
         surface_vertex=np.concatenate([p.surface_vertex + v for p, v in zip(parts, v0)]).astype(np.int64))
 
 
-def concat_mapped(parts: list[tuple], folder: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+def concat_mapped(parts: list[tuple], folder: str | os.PathLike | None) -> tuple[np.ndarray, np.ndarray]:
     """concat_indexed of (positions (k,3) f32, faces (m,3)) parts, written part by part into
-    memory-mapped .npy files in `folder`: positions (V,3) float32, faces (F,3) int32 (int64 from
-    2**31 vertices), the values concat_indexed gives (Clusters.build stores them as this dtype)."""
+    memory-mapped .npy files in `folder` (None: arrays in memory): positions (V,3) float32, faces
+    (F,3) int32 (int64 from 2**31 vertices), the values concat_indexed gives (Clusters.build stores
+    them as this dtype), with no int64 copy of every face on the way."""
     vertex_count = sum(part[0].shape[0] for part in parts)
     face_count = sum(part[1].shape[0] for part in parts)
     index_type = np.int32 if vertex_count < 2**31 else np.int64
-    positions = np.lib.format.open_memmap(os.path.join(folder, "leaf-positions.npy"), mode="w+", dtype=np.float32,
-                                          shape=(vertex_count, 3))
-    faces = np.lib.format.open_memmap(os.path.join(folder, "leaf-faces.npy"), mode="w+", dtype=index_type,
-                                      shape=(face_count, 3))
+    if folder is None:
+        positions, faces = np.empty((vertex_count, 3), np.float32), np.empty((face_count, 3), index_type)
+    else:
+        positions = np.lib.format.open_memmap(os.path.join(folder, "leaf-positions.npy"), mode="w+",
+                                              dtype=np.float32, shape=(vertex_count, 3))
+        faces = np.lib.format.open_memmap(os.path.join(folder, "leaf-faces.npy"), mode="w+", dtype=index_type,
+                                          shape=(face_count, 3))
     v = f = 0
     for part in parts:
         k, m = part[0].shape[0], part[1].shape[0]

@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...core import process_tree
+from ...core import heap, process_tree
 from ...core.atomic import atomic_file, write_text_atomic
 from ...core.errors import FormatError, HlodError, InputError
 from ...core.signals import Terminated, signals_as_exceptions
@@ -178,6 +178,7 @@ class _Events:
 
 def run(job_path: str, events: _Events) -> int:
     """Bake the job and save its output; the events say how it went (module notes)."""
+    heap.return_freed_buffers()
     try:
         mesh, settings, job = read_job(job_path)
         started = time.perf_counter()

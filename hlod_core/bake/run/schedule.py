@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import dataclasses
 import heapq
 import os
 import threading
@@ -44,6 +45,7 @@ from ..measure.leaf_arrays import LeafArrays
 from ..settings import BakeSettings
 from ..space.octree import OctreeLayout
 from . import tasks
+from .lod_spill import LodSpill
 from .workers import Workers
 
 #: progress(done_nodes, total_nodes, phase)
@@ -63,7 +65,10 @@ class SimplifyInput:
     rows' columns; None without rows), leaf_folder (a folder for the exact measure's leaf
     arrays, memory-mapped: an out-of-core bake; None: in memory), unit_length (the lattice the
     positions are points of, bake/space/lattice.py; 0: none) and seams (what each node shares with the cells
-    around it, kept in place; None: every open boundary is kept)."""
+    around it, kept in place; None: every open boundary is kept); spill (lod_spill.LodSpill): where
+    a node's children's LODs go once the node is complete, no task reading them again (None: they
+    stay in memory; only without proxies, whose plan rewrites the LODs after the phase, and without
+    a cache, which stores them)."""
 
     with_normals: bool
     row_layout: AttributeLayout | None
@@ -71,6 +76,7 @@ class SimplifyInput:
     unit_length: float = 0.0
     seams: CellSeams | None = None
     proxies: ProxyPlan | None = None
+    spill: LodSpill | None = None
 
 
 def simplify_phase(layout: OctreeLayout, lods: list, *, hausdorff_error: np.ndarray, made: dict,
@@ -86,9 +92,15 @@ def simplify_phase(layout: OctreeLayout, lods: list, *, hausdorff_error: np.ndar
     done = n - inner.size + len(made)
     progress(done, n, "simplify")
 
+    complete = layout.is_leaf.copy()  # decimated and measured (leaves: from the start)
+    complete[from_cache] = True
+
     def node_done(node: int, lod: simplify.NodeLod) -> None:
         nonlocal done
         made[node] = lod
+        complete[node] = True
+        if source.spill is not None:
+            _spill_finished(node, layout, lods, made, source.spill, complete)
         done += 1
         progress(done, n, "simplify")
 
@@ -98,6 +110,24 @@ def simplify_phase(layout: OctreeLayout, lods: list, *, hausdorff_error: np.ndar
         raise BakeCancelled("bake cancelled")
     if settings.error == "bound":
         compose_bounds(layout, hausdorff_error, rebuilt=np.setdiff1d(inner, from_cache))
+
+
+def _spill_finished(node: int, layout: OctreeLayout, lods: list, made: dict, spill: LodSpill,
+                    complete: np.ndarray) -> None:
+    """`node` is now decimated and measured (complete[node]): every LOD no task reads again goes to
+    the spill file: a complete node's, once its parent is complete too (the parent's decimation and
+    measurement, the bound measure's included, are the last tasks to read it); so `node` itself if
+    its parent is complete, and its complete children. In lods and, for inner nodes, in made (whose
+    NodeLod holds the same arrays)."""
+    first = int(layout.child_offset[node])
+    parent = int(layout.parent[node])
+    done = [child for child in range(first, first + int(layout.child_count[node])) if complete[child]]
+    for finished in done + ([node] if parent >= 0 and complete[parent] else []):
+        lods[finished] = spill.put(lods[finished])
+        if finished in made:
+            made[finished] = dataclasses.replace(made[finished], positions=lods[finished][0],
+                                                 faces=lods[finished][1], normals=lods[finished][2],
+                                                 attributes=lods[finished][3])
 
 
 def compose_bounds(layout: OctreeLayout, hausdorff_error: np.ndarray, *, rebuilt: np.ndarray) -> None:
@@ -175,11 +205,13 @@ class _Scheduler:
 
     def _shared_leaf_arrays(self, cancel: CancelFn | None = None) -> LeafArrays:
         """The leaf arrays (the leaves' entries of lods only: final), their clusters cut on the
-        workers (leaf_arrays.cut_clusters), shared with the workers."""
+        workers (leaf_arrays.cut_clusters), shared with the workers; where the workers read them
+        from a scratch folder, this process keeps only each node's ranges."""
         arrays = leaf_arrays.build(self.layout, self.lods, folder=self.source.leaf_folder, workers=self.workers,
                                    cancel=cancel)
         self.workers.share(arrays.arrays())
-        return arrays
+        # the workers map their own copy from the scratch folder: this process keeps the ranges only
+        return arrays.ranges_only() if self.workers.scratch else arrays
 
     def _push(self, kind: int, node: int) -> None:
         layout = self.layout
