@@ -116,3 +116,21 @@ def test_searching_again_only_where_the_nearest_face_is_turned_away_finds_what_a
     # and the search is the same every time
     again = closest_facing(points, normals, (positions, faces), reach=1.0)
     assert np.array_equal(again[0], face) and np.array_equal(again[1], bary)
+
+
+def test_the_second_search_keeps_every_face_within_reach_of_a_point_and_leaves_far_ones_out():
+    from hlod_core.bake.appearance.texels import _faces_near
+
+    rng = np.random.default_rng(5)
+    centres = rng.uniform(-0.5, 0.5, (3000, 1, 3))
+    corners = centres + rng.uniform(-0.02, 0.02, (3000, 3, 3))
+    corners[:20] = centres[:20] + rng.uniform(-0.3, 0.3, (20, 3, 3))  # a few large ones
+    points = rng.uniform(-0.5, 0.5, (25, 3))
+    reach = 0.03
+    near = _faces_near(points, corners, reach)
+    # points on each triangle (a barycentric lattice): a triangle with one within reach is kept
+    lattice = np.array([(i, j, 12 - i - j) for i in range(13) for j in range(13 - i)], float) / 12.0
+    on = np.einsum("lk,fkd->fld", lattice, corners)  # (f,l,3)
+    distance = np.linalg.norm(on[:, :, None, :] - points[None, None], axis=3).min(axis=(1, 2))
+    assert np.all(near[distance <= reach])
+    assert (~near).sum() > 1000  # most of the faces, far from the 25 points, are left out

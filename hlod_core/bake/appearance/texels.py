@@ -27,6 +27,9 @@ AXES = np.concatenate([np.eye(3), -np.eye(3)])
 #: axis: a face turned away from a texel's normal (more than about 145 degrees, always past 154.7) is
 #: never, a face within 90 degrees of it always (a face without area: in every bin).
 FACING_COS = float(np.cos(np.radians(100.0)))
+#: The second search's grid cell is at least this quantile of the source triangles' longest edges
+#: (_faces_near): the few longer triangles are always searched, the cells stay small.
+NEAR_EDGE_QUANTILE = 0.9
 
 
 def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
@@ -124,9 +127,9 @@ def closest_facing(points: np.ndarray, normals: np.ndarray, sources: tuple[np.nd
     corners = positions[faces]
     face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     face_normal /= np.maximum(np.linalg.norm(face_normal, axis=1, keepdims=True), 1e-300)
-    member = face_normal @ AXES.T >= FACING_COS  # (f,6): the faces searched for each bin
+    member = _along_axes(face_normal) >= FACING_COS  # (f,6): the faces searched for each bin
     normals = np.asarray(normals, np.float64)
-    point_bin = np.where(np.abs(normals).max(axis=1) > 0, np.argmax(normals @ AXES.T, axis=1), -1)
+    point_bin = np.where(np.abs(normals).max(axis=1) > 0, np.argmax(_along_axes(normals), axis=1), -1)
     facing = (point_bin >= 0) & member[face, np.maximum(point_bin, 0)]
     again = np.flatnonzero((point_bin >= 0) & ~facing)
     if again.size and reach > 0:
@@ -138,12 +141,18 @@ def closest_facing(points: np.ndarray, normals: np.ndarray, sources: tuple[np.nd
     return face, bary, facing
 
 
+def _along_axes(vectors: np.ndarray) -> np.ndarray:
+    """(n,6) dot products of vectors (n,3) with AXES (x, y, z, -x, -y, -z), without a BLAS call."""
+    return np.concatenate([vectors, -vectors], axis=1)
+
+
 def _closest_in_bins(points: np.ndarray, point_bin: np.ndarray, sources: tuple[np.ndarray, np.ndarray],
                      member: np.ndarray, *, reach: float) -> tuple[np.ndarray, np.ndarray]:
     """For each point (s,3), the nearest point within `reach` model units of the source faces of its
     bin (point_bin (s,) into member's columns; member (f,b) bool): (face (s,) int64, -1 where none is
     that near; bary (s,3)). One pymeshlab search for every bin: each bin's faces and points moved
-    along x by a slot of their own, far enough apart that no point reaches another bin's faces."""
+    along x by a slot of their own, far enough apart that no point reaches another bin's faces; only
+    the faces that can lie within reach of a point (_faces_near) are in it."""
     import pymeshlab
 
     positions, faces = sources
@@ -152,7 +161,8 @@ def _closest_in_bins(points: np.ndarray, point_bin: np.ndarray, sources: tuple[n
     reach_local = min(float(reach) * frame.scale, 4.0 * UNIT_DIAGONAL)
     shift = np.array([2.0 * UNIT_DIAGONAL + 2.0 * reach_local, 0.0, 0.0])  # the box is within 1/2 of 0
     bins = [k for k in range(member.shape[1]) if (point_bin == k).any()]
-    binned_faces = [np.flatnonzero(member[:, k]) for k in bins]
+    near = _faces_near(frame.to_local(points), corners, reach_local)
+    binned_faces = [np.flatnonzero(member[:, k] & near) for k in bins]
     slot = np.searchsorted(bins, point_bin).astype(np.float64)
     face = np.full(points.shape[0], -1, np.int64)
     bary = np.tile([1.0, 0.0, 0.0], (points.shape[0], 1))
@@ -173,6 +183,25 @@ def _closest_in_bins(points: np.ndarray, point_bin: np.ndarray, sources: tuple[n
     face[hit] = np.minimum(found[hit], faces.shape[0] - 1)
     bary[hit] = barycentric(moved.vertex_matrix()[hit] - slot[hit, None] * shift, corners[face[hit]])
     return face, bary
+
+
+def _faces_near(points: np.ndarray, corners: np.ndarray, reach: float) -> np.ndarray:
+    """(f,) bool: the triangles corners (f,3,3) that may come within `reach` of some point (s,3), all
+    in the unit frame (meshlab.NodeFrame), the others certainly not. On a grid of cells as large as
+    reach and NEAR_EDGE_QUANTILE of the triangles' longest edges, a triangle whose edges fit a cell
+    and that comes within reach of a point has its first corner within 2 cells of the point's along
+    each axis; the longer triangles are all kept."""
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    cell = max(float(reach), float(np.quantile(longest, NEAR_EDGE_QUANTILE)), 1e-6 * UNIT_DIAGONAL)
+    span = np.arange(-2, 3)
+    around = np.stack(np.meshgrid(span, span, span, indexing="ij"), axis=-1).reshape(-1, 3)  # (125,3)
+
+    def key(c: np.ndarray) -> np.ndarray:  # cells within 2**20 of the frame's centre: a unique int64 each
+        c = c + (1 << 20)
+        return (c[..., 0] << 42) | (c[..., 1] << 21) | c[..., 2]
+
+    marked = np.unique(key(np.floor(points / cell).astype(np.int64)[:, None, :] + around[None]))
+    return (longest > cell) | np.isin(key(np.floor(corners[:, 0] / cell).astype(np.int64)), marked)
 
 
 def barycentric(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
