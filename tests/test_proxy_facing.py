@@ -105,8 +105,7 @@ def test_searching_again_only_where_the_nearest_face_is_turned_away_finds_what_a
     face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     face_normal /= np.linalg.norm(face_normal, axis=1, keepdims=True)
     member = face_normal @ AXES.T >= FACING_COS
-    every, every_bary = _closest_in_bins(points, np.argmax(normals @ AXES.T, axis=1), (positions, faces), member,
-                                         reach=1.0)
+    every, every_bary = _closest_in_bins(points, np.argmax(normals @ AXES.T, axis=1), corners, member, reach=1.0)
     assert facing.all() and (every >= 0).all()
     found = np.einsum("sk,skd->sd", bary, corners[face])
     searched = np.einsum("sk,skd->sd", every_bary, corners[every])

@@ -133,8 +133,7 @@ def closest_facing(points: np.ndarray, normals: np.ndarray, sources: tuple[np.nd
     facing = (point_bin >= 0) & member[face, np.maximum(point_bin, 0)]
     again = np.flatnonzero((point_bin >= 0) & ~facing)
     if again.size and reach > 0:
-        found, found_bary = _closest_in_bins(points[again], point_bin[again], (positions, faces), member,
-                                             reach=reach)
+        found, found_bary = _closest_in_bins(points[again], point_bin[again], corners, member, reach=reach)
         hit = found >= 0
         face[again[hit]], bary[again[hit]] = found[hit], found_bary[hit]
         facing[again[hit]] = True
@@ -146,29 +145,30 @@ def _along_axes(vectors: np.ndarray) -> np.ndarray:
     return np.concatenate([vectors, -vectors], axis=1)
 
 
-def _closest_in_bins(points: np.ndarray, point_bin: np.ndarray, sources: tuple[np.ndarray, np.ndarray],
-                     member: np.ndarray, *, reach: float) -> tuple[np.ndarray, np.ndarray]:
-    """For each point (s,3), the nearest point within `reach` model units of the source faces of its
-    bin (point_bin (s,) into member's columns; member (f,b) bool): (face (s,) int64, -1 where none is
-    that near; bary (s,3)). One pymeshlab search for every bin: each bin's faces and points moved
-    along x by a slot of their own, far enough apart that no point reaches another bin's faces; only
-    the faces that can lie within reach of a point (_faces_near) are in it."""
+def _closest_in_bins(points: np.ndarray, point_bin: np.ndarray, corners: np.ndarray, member: np.ndarray, *,
+                     reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each point (s,3), the nearest point within `reach` model units of the source triangles
+    corners (f,3,3) of its bin (point_bin (s,) into member's columns; member (f,b) bool): (face (s,)
+    int64, -1 where none is that near; bary (s,3)). One pymeshlab search for every bin: each bin's
+    faces and points moved along x by a slot of their own, far enough apart that no point reaches
+    another bin's faces; only the faces that can lie within reach of a point (_faces_near) are in it."""
     import pymeshlab
 
-    positions, faces = sources
-    frame = NodeFrame.of(np.concatenate([positions, points]))
-    corners = frame.to_local(positions)[faces]  # (f,3,3)
-    reach_local = min(float(reach) * frame.scale, 4.0 * UNIT_DIAGONAL)
-    shift = np.array([2.0 * UNIT_DIAGONAL + 2.0 * reach_local, 0.0, 0.0])  # the box is within 1/2 of 0
-    bins = [k for k in range(member.shape[1]) if (point_bin == k).any()]
-    near = _faces_near(frame.to_local(points), corners, reach_local)
-    binned_faces = [np.flatnonzero(member[:, k] & near) for k in bins]
-    slot = np.searchsorted(bins, point_bin).astype(np.float64)
     face = np.full(points.shape[0], -1, np.int64)
     bary = np.tile([1.0, 0.0, 0.0], (points.shape[0], 1))
+    near = _faces_near(points, corners, reach)
+    bins = [k for k in range(member.shape[1]) if (point_bin == k).any()]
+    binned_faces = [np.flatnonzero(member[:, k] & near) for k in bins]
     if not sum(f.size for f in binned_faces):
         return face, bary
-    vertices = np.concatenate([(corners[f] + i * shift).reshape(-1, 3) for i, f in enumerate(binned_faces)])
+    used = np.unique(np.concatenate(binned_faces))
+    frame = NodeFrame.of(np.concatenate([corners[used].reshape(-1, 3), points]))
+    reach_local = min(float(reach) * frame.scale, 4.0 * UNIT_DIAGONAL)
+    shift = np.array([2.0 * UNIT_DIAGONAL + 2.0 * reach_local, 0.0, 0.0])  # the box is within 1/2 of 0
+    slot = np.searchsorted(bins, point_bin).astype(np.float64)
+    local = frame.to_local(corners[used].reshape(-1, 3)).reshape(-1, 3, 3)  # rows of `used`
+    vertices = np.concatenate([(local[np.searchsorted(used, f)] + i * shift).reshape(-1, 3)
+                               for i, f in enumerate(binned_faces)])
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices,
                                face_matrix=np.arange(vertices.shape[0], dtype=np.int32).reshape(-1, 3),
@@ -180,28 +180,33 @@ def _closest_in_bins(points: np.ndarray, point_bin: np.ndarray, sources: tuple[n
     moved = ms.current_mesh()
     found = np.round(moved.vertex_scalar_array()).astype(np.int64)
     hit = found >= 0
-    face[hit] = np.minimum(found[hit], faces.shape[0] - 1)
-    bary[hit] = barycentric(moved.vertex_matrix()[hit] - slot[hit, None] * shift, corners[face[hit]])
+    face[hit] = np.minimum(found[hit], corners.shape[0] - 1)
+    bary[hit] = barycentric(moved.vertex_matrix()[hit] - slot[hit, None] * shift,
+                            local[np.searchsorted(used, face[hit])])
     return face, bary
 
 
 def _faces_near(points: np.ndarray, corners: np.ndarray, reach: float) -> np.ndarray:
-    """(f,) bool: the triangles corners (f,3,3) that may come within `reach` of some point (s,3), all
-    in the unit frame (meshlab.NodeFrame), the others certainly not. On a grid of cells as large as
-    reach and NEAR_EDGE_QUANTILE of the triangles' longest edges, a triangle whose edges fit a cell
-    and that comes within reach of a point has its first corner within 2 cells of the point's along
-    each axis; the longer triangles are all kept."""
+    """(f,) bool: the triangles corners (f,3,3) that may come within `reach` of some point (s,3), s >=
+    1, model units, the others certainly not. On a grid of cells as large as reach and
+    NEAR_EDGE_QUANTILE of the triangles' longest edges, a triangle whose edges fit a cell and that
+    comes within reach of a point has its first corner within 2 cells of the point's along each
+    axis; the longer triangles are all kept."""
+    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    extent = float(np.abs(points - centre).max())
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
-    cell = max(float(reach), float(np.quantile(longest, NEAR_EDGE_QUANTILE)), 1e-6 * UNIT_DIAGONAL)
+    cell = max(float(reach), float(np.quantile(longest, NEAR_EDGE_QUANTILE)), extent / (1 << 19), 1e-300)
     span = np.arange(-2, 3)
     around = np.stack(np.meshgrid(span, span, span, indexing="ij"), axis=-1).reshape(-1, 3)  # (125,3)
 
-    def key(c: np.ndarray) -> np.ndarray:  # cells within 2**20 of the frame's centre: a unique int64 each
+    def key(c: np.ndarray) -> np.ndarray:  # cells within 2**20 of the centre's: a unique int64 each
         c = c + (1 << 20)
         return (c[..., 0] << 42) | (c[..., 1] << 21) | c[..., 2]
 
-    marked = np.unique(key(np.floor(points / cell).astype(np.int64)[:, None, :] + around[None]))
-    return (longest > cell) | np.isin(key(np.floor(corners[:, 0] / cell).astype(np.int64)), marked)
+    marked = np.unique(key(np.floor((points - centre) / cell).astype(np.int64)[:, None, :] + around[None]))
+    # a corner further than 2**20 - 8 cells out is far from every point (those are within 2**19)
+    corner = np.clip(np.floor((corners[:, 0] - centre) / cell), 8 - (1 << 20), (1 << 20) - 8).astype(np.int64)
+    return (longest > cell) | np.isin(key(corner), marked)
 
 
 def barycentric(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
