@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from hlod_core.bake.appearance.proxy import ProxySettings, SourceLooks, bake_proxy
-from hlod_core.bake.appearance.texels import AXES, FACING_COS, _closest_in_bins, closest_facing, closest_on_sources
+from hlod_core.bake.appearance.texels import AXES, FACING_COS, closest_facing, closest_in_bins, closest_on_sources
 from hlod_core.model.appearance import AttributeLayout, Material
 
 LAYOUT = AttributeLayout(material=True, uv=True, color=False)  # a proxy bake's rows carry UVs
@@ -105,7 +105,7 @@ def test_searching_again_only_where_the_nearest_face_is_turned_away_finds_what_a
     face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     face_normal /= np.linalg.norm(face_normal, axis=1, keepdims=True)
     member = face_normal @ AXES.T >= FACING_COS
-    every, every_bary = _closest_in_bins(points, np.argmax(normals @ AXES.T, axis=1), corners, member, reach=1.0)
+    every, every_bary = closest_in_bins(points, np.argmax(normals @ AXES.T, axis=1), corners, member, reach=1.0)
     assert facing.all() and (every >= 0).all()
     found = np.einsum("sk,skd->sd", bary, corners[face])
     searched = np.einsum("sk,skd->sd", every_bary, corners[every])
@@ -118,7 +118,7 @@ def test_searching_again_only_where_the_nearest_face_is_turned_away_finds_what_a
 
 
 def test_the_second_search_keeps_every_face_within_reach_of_a_point_and_leaves_far_ones_out():
-    from hlod_core.bake.appearance.texels import _faces_near
+    from hlod_core.bake.appearance.texels import faces_near
 
     rng = np.random.default_rng(5)
     centres = rng.uniform(-0.5, 0.5, (3000, 1, 3))
@@ -126,7 +126,7 @@ def test_the_second_search_keeps_every_face_within_reach_of_a_point_and_leaves_f
     corners[:20] = centres[:20] + rng.uniform(-0.3, 0.3, (20, 3, 3))  # a few large ones
     points = rng.uniform(-0.5, 0.5, (25, 3))
     reach = 0.03
-    near = _faces_near(points, corners, reach)
+    near = faces_near(points, corners, reach)
     # points on each triangle (a barycentric lattice): a triangle with one within reach is kept
     lattice = np.array([(i, j, 12 - i - j) for i in range(13) for j in range(13 - i)], float) / 12.0
     on = np.einsum("lk,fkd->fld", lattice, corners)  # (f,l,3)

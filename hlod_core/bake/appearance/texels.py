@@ -28,7 +28,7 @@ AXES = np.concatenate([np.eye(3), -np.eye(3)])
 #: never, a face within 90 degrees of it always (a face without area: in every bin).
 FACING_COS = float(np.cos(np.radians(100.0)))
 #: The second search's grid cell is at least this quantile of the source triangles' longest edges
-#: (_faces_near): the few longer triangles are always searched, the cells stay small.
+#: (faces_near): the few longer triangles are always searched, the cells stay small.
 NEAR_EDGE_QUANTILE = 0.9
 
 
@@ -133,7 +133,7 @@ def closest_facing(points: np.ndarray, normals: np.ndarray, sources: tuple[np.nd
     facing = (point_bin >= 0) & member[face, np.maximum(point_bin, 0)]
     again = np.flatnonzero((point_bin >= 0) & ~facing)
     if again.size and reach > 0:
-        found, found_bary = _closest_in_bins(points[again], point_bin[again], corners, member, reach=reach)
+        found, found_bary = closest_in_bins(points[again], point_bin[again], corners, member, reach=reach)
         hit = found >= 0
         face[again[hit]], bary[again[hit]] = found[hit], found_bary[hit]
         facing[again[hit]] = True
@@ -145,18 +145,18 @@ def _along_axes(vectors: np.ndarray) -> np.ndarray:
     return np.concatenate([vectors, -vectors], axis=1)
 
 
-def _closest_in_bins(points: np.ndarray, point_bin: np.ndarray, corners: np.ndarray, member: np.ndarray, *,
+def closest_in_bins(points: np.ndarray, point_bin: np.ndarray, corners: np.ndarray, member: np.ndarray, *,
                      reach: float) -> tuple[np.ndarray, np.ndarray]:
     """For each point (s,3), the nearest point within `reach` model units of the source triangles
     corners (f,3,3) of its bin (point_bin (s,) into member's columns; member (f,b) bool): (face (s,)
     int64, -1 where none is that near; bary (s,3)). One pymeshlab search for every bin: each bin's
     faces and points moved along x by a slot of their own, far enough apart that no point reaches
-    another bin's faces; only the faces that can lie within reach of a point (_faces_near) are in it."""
+    another bin's faces; only the faces that can lie within reach of a point (faces_near) are in it."""
     import pymeshlab
 
     face = np.full(points.shape[0], -1, np.int64)
     bary = np.tile([1.0, 0.0, 0.0], (points.shape[0], 1))
-    near = _faces_near(points, corners, reach)
+    near = faces_near(points, corners, reach)
     bins = [k for k in range(member.shape[1]) if (point_bin == k).any()]
     binned_faces = [np.flatnonzero(member[:, k] & near) for k in bins]
     if not sum(f.size for f in binned_faces):
@@ -186,7 +186,7 @@ def _closest_in_bins(points: np.ndarray, point_bin: np.ndarray, corners: np.ndar
     return face, bary
 
 
-def _faces_near(points: np.ndarray, corners: np.ndarray, reach: float) -> np.ndarray:
+def faces_near(points: np.ndarray, corners: np.ndarray, reach: float) -> np.ndarray:
     """(f,) bool: the triangles corners (f,3,3) that may come within `reach` of some point (s,3), s >=
     1, model units, the others certainly not. On a grid of cells as large as reach and
     NEAR_EDGE_QUANTILE of the triangles' longest edges, a triangle whose edges fit a cell and that
