@@ -26,7 +26,7 @@ from ...model.appearance import AttributeLayout, Material
 from .atlas import node_atlas, surface_area, texture_side
 from .quality import DIRECTIONS, node_psnr
 from .surface_colour import MipChain, Surface, colour_at, texture_texels_per_unit
-from .texels import closest_on_sources, fill_empty, texel_samples
+from .texels import closest_facing, fill_empty, texel_samples
 
 #: Alpha (of 1) at or above which a texel is opaque: a face all of whose texels are goes in the
 #: proxy's opaque part, the others in its alpha-tested part.
@@ -42,6 +42,10 @@ GATE_DIRECTIONS = DIRECTIONS[:6]
 #: Packing efficiency assumed before the atlas is packed (xatlas packs 0.65 to 0.76 of the image on
 #: the bakes measured in docs/performance.md); the texel size itself is what the pack is asked for.
 EXPECTED_PACKING = 0.7
+#: How far (x the node's error, at least one texel) a texel looks for a source face facing its way
+#: before it takes the nearest point of all (texels.closest_facing): the LOD lies within about its
+#: error of its sources, the children's LODs within theirs of the leaves.
+FACING_REACH_ERRORS = 3.0
 
 
 @dataclass(frozen=True)
@@ -153,10 +157,13 @@ def bake_proxy(lod: tuple, error: float, sources: list[tuple], *, node: int, lay
         bary = np.full((face.size, 3), 1.0 / 3.0)
         texel = np.zeros(face.size, np.int64)
     points = np.einsum("sk,skd->sd", bary, p[atlas.faces[face]])
-    source_face, source_bary = closest_on_sources(points, (surface.positions, surface.faces))
     footprint = 1.0 / atlas.texels_per_unit if atlas.texels_per_unit > 0 else texel_size
     if not footprint > 0:
         footprint = 0.0
+    t = p[atlas.faces]
+    normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[face]  # the LOD face's at each texel, any length
+    reach = max(FACING_REACH_ERRORS * max(float(error), 0.0), footprint)
+    source_face, source_bary, _ = closest_facing(points, normal, (surface.positions, surface.faces), reach=reach)
     colour = colour_at(surface, source_face, source_bary, footprint=footprint)
     rgba = np.zeros((height * width, 4), np.float32)
     if atlas.texels_per_unit == 0:  # one colour: the mean of what the faces show

@@ -1,6 +1,10 @@
 """Where an atlas's texels lie on the LOD, and where the sources are nearest to them: the two
 geometric steps of a proxy texture's bake (proxy.py).
 
+A texel takes the nearest source point among the source faces that face its way (`closest_facing`):
+the nearest point of all would be the far side of a part thinner than the LOD's offset from it, or a
+neighbouring object. docs/how-it-works.md#proxy-materials-for-the-inner-nodes
+
 Data form: an atlas (atlas.Atlas: uvs (j,2) in [0, 1], GL convention, faces (m,3)) over a
 width x height image whose row 0 is the bottom row (v = 0); a texel is its flat index
 row * width + column, its centre at ((column + 0.5) / width, (row + 0.5) / height) in UV.
@@ -17,6 +21,15 @@ from ..decimate.meshlab import UNIT_DIAGONAL, NodeFrame
 INSIDE_SLACK = 1e-7
 #: Texel candidates (bounding-box texels) rasterised at a time: bounds the temporaries.
 _BLOCK = 1 << 21
+#: The directions a texel's LOD normal is binned by: its dominant one (the largest dot product).
+AXES = np.concatenate([np.eye(3), -np.eye(3)])
+#: A source face is searched for the texels of an axis where its normal is within 100 degrees of that
+#: axis: a face turned away from a texel's normal (more than about 145 degrees, always past 154.7) is
+#: never, a face within 90 degrees of it always (a face without area: in every bin).
+FACING_COS = float(np.cos(np.radians(100.0)))
+#: The second search's grid cell is at least this quantile of the source triangles' longest edges
+#: (faces_near): the few longer triangles are always searched, the cells stay small.
+NEAR_EDGE_QUANTILE = 0.9
 
 
 def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
@@ -94,6 +107,106 @@ def closest_on_sources(points: np.ndarray, sources: tuple[np.ndarray, np.ndarray
     moved = ms.current_mesh()
     face = np.clip(np.round(moved.vertex_scalar_array()).astype(np.int64), 0, faces.shape[0] - 1)
     return face, barycentric(moved.vertex_matrix(), corners[face])
+
+
+def closest_facing(points: np.ndarray, normals: np.ndarray, sources: tuple[np.ndarray, np.ndarray], *,
+                   reach: float):
+    """As closest_on_sources, but each point (s,3) takes the nearest point of the source faces that
+    face its way: those whose normal is within 100 degrees of the axis (AXES) nearest its normal
+    (s,3) float, any length (FACING_COS); a point with no such face within `reach` (model units),
+    or with a zero normal, the nearest point of all. Returns (face (s,) int64, bary (s,3) float64,
+    facing (s,) bool: the face found faces the point's way). The nearest point of all is searched
+    first; only the points whose nearest face is turned away are searched again among their bin's
+    faces (the same answer as searching every point there: a nearest face that is in the bin is
+    the bin's nearest)."""
+    positions, faces = np.asarray(sources[0], np.float64), np.asarray(sources[1], np.int64)
+    points = np.asarray(points, np.float64)
+    face, bary = closest_on_sources(points, (positions, faces))
+    if points.shape[0] == 0 or faces.shape[0] == 0:
+        return face, bary, np.zeros(points.shape[0], bool)
+    corners = positions[faces]
+    face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    face_normal /= np.maximum(np.linalg.norm(face_normal, axis=1, keepdims=True), 1e-300)
+    member = _along_axes(face_normal) >= FACING_COS  # (f,6): the faces searched for each bin
+    normals = np.asarray(normals, np.float64)
+    point_bin = np.where(np.abs(normals).max(axis=1) > 0, np.argmax(_along_axes(normals), axis=1), -1)
+    facing = (point_bin >= 0) & member[face, np.maximum(point_bin, 0)]
+    again = np.flatnonzero((point_bin >= 0) & ~facing)
+    if again.size and reach > 0:
+        found, found_bary = closest_in_bins(points[again], point_bin[again], corners, member, reach=reach)
+        hit = found >= 0
+        face[again[hit]], bary[again[hit]] = found[hit], found_bary[hit]
+        facing[again[hit]] = True
+    return face, bary, facing
+
+
+def _along_axes(vectors: np.ndarray) -> np.ndarray:
+    """(n,6) dot products of vectors (n,3) with AXES (x, y, z, -x, -y, -z), without a BLAS call."""
+    return np.concatenate([vectors, -vectors], axis=1)
+
+
+def closest_in_bins(points: np.ndarray, point_bin: np.ndarray, corners: np.ndarray, member: np.ndarray, *,
+                     reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each point (s,3), the nearest point within `reach` model units of the source triangles
+    corners (f,3,3) of its bin (point_bin (s,) into member's columns; member (f,b) bool): (face (s,)
+    int64, -1 where none is that near; bary (s,3)). One pymeshlab search for every bin: each bin's
+    faces and points moved along x by a slot of their own, far enough apart that no point reaches
+    another bin's faces; only the faces that can lie within reach of a point (faces_near) are in it."""
+    import pymeshlab
+
+    face = np.full(points.shape[0], -1, np.int64)
+    bary = np.tile([1.0, 0.0, 0.0], (points.shape[0], 1))
+    near = faces_near(points, corners, reach)
+    bins = [k for k in range(member.shape[1]) if (point_bin == k).any()]
+    binned_faces = [np.flatnonzero(member[:, k] & near) for k in bins]
+    if not sum(f.size for f in binned_faces):
+        return face, bary
+    used = np.unique(np.concatenate(binned_faces))
+    frame = NodeFrame.of(np.concatenate([corners[used].reshape(-1, 3), points]))
+    reach_local = min(float(reach) * frame.scale, 4.0 * UNIT_DIAGONAL)
+    shift = np.array([2.0 * UNIT_DIAGONAL + 2.0 * reach_local, 0.0, 0.0])  # the box is within 1/2 of 0
+    slot = np.searchsorted(bins, point_bin).astype(np.float64)
+    local = frame.to_local(corners[used].reshape(-1, 3)).reshape(-1, 3, 3)  # rows of `used`
+    vertices = np.concatenate([(local[np.searchsorted(used, f)] + i * shift).reshape(-1, 3)
+                               for i, f in enumerate(binned_faces)])
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=vertices,
+                               face_matrix=np.arange(vertices.shape[0], dtype=np.int32).reshape(-1, 3),
+                               v_scalar_array=np.repeat(np.concatenate(binned_faces).astype(np.float64), 3)))
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=frame.to_local(points) + slot[:, None] * shift,
+                               v_scalar_array=np.full(points.shape[0], -1.0)))
+    ms.transfer_attributes_per_vertex(sourcemesh=0, targetmesh=1, geomtransfer=True, colortransfer=False,
+                                      qualitytransfer=True, upperbound=pymeshlab.PureValue(reach_local))
+    moved = ms.current_mesh()
+    found = np.round(moved.vertex_scalar_array()).astype(np.int64)
+    hit = found >= 0
+    face[hit] = np.minimum(found[hit], corners.shape[0] - 1)
+    bary[hit] = barycentric(moved.vertex_matrix()[hit] - slot[hit, None] * shift,
+                            local[np.searchsorted(used, face[hit])])
+    return face, bary
+
+
+def faces_near(points: np.ndarray, corners: np.ndarray, reach: float) -> np.ndarray:
+    """(f,) bool: the triangles corners (f,3,3) that may come within `reach` of some point (s,3), s >=
+    1, model units, the others certainly not. On a grid of cells as large as reach and
+    NEAR_EDGE_QUANTILE of the triangles' longest edges, a triangle whose edges fit a cell and that
+    comes within reach of a point has its first corner within 2 cells of the point's along each
+    axis; the longer triangles are all kept."""
+    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    extent = float(np.abs(points - centre).max())
+    longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
+    cell = max(float(reach), float(np.quantile(longest, NEAR_EDGE_QUANTILE)), extent / (1 << 19), 1e-300)
+    span = np.arange(-2, 3)
+    around = np.stack(np.meshgrid(span, span, span, indexing="ij"), axis=-1).reshape(-1, 3)  # (125,3)
+
+    def key(c: np.ndarray) -> np.ndarray:  # cells within 2**20 of the centre's: a unique int64 each
+        c = c + (1 << 20)
+        return (c[..., 0] << 42) | (c[..., 1] << 21) | c[..., 2]
+
+    marked = np.unique(key(np.floor((points - centre) / cell).astype(np.int64)[:, None, :] + around[None]))
+    # a corner further than 2**20 - 8 cells out is far from every point (those are within 2**19)
+    corner = np.clip(np.floor((corners[:, 0] - centre) / cell), 8 - (1 << 20), (1 << 20) - 8).astype(np.int64)
+    return (longest > cell) | np.isin(key(corner), marked)
 
 
 def barycentric(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
