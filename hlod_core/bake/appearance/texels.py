@@ -19,6 +19,9 @@ from ..decimate.meshlab import UNIT_DIAGONAL, NodeFrame
 #: Texel centres this far outside a triangle (in barycentric units) still count as inside it, so a
 #: texel on a shared chart edge is covered once or twice, never dropped.
 INSIDE_SLACK = 1e-7
+#: How far (texels, along each axis) from a point a bilinear read takes texels: a triangle's
+#: footprint_samples are the texels within it that no triangle's centre sample filled.
+BILINEAR_REACH = 1.0
 #: Texel candidates (bounding-box texels) rasterised at a time: bounds the temporaries.
 _BLOCK = 1 << 21
 #: The directions a texel's LOD normal is binned by: its dominant one (the largest dot product).
@@ -37,30 +40,12 @@ def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
     once, ascending; face (s,) int64 the triangle covering it (the lowest of those that do);
     bary (s,3) float64 its barycentric coordinates there). Vectorised over the triangles' texel
     bounding boxes, a block at a time."""
-    uv = np.asarray(uvs, np.float64) * np.array([width, height], np.float64)
-    f = np.asarray(faces, np.int64)
+    uv, f = _texel_space(uvs, faces, width, height)
     a, b, c = uv[f[:, 0]], uv[f[:, 1]], uv[f[:, 2]]
-    lo = np.floor(np.minimum(np.minimum(a, b), c) - 0.5).astype(np.int64)
-    hi = np.ceil(np.maximum(np.maximum(a, b), c) - 0.5).astype(np.int64)
-    lo = np.clip(lo, 0, [width - 1, height - 1])
-    hi = np.clip(hi, 0, [width - 1, height - 1])
-    span = np.maximum(hi - lo + 1, 0)
-    count = span[:, 0] * span[:, 1]
     denominator = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
     usable = np.abs(denominator) > 1e-18
-    count = np.where(usable, count, 0)
     texels, owners, barys = [], [], []
-    ends = np.cumsum(count)
-    start = 0
-    while start < f.shape[0]:
-        stop = int(np.searchsorted(ends, (ends[start - 1] if start else 0) + _BLOCK, side="right"))
-        stop = max(stop, start + 1)
-        tri = np.arange(start, stop)
-        n = count[tri]
-        owner = np.repeat(tri, n)
-        rank = np.arange(owner.size) - np.repeat(np.cumsum(n) - n, n)
-        column = lo[owner, 0] + rank % np.maximum(span[owner, 0], 1)
-        row = lo[owner, 1] + rank // np.maximum(span[owner, 0], 1)
+    for owner, column, row in _candidates(uv, f, width, height, margin=0.0, keep=usable):
         px, py = column + 0.5, row + 0.5
         d = denominator[owner]
         l0 = ((b[owner, 1] - c[owner, 1]) * (px - c[owner, 0]) + (c[owner, 0] - b[owner, 0]) * (py - c[owner, 1])) / d
@@ -70,7 +55,6 @@ def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
         texels.append(row[inside] * width + column[inside])
         owners.append(owner[inside])
         barys.append(np.clip(np.stack([l0[inside], l1[inside], l2[inside]], axis=1), 0.0, 1.0))
-        start = stop
     texel = np.concatenate(texels) if texels else np.zeros(0, np.int64)
     owner = np.concatenate(owners) if owners else np.zeros(0, np.int64)
     bary = np.concatenate(barys) if barys else np.zeros((0, 3))
@@ -82,6 +66,125 @@ def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
     bary = bary[chosen]
     bary /= np.maximum(bary.sum(axis=1, keepdims=True), 1e-300)
     return texel[chosen], owner[chosen], bary
+
+
+def footprint_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int, filled: np.ndarray, *,
+                      reach: float = BILINEAR_REACH):
+    """The texels a bilinear read at some point of an atlas triangle takes (their centres within
+    `reach` texels of it along both axes: the triangle touches the 2 reach wide square about the
+    centre) that `filled` (width * height,) bool does not hold: (texel (s,) int64 flat indices, each
+    once, ascending; face (s,) int64 the triangle nearest its centre, the lowest of equals; bary (s,3)
+    float64 the point of that triangle nearest the centre). So a triangle that holds no texel centre
+    (a sliver, or one without area in UV) still has texels of its own colour. Vectorised as
+    texel_samples; the overlap is a separating-axis test (the two axes by the candidates' boxes,
+    the three edge normals here)."""
+    uv, f = _texel_space(uvs, faces, width, height)
+    filled = np.asarray(filled, bool).reshape(-1)
+    corners = uv[f]  # (m,3,2)
+    edge = np.roll(corners, -1, axis=1) - corners  # (m,3,2): corner i to corner i + 1
+    twice_area = edge[:, 0, 0] * edge[:, 1, 1] - edge[:, 0, 1] * edge[:, 1, 0]
+    length2 = np.einsum("mkd,mkd->mk", edge, edge)
+    flat = np.abs(twice_area) <= 1e-12 * np.maximum(length2.max(axis=1), 1e-300)
+    # inward edge normals (a triangle with no area: its longest edge's, the test two-sided)
+    inward = np.stack([-edge[..., 1], edge[..., 0]], axis=-1) * np.where(twice_area < 0, -1.0, 1.0)[:, None, None]
+    longest = np.argmax(length2, axis=1)
+    box_lo, box_hi = corners.min(axis=1) - reach * (1.0 + 1e-9), corners.max(axis=1) + reach * (1.0 + 1e-9)
+    texels, owners, distances, barys = [], [], [], []
+    for owner, column, row in _candidates(uv, f, width, height, margin=reach):
+        texel = row * width + column
+        open_ = ~filled[texel]
+        owner, texel = owner[open_], texel[open_]
+        centre = np.stack([column[open_] + 0.5, row[open_] + 0.5], axis=1)
+        n = inward[owner]  # (s,3,2)
+        signed = np.einsum("skd,skd->sk", n, centre[:, None, :] - corners[owner])
+        slack = reach * np.abs(n).sum(axis=2) * (1.0 + 1e-9)
+        is_flat = flat[owner]
+        pick = longest[owner]
+        along = np.take_along_axis(signed, pick[:, None], axis=1)[:, 0]
+        across = np.take_along_axis(slack, pick[:, None], axis=1)[:, 0]
+        touches = np.where(is_flat, np.abs(along) <= across, np.all(signed >= -slack, axis=1)) \
+            & np.all((centre >= box_lo[owner]) & (centre <= box_hi[owner]), axis=1)
+        owner, texel, centre = owner[touches], texel[touches], centre[touches]
+        distance, bary = _nearest_in_triangles(centre, corners[owner], inside=~is_flat[touches]
+                                               & np.all(signed[touches] >= 0.0, axis=1))
+        texels.append(texel)
+        owners.append(owner)
+        distances.append(distance)
+        barys.append(bary)
+    if not texels:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    texel, owner = np.concatenate(texels), np.concatenate(owners)
+    distance, bary = np.concatenate(distances), np.concatenate(barys)
+    order = np.lexsort((owner, distance, texel))  # by texel, then nearest, then lowest face
+    texel, owner, bary = texel[order], owner[order], bary[order]
+    first = np.ones(texel.size, bool)
+    first[1:] = texel[1:] != texel[:-1]
+    return texel[first], owner[first], bary[first]
+
+
+def _texel_space(uvs: np.ndarray, faces: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The atlas's UVs in texel units (j,2) float64 (a texel's centre at column + 0.5, row + 0.5) and
+    its faces (m,3) int64."""
+    return np.asarray(uvs, np.float64) * np.array([width, height], np.float64), np.asarray(faces, np.int64)
+
+
+def _candidates(uv: np.ndarray, f: np.ndarray, width: int, height: int, *, margin: float,
+                keep: np.ndarray | None = None):
+    """Yields (face (s,), column (s,), row (s,)) int64: each triangle f (m,3) over uv (j,2) texel
+    units (those `keep` marks) with every texel of the image whose centre lies within `margin` texels
+    of the triangle's bounding box (and a few more), _BLOCK candidates at a time."""
+    a, b, c = uv[f[:, 0]], uv[f[:, 1]], uv[f[:, 2]]
+    lo = np.floor(np.minimum(np.minimum(a, b), c) - margin - 0.5).astype(np.int64)
+    hi = np.ceil(np.maximum(np.maximum(a, b), c) + margin - 0.5).astype(np.int64)
+    lo = np.clip(lo, 0, [width - 1, height - 1])
+    hi = np.clip(hi, 0, [width - 1, height - 1])
+    span = np.maximum(hi - lo + 1, 0)
+    count = span[:, 0] * span[:, 1]
+    if keep is not None:
+        count = np.where(keep, count, 0)
+    ends = np.cumsum(count)
+    start = 0
+    while start < f.shape[0]:
+        stop = int(np.searchsorted(ends, (ends[start - 1] if start else 0) + _BLOCK, side="right"))
+        stop = max(stop, start + 1)
+        tri = np.arange(start, stop)
+        n = count[tri]
+        owner = np.repeat(tri, n)
+        rank = np.arange(owner.size) - np.repeat(np.cumsum(n) - n, n)
+        width_of = np.maximum(span[owner, 0], 1)
+        yield owner, lo[owner, 0] + rank % width_of, lo[owner, 1] + rank // width_of
+        start = stop
+
+
+def _nearest_in_triangles(points: np.ndarray, triangles: np.ndarray, *, inside: np.ndarray):
+    """(distance (s,) float64, bary (s,3) float64) of the point of each triangle (s,3,2) nearest each
+    point (s,2), where `inside` (s,) marks the points known to lie in theirs: the point itself there
+    (barycentric), elsewhere the nearest point of the three edges (their projections clamped)."""
+    s = points.shape[0]
+    best = np.full(s, np.inf)
+    bary = np.zeros((s, 3))
+    rows = np.arange(s)
+    for k in range(3):
+        a, b = triangles[:, k], triangles[:, (k + 1) % 3]
+        ab = b - a
+        t = np.einsum("sd,sd->s", points - a, ab) / np.maximum(np.einsum("sd,sd->s", ab, ab), 1e-300)
+        t = np.clip(t, 0.0, 1.0)
+        gap = np.linalg.norm(a + t[:, None] * ab - points, axis=1)
+        better = gap < best
+        best = np.where(better, gap, best)
+        here = np.zeros((s, 3))
+        here[rows, k], here[rows, (k + 1) % 3] = 1.0 - t, t
+        bary = np.where(better[:, None], here, bary)
+    if inside.any():
+        bary[inside] = barycentric2(points[inside], triangles[inside])
+        best[inside] = 0.0
+    return best, bary
+
+
+def barycentric2(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """(s,3) barycentric coordinates of points (s,2) in triangles (s,3,2) with area, clamped to the
+    triangle and summing to 1."""
+    return barycentric(np.pad(points, ((0, 0), (0, 1))), np.pad(triangles, ((0, 0), (0, 0), (0, 1))))
 
 
 def closest_on_sources(points: np.ndarray, sources: tuple[np.ndarray, np.ndarray]):
