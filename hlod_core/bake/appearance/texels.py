@@ -44,8 +44,10 @@ def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
     a, b, c = uv[f[:, 0]], uv[f[:, 1]], uv[f[:, 2]]
     denominator = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
     usable = np.abs(denominator) > 1e-18
+    lo = np.clip(np.floor(np.minimum(np.minimum(a, b), c) - 0.5), 0, [width - 1, height - 1]).astype(np.int64)
+    hi = np.clip(np.ceil(np.maximum(np.maximum(a, b), c) - 0.5), 0, [width - 1, height - 1]).astype(np.int64)
     texels, owners, barys = [], [], []
-    for owner, column, row in _candidates(uv, f, width, height, margin=0.0, keep=usable):
+    for owner, column, row in _candidates(lo, hi, usable):
         px, py = column + 0.5, row + 0.5
         d = denominator[owner]
         l0 = ((b[owner, 1] - c[owner, 1]) * (px - c[owner, 0]) + (c[owner, 0] - b[owner, 0]) * (py - c[owner, 1])) / d
@@ -71,42 +73,44 @@ def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
 def footprint_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int, filled: np.ndarray, *,
                       reach: float = BILINEAR_REACH):
     """The texels a bilinear read at some point of an atlas triangle takes (their centres within
-    `reach` texels of it along both axes: the triangle touches the 2 reach wide square about the
+    `reach` texels of it along both axes: the triangle touches the square 2 reach wide about the
     centre) that `filled` (width * height,) bool does not hold: (texel (s,) int64 flat indices, each
     once, ascending; face (s,) int64 the triangle nearest its centre, the lowest of equals; bary (s,3)
     float64 the point of that triangle nearest the centre). So a triangle that holds no texel centre
     (a sliver, or one without area in UV) still has texels of its own colour. Vectorised as
-    texel_samples; the overlap is a separating-axis test (the two axes by the candidates' boxes,
-    the three edge normals here)."""
+    texel_samples; the overlap is a separating-axis test: the two axes by the candidates' boxes,
+    the three edge normals by edge functions moved out by the square's half-width along them."""
     uv, f = _texel_space(uvs, faces, width, height)
     filled = np.asarray(filled, bool).reshape(-1)
     corners = uv[f]  # (m,3,2)
-    edge = np.roll(corners, -1, axis=1) - corners  # (m,3,2): corner i to corner i + 1
+    edge = np.roll(corners, -1, axis=1) - corners  # (m,3,2): corner k to corner k + 1
     twice_area = edge[:, 0, 0] * edge[:, 1, 1] - edge[:, 0, 1] * edge[:, 1, 0]
     length2 = np.einsum("mkd,mkd->mk", edge, edge)
     flat = np.abs(twice_area) <= 1e-12 * np.maximum(length2.max(axis=1), 1e-300)
-    # inward edge normals (a triangle with no area: its longest edge's, the test two-sided)
-    inward = np.stack([-edge[..., 1], edge[..., 0]], axis=-1) * np.where(twice_area < 0, -1.0, 1.0)[:, None, None]
-    longest = np.argmax(length2, axis=1)
-    box_lo, box_hi = corners.min(axis=1) - reach * (1.0 + 1e-9), corners.max(axis=1) + reach * (1.0 + 1e-9)
+    # edge k's function nx x + ny y + offset, >= 0 inside; a triangle without area: its longest edge's
+    # line, both ways, and a third test that always holds
+    normal = np.stack([-edge[..., 1], edge[..., 0]], axis=-1) * np.where(twice_area < 0, -1.0, 1.0)[:, None, None]
+    longest = normal[np.arange(f.shape[0]), np.argmax(length2, axis=1)]
+    normal[flat] = np.stack([longest[flat], -longest[flat], np.zeros_like(longest[flat])], axis=1)
+    offset = -np.einsum("mkd,mkd->mk", normal, np.where(flat[:, None, None], corners[:, :1], corners))
+    offset += reach * np.abs(normal).sum(axis=2) * (1.0 + 1e-9)
+    offset[flat, 2] = 1.0
+    nx, ny = normal[..., 0], normal[..., 1]
+    margin = reach * (1.0 + 1e-9)
+    lo = np.clip(np.ceil(corners.min(axis=1) - margin - 0.5), 0, [width - 1, height - 1]).astype(np.int64)
+    hi = np.clip(np.floor(corners.max(axis=1) + margin - 0.5), -1, [width - 1, height - 1]).astype(np.int64)
     texels, owners, distances, barys = [], [], [], []
-    for owner, column, row in _candidates(uv, f, width, height, margin=reach):
+    for owner, column, row in _candidates(lo, hi):
         texel = row * width + column
         open_ = ~filled[texel]
         owner, texel = owner[open_], texel[open_]
-        centre = np.stack([column[open_] + 0.5, row[open_] + 0.5], axis=1)
-        n = inward[owner]  # (s,3,2)
-        signed = np.einsum("skd,skd->sk", n, centre[:, None, :] - corners[owner])
-        slack = reach * np.abs(n).sum(axis=2) * (1.0 + 1e-9)
-        is_flat = flat[owner]
-        pick = longest[owner]
-        along = np.take_along_axis(signed, pick[:, None], axis=1)[:, 0]
-        across = np.take_along_axis(slack, pick[:, None], axis=1)[:, 0]
-        touches = np.where(is_flat, np.abs(along) <= across, np.all(signed >= -slack, axis=1)) \
-            & np.all((centre >= box_lo[owner]) & (centre <= box_hi[owner]), axis=1)
-        owner, texel, centre = owner[touches], texel[touches], centre[touches]
-        distance, bary = _nearest_in_triangles(centre, corners[owner], inside=~is_flat[touches]
-                                               & np.all(signed[touches] >= 0.0, axis=1))
+        px, py = column[open_] + 0.5, row[open_] + 0.5
+        touches = np.ones(owner.size, bool)
+        for k in range(3):
+            touches &= nx[owner, k] * px + ny[owner, k] * py + offset[owner, k] >= 0.0
+        owner, texel = owner[touches], texel[touches]
+        distance, bary = _nearest_in_triangles(np.stack([px[touches], py[touches]], axis=1), corners[owner],
+                                               flat=flat[owner])
         texels.append(texel)
         owners.append(owner)
         distances.append(distance)
@@ -128,23 +132,16 @@ def _texel_space(uvs: np.ndarray, faces: np.ndarray, width: int, height: int) ->
     return np.asarray(uvs, np.float64) * np.array([width, height], np.float64), np.asarray(faces, np.int64)
 
 
-def _candidates(uv: np.ndarray, f: np.ndarray, width: int, height: int, *, margin: float,
-                keep: np.ndarray | None = None):
-    """Yields (face (s,), column (s,), row (s,)) int64: each triangle f (m,3) over uv (j,2) texel
-    units (those `keep` marks) with every texel of the image whose centre lies within `margin` texels
-    of the triangle's bounding box (and a few more), _BLOCK candidates at a time."""
-    a, b, c = uv[f[:, 0]], uv[f[:, 1]], uv[f[:, 2]]
-    lo = np.floor(np.minimum(np.minimum(a, b), c) - margin - 0.5).astype(np.int64)
-    hi = np.ceil(np.maximum(np.maximum(a, b), c) + margin - 0.5).astype(np.int64)
-    lo = np.clip(lo, 0, [width - 1, height - 1])
-    hi = np.clip(hi, 0, [width - 1, height - 1])
+def _candidates(lo: np.ndarray, hi: np.ndarray, keep: np.ndarray | None = None):
+    """Yields (face (s,), column (s,), row (s,)) int64: each face (those `keep` marks) with every texel
+    of its box, columns and rows lo (m,2) to hi (m,2) int64 inclusive, _BLOCK candidates at a time."""
     span = np.maximum(hi - lo + 1, 0)
     count = span[:, 0] * span[:, 1]
     if keep is not None:
         count = np.where(keep, count, 0)
     ends = np.cumsum(count)
     start = 0
-    while start < f.shape[0]:
+    while start < lo.shape[0]:
         stop = int(np.searchsorted(ends, (ends[start - 1] if start else 0) + _BLOCK, side="right"))
         stop = max(stop, start + 1)
         tri = np.arange(start, stop)
@@ -156,9 +153,9 @@ def _candidates(uv: np.ndarray, f: np.ndarray, width: int, height: int, *, margi
         start = stop
 
 
-def _nearest_in_triangles(points: np.ndarray, triangles: np.ndarray, *, inside: np.ndarray):
+def _nearest_in_triangles(points: np.ndarray, triangles: np.ndarray, *, flat: np.ndarray):
     """(distance (s,) float64, bary (s,3) float64) of the point of each triangle (s,3,2) nearest each
-    point (s,2), where `inside` (s,) marks the points known to lie in theirs: the point itself there
+    point (s,2), `flat` (s,) marking triangles without area: the point itself where it is inside
     (barycentric), elsewhere the nearest point of the three edges (their projections clamped)."""
     s = points.shape[0]
     best = np.full(s, np.inf)
@@ -175,16 +172,15 @@ def _nearest_in_triangles(points: np.ndarray, triangles: np.ndarray, *, inside: 
         here = np.zeros((s, 3))
         here[rows, k], here[rows, (k + 1) % 3] = 1.0 - t, t
         bary = np.where(better[:, None], here, bary)
-    if inside.any():
-        bary[inside] = barycentric2(points[inside], triangles[inside])
-        best[inside] = 0.0
+    e0, e1, rel = triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0], points - triangles[:, 0]
+    area = e0[:, 0] * e1[:, 1] - e0[:, 1] * e1[:, 0]
+    safe = np.where(flat | (area == 0.0), 1.0, area)
+    l1 = (rel[:, 0] * e1[:, 1] - rel[:, 1] * e1[:, 0]) / safe
+    l2 = (e0[:, 0] * rel[:, 1] - e0[:, 1] * rel[:, 0]) / safe
+    inside = ~flat & (area != 0.0) & (l1 >= 0.0) & (l2 >= 0.0) & (l1 + l2 <= 1.0)
+    best[inside] = 0.0
+    bary[inside] = np.stack([1.0 - l1 - l2, l1, l2], axis=1)[inside]
     return best, bary
-
-
-def barycentric2(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """(s,3) barycentric coordinates of points (s,2) in triangles (s,3,2) with area, clamped to the
-    triangle and summing to 1."""
-    return barycentric(np.pad(points, ((0, 0), (0, 1))), np.pad(triangles, ((0, 0), (0, 0), (0, 1))))
 
 
 def closest_on_sources(points: np.ndarray, sources: tuple[np.ndarray, np.ndarray]):
