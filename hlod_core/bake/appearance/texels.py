@@ -1,9 +1,12 @@
 """Where an atlas's texels lie on the LOD, and where the sources are nearest to them: the two
 geometric steps of a proxy texture's bake (proxy.py).
 
-A texel takes the nearest source point among the source faces that face its way (`closest_facing`):
-the nearest point of all would be the far side of a part thinner than the LOD's offset from it, or a
-neighbouring object. docs/how-it-works.md#proxy-materials-for-the-inner-nodes
+A face's texels are those whose centres it covers (`texel_samples`), then those a bilinear read on
+it takes that no centre filled (`footprint_samples`, at its point nearest each), so a face thinner
+than a texel shows its own colour, not the padding's. A texel takes the nearest source point among
+the source faces that face its way (`closest_facing`): the nearest point of all would be the far
+side of a part thinner than the LOD's offset from it, or a neighbouring object.
+docs/how-it-works.md#proxy-materials-for-the-inner-nodes
 
 Data form: an atlas (atlas.Atlas: uvs (j,2) in [0, 1], GL convention, faces (m,3)) over a
 width x height image whose row 0 is the bottom row (v = 0); a texel is its flat index
