@@ -23,10 +23,10 @@ import numpy as np
 
 from ...core.colour import srgb_from_linear
 from ...model.appearance import AttributeLayout, Material
-from .atlas import node_atlas, surface_area, texture_side
+from .atlas import Atlas, node_atlas, surface_area, texture_side
 from .quality import DIRECTIONS, node_psnr
 from .surface_colour import MipChain, Surface, colour_at, texture_texels_per_unit
-from .texels import closest_facing, fill_empty, texel_samples
+from .texels import closest_facing, fill_empty, footprint_samples, texel_samples
 
 #: Alpha (of 1) at or above which a texel is opaque: a face all of whose texels are goes in the
 #: proxy's opaque part, the others in its alpha-tested part.
@@ -151,28 +151,8 @@ def bake_proxy(lod: tuple, error: float, sources: list[tuple], *, node: int, lay
                        cap=settings.texture_cap)
     width, height = atlas.width, atlas.height
     p = np.asarray(positions, np.float64)[atlas.vertex_of]
-    texel, face, bary = texel_samples(atlas.uvs, atlas.faces, width, height)
-    if texel.size == 0:  # no texel centre inside a face (faces thinner than a texel): their centroids
-        face = np.arange(atlas.faces.shape[0])
-        bary = np.full((face.size, 3), 1.0 / 3.0)
-        texel = np.zeros(face.size, np.int64)
-    points = np.einsum("sk,skd->sd", bary, p[atlas.faces[face]])
-    footprint = 1.0 / atlas.texels_per_unit if atlas.texels_per_unit > 0 else texel_size
-    if not footprint > 0:
-        footprint = 0.0
-    t = p[atlas.faces]
-    normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[face]  # the LOD face's at each texel, any length
-    reach = max(FACING_REACH_ERRORS * max(float(error), 0.0), footprint)
-    source_face, source_bary, _ = closest_facing(points, normal, (surface.positions, surface.faces), reach=reach)
-    colour = colour_at(surface, source_face, source_bary, footprint=footprint)
-    rgba = np.zeros((height * width, 4), np.float32)
-    if atlas.texels_per_unit == 0:  # one colour: the mean of what the faces show
-        colour = np.broadcast_to(colour.mean(axis=0), colour.shape)
-    rgba[texel] = colour
-    filled = np.zeros(height * width, bool)
-    filled[texel] = True
+    rgba, face, colour, footprint = atlas_texture(atlas, p, surface, error=error, texel_size=texel_size)
     alpha_mode = _alpha_mode(surface)
-    rgba = fill_empty(rgba.reshape(height, width, 4), filled.reshape(height, width))
     face_alpha = np.ones(atlas.faces.shape[0], np.float32)
     if alpha_mode is not None:
         np.minimum.at(face_alpha, face, colour[:, 3])
@@ -204,6 +184,43 @@ def bake_proxy(lod: tuple, error: float, sources: list[tuple], *, node: int, lay
                  normals=None if normals is None else np.asarray(normals, np.float32)[lod_vertex], rows=rows,
                  image=image, texel_size=footprint, utilization=atlas.utilization, alpha_mode=mode, psnr_y=psnr,
                  psnr_reason=reason)
+
+
+def atlas_texture(atlas: Atlas, p: np.ndarray, surface: Surface, *, error: float, texel_size: float):
+    """The texture of an atlas over a LOD whose atlas vertices lie at p (j,3) float64 model units,
+    from the sources' surface: (rgba (h,w,4) float32 linear, row 0 the bottom row; face (s,) int64,
+    the atlas face each sample is at; colour (s,4) float32 its colour; footprint, model units per
+    texel). The texels whose centres a face covers take the sources' colour at that point, the other
+    texels a bilinear read on a face takes (texels.footprint_samples) at the face's point nearest
+    them, the rest pull-push (texels.fill_empty)."""
+    width, height = atlas.width, atlas.height
+    texel, face, bary = texel_samples(atlas.uvs, atlas.faces, width, height)
+    if atlas.texels_per_unit > 0:  # the texels a bilinear read on a face takes and no centre sample filled
+        centred = np.zeros(height * width, bool)
+        centred[texel] = True
+        more = footprint_samples(atlas.uvs, atlas.faces, width, height, centred)
+        texel, face, bary = (np.concatenate([old, new]) for old, new in zip((texel, face, bary), more))
+    if texel.size == 0:  # an atlas of one colour (every UV at its centre): the faces' centroids
+        face = np.arange(atlas.faces.shape[0])
+        bary = np.full((face.size, 3), 1.0 / 3.0)
+        texel = np.zeros(face.size, np.int64)
+    points = np.einsum("sk,skd->sd", bary, p[atlas.faces[face]])
+    footprint = 1.0 / atlas.texels_per_unit if atlas.texels_per_unit > 0 else texel_size
+    if not footprint > 0:
+        footprint = 0.0
+    t = p[atlas.faces]
+    normal = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])[face]  # the LOD face's at each texel, any length
+    reach = max(FACING_REACH_ERRORS * max(float(error), 0.0), footprint)
+    source_face, source_bary, _ = closest_facing(points, normal, (surface.positions, surface.faces), reach=reach)
+    colour = colour_at(surface, source_face, source_bary, footprint=footprint)
+    rgba = np.zeros((height * width, 4), np.float32)
+    if atlas.texels_per_unit == 0:  # one colour: the mean of what the faces show
+        colour = np.broadcast_to(colour.mean(axis=0), colour.shape)
+    rgba[texel] = colour
+    filled = np.zeros(height * width, bool)
+    filled[texel] = True
+    rgba = fill_empty(rgba.reshape(height, width, 4), filled.reshape(height, width))
+    return rgba, face, colour, footprint
 
 
 def _split_parts(faces: np.ndarray, alpha_face: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

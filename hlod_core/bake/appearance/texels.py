@@ -1,9 +1,12 @@
 """Where an atlas's texels lie on the LOD, and where the sources are nearest to them: the two
 geometric steps of a proxy texture's bake (proxy.py).
 
-A texel takes the nearest source point among the source faces that face its way (`closest_facing`):
-the nearest point of all would be the far side of a part thinner than the LOD's offset from it, or a
-neighbouring object. docs/how-it-works.md#proxy-materials-for-the-inner-nodes
+A face's texels are those whose centres it covers (`texel_samples`), then those a bilinear read on
+it takes that no centre filled (`footprint_samples`, at its point nearest each), so a face thinner
+than a texel shows its own colour, not the padding's. A texel takes the nearest source point among
+the source faces that face its way (`closest_facing`): the nearest point of all would be the far
+side of a part thinner than the LOD's offset from it, or a neighbouring object.
+docs/how-it-works.md#proxy-materials-for-the-inner-nodes
 
 Data form: an atlas (atlas.Atlas: uvs (j,2) in [0, 1], GL convention, faces (m,3)) over a
 width x height image whose row 0 is the bottom row (v = 0); a texel is its flat index
@@ -19,6 +22,9 @@ from ..decimate.meshlab import UNIT_DIAGONAL, NodeFrame
 #: Texel centres this far outside a triangle (in barycentric units) still count as inside it, so a
 #: texel on a shared chart edge is covered once or twice, never dropped.
 INSIDE_SLACK = 1e-7
+#: How far (texels, along each axis) from a point a bilinear read takes texels: a triangle's
+#: footprint_samples are the texels within it that no triangle's centre sample filled.
+BILINEAR_REACH = 1.0
 #: Texel candidates (bounding-box texels) rasterised at a time: bounds the temporaries.
 _BLOCK = 1 << 21
 #: The directions a texel's LOD normal is binned by: its dominant one (the largest dot product).
@@ -37,30 +43,14 @@ def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
     once, ascending; face (s,) int64 the triangle covering it (the lowest of those that do);
     bary (s,3) float64 its barycentric coordinates there). Vectorised over the triangles' texel
     bounding boxes, a block at a time."""
-    uv = np.asarray(uvs, np.float64) * np.array([width, height], np.float64)
-    f = np.asarray(faces, np.int64)
+    uv, f = _texel_space(uvs, faces, width, height)
     a, b, c = uv[f[:, 0]], uv[f[:, 1]], uv[f[:, 2]]
-    lo = np.floor(np.minimum(np.minimum(a, b), c) - 0.5).astype(np.int64)
-    hi = np.ceil(np.maximum(np.maximum(a, b), c) - 0.5).astype(np.int64)
-    lo = np.clip(lo, 0, [width - 1, height - 1])
-    hi = np.clip(hi, 0, [width - 1, height - 1])
-    span = np.maximum(hi - lo + 1, 0)
-    count = span[:, 0] * span[:, 1]
     denominator = (b[:, 1] - c[:, 1]) * (a[:, 0] - c[:, 0]) + (c[:, 0] - b[:, 0]) * (a[:, 1] - c[:, 1])
     usable = np.abs(denominator) > 1e-18
-    count = np.where(usable, count, 0)
+    lo = np.clip(np.floor(np.minimum(np.minimum(a, b), c) - 0.5), 0, [width - 1, height - 1]).astype(np.int64)
+    hi = np.clip(np.ceil(np.maximum(np.maximum(a, b), c) - 0.5), 0, [width - 1, height - 1]).astype(np.int64)
     texels, owners, barys = [], [], []
-    ends = np.cumsum(count)
-    start = 0
-    while start < f.shape[0]:
-        stop = int(np.searchsorted(ends, (ends[start - 1] if start else 0) + _BLOCK, side="right"))
-        stop = max(stop, start + 1)
-        tri = np.arange(start, stop)
-        n = count[tri]
-        owner = np.repeat(tri, n)
-        rank = np.arange(owner.size) - np.repeat(np.cumsum(n) - n, n)
-        column = lo[owner, 0] + rank % np.maximum(span[owner, 0], 1)
-        row = lo[owner, 1] + rank // np.maximum(span[owner, 0], 1)
+    for owner, column, row in _candidates(lo, hi, usable):
         px, py = column + 0.5, row + 0.5
         d = denominator[owner]
         l0 = ((b[owner, 1] - c[owner, 1]) * (px - c[owner, 0]) + (c[owner, 0] - b[owner, 0]) * (py - c[owner, 1])) / d
@@ -70,7 +60,6 @@ def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
         texels.append(row[inside] * width + column[inside])
         owners.append(owner[inside])
         barys.append(np.clip(np.stack([l0[inside], l1[inside], l2[inside]], axis=1), 0.0, 1.0))
-        start = stop
     texel = np.concatenate(texels) if texels else np.zeros(0, np.int64)
     owner = np.concatenate(owners) if owners else np.zeros(0, np.int64)
     bary = np.concatenate(barys) if barys else np.zeros((0, 3))
@@ -82,6 +71,119 @@ def texel_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int):
     bary = bary[chosen]
     bary /= np.maximum(bary.sum(axis=1, keepdims=True), 1e-300)
     return texel[chosen], owner[chosen], bary
+
+
+def footprint_samples(uvs: np.ndarray, faces: np.ndarray, width: int, height: int, filled: np.ndarray, *,
+                      reach: float = BILINEAR_REACH):
+    """The texels a bilinear read at some point of an atlas triangle takes (their centres within
+    `reach` texels of it along both axes: the triangle touches the square 2 reach wide about the
+    centre) that `filled` (width * height,) bool does not hold: (texel (s,) int64 flat indices, each
+    once, ascending; face (s,) int64 the triangle nearest its centre, the lowest of equals; bary (s,3)
+    float64 the point of that triangle nearest the centre). So a triangle that holds no texel centre
+    (a sliver, or one without area in UV) still has texels of its own colour. Vectorised as
+    texel_samples; the overlap is a separating-axis test: the two axes by the candidates' boxes,
+    the three edge normals by edge functions moved out by the square's half-width along them."""
+    uv, f = _texel_space(uvs, faces, width, height)
+    filled = np.asarray(filled, bool).reshape(-1)
+    corners = uv[f]  # (m,3,2)
+    edge = np.roll(corners, -1, axis=1) - corners  # (m,3,2): corner k to corner k + 1
+    twice_area = edge[:, 0, 0] * edge[:, 1, 1] - edge[:, 0, 1] * edge[:, 1, 0]
+    length2 = np.einsum("mkd,mkd->mk", edge, edge)
+    flat = np.abs(twice_area) <= 1e-12 * np.maximum(length2.max(axis=1), 1e-300)
+    # edge k's function nx x + ny y + offset, >= 0 inside; a triangle without area: its longest edge's
+    # line, both ways, and a third test that always holds
+    normal = np.stack([-edge[..., 1], edge[..., 0]], axis=-1) * np.where(twice_area < 0, -1.0, 1.0)[:, None, None]
+    longest = normal[np.arange(f.shape[0]), np.argmax(length2, axis=1)]
+    normal[flat] = np.stack([longest[flat], -longest[flat], np.zeros_like(longest[flat])], axis=1)
+    offset = -np.einsum("mkd,mkd->mk", normal, np.where(flat[:, None, None], corners[:, :1], corners))
+    offset += reach * np.abs(normal).sum(axis=2) * (1.0 + 1e-9)
+    offset[flat, 2] = 1.0
+    nx, ny = normal[..., 0], normal[..., 1]
+    margin = reach * (1.0 + 1e-9)
+    lo = np.clip(np.ceil(corners.min(axis=1) - margin - 0.5), 0, [width - 1, height - 1]).astype(np.int64)
+    hi = np.clip(np.floor(corners.max(axis=1) + margin - 0.5), -1, [width - 1, height - 1]).astype(np.int64)
+    texels, owners, distances, barys = [], [], [], []
+    for owner, column, row in _candidates(lo, hi):
+        texel = row * width + column
+        open_ = ~filled[texel]
+        owner, texel = owner[open_], texel[open_]
+        px, py = column[open_] + 0.5, row[open_] + 0.5
+        touches = np.ones(owner.size, bool)
+        for k in range(3):
+            touches &= nx[owner, k] * px + ny[owner, k] * py + offset[owner, k] >= 0.0
+        owner, texel = owner[touches], texel[touches]
+        distance, bary = _nearest_in_triangles(np.stack([px[touches], py[touches]], axis=1), corners[owner],
+                                               flat=flat[owner])
+        texels.append(texel)
+        owners.append(owner)
+        distances.append(distance)
+        barys.append(bary)
+    if not texels:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+    texel, owner = np.concatenate(texels), np.concatenate(owners)
+    distance, bary = np.concatenate(distances), np.concatenate(barys)
+    order = np.lexsort((owner, distance, texel))  # by texel, then nearest, then lowest face
+    texel, owner, bary = texel[order], owner[order], bary[order]
+    first = np.ones(texel.size, bool)
+    first[1:] = texel[1:] != texel[:-1]
+    return texel[first], owner[first], bary[first]
+
+
+def _texel_space(uvs: np.ndarray, faces: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """The atlas's UVs in texel units (j,2) float64 (a texel's centre at column + 0.5, row + 0.5) and
+    its faces (m,3) int64."""
+    return np.asarray(uvs, np.float64) * np.array([width, height], np.float64), np.asarray(faces, np.int64)
+
+
+def _candidates(lo: np.ndarray, hi: np.ndarray, keep: np.ndarray | None = None):
+    """Yields (face (s,), column (s,), row (s,)) int64: each face (those `keep` marks) with every texel
+    of its box, columns and rows lo (m,2) to hi (m,2) int64 inclusive, _BLOCK candidates at a time."""
+    span = np.maximum(hi - lo + 1, 0)
+    count = span[:, 0] * span[:, 1]
+    if keep is not None:
+        count = np.where(keep, count, 0)
+    ends = np.cumsum(count)
+    start = 0
+    while start < lo.shape[0]:
+        stop = int(np.searchsorted(ends, (ends[start - 1] if start else 0) + _BLOCK, side="right"))
+        stop = max(stop, start + 1)
+        tri = np.arange(start, stop)
+        n = count[tri]
+        owner = np.repeat(tri, n)
+        rank = np.arange(owner.size) - np.repeat(np.cumsum(n) - n, n)
+        width_of = np.maximum(span[owner, 0], 1)
+        yield owner, lo[owner, 0] + rank % width_of, lo[owner, 1] + rank // width_of
+        start = stop
+
+
+def _nearest_in_triangles(points: np.ndarray, triangles: np.ndarray, *, flat: np.ndarray):
+    """(distance (s,) float64, bary (s,3) float64) of the point of each triangle (s,3,2) nearest each
+    point (s,2), `flat` (s,) marking triangles without area: the point itself where it is inside
+    (barycentric), elsewhere the nearest point of the three edges (their projections clamped)."""
+    s = points.shape[0]
+    best = np.full(s, np.inf)
+    bary = np.zeros((s, 3))
+    rows = np.arange(s)
+    for k in range(3):
+        a, b = triangles[:, k], triangles[:, (k + 1) % 3]
+        ab = b - a
+        t = np.einsum("sd,sd->s", points - a, ab) / np.maximum(np.einsum("sd,sd->s", ab, ab), 1e-300)
+        t = np.clip(t, 0.0, 1.0)
+        gap = np.linalg.norm(a + t[:, None] * ab - points, axis=1)
+        better = gap < best
+        best = np.where(better, gap, best)
+        here = np.zeros((s, 3))
+        here[rows, k], here[rows, (k + 1) % 3] = 1.0 - t, t
+        bary = np.where(better[:, None], here, bary)
+    e0, e1, rel = triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0], points - triangles[:, 0]
+    area = e0[:, 0] * e1[:, 1] - e0[:, 1] * e1[:, 0]
+    safe = np.where(flat | (area == 0.0), 1.0, area)
+    l1 = (rel[:, 0] * e1[:, 1] - rel[:, 1] * e1[:, 0]) / safe
+    l2 = (e0[:, 0] * rel[:, 1] - e0[:, 1] * rel[:, 0]) / safe
+    inside = ~flat & (area != 0.0) & (l1 >= 0.0) & (l2 >= 0.0) & (l1 + l2 <= 1.0)
+    best[inside] = 0.0
+    bary[inside] = np.stack([1.0 - l1 - l2, l1, l2], axis=1)[inside]
+    return best, bary
 
 
 def closest_on_sources(points: np.ndarray, sources: tuple[np.ndarray, np.ndarray]):
