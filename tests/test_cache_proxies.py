@@ -325,7 +325,6 @@ def _files_limited_to(size: int):
         signal.signal(signal.SIGXFSZ, handler)
 
 
-@pytest.mark.skipif(not hasattr(signal, "SIGXFSZ"), reason="file size limits are POSIX")
 def test_a_failed_write_leaves_no_partial_whole_result_nor_output(row, tmp_path, monkeypatch):
     """Writing the result entry fails (its file over the limit, as on a full disk): the bake keeps its
     node entries, no result entry nor temporary file is left, and the next bake takes every node from
